@@ -1,0 +1,1 @@
+"""Simulators that implement the real interfaces: a rendered stereo camera pair and a GRBL emulator."""

@@ -1,0 +1,5 @@
+"""`stereo-bench devices` (being written; see issue 3)."""
+
+
+def register(subparsers) -> None:
+    return None

@@ -1,0 +1,5 @@
+"""`stereo-bench rig` (being written; see issue 3)."""
+
+
+def register(subparsers) -> None:
+    return None

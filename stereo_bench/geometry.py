@@ -1,0 +1,219 @@
+"""Rig geometry conventions: the one place that says where the cameras are.
+
+Conventions (see docs/ARCHITECTURE.md and the project brief):
+
+- Units: millimetres and degrees at every interface; radians only inside functions.
+- Rig frame: origin midway between the optical centres, x along the baseline from the left
+  camera to the right one, y down, z forward toward the target.
+- Left optical centre at (-B/2, 0, 0), right at (+B/2, 0, 0).
+- alpha: angle in the x-z plane between the baseline and a camera's optical axis, on the target
+  side; 90 deg is a parallel rig. Toe-in t = 90 - alpha (0 = parallel, > 0 turns inward).
+  Left optical axis (cos a, 0, sin a); right (-cos a, 0, sin a).
+- Tilt tau: rotation of a camera about its own x axis after the pan; tau > 0 turns the optical axis
+  down (toward +y).
+- Camera frames are OpenCV's. ``T_a_b`` is a 4x4 homogeneous transform mapping b-coordinates to a.
+  Stereo extrinsics follow cv2.stereoCalibrate: X_right = R @ X_left + T.
+
+This module is a leaf: numpy and OpenCV only, so both the measurement code and the simulators
+(drivers/sim) use the same conventions without depending on anything else.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+PARALLEL_ALPHA_DEG = 90.0
+
+
+def toe_in_from_alpha(alpha_deg: float) -> float:
+    """Toe-in angle (deg, 0 = parallel) of a camera whose optical axis makes ``alpha_deg`` with the baseline."""
+    return PARALLEL_ALPHA_DEG - alpha_deg
+
+
+def alpha_from_toe_in(toe_in_deg: float) -> float:
+    """Inverse of :func:`toe_in_from_alpha`."""
+    return PARALLEL_ALPHA_DEG - toe_in_deg
+
+
+def make_transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """4x4 homogeneous transform from a (3, 3) rotation and a (3,) translation."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(t, dtype=float).reshape(3)
+    return T
+
+
+def invert_transform(T_a_b: np.ndarray) -> np.ndarray:
+    """T_b_a from T_a_b (rigid transforms only)."""
+    R = T_a_b[:3, :3]
+    t = T_a_b[:3, 3]
+    return make_transform(R.T, -R.T @ t)
+
+
+def transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:
+    """Map (N, 3) points from frame b to frame a."""
+    points_b = np.asarray(points_b, dtype=float).reshape(-1, 3)
+    return points_b @ T_a_b[:3, :3].T + T_a_b[:3, 3]
+
+
+def _rot_x(angle_rad: float) -> np.ndarray:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _rot_y(angle_rad: float) -> np.ndarray:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+@dataclass(frozen=True)
+class RigPose:
+    """Where the two cameras of the rig stand, as set by the slide and the pan-tilt heads."""
+
+    baseline_mm: float
+    alpha_left_deg: float = PARALLEL_ALPHA_DEG
+    alpha_right_deg: float = PARALLEL_ALPHA_DEG
+    tilt_left_deg: float = 0.0
+    tilt_right_deg: float = 0.0
+
+    @classmethod
+    def symmetric(cls, baseline_mm: float, alpha_deg: float = PARALLEL_ALPHA_DEG, tilt_deg: float = 0.0):
+        return cls(baseline_mm, alpha_deg, alpha_deg, tilt_deg, tilt_deg)
+
+    @property
+    def toe_in_left_deg(self) -> float:
+        return toe_in_from_alpha(self.alpha_left_deg)
+
+    @property
+    def toe_in_right_deg(self) -> float:
+        return toe_in_from_alpha(self.alpha_right_deg)
+
+    @property
+    def T_rig_left(self) -> np.ndarray:
+        return camera_pose_in_rig(
+            baseline_mm=self.baseline_mm, side="left",
+            toe_in_deg=self.toe_in_left_deg, tilt_deg=self.tilt_left_deg,
+        )
+
+    @property
+    def T_rig_right(self) -> np.ndarray:
+        return camera_pose_in_rig(
+            baseline_mm=self.baseline_mm, side="right",
+            toe_in_deg=self.toe_in_right_deg, tilt_deg=self.tilt_right_deg,
+        )
+
+    def stereo_extrinsics(self) -> tuple[np.ndarray, np.ndarray]:
+        """(R (3, 3), T (3,) mm) with X_right = R @ X_left + T, as cv2.stereoCalibrate returns them."""
+        T_right_left = invert_transform(self.T_rig_right) @ self.T_rig_left
+        return T_right_left[:3, :3].copy(), T_right_left[:3, 3].copy()
+
+
+def camera_pose_in_rig(*, baseline_mm: float, side: str, toe_in_deg: float, tilt_deg: float = 0.0) -> np.ndarray:
+    """T_rig_cam (4x4, mm): camera frame -> rig frame for the ``side`` ('left' or 'right') camera.
+
+    The pan turns the camera about the rig's y axis so that a positive toe-in points it toward the
+    other camera's side; the tilt then turns it about its own x axis (positive: optical axis down).
+    """
+    if side not in ("left", "right"):
+        raise ValueError(f"side must be 'left' or 'right', not {side!r}")
+    sign = 1.0 if side == "left" else -1.0
+    pan_rad = sign * np.radians(toe_in_deg)
+    # R_x(-tau) sends the camera's z axis to (0, sin tau, cos tau): down for tau > 0.
+    R_rig_cam = _rot_y(pan_rad) @ _rot_x(-np.radians(tilt_deg))
+    centre = np.array([-sign * baseline_mm / 2.0, 0.0, 0.0])
+    return make_transform(R_rig_cam, centre)
+
+
+def board_pose_facing_rig(
+    *, distance_mm: float, board_size_mm: tuple[float, float], centre_offset_mm: tuple[float, float] = (0.0, 0.0),
+    yaw_deg: float = 0.0, pitch_deg: float = 0.0,
+) -> np.ndarray:
+    """T_rig_board (4x4) for a board whose inner-corner grid is centred on the rig z axis at ``distance_mm``.
+
+    The board frame is the one OpenCV's calibration uses for object points: origin at the first inner
+    corner, x along a row, y down the columns, z into the board (away from the cameras). With no yaw
+    or pitch the board plane is parallel to the baseline and faces the rig.
+
+    Args:
+        board_size_mm: (width, height) of the inner-corner grid, i.e. ((cols-1)*s, (rows-1)*s).
+        centre_offset_mm: (x, y) of the grid centre in the rig frame.
+        yaw_deg, pitch_deg: rotation of the board about its centre (rig y, then board x).
+    """
+    width_mm, height_mm = board_size_mm
+    R = _rot_y(np.radians(yaw_deg)) @ _rot_x(np.radians(pitch_deg))
+    centre = np.array([centre_offset_mm[0], centre_offset_mm[1], distance_mm])
+    origin = centre - R @ np.array([width_mm / 2.0, height_mm / 2.0, 0.0])
+    return make_transform(R, origin)
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Pinhole + OpenCV distortion camera. ``K`` (3, 3) px, ``dist`` (5,) or longer, ``image_size`` (w, h) px."""
+
+    K: np.ndarray
+    dist: np.ndarray
+    image_size: tuple[int, int]
+    # Keep equality/hash off the arrays: numpy arrays don't compare to a single bool.
+    name: str = field(default="camera", compare=False)
+
+    @classmethod
+    def from_sensor(
+        cls, *, focal_mm: float = 4.0, pixel_um: float = 3.0, image_size: tuple[int, int] = (1920, 1080),
+        dist: tuple[float, ...] = (-0.05, 0.02, 0.0, 0.0, 0.0), name: str = "camera",
+    ) -> CameraModel:
+        """A camera from its lens and sensor: f_px = focal / pixel pitch, principal point at the centre."""
+        f_px = focal_mm * 1000.0 / pixel_um
+        w, h = image_size
+        K = np.array([[f_px, 0.0, (w - 1) / 2.0], [0.0, f_px, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+        return cls(K=K, dist=np.asarray(dist, dtype=float), image_size=(int(w), int(h)), name=name)
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    def project(self, points_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Project (N, 3) camera-frame points (mm) to (N, 2) pixels.
+
+        Returns (pixels, valid) where ``valid`` (N,) is False for points behind the camera or so far
+        outside the field of view that the distortion polynomial is meaningless there.
+        """
+        points_cam = np.asarray(points_cam, dtype=float).reshape(-1, 3)
+        z = points_cam[:, 2]
+        in_front = z > 1e-6
+        safe_z = np.where(in_front, z, 1.0)
+        normalised = points_cam[:, :2] / safe_z[:, None]
+        # The radial polynomial folds back beyond the lens's field of view; only trust it up to a
+        # margin past the image corners.
+        w, h = self.image_size
+        corner_norm = np.abs(np.array([[-0.5, -0.5], [w - 0.5, h - 0.5]]) - self.K[:2, 2]) / np.diag(self.K)[:2]
+        limit = 1.25 * float(np.hypot(*corner_norm.max(axis=0)))
+        sane = in_front & (np.hypot(normalised[:, 0], normalised[:, 1]) < limit)
+        pixels, _ = cv2.projectPoints(
+            np.column_stack([normalised, np.ones(len(normalised))]).reshape(-1, 1, 3),
+            np.zeros(3), np.zeros(3), self.K, self.dist,
+        )
+        return pixels.reshape(-1, 2), sane
+
+    def in_image(self, pixels: np.ndarray, *, margin_px: float = 0.0) -> np.ndarray:
+        """(N,) bool: pixel lies inside the image, at least ``margin_px`` from its border."""
+        w, h = self.image_size
+        u, v = pixels[:, 0], pixels[:, 1]
+        return (u >= margin_px - 0.5) & (u <= w - 0.5 - margin_px) & (v >= margin_px - 0.5) & (v <= h - 0.5 - margin_px)
+
+
+def visible_in_both(
+    points_rig: np.ndarray, *, rig: RigPose, left: CameraModel, right: CameraModel, margin_px: float = 10.0,
+) -> np.ndarray:
+    """(N,) bool: which rig-frame points (N, 3) project inside both images (``margin_px`` from the border).
+
+    This is the geometric prediction of how much of a target a configuration shows both cameras,
+    made before anything moves.
+    """
+    seen = np.ones(len(points_rig), dtype=bool)
+    for camera, T_rig_cam in ((left, rig.T_rig_left), (right, rig.T_rig_right)):
+        pixels, valid = camera.project(transform_points(invert_transform(T_rig_cam), points_rig))
+        seen &= valid & camera.in_image(pixels, margin_px=margin_px)
+    return seen
