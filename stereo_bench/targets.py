@@ -64,6 +64,17 @@ class Checkerboard:
     square_mm: float
     kind: Literal["checkerboard"] = "checkerboard"
 
+    def __post_init__(self):
+        if self.cols < 2 or self.rows < 2:
+            raise ValueError(f"a checkerboard needs at least 2x2 inner corners, not {self.cols}x{self.rows}")
+        if self.cols == self.rows:
+            # A square grid can be detected in four rotations; corner order would be unprovable.
+            raise ValueError(
+                f"a {self.cols}x{self.rows} board is square: use different corner counts per row and column"
+            )
+        if not self.square_mm > 0:
+            raise ValueError(f"square size must be positive, not {self.square_mm}")
+
     @property
     def pattern_size(self) -> tuple[int, int]:
         return (self.cols, self.rows)
@@ -90,10 +101,11 @@ class Checkerboard:
     def is_point_symmetric(self) -> bool:
         """True when a 180-degree turn maps the board's colours onto themselves.
 
-        With an odd number of squares both ways ((cols+1) and (rows+1) odd) the two orderings of a
-        detected grid cannot be told apart by colour; the detector then falls back on image layout.
+        A half turn maps square (i, j) to (cols - i, rows - j), changing its colour parity by
+        cols + rows. When that is even the two orderings of a detected grid cannot be told apart by
+        colour and the detector falls back on image layout.
         """
-        return (self.cols % 2 == 0) and (self.rows % 2 == 0)
+        return (self.cols + self.rows) % 2 == 0
 
     def adjacent_pairs(self) -> np.ndarray:
         """(M, 2) corner-id pairs one square apart along a row or a column."""

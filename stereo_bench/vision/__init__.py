@@ -1,0 +1,1 @@
+"""Vision pipeline, one module per stage: detect, calibrate, rectify, triangulate, measure; calibio for files."""

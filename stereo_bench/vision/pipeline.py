@@ -1,0 +1,107 @@
+"""The measurement pipeline at one glance: detect -> calibrate -> rectify -> triangulate -> measure."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from stereo_bench.targets import Target
+from stereo_bench.vision.calibrate import RejectedView, StereoCalibration, StereoMode, calibrate_stereo
+from stereo_bench.vision.detect import Detection, common_corners, detect
+from stereo_bench.vision.measure import SquareMeasurement, measure_square
+from stereo_bench.vision.rectify import Rectification, epipolar_errors_px, rectify, rms
+
+MIN_COMMON_CORNERS = 6
+
+
+class BoardNotFoundError(ValueError):
+    """The target is not (or not enough of it is) visible; the message says in which image."""
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    calib: StereoCalibration
+    rect: Rectification
+    epipolar_rms_px: float
+    views_rejected: list[RejectedView]  # detection failures and calibration outliers, by pair index
+    views_used: list[int]  # pair indices
+
+
+@dataclass(frozen=True)
+class PairMeasurement:
+    square: SquareMeasurement
+    epipolar_rms_px: float
+    left: Detection
+    right: Detection
+    fraction_in_both: float  # of the target's corners
+
+    def as_dict(self) -> dict:
+        return {
+            "square_mm": self.square.summary(), "nominal_mm": self.square.nominal_mm, "error_mm": self.square.error_mm,
+            "depth_mm": self.square.depth_mm, "epipolar_rms_px": self.epipolar_rms_px,
+            "pixel_sigma_px": list(self.square.pixel_sigma_px), "corners_in_both": int(len(self.square.ids)),
+            "fraction_in_both": self.fraction_in_both,
+            "detection_order": {"left": self.left.order, "right": self.right.order},
+        }
+
+
+def calibrate_from_images(
+    left_images: Sequence[np.ndarray], right_images: Sequence[np.ndarray], target: Target, *,
+    intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: StereoMode = "joint",
+) -> CalibrationResult:
+    """Stereo calibration from image pairs of a calibration target (pairs in matching order)."""
+    if len(left_images) != len(right_images):
+        raise ValueError(f"{len(left_images)} left images but {len(right_images)} right images")
+    image_size = left_images[0].shape[1::-1]
+    rejected: list[RejectedView] = []
+    pair_index, objects, lefts, rights = [], [], [], []
+    for index, (left_image, right_image) in enumerate(zip(left_images, right_images, strict=True)):
+        left, right = detect(left_image, target, thorough=True), detect(right_image, target, thorough=True)
+        missing = [side for side, d in (("left", left), ("right", right)) if d is None]
+        if missing:
+            rejected.append(RejectedView(index, f"board not found in the {' and '.join(missing)} image"))
+            continue
+        ids, left_px, right_px = common_corners(left, right)
+        if len(ids) < MIN_COMMON_CORNERS:
+            rejected.append(RejectedView(index, f"only {len(ids)} corners seen in both images"))
+            continue
+        pair_index.append(index)
+        objects.append(target.object_points[ids])
+        lefts.append(left_px)
+        rights.append(right_px)
+    calib = calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode)
+    rejected += [RejectedView(pair_index[r.index], r.reason) for r in calib.views_rejected]
+    used = [pair_index[i] for i in calib.views_used]
+    rect = rectify(calib)
+    epipolar = np.concatenate([
+        epipolar_errors_px(calib, rect, lefts[i], rights[i]) for i in calib.views_used
+    ])
+    return CalibrationResult(
+        calib=calib, rect=rect, epipolar_rms_px=rms(epipolar),
+        views_rejected=sorted(rejected, key=lambda r: r.index), views_used=used,
+    )
+
+
+def measure_pair(
+    left_image: np.ndarray, right_image: np.ndarray, calib: StereoCalibration, target: Target, *,
+    rect: Rectification | None = None, pixel_sigma_px: float | None = None, thorough: bool = False,
+) -> PairMeasurement:
+    """Measure the target's square in one stereo pair with a known calibration.
+
+    ``thorough``: retry a missed board with the slower detector (stored images, not live capture).
+    """
+    left, right = detect(left_image, target, thorough=thorough), detect(right_image, target, thorough=thorough)
+    for side, found in (("left", left), ("right", right)):
+        if found is None:
+            raise BoardNotFoundError(f"{target.kind} {target.cols}x{target.rows} not found in the {side} image")
+    ids, left_px, right_px = common_corners(left, right)
+    if len(ids) < MIN_COMMON_CORNERS:
+        raise BoardNotFoundError(f"only {len(ids)} corners are seen in both images (need {MIN_COMMON_CORNERS})")
+    rect = rect or rectify(calib)
+    square = measure_square(calib, target, ids, left_px, right_px, pixel_sigma_px=pixel_sigma_px)
+    return PairMeasurement(
+        square=square, epipolar_rms_px=rms(epipolar_errors_px(calib, rect, left_px, right_px)),
+        left=left, right=right, fraction_in_both=len(ids) / target.n_corners,
+    )
