@@ -79,8 +79,9 @@ def _open(path: Path) -> cv2.FileStorage:
         raise CalibrationFileError(f"{path}: calibration file not found")
     try:
         storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as error:
-        raise CalibrationFileError(f"{path}: not a readable OpenCV YAML/XML file ({error.err})") from error
+    except (cv2.error, SystemError) as error:  # OpenCV's parser error surfaces as SystemError in Python
+        reason = getattr(error, "err", None) or getattr(error.__cause__, "err", None) or "parse error"
+        raise CalibrationFileError(f"{path}: not a readable OpenCV YAML/XML file ({reason})") from None
     if not storage.isOpened():
         raise CalibrationFileError(f"{path}: not a readable OpenCV YAML/XML file")
     return storage

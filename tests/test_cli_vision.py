@@ -1,0 +1,107 @@
+"""`stereo-bench calibrate` and `measure` as a user runs them: JSON keys, text, one-line errors."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from stereo_bench.cli import main
+from tests.real_data import OPENCV_SAMPLE
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+@pytest.fixture(scope="module")
+def calib_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("calib")
+    code = main(["calibrate", "--board", "9x6", "--square", "30", "--left", str(OPENCV_SAMPLE / "left*.jpg"),
+                 "--right", str(OPENCV_SAMPLE / "right*.jpg"), "--out", str(out), "--force"])
+    assert code == 0
+    return out
+
+
+def test_calibrate_json(capsys, tmp_path):
+    code, out, _ = run(capsys, "calibrate", "--board", "9x6", "--square", "30",
+                       "--left", str(OPENCV_SAMPLE / "left*.jpg"), "--right", str(OPENCV_SAMPLE / "right*.jpg"),
+                       "--out", str(tmp_path / "c"), "--json")
+    assert code == 0
+    report = json.loads(out)
+    for key in ("rms_px", "views_used", "views_rejected", "baseline_mm", "epipolar_rms_px", "left", "right"):
+        assert key in report
+    for side in ("left", "right"):
+        assert set(report[side]) >= {"fx", "fy", "cx", "cy"}
+    assert report["views_used"] == 13 and report["views_rejected"] == []
+    assert report["baseline_mm"] == pytest.approx(99.81, rel=0.005)
+    assert (tmp_path / "c" / "intrinsics.yml").is_file() and (tmp_path / "c" / "extrinsics.yml").is_file()
+
+
+def test_calibrate_refuses_to_overwrite(capsys, calib_dir):
+    code, _, err = run(capsys, "calibrate", "--board", "9x6", "--square", "30",
+                       "--left", str(OPENCV_SAMPLE / "left*.jpg"), "--right", str(OPENCV_SAMPLE / "right*.jpg"),
+                       "--out", str(calib_dir))
+    assert code == 2 and "exists" in err and len(err.strip().splitlines()) == 1
+
+
+def test_calibrate_with_fixed_intrinsics_from_a_directory(capsys, calib_dir, tmp_path):
+    code, out, _ = run(capsys, "calibrate", "--board", "9x6", "--square", "30", "--intrinsics", str(calib_dir),
+                       "--left", str(OPENCV_SAMPLE / "left*.jpg"), "--right", str(OPENCV_SAMPLE / "right*.jpg"),
+                       "--out", str(tmp_path / "fixed"), "--json")
+    report = json.loads(out)
+    assert code == 0 and report["mode"] == "fixed"
+    assert report["baseline_mm"] == pytest.approx(99.81, rel=0.005)
+
+
+def test_calibrate_with_unequal_counts_is_a_clear_error(capsys, tmp_path):
+    code, _, err = run(capsys, "calibrate", "--board", "9x6", "--square", "30",
+                       "--left", str(OPENCV_SAMPLE / "left0*.jpg"), "--right", str(OPENCV_SAMPLE / "right*.jpg"),
+                       "--out", str(tmp_path / "c"))
+    assert code == 2
+    assert "--left matches 9 files but --right matches 13" in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_measure_json_and_text(capsys, calib_dir):
+    left, right = OPENCV_SAMPLE / "left03.jpg", OPENCV_SAMPLE / "right03.jpg"
+    code, out, _ = run(capsys, "measure", "--calib", str(calib_dir), "--board", "9x6", "--square", "30",
+                       str(left), str(right), "--json")
+    assert code == 0
+    report = json.loads(out)
+    assert set(report["square_mm"]) >= {"mean", "std", "n", "sigma_mean"}
+    assert report["nominal_mm"] == 30.0
+    assert report["error_mm"] == pytest.approx(report["square_mm"]["mean"] - 30.0)
+    assert report["square_mm"]["n"] == 8 * 6 + 9 * 5  # every adjacent pair of a 9x6 grid
+    assert abs(report["error_mm"]) < 0.15
+    assert 200 < report["depth_mm"] < 600 and report["epipolar_rms_px"] < 0.5
+    code, out, _ = run(capsys, "measure", "--calib", str(calib_dir), "--board", "9x6", "--square", "30",
+                       str(left), str(right))
+    assert code == 0 and "square:" in out and "nominal 30" in out
+
+
+def test_measure_errors_are_one_line_with_exit_2(capsys, calib_dir, tmp_path):
+    left, right = OPENCV_SAMPLE / "left03.jpg", OPENCV_SAMPLE / "right03.jpg"
+    no_board = tmp_path / "blank.png"
+    import cv2
+    import numpy as np
+    cv2.imwrite(str(no_board), np.full((480, 640), 128, np.uint8))
+    not_image = tmp_path / "notes.png"
+    not_image.write_text("hello")
+    broken = tmp_path / "broken"
+    shutil.copytree(calib_dir, broken)
+    text = (broken / "intrinsics.yml").read_text().replace("\nD2:", "\nD9:")
+    (broken / "intrinsics.yml").write_text(text)
+    cases = [
+        (["--calib", str(calib_dir), str(left), str(no_board)], "not found in the right image"),
+        (["--calib", str(calib_dir), str(not_image), str(right)], "cannot read image"),
+        (["--calib", str(broken), str(left), str(right)], "missing key 'D2'"),
+        (["--calib", str(calib_dir), str(left), str(tmp_path / "absent.png")], "image not found"),
+    ]
+    for extra, message in cases:
+        code, out, err = run(capsys, "measure", "--board", "9x6", "--square", "30", *extra)
+        assert code == 2, (extra, err)
+        assert message in err and len(err.strip().splitlines()) == 1
