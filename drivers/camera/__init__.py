@@ -28,6 +28,7 @@ from drivers.camera.base import (
 )
 from drivers.camera.stereo import StereoCamera, StereoFrame, StereoSkewError
 from drivers.camera.synthetic import CameraFault, SyntheticCamera
+from drivers.camera.v4l2 import V4L2Camera
 
 __all__ = [
     "Camera",
@@ -47,4 +48,5 @@ __all__ = [
     "StereoFrame",
     "StereoSkewError",
     "SyntheticCamera",
+    "V4L2Camera",
 ]
