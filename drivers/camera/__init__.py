@@ -28,25 +28,45 @@ from drivers.camera.base import (
 )
 from drivers.camera.stereo import StereoCamera, StereoFrame, StereoSkewError
 from drivers.camera.synthetic import CameraFault, SyntheticCamera
+from drivers.camera.usb_identity import (
+    AmbiguousCameraSpec,
+    CameraDevice,
+    CameraRegistry,
+    DeviceScan,
+    UnstableCameraName,
+    UsbIdentity,
+    list_cameras,
+    resolve_camera,
+    usb_reset,
+)
 from drivers.camera.v4l2 import V4L2Camera
 
 __all__ = [
+    "AmbiguousCameraSpec",
     "Camera",
     "CameraAccessDenied",
     "CameraBandwidthError",
     "CameraBase",
     "CameraBusy",
+    "CameraDevice",
     "CameraError",
     "CameraFault",
     "CameraGone",
     "CameraNotFound",
+    "CameraRegistry",
     "CameraSettings",
     "CaptureFailed",
     "ControlNotAccepted",
+    "DeviceScan",
     "Frame",
     "StereoCamera",
     "StereoFrame",
     "StereoSkewError",
     "SyntheticCamera",
+    "UnstableCameraName",
+    "UsbIdentity",
     "V4L2Camera",
+    "list_cameras",
+    "resolve_camera",
+    "usb_reset",
 ]
