@@ -417,3 +417,22 @@ def test_construction_does_no_io(tmp_path):
 
     CameraRegistry(sys_root=tmp_path / "nowhere", dev_root=tmp_path / "nowhere", usb_backend=Exploding([]),
                    probe_caps=lambda node: pytest.fail("probed during construction"))
+
+
+def test_a_camera_with_two_capture_streams(tmp_path):
+    """An RGB+IR camera: one USB device, capture nodes at index 0 and 2, each with a metadata node."""
+    machine = FakeMachine(tmp_path)
+    machine.add_usb_camera("1-4", {"video4": 0, "video5": 1, "video6": 2, "video7": 3}, serial="RGBIR")
+    capture = {"video4", "video6"}
+    registry = machine.registry(
+        probe_caps=lambda node: V4L2_CAP_VIDEO_CAPTURE if Path(node).name in capture else V4L2_CAP_META_CAPTURE)
+    scan = registry.scan()
+    rgb, ir = scan.cameras
+    assert (Path(rgb.capture_node).name, Path(ir.capture_node).name) == ("video4", "video6")
+    assert rgb.primary and not ir.primary
+    assert not scan.has_twin(rgb) and scan.serial_is_unique("RGBIR")
+    assert registry.resolve("serial:RGBIR", scan) is rgb
+    assert registry.resolve("usb-port:1-4", scan) is rgb
+    assert registry.resolve("by-id:usb-Logitech_Webcam_C270_RGBIR-video-index2", scan) is ir
+    assert ir.stable_specs(scan) == ["by-id:usb-Logitech_Webcam_C270_RGBIR-video-index2",
+                                     "by-path:pci-0000:00:14.0-usb-0:4:1.0-video-index2"]

@@ -5,7 +5,13 @@
 * ``by-id:NAME`` or a ``/dev/v4l/by-id/...`` path: udev's link built from vendor, product and serial;
 * ``serial:XXXX``: the USB serial number (cheap identical cameras often have none, or all share one);
 * ``usb-port:1-2.3``: the physical USB port path (bus 1, root port 2, hub port 3), stable while the cables stay;
-* ``by-path:NAME`` or a ``/dev/v4l/by-path/...`` path: udev's port-based link.
+* ``by-path:NAME`` or a ``/dev/v4l/by-path/...`` path: udev's port-based link;
+* any other udev symlink to a video node (a lab's own rule, e.g. ``/dev/cam-left``).
+
+``serial:`` and ``usb-port:`` name a USB device; for a device with several capture streams (RGB + IR) they mean
+its first stream, and the others are bound by their ``-video-indexN`` links. Identical cameras share serial
+numbers and by-id names (udev keeps one link, for whichever appeared last): such specs are refused as ambiguous
+and ``stable_specs()`` leaves them out.
 
 A bare ``/dev/videoN`` (or ``videoN``, or an index) is refused with the stable names of that node in the message:
 accepting it "with a warning" would let a rig silently swap left and right after a reboot, which corrupts every
@@ -98,7 +104,11 @@ class UsbIdentity:
 
 @dataclass(frozen=True)
 class CameraDevice:
-    """One camera: its capture node, udev links, USB identity and any other (metadata) nodes."""
+    """One camera: its capture node, udev links, USB identity and any other (metadata) nodes.
+
+    ``primary`` is False for the second and later capture streams of one USB device (e.g. the IR stream of an
+    RGB+IR camera): ``serial:`` and ``usb-port:`` name the device, and so its first (lowest-index) stream only.
+    """
 
     capture_node: str | None
     name: str | None = None
@@ -106,6 +116,7 @@ class CameraDevice:
     by_path: tuple[str, ...] = ()
     usb: UsbIdentity | None = None
     other_nodes: tuple[str, ...] = ()
+    primary: bool = True
 
     def stable_specs(self, scan: DeviceScan | None = None) -> list[str]:
         """Specs that will find this camera again after a reboot, best first.
@@ -116,10 +127,11 @@ class CameraDevice:
         """
         twins = scan is not None and scan.has_twin(self)
         specs = [] if twins else [f"by-id:{Path(link).name}" for link in self.by_id]
-        if self.usb is not None and self.usb.serial and (scan is None or scan.serial_is_unique(self.usb.serial)):
-            specs.append(f"serial:{self.usb.serial}")
-        if self.usb is not None and self.usb.port_path:
-            specs.append(f"usb-port:{self.usb.port_path}")
+        usb_dev = self.usb if self.primary else None
+        if usb_dev is not None and usb_dev.serial and (scan is None or scan.serial_is_unique(usb_dev.serial)):
+            specs.append(f"serial:{usb_dev.serial}")
+        if usb_dev is not None and usb_dev.port_path:
+            specs.append(f"usb-port:{usb_dev.port_path}")
         specs += [f"by-path:{Path(link).name}" for link in self.by_path]
         return specs
 
@@ -131,6 +143,7 @@ class CameraDevice:
             "by_path": list(self.by_path),
             "usb": self.usb.to_dict() if self.usb else None,
             "other_nodes": list(self.other_nodes),
+            "primary": self.primary,
         }
 
 
@@ -143,14 +156,16 @@ class DeviceScan:
     usb_available: bool = False
 
     def serial_is_unique(self, serial: str | None) -> bool:
-        return bool(serial) and sum(1 for cam in self.cameras if cam.usb and cam.usb.serial == serial) == 1
+        """Exactly one USB device reports this serial number."""
+        return bool(serial) and len({cam.usb.port_path for cam in self.cameras
+                                     if cam.usb and cam.usb.serial == serial}) == 1
 
     def has_twin(self, camera: CameraDevice) -> bool:
-        """Another camera with the same VID:PID and serial (or lack of one): udev gives both one by-id name."""
+        """Another USB device with the same VID:PID and serial (or lack of one): udev gives both one by-id name."""
         if camera.usb is None:
             return False
         key = (camera.usb.vendor_id, camera.usb.product_id, camera.usb.serial)
-        return any(other is not camera and other.usb is not None
+        return any(other.usb is not None and other.usb.port_path != camera.usb.port_path
                    and (other.usb.vendor_id, other.usb.product_id, other.usb.serial) == key
                    for other in self.cameras)
 
@@ -283,7 +298,8 @@ class CameraRegistry:
             if port is not None:
                 seen_ports.add(port)
                 identity = self._merge_identity(usb_devices.get(port), self._sysfs_identity(usb_dir))
-            for node in capture or [None]:
+            capture.sort(key=lambda n: (n.index if n.index is not None else 0, _natural_key(n.name)))
+            for position, node in enumerate(capture or [None]):
                 key = node.name if node else None
                 scan.cameras.append(CameraDevice(
                     capture_node=node.node if node else None,
@@ -292,6 +308,7 @@ class CameraRegistry:
                     by_path=tuple(links.get(key, ((), ()))[1]),
                     usb=identity,
                     other_nodes=tuple(n.node for n in other),
+                    primary=position == 0,
                 ))
         for port, identity in usb_devices.items():
             if port not in seen_ports:
@@ -519,7 +536,8 @@ class CameraRegistry:
     def _pick(self, spec: str, scan: DeviceScan | None, match: Callable[[CameraDevice], bool]) -> CameraDevice:
         scan = scan or self.scan()
         matches = [cam for cam in scan.cameras if match(cam)]
-        with_node = [cam for cam in matches if cam.capture_node]
+        # serial: and usb-port: name a USB device; a device with several capture streams means its first one.
+        with_node = [cam for cam in matches if cam.capture_node and cam.primary]
         if len(with_node) == 1:
             return with_node[0]
         if len(with_node) > 1:
