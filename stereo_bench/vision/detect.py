@@ -30,8 +30,8 @@ class Detection:
     """Corners found in one image.
 
     ``ids`` (N,) index the target's ``object_points``; ``corners_px`` (N, 2) float64 full-resolution
-    pixel coordinates (OpenCV pixel-centre convention). ``order`` says how corner 0 was identified:
-    'colour', 'layout' (point-symmetric board) or 'ids' (ChArUco markers).
+    pixel coordinates (OpenCV pixel-centre convention). ``order`` says how the ids were assigned:
+    'colour', 'layout' (point-symmetric board), 'edges' (partial checkerboard) or 'ids' (ChArUco).
     """
 
     ids: np.ndarray
@@ -51,19 +51,44 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return image
 
 
+class AmbiguousViewError(ValueError):
+    """A partial checkerboard was found but which board corners it shows cannot be proven."""
+
+
 def detect(
-    image: np.ndarray, target: Target, *, search_width_px: int = DEFAULT_SEARCH_WIDTH_PX, thorough: bool = False
+    image: np.ndarray, target: Target, *, search_width_px: int = DEFAULT_SEARCH_WIDTH_PX, thorough: bool = False,
+    partial: bool = False,
 ) -> Detection | None:
     """Find the target's corners in ``image``; None when it is not there.
 
     ``thorough`` adds a second, slower search (see :func:`detect_checkerboard`) for stored images,
-    where finding every board matters more than 20-40 ms per image.
+    where finding every board matters more than 20-40 ms per image. ``partial`` accepts a
+    checkerboard cut by the image border (see :func:`detect_checkerboard_partial`) at ~3x the cost
+    of the fast whole-board search; ChArUco views are always partial-capable.
     """
     if isinstance(target, Checkerboard):
+        if partial:
+            # The classic detector spends ~180 ms failing on a cut board (FAST_CHECK passes); SB
+            # with CALIB_CB_LARGER finds whole and cut boards alike in ~40 ms at 960 px (at 640 px
+            # it is faster but loses the column nearest the image border).
+            return detect_checkerboard_partial(image, target, search_width_px=search_width_px)
         return detect_checkerboard(image, target, search_width_px=search_width_px, thorough=thorough)
     if isinstance(target, CharucoTarget):
         return detect_charuco(image, target)
     raise TypeError(f"unsupported target {target!r}")
+
+
+def _search_image(gray: np.ndarray, search_width_px: int) -> tuple[np.ndarray, float]:
+    height, width = gray.shape
+    scale = min(1.0, search_width_px / max(width, height))
+    small = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1.0 else gray
+    return small, scale
+
+
+def _to_full_resolution(corners: np.ndarray, scale: float) -> np.ndarray:
+    corners = np.asarray(corners, np.float64).reshape(-1, 2)
+    # resize() maps pixel centres by (x + 0.5) / scale - 0.5, not x / scale.
+    return (corners + 0.5) / scale - 0.5 if scale < 1.0 else corners
 
 
 def detect_checkerboard(
@@ -76,39 +101,35 @@ def detect_checkerboard(
     (20-40 ms on a 960-pixel image without a board) unlike the classic detector without FAST_CHECK.
     """
     gray = to_gray(image)
-    height, width = gray.shape
-    scale = min(1.0, search_width_px / max(width, height))
-    small = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1.0 else gray
+    small, scale = _search_image(gray, search_width_px)
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
     found, corners = cv2.findChessboardCorners(small, board.pattern_size, flags=flags)
     if not found and thorough:
         found, corners = cv2.findChessboardCornersSB(small, board.pattern_size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
     if not found:
         return None
-    corners = corners.reshape(-1, 2).astype(np.float64)
-    if scale < 1.0:
-        # resize() maps pixel centres by (x + 0.5) / scale - 0.5, not x / scale.
-        corners = (corners + 0.5) / scale - 0.5
-    corners = refine_corners(gray, corners, board)
-    corners, order = canonical_order(gray, corners, board)
-    return Detection(ids=np.arange(board.n_corners), corners_px=corners, image_size=(width, height), order=order)
+    grid = refine_grid(gray, _to_full_resolution(corners, scale).reshape(board.rows, board.cols, 2))
+    grid, order = canonical_order(gray, grid, board)
+    height, width = gray.shape
+    return Detection(
+        ids=np.arange(board.n_corners), corners_px=grid.reshape(-1, 2), image_size=(width, height), order=order
+    )
 
 
-def refine_corners(gray: np.ndarray, corners_px: np.ndarray, board: Checkerboard) -> np.ndarray:
-    """Sub-pixel refinement at full resolution with a window scaled to the imaged square size.
+def refine_grid(gray: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Sub-pixel refinement of a (rows, cols, 2) corner grid at full resolution.
 
     The window stays within about half a square: a larger one reaches the neighbouring corners'
     edges and breaks on OpenCV's sample images. A small window cannot pull in a corner whose first
     estimate is far off (seen: 5 px at the border of a present_cjn view), so a corner that breaks
     the grid's smoothness is refined again from the position its neighbours predict.
     """
-    spacing = grid_spacing_px(corners_px, board)
+    spacing = grid_spacing_px(grid)
     half = int(np.clip(np.floor(SUBPIX_WINDOW_FRACTION * spacing), 2, 11))
-    refined = _subpix(gray, corners_px, half)
-    suspects, predicted = _grid_outliers(refined, board, tolerance_px=max(1.0, 0.15 * spacing))
+    refined = _subpix(gray, grid.reshape(-1, 2), half).reshape(grid.shape)
+    suspects, predicted = _grid_outliers(refined, tolerance_px=max(1.0, 0.15 * spacing))
     if suspects.any():
-        retry = _subpix(gray, predicted[suspects], half)
-        refined[suspects] = retry
+        refined[suspects] = _subpix(gray, predicted[suspects], half)
     return refined
 
 
@@ -119,78 +140,166 @@ def _subpix(gray: np.ndarray, corners_px: np.ndarray, half: int) -> np.ndarray:
     return refined.reshape(-1, 2).astype(np.float64)
 
 
-def grid_spacing_px(corners_px: np.ndarray, board: Checkerboard) -> float:
-    """Shortest distance (px) between row- or column-adjacent corners."""
-    grid = corners_px.reshape(board.rows, board.cols, 2)
-    return float(min(
-        np.linalg.norm(np.diff(grid, axis=1), axis=2).min(),
-        np.linalg.norm(np.diff(grid, axis=0), axis=2).min(),
-    ))
+def grid_spacing_px(grid: np.ndarray) -> float:
+    """Shortest distance (px) between row- or column-adjacent corners of a (rows, cols, 2) grid."""
+    steps = [np.linalg.norm(np.diff(grid, axis=axis), axis=2) for axis in (0, 1) if grid.shape[axis] > 1]
+    return float(min(step.min() for step in steps))
 
 
 def _line_predictions(grid: np.ndarray, axis: int) -> np.ndarray:
     """Each corner predicted from its neighbours along ``axis``: midpoint inside, extrapolation at the ends."""
     g = np.moveaxis(grid, axis, 0)
-    pred = np.empty_like(g)
-    pred[1:-1] = 0.5 * (g[:-2] + g[2:])
+    pred = g.copy()
     if len(g) >= 3:
+        pred[1:-1] = 0.5 * (g[:-2] + g[2:])
         pred[0] = 2 * g[1] - g[2]
         pred[-1] = 2 * g[-2] - g[-3]
-    else:
-        pred[0], pred[-1] = g[0], g[-1]
     return np.moveaxis(pred, 0, axis)
 
 
-def _grid_outliers(
-    corners_px: np.ndarray, board: Checkerboard, *, tolerance_px: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """(N,) corners that disagree with BOTH their row and column neighbours, and their predicted positions.
+def _grid_outliers(grid: np.ndarray, *, tolerance_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) corners that disagree with BOTH their row and column neighbours, and predicted positions.
 
     Requiring both keeps a good corner next to a bad one (which disagrees along one line only) off the list.
     """
-    grid = corners_px.reshape(board.rows, board.cols, 2)
     by_row, by_col = _line_predictions(grid, 1), _line_predictions(grid, 0)
     dev_row = np.linalg.norm(grid - by_row, axis=2)
     dev_col = np.linalg.norm(grid - by_col, axis=2)
     suspects = (dev_row > tolerance_px) & (dev_col > tolerance_px)
-    predicted = np.where((dev_row <= dev_col)[..., None], by_row, by_col)
-    predicted = np.where(suspects[..., None], 0.5 * (by_row + by_col), predicted)
-    return suspects.reshape(-1), predicted.reshape(-1, 2)
+    return suspects, 0.5 * (by_row + by_col)
 
 
-def _mean_intensity(gray: np.ndarray, points_px: np.ndarray, radius: int = 1) -> float:
+def _intensity(gray: np.ndarray, points_px: np.ndarray, radius: int = 1) -> np.ndarray:
+    """(N,) mean grey level in a (2 radius + 1)^2 patch around each point; NaN outside the image."""
     height, width = gray.shape
-    values = []
-    for x, y in np.rint(points_px).astype(int):
-        x0, x1 = max(x - radius, 0), min(x + radius + 1, width)
-        y0, y1 = max(y - radius, 0), min(y + radius + 1, height)
-        if x0 < x1 and y0 < y1:
-            values.append(gray[y0:y1, x0:x1].mean())
-    return float(np.mean(values)) if values else float("nan")
+    values = np.full(len(points_px), np.nan)
+    for i, (x, y) in enumerate(np.rint(np.asarray(points_px).reshape(-1, 2)).astype(int)):
+        if radius <= x < width - radius and radius <= y < height - radius:
+            values[i] = gray[y - radius : y + radius + 1, x - radius : x + radius + 1].mean()
+    return values
 
 
-def corner_zero_is_black_diagonal(gray: np.ndarray, corners_px: np.ndarray, board: Checkerboard) -> bool | None:
-    """Does the colour around corner 0 match the board convention? None when it cannot be seen."""
-    grid = corners_px.reshape(board.rows, board.cols, 2)
-    p0 = grid[0, 0]
-    along_row = grid[0, 1] - p0
-    down_col = grid[1, 0] - p0
-    diagonal_out = p0 - 0.5 * along_row - 0.5 * down_col  # square (0, 0): black by convention
-    beside = p0 + 0.5 * along_row - 0.5 * down_col  # square (1, 0): white
-    dark, light = _mean_intensity(gray, diagonal_out[None]), _mean_intensity(gray, beside[None])
-    if not np.isfinite(dark) or not np.isfinite(light) or abs(light - dark) < 10:
+def _cell_is_black(gray: np.ndarray, grid: np.ndarray) -> bool | None:
+    """Is the square between grid corners (0, 0) and (1, 1) black? None when the contrast is too low."""
+    inside = grid[0, 0] + 0.5 * (grid[0, 1] - grid[0, 0]) + 0.5 * (grid[1, 0] - grid[0, 0])
+    beside = grid[0, 0] + 0.5 * (grid[0, 1] - grid[0, 0]) - 0.5 * (grid[1, 0] - grid[0, 0])
+    square, neighbour = _intensity(gray, np.array([inside, beside]))
+    if not np.isfinite(square) or not np.isfinite(neighbour) or abs(square - neighbour) < 10:
         return None
-    return bool(dark < light)
+    return bool(square < neighbour)
 
 
-def canonical_order(gray: np.ndarray, corners_px: np.ndarray, board: Checkerboard) -> tuple[np.ndarray, str]:
-    """Put the corners in the board's own row-major order; returns (corners, how it was decided)."""
+def canonical_order(gray: np.ndarray, grid: np.ndarray, board: Checkerboard) -> tuple[np.ndarray, str]:
+    """Put a whole-board grid in the board's own row-major order; returns (grid, how it was decided).
+
+    By convention the square diagonally outside corner 0 is black, so the square inside the grid
+    between corners (0, 0) and (1, 1) is black too; after a half turn it is white unless the
+    board is point-symmetric.
+    """
     if not board.is_point_symmetric:
-        verdict = corner_zero_is_black_diagonal(gray, corners_px, board)
-        if verdict is not None:
-            return (corners_px if verdict else corners_px[::-1].copy()), "colour"
-    row_direction = corners_px[board.cols - 1] - corners_px[0]
-    return (corners_px if row_direction[0] >= 0 else corners_px[::-1].copy()), "layout"
+        black = _cell_is_black(gray, grid)
+        if black is not None:
+            return (grid if black else grid[::-1, ::-1].copy()), "colour"
+    row_direction = grid[0, -1] - grid[0, 0]
+    return (grid if row_direction[0] >= 0 else grid[::-1, ::-1].copy()), "layout"
+
+
+def _upright(grid: np.ndarray) -> np.ndarray:
+    """Orient a (rows, cols, 2) grid so columns run toward +u and rows toward +v in the image.
+
+    A stereo rig sees its target roughly upright (roll well under 45 degrees), which is what makes
+    the assignment of a partial grid's axes to the board's axes unambiguous.
+    """
+    along = grid[:, -1] - grid[:, 0]
+    if np.abs(along[:, 0]).mean() < np.abs(along[:, 1]).mean():
+        grid = grid.transpose(1, 0, 2)
+    if (grid[:, -1, 0] - grid[:, 0, 0]).mean() < 0:
+        grid = grid[:, ::-1]
+    if (grid[-1, :, 1] - grid[0, :, 1]).mean() < 0:
+        grid = grid[::-1, :]
+    return np.ascontiguousarray(grid)
+
+
+def _ends_at_board_edge(gray: np.ndarray, grid: np.ndarray, axis: int, side: int, white_level: float) -> bool:
+    """Does the board end just beyond the ``side`` (0: first, -1: last) line of corners along ``axis``?
+
+    One step beyond the last inner corners lie the board's outer squares; 1.3 steps beyond, the
+    white margin — or, if the board went on, squares of both colours. The board edge is proven
+    when every sample there is inside the image and white.
+    """
+    g = np.moveaxis(grid, axis, 0)
+    last, previous = (g[0], g[1]) if side == 0 else (g[-1], g[-2])
+    # Sample between lines of the other axis so we hit square centres, not edges.
+    beyond = last + 1.3 * (last - previous)
+    midpoints = 0.5 * (beyond[:-1] + beyond[1:])
+    values = _intensity(gray, midpoints, radius=2)
+    return bool(len(values) >= 2 and np.all(np.isfinite(values)) and np.all(values > white_level))
+
+
+def detect_checkerboard_partial(
+    image: np.ndarray, board: Checkerboard, *, search_width_px: int = DEFAULT_SEARCH_WIDTH_PX, min_corners: int = 6
+) -> Detection | None:
+    """A checkerboard cut by the image border: the visible corners with their board ids.
+
+    ``findChessboardCornersSB`` with ``CALIB_CB_LARGER`` returns the visible grid. Which board
+    corners it holds is proven, per axis, from the board's own edges: where the detected grid stops
+    inside the image with white margin beyond, the board ends (SB would otherwise have found the
+    next corners); the other end is the image border. The colour of the first square must then
+    agree with the board's colour convention at the inferred position, or the view is refused.
+    Needs a white margin of at least a third of a square around the printed squares.
+
+    Raises:
+        AmbiguousViewError: a grid was found but its place on the board cannot be proven.
+    """
+    gray = to_gray(image)
+    small, scale = _search_image(gray, search_width_px)
+    found, corners, meta = cv2.findChessboardCornersSBWithMeta(
+        small, (3, 3), cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE
+    )
+    if not found or corners is None or meta is None or meta.size != len(corners):
+        return None
+    # SB returns the found grid row-major; meta has its (rows, cols) shape.
+    grid = _upright(_to_full_resolution(corners, scale).reshape(*meta.shape, 2))
+    rows_seen, cols_seen = grid.shape[:2]
+    if rows_seen > board.rows or cols_seen > board.cols or rows_seen * cols_seen < min_corners:
+        return None
+    grid = refine_grid(gray, grid)
+    height, width = gray.shape
+    if (rows_seen, cols_seen) == (board.rows, board.cols):
+        grid, order = canonical_order(gray, grid, board)
+        return Detection(np.arange(board.n_corners), grid.reshape(-1, 2), (width, height), order)
+    black_level, white_level = _square_levels(gray, grid)
+    threshold = 0.5 * (black_level + white_level)
+    offsets = []
+    for axis, n_board, name in ((0, board.rows, "rows"), (1, board.cols, "columns")):
+        n_seen = grid.shape[axis]
+        if n_seen == n_board:
+            offsets.append(0)
+            continue
+        first = _ends_at_board_edge(gray, grid, axis, 0, threshold)
+        last = _ends_at_board_edge(gray, grid, axis, -1, threshold)
+        if first == last:
+            raise AmbiguousViewError(
+                f"partial checkerboard: {n_seen} of {n_board} {name} visible and "
+                + ("both" if first else "neither") + " end(s) show the board's edge, so which "
+                f"{name} they are cannot be proven; use a ChArUco target for views this partial"
+            )
+        offsets.append(0 if first else n_board - n_seen)
+    row0, col0 = offsets
+    black = _cell_is_black(gray, grid)
+    if black is None or black != ((row0 + col0) % 2 == 0):
+        raise AmbiguousViewError("partial checkerboard: square colours contradict the board edges found")
+    ids = ((row0 + np.arange(rows_seen))[:, None] * board.cols + (col0 + np.arange(cols_seen))[None, :]).ravel()
+    return Detection(ids=ids, corners_px=grid.reshape(-1, 2), image_size=(width, height), order="edges")
+
+
+def _square_levels(gray: np.ndarray, grid: np.ndarray) -> tuple[float, float]:
+    """(black, white) grey levels of the squares inside the grid."""
+    centres = 0.25 * (grid[:-1, :-1] + grid[1:, :-1] + grid[:-1, 1:] + grid[1:, 1:])
+    values = _intensity(gray, centres.reshape(-1, 2), radius=2)
+    values = values[np.isfinite(values)]
+    middle = np.median(values)
+    return float(values[values <= middle].mean()), float(values[values > middle].mean())
 
 
 def detect_charuco(image: np.ndarray, target: CharucoTarget, *, min_corners: int = 4) -> Detection | None:
