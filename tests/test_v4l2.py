@@ -376,6 +376,12 @@ def test_unplugged_camera_is_gone_for_every_later_call(node, device):
     assert device.released == 1
 
 
+def test_normalised_opencv_control_ranges_are_refused(node, monkeypatch):
+    monkeypatch.setenv("OPENCV_VIDEOIO_V4L_RANGE_NORMALIZED", "1")
+    with pytest.raises(CameraError, match="unset OPENCV_VIDEOIO_V4L_RANGE_NORMALIZED"):
+        V4L2Camera(node, capture_factory=lambda path, api: pytest.fail("opened")).open()
+
+
 def test_open_twice_and_close_twice_are_harmless(node, device):
     camera = make(node, device)
     camera.open()

@@ -310,6 +310,11 @@ class V4L2Camera(CameraBase):
             return
         self._gone_error = None
         self._in_force = None
+        if self._api == cv2.CAP_V4L2 and os.environ.get("OPENCV_VIDEOIO_V4L_RANGE_NORMALIZED", "0").lower() not in (
+                "0", "false", "off", "no", ""):
+            # Normalised [0, 1) control values would make every raw V4L2 value set here wrong.
+            raise CameraError(f"{self.path}: unset OPENCV_VIDEOIO_V4L_RANGE_NORMALIZED; this driver sets raw V4L2 "
+                              f"control values", device=self.path)
         with native_log(self._capture_native_log) as native:
             cap = self._factory(self.path, self._api)
             opened = bool(cap.isOpened())
