@@ -67,6 +67,16 @@ def test_capture_shows_the_scene_at_grab_time_with_sequence_and_settings(scene):
     assert second.describe()["settings"]["exposure_us"] == 8000
 
 
+def test_render_may_attach_ground_truth_to_the_frame(scene):
+    def render():
+        return scene.render(), {"pose": {"baseline_mm": 120.0}}
+
+    with SyntheticCamera(render) as camera:
+        frame = camera.capture()
+    assert frame.meta == {"pose": {"baseline_mm": 120.0}}
+    assert frame.describe()["meta"]["pose"]["baseline_mm"] == 120.0
+
+
 def test_retrieve_without_grab_is_an_error(scene):
     with SyntheticCamera(scene.render) as camera, pytest.raises(CameraError, match="grab"):
         camera.retrieve()

@@ -19,6 +19,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -34,7 +35,8 @@ class CameraFault(enum.Enum):
 class SyntheticCamera(CameraBase):
     """A camera whose frames are ``render()`` outputs.
 
-    ``render``: returns an (H, W, 3) uint8 BGR or (H, W) image of the scene now.
+    ``render``: returns an (H, W, 3) uint8 BGR or (H, W) image of the scene now, or ``(image, meta)`` where
+    ``meta`` is a dict (e.g. the ground-truth rig pose) that the frame carries as ``Frame.meta``.
     ``settings``: reported as the settings in force (a simulated device accepts everything); width/height, when
     given, must match what ``render`` returns. ``exposure_s``/``readout_s``: simulated time a grab takes
     (exposure, then sensor readout), seconds, multiplied by ``time_scale`` (0 makes grabs instantaneous; tests
@@ -43,7 +45,7 @@ class SyntheticCamera(CameraBase):
 
     def __init__(
         self,
-        render: Callable[[], np.ndarray],
+        render: Callable[[], np.ndarray | tuple[np.ndarray, dict[str, Any]]],
         *,
         name: str = "synthetic",
         settings: CameraSettings | None = None,
@@ -126,7 +128,11 @@ class SyntheticCamera(CameraBase):
             self._pending = self._last
             return self._last.timestamp_s
         # Render at the start of the exposure: the frame shows the scene as it was then.
-        image = np.asarray(self._render())
+        rendered = self._render()
+        meta: dict[str, Any] = {}
+        if isinstance(rendered, tuple):
+            rendered, meta = rendered
+        image = np.asarray(rendered)
         self._check_shape(image)
         delay_s = (self.exposure_s + self.readout_s) * self.time_scale
         if delay_s > 0:
@@ -135,7 +141,8 @@ class SyntheticCamera(CameraBase):
         self._sequence += 1
         self.grabs += 1
         frame = Frame(image=image, timestamp_s=self._clock(), sequence=self._sequence,
-                      settings=self.requested_settings, source=self.source, timestamp_source="simulated")
+                      settings=self.requested_settings, source=self.source, timestamp_source="simulated",
+                      meta=dict(meta))
         self._last = frame
         self._pending = frame
         return frame.timestamp_s
