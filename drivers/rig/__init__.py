@@ -1,0 +1,46 @@
+"""The rig controller: GRBL 1.1 over a serial port, in three layers, and the rig in physical units.
+
+- :mod:`drivers.rig.transport`: bytes (pyserial port, spy recorder, scripted fake);
+- :mod:`drivers.rig.codec`: pure parse/encode of GRBL's lines, error and alarm tables;
+- :mod:`drivers.rig.grbl`: :class:`GrblController`, the protocol in machine units;
+- :mod:`drivers.rig.config`: :class:`RigConfig`, the mapping of physical quantities to axes;
+- :mod:`drivers.rig.rig`: the :class:`Rig` protocol and :class:`GrblRig`, in mm and degrees.
+
+Typical use::
+
+    from drivers.rig import GrblRig, load_rig_config
+    with GrblRig("/dev/ttyUSB0", load_rig_config("rig.toml"), prompt=wait_for_enter) as rig:
+        rig.home()
+        reading = rig.move_to(baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=85.0)
+"""
+
+from drivers.rig.config import (
+    LimitError,
+    MoveRequestError,
+    QuantityMapping,
+    RigConfig,
+    RigConfigError,
+    RigError,
+    load_rig_config,
+)
+from drivers.rig.grbl import (
+    GrblAlarm,
+    GrblCommandError,
+    GrblConnectionError,
+    GrblController,
+    GrblError,
+    GrblLocked,
+    GrblMoveError,
+    GrblReading,
+    GrblResetError,
+    GrblTimeout,
+    MoveStatus,
+)
+from drivers.rig.rig import GrblRig, Rig, RigReading, manual_instruction, wait_for_enter
+
+__all__ = [
+    "GrblAlarm", "GrblCommandError", "GrblConnectionError", "GrblController", "GrblError", "GrblLocked",
+    "GrblMoveError", "GrblReading", "GrblResetError", "GrblRig", "GrblTimeout", "LimitError", "MoveRequestError",
+    "MoveStatus", "QuantityMapping", "Rig", "RigConfig", "RigConfigError", "RigError", "RigReading",
+    "load_rig_config", "manual_instruction", "wait_for_enter",
+]

@@ -1,0 +1,488 @@
+"""GRBL 1.1 wire format: pure functions from bytes to typed messages and back. No I/O here.
+
+Everything the driver sends or receives passes through this module, so it can be tested with no
+port at all. Units: whatever the controller is configured for (machine units, mm for G21); the
+codec never converts.
+
+What GRBL 1.1 sends (one line each, terminated by ``\\r\\n``):
+
+- ``ok`` / ``error:N``: the answer to one line of g-code or ``$`` command, in order.
+- ``ALARM:N``: pushed when the controller enters Alarm (hard/soft limit, homing fail, reset in motion).
+- ``<State|MPos:x,y,z|FS:f,s|...>``: the answer to the real-time ``?``; fields after the state may be
+  missing or come in any order; grblHAL adds some (``H:``, ``SD:``, ...), which are kept as text.
+- ``[MSG:...]``, ``[GC:...]``, ``[VER:...]``, ``[OPT:...]`` ...: feedback, never an answer by itself.
+- ``Grbl 1.1h ['$' for help]`` / ``GrblHAL 1.1f ['$' or '$HELP' for help]``: the banner after a reset.
+- ``$N=value``: a setting line (answer to ``$$``).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+#: Serial receive buffer of a GRBL 1.1 build on an ATmega328p. The ring buffer keeps one slot free
+#: to tell full from empty, so at most ``RX_BUFFER_SIZE - 1`` bytes may be outstanding.
+RX_BUFFER_SIZE = 128
+#: grblHAL's usual receive buffer.
+GRBLHAL_RX_BUFFER_SIZE = 1024
+#: GRBL's line buffer: longer lines are answered with error:11 and not executed.
+MAX_LINE_LENGTH = 80
+
+RT_STATUS = b"?"
+RT_FEED_HOLD = b"!"
+RT_CYCLE_START = b"~"
+RT_SOFT_RESET = b"\x18"
+RT_JOG_CANCEL = b"\x85"
+REALTIME_BYTES = frozenset(b"?!~\x18") | frozenset(range(0x80, 0x100))
+
+AXIS_LETTERS = "XYZABC"
+
+#: GRBL 1.1 error codes (``error:N``) and what they mean, from GRBL's own error_codes table.
+GRBL_ERRORS: dict[int, str] = {
+    1: "Expected command letter: a g-code word consists of a letter and a value; the letter was not found",
+    2: "Bad number format: missing the expected g-code word value, or the numeric format is not valid",
+    3: "Invalid statement: '$' system command was not recognized or supported",
+    4: "Value < 0: negative value received for an expected positive value",
+    5: "Setting disabled: homing cycle is not enabled via settings ($22)",
+    6: "Value < 3 usec: minimum step pulse time must be greater than 3 usec",
+    7: "EEPROM read fail: using defaults; affected EEPROM restored to default values",
+    8: "Not idle: '$' command cannot be used unless GRBL is Idle",
+    9: "G-code lock: g-code commands are locked out during Alarm or Jog state",
+    10: "Homing not enabled: soft limits cannot be enabled without homing also enabled",
+    11: "Line overflow: max characters per line exceeded; the line was not executed",
+    12: "Step rate > 30 kHz: '$' setting value causes the step rate to exceed the maximum supported",
+    13: "Check door: safety door detected as opened and door state initiated",
+    14: "Line length exceeded: build info or startup line exceeded the EEPROM line length limit",
+    15: "Travel exceeded: jog target exceeds machine travel; the jog was ignored",
+    16: "Invalid jog command: jog has no '=' or contains prohibited g-code",
+    17: "Setting disabled: laser mode requires PWM output",
+    20: "Unsupported command: unsupported or invalid g-code command found in block",
+    21: "Modal group violation: more than one g-code command from the same modal group in block",
+    22: "Undefined feed rate: feed rate has not yet been set or is undefined",
+    23: "G-code command in block requires an integer value",
+    24: "Two g-code commands that both require the use of axis words were detected in the block",
+    25: "A g-code word was repeated in the block",
+    26: "A g-code command implicitly or explicitly requires axis words in the block, but none were detected",
+    27: "N line number value is not within the valid range of 1 - 9,999,999",
+    28: "A g-code command was sent, but is missing some required P or L value words in the line",
+    29: "GRBL supports six work coordinate systems G54-G59; G59.1, G59.2 and G59.3 are not supported",
+    30: "The G53 g-code command requires either a G0 seek or G1 feed motion mode to be active",
+    31: "There are unused axis words in the block and G80 motion mode cancel is active",
+    32: "A G2 or G3 arc was commanded but there are no XYZ axis words in the selected plane",
+    33: "The motion command has an invalid target",
+    34: "A G2 or G3 arc, traced with the radius definition, had a mathematical error",
+    35: "A G2 or G3 arc, traced with the offset definition, is missing the IJK offset word in the plane",
+    36: "There are unused, leftover g-code words that aren't used by any command in the block",
+    37: "The G43.1 dynamic tool length offset command cannot apply an offset to an axis other than its configured axis",
+    38: "Tool number greater than max supported value",
+}
+
+#: GRBL 1.1 alarm codes (``ALARM:N``); 10 and up are grblHAL's.
+GRBL_ALARMS: dict[int, str] = {
+    1: "Hard limit triggered. Machine position is likely lost due to sudden and immediate halt; re-homing is "
+       "highly recommended",
+    2: "Soft limit: g-code motion target exceeds machine travel. Machine position safely retained; alarm may be "
+       "unlocked",
+    3: "Reset while in motion. GRBL cannot guarantee position; lost steps are likely, re-homing is highly "
+       "recommended",
+    4: "Probe fail: the probe is not in the expected initial state before starting the probe cycle",
+    5: "Probe fail: the probe did not contact the workpiece within the programmed travel",
+    6: "Homing fail: reset during active homing cycle",
+    7: "Homing fail: safety door was opened during active homing cycle",
+    8: "Homing fail: cycle failed to clear limit switch when pulling off; try increasing pull-off or check wiring",
+    9: "Homing fail: could not find limit switch within search distance",
+    10: "E-stop asserted (grblHAL)",
+    11: "Homing required: home the machine before moving (grblHAL)",
+    12: "Limit switch engaged at startup (grblHAL)",
+    13: "Probe protection triggered (grblHAL)",
+    14: "Spindle at speed timeout (grblHAL)",
+    15: "Homing fail: could not find the second limit switch of an auto-squared axis (grblHAL)",
+}
+
+#: Machine states as GRBL 1.1 names them in status reports.
+STATES = ("Idle", "Run", "Hold", "Jog", "Alarm", "Door", "Check", "Home", "Sleep", "Tool")
+
+UNLOCK_MESSAGE = "'$H'|'$X' to unlock"
+RESET_TO_CONTINUE_MESSAGE = "Reset to continue"
+
+
+def error_meaning(code: int) -> str:
+    return GRBL_ERRORS.get(code, f"unknown GRBL error {code}")
+
+
+def alarm_meaning(code: int) -> str:
+    return GRBL_ALARMS.get(code, f"unknown GRBL alarm {code}")
+
+
+# --------------------------------------------------------------------------------------------------
+# Messages from the controller
+
+
+@dataclass(frozen=True)
+class Ok:
+    """``ok``: the oldest outstanding line was accepted (queued, not necessarily executed)."""
+
+
+@dataclass(frozen=True)
+class ErrorReply:
+    """``error:N``: the oldest outstanding line was rejected."""
+
+    code: int
+
+    @property
+    def meaning(self) -> str:
+        return error_meaning(self.code)
+
+
+@dataclass(frozen=True)
+class AlarmPush:
+    """``ALARM:N``: the controller entered Alarm state."""
+
+    code: int
+
+    @property
+    def meaning(self) -> str:
+        return alarm_meaning(self.code)
+
+
+@dataclass(frozen=True)
+class Message:
+    """``[MSG:text]``."""
+
+    text: str
+
+
+@dataclass(frozen=True)
+class Feedback:
+    """Any other bracketed feedback: ``[GC:...]``, ``[VER:...]``, ``[OPT:...]``, ``[PRB:...]``, ``[echo:...]``."""
+
+    kind: str
+    text: str
+
+
+@dataclass(frozen=True)
+class Banner:
+    """The welcome line printed after power-up or a soft reset."""
+
+    firmware: str  # "Grbl" or "GrblHAL"
+    version: str  # e.g. "1.1h"
+    text: str
+
+
+@dataclass(frozen=True)
+class Setting:
+    """``$N=value`` (answer to ``$$``)."""
+
+    number: int
+    value: str
+
+
+@dataclass(frozen=True)
+class StatusReport:
+    """A parsed ``<...>`` real-time status report. Positions are in machine units, per axis letter.
+
+    ``mpos`` and ``wpos`` are mutually exclusive in GRBL 1.1 ($10 chooses); ``wco`` arrives only in some
+    reports, so a driver keeps the last one it saw. Unknown fields are kept verbatim in ``extra``.
+    """
+
+    state: str
+    substate: int | None = None
+    mpos: tuple[float, ...] | None = None
+    wpos: tuple[float, ...] | None = None
+    wco: tuple[float, ...] | None = None
+    feed: float | None = None
+    spindle: float | None = None
+    planner_blocks_free: int | None = None
+    rx_bytes_free: int | None = None
+    line_number: int | None = None
+    pins: str | None = None
+    overrides: tuple[int, ...] | None = None
+    accessories: str | None = None
+    extra: dict[str, str] = field(default_factory=dict)
+    raw: str = ""
+
+    @property
+    def full_state(self) -> str:
+        """State as printed, e.g. ``Hold:0``."""
+        return self.state if self.substate is None else f"{self.state}:{self.substate}"
+
+    @property
+    def axis_count(self) -> int | None:
+        pos = self.mpos if self.mpos is not None else self.wpos
+        return None if pos is None else len(pos)
+
+
+@dataclass(frozen=True)
+class Unparsed:
+    """A line that is none of the above: noise on the line, a garbled answer, or a firmware we don't know."""
+
+    text: str
+
+
+Response = Ok | ErrorReply | AlarmPush | Message | Feedback | Banner | Setting | StatusReport | Unparsed
+
+
+class ParseError(ValueError):
+    """A line that looks like one kind of message but does not parse as it."""
+
+
+_FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)"
+_FLOAT_RE = re.compile(rf"^{_FLOAT}$")
+_BANNER_RE = re.compile(r"^(Grbl|GrblHAL|grblHAL)\s+v?(\d+\.\d+[a-zA-Z]?)\s+\[(.*)\]\s*$")
+_ERROR_RE = re.compile(r"^error:(\d+)$")
+_ALARM_RE = re.compile(r"^ALARM:(\d+)$")
+_SETTING_RE = re.compile(r"^\$(\d+)=(\S*)$")
+_FEEDBACK_RE = re.compile(r"^\[([A-Za-z]+):(.*)\]$")
+
+
+def _floats(text: str, *, name: str) -> tuple[float, ...]:
+    parts = text.split(",")
+    if not parts or not all(_FLOAT_RE.match(p) for p in parts):
+        raise ParseError(f"{name}: not a list of numbers: {text!r}")
+    values = tuple(float(p) for p in parts)
+    if not all(math.isfinite(v) for v in values):
+        raise ParseError(f"{name}: non-finite value in {text!r}")
+    return values
+
+
+def _ints(text: str, *, name: str) -> tuple[int, ...]:
+    parts = text.split(",")
+    if not all(re.fullmatch(r"-?\d+", p) for p in parts):
+        raise ParseError(f"{name}: not a list of integers: {text!r}")
+    return tuple(int(p) for p in parts)
+
+
+def parse_status(line: str) -> StatusReport:
+    """Parse one ``<State|field:value|...>`` report. Raises :class:`ParseError` on anything malformed.
+
+    Strict on purpose: a report is the only source of a position, so a garbled one must be rejected
+    rather than half-read.
+    """
+    if not (line.startswith("<") and line.endswith(">")) or len(line) < 3:
+        raise ParseError(f"not a status report: {line!r}")
+    body = line[1:-1]
+    fields = body.split("|")
+    state_text = fields[0]
+    state, _, sub = state_text.partition(":")
+    if state not in STATES:
+        raise ParseError(f"unknown machine state {state_text!r} in {line!r}")
+    substate = None
+    if sub:
+        if not sub.isdigit():
+            raise ParseError(f"bad sub-state {state_text!r} in {line!r}")
+        substate = int(sub)
+    values: dict[str, object] = {}
+    extra: dict[str, str] = {}
+    seen: set[str] = set()
+    for item in fields[1:]:
+        key, sep, value = item.partition(":")
+        if not sep or not key:
+            raise ParseError(f"field without a name in {line!r}: {item!r}")
+        if key in seen:
+            raise ParseError(f"field {key} repeated in {line!r}")
+        seen.add(key)
+        if key == "MPos":
+            values["mpos"] = _floats(value, name=key)
+        elif key == "WPos":
+            values["wpos"] = _floats(value, name=key)
+        elif key == "WCO":
+            values["wco"] = _floats(value, name=key)
+        elif key == "FS":
+            fs = _floats(value, name=key)
+            if len(fs) != 2:
+                raise ParseError(f"FS wants feed,speed in {line!r}")
+            values["feed"], values["spindle"] = fs
+        elif key == "F":
+            (values["feed"],) = _floats(value, name=key)
+        elif key == "Bf":
+            bf = _ints(value, name=key)
+            if len(bf) != 2:
+                raise ParseError(f"Bf wants blocks,bytes in {line!r}")
+            values["planner_blocks_free"], values["rx_bytes_free"] = bf
+        elif key == "Ln":
+            (values["line_number"],) = _ints(value, name=key)
+        elif key == "Pn":
+            values["pins"] = value
+        elif key == "Ov":
+            values["overrides"] = _ints(value, name=key)
+        elif key == "A":
+            values["accessories"] = value
+        else:
+            extra[key] = value
+    mpos, wpos, wco = values.get("mpos"), values.get("wpos"), values.get("wco")
+    if mpos is not None and wpos is not None:
+        raise ParseError(f"both MPos and WPos in {line!r}")
+    lengths = {len(v) for v in (mpos, wpos, wco) if v is not None}
+    if len(lengths) > 1:
+        raise ParseError(f"position fields disagree on the number of axes in {line!r}")
+    if lengths and not 1 <= lengths.pop() <= len(AXIS_LETTERS):
+        raise ParseError(f"unsupported number of axes in {line!r}")
+    return StatusReport(state=state, substate=substate, extra=extra, raw=line, **values)  # type: ignore[arg-type]
+
+
+def parse_response(line: str) -> Response:
+    """Classify one line from the controller (without its line terminator). Never raises.
+
+    A line that looks like a status report but doesn't parse is returned as :class:`Unparsed`.
+    """
+    text = line.strip()
+    if text == "ok":
+        return Ok()
+    if text.startswith("<"):
+        try:
+            return parse_status(text)
+        except ParseError:
+            return Unparsed(text)
+    if m := _ERROR_RE.match(text):
+        return ErrorReply(int(m.group(1)))
+    if m := _ALARM_RE.match(text):
+        return AlarmPush(int(m.group(1)))
+    if m := _FEEDBACK_RE.match(text):
+        kind, body = m.group(1), m.group(2)
+        if kind == "MSG":
+            return Message(body)
+        return Feedback(kind, body)
+    if m := _BANNER_RE.match(text):
+        firmware = "GrblHAL" if m.group(1).lower() == "grblhal" else "Grbl"
+        return Banner(firmware=firmware, version=m.group(2), text=text)
+    if m := _SETTING_RE.match(text):
+        return Setting(int(m.group(1)), m.group(2))
+    return Unparsed(text)
+
+
+class LineSplitter:
+    """Reassembles lines from arbitrary chunks of bytes. GRBL ends lines with ``\\r\\n``; either alone works.
+
+    Bytes that are not printable ASCII are kept (as latin-1) so that a garbled line is seen as garbled
+    instead of silently repaired.
+    """
+
+    def __init__(self, max_line: int = 1024):
+        self._buffer = bytearray()
+        self._max_line = max_line
+
+    def feed(self, data: bytes) -> list[str]:
+        lines: list[str] = []
+        for byte in data:
+            if byte in (0x0A, 0x0D):
+                if self._buffer:
+                    lines.append(self._buffer.decode("latin-1"))
+                    self._buffer.clear()
+            else:
+                self._buffer.append(byte)
+                if len(self._buffer) > self._max_line:
+                    # Noise with no terminator: hand it up as one unparsable line rather than growing forever.
+                    lines.append(self._buffer.decode("latin-1"))
+                    self._buffer.clear()
+        return lines
+
+    def clear(self) -> None:
+        self._buffer.clear()
+
+
+def machine_position(report: StatusReport, last_wco: tuple[float, ...] | None) -> tuple[float, ...] | None:
+    """Machine position from a report: MPos as given, or WPos + WCO (this report's WCO, else ``last_wco``).
+
+    Returns None when the report carries WPos and no WCO is known yet: the position is then unknown,
+    not zero.
+    """
+    if report.mpos is not None:
+        return report.mpos
+    if report.wpos is None:
+        return None
+    wco = report.wco if report.wco is not None else last_wco
+    if wco is None or len(wco) != len(report.wpos):
+        return None
+    return tuple(w + o for w, o in zip(report.wpos, wco, strict=True))
+
+
+# --------------------------------------------------------------------------------------------------
+# Lines to the controller
+
+
+class EncodeError(ValueError):
+    """A command that must not be sent as given."""
+
+
+def format_number(value: float, decimals: int = 3) -> str:
+    """A g-code number: fixed decimals, no exponent, no ``-0.000``."""
+    if not math.isfinite(value):
+        raise EncodeError(f"not a finite number: {value!r}")
+    text = f"{value:.{decimals}f}"
+    if float(text) == 0.0:
+        text = f"{0.0:.{decimals}f}"
+    return text
+
+
+def encode_line(command: str) -> bytes:
+    """One line of g-code or ``$`` command, terminated by ``\\n``.
+
+    Refuses characters GRBL would take as real-time commands (they would be acted upon mid-line) and
+    lines longer than GRBL's line buffer.
+    """
+    text = command.strip()
+    if not text:
+        raise EncodeError("empty command")
+    data = text.encode("ascii", errors="strict") if text.isascii() else None
+    if data is None:
+        raise EncodeError(f"non-ASCII command: {command!r}")
+    bad = sorted({chr(b) for b in data if b in REALTIME_BYTES or b < 0x20})
+    if bad:
+        raise EncodeError(f"command {text!r} contains real-time or control characters {bad!r}")
+    if len(data) > MAX_LINE_LENGTH - 1:
+        raise EncodeError(f"command longer than GRBL's {MAX_LINE_LENGTH - 1}-character line: {text!r}")
+    return data + b"\n"
+
+
+def encode_move(
+    targets: Mapping[str, float], *, feed_per_min: float | None = None, machine_coordinates: bool = True,
+    decimals: int = 3,
+) -> str:
+    """An absolute straight move to ``targets`` (axis letter -> position, machine units).
+
+    With ``feed_per_min`` a feed move ``G1 ... F`` (units/min, vector feed over all moving axes),
+    otherwise a rapid ``G0`` at each axis' maximum rate. ``G53`` makes the targets machine coordinates
+    whatever work offset or distance mode (G90/G91) is active; it applies to this line only.
+    """
+    if not targets:
+        raise EncodeError("a move needs at least one axis")
+    words = []
+    for axis in AXIS_LETTERS:  # GRBL doesn't care about order; a fixed one makes lines comparable in logs
+        if axis in targets:
+            words.append(f"{axis}{format_number(float(targets[axis]), decimals)}")
+    unknown = sorted(set(targets) - set(AXIS_LETTERS))
+    if unknown:
+        raise EncodeError(f"unknown axis letter(s) {unknown}: GRBL axes are {AXIS_LETTERS}")
+    prefix = "G53 " if machine_coordinates else "G90 "
+    if feed_per_min is None:
+        return prefix + "G0 " + " ".join(words)
+    if not (math.isfinite(feed_per_min) and feed_per_min > 0):
+        raise EncodeError(f"feed rate must be > 0 units/min, not {feed_per_min!r}")
+    return prefix + "G1 " + " ".join(words) + f" F{format_number(feed_per_min, 1)}"
+
+
+def vector_feed(deltas: Mapping[str, float], axis_feeds_per_min: Mapping[str, float | None]) -> float | None:
+    """The vector feed (units/min) of a straight move so that no axis exceeds its own feed rate.
+
+    GRBL's F is the speed along the path, so an axis moves at F * |d_axis| / |d|. Returns None if any
+    moving axis has no feed rate of its own (the move is then a rapid, limited by GRBL's $11x settings),
+    or if nothing moves.
+    """
+    moving = {a: d for a, d in deltas.items() if abs(d) > 0.0}
+    if not moving:
+        return None
+    length = math.sqrt(sum(d * d for d in moving.values()))
+    feeds = []
+    for axis, delta in moving.items():
+        f = axis_feeds_per_min.get(axis)
+        if f is None:
+            return None
+        feeds.append(f * length / abs(delta))
+    return min(feeds)
+
+
+def split_axes(values: tuple[float, ...], letters: str = AXIS_LETTERS) -> dict[str, float]:
+    """Name the values of a position field by axis letter, in GRBL's order X Y Z A B C."""
+    return dict(zip(letters, values, strict=False))

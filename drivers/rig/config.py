@@ -1,0 +1,324 @@
+"""Rig configuration: which GRBL axis drives which physical quantity, and within which limits.
+
+Physical quantities (units in the names, as everywhere at interfaces):
+
+    baseline_mm, toe_in_left_deg, toe_in_right_deg, tilt_left_deg, tilt_right_deg, target_distance_mm
+
+Toe-in t = 90 deg - alpha (0 = parallel rig, > 0 turns the camera toward the other one). Each quantity
+is driven by a GRBL axis (X Y Z, or A B C on grblHAL), or is ``fixed`` at a value (the tilts, 0 by
+default), or is ``manual``: the operator sets it when prompted (the target distance, by default).
+
+For a driven quantity::
+
+    machine = offset + scale * physical          (machine units: what GRBL reports, mm for G21)
+
+Soft limits ``min``/``max`` are in physical units, and a move outside them is refused before a byte is
+sent. Everything below the config classes is a pure function.
+
+TOML layout (every table optional; what is missing keeps the default mapping)::
+
+    [controller]
+    baudrate = 115200
+    rx_buffer_size = 128
+    home_timeout_s = 120
+    move_timeout_s = 120
+
+    [quantities.baseline_mm]
+    axis = "X"
+    offset = 0.0        # machine units at B = 0
+    scale = 1.0         # machine units per mm
+    min = 0.0
+    max = 350.0
+    feed_per_min = 3000 # machine units/min; omit for GRBL's rapid rate
+
+    [quantities.target_distance_mm]
+    axis = "manual"
+    min = 200
+    max = 2000
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+QUANTITIES = (
+    "baseline_mm", "toe_in_left_deg", "toe_in_right_deg", "tilt_left_deg", "tilt_right_deg", "target_distance_mm",
+)
+MACHINE_AXES = ("X", "Y", "Z", "A", "B", "C")
+AxisName = Literal["X", "Y", "Z", "A", "B", "C", "fixed", "manual"]
+
+PARALLEL_ALPHA_DEG = 90.0
+
+
+class RigError(Exception):
+    """Base of every rig failure the caller can report in one line."""
+
+
+class RigConfigError(RigError):
+    """A rig configuration file that cannot be used; the message names the file and the field."""
+
+
+class LimitError(RigError):
+    """A requested move outside the configured soft limits (nothing was sent)."""
+
+    def __init__(self, violations: list[str]):
+        super().__init__("move refused, outside soft limits: " + "; ".join(violations))
+        self.violations = violations
+
+
+class MoveRequestError(RigError):
+    """A move request that names an unknown quantity or changes a fixed one (nothing was sent)."""
+
+
+def toe_in_from_alpha(alpha_deg: float) -> float:
+    """Toe-in (deg, 0 = parallel) for a camera whose optical axis makes ``alpha_deg`` with the baseline.
+
+    Same convention as ``stereo_bench.geometry``; repeated here because drivers/ must not import the app.
+    """
+    return PARALLEL_ALPHA_DEG - alpha_deg
+
+
+def alpha_from_toe_in(toe_in_deg: float) -> float:
+    return PARALLEL_ALPHA_DEG - toe_in_deg
+
+
+class QuantityMapping(BaseModel):
+    """How one physical quantity is set. ``offset``/``min``/``max``/``value`` are in the quantity's units."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    axis: AxisName
+    offset: float = Field(0.0, allow_inf_nan=False, description="machine units at physical value 0")
+    scale: float = Field(1.0, allow_inf_nan=False, description="machine units per physical unit; may be negative")
+    min: float | None = Field(None, allow_inf_nan=False, description="soft limit, physical units")
+    max: float | None = Field(None, allow_inf_nan=False, description="soft limit, physical units")
+    feed_per_min: float | None = Field(None, gt=0, allow_inf_nan=False,
+                                       description="this axis' feed, machine units/min; None = rapid")
+    value: float | None = Field(None, allow_inf_nan=False, description="the value of a fixed quantity")
+    tolerance: float = Field(0.02, ge=0, allow_inf_nan=False,
+                             description="how far (physical units) the stopped position may be from the target")
+
+    @model_validator(mode="after")
+    def _check(self) -> QuantityMapping:
+        if self.scale == 0.0:
+            raise ValueError("scale must not be 0")
+        if self.min is not None and self.max is not None and self.min > self.max:
+            raise ValueError(f"min ({self.min}) is greater than max ({self.max})")
+        if self.axis in MACHINE_AXES and (self.min is None or self.max is None):
+            raise ValueError(f"a quantity driven by axis {self.axis} needs soft limits: set both min and max")
+        if self.axis == "fixed" and self.value is None:
+            raise ValueError("a fixed quantity needs its value")
+        if self.axis != "fixed" and self.value is not None:
+            raise ValueError("value is only for axis = \"fixed\"")
+        return self
+
+    @property
+    def driven(self) -> bool:
+        return self.axis in MACHINE_AXES
+
+
+class ControllerSettings(BaseModel):
+    """Link and timing settings for the controller (seconds, bits per second, bytes)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    baudrate: int = Field(115200, gt=0)
+    rx_buffer_size: int = Field(128, ge=16, description="GRBL's serial receive buffer; 1024 on most grblHAL")
+    connect_timeout_s: float = Field(5.0, gt=0)
+    home_timeout_s: float = Field(120.0, gt=0)
+    move_timeout_s: float = Field(120.0, gt=0)
+    reset_on_open: bool = True
+
+
+def _default_quantities() -> dict[str, QuantityMapping]:
+    return {
+        "baseline_mm": QuantityMapping(axis="X", min=0.0, max=350.0),
+        "toe_in_left_deg": QuantityMapping(axis="Y", min=0.0, max=90.0),
+        "toe_in_right_deg": QuantityMapping(axis="Z", min=0.0, max=90.0),
+        "tilt_left_deg": QuantityMapping(axis="fixed", value=0.0),
+        "tilt_right_deg": QuantityMapping(axis="fixed", value=0.0),
+        "target_distance_mm": QuantityMapping(axis="manual"),
+    }
+
+
+class RigConfig(BaseModel):
+    """The whole rig: controller settings and the mapping of every physical quantity.
+
+    Quantities missing from a file keep their default mapping (X = baseline 0-350 mm, Y/Z = left/right
+    toe-in 0-90 deg, tilts fixed at 0, target distance manual).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    controller: ControllerSettings = Field(default_factory=ControllerSettings)
+    quantities: dict[str, QuantityMapping] = Field(default_factory=_default_quantities)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _fill_defaults(cls, data):
+        if isinstance(data, Mapping) and "quantities" in data and isinstance(data["quantities"], Mapping):
+            merged: dict = dict(_default_quantities())
+            merged.update(data["quantities"])
+            data = {**data, "quantities": merged}
+        return data
+
+    @model_validator(mode="after")
+    def _check(self) -> RigConfig:
+        unknown = sorted(set(self.quantities) - set(QUANTITIES))
+        if unknown:
+            raise ValueError(f"unknown quantity {unknown[0]!r}; known: {', '.join(QUANTITIES)}")
+        used: dict[str, str] = {}
+        for name in QUANTITIES:
+            mapping = self.quantities[name]
+            if mapping.driven:
+                if mapping.axis in used:
+                    raise ValueError(f"axis {mapping.axis} drives both {used[mapping.axis]} and {name}")
+                used[mapping.axis] = name
+        return self
+
+    def mapping(self, quantity: str) -> QuantityMapping:
+        return self.quantities[quantity]
+
+    @property
+    def driven(self) -> dict[str, str]:
+        """Quantity -> GRBL axis letter, for the quantities a motor sets."""
+        return {q: m.axis for q, m in self.quantities.items() if m.driven}
+
+    @property
+    def axes(self) -> str:
+        """The GRBL axis letters this rig uses, in GRBL order."""
+        used = set(self.driven.values())
+        return "".join(a for a in MACHINE_AXES if a in used)
+
+    def machine_travel(self) -> dict[str, tuple[float, float]]:
+        """Axis letter -> (min, max) machine units covered by the soft limits (for sizing an emulator)."""
+        travel = {}
+        for quantity, axis in self.driven.items():
+            m = self.quantities[quantity]
+            ends = sorted((m.offset + m.scale * m.min, m.offset + m.scale * m.max))  # type: ignore[operator]
+            travel[axis] = (ends[0], ends[1])
+        return travel
+
+    def axis_feeds_per_min(self) -> dict[str, float | None]:
+        return {self.quantities[q].axis: self.quantities[q].feed_per_min for q in self.driven}
+
+
+def _field_path(loc: tuple) -> str:
+    return ".".join(str(part) for part in loc if part not in ("function-after[_check()]",)) or "(top level)"
+
+
+def load_rig_config(path: str | Path) -> RigConfig:
+    """Read and validate a rig configuration TOML file. Errors name the file and the field."""
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            data = tomllib.load(f)
+    except FileNotFoundError:
+        raise RigConfigError(f"{path}: no such rig configuration file") from None
+    except OSError as error:
+        raise RigConfigError(f"{path}: cannot read: {error.strerror or error}") from None
+    except tomllib.TOMLDecodeError as error:
+        raise RigConfigError(f"{path}: invalid TOML: {error}") from None
+    return rig_config_from_dict(data, source=str(path))
+
+
+def rig_config_from_dict(data: Mapping, *, source: str = "rig config") -> RigConfig:
+    try:
+        return RigConfig.model_validate(data)
+    except ValidationError as error:
+        first = error.errors()[0]
+        where = _field_path(tuple(first.get("loc", ())))
+        message = first.get("msg", "invalid").removeprefix("Value error, ")
+        more = f" (and {error.error_count() - 1} more)" if error.error_count() > 1 else ""
+        raise RigConfigError(f"{source}: {where}: {message}{more}") from None
+
+
+# --------------------------------------------------------------------------------------------------
+# Pure conversions
+
+
+def to_machine(config: RigConfig, physical: Mapping[str, float]) -> dict[str, float]:
+    """Machine targets (axis letter -> machine units) for the driven quantities among ``physical``."""
+    targets = {}
+    for quantity, value in physical.items():
+        mapping = config.quantities[quantity]
+        if mapping.driven:
+            targets[mapping.axis] = mapping.offset + mapping.scale * float(value)
+    return targets
+
+
+def to_physical(config: RigConfig, machine: Mapping[str, float]) -> dict[str, float]:
+    """Physical values of the driven quantities whose axis appears in ``machine`` (axis letter -> units)."""
+    values = {}
+    for quantity, axis in config.driven.items():
+        if axis in machine:
+            mapping = config.quantities[quantity]
+            values[quantity] = (float(machine[axis]) - mapping.offset) / mapping.scale
+    return values
+
+
+def limit_violations(config: RigConfig, physical: Mapping[str, float]) -> list[str]:
+    """One message per requested value outside its quantity's soft limits (empty if all are inside)."""
+    problems = []
+    for quantity, value in physical.items():
+        mapping = config.quantities[quantity]
+        if not math.isfinite(value):
+            problems.append(f"{quantity} = {value} is not a number")
+            continue
+        low = -math.inf if mapping.min is None else mapping.min
+        high = math.inf if mapping.max is None else mapping.max
+        if not low <= value <= high:
+            problems.append(f"{quantity} = {value:g} outside [{_fmt(mapping.min)}, {_fmt(mapping.max)}]")
+    return problems
+
+
+def _fmt(value: float | None) -> str:
+    return "-inf" if value is None else f"{value:g}"
+
+
+def check_limits(config: RigConfig, physical: Mapping[str, float]) -> None:
+    """Raise :class:`LimitError` naming every requested value outside its soft limits."""
+    problems = limit_violations(config, physical)
+    if problems:
+        raise LimitError(problems)
+
+
+@dataclass(frozen=True)
+class MovePlan:
+    """What a physical move request turns into, decided before anything is sent.
+
+    ``machine_targets``: axis letter -> machine units. ``manual``: quantity -> value the operator must set.
+    ``driven``: quantity -> requested physical value for the motorised quantities.
+    """
+
+    machine_targets: dict[str, float]
+    driven: dict[str, float]
+    manual: dict[str, float]
+
+
+def plan_move(config: RigConfig, request: Mapping[str, float | None]) -> MovePlan:
+    """Validate a request (quantity -> physical value; None = leave as is) and split it by how it is set.
+
+    Raises :class:`MoveRequestError` for an unknown quantity or a change to a fixed one, and
+    :class:`LimitError` for anything outside the soft limits. Pure: nothing is sent.
+    """
+    wanted = {q: float(v) for q, v in request.items() if v is not None}
+    unknown = sorted(set(wanted) - set(QUANTITIES))
+    if unknown:
+        raise MoveRequestError(f"unknown quantity {unknown[0]!r}; known: {', '.join(QUANTITIES)}")
+    for quantity, value in wanted.items():
+        mapping = config.quantities[quantity]
+        if mapping.axis == "fixed" and not math.isclose(value, mapping.value, abs_tol=1e-9):  # type: ignore[arg-type]
+            raise MoveRequestError(
+                f"{quantity} is fixed at {mapping.value:g} on this rig (no axis drives it); cannot set {value:g}")
+    check_limits(config, wanted)
+    driven = {q: v for q, v in wanted.items() if config.quantities[q].driven}
+    manual = {q: v for q, v in wanted.items() if config.quantities[q].axis == "manual"}
+    return MovePlan(machine_targets=to_machine(config, driven), driven=driven, manual=manual)

@@ -1,0 +1,888 @@
+"""GRBL 1.1 controller driver: typed commands in machine units over any :class:`Transport`.
+
+Layers: :mod:`drivers.rig.transport` moves bytes, :mod:`drivers.rig.codec` turns them into messages,
+and :class:`GrblController` (here) keeps the protocol's state:
+
+- a reader thread splits incoming bytes into lines and dispatches them: ``ok``/``error:N`` answer the
+  oldest outstanding line (GRBL answers in order), ``<...>`` answers the oldest ``?``, ``ALARM:N`` and
+  banners fail whatever is outstanding;
+- lines are streamed by character counting: the bytes of lines not yet answered never exceed GRBL's
+  receive buffer (``rx_buffer_size - 1``; the ring buffer keeps one slot free), so nothing is dropped;
+- real-time bytes (``?`` ``!`` ``~`` 0x18) bypass the buffer and get no ``ok``;
+- every wait has a deadline. ``ok`` only means *queued*; the end of motion is known from ``G4 P0``
+  (its ``ok`` comes once the planner is empty), and while waiting for it the driver polls ``?`` so that
+  a lost ``ok`` is detected (controller Idle, buffers empty, answer still missing) and recovered from.
+
+Positions in readings are only ever what the controller reported (MPos, or WPos + the last WCO).
+Units are machine units (mm for G21; whatever a rotary axis is configured in).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+import serial
+
+from drivers.rig import codec
+from drivers.rig.config import RigError
+from drivers.rig.transport import SerialTransport, SpyTransport, Transport, TransportError
+
+log = logging.getLogger(__name__)
+
+
+class GrblError(RigError):
+    """Base of the controller's failures."""
+
+
+class GrblCommandError(GrblError):
+    """A line answered with ``error:N``."""
+
+    def __init__(self, code: int, line: str):
+        self.code = code
+        self.meaning = codec.error_meaning(code)
+        self.line = line
+        super().__init__(f"GRBL error:{code} for {line!r}: {self.meaning}")
+
+
+class GrblAlarm(GrblError):
+    """The controller pushed ``ALARM:N``, or is halted by one."""
+
+    def __init__(self, code: int, context: str = ""):
+        self.code = code
+        self.meaning = codec.alarm_meaning(code)
+        super().__init__(f"GRBL ALARM:{code}: {self.meaning}" + (f" ({context})" if context else ""))
+
+
+class GrblLocked(GrblError):
+    """The controller is in Alarm state and refuses motion until homed (``$H``) or unlocked (``$X``)."""
+
+
+class GrblTimeout(GrblError, TimeoutError):
+    """Something the controller should have said did not come in time."""
+
+
+class GrblConnectionError(GrblError):
+    """The port cannot be opened, went away, or does not speak GRBL."""
+
+
+class GrblResetError(GrblError):
+    """The controller reset (a banner arrived) while lines were outstanding; they were discarded."""
+
+
+class GrblMoveError(GrblError):
+    """Motion ended somewhere other than the target."""
+
+
+@dataclass(frozen=True)
+class GrblReading:
+    """One status report, timestamped when it arrived. Positions in machine units, keyed by axis letter.
+
+    ``machine_position`` is None only when the report gave WPos and no WCO has been seen yet.
+    """
+
+    state: str
+    substate: int | None
+    machine_position: dict[str, float] | None
+    work_position: dict[str, float] | None
+    feed_per_min: float | None
+    planner_blocks_free: int | None
+    rx_bytes_free: int | None
+    pins: str | None
+    timestamp: float  # time.time(), s
+    monotonic: float  # time.monotonic(), s
+    raw: str
+
+    @property
+    def full_state(self) -> str:
+        return self.state if self.substate is None else f"{self.state}:{self.substate}"
+
+    @property
+    def is_idle(self) -> bool:
+        return self.state == "Idle"
+
+    def to_dict(self) -> dict:
+        return {
+            "state": self.full_state, "machine_position": self.machine_position, "work_position": self.work_position,
+            "feed_per_min": self.feed_per_min, "pins": self.pins, "timestamp": self.timestamp, "raw": self.raw,
+        }
+
+    @staticmethod
+    def describe() -> dict:
+        return {
+            "machine_position": {"units": "machine units (mm for G21)", "source": "GRBL status report MPos/WPos+WCO"},
+            "timestamp": {"units": "s since the epoch", "source": "host clock when the report arrived"},
+        }
+
+
+class _Pending:
+    """One line sent and not yet answered."""
+
+    __slots__ = ("line", "size", "event", "reply", "error", "assumed", "feedback", "sent_at")
+
+    def __init__(self, line: str, size: int):
+        self.line = line
+        self.size = size
+        self.event = threading.Event()
+        self.reply: codec.Response | None = None
+        self.error: GrblError | None = None
+        self.assumed = False  # answered by recovery after a lost reply, not by the controller
+        self.feedback: list[str] = []
+        self.sent_at = time.monotonic()
+
+    def finish(self, reply: codec.Response | None = None, error: GrblError | None = None) -> None:
+        self.reply, self.error = reply, error
+        self.event.set()
+
+
+class MoveStatus:
+    """The result of :meth:`GrblController.move_to`, in the manner of ophyd's MoveStatus.
+
+    The move is already queued on the controller; :meth:`wait` blocks until motion has ended (bounded by
+    ``timeout``), checks that the controller stopped at the target and returns the final reading.
+    """
+
+    def __init__(self, controller: GrblController, target: dict[str, float], pending: _Pending,
+                 timeout_s: float, tolerance: Mapping[str, float]):
+        self.controller = controller
+        self.target = target
+        self.timeout_s = timeout_s
+        self.tolerance = dict(tolerance)
+        self._pending = pending
+        self._lock = threading.Lock()
+        self._done = threading.Event()
+        self._reading: GrblReading | None = None
+        self._exception: BaseException | None = None
+        self._callbacks: list[Callable[[MoveStatus], None]] = []
+        self.started_at = time.monotonic()
+
+    @property
+    def line(self) -> str:
+        return self._pending.line
+
+    @property
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    @property
+    def success(self) -> bool:
+        return self._done.is_set() and self._exception is None
+
+    @property
+    def reading(self) -> GrblReading | None:
+        return self._reading
+
+    @property
+    def exception(self) -> BaseException | None:
+        return self._exception
+
+    def add_callback(self, callback: Callable[[MoveStatus], None]) -> None:
+        """Call ``callback(status)`` once the move has finished (at once if it already has)."""
+        with self._lock:
+            if not self._done.is_set():
+                self._callbacks.append(callback)
+                return
+        callback(self)
+
+    def wait(self, timeout: float | None = None) -> GrblReading:
+        """Block until the controller has stopped at the target; return its final report.
+
+        Args:
+            timeout: seconds; default the move's own ``timeout_s``.
+        Raises:
+            GrblTimeout, GrblAlarm, GrblCommandError, GrblConnectionError, GrblResetError, GrblMoveError.
+        """
+        with self._lock:
+            if self._done.is_set():
+                if self._exception is not None:
+                    raise self._exception
+                return self._reading  # type: ignore[return-value]
+            try:
+                reading = self.controller.wait_idle(self.timeout_s if timeout is None else timeout)
+                self.controller._raise_for(self._pending)
+                self._check_position(reading)
+                self._reading = reading
+            except BaseException as error:
+                self._exception = error
+                raise
+            finally:
+                self._done.set()
+                callbacks, self._callbacks = self._callbacks, []
+        for callback in callbacks:
+            callback(self)
+        return reading
+
+    def _check_position(self, reading: GrblReading) -> None:
+        position = reading.machine_position
+        if position is None:
+            raise GrblMoveError("motion ended but the controller reported no machine position")
+        off = []
+        for axis, target in self.target.items():
+            actual = position.get(axis)
+            if actual is None or abs(actual - target) > self.tolerance.get(axis, 0.01):
+                off.append(f"{axis}={actual} (target {target:g})")
+        if off:
+            raise GrblMoveError(
+                f"motion ended at {', '.join(off)}; the controller stopped short of the target "
+                f"(state {reading.full_state})")
+
+
+class GrblController:
+    """A GRBL 1.1 (or grblHAL) motion controller. Constructing it does no I/O.
+
+    Args:
+        port: a device path or pyserial URL, an open ``serial.SerialBase``, or any :class:`Transport`.
+        baudrate: bits per second when ``port`` is a path or URL.
+        rx_buffer_size: the controller's serial receive buffer (bytes): 128 for GRBL 1.1 on an Uno.
+        connect_timeout_s: how long :meth:`open` waits for the banner / first status report.
+        reset_on_open: soft-reset on open (flushes half-received lines; the position is kept when idle)
+            and wait for the banner. False: just ask for status, e.g. to look at a rig another program drives.
+        pulse_dtr_on_open: pulse DTR first (resets an Arduino the way the IDE does); tolerated on a pty.
+        status_retry_s: resend ``?`` if no report came within this long (a report can be lost).
+        poll_interval_s: how often to poll ``?`` while waiting for motion to end.
+        ok_grace_s: how long the controller must look Idle, with nothing outstanding, before a missing
+            ``ok`` is declared lost.
+        spy_log: a path or text stream: log every byte each way (see :class:`SpyTransport`).
+    """
+
+    def __init__(
+        self, port: str | serial.SerialBase | Transport, *, baudrate: int = 115200,
+        rx_buffer_size: int = codec.RX_BUFFER_SIZE, connect_timeout_s: float = 5.0, reset_on_open: bool = True,
+        pulse_dtr_on_open: bool = False, status_retry_s: float = 0.25, poll_interval_s: float = 0.05,
+        ok_grace_s: float = 0.5, spy_log: str | Path | IO[str] | None = None,
+    ):
+        if isinstance(port, (str, serial.SerialBase)):
+            transport: Transport = SerialTransport(port, baudrate=baudrate)
+        else:
+            transport = port
+        if spy_log is not None:
+            transport = SpyTransport(transport, spy_log)
+        self.transport = transport
+        self.port_name = transport.name
+        self.rx_buffer_size = rx_buffer_size
+        self.connect_timeout_s = connect_timeout_s
+        self.reset_on_open = reset_on_open
+        self.pulse_dtr_on_open = pulse_dtr_on_open
+        self.status_retry_s = status_retry_s
+        self.poll_interval_s = poll_interval_s
+        self.ok_grace_s = ok_grace_s
+
+        self._cond = threading.Condition()
+        self._send_lock = threading.Lock()  # one line sender at a time, so pending order = wire order
+        self._write_lock = threading.Lock()  # real-time bytes never land inside a line's bytes
+        self._reader: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._reset_state()
+
+    def _reset_state(self) -> None:
+        self._pending: deque[_Pending] = deque()
+        self._rx_used = 0
+        self._status_sent = 0
+        self._status_received = 0
+        self._last_reading: GrblReading | None = None
+        self._last_wco: tuple[float, ...] | None = None
+        self._axes: str | None = None
+        self._connection_error: GrblConnectionError | None = None
+        self._alarm: codec.AlarmPush | None = None  # the alarm the controller is in, if known
+        self._locked = False  # Alarm state: motion refused until $H / $X
+        self._needs_reset = False  # critical alarm ("Reset to continue"): lines are ignored until 0x18
+        self._homing = False
+        self._expecting_banner = False
+        self._banner_grace_until = 0.0
+        self._banner: codec.Banner | None = None
+        self._banner_count = 0
+        self._unexpected_reset = False
+        self.messages: deque[str] = deque(maxlen=100)
+        self.lost_replies = 0
+        self.garbled_lines = 0
+        self.stray_replies = 0
+
+    # ------------------------------------------------------------------ lifecycle
+
+    @property
+    def is_open(self) -> bool:
+        return self._reader is not None and self._reader.is_alive()
+
+    def open(self) -> GrblController:
+        """Open the port, (soft-reset and) wait for the controller, and read its state. Returns self."""
+        if self.is_open:
+            return self
+        self._reset_state()
+        try:
+            self.transport.open()
+        except TransportError as error:
+            raise GrblConnectionError(error.strerror or str(error)) from None
+        self._stop.clear()
+        if not self.reset_on_open:
+            # Opening may reset an Arduino through DTR: its boot banner during the connect is expected.
+            self._banner_grace_until = time.monotonic() + self.connect_timeout_s
+        self._reader = threading.Thread(target=self._read_loop, name=f"grbl-reader {self.port_name}", daemon=True)
+        self._reader.start()
+        try:
+            if self.pulse_dtr_on_open and hasattr(self.transport, "pulse_dtr"):
+                self.transport.pulse_dtr()  # type: ignore[attr-defined]
+            if self.reset_on_open:
+                self._connect_by_reset()
+            try:
+                self.status(timeout=self.connect_timeout_s)
+            except GrblTimeout:
+                raise GrblConnectionError(
+                    f"no GRBL status report from {self.port_name} within {self.connect_timeout_s:g} s: "
+                    "is a GRBL controller on this port, at the right baud rate?") from None
+            if not self.reset_on_open:
+                # It answered, so any boot after a DTR reset is over: a banner from now on is a real reset.
+                with self._cond:
+                    self._banner_grace_until = 0.0
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _connect_by_reset(self) -> None:
+        # An Arduino's bootloader may swallow the first reset byte; a second one after a pause covers that.
+        attempts = 2
+        for attempt in range(attempts):
+            try:
+                self.soft_reset(timeout=self.connect_timeout_s / attempts, query_status=False)
+                return
+            except GrblTimeout:
+                if attempt == attempts - 1:
+                    raise GrblConnectionError(
+                        f"no GRBL banner from {self.port_name} within {self.connect_timeout_s:g} s of a soft reset: "
+                        "is a GRBL controller on this port, at the right baud rate?") from None
+
+    def close(self) -> None:
+        """Stop the reader thread and close the port. Sends nothing: closing never moves or stops the rig."""
+        self._stop.set()
+        self.transport.cancel_read()
+        reader, self._reader = self._reader, None
+        if reader is not None and reader is not threading.current_thread():
+            reader.join(timeout=2.0)
+        self.transport.close()
+        with self._cond:
+            error = GrblConnectionError(f"connection to {self.port_name} closed")
+            self._fail_pending(error)
+            if self._connection_error is None:
+                self._connection_error = error
+            self._cond.notify_all()
+
+    def __enter__(self) -> GrblController:
+        return self.open()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ what we know
+
+    @property
+    def axes(self) -> str | None:
+        """Axis letters the controller reports (``XYZ``; ``XYZABC`` on a 6-axis grblHAL), once known."""
+        return self._axes
+
+    @property
+    def banner(self) -> codec.Banner | None:
+        return self._banner
+
+    @property
+    def last_reading(self) -> GrblReading | None:
+        return self._last_reading
+
+    @property
+    def alarm(self) -> codec.AlarmPush | None:
+        return self._alarm
+
+    @property
+    def locked(self) -> bool:
+        """True while the controller is in Alarm state (boot with homing enabled, or after an alarm)."""
+        return self._locked or self._needs_reset
+
+    # ------------------------------------------------------------------ reader thread
+
+    def _read_loop(self) -> None:
+        splitter = codec.LineSplitter()
+        while not self._stop.is_set():
+            try:
+                data = self.transport.read()
+            except TransportError as error:
+                if not self._stop.is_set():
+                    self._lose_connection(f"lost the connection to {self.port_name}: {error.strerror or error}")
+                return
+            except Exception as error:  # a transport bug must not leave waiters hanging
+                if not self._stop.is_set():
+                    self._lose_connection(f"reading {self.port_name} failed: {error!r}")
+                return
+            if not data:
+                continue
+            for line in splitter.feed(data):
+                try:
+                    self._dispatch(line)
+                except Exception:
+                    log.exception("could not handle line %r from %s", line, self.port_name)
+
+    def _lose_connection(self, message: str) -> None:
+        with self._cond:
+            self._connection_error = GrblConnectionError(message)
+            self._fail_pending(self._connection_error)
+            self._cond.notify_all()
+        log.error("%s", message)
+
+    def _fail_pending(self, error: GrblError) -> None:
+        while self._pending:
+            self._pending.popleft().finish(error=error)
+        self._rx_used = 0
+
+    def _pop_pending(self) -> _Pending | None:
+        if not self._pending:
+            self.stray_replies += 1
+            return None
+        pending = self._pending.popleft()
+        self._rx_used -= pending.size
+        return pending
+
+    def _dispatch(self, line: str) -> None:
+        message = codec.parse_response(line)
+        now_wall, now_mono = time.time(), time.monotonic()
+        with self._cond:
+            if isinstance(message, codec.Ok):
+                pending = self._pop_pending()
+                if pending is None:
+                    log.warning("'ok' with no line outstanding on %s (a late answer after recovery?)", self.port_name)
+                else:
+                    pending.finish(reply=message)
+            elif isinstance(message, codec.ErrorReply):
+                pending = self._pop_pending()
+                if pending is None:
+                    log.warning("error:%d with no line outstanding on %s", message.code, self.port_name)
+                else:
+                    pending.finish(reply=message, error=GrblCommandError(message.code, pending.line))
+            elif isinstance(message, codec.StatusReport):
+                self._on_status(message, now_wall, now_mono)
+            elif isinstance(message, codec.AlarmPush):
+                self._alarm = message
+                self._locked = True
+                # An alarm aborts the stream: GRBL discards what it had buffered, so no answers will come.
+                self._fail_pending(GrblAlarm(message.code, f"while talking to {self.port_name}"))
+                log.error("ALARM:%d on %s: %s", message.code, self.port_name, message.meaning)
+            elif isinstance(message, codec.Banner):
+                self._on_banner(message, now_mono)
+            elif isinstance(message, codec.Message):
+                self.messages.append(message.text)
+                if message.text == codec.UNLOCK_MESSAGE:
+                    self._locked = True
+                elif message.text == codec.RESET_TO_CONTINUE_MESSAGE:
+                    self._needs_reset = True
+                    self._locked = True
+                if self._pending:
+                    self._pending[0].feedback.append(line)
+            elif isinstance(message, (codec.Feedback, codec.Setting)):
+                if self._pending:
+                    self._pending[0].feedback.append(line)
+            else:
+                self.garbled_lines += 1
+                log.warning("unparsable line from %s: %r", self.port_name, line)
+            self._cond.notify_all()
+
+    def _on_status(self, report: codec.StatusReport, now_wall: float, now_mono: float) -> None:
+        if report.wco is not None:
+            self._last_wco = report.wco
+        n = report.axis_count
+        if n is not None and self._axes is None:
+            self._axes = codec.AXIS_LETTERS[:n]
+        letters = codec.AXIS_LETTERS
+        mpos = codec.machine_position(report, self._last_wco)
+        wpos = report.wpos
+        if wpos is None and mpos is not None and self._last_wco is not None and len(self._last_wco) == len(mpos):
+            wpos = tuple(m - o for m, o in zip(mpos, self._last_wco, strict=True))
+        reading = GrblReading(
+            state=report.state, substate=report.substate,
+            machine_position=None if mpos is None else codec.split_axes(mpos, letters),
+            work_position=None if wpos is None else codec.split_axes(wpos, letters),
+            feed_per_min=report.feed, planner_blocks_free=report.planner_blocks_free,
+            rx_bytes_free=report.rx_bytes_free, pins=report.pins, timestamp=now_wall, monotonic=now_mono,
+            raw=report.raw,
+        )
+        self._last_reading = reading
+        self._status_received += 1
+        if report.state == "Alarm":
+            self._locked = True
+        elif report.state in ("Idle", "Run", "Jog", "Hold", "Check"):
+            # The controller is out of Alarm (someone homed or unlocked it): believe the controller.
+            self._locked = False
+            self._needs_reset = False
+
+    def _on_banner(self, banner: codec.Banner, now_mono: float) -> None:
+        self._banner = banner
+        self._banner_count += 1
+        expected = self._expecting_banner or now_mono < self._banner_grace_until
+        self._homing = False
+        self._needs_reset = False
+        self._status_received = self._status_sent  # a reset drops any '?' not yet answered
+        if expected:
+            self._fail_pending(GrblResetError(f"line discarded by a soft reset of {self.port_name}"))
+        else:
+            self._unexpected_reset = True
+            self._locked = True
+            self._fail_pending(GrblResetError(
+                f"{self.port_name} reset unexpectedly (power, watchdog or a DTR pulse?): outstanding lines were "
+                "discarded and the position may be lost; home the rig"))
+            log.error("unexpected reset of %s: %s", self.port_name, banner.text)
+
+    # ------------------------------------------------------------------ sending
+
+    def _usable_or_raise(self) -> None:
+        if self._connection_error is not None:
+            raise GrblConnectionError(str(self._connection_error))
+        if not self.is_open:
+            raise GrblConnectionError(f"controller on {self.port_name} is not open")
+
+    def _write(self, data: bytes) -> None:
+        try:
+            with self._write_lock:
+                self.transport.write(data)
+        except TransportError as error:
+            self._lose_connection(f"lost the connection to {self.port_name}: {error.strerror or error}")
+            raise GrblConnectionError(str(self._connection_error)) from None
+
+    def _send_line(self, line: str, deadline: float) -> _Pending:
+        """Queue one line under character counting; returns its pending answer. Waits for buffer room."""
+        data = codec.encode_line(line)
+        if len(data) > self.rx_buffer_size - 1:
+            raise codec.EncodeError(f"line of {len(data)} bytes can never fit GRBL's receive buffer: {line!r}")
+        with self._send_lock:
+            with self._cond:
+                while True:
+                    self._usable_or_raise()
+                    if self._rx_used + len(data) <= self.rx_buffer_size - 1:
+                        break
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        raise GrblTimeout(
+                            f"GRBL's receive buffer on {self.port_name} stayed full ({self._rx_used} bytes "
+                            f"unanswered) while sending {line!r}")
+                    self._cond.wait(min(remaining, 0.1))
+                pending = _Pending(line.strip(), len(data))
+                self._pending.append(pending)
+                self._rx_used += len(data)
+            self._write(data)
+        return pending
+
+    def _raise_for(self, pending: _Pending) -> None:
+        if pending.error is not None:
+            raise pending.error
+
+    def _await(self, pending: _Pending, deadline: float, *, timeout_s: float, watch_idle: bool) -> _Pending:
+        """Wait for the answer to ``pending``; with ``watch_idle``, poll ``?`` to detect a lost answer."""
+        idle_since: float | None = None
+        while True:
+            if pending.event.is_set():
+                self._raise_for(pending)
+                return pending
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                state = self._last_reading.full_state if self._last_reading else "unknown"
+                raise GrblTimeout(
+                    f"no answer from {self.port_name} to {pending.line!r} within {timeout_s:g} s "
+                    f"(last reported state {state})")
+            if pending.event.wait(min(remaining, self.poll_interval_s if watch_idle else remaining)):
+                continue
+            if not watch_idle:
+                continue
+            try:
+                reading = self.status(timeout=min(max(deadline - time.monotonic(), 0.001), 4 * self.status_retry_s))
+            except GrblTimeout:
+                idle_since = None
+                continue
+            if pending.event.is_set():
+                continue
+            if reading.is_idle and (reading.rx_bytes_free is None or reading.rx_bytes_free >= self.rx_buffer_size - 1):
+                now = time.monotonic()
+                idle_since = idle_since or now
+                if now - idle_since >= self.ok_grace_s:
+                    self._recover_lost_reply(pending, deadline)
+                    return pending
+            else:
+                idle_since = None
+
+    def _recover_lost_reply(self, pending: _Pending, deadline: float) -> None:
+        """The controller is Idle with empty buffers but an answer is missing: it was lost on the way.
+
+        Every outstanding line has been executed (nothing is buffered), so they are all marked as
+        answered-by-assumption; a fresh ``G4 P0`` then checks that the link answers again.
+        """
+        with self._cond:
+            lost = list(self._pending)
+            self.lost_replies += 1
+            for item in lost:
+                item.assumed = True
+            self._pending.clear()
+            self._rx_used = 0
+            for item in lost:
+                item.finish(reply=codec.Ok())
+        log.warning("lost reply from %s: %d line(s) outstanding while Idle (%s); resynchronising",
+                    self.port_name, len(lost), ", ".join(repr(p.line) for p in lost))
+        probe_deadline = min(deadline, time.monotonic() + max(1.0, 4 * self.ok_grace_s))
+        probe = self._send_line("G4 P0", probe_deadline)
+        if not probe.event.wait(max(0.0, probe_deadline - time.monotonic())):
+            raise GrblTimeout(f"{self.port_name} stopped answering lines (no 'ok' to a G4 P0 after a lost reply)")
+        self._raise_for(probe)
+
+    def send(self, line: str, *, timeout: float = 5.0) -> list[str]:
+        """Send one line (g-code or ``$`` command), wait for its ``ok``; return the feedback lines before it.
+
+        Raises GrblCommandError on ``error:N``. Not for motion you need to wait on: see :meth:`move_to`.
+        """
+        deadline = time.monotonic() + timeout
+        if self._needs_reset:
+            raise self._halted_error()
+        pending = self._send_line(line, deadline)
+        self._await(pending, deadline, timeout_s=timeout, watch_idle=False)
+        return list(pending.feedback)
+
+    def stream(self, lines: Iterable[str], *, timeout: float = 60.0) -> list[str]:
+        """Stream lines with character counting (as fast as GRBL's buffer allows); wait for every answer.
+
+        Returns the lines sent. Raises the first error (the lines after it were still sent, as GRBL
+        streaming does; an alarm stops the stream).
+        """
+        deadline = time.monotonic() + timeout
+        pendings = [self._send_line(line, deadline) for line in lines]
+        for pending in pendings:
+            self._await(pending, deadline, timeout_s=timeout, watch_idle=False)
+        return [p.line for p in pendings]
+
+    # ------------------------------------------------------------------ real-time commands
+
+    def _ask_status(self) -> tuple[int, float]:
+        with self._cond:
+            self._status_sent += 1
+            wanted = self._status_sent
+        asked_at = time.monotonic()
+        self._write(codec.RT_STATUS)
+        return wanted, asked_at
+
+    def status(self, *, timeout: float = 1.0) -> GrblReading:
+        """Ask ``?`` and return the report that answers it (resending if a report is lost).
+
+        A report answers a ``?`` if it is at least the n-th report for the n-th ``?`` and arrived after it
+        was sent, so an answer delayed from an earlier query is never taken for a fresh one.
+        Raises GrblTimeout if none comes within ``timeout`` s, and GrblError during homing: GRBL does not
+        answer ``?`` while homing.
+        """
+        self._usable_or_raise()
+        if self._homing:
+            raise GrblError("no status while homing: GRBL does not answer '?' during a homing cycle")
+        deadline = time.monotonic() + timeout
+        wanted, asked_at = self._ask_status()
+        next_retry = asked_at + self.status_retry_s
+        while True:
+            with self._cond:
+                self._usable_or_raise()
+                if self._homing:
+                    raise GrblError("no status while homing: GRBL does not answer '?' during a homing cycle")
+                reading = self._last_reading
+                now = time.monotonic()
+                answered = self._status_received >= wanted and reading is not None and reading.monotonic >= asked_at
+                if answered and reading.machine_position is not None:
+                    return reading
+                if now >= deadline:
+                    why = "only WPos and no WCO yet" if answered else "none"
+                    raise GrblTimeout(f"no usable status report from {self.port_name} within {timeout:g} s ({why})")
+                if not answered:
+                    if now < next_retry:
+                        self._cond.wait(min(deadline, next_retry) - now)
+                        continue
+                    # The answer was lost or garbled: count it as such and ask again.
+                    self._status_received = max(self._status_received, self._status_sent)
+                # else: WPos without a WCO yet; GRBL sends WCO within 10-30 reports, so keep asking.
+            wanted, asked_at = self._ask_status()
+            next_retry = asked_at + self.status_retry_s
+
+    def feed_hold(self) -> None:
+        """``!``: decelerate to a stop and hold (state Hold); :meth:`resume` continues."""
+        self._usable_or_raise()
+        self._write(codec.RT_FEED_HOLD)
+
+    def resume(self) -> None:
+        """``~``: cycle start / resume after a feed hold."""
+        self._usable_or_raise()
+        self._write(codec.RT_CYCLE_START)
+
+    def soft_reset(self, *, timeout: float = 5.0, query_status: bool = True) -> GrblReading | None:
+        """0x18: stop at once, discard everything buffered, wait for the banner; return the state after it.
+
+        Reset while moving loses position (GRBL raises ALARM:3); reset while idle keeps it.
+        """
+        self._usable_or_raise()
+        with self._cond:
+            count = self._banner_count
+            self._expecting_banner = True
+        try:
+            self._write(codec.RT_SOFT_RESET)
+            deadline = time.monotonic() + timeout
+            with self._cond:
+                while self._banner_count == count:
+                    self._usable_or_raise()
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        raise GrblTimeout(f"no banner from {self.port_name} within {timeout:g} s of a soft reset")
+                    self._cond.wait(remaining)
+        finally:
+            with self._cond:
+                self._expecting_banner = False
+                # A second banner may follow closely (an Arduino booting after its DTR reset): not a fault.
+                self._banner_grace_until = time.monotonic() + 0.25
+        return self.status(timeout=max(1.0, timeout)) if query_status else None
+
+    # ------------------------------------------------------------------ motion
+
+    def _halted_error(self) -> GrblAlarm | GrblLocked:
+        alarm = self._alarm
+        if alarm is not None:
+            return GrblAlarm(alarm.code, "the controller halted: soft-reset it, then home")
+        return GrblLocked(f"{self.port_name} halted ([MSG:Reset to continue]): soft-reset it, then home")
+
+    def _lock_error(self) -> GrblLocked:
+        if self._unexpected_reset:
+            return GrblLocked(f"{self.port_name} reset unexpectedly; its position may be lost: "
+                              "home the rig ($H) before moving")
+        if self._alarm is not None:
+            return GrblLocked(
+                f"controller is in Alarm after ALARM:{self._alarm.code} ({self._alarm.meaning}): "
+                "home ($H) or unlock ($X) before moving")
+        return GrblLocked(f"controller on {self.port_name} is in Alarm (homing required): "
+                          "home ($H) or unlock ($X) before moving")
+
+    def _can_move_or_raise(self) -> None:
+        self._usable_or_raise()
+        if self._homing:
+            raise GrblError("homing in progress")
+        if self._needs_reset:
+            raise self._halted_error()
+        if self._locked or self._unexpected_reset:
+            raise self._lock_error()
+
+    def home(self, *, timeout: float = 120.0) -> GrblReading:
+        """``$H``: run the homing cycle and wait for its ``ok`` (GRBL reports no status while homing).
+
+        On timeout the cycle is stopped with a soft reset and GrblTimeout is raised.
+        """
+        self._usable_or_raise()
+        if self._needs_reset:
+            raise self._halted_error()
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            self._homing = True
+        try:
+            pending = self._send_line("$H", deadline)
+            try:
+                self._await(pending, deadline, timeout_s=timeout, watch_idle=False)
+            except GrblTimeout:
+                with self._cond:
+                    self._homing = False
+                reading = self._status_or_none(timeout=max(0.5, 4 * self.status_retry_s))
+                if reading is not None and reading.is_idle:
+                    # Homing ended but its 'ok' never came: the controller's own report says it is done.
+                    with self._cond:
+                        if self._pending and self._pending[0] is pending:
+                            self._pending.popleft()
+                            self._rx_used -= pending.size
+                        self.lost_replies += 1
+                    pending.assumed = True
+                    pending.finish(reply=codec.Ok())
+                    log.warning("no 'ok' for $H from %s, but it reports Idle: homing done", self.port_name)
+                else:
+                    self._stop_after_timeout()
+                    raise GrblTimeout(
+                        f"homing on {self.port_name} did not finish within {timeout:g} s; sent a soft reset to "
+                        "stop it: check the limit switches and homing settings") from None
+        finally:
+            with self._cond:
+                self._homing = False
+        with self._cond:
+            self._locked = False
+            self._alarm = None
+            self._unexpected_reset = False
+        return self.status(timeout=max(1.0, deadline - time.monotonic()))
+
+    def _status_or_none(self, *, timeout: float) -> GrblReading | None:
+        try:
+            return self.status(timeout=timeout)
+        except GrblError:
+            return None
+
+    def _stop_after_timeout(self) -> None:
+        try:
+            self.soft_reset(timeout=2.0, query_status=False)
+        except GrblError as error:
+            log.error("soft reset after a timeout failed on %s: %s", self.port_name, error)
+
+    def unlock(self, *, timeout: float = 5.0) -> GrblReading:
+        """``$X``: leave Alarm state without homing (the position is then trusted as is)."""
+        self.send("$X", timeout=timeout)
+        with self._cond:
+            self._locked = False
+            self._alarm = None
+            self._unexpected_reset = False
+        return self.status(timeout=timeout)
+
+    def move_to(
+        self, target: Mapping[str, float], *, feed_per_min: float | None = None, timeout_s: float = 120.0,
+        tolerance: float | Mapping[str, float] = 0.01,
+    ) -> MoveStatus:
+        """Queue an absolute move in machine coordinates (axis letter -> machine units); return its status.
+
+        Refused before sending anything if the controller is in Alarm or an axis is not on it.
+
+        Args:
+            feed_per_min: vector feed (units/min); None for a rapid (G0) at GRBL's per-axis max rates.
+            timeout_s: default bound for the returned status' :meth:`MoveStatus.wait`.
+            tolerance: how far (machine units) the stopped position may be from the target, per axis.
+        """
+        self._can_move_or_raise()
+        target = {axis: float(value) for axis, value in target.items()}
+        if self._axes is not None:
+            missing = [a for a in target if a not in self._axes]
+            if missing:
+                raise GrblError(f"axis {', '.join(missing)} not on the controller at {self.port_name} "
+                                f"(it reports {', '.join(self._axes)})")
+        for axis, value in target.items():
+            if not math.isfinite(value):
+                raise GrblError(f"target {axis}={value} is not a number")
+        line = codec.encode_move(target, feed_per_min=feed_per_min)
+        pending = self._send_line(line, time.monotonic() + timeout_s)
+        tol = {a: float(tolerance) for a in target} if isinstance(tolerance, (int, float)) else dict(tolerance)
+        return MoveStatus(self, target, pending, timeout_s, tol)
+
+    def wait_idle(self, timeout: float = 60.0) -> GrblReading:
+        """Block until every queued motion has ended (``G4 P0``, with ``?`` polling); return the final report.
+
+        Raises GrblTimeout (e.g. held with ``!`` and never resumed), GrblAlarm, GrblResetError,
+        GrblConnectionError; never waits past ``timeout`` s by more than one status round trip.
+        """
+        self._usable_or_raise()
+        if self._needs_reset:
+            raise self._halted_error()
+        if self._locked or self._unexpected_reset:
+            raise self._lock_error()
+        deadline = time.monotonic() + timeout
+        sync = self._send_line("G4 P0", deadline)
+        self._await(sync, deadline, timeout_s=timeout, watch_idle=True)
+        remaining = deadline - time.monotonic()
+        reading = self.status(timeout=max(remaining, 4 * self.status_retry_s))
+        if not reading.is_idle:
+            raise GrblError(f"motion queue empty but {self.port_name} reports {reading.full_state}")
+        return reading
+
+
+__all__ = [
+    "GrblAlarm", "GrblCommandError", "GrblConnectionError", "GrblController", "GrblError", "GrblLocked",
+    "GrblMoveError", "GrblReading", "GrblResetError", "GrblTimeout", "MoveStatus",
+]
+

@@ -1,0 +1,398 @@
+"""GRBL 1.1 codec: pure parsing/encoding, and the driver against scripted request/reply pairs (no port at all).
+
+The scripted tests follow pymeasure's ``expected_protocol``: each write must be the next scripted
+request, and the test fails if any pair is left unused.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import threading
+import time
+
+import pytest
+
+from drivers.rig import codec
+from drivers.rig.grbl import (
+    GrblAlarm,
+    GrblCommandError,
+    GrblController,
+    GrblLocked,
+    GrblResetError,
+    GrblTimeout,
+)
+from drivers.rig.transport import ScriptedTransport, SpyTransport, expected_protocol, script_from_spy_log
+
+BANNER = b"\r\nGrbl 1.1h ['$' for help]\r\n"
+IDLE = b"<Idle|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>\r\n"
+
+
+# ---------------------------------------------------------------------------------------------------- parsing
+
+
+def test_status_report_with_fields_in_any_order():
+    a = codec.parse_status("<Idle|MPos:1.000,2.500,-3.250|FS:500,0|WCO:0.000,1.000,0.000|Pn:XZ|Ov:100,90,100>")
+    b = codec.parse_status("<Idle|Ov:100,90,100|Pn:XZ|WCO:0.000,1.000,0.000|FS:500,0|MPos:1.000,2.500,-3.250>")
+    for report in (a, b):
+        assert report.state == "Idle" and report.substate is None
+        assert report.mpos == (1.0, 2.5, -3.25)
+        assert report.wco == (0.0, 1.0, 0.0)
+        assert report.feed == 500.0 and report.spindle == 0.0
+        assert report.pins == "XZ"
+        assert report.overrides == (100, 90, 100)
+
+
+def test_status_report_substate_buffer_line_and_unknown_fields_kept():
+    report = codec.parse_status("<Hold:1|WPos:10.000,0.000,0.000|Bf:15,128|Ln:42|F:300|H:1,7|A:SFM>")
+    assert report.state == "Hold" and report.substate == 1 and report.full_state == "Hold:1"
+    assert report.wpos == (10.0, 0.0, 0.0) and report.mpos is None
+    assert (report.planner_blocks_free, report.rx_bytes_free) == (15, 128)
+    assert report.line_number == 42 and report.feed == 300.0
+    assert report.accessories == "SFM"
+    assert report.extra == {"H": "1,7"}  # grblHAL's homed field: kept, not misread
+
+
+def test_six_axis_grblhal_report():
+    report = codec.parse_status("<Run|MPos:1.000,2.000,3.000,4.000,5.000,6.000|FS:1200,0>")
+    assert report.axis_count == 6
+    assert codec.split_axes(report.mpos) == {"X": 1.0, "Y": 2.0, "Z": 3.0, "A": 4.0, "B": 5.0, "C": 6.0}
+
+
+def test_machine_position_from_wpos_needs_a_wco():
+    report = codec.parse_status("<Idle|WPos:10.000,5.000,0.000|FS:0,0>")
+    assert codec.machine_position(report, None) is None  # unknown, not zero
+    assert codec.machine_position(report, (1.0, 2.0, 3.0)) == (11.0, 7.0, 3.0)
+    with_wco = codec.parse_status("<Idle|WPos:10.000,5.000,0.000|WCO:-1.000,0.000,0.000>")
+    assert codec.machine_position(with_wco, (1.0, 2.0, 3.0)) == (9.0, 5.0, 0.0)
+
+
+@pytest.mark.parametrize("line", [
+    "<Idle|MPos:1.0,2\xff.0,3.0|FS:0,0>",  # a garbled byte
+    "<Idle|MPos:1.000,2.000",  # cut short
+    "<Idel|MPos:0,0,0>",  # unknown state
+    "<Idle|MPos:1,2,3|WPos:1,2,3>",  # both positions
+    "<Idle|MPos:1,2,3|WCO:0,0>",  # axis counts disagree
+    "<Idle|MPos:1,2,3|MPos:1,2,3>",  # repeated field
+    "<Idle|MPos:nan,2,3>",
+    "<Idle|FS:1>",
+])
+def test_malformed_status_is_rejected_not_half_read(line):
+    with pytest.raises(codec.ParseError):
+        codec.parse_status(line)
+    assert isinstance(codec.parse_response(line), codec.Unparsed)
+
+
+def test_responses_are_classified():
+    assert codec.parse_response("ok") == codec.Ok()
+    err = codec.parse_response("error:22")
+    assert err == codec.ErrorReply(22) and "feed rate" in err.meaning.lower()
+    alarm = codec.parse_response("ALARM:1")
+    assert alarm == codec.AlarmPush(1) and "Hard limit" in alarm.meaning
+    assert codec.parse_response("[MSG:'$H'|'$X' to unlock]") == codec.Message(codec.UNLOCK_MESSAGE)
+    assert codec.parse_response("[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]") == codec.Feedback(
+        "GC", "G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0")
+    assert codec.parse_response("$110=3000.000") == codec.Setting(110, "3000.000")
+    assert codec.parse_response("o\xffk") == codec.Unparsed("o\xffk")
+
+
+def test_banners_grbl_and_grblhal():
+    grbl = codec.parse_response("Grbl 1.1h ['$' for help]")
+    assert grbl == codec.Banner("Grbl", "1.1h", "Grbl 1.1h ['$' for help]")
+    hal = codec.parse_response("GrblHAL 1.1f ['$' or '$HELP' for help]")
+    assert isinstance(hal, codec.Banner) and hal.firmware == "GrblHAL" and hal.version == "1.1f"
+
+
+def test_every_grbl_error_and_alarm_has_a_meaning():
+    for code in [*range(1, 18), *range(20, 39)]:
+        assert codec.error_meaning(code) and "unknown" not in codec.error_meaning(code)
+    for code in range(1, 10):
+        assert "unknown" not in codec.alarm_meaning(code)
+    assert codec.error_meaning(99) == "unknown GRBL error 99"
+
+
+def test_line_splitter_handles_chunks_and_crlf():
+    splitter = codec.LineSplitter()
+    assert splitter.feed(b"o") == []
+    assert splitter.feed(b"k\r\n<Idle|MPos:0.000,0.000,0.000>\r") == ["ok", "<Idle|MPos:0.000,0.000,0.000>"]
+    assert splitter.feed(b"\nerror:9\r\n") == ["error:9"]
+
+
+# ---------------------------------------------------------------------------------------------------- encoding
+
+
+def test_encode_move_machine_coordinates():
+    assert codec.encode_move({"Y": 5, "X": 100}) == "G53 G0 X100.000 Y5.000"
+    assert codec.encode_move({"X": -0.0001, "Z": 1.23456}, feed_per_min=1500) == "G53 G1 X0.000 Z1.235 F1500.0"
+    with pytest.raises(codec.EncodeError):
+        codec.encode_move({})
+    with pytest.raises(codec.EncodeError):
+        codec.encode_move({"Q": 1.0})
+    with pytest.raises(codec.EncodeError):
+        codec.encode_move({"X": float("nan")})
+    with pytest.raises(codec.EncodeError):
+        codec.encode_move({"X": 1.0}, feed_per_min=0.0)
+
+
+def test_encode_line_refuses_realtime_characters_and_overlong_lines():
+    assert codec.encode_line("  G4 P0 ") == b"G4 P0\n"
+    for bad in ("G0 X1?", "G0 X1!", "G0\x18", "G0 X1~", "G0\nX1", "G0 X1 é"):
+        with pytest.raises(codec.EncodeError):
+            codec.encode_line(bad)
+    with pytest.raises(codec.EncodeError):
+        codec.encode_line("G1 " + "X1.000 " * 20)
+
+
+def test_vector_feed_keeps_every_axis_within_its_own_rate():
+    # X moves 30, Y moves 40 (path 50): Y is the slower axis at 600/min -> F = 600 * 50 / 40 = 750.
+    assert codec.vector_feed({"X": 30.0, "Y": 40.0}, {"X": 3000.0, "Y": 600.0}) == pytest.approx(750.0)
+    assert codec.vector_feed({"X": 30.0, "Y": 0.0}, {"X": 3000.0, "Y": None}) == pytest.approx(3000.0)
+    assert codec.vector_feed({"X": 30.0, "Y": 1.0}, {"X": 3000.0, "Y": None}) is None  # rapid
+    assert codec.vector_feed({"X": 0.0}, {"X": 3000.0}) is None
+
+
+# ---------------------------------------------------------------------------------------------------- scripted
+
+
+def _controller(transport, **kwargs) -> GrblController:
+    options = dict(reset_on_open=True, connect_timeout_s=2.0, status_retry_s=0.2)
+    options.update(kwargs)
+    return GrblController(transport, **options)
+
+
+def test_connect_resets_waits_for_banner_and_sees_boot_alarm():
+    with expected_protocol([
+        (b"\x18", BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n"),
+        (b"?", b"<Alarm|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>\r\n"),
+    ]) as transport:
+        with _controller(transport) as grbl:
+            assert grbl.banner.version == "1.1h"
+            assert grbl.locked
+            assert grbl.axes == "XYZ"
+            with pytest.raises(GrblLocked, match="homing required"):
+                grbl.move_to({"X": 10.0})  # refused: the script would fail on any write
+
+
+def test_home_then_move_waits_with_g4_p0():
+    with expected_protocol([
+        (b"\x18", BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n"),
+        (b"?", b"<Alarm|MPos:0.000,0.000,0.000|FS:0,0>\r\n"),
+        (b"$H\n", b"ok\r\n"),
+        (b"?", IDLE),
+        (b"G53 G0 X120.000 Y5.000 Z5.000\n", b"ok\r\n"),
+        (b"G4 P0\n", b"ok\r\n"),
+        (b"?", b"<Idle|MPos:120.000,5.000,5.000|FS:0,0>\r\n"),
+    ]) as transport:
+        with _controller(transport, poll_interval_s=10.0) as grbl:
+            assert grbl.home(timeout=2.0).machine_position == {"X": 0.0, "Y": 0.0, "Z": 0.0}
+            status = grbl.move_to({"X": 120.0, "Y": 5.0, "Z": 5.0})
+            reading = status.wait(2.0)
+            assert status.done and status.success
+            assert reading.machine_position == {"X": 120.0, "Y": 5.0, "Z": 5.0}
+
+
+def test_error_reply_carries_grbl_meaning():
+    with expected_protocol([
+        (None, b""),
+        (b"?", IDLE),
+        (b"G1 X10\n", b"error:22\r\n"),
+    ]) as transport:
+        with _controller(transport, reset_on_open=False) as grbl:
+            with pytest.raises(GrblCommandError) as info:
+                grbl.send("G1 X10", timeout=1.0)
+            assert info.value.code == 22 and "Undefined feed rate" in str(info.value)
+
+
+def test_alarm_push_fails_the_wait_with_its_meaning():
+    with expected_protocol([
+        (b"?", IDLE),
+        (b"G53 G0 X300.000\n", b"ok\r\n"),
+        (b"G4 P0\n", b"ALARM:1\r\n[MSG:Reset to continue]\r\n"),
+    ]) as transport:
+        with _controller(transport, reset_on_open=False, poll_interval_s=10.0) as grbl:
+            status = grbl.move_to({"X": 300.0})
+            with pytest.raises(GrblAlarm) as info:
+                status.wait(2.0)
+            assert info.value.code == 1 and "Hard limit" in str(info.value)
+            assert not status.success
+            assert grbl.locked
+
+
+def test_unexpected_banner_fails_outstanding_lines():
+    with expected_protocol([
+        (b"?", IDLE),
+        (b"G53 G0 X10.000\n", b"ok\r\n"),
+        (b"G4 P0\n", BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n"),
+    ]) as transport:
+        with _controller(transport, reset_on_open=False, poll_interval_s=10.0) as grbl:
+            with pytest.raises(GrblResetError, match="reset unexpectedly"):
+                grbl.move_to({"X": 10.0}).wait(2.0)
+            with pytest.raises(GrblLocked, match="reset unexpectedly"):
+                grbl.move_to({"X": 10.0})
+
+
+def test_lost_status_report_is_asked_again():
+    with expected_protocol([
+        (b"?", IDLE),
+        (b"?", b""),  # lost on the way
+        (b"?", b"<Idle|MPos:1.000,2.000,3.000|FS:0,0>\r\n"),
+    ]) as transport:
+        with _controller(transport, reset_on_open=False, status_retry_s=0.05) as grbl:
+            assert grbl.status(timeout=1.0).machine_position == {"X": 1.0, "Y": 2.0, "Z": 3.0}
+
+
+def test_wpos_reports_use_the_last_wco():
+    with expected_protocol([
+        (b"?", b"<Idle|WPos:0.000,0.000,0.000|FS:0,0>\r\n"),  # no WCO yet: position unknown, ask again
+        (b"?", b"<Idle|WPos:0.000,0.000,0.000|FS:0,0|WCO:10.000,20.000,30.000>\r\n"),
+        (b"?", b"<Idle|WPos:1.000,1.000,1.000|FS:0,0>\r\n"),
+    ]) as transport:
+        with _controller(transport, reset_on_open=False) as grbl:
+            assert grbl.last_reading.machine_position == {"X": 10.0, "Y": 20.0, "Z": 30.0}
+            reading = grbl.status(timeout=1.0)
+            assert reading.machine_position == {"X": 11.0, "Y": 21.0, "Z": 31.0}
+            assert reading.work_position == {"X": 1.0, "Y": 1.0, "Z": 1.0}
+
+
+def test_status_timeout_when_the_controller_is_silent():
+    transport = ScriptedTransport([(b"?", b"")] * 100)
+    grbl = _controller(transport, reset_on_open=False, connect_timeout_s=0.3, status_retry_s=0.05)
+    with pytest.raises(Exception, match="no GRBL status report"):
+        grbl.open()
+    assert not grbl.is_open
+
+
+def test_no_banner_is_a_clear_connection_error():
+    transport = ScriptedTransport([(b"\x18", b"garbage\r\n"), (b"\x18", b"")])
+    grbl = _controller(transport, connect_timeout_s=0.4)
+    with pytest.raises(Exception, match="no GRBL banner"):
+        grbl.open()
+    transport.check()
+
+
+class _HeldOks:
+    """A transport that answers '?' at once but each line's 'ok' only when the test says so."""
+
+    name = "held-oks"
+
+    def __init__(self):
+        self._cond = threading.Condition()
+        self._rx = bytearray()
+        self._open = False
+        self.unanswered: list[int] = []
+        self.max_outstanding = 0
+        self.lines: list[bytes] = []
+
+    @property
+    def is_open(self):
+        return self._open
+
+    def open(self):
+        self._open = True
+
+    def close(self):
+        self._open = False
+
+    def write(self, data):
+        with self._cond:
+            if data == b"?":
+                self._rx += IDLE
+            else:
+                self.lines.append(data)
+                self.unanswered.append(len(data))
+                self.max_outstanding = max(self.max_outstanding, sum(self.unanswered))
+            self._cond.notify_all()
+
+    def read(self):
+        with self._cond:
+            if not self._rx:
+                self._cond.wait(0.01)
+            data, self._rx = bytes(self._rx), bytearray()
+            return data
+
+    def cancel_read(self):
+        with self._cond:
+            self._cond.notify_all()
+
+    def answer_one(self):
+        with self._cond:
+            self.unanswered.pop(0)
+            self._rx += b"ok\r\n"
+            self._cond.notify_all()
+
+
+def test_character_counting_never_exceeds_the_receive_buffer():
+    # 10 lines of 21 bytes: 6 fit in GRBL's 127 usable bytes, so the 7th must wait for the first 'ok'.
+    lines = [f"G1 X{i:03d}.000 F100.000" for i in range(10)]
+    assert all(len(codec.encode_line(line)) == 21 for line in lines)
+    transport = _HeldOks()
+    with _controller(transport, reset_on_open=False) as grbl:
+        result: list = []
+        streamer = threading.Thread(target=lambda: result.append(grbl.stream(lines, timeout=10.0)))
+        streamer.start()
+        seen_full = False
+        answered = 0
+        deadline = time.monotonic() + 10.0
+        while answered < len(lines) and time.monotonic() < deadline:
+            before = len(transport.lines)
+            time.sleep(0.02)  # let the driver send whatever fits
+            if len(transport.lines) != before:
+                continue
+            seen_full |= len(transport.unanswered) == 6
+            assert len(transport.lines) == min(len(lines), answered + 6)
+            transport.answer_one()
+            answered += 1
+        streamer.join(5.0)
+        assert not streamer.is_alive() and result and len(result[0]) == 10
+    assert seen_full
+    assert transport.max_outstanding == 6 * 21 <= codec.RX_BUFFER_SIZE - 1
+    assert transport.lines == [codec.encode_line(line) for line in lines]
+
+
+def test_unused_pair_fails_the_protocol_check():
+    with pytest.raises(AssertionError, match="unused"):
+        with expected_protocol([(b"?", IDLE), (b"$X\n", b"ok\r\n")]) as transport:
+            with _controller(transport, reset_on_open=False):
+                pass
+
+
+def test_unexpected_write_fails_the_protocol_check():
+    with pytest.raises(AssertionError, match="expected"):
+        with expected_protocol([(b"?", IDLE), (b"$X\n", b"ok\r\n")]) as transport:
+            with _controller(transport, reset_on_open=False) as grbl:
+                with pytest.raises(GrblTimeout):
+                    grbl.send("$H", timeout=0.2)
+
+
+def test_spy_log_records_every_byte_and_replays_as_a_script(tmp_path):
+    log_path = tmp_path / "session.jsonl"
+    pairs = [(b"?", IDLE), (b"$I\n", b"[VER:1.1h.20190825:]\r\n[OPT:V,15,128]\r\nok\r\n")]
+    grbl = _controller(SpyTransport(ScriptedTransport(pairs), log_path), reset_on_open=False)
+    with grbl:
+        assert grbl.send("$I", timeout=1.0) == ["[VER:1.1h.20190825:]", "[OPT:V,15,128]"]
+    records = [json.loads(line) for line in log_path.read_text().splitlines()]
+    assert records[0]["event"] == "open" and records[-1]["event"] == "close"
+    times = [r["t"] for r in records]
+    assert times == sorted(times)
+    tx = "".join(r["data"] for r in records if r.get("dir") == "tx")
+    assert tx == "?$I\n"
+    # The recording becomes a script that drives the driver the same way again.
+    replay = script_from_spy_log(log_path)
+    assert [p[0] for p in replay] == [b"?", b"$I\n"]
+    with expected_protocol(replay) as transport:
+        with _controller(transport, reset_on_open=False) as again:
+            assert again.send("$I", timeout=1.0)[0] == "[VER:1.1h.20190825:]"
+
+
+def test_spy_log_to_a_stream():
+    stream = io.StringIO()
+    with _controller(SpyTransport(ScriptedTransport([(b"?", IDLE)]), stream), reset_on_open=False):
+        pass
+    assert '"dir": "tx", "data": "?"' in stream.getvalue()
+
+
+def test_constructing_does_no_io():
+    transport = ScriptedTransport([])
+    GrblController(transport)
+    assert transport.written == [] and not transport.is_open
+    GrblController("/dev/this-port-does-not-exist")  # opening is open()'s job
