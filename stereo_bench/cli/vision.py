@@ -124,6 +124,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 def cmd_measure(args: argparse.Namespace) -> int:
     from stereo_bench.vision.calibio import CalibrationFileError, read_calibration
+    from stereo_bench.vision.detect import AmbiguousViewError
     from stereo_bench.vision.pipeline import BoardNotFoundError, measure_pair
 
     target = target_from_args(args)
@@ -140,8 +141,9 @@ def cmd_measure(args: argparse.Namespace) -> int:
         raise CliError(f"{args.calib} is for {calib.image_size[0]}x{calib.image_size[1]} images, "
                        f"{args.left} is {image_size[0]}x{image_size[1]}")
     try:
-        result = measure_pair(left, right, calib, target, pixel_sigma_px=args.pixel_sigma, thorough=True)
-    except BoardNotFoundError as error:
+        result = measure_pair(left, right, calib, target, pixel_sigma_px=args.pixel_sigma, thorough=True,
+                              partial=args.partial)
+    except (BoardNotFoundError, AmbiguousViewError) as error:
         raise CliError(f"{args.left}, {args.right}: {error}") from None
     report = {**result.as_dict(), "left": str(args.left), "right": str(args.right), "calib": str(args.calib)}
     if args.per_square:
@@ -156,8 +158,65 @@ def cmd_measure(args: argparse.Namespace) -> int:
         print(f"        std {sq.std_mm:.4f} mm over n = {sq.n} adjacent pairs, sigma of mean {sq.sigma_mean_mm:.4f} mm")
         print(f"depth:  {sq.depth_mm:.1f} mm (left camera frame); corners in both views: {len(sq.ids)} "
               f"of {target.n_corners}")
-        print(f"epipolar RMS {result.epipolar_rms_px:.3f} px; corner noise {sq.pixel_sigma_px[0]:.3f} / "
-              f"{sq.pixel_sigma_px[1]:.3f} px (left / right)")
+        fit = result.planar_fit_rms_px
+        print(f"epipolar RMS {result.epipolar_rms_px:.3f} px; random corner noise {sq.pixel_sigma_px[0]:.3f} / "
+              f"{sq.pixel_sigma_px[1]:.3f} px, planar-fit RMS {fit[0]:.3f} / {fit[1]:.3f} px (left / right)")
+    return 0
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from drivers.sim.render import Optics, StereoRenderer
+    from stereo_bench.geometry import CameraModel, RigPose, board_pose_facing_rig
+    from stereo_bench.vision.calibio import write_calibration
+    from stereo_bench.vision.calibrate import StereoCalibration
+    from stereo_bench.vision.rectify import rectify
+
+    target = target_from_args(args)
+    out = Path(args.out)
+    outputs = [out / name for name in ("left.png", "right.png", "truth.json", "intrinsics.yml", "extrinsics.yml")]
+    existing = [p for p in outputs if p.exists()]
+    if existing and not args.force:
+        raise CliError(f"{existing[0]} exists: choose another --out or pass --force to replace the rendered pair")
+    if args.alpha is not None and (args.toe_in is not None):
+        raise CliError("give --alpha or --toe-in, not both")
+    alpha = args.alpha if args.alpha is not None else 90.0 - (args.toe_in or 0.0)
+    if not 0.0 < alpha <= 180.0 or args.baseline <= 0 or args.distance <= 0:
+        raise CliError("--baseline and --distance must be positive and --alpha in (0, 180] degrees")
+    camera = CameraModel.from_sensor(focal_mm=args.focal, pixel_um=args.pixel)
+    rig = RigPose.symmetric(args.baseline, alpha, args.tilt)
+    try:
+        optics = Optics(noise_sigma_dn=args.noise, blur_sigma_px=args.blur)
+    except ValueError as error:
+        raise CliError(str(error)) from None
+    renderer = StereoRenderer(target, camera, camera, optics=optics)
+    T_rig_board = board_pose_facing_rig(distance_mm=args.distance, board_size_mm=target.grid_size_mm)
+    pair = renderer.render_pair(rig, T_rig_board, np.random.default_rng(args.seed))
+    out.mkdir(parents=True, exist_ok=True)
+    for name, view in (("left.png", pair.left), ("right.png", pair.right)):
+        if not cv2.imwrite(str(out / name), view.image):
+            raise CliError(f"{out / name}: cannot write image")
+    truth_calib = StereoCalibration(
+        K1=camera.K, D1=camera.dist.reshape(1, -1), K2=camera.K, D2=camera.dist.reshape(1, -1),
+        R=pair.R, T=pair.T, image_size=camera.image_size, rms_px=0.0, mode="truth",
+    )
+    write_calibration(out, truth_calib, rectify(truth_calib), board=f"{target.kind} {args.board}",
+                      extra={"note": "ground truth of the simulated rig, not estimated"})
+    truth = {
+        "baseline_mm": args.baseline, "distance_mm": args.distance, "alpha_deg": alpha, "tilt_deg": args.tilt,
+        "seed": args.seed, "target": {"kind": target.kind, "board": args.board, "square_mm": target.square_mm},
+        "camera": {"K": camera.K.tolist(), "dist": camera.dist.tolist(), "image_size": list(camera.image_size)},
+        "R": pair.R.tolist(), "T_mm": pair.T.tolist(), "T_rig_left": pair.T_rig_left.tolist(),
+        "T_rig_right": pair.T_rig_right.tolist(), "T_rig_board": pair.T_rig_board.tolist(),
+        "left": {"corners_px": pair.left.corners_px.tolist(), "visible": pair.left.visible.tolist()},
+        "right": {"corners_px": pair.right.corners_px.tolist(), "visible": pair.right.visible.tolist()},
+        "fraction_in_both": float((pair.left.visible & pair.right.visible).mean()),
+    }
+    (out / "truth.json").write_text(json.dumps(truth, indent=1))
+    print(f"rendered B = {args.baseline:g} mm, Z = {args.distance:g} mm, alpha = {alpha:g} deg: "
+          f"{truth['fraction_in_both']:.0%} of the board's corners in both views")
+    print(f"wrote {out / 'left.png'}, {out / 'right.png'}, ground-truth calibration and {out / 'truth.json'}")
+    print(f"next: stereo-bench measure --calib {out} --board {args.board} --square {target.square_mm:g} "
+          f"{out / 'left.png'} {out / 'right.png'}")
     return 0
 
 
@@ -196,4 +255,33 @@ def register(subparsers) -> None:
                               "the images)")
     measure.add_argument("--per-square", action="store_true", help="include every measured length in the JSON")
     measure.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    measure.add_argument("--partial", action="store_true",
+                         help="accept a checkerboard cut by the image border (ids proven from the board's edges)")
     measure.set_defaults(func=cmd_measure)
+
+    render = subparsers.add_parser(
+        "render", help="render a stereo pair of the board on the simulated rig, with ground truth",
+        description="Render both 1920x1080 views of a checkerboard facing the rig at distance Z, with lens "
+                    "distortion, blur and sensor noise, and write left.png, right.png, the true calibration "
+                    "(intrinsics.yml, extrinsics.yml) and truth.json (corner pixels, poses, R, T).",
+    )
+    render.add_argument("--baseline", type=float, required=True, metavar="MM", help="B: optical-centre distance")
+    render.add_argument("--distance", type=float, required=True, metavar="MM", help="Z: rig origin to board plane")
+    render.add_argument("--alpha", type=float, metavar="DEG", help="angle between baseline and optical axes "
+                                                                     "(90 = parallel, default)")
+    render.add_argument("--toe-in", type=float, metavar="DEG", help="pan from parallel instead of --alpha "
+                                                                      "(toe-in = 90 - alpha)")
+    render.add_argument("--tilt", type=float, default=0.0, metavar="DEG", help="heads' tilt, positive down")
+    render.add_argument("--out", required=True, metavar="DIR")
+    render.add_argument("--board", default="9x6", metavar="COLSxROWS", help="inner corners (default 9x6)")
+    render.add_argument("--square", type=float, default=27.0, metavar="MM", help="square size (default 27)")
+    render.add_argument("--charuco", action="store_true", help="render a ChArUco board (--board gives squares)")
+    render.add_argument("--marker", type=float, metavar="MM", help="ChArUco marker size (default 0.75 x square)")
+    render.add_argument("--dictionary", default="DICT_5X5_1000", choices=sorted(ARUCO_DICTIONARIES), metavar="DICT")
+    render.add_argument("--focal", type=float, default=4.0, metavar="MM", help="lens focal length (default 4)")
+    render.add_argument("--pixel", type=float, default=3.0, metavar="UM", help="pixel pitch (default 3)")
+    render.add_argument("--noise", type=float, default=2.0, metavar="DN", help="sensor noise std (default 2)")
+    render.add_argument("--blur", type=float, default=0.7, metavar="PX", help="optical blur sigma (default 0.7)")
+    render.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    render.add_argument("--force", action="store_true", help="replace a pair already rendered in --out")
+    render.set_defaults(func=cmd_render)

@@ -26,7 +26,7 @@ class SquareMeasurement:
     pairs: np.ndarray  # (M, 2) corner ids
     ids: np.ndarray  # (N,) corner ids triangulated
     points_mm: np.ndarray  # (N, 3) left camera frame
-    pixel_sigma_px: tuple[float, float]  # (left, right)
+    pixel_sigma_px: tuple[float, float]  # (left, right) RMS over the corners of the per-coordinate noise
     sigma_mean_mm: float
     sigma_length_mm: np.ndarray  # (M,) first-order sigma of each length
 
@@ -57,14 +57,15 @@ class SquareMeasurement:
         }
 
 
-def corner_noise_px(
+def planar_fit_rms_px(
     object_points: np.ndarray, image_px: np.ndarray, K: np.ndarray, D: np.ndarray
 ) -> float:
-    """Per-coordinate corner noise (px) estimated from one view of a planar board.
+    """Per-coordinate RMS (px) of the corners about the best homography of the board plane.
 
     The undistorted corners of a flat board are related to its plane coordinates by a homography;
-    what a least-squares homography cannot explain is corner noise (plus any lens-model misfit,
-    which the measurement also suffers). sigma^2 = SSR / (2N - 8).
+    what it cannot explain is corner noise plus systematic error (lens-model misfit, a bent print,
+    detector bias). sigma^2 = SSR / (2N - 8). An upper bound on the random corner noise and a
+    quality figure in its own right.
     """
     n = len(image_px)
     if n < 6:
@@ -80,24 +81,29 @@ def corner_noise_px(
 
 def measure_square(
     calib: StereoCalibration, target: Target, ids: np.ndarray, left_px: np.ndarray, right_px: np.ndarray, *,
-    pixel_sigma_px: tuple[float, float] | float | None = None,
+    pixel_sigma_px: tuple[np.ndarray | float, np.ndarray | float] | float | None = None,
 ) -> SquareMeasurement:
     """Triangulate matched corners and measure every adjacent pair among them.
 
     Args:
         ids: (N,) corner ids seen in both views, ``left_px``/``right_px`` (N, 2) their raw pixels.
-        pixel_sigma_px: corner noise per image coordinate (left, right); estimated from the views'
-            homography residuals when None.
+        pixel_sigma_px: random corner noise per image coordinate: one value, or (left, right) each a
+            value or (N,) per corner. None falls back on the planar-fit RMS of each view, which
+            includes systematic error and so overstates the random part.
     """
     ids = np.asarray(ids)
     points = triangulate(calib, left_px, right_px)
     if pixel_sigma_px is None:
         pixel_sigma_px = (
-            corner_noise_px(target.object_points[ids], left_px, calib.K1, calib.D1),
-            corner_noise_px(target.object_points[ids], right_px, calib.K2, calib.D2),
+            planar_fit_rms_px(target.object_points[ids], left_px, calib.K1, calib.D1),
+            planar_fit_rms_px(target.object_points[ids], right_px, calib.K2, calib.D2),
         )
     elif np.isscalar(pixel_sigma_px):
-        pixel_sigma_px = (float(pixel_sigma_px), float(pixel_sigma_px))
+        pixel_sigma_px = (pixel_sigma_px, pixel_sigma_px)
+    sigma_left = np.broadcast_to(np.asarray(pixel_sigma_px[0], float), (len(ids),))
+    sigma_right = np.broadcast_to(np.asarray(pixel_sigma_px[1], float), (len(ids),))
+    # (N, 4) variance of (u_left, v_left, u_right, v_right) per corner.
+    pixel_var = np.column_stack([sigma_left**2, sigma_left**2, sigma_right**2, sigma_right**2])
 
     position = {corner_id: i for i, corner_id in enumerate(ids.tolist())}
     pairs = np.array([p for p in target.adjacent_pairs() if p[0] in position and p[1] in position], int).reshape(-1, 2)
@@ -108,12 +114,11 @@ def measure_square(
 
     # First-order propagation: d(length_k) = u_k . (dX_a - dX_b), dX_i = J_i d(pixels_i).
     jac = triangulation_jacobian(calib, left_px, right_px)  # (N, 3, 4)
-    pixel_var = np.repeat(np.square(pixel_sigma_px), 2)  # (4,): uL, vL, uR, vR
     units = vectors / np.maximum(lengths, 1e-12)[:, None]
     # Gradient of each length w.r.t. each corner's four pixel coordinates.
     grad_a = np.einsum("kj,kjc->kc", units, jac[a])
     grad_b = -np.einsum("kj,kjc->kc", units, jac[b])
-    sigma_length = np.sqrt(np.sum(grad_a**2 * pixel_var, axis=1) + np.sum(grad_b**2 * pixel_var, axis=1))
+    sigma_length = np.sqrt(np.sum(grad_a**2 * pixel_var[a], axis=1) + np.sum(grad_b**2 * pixel_var[b], axis=1))
     # The mean shares corners between lengths: accumulate per corner before squaring.
     grad_mean = np.zeros((len(ids), 4))
     if len(pairs):
@@ -123,6 +128,6 @@ def measure_square(
 
     return SquareMeasurement(
         nominal_mm=float(target.square_mm), lengths_mm=lengths, pairs=pairs, ids=ids, points_mm=points,
-        pixel_sigma_px=(float(pixel_sigma_px[0]), float(pixel_sigma_px[1])), sigma_mean_mm=sigma_mean,
-        sigma_length_mm=sigma_length,
+        pixel_sigma_px=(float(np.sqrt(np.mean(sigma_left**2))), float(np.sqrt(np.mean(sigma_right**2)))),
+        sigma_mean_mm=sigma_mean, sigma_length_mm=sigma_length,
     )

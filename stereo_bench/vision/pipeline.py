@@ -9,8 +9,8 @@ import numpy as np
 
 from stereo_bench.targets import Target
 from stereo_bench.vision.calibrate import RejectedView, StereoCalibration, StereoMode, calibrate_stereo
-from stereo_bench.vision.detect import Detection, common_corners, detect
-from stereo_bench.vision.measure import SquareMeasurement, measure_square
+from stereo_bench.vision.detect import Detection, common_corners, common_sigmas, detect
+from stereo_bench.vision.measure import SquareMeasurement, measure_square, planar_fit_rms_px
 from stereo_bench.vision.rectify import Rectification, epipolar_errors_px, rectify, rms
 
 MIN_COMMON_CORNERS = 6
@@ -36,12 +36,14 @@ class PairMeasurement:
     left: Detection
     right: Detection
     fraction_in_both: float  # of the target's corners
+    planar_fit_rms_px: tuple[float, float]  # (left, right): random + systematic corner error
 
     def as_dict(self) -> dict:
         return {
             "square_mm": self.square.summary(), "nominal_mm": self.square.nominal_mm, "error_mm": self.square.error_mm,
             "depth_mm": self.square.depth_mm, "epipolar_rms_px": self.epipolar_rms_px,
-            "pixel_sigma_px": list(self.square.pixel_sigma_px), "corners_in_both": int(len(self.square.ids)),
+            "pixel_sigma_px": list(self.square.pixel_sigma_px), "planar_fit_rms_px": list(self.planar_fit_rms_px),
+            "corners_in_both": int(len(self.square.ids)),
             "fraction_in_both": self.fraction_in_both,
             "detection_order": {"left": self.left.order, "right": self.right.order},
         }
@@ -102,8 +104,11 @@ def measure_pair(
     if len(ids) < MIN_COMMON_CORNERS:
         raise BoardNotFoundError(f"only {len(ids)} corners are seen in both images (need {MIN_COMMON_CORNERS})")
     rect = rect or rectify(calib)
-    square = measure_square(calib, target, ids, left_px, right_px, pixel_sigma_px=pixel_sigma_px)
+    sigma = pixel_sigma_px if pixel_sigma_px is not None else common_sigmas(left, right)
+    square = measure_square(calib, target, ids, left_px, right_px, pixel_sigma_px=sigma)
+    fit = (planar_fit_rms_px(target.object_points[ids], left_px, calib.K1, calib.D1),
+           planar_fit_rms_px(target.object_points[ids], right_px, calib.K2, calib.D2))
     return PairMeasurement(
         square=square, epipolar_rms_px=rms(epipolar_errors_px(calib, rect, left_px, right_px)),
-        left=left, right=right, fraction_in_both=len(ids) / target.n_corners,
+        left=left, right=right, fraction_in_both=len(ids) / target.n_corners, planar_fit_rms_px=fit,
     )

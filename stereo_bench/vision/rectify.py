@@ -61,10 +61,16 @@ def undistort_points(
 def epipolar_errors_px(
     calib: StereoCalibration, rect: Rectification, left_px: np.ndarray, right_px: np.ndarray
 ) -> np.ndarray:
-    """(N,) vertical offsets v_left - v_right (px) of matched corners after rectification (0 when perfect)."""
-    left = undistort_points(left_px, calib.K1, calib.D1, rect.R1, rect.P1)
-    right = undistort_points(right_px, calib.K2, calib.D2, rect.R2, rect.P2)
-    return left[:, 1] - right[:, 1]
+    """(N,) vertical offsets v_left - v_right of matched corners after rectification (0 when perfect).
+
+    Expressed in pixels of the original cameras (focal length mean(fy1, fy2)), not of P1/P2:
+    for a converging rig stereoRectify's valid-pixel crop can zoom 30x, which would inflate the
+    same misalignment 30-fold and make configurations incomparable.
+    """
+    left = undistort_points(left_px, calib.K1, calib.D1, rect.R1)
+    right = undistort_points(right_px, calib.K2, calib.D2, rect.R2)
+    focal_px = 0.5 * (calib.K1[1, 1] + calib.K2[1, 1])
+    return (left[:, 1] - right[:, 1]) * focal_px
 
 
 def rms(values: np.ndarray) -> float:
