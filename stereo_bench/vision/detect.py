@@ -236,13 +236,20 @@ def _intensity(gray: np.ndarray, points_px: np.ndarray, radius: int = 1) -> np.n
 
 
 def _cell_is_black(gray: np.ndarray, grid: np.ndarray) -> bool | None:
-    """Is the square between grid corners (0, 0) and (1, 1) black? None when the contrast is too low."""
-    inside = grid[0, 0] + 0.5 * (grid[0, 1] - grid[0, 0]) + 0.5 * (grid[1, 0] - grid[0, 0])
-    beside = grid[0, 0] + 0.5 * (grid[0, 1] - grid[0, 0]) - 0.5 * (grid[1, 0] - grid[0, 0])
-    square, neighbour = _intensity(gray, np.array([inside, beside]))
-    if not np.isfinite(square) or not np.isfinite(neighbour) or abs(square - neighbour) < 10:
+    """Is the square between grid corners (0, 0) and (1, 1) black? None when the contrast is too low.
+
+    Compared with the next square inside the grid (never outside it, which may be off the image).
+    """
+    def centre(r: int, c: int) -> np.ndarray:
+        return 0.25 * (grid[r, c] + grid[r + 1, c] + grid[r, c + 1] + grid[r + 1, c + 1])
+
+    if grid.shape[0] < 2 or grid.shape[1] < 2 or max(grid.shape[:2]) < 3:
         return None
-    return bool(square < neighbour)
+    neighbour = centre(0, 1) if grid.shape[1] >= 3 else centre(1, 0)
+    square, other = _intensity(gray, np.array([centre(0, 0), neighbour]), radius=2)
+    if not np.isfinite(square) or not np.isfinite(other) or abs(square - other) < 10:
+        return None
+    return bool(square < other)
 
 
 def canonical_order(gray: np.ndarray, grid: np.ndarray, board: Checkerboard) -> tuple[np.ndarray, str]:
