@@ -634,10 +634,11 @@ class StereoRenderer:
         stands in for it.
         """
         o = self.optics
+        signal = cv2.multiply(frame, raster.gain, dtype=cv2.CV_32F)  # DN, vignetted
         variance = o.blur_sigma_px**2 + (1.0 / 12.0 if raster.s == 1 else 0.0) - texture_sigma_px**2
         if variance > 0.01:
-            frame = cv2.GaussianBlur(frame, (0, 0), math.sqrt(variance))
-        signal = cv2.multiply(frame, raster.gain, dtype=cv2.CV_32F)  # DN, vignetted
+            # After the vignetting (smooth, so the two commute); float32 blurs 3x faster than uint16.
+            signal = cv2.GaussianBlur(signal, (0, 0), math.sqrt(variance))
         # cv2.randn is ~4x faster than numpy's normal generator on 2 Mpx; seed its per-thread RNG
         # from the caller's generator so frames stay reproducible.
         cv2.setRNGSeed(int(rng.integers(0, 2**31 - 1)))
