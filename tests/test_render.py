@@ -402,3 +402,25 @@ def test_optics_are_validated():
         Optics(supersample=0)
     with pytest.raises(ValueError, match="vignetting"):
         Optics(vignetting=1.5)
+
+
+def test_partial_calibration_views_keep_the_requested_fraction():
+    rig = RigPose.symmetric(100.0, 70.0)
+    left = right = CameraModel.from_sensor()
+    poses = calibration_board_poses(rig, BOARD, n_views=6, rng=np.random.default_rng(15), distance_mm=(250.0, 400.0),
+                                    min_fraction_visible=0.5, margin_px=10.0)
+    for T_rig_board in poses:
+        both = visible_in_both(transform_points(T_rig_board, BOARD.object_points), rig=rig, left=left, right=right,
+                               margin_px=10.0)
+        assert both.mean() >= 0.5
+
+
+def test_single_sample_mode_renders_a_detectable_board():
+    """supersample = 1 (one sample per pixel, Gaussian stand-in for the pixel box) still renders truthfully."""
+    r = StereoRenderer(BOARD, optics=Optics(supersample=1))
+    T = board_pose_facing_rig(distance_mm=600.0, board_size_mm=BOARD.grid_size_mm, yaw_deg=15.0, pitch_deg=10.0)
+    view = r.render_view("right", T, np.random.default_rng(16))
+    detected = detect_chessboard(view.image, BOARD.pattern_size)
+    assert detected is not None
+    errors = in_truth_order(detected, view.corners_px) - view.corners_px
+    assert rms(errors) < 0.1
