@@ -104,6 +104,10 @@ GRBL_ALARMS: dict[int, str] = {
 #: Machine states as GRBL 1.1 names them in status reports.
 STATES = ("Idle", "Run", "Hold", "Jog", "Alarm", "Door", "Check", "Home", "Sleep", "Tool")
 
+#: Alarms after which GRBL 1.1 ignores everything but status and reset until a soft reset
+#: (hard limit, soft limit; grblHAL's e-stop).
+CRITICAL_ALARMS = frozenset({1, 2, 10})
+
 UNLOCK_MESSAGE = "'$H'|'$X' to unlock"
 RESET_TO_CONTINUE_MESSAGE = "Reset to continue"
 

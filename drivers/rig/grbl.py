@@ -320,9 +320,8 @@ class GrblController:
         except TransportError as error:
             raise GrblConnectionError(error.strerror or str(error)) from None
         self._stop.clear()
-        if not self.reset_on_open:
-            # Opening may reset an Arduino through DTR: its boot banner during the connect is expected.
-            self._banner_grace_until = time.monotonic() + self.connect_timeout_s
+        # Opening may reset an Arduino through DTR: a boot banner during the connect is expected.
+        self._banner_grace_until = time.monotonic() + self.connect_timeout_s
         self._reader = threading.Thread(target=self._read_loop, name=f"grbl-reader {self.port_name}", daemon=True)
         self._reader.start()
         try:
@@ -467,6 +466,9 @@ class GrblController:
             elif isinstance(message, codec.AlarmPush):
                 self._alarm = message
                 self._locked = True
+                if message.code in codec.CRITICAL_ALARMS:
+                    # [MSG:Reset to continue] follows, but a caller must not be able to act in between.
+                    self._needs_reset = True
                 # An alarm aborts the stream: GRBL discards what it had buffered, so no answers will come.
                 self._fail_pending(GrblAlarm(message.code, f"while talking to {self.port_name}"))
                 log.error("ALARM:%d on %s: %s", message.code, self.port_name, message.meaning)
@@ -570,6 +572,8 @@ class GrblController:
                 pending = _Pending(line.strip(), len(data))
                 self._pending.append(pending)
                 self._rx_used += len(data)
+                # The connect sequence is over once we send work: any banner from now on is a real reset.
+                self._banner_grace_until = 0.0
             self._write(data)
         return pending
 
@@ -838,7 +842,9 @@ class GrblController:
     ) -> MoveStatus:
         """Queue an absolute move in machine coordinates (axis letter -> machine units); return its status.
 
-        Refused before sending anything if the controller is in Alarm or an axis is not on it.
+        Returns once GRBL has accepted the line (its ``ok``: planned, usually not yet moving far); the
+        returned :class:`MoveStatus` waits for the end of motion. Refused before sending anything if the
+        controller is in Alarm or an axis is not on it; GrblCommandError if GRBL answers ``error:N``.
 
         Args:
             feed_per_min: vector feed (units/min); None for a rapid (G0) at GRBL's per-axis max rates.
@@ -856,7 +862,10 @@ class GrblController:
             if not math.isfinite(value):
                 raise GrblError(f"target {axis}={value} is not a number")
         line = codec.encode_move(target, feed_per_min=feed_per_min)
-        pending = self._send_line(line, time.monotonic() + timeout_s)
+        deadline = time.monotonic() + timeout_s
+        pending = self._send_line(line, deadline)
+        # Wait for 'ok' (accepted and planned, not done) so that a refusal (error:N) surfaces here.
+        self._await(pending, deadline, timeout_s=timeout_s, watch_idle=True)
         tol = {a: float(tolerance) for a in target} if isinstance(tolerance, (int, float)) else dict(tolerance)
         return MoveStatus(self, target, pending, timeout_s, tol)
 
