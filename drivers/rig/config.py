@@ -46,7 +46,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 QUANTITIES = (
     "baseline_mm", "toe_in_left_deg", "toe_in_right_deg", "tilt_left_deg", "tilt_right_deg", "target_distance_mm",
@@ -169,19 +169,20 @@ class RigConfig(BaseModel):
             data = {**data, "quantities": merged}
         return data
 
-    @model_validator(mode="after")
-    def _check(self) -> RigConfig:
-        unknown = sorted(set(self.quantities) - set(QUANTITIES))
+    @field_validator("quantities")
+    @classmethod
+    def _check_quantities(cls, quantities: dict[str, QuantityMapping]) -> dict[str, QuantityMapping]:
+        unknown = sorted(set(quantities) - set(QUANTITIES))
         if unknown:
             raise ValueError(f"unknown quantity {unknown[0]!r}; known: {', '.join(QUANTITIES)}")
         used: dict[str, str] = {}
         for name in QUANTITIES:
-            mapping = self.quantities[name]
+            mapping = quantities[name]
             if mapping.driven:
                 if mapping.axis in used:
                     raise ValueError(f"axis {mapping.axis} drives both {used[mapping.axis]} and {name}")
                 used[mapping.axis] = name
-        return self
+        return quantities
 
     def mapping(self, quantity: str) -> QuantityMapping:
         return self.quantities[quantity]
@@ -211,7 +212,7 @@ class RigConfig(BaseModel):
 
 
 def _field_path(loc: tuple) -> str:
-    return ".".join(str(part) for part in loc if part not in ("function-after[_check()]",)) or "(top level)"
+    return ".".join(str(part) for part in loc) or "(top level)"
 
 
 def load_rig_config(path: str | Path) -> RigConfig:
