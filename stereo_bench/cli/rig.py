@@ -267,9 +267,11 @@ def _link(link: Path, target: str) -> None:
 def _cmd_sim_controller(args) -> int:
     emulator = _emulator_from_args(args)
     stop = threading.Event()
-    previous = None
+    previous: dict[int, object] = {}
     if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+        # Ctrl-C and SIGTERM just end the loop, so a second Ctrl-C cannot cut the cleanup short.
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            previous[signum] = signal.signal(signum, lambda *_: stop.set())
     emulator.start()
     tty_path = emulator.tty_path or ""
     try:
@@ -290,8 +292,8 @@ def _cmd_sim_controller(args) -> int:
         with contextlib.suppress(OSError):
             if args.link.is_symlink() and os.readlink(args.link) == tty_path:
                 args.link.unlink()
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)  # type: ignore[arg-type]
     print("GRBL emulator stopped", flush=True)
     return 0
 
