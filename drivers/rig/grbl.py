@@ -156,7 +156,8 @@ class MoveStatus:
         self.timeout_s = timeout_s
         self.tolerance = dict(tolerance)
         self._pending = pending
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # guards the callbacks and the outcome
+        self._wait_lock = threading.Lock()  # one waiter talks to the controller; others wait on it
         self._done = threading.Event()
         self._reading: GrblReading | None = None
         self._exception: BaseException | None = None
@@ -199,7 +200,7 @@ class MoveStatus:
         Raises:
             GrblTimeout, GrblAlarm, GrblCommandError, GrblConnectionError, GrblResetError, GrblMoveError.
         """
-        with self._lock:
+        with self._wait_lock:
             if self._done.is_set():
                 if self._exception is not None:
                     raise self._exception
@@ -208,16 +209,19 @@ class MoveStatus:
                 reading = self.controller.wait_idle(self.timeout_s if timeout is None else timeout)
                 self.controller._raise_for(self._pending)
                 self._check_position(reading)
-                self._reading = reading
             except BaseException as error:
-                self._exception = error
+                self._finish(None, error)
                 raise
-            finally:
-                self._done.set()
-                callbacks, self._callbacks = self._callbacks, []
+            self._finish(reading, None)
+            return reading
+
+    def _finish(self, reading: GrblReading | None, error: BaseException | None) -> None:
+        with self._lock:
+            self._reading, self._exception = reading, error
+            self._done.set()
+            callbacks, self._callbacks = self._callbacks, []
         for callback in callbacks:
             callback(self)
-        return reading
 
     def _check_position(self, reading: GrblReading) -> None:
         position = reading.machine_position

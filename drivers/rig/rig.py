@@ -245,12 +245,15 @@ class GrblRig:
     # helpers ----------------------------------------------------------------------------------
 
     def _feed_for(self, targets: Mapping[str, float]) -> float | None:
+        feeds = self.config.axis_feeds_per_min()
+        if all(feeds.get(axis) is None for axis in targets):
+            return None  # rapid: no need to know where we start
         current = self.controller.last_reading
         here = current.machine_position if current is not None and current.machine_position else None
         if here is None:
             here = self.controller.status(timeout=2.0).machine_position or {}
         deltas = {axis: value - here.get(axis, value) for axis, value in targets.items()}
-        return vector_feed(deltas, self.config.axis_feeds_per_min())
+        return vector_feed(deltas, feeds)
 
     def _reading(self, grbl: GrblReading) -> RigReading:
         values: dict[str, float | None] = dict.fromkeys(QUANTITIES)
