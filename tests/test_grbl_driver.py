@@ -208,6 +208,19 @@ def test_the_emulator_drops_bytes_past_its_buffer_like_grbl(emulator):
         port.close()
 
 
+def test_dtr_pulse_is_tolerated_on_a_pty(emulator):
+    # pyserial's dtr setter raises OSError ENOTTY on a pty; an Arduino-style reset must not fail on it.
+    with _controller(emulator, pulse_dtr_on_open=True) as grbl:
+        assert grbl.transport.pulse_dtr(low_s=0.0) is False
+        assert grbl.status().state == "Alarm"
+
+
+def test_an_open_serial_object_can_be_passed_in(emulator):
+    port = serial.Serial(emulator.tty_path, 115200, timeout=0.5)
+    with GrblController(port, reset_on_open=False) as grbl:
+        assert grbl.status().machine_position == {"X": 0.0, "Y": 0.0, "Z": 0.0}
+
+
 # ---------------------------------------------------------------------------------------------- variants
 
 

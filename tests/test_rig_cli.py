@@ -120,6 +120,17 @@ def test_alarm_mid_move(emulator, capsys):
     assert "stopped." not in out
 
 
+def test_spy_log_records_the_session(emulator, capsys, tmp_path):
+    log = tmp_path / "spy.jsonl"
+    code, _, err = _run(capsys, "rig", "--port", emulator.tty_path, "--spy-log", str(log), "home")
+    assert code == 0, err
+    records = [json.loads(line) for line in log.read_text().splitlines()]
+    sent = "".join(r["data"] for r in records if r.get("dir") == "tx")
+    received = "".join(r["data"] for r in records if r.get("dir") == "rx")
+    assert sent.startswith("\x18") and "$H\n" in sent
+    assert "Grbl 1.1h ['$' for help]" in received and "ok\r\n" in received
+
+
 def test_bad_rig_config_file(tmp_path, emulator, capsys):
     path = tmp_path / "rig.toml"
     path.write_text('[quantities.baseline_mm]\naxis = "X"\nmin = 0\nmax = "far"\n')
