@@ -349,7 +349,8 @@ class GrblController:
         return self
 
     def _connect_by_reset(self) -> None:
-        # An Arduino's bootloader may swallow the first reset byte; a second one after a pause covers that.
+        # An Arduino's bootloader may swallow the first reset byte; a second one, sent once the first
+        # has gone unanswered, covers that.
         attempts = 2
         for attempt in range(attempts):
             try:
