@@ -78,14 +78,19 @@ class Optics:
     """Physical image formation; defaults describe a realistic cheap USB camera in a lab.
 
     Attributes:
-        blur_sigma_px: optical blur, Gaussian sigma in sensor pixels (applied after pixel integration;
-            the two convolutions commute).
+        blur_sigma_px: optical blur, Gaussian sigma in sensor pixels. The texture pre-filter delivers
+            part of it (0.3-0.6 px at s = 2), a Gaussian after pixel integration the rest (the
+            convolutions commute, and the integrated frame is band-limited, so blurring after
+            sampling is exact). Boards nearer than ~310 mm (27 mm squares, f = 1333 px) get a little
+            more than asked from the texture alone.
         noise_sigma_dn: signal-independent read noise, 8-bit digital numbers (std).
         shot_noise_gain: shot-noise variance per DN of signal (DN^2 / DN); 0 disables it. The total
             noise std is sqrt(noise_sigma_dn**2 + shot_noise_gain * signal_dn).
         black_dn, white_dn: the print's black and white under the lab light, at the image centre.
-        supersample: anti-aliasing factor s: s x s samples per pixel, box-averaged (``INTER_AREA``).
-            s = 1 samples each pixel once at its centre (the texture is still mip-filtered).
+        supersample: anti-aliasing factor s: s x s samples per pixel, box-averaged (``INTER_AREA``),
+            i.e. integration over the pixel area. s = 1 samples each pixel once and uses a Gaussian
+            of the pixel box's variance instead; its texture pre-filter alone is 0.6-1.2 px, so its
+            images are softer than ``blur_sigma_px`` asks. s = 3 or 4 cost ~2-4x the time of s = 2.
         vignetting: relative illumination loss at the image corners (0.1 = corners get 90 %),
             falling off with the square of the distance from the principal point.
         wall_dn: mean level of the background wall.
@@ -120,7 +125,7 @@ class Optics:
             raise ValueError(f"vignetting must lie in [0, 1), not {self.vignetting}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # eq=False: array fields cannot be compared with ==
 class RenderedView:
     """One rendered camera view and its ground truth.
 
@@ -139,7 +144,7 @@ class RenderedView:
     T_cam_board: np.ndarray
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RenderedPair:
     """A stereo pair and its ground truth: X_right = R @ X_left + T (T (3,) in mm)."""
 
@@ -271,6 +276,9 @@ def _ideal_coordinates(camera: CameraModel, s: int) -> np.ndarray:
 
 def _wall(size: tuple[int, int], optics: Optics, seed: int) -> np.ndarray:
     """(h, w) float32 DN: a smooth grey wall under a lamp, with faint blotchy texture.
+
+    Drawn on each camera's ideal canvas, i.e. fixed to the camera (like a distant wall, without the
+    parallax a near one would show): a plausible surround for the board, not part of the truth.
 
     Built from heavily blurred noise only (sigma >= 12 px) and smooth gradients, so it holds no edges
     or corners a board detector could latch onto.
@@ -477,8 +485,10 @@ class _CameraRaster:
 
         The level is the coarsest whose texels stay below ``_MAX_CANVAS_PX_PER_TEXEL`` canvas pixels
         in every direction everywhere on the visible board (sampled on a 9x9 grid); level 0 when the
-        board is so near that even level-0 texels are larger (then edges may slip by ~0.01 px). The
-        blur is that level's pre-filter in sensor pixels at the board's typical (median) scale.
+        board is so near that even level-0 texels are larger (then edges may slip by ~0.01 px). One
+        level serves the whole board, so on a steeply receding board the far part, minified well
+        below the limit, is pre-filtered less than 0.6 canvas px and may alias slightly. The blur
+        is that level's pre-filter in sensor pixels at the board's typical (median) scale.
         """
         H = self.S @ H_ideal_board @ mip.board_from_texel(0)
         h0, w0 = mip.levels[0].shape
