@@ -12,10 +12,12 @@ Stereo modes:
 - ``"joint"``: start from the mono intrinsics and refine intrinsics and extrinsics together
   (``CALIB_USE_INTRINSIC_GUESS``).
 - ``"fixed"``: keep the mono intrinsics (``CALIB_FIX_INTRINSIC``), estimate R, T only.
-The default is ``"joint"``: on rendered views with known truth (scripts/bench_extrinsics_mode.py),
-fixing intrinsics from mono calibration left a several-times-larger error in abs(T) — the scale of
-every measurement — than joint refinement. Fixed mode remains right when the intrinsics come from a
-better, separate calibration (``--intrinsics``).
+The default is ``"joint"``, by measurement (scripts/bench_extrinsics_mode.py and the real-image
+tests): on 12 rendered 20-view calibrations RMS abs(T) error 0.001 mm joint vs 0.002 mm fixed (square
+error 0.0019 mm RMS either way); on opencv_sample abs(T) = 99.842 mm joint vs 99.916 mm fixed
+(Bouguet: 99.81); on present_cjn 49.313 vs 49.304 mm (published 49.30). Joint refinement is never
+much worse and guards against the scale bias a slightly wrong focal length puts into abs(T).
+Fixed mode is right when the intrinsics come from a better, separate calibration (``--intrinsics``).
 """
 
 from __future__ import annotations
