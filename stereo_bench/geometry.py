@@ -149,15 +149,27 @@ def board_pose_facing_rig(
     return make_transform(R, origin)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class CameraModel:
-    """Pinhole + OpenCV distortion camera. ``K`` (3, 3) px, ``dist`` (5,) or longer, ``image_size`` (w, h) px."""
+    """Pinhole + OpenCV distortion camera. ``K`` (3, 3) px, ``dist`` (5,) or longer, ``image_size`` (w, h) px.
+
+    Equal (and hashed alike) when K, dist and image size are; the name is a label only.
+    """
 
     K: np.ndarray
     dist: np.ndarray
     image_size: tuple[int, int]
-    # Keep equality/hash off the arrays: numpy arrays don't compare to a single bool.
-    name: str = field(default="camera", compare=False)
+    name: str = field(default="camera")
+
+    def _key(self) -> tuple:
+        return (np.asarray(self.K, float).tobytes(), np.asarray(self.dist, float).ravel().tobytes(),
+                tuple(int(v) for v in self.image_size))
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, CameraModel) and self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
 
     @classmethod
     def from_sensor(

@@ -66,3 +66,9 @@ def test_projection_rejects_points_behind_or_far_outside():
     pixels, valid = camera.project(np.array([[0, 0, 500.0], [0, 0, -500.0], [5000.0, 0, 10.0]]))
     assert valid.tolist() == [True, False, False]
     np.testing.assert_allclose(pixels[0], camera.K[:2, 2])
+
+
+def test_camera_models_compare_and_hash_by_value():
+    a, b = CameraModel.from_sensor(name="left"), CameraModel.from_sensor(name="right")
+    assert a == b and hash(a) == hash(b) and len({a, b}) == 1
+    assert a != CameraModel.from_sensor(focal_mm=6.0)
