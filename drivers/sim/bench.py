@@ -1,0 +1,182 @@
+"""The simulated bench: a GRBL emulator on a pseudo-terminal, a scene, and two cameras that render it.
+
+The cameras render whatever the scene holds (the calibration board at some pose, the measured
+target at some distance, or nothing) from the rig pose that the emulator's axes are at *at the
+moment of the grab*, converted to physical units through the same ``RigConfig`` the real driver
+uses. So the runner drives the real serial driver against the emulator, and what the cameras see
+follows from where the motors really are — a move that did not finish shows up in the images.
+
+Noise is reproducible per scene: every change of the scene carries a seed, and the n-th frame a
+camera renders of that scene uses ``(seed, camera, n)``. A campaign that resumes after a crash
+therefore renders the same frames as one that never stopped.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from drivers.camera.base import CameraSettings
+from drivers.camera.synthetic import SyntheticCamera
+from drivers.rig.config import RigConfig, alpha_from_toe_in, to_physical
+from drivers.sim.grbl_emulator import DEFAULT_AXES, AxisSpec, GrblEmulator
+from drivers.sim.render import Optics, StereoRenderer
+from stereo_bench.geometry import CameraModel, RigPose
+from stereo_bench.targets import CharucoTarget, Checkerboard
+
+Target = Checkerboard | CharucoTarget
+SIDES = ("left", "right")
+
+
+@dataclass
+class Scene:
+    """What stands in front of the rig: a target at ``T_rig_board`` (4x4, mm), or nothing."""
+
+    target: Target | None = None
+    T_rig_board: np.ndarray | None = None
+    seed: int = 0
+    frames_rendered: dict[str, int] = field(default_factory=lambda: {side: 0 for side in SIDES})
+
+
+class SimulatedBench:
+    """Emulator + scene + two rendering cameras; ``start()``/``stop()`` or a context manager.
+
+    Args:
+        rig_config: axis mapping shared with the real driver (default: X = B, Y/Z = toe-ins).
+        left, right: camera intrinsics (default 1920x1080, f = 4 mm, 3 um pixels).
+        optics: image formation (blur, noise, ...).
+        time_scale: > 1 runs motion and exposures faster than real time.
+        exposure_s: simulated exposure + readout per frame (real-time seconds).
+        target_distance_axis: the emulator's axis letter for a motorised target distance, if any.
+    """
+
+    def __init__(
+        self, *, rig_config: RigConfig | None = None, left: CameraModel | None = None,
+        right: CameraModel | None = None, optics: Optics | None = None, time_scale: float = 1.0,
+        exposure_s: float = 0.02, homing_enabled: bool = True, axis_specs: dict[str, AxisSpec] | None = None,
+    ):
+        self.rig_config = rig_config or RigConfig()
+        self.left_model = left or CameraModel.from_sensor(name="left")
+        self.right_model = right or CameraModel.from_sensor(name="right")
+        self.optics = optics or Optics()
+        self.time_scale = time_scale
+        self.exposure_s = exposure_s
+        self.emulator = GrblEmulator(
+            axes=self.rig_config.axes, axis_specs=axis_specs or self._axis_specs(), time_scale=time_scale,
+            homing_enabled=homing_enabled,
+        )
+        self._scene = Scene()
+        self._lock = threading.Lock()
+        self._renderers: dict[Target, StereoRenderer] = {}
+        self._trigger_time = -1e9
+        self._trigger_used: set[str] = set()
+        # What the operator would set by hand (the target distance unless it is motorised).
+        self.manual_values: dict[str, float] = {}
+
+    def _axis_specs(self) -> dict[str, AxisSpec]:
+        """Travel of each emulated axis from the soft limits of the quantity it drives (machine units)."""
+        return {axis: replace(DEFAULT_AXES.get(axis, AxisSpec()), travel=travel)
+                for axis, travel in self.rig_config.machine_travel().items()}
+
+    # -- lifecycle ---------------------------------------------------------------------------------------------
+
+    def start(self) -> SimulatedBench:
+        self.emulator.start()
+        return self
+
+    def stop(self) -> None:
+        self.emulator.stop()
+
+    def __enter__(self) -> SimulatedBench:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    @property
+    def tty_path(self) -> str:
+        return self.emulator.tty_path
+
+    # -- the scene ---------------------------------------------------------------------------------------------
+
+    def show(self, target: Target | None, T_rig_board: np.ndarray | None = None, *, seed: int = 0) -> None:
+        """Put ``target`` at ``T_rig_board`` in front of the rig (None: an empty scene)."""
+        with self._lock:
+            self._scene = Scene(target=target, T_rig_board=None if T_rig_board is None else np.array(T_rig_board),
+                                seed=int(seed))
+
+    def operator_prompt(self, message: str) -> None:
+        """Stands in for the operator at a manual step: records the values the rig asked for."""
+        self.last_prompt = message
+
+    def rig_pose(self) -> RigPose:
+        """The rig pose the emulator's axes are at now (fixed quantities from the config)."""
+        physical = to_physical(self.rig_config, self.emulator.machine_position())
+        for quantity, mapping in self.rig_config.quantities.items():
+            if mapping.axis == "fixed":
+                physical.setdefault(quantity, float(mapping.value))
+        return RigPose(
+            baseline_mm=physical["baseline_mm"],
+            alpha_left_deg=alpha_from_toe_in(physical["toe_in_left_deg"]),
+            alpha_right_deg=alpha_from_toe_in(physical["toe_in_right_deg"]),
+            tilt_left_deg=physical.get("tilt_left_deg", 0.0), tilt_right_deg=physical.get("tilt_right_deg", 0.0),
+        )
+
+    def _renderer(self, target: Target) -> StereoRenderer:
+        if target not in self._renderers:
+            self._renderers[target] = StereoRenderer(target, self.left_model, self.right_model, optics=self.optics)
+        return self._renderers[target]
+
+    def render(self, side: str) -> tuple[np.ndarray, dict]:
+        """One frame of the ``side`` camera now, with its ground truth as metadata."""
+        with self._lock:
+            scene = self._scene
+            index = scene.frames_rendered[side]
+            scene.frames_rendered[side] += 1
+            self._start_exposure(side)
+        pose = self.rig_pose()
+        T_rig_cam = pose.T_rig_left if side == "left" else pose.T_rig_right
+        rng = np.random.default_rng([scene.seed, SIDES.index(side), index])
+        target = scene.target
+        if target is None:
+            # Nothing in front of the rig: the renderer's wall only (the board behind the camera).
+            target = Checkerboard(9, 6, 27.0)
+            T_cam_board = np.eye(4)
+            T_cam_board[2, 3] = -1000.0
+        else:
+            T_cam_board = np.linalg.inv(T_rig_cam) @ scene.T_rig_board
+        view = self._renderer(target).render_view(side, T_cam_board, rng)
+        meta = {"baseline_mm": pose.baseline_mm, "alpha_left_deg": pose.alpha_left_deg,
+                "alpha_right_deg": pose.alpha_right_deg, "scene_seed": scene.seed, "scene_frame": index}
+        return view.image, meta
+
+    def _start_exposure(self, side: str) -> None:
+        """The simulated pair is hardware-triggered: both cameras of one capture share one trigger time.
+
+        A grab starts a new trigger unless the other camera started one moments ago that this camera
+        has not used yet, so the time spent rendering (which real sensors don't spend) never shows up
+        as left-right skew.
+        """
+        now = time.monotonic()
+        if side in self._trigger_used or now - self._trigger_time > 1.0:
+            self._trigger_time, self._trigger_used = now, set()
+        self._trigger_used.add(side)
+
+    def frame_clock(self) -> float:
+        """Timestamp (monotonic s) of the current capture: trigger time + exposure."""
+        return self._trigger_time + self.exposure_s / self.time_scale
+
+    def cameras(self, settings: CameraSettings | None = None) -> tuple[SyntheticCamera, SyntheticCamera]:
+        """The left and right simulated cameras (not yet open)."""
+        width, height = self.left_model.image_size
+        settings = settings or CameraSettings(width_px=width, height_px=height)
+        # SyntheticCamera scales its exposure delay by its own factor, the inverse of a speed-up.
+        scale = 1.0 / self.time_scale
+        return tuple(
+            SyntheticCamera(lambda side=side: self.render(side), name=f"sim-{side}", settings=settings,
+                            exposure_s=self.exposure_s, time_scale=scale, clock=self.frame_clock)
+            for side in SIDES
+        )
