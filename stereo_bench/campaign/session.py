@@ -1,0 +1,822 @@
+"""Session recording: a directory holding everything a campaign measured, replayable and resumable.
+
+Layout of a session directory ``SESSION``::
+
+    documents.jsonl                       the document stream: one JSON object per line, append-only
+    frames/<config_id>/a<attempt>/<seq>_<name>.png     lossless frames referenced by 'event' documents
+    files/<config_id>/a<attempt>/<seq>_<name>          other side files of events (telemetry, ...)
+    calib/<config_id>/a<attempt>/{intrinsics,extrinsics}.yml   OpenCV stereo_calib layout
+    transcripts/<name>-a<attempt>.jsonl   byte-level serial transcripts (the rig's spy log)
+    results.sqlite, results.csv           the results store and its export (rebuilt from the stream)
+    recovered/                            what a resume repaired: torn bytes, a corrupt store, kept aside
+
+The stream follows bluesky's document model: ``start`` (schema version, uid, config, plan, software,
+attempt) → ``event`` documents (``kind``, ``seq``, ``config_id``, ``data``, relative paths of side
+files) and ``result`` documents (one configuration's result row) → ``stop`` (exit status, reason).
+A resumed session appends a ``resume`` document instead of a second ``start``, and its attempt
+number goes up by one; side files are written under the attempt's own directories, so a re-run
+never overwrites what an interrupted one recorded.
+
+Durability: side files are written atomically (temporary file, fsync, rename, directory fsync)
+*before* the line that references them; each line is written with one ``write`` and fsynced. A
+crash therefore leaves at most one torn last line (repaired on resume, its bytes kept under
+``recovered/``), temporary files (removed on resume: they were never referenced) and complete but
+unreferenced side files (kept). A configuration is complete only when its ``result`` document is in
+the stream: the SQLite store is written first and reconciled with the stream on resume.
+
+Nothing is ever read or written outside the session directory because a document says so:
+:meth:`SessionReader.path` refuses absolute paths, ``..`` and symlinks that lead outside.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import fcntl
+import json
+import os
+import re
+import shutil
+import socket
+import tempfile
+import time
+import uuid
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+import cv2
+import numpy as np
+
+from stereo_bench import atomic
+from stereo_bench.campaign.store import (
+    CSV_FILE,
+    STORE_FILE,
+    ResultStore,
+    StoreError,
+    json_safe,
+    normalise_row,
+    order_rows,
+)
+from stereo_bench.vision import calibio
+from stereo_bench.vision.calibrate import StereoCalibration
+from stereo_bench.vision.rectify import Rectification
+
+SCHEMA_VERSION = 1
+DOCUMENTS_FILE = "documents.jsonl"
+RECOVERED_DIR = "recovered"
+EXIT_STATUSES = ("success", "aborted", "failed", "interrupted")
+DOCUMENT_TYPES = ("start", "resume", "event", "result", "stop")
+SESSION_LEVEL = "_session"  # the directory of side files of events that belong to no configuration
+
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
+_ATTEMPT_DIR = re.compile(r"a(\d+)(?:-\d+)?")
+_ATTEMPT_IN_NAME = re.compile(r"-a(\d+)(?:\.|$)")
+_PNG_END = b"IEND\xaeB`\x82"
+
+
+class SessionError(ValueError):
+    """A session cannot be written or read as asked; one line naming the directory or file (and line)."""
+
+
+def utc_now() -> str:
+    """Current UTC time, ISO-8601 with microseconds and a ``Z``."""
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def _check_name(value: object, what: str) -> str:
+    """A config id, frame name or transcript name is one safe path component."""
+    if not isinstance(value, str) or not _NAME.fullmatch(value) or value in (".", ".."):
+        raise SessionError(f"{what} {value!r} is not a valid name (letters, digits, '.', '_', '+', '-')")
+    return value
+
+
+def encode_document(doc: Mapping[str, Any]) -> bytes:
+    """One document as one strict-JSON line (NaN → null, numpy → Python), newline-terminated."""
+    try:
+        clean = json_safe(doc, str(doc.get("type", "document")))
+    except TypeError as error:
+        raise SessionError(f"cannot record {error}") from None
+    return (json.dumps(clean, allow_nan=False, ensure_ascii=False) + "\n").encode("utf-8")
+
+
+# -- reading the stream ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TornLine:
+    """The incomplete last line of a stream that a crash cut short: where it starts, and its bytes."""
+
+    line: int
+    offset: int
+    data: bytes
+
+
+@dataclass
+class ParsedStream:
+    documents: list[dict]
+    torn: TornLine | None
+    needs_newline: bool  # the last document is complete but its newline never made it to disk
+
+
+def _reject_constant(name: str) -> None:
+    raise ValueError(f"non-standard JSON constant {name}")
+
+
+def parse_stream(path: Path) -> ParsedStream:
+    """Parse ``documents.jsonl``: every line must be a JSON object with a ``type``.
+
+    A last line that does not parse (cut by a crash, or zeros after a power loss) is returned as
+    ``torn``; a bad line anywhere else raises :class:`SessionError` naming the file and the line.
+    """
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise SessionError(f"{path}: cannot read ({error.strerror})") from None
+    documents: list[dict] = []
+    torn = None
+    needs_newline = False
+    offset, line_no, size = 0, 0, len(data)
+    while offset < size:
+        end = data.find(b"\n", offset)
+        complete = end >= 0
+        raw = data[offset:end] if complete else data[offset:]
+        next_offset = end + 1 if complete else size
+        line_no += 1
+        is_last = next_offset >= size
+        if complete and not raw.strip():
+            offset = next_offset
+            continue
+        try:
+            doc = json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
+        except (UnicodeDecodeError, ValueError) as error:
+            if is_last:
+                torn = TornLine(line=line_no, offset=offset, data=bytes(data[offset:]))
+                break
+            reason = error.msg if isinstance(error, json.JSONDecodeError) else str(error)
+            raise SessionError(f"{path} line {line_no}: not JSON ({reason})") from None
+        if not isinstance(doc, dict) or not isinstance(doc.get("type"), str):
+            raise SessionError(f"{path} line {line_no}: not a session document (a JSON object with a 'type')")
+        doc["_line"] = line_no
+        documents.append(doc)
+        needs_newline = not complete
+        offset = next_offset
+    _check_documents(path, documents)
+    return ParsedStream(documents, torn, needs_newline)
+
+
+def _check_documents(path: Path, documents: list[dict]) -> None:
+    for index, doc in enumerate(documents):
+        kind = doc["type"]
+        line = doc["_line"]
+        if index == 0 and kind != "start":
+            raise SessionError(f"{path} line {line}: the first document is {kind!r}, not 'start'")
+        if index > 0 and kind == "start":
+            raise SessionError(f"{path} line {line}: a second 'start' document (a resume writes 'resume')")
+        if kind in ("start", "resume"):
+            version = doc.get("schema_version")
+            if not isinstance(version, int):
+                raise SessionError(f"{path} line {line}: {kind} document has no integer 'schema_version'")
+            if version > SCHEMA_VERSION:
+                raise SessionError(
+                    f"{path} line {line}: written with schema version {version}; "
+                    f"this stereo-bench reads up to {SCHEMA_VERSION}: upgrade it"
+                )
+        if kind in ("event", "result") and not isinstance(doc.get("attempt"), int):
+            raise SessionError(f"{path} line {line}: {kind} document has no integer 'attempt'")
+        if kind == "result" and (not isinstance(doc.get("row"), dict) or not isinstance(doc.get("config_id"), str)):
+            raise SessionError(f"{path} line {line}: result document needs 'config_id' and a 'row' object")
+
+
+def _completed(documents: Iterable[dict]) -> set[str]:
+    return {doc["config_id"] for doc in documents if doc["type"] == "result"}
+
+
+def _last_results(documents: Iterable[dict]) -> list[dict]:
+    """The row of the last 'result' document of each configuration, in order of first appearance."""
+    rows: dict[str, dict] = {}
+    for doc in documents:
+        if doc["type"] == "result":
+            rows[doc["config_id"]] = doc["row"]
+    return list(rows.values())
+
+
+def _strip(doc: dict) -> dict:
+    return {key: value for key, value in doc.items() if key != "_line"}
+
+
+class SessionReader:
+    """Read a session directory: its documents, results, frames and calibrations.
+
+    Construction does no I/O; the stream is read at the first query (:meth:`reload` re-reads it).
+    A torn last line (a crash mid-write) is tolerated and reported in :attr:`torn`.
+    """
+
+    def __init__(self, directory: str | Path):
+        self.directory = Path(directory)
+        self.documents_path = self.directory / DOCUMENTS_FILE
+        self._documents: list[dict] | None = None
+        self._torn: TornLine | None = None
+
+    def reload(self) -> SessionReader:
+        if not self.directory.is_dir():
+            raise SessionError(f"{self.directory}: session directory not found")
+        if not self.documents_path.is_file():
+            raise SessionError(f"{self.directory}: not a session (no {DOCUMENTS_FILE})")
+        parsed = parse_stream(self.documents_path)
+        self._documents = parsed.documents
+        self._torn = parsed.torn
+        return self
+
+    @property
+    def torn(self) -> TornLine | None:
+        """The torn last line of the stream (a crash mid-write), if any; it is not among the documents."""
+        self._docs()
+        return self._torn
+
+    def _docs(self) -> list[dict]:
+        if self._documents is None:
+            self.reload()
+        assert self._documents is not None
+        return self._documents
+
+    @property
+    def warnings(self) -> list[str]:
+        """What a reader of this session should be told (a torn last line)."""
+        torn = self.torn
+        if torn is None:
+            return []
+        return [f"{self.documents_path} line {torn.line}: torn last line ({len(torn.data)} bytes) "
+                "ignored: the writer was interrupted mid-write"]
+
+    # -- documents ---------------------------------------------------------------------------------
+    def documents(self, type: str | None = None) -> list[dict]:
+        return [_strip(doc) for doc in self._docs() if type is None or doc["type"] == type]
+
+    def start(self) -> dict:
+        docs = self._docs()
+        if not docs:
+            raise SessionError(f"{self.documents_path}: no start document (the session stopped before it began)")
+        return _strip(docs[0])
+
+    def resumes(self) -> list[dict]:
+        return self.documents("resume")
+
+    def stops(self) -> list[dict]:
+        return self.documents("stop")
+
+    def attempts(self) -> list[int]:
+        return [doc["attempt"] for doc in self._docs() if doc["type"] in ("start", "resume")]
+
+    def status(self) -> str:
+        """The exit status of the last attempt, or ``"incomplete"`` if it has no 'stop' (a crash)."""
+        status = "incomplete"
+        for doc in self._docs():
+            if doc["type"] in ("start", "resume"):
+                status = "incomplete"
+            elif doc["type"] == "stop":
+                status = str(doc.get("exit_status"))
+        return status
+
+    def events(
+        self, config_id: str | None = None, kind: str | None = None, attempt: int | str | None = "last",
+    ) -> list[dict]:
+        """Event documents, optionally of one configuration and/or kind.
+
+        ``attempt="last"``: per configuration, only the events of the attempt that produced its last
+        result (or, without a result, of its last attempt) — what a replay should play back.
+        ``attempt=None``: every attempt; an int: that attempt.
+        """
+        docs = self._docs()
+        events = [doc for doc in docs if doc["type"] == "event"
+                  and (config_id is None or doc.get("config_id") == config_id)]
+        if attempt == "last":
+            chosen: dict[str | None, int] = {}
+            for doc in events:
+                chosen[doc.get("config_id")] = max(chosen.get(doc.get("config_id"), 0), doc["attempt"])
+            for doc in docs:
+                if doc["type"] == "result" and (config_id is None or doc["config_id"] == config_id):
+                    chosen[doc["config_id"]] = doc["attempt"]
+            events = [doc for doc in events if doc["attempt"] == chosen[doc.get("config_id")]]
+        elif attempt is not None:
+            events = [doc for doc in events if doc["attempt"] == attempt]
+        return [_strip(doc) for doc in events if kind is None or doc.get("kind") == kind]
+
+    def results(self) -> list[dict]:
+        """The last result row of each configuration, in order of first appearance."""
+        return [dict(row) for row in _last_results(self._docs())]
+
+    def completed_config_ids(self) -> set[str]:
+        return _completed(self._docs())
+
+    # -- side files --------------------------------------------------------------------------------
+    def path(self, relative: str) -> Path:
+        """The file a document refers to, refused unless it lies inside the session directory."""
+        def refuse(why: str) -> SessionError:
+            return SessionError(f"{self.directory}: path {relative!r} refused: {why}")
+
+        if not isinstance(relative, str) or not relative:
+            raise refuse("not a non-empty string")
+        if "\x00" in relative or "\\" in relative:
+            raise refuse("contains a NUL or a backslash")
+        pure = PurePosixPath(relative)
+        if pure.is_absolute() or re.match(r"[A-Za-z]:", relative):
+            raise refuse("absolute path; session paths are relative to the session directory")
+        if ".." in pure.parts:
+            raise refuse("'..' leads outside the session directory")
+        root = self.directory.resolve()
+        target = (root / pure).resolve()
+        if target != root and root not in target.parents:
+            raise refuse(f"resolves to {target}, outside the session directory (a symlink?)")
+        return target
+
+    def read_bytes(self, relative: str) -> bytes:
+        path = self.path(relative)
+        try:
+            return path.read_bytes()
+        except FileNotFoundError:
+            raise SessionError(f"{path}: side file missing") from None
+        except OSError as error:
+            raise SessionError(f"{path}: cannot read ({error.strerror})") from None
+
+    def frame(self, relative: str) -> np.ndarray:
+        """A recorded frame, exactly as written (grey (H, W) or BGR (H, W, 3))."""
+        data = self.read_bytes(relative)
+        image = None
+        if data.startswith(b"\x89PNG") and data.rstrip(b"\x00").endswith(_PNG_END):
+            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise SessionError(f"{self.path(relative)}: not a complete PNG frame (corrupt or truncated)")
+        return image
+
+    def calibration(self, config_id: str) -> StereoCalibration:
+        """The calibration of ``config_id`` recorded last (its 'calibration' event)."""
+        events = [doc for doc in self._docs() if doc["type"] == "event" and doc.get("kind") == "calibration"
+                  and doc.get("config_id") == config_id]
+        if not events:
+            raise SessionError(f"{self.documents_path}: no calibration recorded for configuration {config_id!r}")
+        files = events[-1].get("files") or {}
+        relative = files.get("intrinsics") if isinstance(files, dict) else None
+        if not isinstance(relative, str):
+            raise SessionError(f"{self.documents_path} line {events[-1]['_line']}: calibration event lists no "
+                               "'intrinsics' file")
+        try:
+            return calibio.read_calibration(self.path(relative).parent)
+        except calibio.CalibrationFileError as error:
+            raise SessionError(str(error)) from None
+
+
+# -- writing -----------------------------------------------------------------------------------------
+def _first_difference(recorded: Any, now: Any, where: str) -> str | None:
+    """Where two JSON values first differ, as ``key.path: recorded X, now Y``; None if equal."""
+    def show(value: Any) -> str:
+        text = json.dumps(value, ensure_ascii=False)
+        return text if len(text) <= 60 else text[:57] + "..."
+
+    if isinstance(recorded, dict) and isinstance(now, dict):
+        for key in list(recorded) + [key for key in now if key not in recorded]:
+            if key not in now:
+                return f"{where}.{key}: recorded {show(recorded[key])}, now missing"
+            if key not in recorded:
+                return f"{where}.{key}: not recorded, now {show(now[key])}"
+            found = _first_difference(recorded[key], now[key], f"{where}.{key}")
+            if found:
+                return found
+        return None
+    if isinstance(recorded, list) and isinstance(now, list):
+        for index, (a, b) in enumerate(zip(recorded, now, strict=False)):
+            found = _first_difference(a, b, f"{where}[{index}]")
+            if found:
+                return found
+        if len(recorded) != len(now):
+            return f"{where}: recorded {len(recorded)} entries, now {len(now)}"
+        return None
+    if type(recorded) is not type(now) and not (isinstance(recorded, int | float) and isinstance(now, int | float)):
+        return f"{where}: recorded {show(recorded)}, now {show(now)}"
+    return None if recorded == now else f"{where}: recorded {show(recorded)}, now {show(now)}"
+
+
+def _attempts_on_disk(root: Path) -> int:
+    """The highest attempt number that any side-file directory or transcript of ``root`` uses."""
+    highest = 0
+    for area in ("frames", "files", "calib"):
+        for path in (root / area).glob("*/*"):
+            match = _ATTEMPT_DIR.fullmatch(path.name)
+            if match:
+                highest = max(highest, int(match.group(1)))
+    for area in ("transcripts", RECOVERED_DIR):
+        for path in (root / area).glob("*"):
+            match = _ATTEMPT_IN_NAME.search(path.name)
+            if match:
+                highest = max(highest, int(match.group(1)))
+    return highest
+
+
+class SessionWriter:
+    """Write (or resume) a session directory. Construction does no I/O; see :meth:`open`.
+
+    ``with SessionWriter(out).open() as session:`` then :meth:`start`, :meth:`event` /
+    :meth:`write_calibration` / :meth:`result` per configuration, and :meth:`stop`. Leaving the
+    ``with`` block on an exception before :meth:`stop` records a 'stop' with exit status
+    ``"interrupted"`` (Ctrl-C) or ``"failed"``. One process at a time: the stream is locked.
+    """
+
+    def __init__(self, directory: str | Path, *, resume: bool = False):
+        self.directory = Path(directory)
+        self.resume = resume
+        self.documents_path = self.directory / DOCUMENTS_FILE
+        self.attempt = 0
+        self.recovery: dict[str, Any] = {}  # what open() repaired when resuming
+        self._fd: int | None = None
+        self._size = 0
+        self._next_seq = 0
+        self._recorded_start: dict | None = None
+        self._previous_attempt = 0
+        self._completed: set[str] = set()
+        self._started = False
+        self._stopped = False
+        self._store: ResultStore | None = None
+        self._plan_order: list[str] = []
+        self._made_dirs: set[Path] = set()
+        self._transcripts: dict[str, str] = {}
+        self._pending_transcripts: list[str] = []
+
+    # -- lifecycle ---------------------------------------------------------------------------------
+    def open(self) -> SessionWriter:
+        if self._fd is not None:
+            return self
+        try:
+            if self.resume:
+                self._open_resume()
+            else:
+                self._open_new()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _lock(self, fd: int) -> None:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise SessionError(f"{self.directory}: in use by another stereo-bench process") from None
+
+    def _open_new(self) -> None:
+        root = self.directory
+        if root.exists() or root.is_symlink():
+            if not root.is_dir():
+                raise SessionError(f"{root} exists and is not a directory: choose another --out")
+            if any(root.iterdir()):
+                raise SessionError(f"{root} exists: pass --resume or choose another --out")
+        self._mkdir(root)
+        try:
+            self._fd = os.open(self.documents_path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC,
+                               0o644)
+        except FileExistsError:
+            raise SessionError(f"{root} exists: pass --resume or choose another --out") from None
+        self._lock(self._fd)
+        atomic.fsync_dir(root)
+        self.attempt = 1
+        self._open_store(rebuild=False)
+
+    def _open_resume(self) -> None:
+        root = self.directory
+        if not root.is_dir():
+            raise SessionError(f"{root}: no such session directory: nothing to resume")
+        if not self.documents_path.is_file():
+            raise SessionError(f"{root}: not a session (no {DOCUMENTS_FILE}): refusing to resume into it")
+        self._fd = os.open(self.documents_path, os.O_RDWR | os.O_APPEND | os.O_CLOEXEC)
+        self._lock(self._fd)
+        parsed = parse_stream(self.documents_path)
+        docs = parsed.documents
+        self._previous_attempt = max((doc.get("attempt", 0) for doc in docs if isinstance(doc.get("attempt"), int)),
+                                     default=0)
+        self.attempt = max(self._previous_attempt, _attempts_on_disk(root)) + 1
+        recovery: dict[str, Any] = {}
+        if parsed.torn is not None:
+            recovery["torn_line"] = self._set_aside_torn(parsed.torn)
+        elif parsed.needs_newline:
+            self._write_all(b"\n")
+            recovery["newline_added"] = True
+        self._size = os.fstat(self._fd).st_size
+        self._next_seq = 1 + max((doc["seq"] for doc in docs if isinstance(doc.get("seq"), int)), default=-1)
+        self._recorded_start = _strip(docs[0]) if docs else None
+        self._completed = _completed(docs)
+        removed = self._remove_temp_files()
+        if removed:
+            recovery["removed_temp_files"] = removed
+        recovery.update(self._open_store(rebuild=True, stream_rows=_last_results(docs)))
+        self.recovery = recovery
+
+    def _set_aside_torn(self, torn: TornLine) -> dict[str, Any]:
+        """Keep the torn bytes in a side file, then cut them off the stream (in that order)."""
+        relative = f"{RECOVERED_DIR}/{DOCUMENTS_FILE}.torn-a{self.attempt}.bin"
+        self._mkdir(self.directory / RECOVERED_DIR)
+        atomic.write_bytes(self.directory / relative, torn.data, overwrite=False)
+        assert self._fd is not None
+        os.ftruncate(self._fd, torn.offset)
+        os.fsync(self._fd)
+        return {"line": torn.line, "offset": torn.offset, "bytes": len(torn.data), "kept_in": relative}
+
+    def _remove_temp_files(self) -> list[str]:
+        """Temporary files (and calibration temp dirs) a crash left: never referenced, so not recorded."""
+        removed = []
+        for area in ("frames", "files", "calib", RECOVERED_DIR, "."):
+            base = self.directory / area
+            candidates = base.glob("*") if area == "." else base.rglob("*")
+            for path in sorted(candidates, reverse=True):
+                if not atomic.is_temp_file(path):
+                    continue
+                if path.is_dir() and not path.is_symlink():
+                    shutil.rmtree(path)
+                else:
+                    path.unlink()
+                removed.append(path.relative_to(self.directory).as_posix())
+        return sorted(removed)
+
+    def _open_store(self, *, rebuild: bool, stream_rows: list[dict] | None = None) -> dict[str, Any]:
+        report: dict[str, Any] = {}
+        path = self.directory / STORE_FILE
+        store = ResultStore(path)
+        try:
+            store.open()
+        except StoreError as error:
+            if not rebuild:
+                raise SessionError(str(error)) from None
+            kept = []
+            self._mkdir(self.directory / RECOVERED_DIR)
+            for suffix in ("", "-journal", "-wal", "-shm"):
+                source = path.with_name(path.name + suffix)
+                if source.exists():
+                    target = self.directory / RECOVERED_DIR / f"{source.name}.corrupt-a{self.attempt}"
+                    os.rename(source, target)
+                    kept.append(target.relative_to(self.directory).as_posix())
+            atomic.fsync_dir(self.directory)
+            report["corrupt_store_kept_in"] = kept
+            store = ResultStore(path).open()
+        self._store = store
+        if rebuild:
+            changes = store.rebuild_from_stream(stream_rows or [])
+            if changes["added"] or changes["changed"] or changes["dropped"]:
+                report["store_rebuilt"] = {
+                    "added": changes["added"], "changed": changes["changed"],
+                    # rows the store had but the stream did not (a crash between the two writes): kept here
+                    "dropped_rows": changes["dropped"],
+                }
+            self._export_csv()
+        return report
+
+    def close(self) -> None:
+        if self._store is not None:
+            self._store.close()
+            self._store = None
+        if self._fd is not None:
+            os.close(self._fd)  # releases the lock
+            self._fd = None
+
+    def __enter__(self) -> SessionWriter:
+        return self.open()
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> None:
+        try:
+            if exc_type is not None and self._started and not self._stopped and self._fd is not None:
+                status = "interrupted" if issubclass(exc_type, KeyboardInterrupt) else "failed"
+                with contextlib.suppress(Exception):
+                    self.stop(exit_status=status, reason=f"{exc_type.__name__}: {exc}".rstrip(": "))
+        finally:
+            self.close()
+
+    # -- low level ---------------------------------------------------------------------------------
+    def _mkdir(self, path: Path) -> None:
+        """Create ``path`` and any missing parents, fsyncing each new entry's parent directory."""
+        if path in self._made_dirs:
+            return
+        missing = []
+        probe = path
+        while not probe.is_dir():
+            missing.append(probe)
+            probe = probe.parent
+        for directory in reversed(missing):
+            directory.mkdir(exist_ok=True)
+            atomic.fsync_dir(directory.parent)
+        self._made_dirs.add(path)
+
+    def _write_all(self, data: bytes) -> None:
+        assert self._fd is not None
+        view = memoryview(data)
+        while view:
+            view = view[os.write(self._fd, view):]
+        os.fsync(self._fd)
+
+    def _append(self, doc: dict) -> dict:
+        """Append one document as one line and fsync; on failure cut the partial line off again.
+
+        Returns the document as recorded (strict JSON values).
+        """
+        if self._fd is None:
+            raise SessionError(f"{self.directory}: session is not open")
+        line = encode_document(doc)
+        doc = json.loads(line)  # what was recorded: strict JSON values
+        offset = self._size
+        try:
+            self._write_all(line)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, offset)
+                os.fsync(self._fd)
+            raise
+        self._size = offset + len(line)
+        return doc
+
+    def _require_started(self) -> None:
+        if self._fd is None:
+            raise SessionError(f"{self.directory}: session is not open")
+        if not self._started:
+            raise SessionError(f"{self.directory}: start() must come first")
+
+    def _reserve_seq(self) -> int:
+        seq = self._next_seq
+        self._next_seq += 1
+        return seq
+
+    def _header(self, doc_type: str, seq: int) -> dict[str, Any]:
+        return {"type": doc_type, "seq": seq, "time": utc_now(), "monotonic": time.monotonic(),
+                "attempt": self.attempt}
+
+    def _export_csv(self) -> None:
+        assert self._store is not None
+        self._store.export_csv(self.directory / CSV_FILE, order=self._plan_order)
+
+    # -- the document stream -----------------------------------------------------------------------
+    def start(self, *, config: dict, plan: list[dict], software: dict, extra: dict | None = None) -> None:
+        """Write the 'start' document — or, when resuming, check the config and write 'resume'."""
+        if self._fd is None:
+            raise SessionError(f"{self.directory}: session is not open")
+        if self._started:
+            raise SessionError(f"{self.directory}: start() called twice")
+        try:
+            config, plan = json_safe(config, "config"), json_safe(plan, "plan")
+        except TypeError as error:
+            raise SessionError(f"cannot record {error}") from None
+        host = {"hostname": socket.gethostname(), "pid": os.getpid()}
+        recorded = self._recorded_start
+        if recorded is None:
+            doc = {**self._header("start", self._reserve_seq()), "schema_version": SCHEMA_VERSION,
+                   "uid": uuid.uuid4().hex, "config": config, "plan": plan, "software": software, "host": host,
+                   "extra": extra or {}}
+            if self.recovery:
+                doc["recovery"] = self.recovery
+        else:
+            for name, value in (("config", config), ("plan", plan)):
+                difference = _first_difference(recorded.get(name), value, name)
+                if difference:
+                    raise SessionError(f"{self.documents_path}: cannot resume with a different {name}: {difference}")
+            doc = {**self._header("resume", self._reserve_seq()), "schema_version": SCHEMA_VERSION,
+                   "uid": uuid.uuid4().hex, "start_uid": recorded.get("uid"),
+                   "previous_attempt": self._previous_attempt, "software": software, "host": host,
+                   "completed": sorted(self._completed), "recovery": self.recovery, "extra": extra or {}}
+        self._append(doc)
+        self._started = True
+        self._plan_order = [entry["config_id"] for entry in plan
+                            if isinstance(entry, dict) and isinstance(entry.get("config_id"), str)]
+        for name in self._pending_transcripts:
+            self._record_transcript(name)
+        self._pending_transcripts.clear()
+
+    def _side_dir(self, area: str, config_id: str | None) -> tuple[Path, str]:
+        part = SESSION_LEVEL if config_id is None else _check_name(config_id, "config_id")
+        relative = f"{area}/{part}/a{self.attempt}"
+        return self.directory / relative, relative
+
+    def event(
+        self, kind: str, *, config_id: str | None = None, data: dict | None = None,
+        frames: dict[str, np.ndarray] | None = None, files: dict[str, bytes] | None = None,
+    ) -> dict:
+        """Record one event: side files first (atomically, never overwriting), then its line (fsynced)."""
+        self._require_started()
+        if not isinstance(kind, str) or not kind:
+            raise SessionError(f"event kind {kind!r} must be a non-empty string")
+        for name in list(frames or {}) + list(files or {}):
+            _check_name(name, "side file name")
+        seq = self._reserve_seq()
+        doc = {**self._header("event", seq), "kind": kind, "config_id": config_id, "data": data or {},
+               "frames": {}, "files": {}}
+        encode_document(doc)  # refuse unrecordable data before any side file is written
+        if frames:
+            directory, relative = self._side_dir("frames", config_id)
+            self._mkdir(directory)
+            for name, image in frames.items():
+                filename = f"{seq:06d}_{name}.png"
+                try:
+                    atomic.write_png(directory / filename, image, overwrite=False)
+                except ValueError as error:
+                    raise SessionError(f"frame {name!r} of event {kind!r}: {error}") from None
+                doc["frames"][name] = f"{relative}/{filename}"
+        if files:
+            directory, relative = self._side_dir("files", config_id)
+            self._mkdir(directory)
+            for name, payload in files.items():
+                filename = f"{seq:06d}_{name}"
+                atomic.write_bytes(directory / filename, bytes(payload), overwrite=False)
+                doc["files"][name] = f"{relative}/{filename}"
+        return self._append(doc)
+
+    def write_calibration(
+        self, config_id: str, calib: StereoCalibration, rect: Rectification | None, *,
+        board: str, extra: dict | None = None,
+    ) -> dict[str, str]:
+        """Write the configuration's calibration (OpenCV stereo_calib YAML) and a 'calibration' event.
+
+        Both files are written into a temporary directory that is renamed into place, so the pair
+        appears together or not at all. Returns ``{"intrinsics": path, "extrinsics": path}``.
+        """
+        self._require_started()
+        _check_name(config_id, "config_id")
+        seq = self._reserve_seq()
+        parent = self.directory / "calib" / config_id
+        self._mkdir(parent)
+        name = f"a{self.attempt}"
+        if (parent / name).exists():  # a second calibration of the configuration in this attempt
+            name = f"a{self.attempt}-{seq}"
+        tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=atomic.TEMP_SUFFIX, dir=parent))
+        try:
+            calibio.write_calibration(tmp, calib, rect, board=board, extra=extra)
+            atomic.fsync_dir(tmp)
+            os.rename(tmp, parent / name)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        atomic.fsync_dir(parent)
+        relative = f"calib/{config_id}/{name}"
+        files = {"intrinsics": f"{relative}/{calibio.INTRINSICS_FILE}",
+                 "extrinsics": f"{relative}/{calibio.EXTRINSICS_FILE}"}
+        data = {"board": board, "mode": calib.mode, "rms_px": calib.rms_px, "baseline_mm": calib.baseline_mm,
+                "image_size": list(calib.image_size), "views_used": list(calib.views_used),
+                "views_rejected": len(calib.views_rejected), "extra": extra or {}}
+        self._append({**self._header("event", seq), "kind": "calibration", "config_id": config_id, "data": data,
+                      "frames": {}, "files": files})
+        return files
+
+    def transcript_path(self, name: str = "serial") -> Path:
+        """Where the rig's byte-level transcript of this attempt goes (recorded in the stream)."""
+        if self._fd is None:
+            raise SessionError(f"{self.directory}: session is not open")
+        _check_name(name, "transcript name")
+        relative = f"transcripts/{name}-a{self.attempt}.jsonl"
+        self._mkdir(self.directory / "transcripts")
+        if name not in self._transcripts:
+            self._transcripts[name] = relative
+            if self._started:
+                self._record_transcript(name)
+            else:
+                self._pending_transcripts.append(name)
+        return self.directory / relative
+
+    def _record_transcript(self, name: str) -> None:
+        self._append({**self._header("event", self._reserve_seq()), "kind": "transcript", "config_id": None,
+                      "data": {"name": name}, "frames": {}, "files": {name: self._transcripts[name]}})
+
+    def result(self, config_id: str, row: dict) -> None:
+        """Record the configuration's result: SQLite upsert, then its 'result' document, then results.csv."""
+        self._require_started()
+        _check_name(config_id, "config_id")
+        if row.get("config_id", config_id) != config_id:
+            raise SessionError(f"result row says config_id {row.get('config_id')!r}, recorded as {config_id!r}")
+        try:
+            clean = normalise_row({**row, "config_id": config_id, "attempt": row.get("attempt", self.attempt),
+                                   "time": row.get("time") or utc_now()})
+        except (TypeError, StoreError) as error:
+            raise SessionError(f"cannot record the result of {config_id}: {error}") from None
+        doc = {**self._header("result", self._reserve_seq()), "config_id": config_id, "row": clean}
+        encode_document(doc)
+        assert self._store is not None
+        self._store.upsert(clean)
+        self._append(doc)
+        self._completed.add(config_id)
+        self._export_csv()
+
+    def stop(self, *, exit_status: str, reason: str | None = None) -> None:
+        """Write the 'stop' document, then export results.csv (atomically)."""
+        self._require_started()
+        if self._stopped:
+            raise SessionError(f"{self.directory}: stop() called twice")
+        if exit_status not in EXIT_STATUSES:
+            raise SessionError(f"exit_status {exit_status!r} is not one of {', '.join(EXIT_STATUSES)}")
+        assert self._store is not None
+        self._append({**self._header("stop", self._reserve_seq()), "exit_status": exit_status, "reason": reason,
+                      "completed": len(self._completed)})
+        self._stopped = True
+        self._export_csv()
+
+    def completed_config_ids(self) -> set[str]:
+        return set(self._completed)
+
+    def results(self) -> list[dict]:
+        """The rows of the results store, in plan order."""
+        assert self._store is not None
+        return order_rows(self._store.rows(), self._plan_order)
+
+
+__all__ = [
+    "DOCUMENTS_FILE", "EXIT_STATUSES", "SCHEMA_VERSION", "SessionError", "SessionReader", "SessionWriter",
+    "TornLine", "normalise_row", "parse_stream",
+]
