@@ -1,0 +1,1 @@
+"""Campaigns: a validated config (TOML), its plan as data, and the runner that executes it."""

@@ -1,0 +1,518 @@
+"""Campaign configuration: one TOML file, validated by pydantic before anything moves.
+
+The minimal file a user writes is the plan; every other section has a working default that runs on
+the simulated rig with simulated cameras::
+
+    [plan]
+    baseline_mm = [100, 150]
+    distance_mm = [400, 500]
+    alpha_deg = [90]
+
+Sections (all optional except ``[plan]``; units in every key's name):
+
+    name, description, seed
+    [rig]                 kind = "simulated" | "grbl", port, config_file (a RigConfig TOML) or inline
+                          [rig.controller] / [rig.quantities.*] tables, time_scale, homing
+    [cameras]             kind = "simulated" | "v4l2", left, right, max_skew_s, [cameras.settings]
+                          (CameraSettings fields), [cameras.optics] (simulated optics; also the nominal
+                          lens the feasibility prediction uses for real cameras)
+    [calibration_board]   the board shown for stereo calibration (11x8 inner corners, 25 mm)
+    [target]              the measured board (9x6 inner corners, 27 mm squares)
+    [capture]             settle_s, frames_per_config, calibration_views, board_retries
+    [extrinsics]          mode = "per-config" | "fixed", intrinsics = "joint" | "fixed", calib_dir
+    [plan]                baseline_mm, distance_mm, alpha_deg or toe_in_deg, tilt_deg
+
+Every model forbids unknown keys, so a typo is an error naming the key. Relative paths
+(``rig.config_file``, ``extrinsics.calib_dir``) are resolved against the campaign file's directory.
+Errors are :class:`ConfigError` with one line: ``FILE: dotted.field: what is wrong``.
+
+Angles: alpha is the angle between the baseline and an optical axis (90 deg = parallel rig); the pan
+heads are driven in toe-in t = 90 - alpha.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from collections.abc import Mapping
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+from drivers.camera.base import CameraSettings
+from drivers.rig.config import (
+    ControllerSettings,
+    QuantityMapping,
+    RigConfig,
+    RigConfigError,
+    load_rig_config,
+    rig_config_from_dict,
+)
+from stereo_bench.geometry import CameraModel
+from stereo_bench.targets import CharucoTarget, Checkerboard
+
+# cv2.stereoCalibrate through stereo_bench.vision.calibrate.calibrate_stereo needs at least this many views.
+MIN_CALIBRATION_VIEWS = 5
+
+PRESETS: dict[str, str] = {
+    "paper-exp1": "Yang et al. 2024 experiment 1: Z = 300-700 mm step 100 x B = 50-250 mm step 50, alpha = 90 deg",
+    "paper-exp2": "Yang et al. 2024 experiment 2 as the paper writes alpha: Z = 500 mm, B = 100 mm, "
+                  "alpha = 5-55 deg step 10 (alpha <= 45 deg: no corner in both views)",
+    "paper-exp2-toe-in": "Yang et al. 2024 experiment 2 read as the pan from parallel: Z = 500 mm, B = 100 mm, "
+                         "toe-in 5-55 deg step 10 (alpha = 85-35 deg)",
+}
+
+
+class ConfigError(ValueError):
+    """A campaign configuration that cannot be used: one line, ``FILE: dotted.field: what is wrong``."""
+
+
+_STRICT = ConfigDict(extra="forbid")
+
+
+def _resolve(path: Path | None, info: ValidationInfo) -> Path | None:
+    base = (info.context or {}).get("base_dir")
+    if path is None or path.is_absolute() or base is None:
+        return path
+    return Path(base) / path
+
+
+# --------------------------------------------------------------------------------------------------
+# Boards
+
+
+class TargetConfig(BaseModel):
+    """A board. Checkerboard: ``cols`` x ``rows`` INNER CORNERS; ChArUco: ``cols`` x ``rows`` SQUARES."""
+
+    model_config = _STRICT
+
+    kind: Literal["checkerboard", "charuco"] = "checkerboard"
+    cols: int = Field(9, ge=2, description="checkerboard: inner corners per row; charuco: squares per row")
+    rows: int = Field(6, ge=2, description="checkerboard: inner corners per column; charuco: squares per column")
+    square_mm: float = Field(27.0, gt=0, allow_inf_nan=False, description="side of one square, mm")
+    marker_mm: float | None = Field(None, gt=0, allow_inf_nan=False,
+                                    description="charuco only: ArUco marker side, mm (default 0.75 * square_mm)")
+    dictionary: str = Field("DICT_5X5_1000", description="charuco only: OpenCV ArUco dictionary name")
+
+    @model_validator(mode="after")
+    def _check(self) -> TargetConfig:
+        if self.kind == "checkerboard":
+            for name in ("marker_mm", "dictionary"):
+                if name in self.model_fields_set:
+                    raise ValueError(f"{name} is only for kind = \"charuco\"")
+        elif self.cols < 3 or self.rows < 3:
+            raise ValueError(f"a ChArUco board of {self.cols}x{self.rows} squares has too few inner corners "
+                             "(cols and rows count squares for charuco: at least 3 each)")
+        try:
+            self.build()
+        except ValueError as error:
+            raise ValueError(str(error)) from None
+        return self
+
+    def build(self) -> Checkerboard | CharucoTarget:
+        """The board model (corner coordinates, texture) this config describes."""
+        if self.kind == "checkerboard":
+            return Checkerboard(self.cols, self.rows, self.square_mm)
+        marker = self.marker_mm if self.marker_mm is not None else 0.75 * self.square_mm
+        return CharucoTarget(self.cols, self.rows, self.square_mm, marker, dictionary=self.dictionary)
+
+    def describe(self) -> str:
+        """E.g. 'checkerboard 9x6 inner corners, 27 mm squares'."""
+        grid = "inner corners" if self.kind == "checkerboard" else "squares"
+        return f"{self.kind} {self.cols}x{self.rows} {grid}, {self.square_mm:g} mm squares"
+
+
+def _default_calibration_board() -> TargetConfig:
+    return TargetConfig(cols=11, rows=8, square_mm=25.0)
+
+
+# --------------------------------------------------------------------------------------------------
+# Rig and cameras
+
+
+class OpticsConfig(BaseModel):
+    """Simulated optics; for real cameras, the nominal lens and sensor the feasibility prediction uses."""
+
+    model_config = _STRICT
+
+    focal_mm: float = Field(4.0, gt=0, allow_inf_nan=False, description="lens focal length, mm")
+    pixel_um: float = Field(3.0, gt=0, allow_inf_nan=False, description="pixel pitch, micrometres")
+    width_px: int = Field(1920, gt=0)
+    height_px: int = Field(1080, gt=0)
+    dist: list[float] = Field(default_factory=lambda: [-0.05, 0.02, 0.0, 0.0, 0.0],
+                              description="OpenCV distortion coefficients (k1 k2 p1 p2 [k3 ...])")
+    noise_dn: float = Field(2.0, ge=0, allow_inf_nan=False, description="read noise, 8-bit DN (std)")
+    blur_px: float = Field(0.7, ge=0, allow_inf_nan=False, description="optical blur, Gaussian sigma, px")
+    exposure_s: float = Field(0.02, gt=0, allow_inf_nan=False, description="exposure time of a frame, s")
+
+    @field_validator("dist")
+    @classmethod
+    def _dist_length(cls, value: list[float]) -> list[float]:
+        if len(value) not in (4, 5, 8, 12, 14):
+            raise ValueError(f"OpenCV takes 4, 5, 8, 12 or 14 distortion coefficients, not {len(value)}")
+        if not all(math.isfinite(v) for v in value):
+            raise ValueError("distortion coefficients must be finite numbers")
+        return value
+
+    @property
+    def focal_px(self) -> float:
+        return self.focal_mm * 1000.0 / self.pixel_um
+
+    def camera_model(self, name: str = "camera") -> CameraModel:
+        return CameraModel.from_sensor(
+            focal_mm=self.focal_mm, pixel_um=self.pixel_um, image_size=(self.width_px, self.height_px),
+            dist=tuple(self.dist), name=name,
+        )
+
+
+class RigSection(BaseModel):
+    """The motorised rig: the GRBL emulator on a pty (``simulated``) or a real controller (``grbl``).
+
+    The axis mapping and soft limits come from ``config_file`` (a RigConfig TOML), or from inline
+    ``[rig.controller]`` / ``[rig.quantities.NAME]`` tables (same layout as that file), or default to
+    X = baseline 0-350 mm, Y/Z = left/right toe-in 0-90 deg, tilts fixed at 0, target distance manual.
+    """
+
+    model_config = _STRICT
+
+    kind: Literal["simulated", "grbl"] = "simulated"
+    port: str | None = Field(None, description="grbl: serial device or pyserial URL of the controller")
+    config_file: Path | None = Field(None, description="rig configuration TOML, relative to the campaign file")
+    controller: ControllerSettings | None = Field(None, description="inline rig config: controller settings")
+    quantities: dict[str, QuantityMapping] | None = Field(
+        None, description="inline rig config: quantity -> axis mapping (missing quantities keep the default)")
+    time_scale: float = Field(1.0, gt=0, allow_inf_nan=False,
+                              description="simulated rig only: simulated seconds per real second")
+    homing: bool = Field(True, description="run the homing cycle ($H) before the first move")
+
+    _rig_config: RigConfig | None = PrivateAttr(None)
+
+    @field_validator("quantities")
+    @classmethod
+    def _check_quantities(cls, value: dict[str, QuantityMapping] | None) -> dict[str, QuantityMapping] | None:
+        if value is not None:
+            try:  # the cross-quantity checks (known names, one quantity per axis) are RigConfig's
+                rig_config_from_dict({"quantities": value}, source="inline")
+            except RigConfigError as error:
+                raise ValueError(str(error).removeprefix("inline: ").removeprefix("quantities: ")) from None
+        return value
+
+    @field_validator("config_file")
+    @classmethod
+    def _resolve_config_file(cls, value: Path | None, info: ValidationInfo) -> Path | None:
+        return _resolve(value, info)
+
+    @model_validator(mode="after")
+    def _check(self) -> RigSection:
+        if self.kind == "grbl" and not self.port:
+            raise ValueError("kind = \"grbl\" needs port (the controller's serial device)")
+        if self.kind == "simulated" and self.port is not None:
+            raise ValueError("port is set but kind is \"simulated\": set kind = \"grbl\" to use the controller "
+                             "on that port, or remove port")
+        if self.kind == "grbl" and self.time_scale != 1.0:
+            raise ValueError("time_scale is for the simulated rig only")
+        if self.config_file is not None and (self.controller is not None or self.quantities is not None):
+            raise ValueError("give the rig mapping in config_file or inline ([rig.quantities]), not both")
+        if self.config_file is None and (self.controller is not None or self.quantities is not None):
+            self._rig_config = RigConfig(
+                controller=self.controller or ControllerSettings(), quantities=self.quantities or {})
+        return self
+
+    def rig_config(self) -> RigConfig:
+        """The RigConfig (mapping, limits, feeds): from config_file (read on first call), inline, or default.
+
+        Raises :class:`drivers.rig.config.RigConfigError` for an unusable file (load_campaign has already
+        checked it for configs read from a file).
+        """
+        if self._rig_config is None:
+            self._rig_config = load_rig_config(self.config_file) if self.config_file is not None else RigConfig()
+        return self._rig_config
+
+
+class CamerasSection(BaseModel):
+    """The stereo pair: simulated (rendered from the rig's pose) or two V4L2 cameras bound by identity."""
+
+    model_config = _STRICT
+
+    kind: Literal["simulated", "v4l2"] = "simulated"
+    left: str | None = Field(None, description="v4l2: stable spec of the left camera, e.g. 'by-id:...', "
+                                               "'usb-port:1-2', 'serial:ABC'")
+    right: str | None = Field(None, description="v4l2: stable spec of the right camera")
+    settings: dict[str, Any] = Field(default_factory=dict,
+                                     description="CameraSettings fields applied to both cameras and read back")
+    optics: OpticsConfig = Field(default_factory=OpticsConfig)
+    max_skew_s: float = Field(0.02, gt=0, allow_inf_nan=False,
+                              description="reject stereo pairs whose left-right grab times differ by more, s")
+
+    @field_validator("settings")
+    @classmethod
+    def _check_settings(cls, value: dict[str, Any]) -> dict[str, Any]:
+        try:
+            CameraSettings.model_validate(value)
+        except ValidationError as error:
+            first = error.errors()[0]
+            where = _dotted(tuple(first.get("loc", ())))
+            message = first.get("msg", "invalid").removeprefix("Value error, ")
+            if first.get("type") == "extra_forbidden":
+                message = f"unknown camera setting; known: {', '.join(CameraSettings.model_fields)}"
+            raise ValueError(f"{where}: {message}" if where != "(top level)" else message) from None
+        return value
+
+    @model_validator(mode="after")
+    def _check(self) -> CamerasSection:
+        if self.kind == "v4l2" and (not self.left or not self.right):
+            raise ValueError("kind = \"v4l2\" needs left and right (e.g. 'by-id:usb-...', 'usb-port:1-2')")
+        return self
+
+    def camera_settings(self) -> CameraSettings:
+        return CameraSettings.model_validate(self.settings)
+
+
+class CaptureSection(BaseModel):
+    """What is captured at each configuration, and how long the rig is left to settle first."""
+
+    model_config = _STRICT
+
+    settle_s: float = Field(0.3, ge=0, allow_inf_nan=False, description="wait after a move before capturing, s")
+    frames_per_config: int = Field(3, ge=1, description="stereo frames of the target measured per configuration")
+    calibration_views: int = Field(12, ge=1, description="calibration-board views per configuration (per-config)")
+    board_retries: int = Field(3, ge=0, description="re-captures when the board is not detected")
+
+
+class ExtrinsicsSection(BaseModel):
+    """Where the stereo extrinsics R, T come from.
+
+    ``per-config`` (default): re-estimated at each configuration from views of the calibration board,
+    with the intrinsics refined jointly (``joint``, the default: scripts/bench_extrinsics_mode.py
+    measured abs(T) errors of 0.001 vs 0.002 mm, square errors equal) or kept fixed (``fixed``: from
+    ``calib_dir`` if given, else from mono calibrations of the same views). ``fixed``: R, T (and the
+    intrinsics) read from ``calib_dir`` (OpenCV stereo_calib layout: intrinsics.yml, extrinsics.yml).
+    """
+
+    model_config = _STRICT
+
+    mode: Literal["per-config", "fixed"] = "per-config"
+    intrinsics: Literal["joint", "fixed"] = "joint"
+    calib_dir: Path | None = Field(None, description="calibration directory, relative to the campaign file")
+
+    @field_validator("calib_dir")
+    @classmethod
+    def _resolve_calib_dir(cls, value: Path | None, info: ValidationInfo) -> Path | None:
+        return _resolve(value, info)
+
+    @model_validator(mode="after")
+    def _check(self) -> ExtrinsicsSection:
+        if self.mode == "fixed" and self.calib_dir is None:
+            raise ValueError("mode = \"fixed\" needs calib_dir (a directory with intrinsics.yml and extrinsics.yml)")
+        return self
+
+
+# Open intervals each plan value must lie in.
+_PLAN_BOUNDS = {
+    "baseline_mm": (0.0, math.inf), "distance_mm": (0.0, math.inf), "alpha_deg": (0.0, 180.0),
+    "toe_in_deg": (-90.0, 90.0),
+}
+
+
+class PlanSection(BaseModel):
+    """The grid of configurations: every combination of baseline, distance and angle.
+
+    Give the angle as ``alpha_deg`` (between baseline and optical axis, 90 = parallel) or as
+    ``toe_in_deg`` (90 - alpha, 0 = parallel), not both; neither means alpha = [90].
+    """
+
+    model_config = _STRICT
+
+    baseline_mm: list[float] = Field(description="baselines B, mm (> 0)")
+    distance_mm: list[float] = Field(description="target distances Z from the baseline, mm (> 0)")
+    alpha_deg: list[float] | None = Field(None, description="alphas, deg, in (0, 180); 90 = parallel rig")
+    toe_in_deg: list[float] | None = Field(None, description="toe-ins, deg, in (-90, 90); 0 = parallel rig")
+    tilt_deg: float = Field(0.0, gt=-90, lt=90, allow_inf_nan=False,
+                            description="tilt of both cameras, deg (> 0 looks down)")
+
+    @field_validator("baseline_mm", "distance_mm", "alpha_deg", "toe_in_deg")
+    @classmethod
+    def _check_list(cls, values: list[float] | None, info: ValidationInfo) -> list[float] | None:
+        if values is None:
+            return None
+        low, high = _PLAN_BOUNDS[info.field_name]
+        if not values:
+            raise ValueError("needs at least one value")
+        for value in values:
+            if not (math.isfinite(value) and low < value < high):
+                raise ValueError(f"value {value:g} outside ({low:g}, {high:g})")
+        duplicates = sorted({v for v in values if values.count(v) > 1})
+        if duplicates:
+            raise ValueError(f"lists {duplicates[0]:g} more than once")
+        return values
+
+    @model_validator(mode="after")
+    def _check(self) -> PlanSection:
+        if self.alpha_deg is not None and self.toe_in_deg is not None:
+            raise ValueError("give alpha_deg or toe_in_deg, not both")
+        if self.alpha_deg is None and self.toe_in_deg is None:
+            self.alpha_deg = [90.0]
+        return self
+
+    def angles_deg(self) -> list[tuple[float, float]]:
+        """(alpha, toe-in) pairs in the order written."""
+        if self.toe_in_deg is not None:
+            return [(90.0 - t, t) for t in self.toe_in_deg]
+        return [(a, 90.0 - a) for a in self.alpha_deg or [90.0]]
+
+
+class CampaignConfig(BaseModel):
+    """A whole campaign: what to drive, what to capture, how to calibrate, and the grid of configurations."""
+
+    model_config = _STRICT
+
+    name: str = Field("campaign", min_length=1, description="campaign name, recorded with the session")
+    description: str = ""
+    seed: int = Field(0, description="seed of every random choice (simulated noise, calibration poses)")
+    rig: RigSection = Field(default_factory=RigSection)
+    cameras: CamerasSection = Field(default_factory=CamerasSection)
+    calibration_board: TargetConfig = Field(default_factory=_default_calibration_board,
+                                            description="board shown for stereo calibration (not the target)")
+    target: TargetConfig = Field(default_factory=TargetConfig, description="the measured board")
+    capture: CaptureSection = Field(default_factory=CaptureSection)
+    extrinsics: ExtrinsicsSection = Field(default_factory=ExtrinsicsSection)
+    plan: PlanSection
+
+    @model_validator(mode="after")
+    def _check(self) -> CampaignConfig:
+        if self.extrinsics.mode == "per-config" and self.capture.calibration_views < MIN_CALIBRATION_VIEWS:
+            raise ValueError(f"capture.calibration_views: per-config extrinsics need at least "
+                             f"{MIN_CALIBRATION_VIEWS} calibration views, not {self.capture.calibration_views}")
+        return self
+
+    @property
+    def fully_simulated(self) -> bool:
+        """True when no human is needed: simulated rig and simulated cameras."""
+        return self.rig.kind == "simulated" and self.cameras.kind == "simulated"
+
+
+# --------------------------------------------------------------------------------------------------
+# Loading
+
+
+def _dotted(loc: tuple) -> str:
+    text = ""
+    for part in loc:
+        if isinstance(part, int):
+            text += f"[{part}]"
+        else:
+            text += ("." if text else "") + str(part)
+    return text or "(top level)"
+
+
+def _section_model(loc: tuple) -> type[BaseModel] | None:
+    """The model class whose key ``loc[-1]`` is (for naming the known keys after a typo)."""
+    model: type[BaseModel] = CampaignConfig
+    for part in loc[:-1]:
+        field = model.model_fields.get(str(part))
+        annotation = getattr(field, "annotation", None)
+        candidates = getattr(annotation, "__args__", (annotation,))
+        nested = [c for c in candidates if isinstance(c, type) and issubclass(c, BaseModel)]
+        if not nested:
+            return None
+        model = nested[0]
+    return model
+
+
+def _one_line(error: ValidationError, source: str) -> ConfigError:
+    first = error.errors()[0]
+    loc = tuple(first.get("loc", ()))
+    message = first.get("msg", "invalid").removeprefix("Value error, ")
+    if first.get("type") == "extra_forbidden":
+        model = _section_model(loc)
+        known = f"; known: {', '.join(model.model_fields)}" if model is not None else ""
+        message = f"unknown key{known}"
+    elif first.get("type") == "missing":
+        message = "missing (required)"
+    where = _dotted(loc)
+    more = f" (and {error.error_count() - 1} more)" if error.error_count() > 1 else ""
+    # A cross-section check names its field at the start of its message.
+    prefix = f"{where}: " if where != "(top level)" else ""
+    return ConfigError(f"{source}: {prefix}{message}{more}")
+
+
+def campaign_from_dict(data: Mapping[str, Any], *, source: str = "campaign config",
+                       base_dir: str | Path | None = None) -> CampaignConfig:
+    """Validate a campaign config from parsed TOML. Relative paths resolve against ``base_dir``."""
+    try:
+        return CampaignConfig.model_validate(dict(data), context={"base_dir": base_dir})
+    except ValidationError as error:
+        raise _one_line(error, source) from None
+
+
+def _check_files(config: CampaignConfig, source: str) -> None:
+    """Read what the config points at (rig config file, calibration directory) so it fails now, not mid-run."""
+    if config.rig.config_file is not None:
+        try:
+            config.rig.rig_config()
+        except RigConfigError as error:
+            raise ConfigError(f"{source}: rig.config_file: {error}") from None
+    calib_dir = config.extrinsics.calib_dir
+    if calib_dir is not None:
+        if not calib_dir.is_dir():
+            raise ConfigError(f"{source}: extrinsics.calib_dir: no such directory: {calib_dir}")
+        needed = ["intrinsics.yml"] + (["extrinsics.yml"] if config.extrinsics.mode == "fixed" else [])
+        missing = [name for name in needed if not (calib_dir / name).is_file()]
+        if missing:
+            raise ConfigError(f"{source}: extrinsics.calib_dir: {calib_dir} has no {', '.join(missing)}")
+
+
+def load_campaign(path: str | Path) -> CampaignConfig:
+    """Read and validate a campaign TOML file, and the files it names. Errors name the file and the field."""
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            data = tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such campaign file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, not a campaign file") from None
+    except OSError as error:
+        raise ConfigError(f"{path}: cannot read: {error.strerror or error}") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: invalid TOML: {error}") from None
+    config = campaign_from_dict(data, source=str(path), base_dir=path.parent)
+    _check_files(config, str(path))
+    return config
+
+
+def preset_text(name: str) -> str:
+    """The TOML text of a shipped preset."""
+    if name not in PRESETS:
+        raise ConfigError(f"unknown preset {name!r}; known: {', '.join(PRESETS)}")
+    return resources.files("stereo_bench.campaign").joinpath("presets", f"{name}.toml").read_text("utf-8")
+
+
+def load_preset(name: str) -> CampaignConfig:
+    """A shipped preset (see :data:`PRESETS`), validated like a user's file."""
+    data = tomllib.loads(preset_text(name))
+    return campaign_from_dict(data, source=f"preset {name}")
+
+
+def campaign_json_schema() -> dict:
+    """JSON Schema (draft 2020-12) of a campaign TOML file, as pydantic writes it."""
+    schema = CampaignConfig.model_json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = "stereo-bench campaign"
+    return schema
+
+
+def campaign_json_schema_text() -> str:
+    return json.dumps(campaign_json_schema(), indent=2)
