@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import sqlite3
@@ -373,8 +374,9 @@ def test_a_store_row_whose_document_never_landed_is_dropped_but_recorded(tmp_pat
         assert session.completed_config_ids() == {"c0"}
         assert [r["config_id"] for r in session.results()] == ["c0"]
         session.start(config=CONFIG, plan=PLAN, software=SOFTWARE)
-    dropped = SessionReader(out).resumes()[0]["recovery"]["store_rebuilt"]["dropped_rows"]
-    assert [r["config_id"] for r in dropped] == ["c1"]
+    rebuilt = SessionReader(out).resumes()[0]["recovery"]["store_rebuilt"]
+    assert [r["config_id"] for r in rebuilt["dropped_rows"]] == ["c1"]
+    assert json.loads((out / rebuilt["dropped_rows_kept_in"]).read_text()) == rebuilt["dropped_rows"]
 
 
 def test_a_corrupt_store_is_kept_aside_and_rebuilt(tmp_path):
@@ -427,3 +429,18 @@ def test_a_missing_or_truncated_frame_is_named(tmp_path):
 def test_reader_on_a_missing_directory_says_so(tmp_path):
     with pytest.raises(SessionError, match="session directory not found"):
         SessionReader(tmp_path / "nope").documents()
+
+
+def test_a_second_calibration_in_one_attempt_is_kept_beside_the_first(tmp_path):
+    out = tmp_path / "s"
+    second = dataclasses.replace(calibration(), T=np.array([-101.0, 0.0, 0.0]))
+    with SessionWriter(out).open() as session:
+        session.start(config=CONFIG, plan=PLAN, software=SOFTWARE)
+        first = session.write_calibration("c0", calibration(), None, board="chessboard")
+        again = session.write_calibration("c0", second, None, board="chessboard", extra={"views_removed": 2})
+        transcript = session.transcript_path("serial")
+        assert session.reader().transcripts() == {"serial": ["transcripts/serial-a1.jsonl"]}
+    assert first["intrinsics"] == "calib/c0/a1/intrinsics.yml" and again["intrinsics"] == "calib/c0/a1-2/intrinsics.yml"
+    assert (out / first["extrinsics"]).is_file()
+    assert SessionReader(out).calibration("c0").T[0] == -101.0
+    assert transcript.parent == out / "transcripts"

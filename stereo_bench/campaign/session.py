@@ -96,9 +96,11 @@ def encode_document(doc: Mapping[str, Any]) -> bytes:
     """One document as one strict-JSON line (NaN → null, numpy → Python), newline-terminated."""
     try:
         clean = json_safe(doc, str(doc.get("type", "document")))
+        return (json.dumps(clean, allow_nan=False, ensure_ascii=False) + "\n").encode("utf-8")
     except TypeError as error:
         raise SessionError(f"cannot record {error}") from None
-    return (json.dumps(clean, allow_nan=False, ensure_ascii=False) + "\n").encode("utf-8")
+    except UnicodeEncodeError as error:
+        raise SessionError(f"cannot record a {doc.get('type', 'document')} document: {error.reason}") from None
 
 
 # -- reading the stream ------------------------------------------------------------------------------
@@ -300,6 +302,15 @@ class SessionReader:
         elif attempt is not None:
             events = [doc for doc in events if doc["attempt"] == attempt]
         return [_strip(doc) for doc in events if kind is None or doc.get("kind") == kind]
+
+    def transcripts(self) -> dict[str, list[str]]:
+        """Relative paths of the recorded transcripts, by name, one per attempt in order."""
+        out: dict[str, list[str]] = {}
+        for doc in self._docs():
+            if doc["type"] == "event" and doc.get("kind") == "transcript":
+                for name, relative in (doc.get("files") or {}).items():
+                    out.setdefault(name, []).append(relative)
+        return out
 
     def results(self) -> list[dict]:
         """The last result row of each configuration, in order of first appearance."""
@@ -557,11 +568,15 @@ class SessionWriter:
         if rebuild:
             changes = store.rebuild_from_stream(stream_rows or [])
             if changes["added"] or changes["changed"] or changes["dropped"]:
-                report["store_rebuilt"] = {
-                    "added": changes["added"], "changed": changes["changed"],
-                    # rows the store had but the stream did not (a crash between the two writes): kept here
-                    "dropped_rows": changes["dropped"],
-                }
+                report["store_rebuilt"] = {"added": changes["added"], "changed": changes["changed"]}
+            if changes["dropped"]:
+                # rows the store had but the stream did not (a crash between the two writes): kept, in the
+                # resume document and in a side file (in case this attempt never gets as far as its start())
+                relative = f"{RECOVERED_DIR}/dropped-store-rows-a{self.attempt}.json"
+                self._mkdir(self.directory / RECOVERED_DIR)
+                atomic.write_text(self.directory / relative, json.dumps(changes["dropped"], indent=1) + "\n",
+                                  overwrite=False)
+                report["store_rebuilt"].update(dropped_rows=changes["dropped"], dropped_rows_kept_in=relative)
             self._export_csv()
         return report
 
@@ -809,6 +824,10 @@ class SessionWriter:
 
     def completed_config_ids(self) -> set[str]:
         return set(self._completed)
+
+    def reader(self) -> SessionReader:
+        """A reader of this session as recorded so far."""
+        return SessionReader(self.directory)
 
     def results(self) -> list[dict]:
         """The rows of the results store, in plan order."""
