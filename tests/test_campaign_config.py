@@ -85,8 +85,8 @@ def test_angle_defaults_to_parallel_and_toe_in_converts():
     (MINIMAL + "[rig.quantities.baseline_mm]\naxis = 'X'\n", "rig.quantities.baseline_mm: a quantity "
                                                                "driven by axis X needs soft limits"),
     (MINIMAL + "[cameras]\nkind = 'v4l2'\n", "cameras: kind = \"v4l2\" needs left and right"),
-    (MINIMAL + "[capture]\ncalibration_views = 3\n", "capture.calibration_views: per-config extrinsics need at least 5"),
-    (MINIMAL + "[capture]\nframes_per_config = 0\n", "capture.frames_per_config: Input should be greater than or equal"),
+    (MINIMAL + "[capture]\ncalibration_views = 3\n", "capture.calibration_views: per-config extrinsics need"),
+    (MINIMAL + "[capture]\nframes_per_config = 0\n", "capture.frames_per_config: Input should be greater"),
     (MINIMAL + "[extrinsics]\nmode = 'fixed'\n", "extrinsics: mode = \"fixed\" needs calib_dir"),
     (MINIMAL + "[extrinsics]\nmode = 'fixd'\n", "extrinsics.mode: Input should be 'per-config' or 'fixed'"),
     (MINIMAL + "[target]\ncols = 7\nrows = 7\n", "target: a 7x7 board is square"),
@@ -199,7 +199,8 @@ def test_json_schema_describes_the_file():
     schema = campaign_json_schema()
     json.dumps(schema)
     assert schema["required"] == ["plan"] and schema["additionalProperties"] is False
-    assert {"rig", "cameras", "calibration_board", "target", "capture", "extrinsics", "plan"} <= set(schema["properties"])
+    sections = {"rig", "cameras", "calibration_board", "target", "capture", "extrinsics", "plan"}
+    assert sections <= set(schema["properties"])
     plan = schema["$defs"]["PlanSection"]
     assert plan["additionalProperties"] is False and set(plan["required"]) == {"baseline_mm", "distance_mm"}
     assert CampaignConfig.model_validate({"plan": {"baseline_mm": [1], "distance_mm": [1]}}).name == "campaign"
