@@ -1,0 +1,612 @@
+"""Plans as data: a campaign config expands to configurations and to the steps a runner executes.
+
+    configurations = expand_plan(config)          # ordered (Z, B, alpha) grid, feasibility predicted
+    steps = plan_steps(config, configurations)    # Move, PromptTarget, Settle, Flush, Capture..., Checkpoint
+    predict_duration_s(config, configurations, steps)
+
+Nothing here moves or opens anything: feasibility is predicted from geometry and soft limits are
+checked with the rig config's own check, so a plan can be listed, tested and dry-run without hardware.
+
+Feasibility of a configuration (B, Z, alpha, tilt), predicted before moving:
+
+- the measured target stands centred on the rig z axis at distance Z, facing the rig
+  (:func:`stereo_bench.geometry.board_pose_facing_rig`); its inner corners are projected into both
+  nominal cameras (``cameras.optics``), and a corner counts when it lands at least
+  :data:`FEASIBILITY_MARGIN_PX` inside both images. ``fraction_in_both`` is reported for every
+  configuration. Fewer than :data:`MIN_CORNERS_IN_BOTH` corners in both views is infeasible; a
+  partial view is measured (the measurement core handles partial checkerboards) and flagged
+  ``partial``;
+- with per-configuration extrinsics, the calibration board must fit whole (with its outer squares,
+  which chessboard detectors need) in both views somewhere: it is tried fronto-parallel, centred on
+  the bisector of the optical axes, at :data:`CALIBRATION_DISTANCES_MM` in steps of
+  :data:`CALIBRATION_DISTANCE_STEP_MM`. A ChArUco calibration board, identified corner by corner,
+  needs only :data:`CHARUCO_MIN_CALIBRATION_FRACTION` of its corners in both views;
+- the move must pass the rig config's soft limits and axis mapping
+  (:func:`drivers.rig.config.plan_move`); a violation is reported as ``limit_violation``.
+
+Only runnable configurations (feasible, no limit violation) get a move and captures; the others get
+a single :class:`Checkpoint` carrying the reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from drivers.rig.codec import vector_feed
+from drivers.rig.config import QUANTITIES, LimitError, MoveRequestError, RigConfig, plan_move, to_machine
+from drivers.sim.grbl_emulator import DEFAULT_AXES  # a table of axis rates/accelerations; no I/O at import
+from stereo_bench.campaign.config import CampaignConfig
+from stereo_bench.geometry import (
+    CameraModel,
+    RigPose,
+    board_pose_facing_rig,
+    invert_transform,
+    make_transform,
+    transform_points,
+    visible_in_both,
+)
+from stereo_bench.targets import CharucoTarget, Checkerboard
+
+MIN_CORNERS_IN_BOTH = 6
+FEASIBILITY_MARGIN_PX = 10.0
+CALIBRATION_DISTANCES_MM = (250.0, 1500.0)
+CALIBRATION_DISTANCE_STEP_MM = 10.0
+CHARUCO_MIN_CALIBRATION_FRACTION = 0.5
+
+# Duration assumptions (each estimate lists them).
+OPERATOR_S_PER_PROMPT = 30.0  # move the target (or set another manual quantity) and press Enter
+OPERATOR_S_PER_CALIBRATION_VIEW = 5.0  # present the calibration board in a new pose by hand
+ASSUMED_FPS = 30.0  # a V4L2 camera's frame rate when the settings do not fix it
+ASSUMED_FLUSH_FRAMES = 4  # frames a V4L2 flush discards when buffer_count is left to the driver
+# The GRBL emulator's homing defaults: seek at this rate, then a fixed locate/pull-off time.
+HOMING_SEEK_RATE_PER_MIN = 3000.0
+HOMING_SETTLE_S = 0.5
+
+Target = Checkerboard | CharucoTarget
+
+
+# --------------------------------------------------------------------------------------------------
+# Geometry of feasibility (pure)
+
+
+@dataclass(frozen=True)
+class Visibility:
+    """How many of a board's ``n_corners`` inner corners each camera, and both cameras, see."""
+
+    n_corners: int
+    in_both: int
+    in_left: int
+    in_right: int
+
+    @property
+    def fraction_in_both(self) -> float:
+        return self.in_both / self.n_corners
+
+
+def _seen_by(points_rig: np.ndarray, camera: CameraModel, T_rig_cam: np.ndarray, margin_px: float) -> np.ndarray:
+    """(N,) bool: rig-frame points (N, 3) that one camera sees at least ``margin_px`` inside its image."""
+    pixels, valid = camera.project(transform_points(invert_transform(T_rig_cam), points_rig))
+    return valid & camera.in_image(pixels, margin_px=margin_px)
+
+
+def target_visibility(
+    target: Target, rig: RigPose, *, distance_mm: float, left: CameraModel, right: CameraModel,
+    margin_px: float = FEASIBILITY_MARGIN_PX,
+) -> Visibility:
+    """Corners of ``target`` in view when it faces the rig, centred on the rig z axis at ``distance_mm``."""
+    T_rig_board = board_pose_facing_rig(distance_mm=distance_mm, board_size_mm=target.grid_size_mm)
+    points = transform_points(T_rig_board, np.asarray(target.object_points, dtype=float))
+    both = visible_in_both(points, rig=rig, left=left, right=right, margin_px=margin_px)
+    return Visibility(
+        n_corners=len(points), in_both=int(both.sum()),
+        in_left=int(_seen_by(points, left, rig.T_rig_left, margin_px).sum()),
+        in_right=int(_seen_by(points, right, rig.T_rig_right, margin_px).sum()),
+    )
+
+
+def _calibration_points(board: Target) -> tuple[np.ndarray, int]:
+    """(N, 3) board-frame points that must be in both views, and how many of them must be.
+
+    Checkerboard: every inner corner and the outline of the outer squares (8 points per side), all of
+    them. ChArUco: its corners, :data:`CHARUCO_MIN_CALIBRATION_FRACTION` of them.
+    """
+    corners = np.asarray(board.object_points, dtype=float)
+    if isinstance(board, CharucoTarget):
+        return corners, math.ceil(CHARUCO_MIN_CALIBRATION_FRACTION * len(corners))
+    width_mm, height_mm = board.grid_size_mm
+    sq = board.square_mm
+    t = np.linspace(0.0, 1.0, 8)
+    x0, x1, y0, y1 = -sq, width_mm + sq, -sq, height_mm + sq
+    outline = np.concatenate([
+        np.column_stack([x0 + (x1 - x0) * t, np.full_like(t, y0)]),
+        np.column_stack([x0 + (x1 - x0) * t, np.full_like(t, y1)]),
+        np.column_stack([np.full_like(t, x0), y0 + (y1 - y0) * t]),
+        np.column_stack([np.full_like(t, x1), y0 + (y1 - y0) * t]),
+    ])
+    points = np.vstack([corners, np.column_stack([outline, np.zeros(len(outline))])])
+    return points, len(points)
+
+
+def calibration_distance_range(
+    board: Target, rig: RigPose, *, left: CameraModel, right: CameraModel, margin_px: float = FEASIBILITY_MARGIN_PX,
+    distances_mm: tuple[float, float] = CALIBRATION_DISTANCES_MM, step_mm: float = CALIBRATION_DISTANCE_STEP_MM,
+) -> tuple[float, float] | None:
+    """(nearest, farthest) distance, mm along the bisector of the optical axes, at which the calibration
+    board, fronto-parallel to that bisector and centred on it, is in both views; None if at none.
+    """
+    bisector = rig.T_rig_left[:3, 2] + rig.T_rig_right[:3, 2]
+    bisector = bisector / np.linalg.norm(bisector)
+    # Board frame: z along the bisector (away from the rig), x along the baseline made orthogonal to it.
+    x_axis = np.array([1.0, 0.0, 0.0]) - bisector[0] * bisector
+    x_axis /= np.linalg.norm(x_axis)
+    R = np.column_stack([x_axis, np.cross(bisector, x_axis), bisector])
+    points_board, needed = _calibration_points(board)
+    centre_board = np.array([board.grid_size_mm[0] / 2.0, board.grid_size_mm[1] / 2.0, 0.0])
+    fits = []
+    for distance in np.arange(distances_mm[0], distances_mm[1] + 1e-9, step_mm):
+        T_rig_board = make_transform(R, distance * bisector - R @ centre_board)
+        seen = visible_in_both(transform_points(T_rig_board, points_board), rig=rig, left=left, right=right,
+                               margin_px=margin_px)
+        if seen.sum() >= needed:
+            fits.append(float(distance))
+    return (fits[0], fits[-1]) if fits else None
+
+
+def _why_too_few(vis: Visibility, *, alpha_deg: float) -> str:
+    if vis.in_left == 0 and vis.in_right == 0:
+        cause = "the board is outside both cameras' views"
+    elif vis.in_left == 0:
+        cause = "the board is outside the left camera's view"
+    elif vis.in_right == 0:
+        cause = "the board is outside the right camera's view"
+    elif vis.in_both == 0:
+        cause = "the cameras' views do not overlap on the board"
+    else:
+        cause = "too little of the board lies where the two views overlap"
+    return (f"{vis.in_both} of {vis.n_corners} target corners in both views (left {vis.in_left}, "
+            f"right {vis.in_right}; {MIN_CORNERS_IN_BOTH} needed): {cause} at alpha = {alpha_deg:g} deg")
+
+
+# --------------------------------------------------------------------------------------------------
+# Configurations
+
+
+def format_id_value(value: float) -> str:
+    """A float as a filesystem-safe token keeping every digit: 100 -> '100', 87.5 -> '87p5', -5 -> 'm5'."""
+    text = repr(float(value))
+    if text.endswith(".0"):
+        text = text[:-2]
+    return text.replace("-", "m").replace("+", "").replace(".", "p")
+
+
+@dataclass(frozen=True)
+class Configuration:
+    """One (B, Z, alpha, tilt) of the campaign and its predicted feasibility.
+
+    ``feasible`` is geometric (target and, per-config, calibration board in both views; ``reason`` says
+    why not); a soft-limit or axis-mapping violation is ``limit_violation``. Only :attr:`runnable`
+    configurations are moved to. ``calibration_range_mm``: where the calibration board fits in both
+    views (per-config extrinsics only).
+    """
+
+    index: int
+    config_id: str
+    baseline_mm: float
+    distance_mm: float
+    alpha_deg: float
+    toe_in_deg: float
+    tilt_deg: float
+    fraction_in_both: float
+    feasible: bool
+    reason: str | None
+    limit_violation: str | None
+    corners_in_both: int = 0
+    n_corners: int = 0
+    calibration_range_mm: tuple[float, float] | None = None
+
+    @property
+    def status(self) -> str:
+        """'infeasible', 'partial' (feasible, some target corners outside a view) or 'feasible'."""
+        if not self.feasible:
+            return "infeasible"
+        return "partial" if self.corners_in_both < self.n_corners else "feasible"
+
+    @property
+    def runnable(self) -> bool:
+        return self.feasible and self.limit_violation is None
+
+    @property
+    def skip_reason(self) -> str | None:
+        """Why the configuration is not run (None if it is)."""
+        reasons = [r for r in (self.reason, self.limit_violation) if r]
+        return "; ".join(reasons) if reasons else None
+
+    def rig_pose(self) -> RigPose:
+        return RigPose.symmetric(self.baseline_mm, self.alpha_deg, self.tilt_deg)
+
+    def move_request(self) -> dict[str, float]:
+        """Quantity -> physical value, as :func:`drivers.rig.config.plan_move` and ``GrblRig.move_to`` take it."""
+        return {
+            "baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_deg, "toe_in_right_deg": self.toe_in_deg,
+            "tilt_left_deg": self.tilt_deg, "tilt_right_deg": self.tilt_deg, "target_distance_mm": self.distance_mm,
+        }
+
+    def as_dict(self) -> dict[str, Any]:
+        data = asdict(self)
+        data["calibration_range_mm"] = list(self.calibration_range_mm) if self.calibration_range_mm else None
+        data.update(status=self.status, runnable=self.runnable)
+        return data
+
+
+def _limit_violation(rig_config: RigConfig, request: Mapping[str, float]) -> str | None:
+    try:
+        plan_move(rig_config, request)
+    except LimitError as error:
+        return "; ".join(error.violations)
+    except MoveRequestError as error:
+        return str(error)
+    return None
+
+
+def _calibration_reason(config: CampaignConfig, board: Target, *, baseline_mm: float, alpha_deg: float) -> str:
+    low, high = CALIBRATION_DISTANCES_MM
+    need = "whole" if isinstance(board, Checkerboard) else f"{CHARUCO_MIN_CALIBRATION_FRACTION:.0%} of it"
+    return (f"calibration board ({config.calibration_board.describe()}) never {need} in both views fronto-parallel "
+            f"at {low:g}-{high:g} mm: the views overlap too little at B = {baseline_mm:g} mm, "
+            f"alpha = {alpha_deg:g} deg")
+
+
+def expand_plan(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN_PX) -> list[Configuration]:
+    """The ordered configurations of a campaign, each with its predicted feasibility and limit check.
+
+    The order keeps manual work and motion small: the target distance Z (set by hand by default) is
+    the outer loop, in the order written; then the baseline, then the angle, both serpentine (every
+    other pass runs backwards, so consecutive configurations differ by one step of one axis).
+    """
+    plan = config.plan
+    target = config.target.build()
+    calibration_board = config.calibration_board.build()
+    left = config.cameras.optics.camera_model("left")
+    right = config.cameras.optics.camera_model("right")
+    rig_config = config.rig.rig_config()
+    per_config = config.extrinsics.mode == "per-config"
+    angles = plan.angles_deg()
+    calibration_ranges: dict[tuple[float, float], tuple[float, float] | None] = {}
+    configurations: list[Configuration] = []
+    sweep = 0
+    for z_index, distance in enumerate(plan.distance_mm):
+        baselines = plan.baseline_mm if z_index % 2 == 0 else plan.baseline_mm[::-1]
+        for baseline in baselines:
+            ordered = angles if sweep % 2 == 0 else angles[::-1]
+            sweep += 1
+            for alpha, toe_in in ordered:
+                rig = RigPose.symmetric(baseline, alpha, plan.tilt_deg)
+                vis = target_visibility(target, rig, distance_mm=distance, left=left, right=right,
+                                        margin_px=margin_px)
+                reasons = []
+                if vis.in_both < MIN_CORNERS_IN_BOTH:
+                    reasons.append(_why_too_few(vis, alpha_deg=alpha))
+                calibration_range = None
+                if per_config:
+                    if (baseline, alpha) not in calibration_ranges:
+                        calibration_ranges[baseline, alpha] = calibration_distance_range(
+                            calibration_board, rig, left=left, right=right, margin_px=margin_px)
+                    calibration_range = calibration_ranges[baseline, alpha]
+                    if calibration_range is None:
+                        reasons.append(_calibration_reason(config, calibration_board, baseline_mm=baseline,
+                                                           alpha_deg=alpha))
+                config_id = f"B{format_id_value(baseline)}_Z{format_id_value(distance)}_A{format_id_value(alpha)}"
+                if plan.tilt_deg:
+                    config_id += f"_T{format_id_value(plan.tilt_deg)}"
+                configuration = Configuration(
+                    index=len(configurations), config_id=config_id, baseline_mm=float(baseline),
+                    distance_mm=float(distance), alpha_deg=float(alpha), toe_in_deg=float(toe_in),
+                    tilt_deg=float(plan.tilt_deg), fraction_in_both=vis.fraction_in_both, feasible=not reasons,
+                    reason="; ".join(reasons) or None, limit_violation=None, corners_in_both=vis.in_both,
+                    n_corners=vis.n_corners, calibration_range_mm=calibration_range,
+                )
+                violation = _limit_violation(rig_config, configuration.move_request())
+                configurations.append(dataclasses.replace(configuration, limit_violation=violation))
+    ids = [c.config_id for c in configurations]
+    if len(set(ids)) != len(ids):  # distinct toe-ins whose alphas (90 - t) round to the same float
+        configurations = [dataclasses.replace(c, config_id=f"{c.config_id}_i{c.index}") for c in configurations]
+    return configurations
+
+
+# --------------------------------------------------------------------------------------------------
+# Steps
+
+
+@dataclass(frozen=True)
+class Move:
+    """Move the rig to a configuration (the motors; ``GrblRig.move_to`` then prompts for manual quantities)."""
+
+    configuration: Configuration
+    kind: ClassVar[str] = "move"
+
+    def as_dict(self) -> dict[str, Any]:
+        c = self.configuration
+        return {"step": self.kind, "config_id": c.config_id, "index": c.index, "request": c.move_request()}
+
+
+@dataclass(frozen=True)
+class PromptTarget:
+    """The operator moves the target to ``distance_mm`` (the target distance is manual and changes here)."""
+
+    distance_mm: float
+    kind: ClassVar[str] = "prompt_target"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"step": self.kind, "distance_mm": self.distance_mm}
+
+
+@dataclass(frozen=True)
+class PromptManual:
+    """The operator sets another manual quantity (e.g. the baseline on a rig without a motorised slide)."""
+
+    quantity: str
+    value: float
+    kind: ClassVar[str] = "prompt_manual"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"step": self.kind, "quantity": self.quantity, "value": self.value}
+
+
+@dataclass(frozen=True)
+class Settle:
+    """Wait for the rig (and the operator's hands) to be still."""
+
+    seconds: float
+    kind: ClassVar[str] = "settle"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"step": self.kind, "seconds": self.seconds}
+
+
+@dataclass(frozen=True)
+class Flush:
+    """Discard the frames the cameras queued before and during the move."""
+
+    kind: ClassVar[str] = "flush"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"step": self.kind}
+
+
+@dataclass(frozen=True)
+class CaptureCalibration:
+    """Capture ``n_views`` stereo views of the calibration board (R, T are estimated from them)."""
+
+    n_views: int
+    kind: ClassVar[str] = "capture_calibration"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"step": self.kind, "n_views": self.n_views}
+
+
+@dataclass(frozen=True)
+class CaptureMeasurement:
+    """Capture ``n_frames`` stereo frames of the target and measure the square."""
+
+    n_frames: int
+    kind: ClassVar[str] = "capture_measurement"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"step": self.kind, "n_frames": self.n_frames}
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """End of a configuration: everything before it is recorded, and a resumed run starts after it.
+
+    ``skipped``: the configuration is not run (infeasible or outside the limits); ``reason`` says why.
+    """
+
+    config_id: str
+    skipped: bool = False
+    reason: str | None = None
+    kind: ClassVar[str] = "checkpoint"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"step": self.kind, "config_id": self.config_id, "skipped": self.skipped, "reason": self.reason}
+
+
+Step = Move | PromptTarget | PromptManual | Settle | Flush | CaptureCalibration | CaptureMeasurement | Checkpoint
+
+
+def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration]) -> list[Step]:
+    """The steps of a campaign, in order.
+
+    Per runnable configuration: Move; a prompt for each manual quantity whose value changes
+    (PromptTarget for the target distance, PromptManual for any other); Settle; Flush;
+    CaptureCalibration (per-config extrinsics only); CaptureMeasurement; Checkpoint. A configuration
+    that is not runnable gets only ``Checkpoint(skipped=True, reason=...)``.
+    """
+    rig_config = config.rig.rig_config()
+    manual = [q for q in QUANTITIES if rig_config.quantities[q].axis == "manual"]
+    last_manual: dict[str, float] = {}
+    steps: list[Step] = []
+    for configuration in configurations:
+        if not configuration.runnable:
+            steps.append(Checkpoint(configuration.config_id, skipped=True, reason=configuration.skip_reason))
+            continue
+        steps.append(Move(configuration))
+        request = configuration.move_request()
+        for quantity in manual:
+            value = request[quantity]
+            if last_manual.get(quantity) != value:
+                steps.append(PromptTarget(value) if quantity == "target_distance_mm" else PromptManual(quantity, value))
+                last_manual[quantity] = value
+        steps.append(Settle(config.capture.settle_s))
+        steps.append(Flush())
+        if config.extrinsics.mode == "per-config":
+            steps.append(CaptureCalibration(config.capture.calibration_views))
+        steps.append(CaptureMeasurement(config.capture.frames_per_config))
+        steps.append(Checkpoint(configuration.config_id))
+    return steps
+
+
+# --------------------------------------------------------------------------------------------------
+# Duration
+
+
+def move_time_s(deltas: Mapping[str, float], *, max_rate_per_min: Mapping[str, float],
+                acceleration: Mapping[str, float], feed_per_min: float | None = None) -> float:
+    """Duration (s) of one straight move from rest to rest, as GRBL plans it and the emulator times it.
+
+    ``deltas``: axis letter -> machine units. Each axis' max rate (units/min) and acceleration (units/s²)
+    bound the speed and acceleration along the path; ``feed_per_min`` (None = rapid) bounds the speed too.
+    Trapezoidal velocity profile; triangular when the move is too short to reach full speed.
+    """
+    moving = {a: d for a, d in deltas.items() if abs(d) > 1e-12}
+    if not moving:
+        return 0.0
+    length = math.sqrt(sum(d * d for d in moving.values()))
+    speed = math.inf if feed_per_min is None else feed_per_min / 60.0
+    accel = math.inf
+    for axis, delta in moving.items():
+        speed = min(speed, max_rate_per_min[axis] / 60.0 * length / abs(delta))
+        accel = min(accel, acceleration[axis] * length / abs(delta))
+    t_acc = speed / accel
+    if accel * t_acc * t_acc >= length:  # the two ramps (a t^2 / 2 each) cover the whole move
+        return 2.0 * math.sqrt(length / accel)
+    return 2.0 * t_acc + (length - accel * t_acc * t_acc) / speed
+
+
+@dataclass(frozen=True)
+class DurationEstimate:
+    """Predicted campaign time (s) by component, and the assumptions behind it."""
+
+    homing_s: float
+    motion_s: float
+    settle_s: float
+    flush_s: float
+    capture_s: float
+    operator_s: float
+    assumptions: tuple[str, ...] = field(default=())
+
+    @property
+    def total_s(self) -> float:
+        return self.homing_s + self.motion_s + self.settle_s + self.flush_s + self.capture_s + self.operator_s
+
+    def as_dict(self) -> dict[str, Any]:
+        data = asdict(self)
+        data["assumptions"] = list(self.assumptions)
+        data["total_s"] = self.total_s
+        return data
+
+
+def _frame_time_s(config: CampaignConfig) -> float:
+    if config.cameras.kind == "simulated":
+        return config.cameras.optics.exposure_s
+    settings = config.cameras.camera_settings()
+    period = 1.0 / (settings.fps or ASSUMED_FPS)
+    return max(period, (settings.exposure_us or 0.0) / 1e6)
+
+
+def estimate_duration(config: CampaignConfig, configurations: Sequence[Configuration],
+                      steps: Sequence[Step]) -> DurationEstimate:
+    """How long the campaign should take, step by step.
+
+    - Motion: each Move as one straight GRBL move from the previous position (the first from where
+      homing leaves the axes), at the rig config's axis feeds where every moving axis has one (else a
+      rapid), capped by the axis max rates and accelerations of the simulated rig (the GRBL emulator's
+      DEFAULT_AXES; a real controller's $110-$125 are not known offline).
+    - Homing (if enabled): the longest axis travel at the emulator's seek rate, plus its settle time.
+      On the simulated rig, homing and motion run ``time_scale`` times faster.
+    - Settle as configured. Frames: one exposure each on simulated cameras; max(exposure, 1/fps) on
+      V4L2 (30 fps assumed when not set); a V4L2 flush discards ``buffer_count`` frames.
+    - Operator (unless rig and cameras are both simulated): 30 s per prompt, 5 s per calibration view
+      presented by hand.
+    - Not included: computation (rendering, detection, calibration) and parking the rig at the end.
+    """
+    del configurations  # the steps carry what is needed; the argument keeps the documented signature
+    rig_config = config.rig.rig_config()
+    travel = rig_config.machine_travel()
+    speed_factor = config.rig.time_scale if config.rig.kind == "simulated" else 1.0
+    rates = {a: DEFAULT_AXES[a].max_rate_per_min for a in travel}
+    accels = {a: DEFAULT_AXES[a].acceleration for a in travel}
+    feeds = rig_config.axis_feeds_per_min()
+    position = {a: min(max(0.0, low), high) for a, (low, high) in travel.items()}  # the emulator's home
+    human = not config.fully_simulated
+    frame_s = _frame_time_s(config)
+    if config.cameras.kind == "simulated":
+        flush_frames = 0
+    else:
+        flush_frames = config.cameras.camera_settings().buffer_count or ASSUMED_FLUSH_FRAMES
+
+    homing = 0.0
+    if config.rig.homing and travel:
+        longest = max(high - low for low, high in travel.values())
+        homing = (longest / (HOMING_SEEK_RATE_PER_MIN / 60.0) + HOMING_SETTLE_S) / speed_factor
+    motion = settle = flush = capture = operator = 0.0
+    for step in steps:
+        if isinstance(step, Move):
+            request = step.configuration.move_request()
+            driven = {q: v for q, v in request.items() if rig_config.quantities[q].driven}
+            targets = to_machine(rig_config, driven)
+            deltas = {a: targets[a] - position[a] for a in targets}
+            feed = vector_feed(deltas, feeds)
+            motion += move_time_s(deltas, max_rate_per_min=rates, acceleration=accels, feed_per_min=feed) / speed_factor
+            position.update(targets)
+        elif isinstance(step, PromptTarget | PromptManual):
+            operator += OPERATOR_S_PER_PROMPT if human else 0.0
+        elif isinstance(step, Settle):
+            settle += step.seconds
+        elif isinstance(step, Flush):
+            flush += flush_frames * frame_s
+        elif isinstance(step, CaptureCalibration):
+            capture += step.n_views * frame_s
+            operator += step.n_views * OPERATOR_S_PER_CALIBRATION_VIEW if human else 0.0
+        elif isinstance(step, CaptureMeasurement):
+            capture += step.n_frames * frame_s
+
+    assumptions = (
+        "axis max rates and accelerations of the GRBL emulator's defaults"
+        + (f", simulated rig {speed_factor:g}x faster than real time" if speed_factor != 1.0 else ""),
+        f"{frame_s:g} s per stereo frame" + ("" if config.cameras.kind == "simulated"
+                                              else f", {flush_frames} frames per flush"),
+        (f"operator {OPERATOR_S_PER_PROMPT:g} s per prompt and {OPERATOR_S_PER_CALIBRATION_VIEW:g} s per "
+         "calibration view" if human else "no operator time: rig and cameras simulated"),
+        "computation (rendering, detection, calibration) not included",
+    )
+    return DurationEstimate(homing_s=homing, motion_s=motion, settle_s=settle, flush_s=flush, capture_s=capture,
+                            operator_s=operator, assumptions=assumptions)
+
+
+def predict_duration_s(config: CampaignConfig, configurations: Sequence[Configuration],
+                       steps: Sequence[Step]) -> float:
+    """Predicted campaign duration (s); :func:`estimate_duration` says what it counts and assumes."""
+    return estimate_duration(config, configurations, steps).total_s
+
+
+# --------------------------------------------------------------------------------------------------
+# Summary
+
+
+def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN_PX) -> dict[str, Any]:
+    """Everything ``stereo-bench campaign plan`` reports, as one JSON-able object."""
+    configurations = expand_plan(config, margin_px=margin_px)
+    steps = plan_steps(config, configurations)
+    estimate = estimate_duration(config, configurations, steps)
+    return {
+        "name": config.name,
+        "configurations": [c.as_dict() for c in configurations],
+        "predicted_duration_s": estimate.total_s,
+        "duration": estimate.as_dict(),
+        "n_steps": len(steps),
+        "steps": [s.as_dict() for s in steps],
+        "n_configurations": len(configurations),
+        "infeasible": sum(not c.feasible for c in configurations),
+        "partial": sum(c.status == "partial" for c in configurations),
+        "limit_violations": sum(c.limit_violation is not None for c in configurations),
+        "runnable": sum(c.runnable for c in configurations),
+        "margin_px": margin_px,
+        "min_corners_in_both": MIN_CORNERS_IN_BOTH,
+    }
