@@ -1,0 +1,169 @@
+"""``stereo-bench campaign``: plan (dry run), schema, presets; ``run`` is registered by :mod:`campaign_run`.
+
+    stereo-bench campaign plan PLAN.toml [--json] [--steps]
+    stereo-bench campaign plan --preset paper-exp1
+    stereo-bench campaign schema
+    stereo-bench campaign presets [--json]
+
+``plan`` validates the config, expands the plan, predicts which configurations show the target in
+both views, checks the soft limits and predicts the duration. It moves nothing and opens no port.
+Exit status: 0 done; 2 for a config the user can fix (one line naming the file and the field).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from stereo_bench.campaign.config import (
+    PRESETS,
+    CampaignConfig,
+    ConfigError,
+    campaign_json_schema_text,
+    load_campaign,
+    load_preset,
+)
+from stereo_bench.campaign.plan import plan_summary
+from stereo_bench.cli import CliError, campaign_run
+
+
+def register(subparsers) -> None:
+    campaign = subparsers.add_parser(
+        "campaign", help="measurement campaigns: plan (dry run), run, schema, presets",
+        description="Campaigns over (B, Z, alpha) configurations, from a TOML config or a preset.",
+    )
+    actions = campaign.add_subparsers(dest="campaign_action", metavar="ACTION", required=True)
+
+    plan = actions.add_parser(
+        "plan", help="list the configurations, which are infeasible and why, limits and duration; moves nothing",
+        description="Expand a campaign plan without hardware: configurations in order, the fraction of the "
+                    "target in both views (predicted from geometry), infeasible ones with the reason, soft-limit "
+                    "violations, the number of steps and the predicted duration. Nothing moves; no port is opened.",
+    )
+    plan.add_argument("plan_file", nargs="?", type=Path, metavar="PLAN.toml", help="campaign config TOML")
+    plan.add_argument("--preset", metavar="NAME", help=f"a shipped preset instead of a file: {', '.join(PRESETS)}")
+    plan.add_argument("--json", action="store_true",
+                      help="print one JSON object {configurations, predicted_duration_s, n_steps, infeasible, ...}")
+    plan.add_argument("--steps", action="store_true", help="also list every step (move, settle, capture, ...)")
+    plan.set_defaults(func=_cmd_plan)
+
+    schema = actions.add_parser("schema", help="print the JSON Schema of a campaign config")
+    schema.set_defaults(func=_cmd_schema)
+
+    presets = actions.add_parser("presets", help="list the shipped presets")
+    presets.add_argument("--json", action="store_true", help="print one JSON object {name: description}")
+    presets.set_defaults(func=_cmd_presets)
+
+    # ---- the campaign runner's CLI (``campaign run``) lives in stereo_bench/cli/campaign_run.py ----
+    campaign_run.register_run(actions)
+
+
+def config_from_args(plan_file: Path | None, preset: str | None) -> CampaignConfig:
+    """The campaign config named by a file or a preset (exactly one); ConfigError -> CliError."""
+    if plan_file is not None and preset is not None:
+        raise CliError("give a campaign file or --preset NAME, not both")
+    if plan_file is None and preset is None:
+        raise CliError("give a campaign file or --preset NAME")
+    try:
+        return load_preset(preset) if preset is not None else load_campaign(plan_file)  # type: ignore[arg-type]
+    except ConfigError as error:
+        raise CliError(str(error)) from None
+
+
+def format_duration(seconds: float) -> str:
+    """Seconds as h:mm:ss (rounded to the second)."""
+    total = int(round(seconds))
+    return f"{total // 3600}:{total % 3600 // 60:02d}:{total % 60:02d}"
+
+
+def _cmd_plan(args) -> int:
+    config = config_from_args(args.plan_file, args.preset)
+    summary = plan_summary(config)
+    source = f"preset {args.preset}" if args.preset else str(args.plan_file)
+    if args.json:
+        if not args.steps:
+            summary.pop("steps")
+        print(json.dumps({"source": source, **summary}, indent=2))
+        return 0
+    print(_plan_text(config, summary, source=source, with_steps=args.steps))
+    return 0
+
+
+def _plan_text(config: CampaignConfig, summary: dict[str, Any], *, source: str, with_steps: bool) -> str:
+    rows = summary["configurations"]
+    lines = [
+        f"campaign {config.name!r} ({source}): {summary['n_configurations']} configurations: "
+        f"{summary['runnable']} to run ({summary['partial']} partial), {summary['infeasible']} infeasible, "
+        f"{summary['limit_violations']} outside the soft limits",
+        f"rig {config.rig.kind}, cameras {config.cameras.kind}, target {config.target.describe()}, "
+        f"extrinsics {config.extrinsics.mode}"
+        + (f" (calibration board {config.calibration_board.describe()})"
+           if config.extrinsics.mode == "per-config" else ""),
+        f"in both = target corners at least {summary['margin_px']:g} px inside both images, predicted from "
+        f"geometry; infeasible below {summary['min_corners_in_both']}",
+        "",
+        f"{'#':>3}  {'config_id':<18} {'B mm':>7} {'Z mm':>7} {'alpha':>6} {'toe-in':>6}  {'in both':>12}  status",
+    ]
+    for row in rows:
+        in_both = f"{row['corners_in_both']}/{row['n_corners']} {row['fraction_in_both']:4.0%}"
+        status = row["status"] + ("" if row["limit_violation"] is None else ", outside limits")
+        lines.append(
+            f"{row['index']:>3}  {row['config_id']:<18} {row['baseline_mm']:>7g} {row['distance_mm']:>7g} "
+            f"{row['alpha_deg']:>6g} {row['toe_in_deg']:>6g}  {in_both:>12}  {status}")
+        if row["reason"]:
+            lines.append(f"{'':>5}why: {row['reason']}")
+        if row["limit_violation"]:
+            lines.append(f"{'':>5}limits: {row['limit_violation']}")
+    duration = summary["duration"]
+    parts = ", ".join(f"{name} {format_duration(duration[name + '_s'])}"
+                      for name in ("homing", "motion", "settle", "flush", "capture", "operator"))
+    lines += [
+        "",
+        f"steps: {summary['n_steps']}",
+        f"predicted duration: {format_duration(summary['predicted_duration_s'])} ({parts})",
+        "assumed: " + "; ".join(duration["assumptions"]),
+    ]
+    if with_steps:
+        lines += ["", "steps:"]
+        lines += [f"{i:>5}  " + _step_text(step) for i, step in enumerate(summary["steps"])]
+    lines.append("dry run: nothing moved, no port opened")
+    return "\n".join(lines)
+
+
+def _step_text(step: dict[str, Any]) -> str:
+    kind = step["step"]
+    if kind == "move":
+        request = step["request"]
+        return (f"move to {step['config_id']}: B = {request['baseline_mm']:g} mm, toe-in "
+                f"{request['toe_in_left_deg']:g}/{request['toe_in_right_deg']:g} deg")
+    if kind == "prompt_target":
+        return f"operator: move the target to Z = {step['distance_mm']:g} mm"
+    if kind == "prompt_manual":
+        return f"operator: set {step['quantity']} = {step['value']:g}"
+    if kind == "settle":
+        return f"settle {step['seconds']:g} s"
+    if kind == "flush":
+        return "flush camera buffers"
+    if kind == "capture_calibration":
+        return f"capture {step['n_views']} calibration views"
+    if kind == "capture_measurement":
+        return f"capture {step['n_frames']} measurement frames"
+    if step["skipped"]:
+        return f"checkpoint {step['config_id']} (skipped: {step['reason']})"
+    return f"checkpoint {step['config_id']}"
+
+
+def _cmd_schema(args) -> int:
+    print(campaign_json_schema_text())
+    return 0
+
+
+def _cmd_presets(args) -> int:
+    if args.json:
+        print(json.dumps(PRESETS, indent=2))
+        return 0
+    width = max(len(name) for name in PRESETS)
+    for name, description in PRESETS.items():
+        print(f"{name:<{width}}  {description}")
+    return 0
