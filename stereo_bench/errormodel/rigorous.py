@@ -1,0 +1,464 @@
+"""Rigorous error model for any rig: first-order propagation through the real triangulation.
+
+Conventions are the project's (BRIEF §3, :mod:`stereo_bench.geometry`): rig frame at the midpoint of
+the optical centres, x along the baseline, y down, z toward the target; α between the baseline and
+an optical axis (90° = parallel); millimetres and degrees at the interface.
+
+What is computed, for a rig (B, α_left, α_right), two :class:`CameraModel`s and a checkerboard at a
+pose ``T_rig_board`` (the very objects the simulated rig, ``drivers.sim.render.StereoRenderer``,
+takes, so a prediction and a simulated measurement describe the same scene):
+
+- **Visibility**: which inner corners project inside both images (``margin_px`` from the border,
+  both cameras in front of the board's printed side). ``feasible`` = the whole board is in both
+  views; ``measurable`` = at least :data:`MIN_COMMON_CORNERS` corners and one adjacent pair are,
+  which is what the pipeline measures (partial views count).
+- **Image-noise propagation**: every image coordinate (u, v of each camera) carries independent
+  Gaussian noise σ_px. The triangulated point's Jacobian w.r.t. (uL, vL, uR, vR) comes from
+  :func:`stereo_bench.vision.triangulate.triangulation_jacobian` with the rig's true calibration
+  (R, T from :meth:`RigPose.stereo_extrinsics`, K and distortion from the cameras) evaluated at the
+  true projected pixels: Σ_X = σ² J Jᵀ (left camera frame), rotated into the rig frame. The
+  measured square (mean of all adjacent corner-pair lengths seen in both views) is propagated by
+  :func:`stereo_bench.vision.measure.measure_square` itself. The board centre is a virtual corner.
+- **Structural sensitivities**: the true pixels are triangulated with a calibration that is wrong
+  by a small step in one structural parameter (baseline, α of both cameras or of one, focal
+  length, principal point); central differences give how far the measured square and the
+  measured depth of the board centre move per unit of that error.
+
+All functions are pure: inputs are left untouched and results are new arrays or pydantic models.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from stereo_bench.geometry import (
+    CameraModel,
+    RigPose,
+    board_pose_facing_rig,
+    invert_transform,
+    transform_points,
+)
+from stereo_bench.targets import Checkerboard
+from stereo_bench.vision.calibrate import StereoCalibration
+from stereo_bench.vision.measure import measure_square
+from stereo_bench.vision.triangulate import triangulate, triangulation_jacobian
+
+#: Same threshold as the pipeline (``stereo_bench.vision.pipeline.MIN_COMMON_CORNERS``).
+MIN_COMMON_CORNERS = 6
+#: Corners closer than this to an image border count as not seen (as in ``geometry.visible_in_both``).
+DEFAULT_MARGIN_PX = 10.0
+DEFAULT_BOARD = Checkerboard(9, 6, 27.0)
+
+
+def default_camera(name: str = "camera") -> CameraModel:
+    """The bench's camera, as the simulator's default: 1920x1080, 4 mm lens, 3 µm pixels (f ≈ 1333 px)."""
+    return CameraModel.from_sensor(name=name)
+
+
+@dataclass(frozen=True, eq=False)
+class Setup:
+    """Everything a prediction needs: the rig, the board and its pose, the two cameras.
+
+    ``T_rig_board`` (4, 4) maps board coordinates (OpenCV object points, mm) to the rig frame.
+    """
+
+    rig: RigPose
+    board: Checkerboard
+    T_rig_board: np.ndarray
+    left: CameraModel
+    right: CameraModel
+
+    @classmethod
+    def make(
+        cls, baseline_mm: float, distance_mm: float, alpha_deg: float = 90.0, *, alpha_right_deg: float | None = None,
+        tilt_deg: float = 0.0, board: Checkerboard | None = None, left: CameraModel | None = None,
+        right: CameraModel | None = None, T_rig_board: np.ndarray | None = None, board_yaw_deg: float = 0.0,
+        board_pitch_deg: float = 0.0, board_offset_mm: tuple[float, float] = (0.0, 0.0),
+    ) -> Setup:
+        """A setup with the defaults of the bench: the 9x6, 27 mm board facing the rig, centred at Z.
+
+        ``alpha_right_deg`` defaults to ``alpha_deg`` (symmetric rig); ``T_rig_board`` overrides the
+        board pose given by distance, yaw, pitch and offset.
+        """
+        if not baseline_mm > 0:
+            raise ValueError(f"baseline_mm must be positive, not {baseline_mm}")
+        if not distance_mm > 0:
+            raise ValueError(f"distance_mm must be positive, not {distance_mm}")
+        alpha_right_deg = alpha_deg if alpha_right_deg is None else alpha_right_deg
+        for name, value in (("alpha_deg", alpha_deg), ("alpha_right_deg", alpha_right_deg)):
+            if not 0.0 < value < 180.0:
+                raise ValueError(f"{name} must lie strictly between 0 and 180 deg, not {value}")
+        board = board if board is not None else DEFAULT_BOARD
+        if T_rig_board is None:
+            T_rig_board = board_pose_facing_rig(
+                distance_mm=distance_mm, board_size_mm=board.grid_size_mm, centre_offset_mm=board_offset_mm,
+                yaw_deg=board_yaw_deg, pitch_deg=board_pitch_deg,
+            )
+        return cls(
+            rig=RigPose(baseline_mm, alpha_deg, alpha_right_deg, tilt_deg, tilt_deg), board=board,
+            T_rig_board=np.array(T_rig_board, dtype=float),
+            left=left if left is not None else default_camera("left"),
+            right=right if right is not None else default_camera("right"),
+        )
+
+    @property
+    def board_centre_board(self) -> np.ndarray:
+        """(3,) centre of the inner-corner grid in board coordinates (mm)."""
+        width, height = self.board.grid_size_mm
+        return np.array([width / 2.0, height / 2.0, 0.0])
+
+    @property
+    def board_centre_rig(self) -> np.ndarray:
+        """(3,) centre of the inner-corner grid in the rig frame (mm)."""
+        return transform_points(self.T_rig_board, self.board_centre_board)[0]
+
+    @property
+    def distance_mm(self) -> float:
+        """Rig-z of the board centre (the Z of the configuration)."""
+        return float(self.board_centre_rig[2])
+
+    @property
+    def corners_rig(self) -> np.ndarray:
+        """(N, 3) every inner corner in the rig frame (mm), in id order."""
+        return transform_points(self.T_rig_board, np.asarray(self.board.object_points, dtype=float))
+
+
+def calibration_of(setup: Setup) -> StereoCalibration:
+    """The rig's exact stereo calibration (X_right = R X_left + T, mm) as the pipeline would hold it."""
+    R, T = setup.rig.stereo_extrinsics()
+    return StereoCalibration(
+        K1=np.asarray(setup.left.K, float), D1=np.asarray(setup.left.dist, float).ravel(),
+        K2=np.asarray(setup.right.K, float), D2=np.asarray(setup.right.dist, float).ravel(),
+        R=R, T=T, image_size=tuple(setup.left.image_size), mode="true geometry",
+    )
+
+
+def project_both(setup: Setup, points_rig: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """True pixels of rig-frame points (N, 3): (left (N, 2), right (N, 2), in_front_of_both (N,) bool)."""
+    points_rig = np.asarray(points_rig, dtype=float).reshape(-1, 3)
+    if not len(points_rig):
+        return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, dtype=bool)
+    out, ok = [], np.ones(len(points_rig), dtype=bool)
+    for camera, T_rig_cam in ((setup.left, setup.rig.T_rig_left), (setup.right, setup.rig.T_rig_right)):
+        pixels, valid = camera.project(transform_points(invert_transform(T_rig_cam), points_rig))
+        out.append(pixels)
+        ok &= valid
+    return out[0], out[1], ok
+
+
+def _faces_camera(T_cam_board: np.ndarray) -> bool:
+    """The camera is on the board's printed side (board z points away from the viewer)."""
+    return float(T_cam_board[:3, 2] @ T_cam_board[:3, 3]) > 0.0
+
+
+class Visibility(BaseModel):
+    """How much of the board a configuration puts in both views (predicted from geometry alone)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    n_corners: int
+    n_in_both: int
+    n_in_left: int
+    n_in_right: int
+    n_pairs: int
+    fraction_in_both: float
+    feasible: bool  # the whole board is in both views
+    measurable: bool  # enough is in both views for the pipeline to measure the square
+    reason: str  # why not feasible / not measurable; "" when feasible
+
+
+def visible_corners(setup: Setup, *, margin_px: float = DEFAULT_MARGIN_PX) -> tuple[np.ndarray, Visibility]:
+    """(ids (n,) of the corners seen in both views, :class:`Visibility`)."""
+    board = setup.board
+    left_px, right_px, in_front = project_both(setup, setup.corners_rig)
+    faces = [_faces_camera(invert_transform(T) @ setup.T_rig_board)
+             for T in (setup.rig.T_rig_left, setup.rig.T_rig_right)]
+    in_left = in_front & setup.left.in_image(left_px, margin_px=margin_px) & faces[0]
+    in_right = in_front & setup.right.in_image(right_px, margin_px=margin_px) & faces[1]
+    both = in_left & in_right
+    ids = np.flatnonzero(both)
+    seen = set(ids.tolist())
+    n_pairs = int(sum(1 for a, b in board.adjacent_pairs() if a in seen and b in seen))
+    n = board.n_corners
+    reasons = []
+    if not all(faces):
+        reasons.append("the " + " and ".join(s for s, f in zip(("left", "right"), faces, strict=True) if not f)
+                       + " camera sees the back of the board")
+    for side, count in (("left", int(in_left.sum())), ("right", int(in_right.sum()))):
+        if count < n and all(faces):
+            reasons.append(f"{side} view holds {count}/{n} corners")
+    if not reasons and len(ids) < n:
+        reasons.append(f"only {len(ids)}/{n} corners are in both views")
+    measurable = len(ids) >= MIN_COMMON_CORNERS and n_pairs > 0
+    if not measurable:
+        reasons.append(f"too little in both views to measure (need {MIN_COMMON_CORNERS} corners and one pair)")
+    return ids, Visibility(
+        n_corners=n, n_in_both=len(ids), n_in_left=int(in_left.sum()), n_in_right=int(in_right.sum()),
+        n_pairs=n_pairs, fraction_in_both=len(ids) / n, feasible=len(ids) == n, measurable=measurable,
+        reason="; ".join(reasons),
+    )
+
+
+def point_covariances_rig(setup: Setup, points_rig: np.ndarray, pixel_sigma_px: float) -> np.ndarray:
+    """(N, 3, 3) first-order covariance (mm²) of triangulated rig-frame points (N, 3).
+
+    Each image coordinate carries independent noise of ``pixel_sigma_px`` (px, one sigma) in both
+    cameras. Points behind a camera get NaN.
+    """
+    calib = calibration_of(setup)
+    left_px, right_px, in_front = project_both(setup, points_rig)
+    jac = triangulation_jacobian(calib, left_px, right_px)  # (N, 3, 4), left camera frame
+    R_rig_left = setup.rig.T_rig_left[:3, :3]
+    jac_rig = np.einsum("ij,njk->nik", R_rig_left, jac)
+    cov = pixel_sigma_px**2 * np.einsum("nik,njk->nij", jac_rig, jac_rig)
+    cov[~in_front] = np.nan
+    return cov
+
+
+def square_noise_bias_mm(
+    calib: StereoCalibration, board: Checkerboard, ids: np.ndarray, left_px: np.ndarray, right_px: np.ndarray,
+    pixel_sigma_px: float,
+) -> float:
+    """Second-order bias (mm) of the measured square from zero-mean image noise.
+
+    A length is the norm of a noisy difference d = X_a - X_b: E|d| ≈ |d| + (tr Σ_d - uᵀ Σ_d u) / (2|d|)
+    with Σ_d = Σ_a + Σ_b (independent corners) and u = d / |d|. Depth noise, large at small K,
+    lengthens every pair on average. The triangulation's own curvature (a relative bias of order
+    σ_d² / d², disparity d) is left out: below 1e-6 of the length on this bench.
+    ``left_px``/``right_px`` (n, 2): true pixels of the corners ``ids`` (n,).
+    """
+    ids = np.asarray(ids)
+    points = triangulate(calib, left_px, right_px)
+    jac = triangulation_jacobian(calib, left_px, right_px)
+    cov = pixel_sigma_px**2 * np.einsum("nik,njk->nij", jac, jac)  # (n, 3, 3), rotation-invariant here
+    position = {corner_id: i for i, corner_id in enumerate(ids.tolist())}
+    pairs = np.array([(position[a], position[b]) for a, b in board.adjacent_pairs()
+                      if a in position and b in position], int).reshape(-1, 2)
+    if not len(pairs):
+        return float("nan")
+    d = points[pairs[:, 0]] - points[pairs[:, 1]]
+    length = np.linalg.norm(d, axis=1)
+    u = d / length[:, None]
+    cov_d = cov[pairs[:, 0]] + cov[pairs[:, 1]]
+    transverse = np.trace(cov_d, axis1=1, axis2=2) - np.einsum("ki,kij,kj->k", u, cov_d, u)
+    return float(np.mean(transverse / (2.0 * length)))
+
+
+def parallel_depth_sigma_mm(distance_mm: float, baseline_mm: float, focal_px: float, pixel_sigma_px: float) -> float:
+    """Textbook depth error of a parallel rig: Z² σ_d / (f B), with σ_d = √2 σ_px the disparity noise.
+
+    (The disparity is u_left - u_right; independent noise σ_px in each gives σ_d = √2 σ_px.)
+    """
+    return distance_mm**2 * math.sqrt(2.0) * pixel_sigma_px / (focal_px * baseline_mm)
+
+
+def _nan_to_none(value: float) -> float | None:
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+class Prediction(BaseModel):
+    """First-order prediction for one configuration. Lengths in mm, angles in deg, noise in px.
+
+    ``sigma_square_mm``: σ of the measured square (mean of all adjacent pair lengths in both views);
+    ``sigma_length_mm``: RMS over pairs of one pair length's σ; ``sigma_x/y/z_mm``: σ of the board
+    centre, rig frame; ``gamma_xz_mm`` = √(σx² + σz²) is the paper's γ for that point, ``gamma_mm``
+    adds σy. Values that cannot be computed (nothing in view, point behind a camera) are None.
+    """
+
+    model_config = ConfigDict(frozen=True)
+
+    baseline_mm: float
+    distance_mm: float
+    alpha_left_deg: float
+    alpha_right_deg: float
+    K: float
+    pixel_sigma_px: float
+    margin_px: float
+    feasible: bool
+    measurable: bool
+    reason: str
+    n_in_both: int
+    n_pairs: int
+    fraction_in_both: float
+    square_true_mean_mm: float | None  # noise-free measurement with the true calibration (== square size)
+    sigma_square_mm: float | None
+    bias_square_mm: float | None  # second-order noise bias of the measured square (see square_noise_bias_mm)
+    sigma_length_mm: float | None
+    centre_in_both: bool
+    sigma_x_mm: float | None
+    sigma_y_mm: float | None
+    sigma_z_mm: float | None
+    gamma_xz_mm: float | None
+    gamma_mm: float | None
+
+
+def predict(setup: Setup, pixel_sigma_px: float, *, margin_px: float = DEFAULT_MARGIN_PX) -> Prediction:
+    """First-order σ of the measured square and of the board centre for image noise ``pixel_sigma_px``."""
+    if not pixel_sigma_px >= 0:
+        raise ValueError(f"pixel_sigma_px must be >= 0, not {pixel_sigma_px}")
+    ids, vis = visible_corners(setup, margin_px=margin_px)
+    calib = calibration_of(setup)
+    sq_mean = sq_sigma = len_sigma = bias = float("nan")
+    if vis.measurable:
+        left_px, right_px, _ = project_both(setup, setup.corners_rig[ids])
+        square = measure_square(calib, setup.board, ids, left_px, right_px, pixel_sigma_px=pixel_sigma_px)
+        sq_mean, sq_sigma = square.mean_mm, square.sigma_mean_mm
+        len_sigma = float(np.sqrt(np.mean(square.sigma_length_mm**2)))
+        bias = square_noise_bias_mm(calib, setup.board, ids, left_px, right_px, pixel_sigma_px)
+    centre = setup.board_centre_rig
+    cl, cr, centre_front = project_both(setup, centre)
+    centre_in_both = bool(centre_front[0] and setup.left.in_image(cl, margin_px=margin_px)[0]
+                          and setup.right.in_image(cr, margin_px=margin_px)[0])
+    sx = sy = sz = float("nan")
+    if centre_front[0]:
+        cov = point_covariances_rig(setup, centre, pixel_sigma_px)[0]
+        sx, sy, sz = (float(v) for v in np.sqrt(np.diag(cov)))
+    rig = setup.rig
+    return Prediction(
+        baseline_mm=rig.baseline_mm, distance_mm=setup.distance_mm, alpha_left_deg=rig.alpha_left_deg,
+        alpha_right_deg=rig.alpha_right_deg, K=rig.baseline_mm / setup.distance_mm, pixel_sigma_px=pixel_sigma_px,
+        margin_px=margin_px, feasible=vis.feasible, measurable=vis.measurable, reason=vis.reason,
+        n_in_both=vis.n_in_both, n_pairs=vis.n_pairs, fraction_in_both=vis.fraction_in_both,
+        square_true_mean_mm=_nan_to_none(sq_mean), sigma_square_mm=_nan_to_none(sq_sigma),
+        bias_square_mm=_nan_to_none(bias),
+        sigma_length_mm=_nan_to_none(len_sigma), centre_in_both=centre_in_both,
+        sigma_x_mm=_nan_to_none(sx), sigma_y_mm=_nan_to_none(sy), sigma_z_mm=_nan_to_none(sz),
+        gamma_xz_mm=_nan_to_none(math.hypot(sx, sz)), gamma_mm=_nan_to_none(math.sqrt(sx * sx + sy * sy + sz * sz)),
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# Structural sensitivities
+
+StructuralParameter = Literal[
+    "baseline_mm", "alpha_both_deg", "alpha_left_deg", "alpha_right_deg",
+    "focal_both_px", "focal_right_px", "cx_both_px", "cx_right_px", "cy_right_px",
+]
+
+#: name -> (unit, central-difference step in that unit)
+STRUCTURAL_PARAMETERS: dict[str, tuple[str, float]] = {
+    "baseline_mm": ("mm", 0.01),
+    "alpha_both_deg": ("deg", 1e-3),
+    "alpha_left_deg": ("deg", 1e-3),
+    "alpha_right_deg": ("deg", 1e-3),
+    "focal_both_px": ("px", 0.05),
+    "focal_right_px": ("px", 0.05),
+    "cx_both_px": ("px", 0.01),
+    "cx_right_px": ("px", 0.01),
+    "cy_right_px": ("px", 0.01),
+}
+
+
+def _shift_camera(camera: CameraModel, *, focal: float = 0.0, cx: float = 0.0, cy: float = 0.0) -> CameraModel:
+    K = np.array(camera.K, dtype=float)
+    K[0, 0] += focal
+    K[1, 1] += focal
+    K[0, 2] += cx
+    K[1, 2] += cy
+    return replace(camera, K=K)
+
+
+def believed_setup(setup: Setup, parameter: str, delta: float) -> Setup:
+    """The setup a calibration wrong by ``delta`` (in the parameter's unit) in one structural parameter describes.
+
+    alpha: a positive δ turns a camera outward (α grows; 90° is parallel). ``*_both_*`` changes both
+    cameras by δ. Focal length changes fx and fy together.
+    """
+    rig = setup.rig
+    left, right = setup.left, setup.right
+    if parameter == "baseline_mm":
+        rig = replace(rig, baseline_mm=rig.baseline_mm + delta)
+    elif parameter == "alpha_both_deg":
+        rig = replace(rig, alpha_left_deg=rig.alpha_left_deg + delta, alpha_right_deg=rig.alpha_right_deg + delta)
+    elif parameter == "alpha_left_deg":
+        rig = replace(rig, alpha_left_deg=rig.alpha_left_deg + delta)
+    elif parameter == "alpha_right_deg":
+        rig = replace(rig, alpha_right_deg=rig.alpha_right_deg + delta)
+    elif parameter == "focal_both_px":
+        left, right = _shift_camera(left, focal=delta), _shift_camera(right, focal=delta)
+    elif parameter == "focal_right_px":
+        right = _shift_camera(right, focal=delta)
+    elif parameter == "cx_both_px":
+        left, right = _shift_camera(left, cx=delta), _shift_camera(right, cx=delta)
+    elif parameter == "cx_right_px":
+        right = _shift_camera(right, cx=delta)
+    elif parameter == "cy_right_px":
+        right = _shift_camera(right, cy=delta)
+    else:
+        raise ValueError(f"unknown structural parameter {parameter!r}; known: {', '.join(STRUCTURAL_PARAMETERS)}")
+    return replace(setup, rig=rig, left=left, right=right)
+
+
+def square_means(points: np.ndarray, ids: np.ndarray, board: Checkerboard) -> np.ndarray:
+    """Measured square(s): mean length (mm) of the board's adjacent pairs among ``ids``.
+
+    ``points`` (..., n, 3) triangulated corners in the order of ``ids`` (n,); returns shape (...).
+    The same statistic as ``measure_square(...).mean_mm``, vectorised over leading sample axes.
+    """
+    position = {corner_id: i for i, corner_id in enumerate(np.asarray(ids).tolist())}
+    pairs = np.array([(position[a], position[b]) for a, b in board.adjacent_pairs()
+                      if a in position and b in position], int).reshape(-1, 2)
+    if not len(pairs):
+        return np.full(points.shape[:-2], np.nan)
+    return np.linalg.norm(points[..., pairs[:, 0], :] - points[..., pairs[:, 1], :], axis=-1).mean(axis=-1)
+
+
+def measured_with(
+    setup: Setup, believed: Setup, ids: np.ndarray, corner_left_px: np.ndarray, corner_right_px: np.ndarray,
+    centre_left_px: np.ndarray, centre_right_px: np.ndarray,
+) -> tuple[float, np.ndarray]:
+    """(square mean mm, board centre (3,) in the believed rig frame mm) from pixels triangulated with ``believed``."""
+    calib = calibration_of(believed)
+    square = float("nan")
+    if len(ids):
+        square = float(square_means(triangulate(calib, corner_left_px, corner_right_px), ids, setup.board))
+    centre_left = triangulate(calib, centre_left_px, centre_right_px)
+    return square, transform_points(believed.rig.T_rig_left, centre_left)[0]
+
+
+class Sensitivity(BaseModel):
+    """Change of the measurement per unit error of one structural parameter (first order)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    parameter: str
+    unit: str
+    square_mm_per_unit: float | None  # measured square (mean) per unit error
+    depth_mm_per_unit: float | None  # measured rig-z of the board centre per unit error
+    lateral_mm_per_unit: float | None  # measured rig-x of the board centre per unit error
+
+
+def sensitivities(
+    setup: Setup, parameters: tuple[str, ...] | None = None, *, margin_px: float = DEFAULT_MARGIN_PX
+) -> dict[str, Sensitivity]:
+    """d(measured square)/dp, d(centre depth)/dp, d(centre x)/dp for each structural parameter p.
+
+    Computed by triangulating the TRUE pixels (corners in both views, and the board centre) with a
+    calibration perturbed by ±step in p (central differences, steps in :data:`STRUCTURAL_PARAMETERS`):
+    what a calibration wrong in p does to a measurement. Square terms are None when nothing is
+    measurable; centre terms None when the centre is behind a camera.
+    """
+    parameters = tuple(STRUCTURAL_PARAMETERS) if parameters is None else tuple(parameters)
+    ids, vis = visible_corners(setup, margin_px=margin_px)
+    corner_l, corner_r, _ = project_both(setup, setup.corners_rig[ids])
+    centre_l, centre_r, centre_front = project_both(setup, setup.board_centre_rig)
+    result = {}
+    for parameter in parameters:
+        if parameter not in STRUCTURAL_PARAMETERS:
+            raise ValueError(f"unknown structural parameter {parameter!r}; known: {', '.join(STRUCTURAL_PARAMETERS)}")
+        unit, step = STRUCTURAL_PARAMETERS[parameter]
+        plus = measured_with(setup, believed_setup(setup, parameter, step), ids, corner_l, corner_r, centre_l, centre_r)
+        minus = measured_with(setup, believed_setup(setup, parameter, -step), ids, corner_l, corner_r, centre_l,
+                              centre_r)
+        d_square = (plus[0] - minus[0]) / (2 * step) if vis.measurable else float("nan")
+        d_centre = (plus[1] - minus[1]) / (2 * step) if centre_front[0] else np.full(3, np.nan)
+        result[parameter] = Sensitivity(
+            parameter=parameter, unit=unit, square_mm_per_unit=_nan_to_none(d_square),
+            depth_mm_per_unit=_nan_to_none(float(d_centre[2])), lateral_mm_per_unit=_nan_to_none(float(d_centre[0])),
+        )
+    return result
