@@ -223,3 +223,46 @@ def test_comparison_with_the_paper_on_a_small_grid():
     assert c.experiment2_feasible_alpha_deg[1] == 90.0 and c.experiment2_feasible_alpha_deg[0] > 55.0
     assert {o.metric: o for o in c.parallel}["sigma_square_mm"].limit == "feasibility"
     assert c.bench_optimum is not None and c.bench_optimum.feasible
+
+
+# ----------------------------------------------------------------------------------------------
+# The advisor
+
+
+def test_largest_rectangle():
+    from stereo_bench.errormodel.advisor import _largest_rectangle
+
+    ok = np.array([
+        [0, 0, 1, 0],
+        [1, 1, 1, 1],
+        [1, 1, 1, 0],
+        [0, 0, 1, 0],
+    ], bool)
+    assert _largest_rectangle(ok) == (1, 2, 0, 2)
+    assert _largest_rectangle(np.zeros((2, 2), bool)) is None
+
+
+def test_advice_meets_the_target_only_where_the_board_is_in_view():
+    from stereo_bench.errormodel.advisor import advise, predicted_error_mm
+
+    advice = advise(500.0, 0.05, baselines_mm=[20.0, 100.0, 300.0], alphas_deg=[40.0, 70.0, 90.0])
+    assert advice.meets_target and advice.n_meeting <= advice.n_feasible
+    by_b = {row.baseline_mm: row for row in advice.rows}
+    assert 40.0 not in by_b[100.0].alphas_ok_deg  # nothing in view there
+    # At B = 20 mm the noise bias of the square (~0.06 mm) alone breaks 0.05 mm.
+    assert by_b[20.0].alphas_ok_deg == []
+    rows = surface_bz([20.0], [500.0], alpha="parallel")
+    assert predicted_error_mm(rows[0], "square") > rows[0].bias_square_mm > 0.05
+    # A baseline error of 0.5 mm costs 27/B * 0.5 mm on the square: 0.045 mm at B = 300 mm.
+    with_structure = advise(500.0, 0.05, baseline_error_mm=0.5, baselines_mm=[100.0, 300.0], alphas_deg=[90.0])
+    assert [row.alphas_ok_deg for row in with_structure.rows] == [[], [90.0]]
+    assert with_structure.best.predicted_error_mm == pytest.approx(math.hypot(0.045, 0.0032), abs=0.002)
+
+
+def test_advice_validation():
+    from stereo_bench.errormodel.advisor import advise
+
+    with pytest.raises(ValueError, match="metric"):
+        advise(500.0, 0.05, metric="volume")
+    with pytest.raises(ValueError, match="target_error_mm"):
+        advise(500.0, -1.0)

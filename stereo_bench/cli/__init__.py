@@ -17,6 +17,7 @@ COMMAND_MODULES = (
     "stereo_bench.cli.vision",
     "stereo_bench.cli.devices",
     "stereo_bench.cli.rig",
+    "stereo_bench.cli.model",
     "stereo_bench.cli.campaign",
 )
 
