@@ -109,8 +109,10 @@ class TargetConfig(BaseModel):
     @model_validator(mode="after")
     def _check(self) -> TargetConfig:
         if self.kind == "checkerboard":
-            for name in ("marker_mm", "dictionary"):
-                if name in self.model_fields_set:
+            # By value, not by "was it set": a recorded config (every field written out) must load again.
+            default = type(self).model_fields["dictionary"].default
+            for name, value in (("marker_mm", self.marker_mm is not None), ("dictionary", self.dictionary != default)):
+                if value:
                     raise ValueError(f"{name} is only for kind = \"charuco\"")
         elif self.cols < 3 or self.rows < 3:
             raise ValueError(f"a ChArUco board of {self.cols}x{self.rows} squares has too few inner corners "

@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "stereo_bench.cli.rig",
     "stereo_bench.cli.model",
     "stereo_bench.cli.campaign",
+    "stereo_bench.cli.replay",
 )
 
 EXIT_USAGE = 2

@@ -22,6 +22,8 @@ Fixed mode is right when the intrinsics come from a better, separate calibration
 
 from __future__ import annotations
 
+import threading
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -87,6 +89,26 @@ class StereoCalibration:
         return float(np.linalg.norm(self.T))
 
 
+_SINGLE_THREAD = threading.Lock()
+
+
+@contextmanager
+def _deterministic():
+    """Run OpenCV's solver on one thread.
+
+    With several threads its sums come out in a varying order and the result changes in the 14th
+    digit from run to run; a replayed session must reproduce the recorded numbers exactly. The
+    setting is process-wide, so other OpenCV work runs single-threaded for these few 100 ms.
+    """
+    with _SINGLE_THREAD:
+        previous = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            yield
+        finally:
+            cv2.setNumThreads(previous)
+
+
 def _rejection_threshold(per_view_rms_px: np.ndarray) -> float:
     return max(OUTLIER_FACTOR * float(np.median(per_view_rms_px)), OUTLIER_FLOOR_PX)
 
@@ -114,11 +136,12 @@ def calibrate_mono(
     used = list(range(len(object_points)))
     rejected: list[RejectedView] = []
     for _ in range(max_rounds + 1):
-        rms, K, dist, _, _, std_int, _, per_view = cv2.calibrateCameraExtended(
-            [np.asarray(object_points[i], np.float32).reshape(-1, 1, 3) for i in used],
-            [np.asarray(image_points[i], np.float32).reshape(-1, 1, 2) for i in used],
-            image_size, None, None, flags=flags, criteria=CRITERIA,
-        )
+        with _deterministic():
+            rms, K, dist, _, _, std_int, _, per_view = cv2.calibrateCameraExtended(
+                [np.asarray(object_points[i], np.float32).reshape(-1, 1, 3) for i in used],
+                [np.asarray(image_points[i], np.float32).reshape(-1, 1, 2) for i in used],
+                image_size, None, None, flags=flags, criteria=CRITERIA,
+            )
         per_view = np.asarray(per_view, float).reshape(-1)
         drop = _views_to_drop(per_view, min_views)
         if not drop:
@@ -171,13 +194,14 @@ def calibrate_stereo(
 
     stereo_flags = flags | (cv2.CALIB_FIX_INTRINSIC if mode == "fixed" else cv2.CALIB_USE_INTRINSIC_GUESS)
     for _ in range(max_rounds + 1):
-        rms, K1n, D1n, K2n, D2n, R, T, E, F, _, _, per_view = cv2.stereoCalibrateExtended(
-            [np.asarray(object_points[i], np.float32).reshape(-1, 1, 3) for i in used],
-            [np.asarray(left_points[i], np.float32).reshape(-1, 1, 2) for i in used],
-            [np.asarray(right_points[i], np.float32).reshape(-1, 1, 2) for i in used],
-            K1.copy(), D1.copy(), K2.copy(), D2.copy(), image_size, None, None,
-            flags=stereo_flags, criteria=CRITERIA,
-        )
+        with _deterministic():
+            rms, K1n, D1n, K2n, D2n, R, T, E, F, _, _, per_view = cv2.stereoCalibrateExtended(
+                [np.asarray(object_points[i], np.float32).reshape(-1, 1, 3) for i in used],
+                [np.asarray(left_points[i], np.float32).reshape(-1, 1, 2) for i in used],
+                [np.asarray(right_points[i], np.float32).reshape(-1, 1, 2) for i in used],
+                K1.copy(), D1.copy(), K2.copy(), D2.copy(), image_size, None, None,
+                flags=stereo_flags, criteria=CRITERIA,
+            )
         per_view = np.asarray(per_view, float).reshape(-1, 2)
         worst = per_view.max(axis=1)
         drop = _views_to_drop(worst, min_views)

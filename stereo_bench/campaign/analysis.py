@@ -1,0 +1,138 @@
+"""What one configuration's frames measure: calibrate from the calibration views, measure the square.
+
+Pure with respect to I/O: image pairs and settings in, a result out. The live runner and the replay
+call the very same function, which is what makes a replay reproduce a recording to the last digit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stereo_bench.targets import Target
+from stereo_bench.vision.calibrate import StereoCalibration, calibrate_stereo
+from stereo_bench.vision.detect import AmbiguousViewError, common_corners, detect
+from stereo_bench.vision.pipeline import BoardNotFoundError, PairMeasurement, measure_pair
+from stereo_bench.vision.rectify import Rectification, epipolar_errors_px, rectify, rms
+
+MIN_CALIBRATION_VIEWS = 5
+MIN_COMMON_CORNERS = 6
+
+
+class AnalysisError(RuntimeError):
+    """The configuration could not be measured; the message is the reason recorded with it."""
+
+
+@dataclass
+class ConfigurationAnalysis:
+    """Everything measured at one configuration (the result row is :meth:`row`)."""
+
+    calib: StereoCalibration | None = None
+    rect: Rectification | None = None
+    calibration_epipolar_rms_px: float = float("nan")
+    calibration_views_used: list[int] = field(default_factory=list)
+    calibration_views_rejected: list[dict] = field(default_factory=list)
+    frames: list[PairMeasurement] = field(default_factory=list)
+    frames_failed: list[dict] = field(default_factory=list)
+
+    def row(self) -> dict:
+        """The result columns of this configuration (status 'measured')."""
+        means = np.array([f.square.mean_mm for f in self.frames])
+        sigmas = np.array([f.square.sigma_mean_mm for f in self.frames])
+        lengths = np.concatenate([f.square.lengths_mm for f in self.frames])
+        nominal = self.frames[0].square.nominal_mm
+        mean = float(means.mean())
+        return {
+            "status": "measured",
+            "square_mean_mm": mean,
+            "square_std_mm": float(lengths.std(ddof=1)) if len(lengths) > 1 else float("nan"),
+            "n_squares": int(len(lengths)),
+            "n_frames": len(self.frames),
+            "error_mm": mean - nominal,
+            # The frames' noise is independent, so the mean of n frame means has sigma / sqrt(n).
+            "sigma_mm": float(np.sqrt(np.sum(sigmas**2)) / len(sigmas)),
+            "frame_scatter_mm": float(means.std(ddof=1)) if len(means) > 1 else float("nan"),
+            "rms_px": float(self.calib.rms_px),
+            "epipolar_rms_px": float(np.mean([f.epipolar_rms_px for f in self.frames])),
+            "calibration_epipolar_rms_px": self.calibration_epipolar_rms_px,
+            "depth_mm": float(np.mean([f.square.depth_mm for f in self.frames])),
+            "fraction_in_both_measured": float(np.mean([f.fraction_in_both for f in self.frames])),
+            "baseline_estimated_mm": float(self.calib.baseline_mm),
+            "calib_views_used": len(self.calibration_views_used),
+            "calib_views_rejected": len(self.calibration_views_rejected),
+        }
+
+    def details(self) -> dict:
+        """Per-view and per-frame figures for the event stream (JSON-ready)."""
+        return {
+            "calibration": {
+                "rms_px": None if self.calib is None else self.calib.rms_px,
+                "per_view_rms_px": None if self.calib is None else self.calib.per_view_rms_px.tolist(),
+                "views_used": self.calibration_views_used, "views_rejected": self.calibration_views_rejected,
+                "epipolar_rms_px": self.calibration_epipolar_rms_px,
+                "T_mm": None if self.calib is None else self.calib.T.tolist(),
+            },
+            "frames": [
+                {**f.as_dict(), "lengths_mm": f.square.lengths_mm.tolist(), "pairs": f.square.pairs.tolist()}
+                for f in self.frames
+            ],
+            "frames_failed": self.frames_failed,
+        }
+
+
+def calibrate_configuration(
+    calibration_pairs: Sequence[tuple[np.ndarray, np.ndarray]], board: Target, *,
+    intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: str = "joint",
+) -> ConfigurationAnalysis:
+    """Stereo calibration of one (B, alpha) from its calibration views; raises AnalysisError if it can't."""
+    analysis = ConfigurationAnalysis()
+    objects, lefts, rights, index = [], [], [], []
+    for i, (left_image, right_image) in enumerate(calibration_pairs):
+        left, right = detect(left_image, board), detect(right_image, board)
+        if left is None or right is None:
+            missing = " and ".join(s for s, d in (("left", left), ("right", right)) if d is None)
+            analysis.calibration_views_rejected.append({"index": i, "reason": f"board not found in the {missing} view"})
+            continue
+        ids, left_px, right_px = common_corners(left, right)
+        if len(ids) < MIN_COMMON_CORNERS:
+            analysis.calibration_views_rejected.append({"index": i, "reason": f"only {len(ids)} common corners"})
+            continue
+        objects.append(board.object_points[ids])
+        lefts.append(left_px)
+        rights.append(right_px)
+        index.append(i)
+    if len(objects) < MIN_CALIBRATION_VIEWS:
+        raise AnalysisError(f"calibration board found in only {len(objects)} of {len(calibration_pairs)} view "
+                            f"pairs (need {MIN_CALIBRATION_VIEWS})")
+    try:
+        calib = calibrate_stereo(objects, lefts, rights, tuple(calibration_pairs[0][0].shape[1::-1]),
+                                 intrinsics=intrinsics, mode="fixed" if mode == "fixed" else "joint")
+    except (ValueError, np.linalg.LinAlgError) as error:
+        raise AnalysisError(f"stereo calibration failed: {error}") from None
+    analysis.calib = calib
+    analysis.rect = rectify(calib)
+    analysis.calibration_views_used = [index[i] for i in calib.views_used]
+    analysis.calibration_views_rejected += [{"index": index[r.index], "reason": r.reason} for r in calib.views_rejected]
+    analysis.calibration_epipolar_rms_px = rms(np.concatenate([
+        epipolar_errors_px(calib, analysis.rect, lefts[i], rights[i]) for i in calib.views_used
+    ]))
+    return analysis
+
+
+def measure_configuration(
+    analysis: ConfigurationAnalysis, measurement_pairs: Sequence[tuple[np.ndarray, np.ndarray]], target: Target, *,
+    partial: bool,
+) -> ConfigurationAnalysis:
+    """Measure the square in every measurement frame; raises AnalysisError when no frame measures."""
+    for i, (left_image, right_image) in enumerate(measurement_pairs):
+        try:
+            analysis.frames.append(measure_pair(left_image, right_image, analysis.calib, target,
+                                                rect=analysis.rect, partial=partial))
+        except (BoardNotFoundError, AmbiguousViewError) as error:
+            analysis.frames_failed.append({"index": i, "reason": str(error)})
+    if not analysis.frames:
+        reasons = sorted({f["reason"] for f in analysis.frames_failed})
+        raise AnalysisError(f"target not measured in any of {len(measurement_pairs)} frames: {'; '.join(reasons)}")
+    return analysis
