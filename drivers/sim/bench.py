@@ -71,7 +71,7 @@ class SimulatedBench:
         self._scene = Scene()
         self._lock = threading.Lock()
         self._renderers: dict[Target, StereoRenderer] = {}
-        self._trigger_time = -1e9
+        self._trigger_time = time.monotonic()
         self._trigger_used: set[str] = set()
         # What the operator would set by hand (the target distance unless it is motorised).
         self.manual_values: dict[str, float] = {}
@@ -156,13 +156,13 @@ class SimulatedBench:
     def _start_exposure(self, side: str) -> None:
         """The simulated pair is hardware-triggered: both cameras of one capture share one trigger time.
 
-        A grab starts a new trigger unless the other camera started one moments ago that this camera
-        has not used yet, so the time spent rendering (which real sensors don't spend) never shows up
-        as left-right skew.
+        A grab starts a new trigger unless the other camera started one that this camera has not used
+        yet, so the time spent rendering (which real sensors don't spend) never shows up as left-right
+        skew. Purely logical, no timeout: a skew that depended on how long a render took would make
+        the frames (and so a resumed campaign) depend on the machine's speed.
         """
-        now = time.monotonic()
-        if side in self._trigger_used or now - self._trigger_time > 1.0:
-            self._trigger_time, self._trigger_used = now, set()
+        if side in self._trigger_used:
+            self._trigger_time, self._trigger_used = time.monotonic(), set()
         self._trigger_used.add(side)
 
     def frame_clock(self) -> float:
