@@ -90,6 +90,16 @@ def dask_executor():
         cluster.close()
 
 
+def test_dask_executor_by_scheduler_address():
+    pytest.importorskip("distributed")
+    from dask.distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        with DaskExecutor(cluster.scheduler_address) as ex:
+            assert ex.map(square, [3, 1, 2]) == [9, 1, 4]
+            assert ex.scheduler_address == cluster.scheduler_address
+
+
 def test_dask_executor_keeps_order(dask_executor):
     assert dask_executor.map(square, range(20)) == [i * i for i in range(20)]
     assert dask_executor.describe()["executor"] == "dask"
