@@ -178,7 +178,7 @@ def comparison_figure(
 ) -> Figure:
     """|measured error|, measured (propagated) σ and predicted σ per configuration, log scale (mm)."""
     labels = [str(row.get("config_id")) for row in rows]
-    figure = _new_figure(max(8.0, 0.32 * len(rows) + 2.5), 4.8)
+    figure = _new_figure(max(8.0, 0.32 * len(rows) + 2.5), 4.2)
     ax = figure.add_subplot()
     x = np.arange(len(rows))
     error = [abs(v) if (v := _finite(row.get("error_mm"))) is not None and row.get("status") == "measured" else np.nan
@@ -211,7 +211,7 @@ def comparison_figure(
     handles = ax.get_legend_handles_labels()[0] + [
         Line2D([], [], color=UNMEASURED_STYLE[s][1], marker=UNMEASURED_STYLE[s][0], linestyle="none",
                label=f"{s} (not measured)") for s in UNMEASURED_STYLE if s in statuses]
-    ax.legend(handles=handles, fontsize=8, loc="best")
+    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return figure
 
 
@@ -220,7 +220,7 @@ def calibration_figure(configs: Sequence[tuple[str, str, Mapping[str, object] | 
 
     ``configs``: (config_id, status, analysis calibration dict or None) in plan order.
     """
-    figure = _new_figure(max(8.0, 0.32 * len(configs) + 2.5), 4.4)
+    figure = _new_figure(max(8.0, 0.32 * len(configs) + 2.5), 4.0)
     ax = figure.add_subplot()
     plotted = False
     for i, (_, status, calibration) in enumerate(configs):
@@ -254,7 +254,7 @@ def calibration_figure(configs: Sequence[tuple[str, str, Mapping[str, object] | 
     statuses = {c[1] for c in configs if c[2] is None} - {"measured"}
     handles += [Line2D([], [], color=UNMEASURED_STYLE[s][1], marker=UNMEASURED_STYLE[s][0], linestyle="none",
                        label=f"{s}: no calibration") for s in UNMEASURED_STYLE if s in statuses]
-    ax.legend(handles=handles, fontsize=8, loc="upper left")
+    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_ylim(bottom=0)
     return figure
 

@@ -51,6 +51,8 @@ td.s-not-run { background: #fafafa !important; color: #9e9e9e; font-style: itali
 .badge.not-run { background: #9e9e9e; } .badge.partial { background: #f9a825; color: #222; }
 .badge.success { background: #2e7d32; } .badge.aborted, .badge.interrupted, .badge.incomplete { background: #ef6c00; }
 figure { margin: 8px 0 16px; }
+.figs { display: grid; grid-template-columns: repeat(auto-fit, minmax(560px, 1fr)); gap: 12px; }
+td a { color: inherit; text-decoration: none; } td a:hover { text-decoration: underline; }
 figure img { max-width: 100%; height: auto; border: 1px solid var(--line); background: #fff; }
 figcaption { font-size: 12px; color: var(--muted); }
 .warn { background: #fff3e0; border-left: 4px solid #ef6c00; padding: 6px 10px; margin: 8px 0; }
@@ -316,8 +318,8 @@ def _session_section(page: SessionPage, index: int) -> str:
         parts.append('<p class="small muted">Points: measured error with error bars of the propagated σ; shaded: '
                      "the rigorous model's expected error ± σ (image noise only); hollow: partial view; markers on "
                      "the bottom strip: configurations not measured (× infeasible, ■ failed, ▲ outside the limits, "
-                     "● not run).</p>")
-        parts += [_img(ref) for ref in page.error_figures]
+                     "● not run); series are offset slightly along x so that their error bars do not overlap.</p>")
+        parts.append('<div class="figs">' + "".join(_img(ref) for ref in page.error_figures) + "</div>")
     parts.append("<h3>Measured error beside the rigorous prediction</h3>")
     if page.comparison:
         parts.append(_img(page.comparison))
@@ -326,10 +328,16 @@ def _session_section(page: SessionPage, index: int) -> str:
     if page.calibration:
         parts.append(_img(page.calibration))
     parts.append(_calibration_table(session, page.calibration_csv))
-    parts.append("<h3>Configurations</h3>")
-    parts += [_config_block(config, page) for config in session.configs]
-    parts.append("</section>")
+    parts.append(f'<p><a href="#{_e(session.key)}-configurations">Every configuration of this session, with '
+                 "its annotated images</a></p></section>")
     return "".join(parts)
+
+
+def _configurations_section(page: SessionPage, index: int) -> str:
+    session = page.session
+    return (f'<section><h2 id="{_e(session.key)}-configurations">Configurations of session {index}: '
+            f"{_e(session.name)}</h2>" + "".join(_config_block(config, page) for config in session.configs)
+            + "</section>")
 
 
 def render_page(pages: Sequence[SessionPage], *, generated: str, version: str, warnings: Sequence[str] = ()) -> str:
@@ -341,7 +349,9 @@ def render_page(pages: Sequence[SessionPage], *, generated: str, version: str, w
         "</span></li>" for i, p in enumerate(pages, start=1))
     session_warnings = {w for p in pages for w in p.session.warnings}
     other_warnings = "".join(f'<div class="warn">{_e(w)}</div>' for w in warnings if w not in session_warnings)
+    # Summaries (tables, figures, comparison, calibration) of every session first, then the configurations.
     body = "".join(_session_section(page, i) for i, page in enumerate(pages, start=1))
+    body += "".join(_configurations_section(page, i) for i, page in enumerate(pages, start=1))
     return (
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
         "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
