@@ -177,6 +177,7 @@ def check_page(report: Path) -> _PageChecker:
     checker.feed(text)
     checker.close()
     assert not checker.errors and not checker.stack, (checker.errors, checker.stack)
+    assert len(checker.ids) == len(set(checker.ids)), "ids must be unique (config ids repeat across sessions)"
     assert "http://" not in text and "https://" not in text and "<script" not in text.lower()
     for image in checker.images:
         assert (report / image["src"]).is_file(), image["src"]
@@ -265,14 +266,15 @@ def test_a_session_with_failures_still_reports_and_marks_them(tmp_path):
 
 def test_several_sessions_in_one_report_need_out(tmp_path, capsys):
     a = write_session(tmp_path / "a", "exp-a", [row(100, 400, 90, square=27.0)])
-    b = write_session(tmp_path / "b", "exp-b", [row(100, 500, 55, square=27.0), row(100, 500, 45, "infeasible")])
+    b = write_session(tmp_path / "b", "exp-b", [row(100, 500, 55, square=27.0), row(100, 500, 45, "infeasible"),
+                                                row(100, 400, 90, square=27.0)])  # a config id of session a too
     assert main(["report", str(a), str(b)]) == 2
     assert "needs --out" in capsys.readouterr().err
     assert main(["report", str(a), str(b), "--out", str(tmp_path / "both"), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["counts"] == {"measured": 2, "infeasible": 1}
+    assert out["counts"] == {"measured": 3, "infeasible": 1}
     checker = check_page(tmp_path / "both")
-    assert {"s1-exp-a", "s2-exp-b"} <= set(checker.ids)
+    assert {"s1-exp-a", "s2-exp-b", "s1-exp-a-B100_Z400_A90", "s2-exp-b-B100_Z500_A45"} <= set(checker.ids)
     assert "tables/s2-exp-b_table2.csv" in out["files"]
 
 

@@ -107,7 +107,16 @@ def _img(ref: ImageRef) -> str:
             f"{caption}</figure>")
 
 
-def _table_html(table: Table, csv_path: str) -> str:
+def anchor(session_key: str, config_id: str) -> str:
+    """The page-unique id of a configuration's block (config ids repeat across sessions)."""
+    return f"{session_key}-{config_id}"
+
+
+def _config_link(session: SessionReport, config: ConfigReport) -> str:
+    return f"<a href='#{_e(anchor(session.key, config.config_id))}'>{_e(config.config_id)}</a>"
+
+
+def _table_html(table: Table, csv_path: str, session_key: str) -> str:
     head = "".join(f'<th class="label">{_e(text)}</th>' if i == 0 else f"<th>{_e(text)}</th>"
                    for i, text in enumerate(table.header()))
     body = []
@@ -125,7 +134,7 @@ def _table_html(table: Table, csv_path: str) -> str:
                 tooltip.append(f"error {_num(cell.error_mm, signed=True)} mm ± {_num(cell.sigma_mm)} mm")
             if cell.reason:
                 tooltip.append(cell.reason)
-            link = f"#{_e(cell.config_id)}" if cell.config_id else ""
+            link = f"#{_e(anchor(session_key, cell.config_id))}" if cell.config_id else ""
             text = _e(cell.text())
             if link:
                 text = f'<a href="{link}">{text}</a>'
@@ -197,7 +206,7 @@ def _comparison_table(session: SessionReport) -> str:
         note = prediction.get("reason") if not prediction.get("available") else ""
         status_cell = _badge(config.status) + (f' <span class="small muted">{_e(note)}</span>' if note else "")
         body.append(
-            f"<tr><td class='label'><a href='#{_e(config.config_id)}'>{_e(config.config_id)}</a></td>"
+            f"<tr><td class='label'>{_config_link(session, config)}</td>"
             f"<td>{_num(baseline, 0)}</td><td>{_num(distance, 0)}</td><td>{_num(row.get('alpha_deg'), 1)}</td>"
             f"<td>{_num(baseline / distance if baseline is not None and distance else None, 3)}</td>"
             f"<td class='label'>{status_cell}</td>"
@@ -221,7 +230,7 @@ def _calibration_table(session: SessionReport, csv_path: str) -> str:
     for config in session.configs:
         calibration = config.calibration
         if calibration is None:
-            body.append(f"<tr><td class='label'><a href='#{_e(config.config_id)}'>{_e(config.config_id)}</a></td>"
+            body.append(f"<tr><td class='label'>{_config_link(session, config)}</td>"
                         f"<td class='label'>{_badge(config.status)}</td><td colspan='6' class='label muted'>"
                         "no calibration</td></tr>")
             continue
@@ -229,7 +238,7 @@ def _calibration_table(session: SessionReport, csv_path: str) -> str:
         norm = float(np.linalg.norm(T)) if isinstance(T, list) and len(T) == 3 else None
         rejected = calibration.get("views_rejected") or []
         body.append(
-            f"<tr><td class='label'><a href='#{_e(config.config_id)}'>{_e(config.config_id)}</a></td>"
+            f"<tr><td class='label'>{_config_link(session, config)}</td>"
             f"<td class='label'>{_badge(config.status)}</td><td>{_num(calibration.get('rms_px'), 4)}</td>"
             f"<td>{_num(calibration.get('epipolar_rms_px'), 4)}</td>"
             f"<td>{len(calibration.get('views_used') or [])}</td><td>{len(rejected)}</td>"
@@ -242,6 +251,7 @@ def _calibration_table(session: SessionReport, csv_path: str) -> str:
 
 
 def _config_block(config: ConfigReport, page: SessionPage) -> str:
+    session = page.session
     row = config.row
     status = config.status
     partial = status == "measured" and (
@@ -250,7 +260,7 @@ def _config_block(config: ConfigReport, page: SessionPage) -> str:
              f"Z {format_value(_finite(row.get('distance_mm')) or 0)} mm, "
              f"α {format_value(_finite(row.get('alpha_deg')) or 0)} deg")
     badges = _badge(status) + (" " + _badge("partial") if partial else "")
-    parts = [f'<div class="config {_e(_status_class(status))}" id="{_e(config.config_id)}">',
+    parts = [f'<div class="config {_e(_status_class(status))}" id="{_e(anchor(session.key, config.config_id))}">',
              f"<h4>{_e(title)} {badges}</h4>"]
     if row.get("reason"):
         parts.append(f'<p class="reason">{_e(row["reason"])}</p>')
@@ -307,10 +317,10 @@ def _session_section(page: SessionPage, index: int) -> str:
     parts = [f"<section>{_session_header(session, index)}"]
     if page.tables1:
         parts.append("<h3>Measured square per baseline and distance (the paper's Table 1)</h3>")
-        parts += [_table_html(table, path) for table, path in page.tables1]
+        parts += [_table_html(table, path, session.key) for table, path in page.tables1]
     if page.tables2:
         parts.append("<h3>Measured square per angle α (the paper's Table 2)</h3>")
-        parts += [_table_html(table, path) for table, path in page.tables2]
+        parts += [_table_html(table, path, session.key) for table, path in page.tables2]
     if not page.tables1 and not page.tables2:
         parts.append('<p class="muted">No grid over B, Z or α in this session: see the configurations below.</p>')
     if page.error_figures:
@@ -368,4 +378,4 @@ def render_page(pages: Sequence[SessionPage], *, generated: str, version: str, w
     )
 
 
-__all__ = ["CSS", "render_page"]
+__all__ = ["CSS", "anchor", "render_page"]
