@@ -136,16 +136,20 @@ def test_stop_request_leaves_a_resumable_session(tmp_path):
     config = campaign_from_dict(__import__("tomllib").loads(SMALL))
     out = tmp_path / "stopped"
 
-    def stop_after_first(runner):
-        original = runner.on_result
+    def stop_at_second_move(runner):
+        from stereo_bench.campaign.plan import Move
 
-        def on_result(row):
-            original(row)
-            runner.request_stop()
+        moves = []
 
-        runner.on_result = on_result
+        def on_step(step):
+            if isinstance(step, Move):
+                moves.append(step)
+                if len(moves) == 2:  # as if Ctrl-C came while the rig moved to the second configuration
+                    runner.request_stop()
 
-    summary = run_campaign(config, out, yes=True, runner_hook=stop_after_first)
+        runner.on_step = on_step
+
+    summary = run_campaign(config, out, yes=True, runner_hook=stop_at_second_move)
     assert summary.exit_status == "interrupted"
     assert SessionReader(out).stops()[-1]["exit_status"] == "interrupted"
     done = SessionReader(out).completed_config_ids()

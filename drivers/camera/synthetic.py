@@ -127,14 +127,16 @@ class SyntheticCamera(CameraBase):
             self.grabs += 1
             self._pending = self._last
             return self._last.timestamp_s
-        # Render at the start of the exposure: the frame shows the scene as it was then.
+        # Render at the start of the exposure: the frame shows the scene as it was then. The render
+        # stands for the sensor's physics, so it counts against the exposure time, not on top of it.
+        started = time.monotonic()  # the real time the render takes, whatever clock stamps the frames
         rendered = self._render()
         meta: dict[str, Any] = {}
         if isinstance(rendered, tuple):
             rendered, meta = rendered
         image = np.asarray(rendered)
         self._check_shape(image)
-        delay_s = (self.exposure_s + self.readout_s) * self.time_scale
+        delay_s = (self.exposure_s + self.readout_s) * self.time_scale - (time.monotonic() - started)
         if delay_s > 0:
             self._sleep(delay_s)
         self._check_gone()  # the device may vanish mid-exposure

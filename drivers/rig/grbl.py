@@ -305,6 +305,7 @@ class GrblController:
         self._unexpected_reset = False
         self.messages: deque[str] = deque(maxlen=100)
         self.lost_replies = 0
+        self._hold_requested = False  # set by feed_hold(): a wait for motion then ends at the hold
         self.garbled_lines = 0
         self.stray_replies = 0
 
@@ -610,6 +611,9 @@ class GrblController:
                 continue
             if pending.event.is_set():
                 continue
+            if self._hold_requested and reading.state == "Hold" and reading.substate in (0, None):
+                raise GrblMoveError(f"{self.port_name}: motion stopped by a feed hold at {reading.full_state}; "
+                                    "resume (~) or reset to go on")
             if reading.is_idle and (reading.rx_bytes_free is None or reading.rx_bytes_free >= self.rx_buffer_size - 1):
                 now = time.monotonic()
                 idle_since = idle_since or now
@@ -714,13 +718,19 @@ class GrblController:
             next_retry = asked_at + self.status_retry_s
 
     def feed_hold(self) -> None:
-        """``!``: decelerate to a stop and hold (state Hold); :meth:`resume` continues."""
+        """``!``: decelerate to a stop and hold (state Hold); :meth:`resume` continues.
+
+        A wait for motion in progress (``wait_idle``, ``MoveStatus.wait``) then ends with
+        GrblMoveError once the controller reports the hold complete, instead of running into its timeout.
+        """
         self._usable_or_raise()
+        self._hold_requested = True
         self._write(codec.RT_FEED_HOLD)
 
     def resume(self) -> None:
         """``~``: cycle start / resume after a feed hold."""
         self._usable_or_raise()
+        self._hold_requested = False
         self._write(codec.RT_CYCLE_START)
 
     def soft_reset(self, *, timeout: float = 5.0, query_status: bool = True) -> GrblReading | None:

@@ -113,6 +113,10 @@ class CampaignRunner:
         self.target = config.target.build()
         self._stop = threading.Event()
         self._analysis = ThreadPoolExecutor(max_workers=1, thread_name_prefix="analysis")
+        # Every write to the session goes through one recorder thread, in submission order: PNG
+        # encoding and fsync then overlap the next capture instead of delaying it.
+        self._recorder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="recorder")
+        self._recording: list[Future] = []
         self._pending: list[tuple[Captured, Future]] = []
 
     # -- control -------------------------------------------------------------------------------------------------
@@ -124,6 +128,17 @@ class CampaignRunner:
             self.rig.stop()
         except Exception:  # noqa: BLE001 - the rig may be mid-reply; the runner re-reads it at the safe point
             pass
+
+    def _record(self, method: str, *args, **kwargs) -> None:
+        """Queue a session write (``writer.<method>(*args, **kwargs)``); failures surface at the next sync."""
+        self._recording.append(self._recorder.submit(getattr(self.writer, method), *args, **kwargs))
+        if len(self._recording) > 64:
+            self._sync_recording(keep=32)
+
+    def _sync_recording(self, keep: int = 0) -> None:
+        """Wait until all but ``keep`` queued writes are on disk; re-raise the first failure."""
+        while len(self._recording) > keep:
+            self._recording.pop(0).result()
 
     def _check_stop(self) -> None:
         if self._stop.is_set():
@@ -157,6 +172,10 @@ class CampaignRunner:
             return "interrupted"
         finally:
             self._analysis.shutdown(wait=True)
+            try:
+                self._sync_recording()
+            finally:
+                self._recorder.shutdown(wait=True)
 
     def _execute(self, step, captured: Captured | None) -> None:
         if isinstance(step, Move):
@@ -184,21 +203,21 @@ class CampaignRunner:
             self._recover_rig()
             raise ConfigurationFailed(f"rig: {error}") from None
         captured.rig_reading = reading.to_dict()
-        self.writer.event("move", config_id=configuration.config_id, data={"rig": captured.rig_reading})
+        self._record("event", "move", config_id=configuration.config_id, data={"rig": captured.rig_reading})
 
     def _recover_rig(self) -> None:
         """After an alarm or a failed move, home again so the next configuration starts from a known state."""
         try:
             self.rig.home()
-            self.writer.event("rig_recovered", data={"action": "homed after a failed move"})
+            self._record("event", "rig_recovered", data={"action": "homed after a failed move"})
         except Exception as error:  # noqa: BLE001 - the campaign cannot go on without a working rig
-            self.writer.event("rig_unrecoverable", data={"error": str(error)})
+            self._record("event", "rig_unrecoverable", data={"error": str(error)})
             raise StopRequested() from error
 
     def _capture(self, kind: str, index: int, configuration: Configuration) -> tuple[np.ndarray, np.ndarray]:
         pair = self.cameras.capture_pair()
-        self.writer.event(
-            kind, config_id=configuration.config_id,
+        self._record(
+            "event", kind, config_id=configuration.config_id,
             data={"index": index, "dt_s": pair.dt_s, "left": pair.left.describe(), "right": pair.right.describe()},
             frames={"left": pair.left.image, "right": pair.right.image},
         )
@@ -276,10 +295,12 @@ class CampaignRunner:
             config_id = captured.configuration.config_id
             if analysis is not None:
                 if self.options.fixed_calibration is None:
-                    self.writer.write_calibration(config_id, analysis.calib, analysis.rect,
-                                                  board=self.calibration_board_description())
-                self.writer.event("analysis", config_id=config_id, data=analysis.details())
-            self.writer.result(config_id, row)
+                    self._record("write_calibration", config_id, analysis.calib, analysis.rect,
+                                 board=self.calibration_board_description())
+                self._record("event", "analysis", config_id=config_id, data=analysis.details())
+            # A result is the checkpoint: everything of its configuration must be on disk first.
+            self._record("result", config_id, row)
+            self._sync_recording()
             self.on_result(row)
 
     def calibration_board_description(self) -> str:

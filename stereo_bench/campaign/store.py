@@ -139,7 +139,8 @@ class ResultStore:
         if self._db is not None:
             return self
         try:
-            db = sqlite3.connect(self.path, isolation_level=None)  # autocommit; explicit BEGIN below
+            # The session writer may be driven from a recorder thread; it serialises all access itself.
+            db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)  # autocommit; explicit BEGIN
         except sqlite3.Error as error:
             raise StoreError(f"{self.path}: cannot open the results store ({error})") from None
         try:
