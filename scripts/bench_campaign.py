@@ -1,0 +1,78 @@
+"""Campaign overhead on the simulated rig, and replay throughput.
+
+Runs a campaign in real time (realistic motion speeds: the GRBL emulator's default axis rates and
+accelerations, time scale 1) and divides its wall time by the unavoidable hardware time predicted
+for it (homing + motion + settle + exposures, stereo_bench.campaign.plan.estimate_duration, which
+times moves exactly as the emulator does). Processing (rendering stands in for the sensor and runs
+inside the exposure; PNG encoding, detection, calibration, measurement) is overhead unless it
+overlaps the hardware time. Then replays the recorded session and reports pairs per second.
+
+    python scripts/bench_campaign.py [--out bench_campaign.json] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+from stereo_bench.campaign.config import campaign_from_dict
+from stereo_bench.campaign.execute import replay_session, run_campaign
+from stereo_bench.campaign.plan import estimate_duration, expand_plan, plan_steps
+from stereo_bench.campaign.session import SessionReader
+
+CAMPAIGN = {
+    "name": "bench-campaign",
+    "seed": 1,
+    "rig": {"time_scale": 1.0},
+    "capture": {"calibration_views": 12, "frames_per_config": 3, "settle_s": 0.5},
+    "plan": {"baseline_mm": [50, 150, 250], "distance_mm": [400, 600], "alpha_deg": [90]},
+}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="bench_campaign.json")
+    parser.add_argument("--keep", metavar="DIR", help="keep the recorded session here")
+    args = parser.parse_args()
+    config = campaign_from_dict(CAMPAIGN)
+    configurations = expand_plan(config)
+    estimate = estimate_duration(config, configurations, plan_steps(config, configurations))
+    workdir = Path(tempfile.mkdtemp(prefix="bench-campaign-"))
+    session = Path(args.keep) if args.keep else workdir / "session"
+    try:
+        started = time.monotonic()
+        summary = run_campaign(config, session, yes=True)
+        wall_s = time.monotonic() - started
+        pairs = sum(1 for e in SessionReader(session).events() if e["kind"] in ("calibration_view",
+                                                                                "measurement_frame"))
+        started = time.monotonic()
+        replay = replay_session(session)
+        replay_s = time.monotonic() - started
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+    hardware_s = estimate.homing_s + estimate.motion_s + estimate.settle_s + estimate.capture_s
+    result = {
+        "configurations": len(configurations), "measured": summary.counts().get("measured", 0),
+        "stereo_pairs": pairs, "wall_s": wall_s, "hardware_s": hardware_s,
+        "hardware_breakdown_s": {k: v for k, v in estimate.as_dict().items() if k.endswith("_s")},
+        "wall_over_hardware": wall_s / hardware_s, "target": 1.10,
+        "replay_s": replay_s, "replay_pairs_per_s": pairs / replay_s,
+        "replay_identical": f"{replay.identical}/{replay.compared}",
+    }
+    print(f"{'configurations':32s} {len(configurations)} ({result['measured']} measured), {pairs} stereo pairs")
+    print(f"{'hardware time (predicted)':32s} {hardware_s:7.1f} s  (homing {estimate.homing_s:.1f}, motion "
+          f"{estimate.motion_s:.1f}, settle {estimate.settle_s:.1f}, exposures {estimate.capture_s:.1f})")
+    print(f"{'wall time':32s} {wall_s:7.1f} s")
+    print(f"{'wall / hardware':32s} {result['wall_over_hardware']:7.2f}   (target <= 1.10)")
+    print(f"{'replay':32s} {replay_s:7.1f} s, {result['replay_pairs_per_s']:.1f} pairs/s, "
+          f"{result['replay_identical']} configurations identical")
+    with open(args.out, "w") as handle:
+        json.dump(result, handle, indent=1)
+
+
+if __name__ == "__main__":
+    main()
