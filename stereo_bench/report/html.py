@@ -214,7 +214,8 @@ def _comparison_table(session: SessionReport) -> str:
             f"<td>{_num(row.get('error_mm') if config.status == 'measured' else None, signed=True)}</td>"
             f"<td>{_sci(row.get('sigma_mm') if config.status == 'measured' else None)}</td>"
             f"<td>{_sci(prediction.get('sigma_mm'))}</td><td>{_sci(prediction.get('expected_error_mm'))}</td>"
-            f"<td>{ratio}</td><td>{_num(prediction.get('pixel_sigma_px'), 4)}</td></tr>")
+            f"<td>{ratio}</td>"
+            f"<td>{_num(prediction.get('pixel_sigma_px') if prediction.get('available') else None, 4)}</td></tr>")
     return (f"<table><thead>{head}</thead><tbody>{''.join(body)}</tbody></table>"
             f'<p class="small muted">Pixel σ used by the model: {_e("; ".join(sorted(sources)) or "none")}. The '
             "prediction propagates image noise only, through the true geometry of the configuration and the "
