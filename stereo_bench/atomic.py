@@ -118,7 +118,11 @@ def encode_png(image: np.ndarray) -> bytes:
         raise ValueError(f"PNG frames must be (H, W) or (H, W, 1|3|4), got shape {image.shape}")
     if image.size == 0:
         raise ValueError("cannot write an empty frame")
-    ok, buffer = cv2.imencode(".png", np.ascontiguousarray(image), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    # Camera frames are mostly sensor noise, which deflate's string matching cannot shorten: the RLE
+    # strategy (filters + run lengths + Huffman) encodes a noisy 1080p frame in ~34 ms to 0.94 MB
+    # where the default strategy takes ~46 ms for 1.11 MB (measured here, level 1 both).
+    params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
+    ok, buffer = cv2.imencode(".png", np.ascontiguousarray(image), params)
     if not ok:
         raise ValueError(f"cv2.imencode failed for a frame of shape {image.shape} {image.dtype}")
     return buffer.tobytes()

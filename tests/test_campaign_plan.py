@@ -73,8 +73,12 @@ def test_paper_exp2_toe_in_fractions_per_angle():
     assert (c.corners_in_both, c.feasible, c.status) == (6, True, "partial")
 
 
-def test_alpha_55_target_is_partly_visible_but_the_calibration_board_never_fits_both_views():
-    by_alpha = _by_alpha(expand_plan(load_preset("paper-exp2-toe-in")))
+def test_alpha_55_needs_a_calibration_board_that_fits_the_narrow_overlap():
+    # With the default 11x8 checkerboard of 25 mm squares, the calibration board never fits both views.
+    checkerboard = load_preset("paper-exp2-toe-in").model_copy(
+        update={"calibration_board": campaign_from_dict({"plan": {"baseline_mm": [1], "distance_mm": [1]}})
+                .calibration_board})
+    by_alpha = _by_alpha(expand_plan(checkerboard))
     c55 = by_alpha[55]
     assert c55.corners_in_both == 30 and not c55.feasible and c55.status == "infeasible"
     assert c55.reason.startswith("calibration board (checkerboard 11x8 inner corners, 25 mm squares) never whole in "
@@ -82,8 +86,11 @@ def test_alpha_55_target_is_partly_visible_but_the_calibration_board_never_fits_
     assert c55.calibration_range_mm is None
     assert [by_alpha[a].runnable for a in (85, 75, 65)] == [True, True, True]
     assert by_alpha[65].calibration_range_mm[0] > by_alpha[85].calibration_range_mm[0]  # the overlap starts later
-    # With extrinsics from a calibration directory only the target matters: alpha = 55 is measured (partly).
-    fixed = load_preset("paper-exp2-toe-in").model_copy(
+    # The preset's ChArUco board calibrates from partial views: alpha = 55 is measured (partly).
+    preset = _by_alpha(expand_plan(load_preset("paper-exp2-toe-in")))[55]
+    assert preset.feasible and preset.status == "partial" and preset.calibration_range_mm is not None
+    # With extrinsics from a calibration directory only the target matters.
+    fixed = checkerboard.model_copy(
         update={"extrinsics": campaign_from_dict({"plan": {"baseline_mm": [1], "distance_mm": [1]},
                                                   "extrinsics": {"mode": "fixed", "calib_dir": "."}}).extrinsics})
     c55 = _by_alpha(expand_plan(fixed))[55]
@@ -157,7 +164,7 @@ def test_configurations_and_steps_serialise_to_json():
                        "s": [s.as_dict() for s in plan_steps(config, configurations)]})
     data = json.loads(text)
     assert data["c"][0]["config_id"] == "B100_Z500_A85" and data["c"][0]["status"] == "feasible"
-    assert data["c"][0]["calibration_range_mm"] == [290.0, 1500.0]
+    assert data["c"][0]["calibration_range_mm"] == [250.0, 1500.0]  # the preset's small ChArUco board
     assert data["s"][0] == {"step": "move", "config_id": "B100_Z500_A85", "index": 0, "request": {
         "baseline_mm": 100.0, "toe_in_left_deg": 5.0, "toe_in_right_deg": 5.0, "tilt_left_deg": 0.0,
         "tilt_right_deg": 0.0, "target_distance_mm": 500.0}}
@@ -209,8 +216,11 @@ def test_infeasible_configurations_get_only_a_checkpoint_with_the_reason():
     config = load_preset("paper-exp2")
     configurations = expand_plan(config)
     steps = plan_steps(config, configurations)
-    assert all(isinstance(s, Checkpoint) and s.skipped for s in steps)
-    assert [s.reason for s in steps] == [c.reason for c in configurations]
+    infeasible = [c for c in configurations if not c.feasible]
+    assert [c.alpha_deg for c in infeasible] == [5, 15, 25, 35, 45]  # as the paper writes alpha
+    skipped = [s for s in steps if isinstance(s, Checkpoint) and s.skipped]
+    assert [s.reason for s in skipped] == [c.reason for c in infeasible]
+    assert sum(isinstance(s, Move) for s in steps) == 1  # only alpha = 55 runs
 
 
 def test_fixed_extrinsics_capture_no_calibration_views_and_driven_target_needs_no_prompt():
@@ -294,8 +304,8 @@ def test_duration_counts_the_operator_on_a_real_bench_and_time_scale_on_the_simu
 
 def test_plan_summary_counts():
     summary = plan_summary(load_preset("paper-exp2-toe-in"))
-    assert summary["n_configurations"] == 6 and summary["infeasible"] == 3 and summary["runnable"] == 3
-    assert summary["n_steps"] == 3 * 6 + 1 + 3  # 6 steps per run, one target prompt, 3 skipped checkpoints
+    assert summary["n_configurations"] == 6 and summary["infeasible"] == 2 and summary["runnable"] == 4
+    assert summary["n_steps"] == 4 * 6 + 1 + 2  # 6 steps per run, one target prompt, 2 skipped checkpoints
     assert summary["n_steps"] == len(summary["steps"])
     assert summary["predicted_duration_s"] == pytest.approx(summary["duration"]["total_s"])
     assert np.isclose(summary["configurations"][3]["fraction_in_both"], 30 / 54)

@@ -55,11 +55,11 @@ def test_plan_file_prints_the_table_steps_and_duration(tmp_path, capsys, no_seri
 def test_plan_preset_shows_infeasible_configurations_with_the_reason(capsys, no_serial):
     code, out, _ = _run(capsys, "plan", "--preset", "paper-exp2")
     assert code == 0
-    assert "6 configurations: 0 to run (0 partial), 6 infeasible" in out
+    assert "6 configurations: 1 to run (1 partial), 5 infeasible" in out
     assert "why: 0 of 54 target corners in both views (left 18, right 18; 6 needed): the cameras' views do not " \
            "overlap on the board at alpha = 45 deg" in out
     row_55 = next(line for line in out.splitlines() if line.split()[1:2] == ["B100_Z500_A55"])
-    assert "30/54" in row_55 and row_55.endswith("infeasible")
+    assert "30/54" in row_55 and row_55.endswith("partial")
 
 
 def test_plan_json(capsys, no_serial):
@@ -67,11 +67,11 @@ def test_plan_json(capsys, no_serial):
     assert code == 0
     data = json.loads(out)
     assert {"configurations", "predicted_duration_s", "n_steps", "infeasible"} <= set(data)
-    assert data["infeasible"] == 3 and data["n_steps"] == 22 and data["source"] == "preset paper-exp2-toe-in"
+    assert data["infeasible"] == 2 and data["n_steps"] == 27 and data["source"] == "preset paper-exp2-toe-in"
     assert "steps" not in data
     fractions = [round(c["fraction_in_both"] * 54) for c in data["configurations"]]
     assert fractions == [54, 54, 54, 30, 0, 0]
-    assert [c["status"] for c in data["configurations"]] == ["feasible"] * 3 + ["infeasible"] * 3
+    assert [c["status"] for c in data["configurations"]] == ["feasible"] * 3 + ["partial"] + ["infeasible"] * 2
     assert data["predicted_duration_s"] == pytest.approx(data["duration"]["total_s"])
     code, out, _ = _run(capsys, "plan", "--preset", "paper-exp2-toe-in", "--json", "--steps")
     assert len(json.loads(out)["steps"]) == 22

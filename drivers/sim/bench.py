@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import threading
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -71,8 +72,11 @@ class SimulatedBench:
         self._scene = Scene()
         self._lock = threading.Lock()
         self._renderers: dict[Target, StereoRenderer] = {}
+        self._renderers_lock = threading.Lock()
         self._trigger_time = time.monotonic()
-        self._trigger_used: set[str] = set()
+        self._trigger_used: set[str] = set(SIDES)  # the first grab starts a trigger
+        self._prefetched: dict[str, Future] = {}
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-render")
         # What the operator would set by hand (the target distance unless it is motorised).
         self.manual_values: dict[str, float] = {}
 
@@ -88,6 +92,7 @@ class SimulatedBench:
         return self
 
     def stop(self) -> None:
+        self._pool.shutdown(wait=True)
         self.emulator.stop()
 
     def __enter__(self) -> SimulatedBench:
@@ -107,6 +112,8 @@ class SimulatedBench:
         with self._lock:
             self._scene = Scene(target=target, T_rig_board=None if T_rig_board is None else np.array(T_rig_board),
                                 seed=int(seed))
+            self._prefetched.clear()  # frames of the old scene
+            self._trigger_used = set(SIDES)
 
     def operator_prompt(self, message: str) -> None:
         """Stands in for the operator at a manual step: records the values the rig asked for."""
@@ -126,18 +133,47 @@ class SimulatedBench:
         )
 
     def _renderer(self, target: Target) -> StereoRenderer:
-        if target not in self._renderers:
-            self._renderers[target] = StereoRenderer(target, self.left_model, self.right_model, optics=self.optics)
-        return self._renderers[target]
+        with self._renderers_lock:
+            if target not in self._renderers:
+                self._renderers[target] = StereoRenderer(target, self.left_model, self.right_model,
+                                                         optics=self.optics)
+            return self._renderers[target]
+
+    def warm_up(self, *targets: Target) -> None:
+        """Build the renderers of ``targets`` in the background (~1-2 s each), e.g. while the rig homes."""
+        for target in targets:
+            self._pool.submit(self._renderer, target)
 
     def render(self, side: str) -> tuple[np.ndarray, dict]:
-        """One frame of the ``side`` camera now, with its ground truth as metadata."""
+        """One frame of the ``side`` camera now, with its ground truth as metadata.
+
+        Both cameras share a trigger, so the first grab of a pair renders the other camera's view
+        too, on a second thread and from the same rig pose; the other grab then collects it.
+        """
         with self._lock:
-            scene = self._scene
-            index = scene.frames_rendered[side]
-            scene.frames_rendered[side] += 1
-            self._start_exposure(side)
-        pose = self.rig_pose()
+            new_trigger = self._start_exposure(side)
+            prefetched = self._prefetched.pop(side, None)
+            if prefetched is not None and not new_trigger:
+                job = prefetched
+            else:
+                pose = self.rig_pose()
+                job = self._claim(side, pose)
+                if new_trigger:
+                    other = "right" if side == "left" else "left"
+                    other_job = self._claim(other, pose)
+                    self._prefetched[other] = self._pool.submit(self._render_job, *other_job)
+        if isinstance(job, Future):
+            return job.result()
+        return self._render_job(*job)
+
+    def _claim(self, side: str, pose: RigPose) -> tuple:
+        """Reserve the next frame index of ``side`` in the current scene (call with the lock held)."""
+        scene = self._scene
+        index = scene.frames_rendered[side]
+        scene.frames_rendered[side] += 1
+        return side, pose, scene, index
+
+    def _render_job(self, side: str, pose: RigPose, scene: Scene, index: int) -> tuple[np.ndarray, dict]:
         T_rig_cam = pose.T_rig_left if side == "left" else pose.T_rig_right
         rng = np.random.default_rng([scene.seed, SIDES.index(side), index])
         target = scene.target
@@ -153,7 +189,7 @@ class SimulatedBench:
                 "alpha_right_deg": pose.alpha_right_deg, "scene_seed": scene.seed, "scene_frame": index}
         return view.image, meta
 
-    def _start_exposure(self, side: str) -> None:
+    def _start_exposure(self, side: str) -> bool:
         """The simulated pair is hardware-triggered: both cameras of one capture share one trigger time.
 
         A grab starts a new trigger unless the other camera started one that this camera has not used
@@ -161,9 +197,11 @@ class SimulatedBench:
         skew. Purely logical, no timeout: a skew that depended on how long a render took would make
         the frames (and so a resumed campaign) depend on the machine's speed.
         """
-        if side in self._trigger_used:
+        new = side in self._trigger_used
+        if new:
             self._trigger_time, self._trigger_used = time.monotonic(), set()
         self._trigger_used.add(side)
+        return new
 
     def frame_clock(self) -> float:
         """Timestamp (monotonic s) of the current capture: trigger time + exposure."""

@@ -51,6 +51,7 @@ class SimulatedPresenter:
         self.calibration_distance_mm = calibration_distance_mm or (lambda z: (max(250.0, 0.6 * z), 1.3 * z))
         self._poses: list[np.ndarray] = []
         self._config_id = ""
+        bench.warm_up(calibration_board, target)
         self._distance_mm = 0.0
 
     def begin_configuration(self, config_id: str, pose: RigPose, distance_mm: float, n_views: int, *,
