@@ -74,7 +74,7 @@ def test_plan_json(capsys, no_serial):
     assert [c["status"] for c in data["configurations"]] == ["feasible"] * 3 + ["partial"] + ["infeasible"] * 2
     assert data["predicted_duration_s"] == pytest.approx(data["duration"]["total_s"])
     code, out, _ = _run(capsys, "plan", "--preset", "paper-exp2-toe-in", "--json", "--steps")
-    assert len(json.loads(out)["steps"]) == 22
+    assert len(json.loads(out)["steps"]) == 27
 
 
 def test_plan_lists_steps_on_request(capsys):
