@@ -22,19 +22,10 @@ from pydantic import ValidationError
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.session import SessionError, SessionReader
 from stereo_bench.report.tables import NOT_RUN, with_plan
+from stereo_bench.report.tables import finite_number as _finite
 from stereo_bench.targets import Checkerboard
 
 DEFAULT_PIXEL_SIGMA_PX = 0.1
-
-
-def _finite(value: object) -> float | None:
-    if value is None or isinstance(value, bool):
-        return None
-    try:
-        number = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return None
-    return number if math.isfinite(number) else None
 
 
 @dataclass

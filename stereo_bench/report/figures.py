@@ -25,6 +25,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from stereo_bench.report.tables import NOT_RUN, format_value, is_partial
+from stereo_bench.report.tables import finite_number as _finite
 
 DPI = 100
 #: marker and colour of the configurations that were not measured, on the strip at the bottom of a plot
@@ -41,16 +42,6 @@ AXIS_LABELS = {
 }
 SERIES_NAMES = {"distance_mm": "Z", "baseline_mm": "B", "alpha_deg": "α"}
 SERIES_UNITS = {"distance_mm": "mm", "baseline_mm": "mm", "alpha_deg": "deg"}
-
-
-def _finite(value: object) -> float | None:
-    if value is None or isinstance(value, bool):
-        return None
-    try:
-        number = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return None
-    return number if math.isfinite(number) else None
 
 
 def png_bytes(figure: Figure) -> bytes:

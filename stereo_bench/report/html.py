@@ -7,7 +7,6 @@ report directory, so the page opens from disk in any browser. Every text that co
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Sequence
 from html import escape
 from typing import TYPE_CHECKING
@@ -15,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from stereo_bench.report.tables import PARTIAL_MARK, Table, format_value, status_counts
+from stereo_bench.report.tables import finite_number as _finite
 
 if TYPE_CHECKING:
     from stereo_bench.report.build import ImageRef, SessionPage
@@ -69,16 +69,6 @@ a.csv { font-size: 12px; }
 
 def _e(value: object) -> str:
     return escape(str(value), quote=True)
-
-
-def _finite(value: object) -> float | None:
-    if value is None or isinstance(value, bool):
-        return None
-    try:
-        number = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return None
-    return number if math.isfinite(number) else None
 
 
 def _num(value: object, digits: int = 4, *, signed: bool = False, empty: str = "–") -> str:

@@ -26,7 +26,7 @@ STATUSES = ("measured", "failed", "infeasible", "limit", "not run")
 NOT_RUN = "not run"
 
 
-def _number(value: object) -> float | None:
+def finite_number(value: object) -> float | None:
     """A finite float, or None (missing, NaN, text)."""
     if value is None or isinstance(value, bool):
         return None
@@ -59,9 +59,9 @@ class Cell:
         status = str(row.get("status") or NOT_RUN)
         return cls(
             status=status, config_id=str(row.get("config_id")) if row.get("config_id") is not None else None,
-            square_mm=_number(row.get("square_mean_mm")) if status == "measured" else None,
-            error_mm=_number(row.get("error_mm")) if status == "measured" else None,
-            sigma_mm=_number(row.get("sigma_mm")) if status == "measured" else None,
+            square_mm=finite_number(row.get("square_mean_mm")) if status == "measured" else None,
+            error_mm=finite_number(row.get("error_mm")) if status == "measured" else None,
+            sigma_mm=finite_number(row.get("sigma_mm")) if status == "measured" else None,
             partial=status == "measured" and is_partial(row),
             reason=str(row["reason"]) if row.get("reason") else None,
         )
@@ -93,9 +93,9 @@ EMPTY = Cell(status="empty")
 
 def is_partial(row: Mapping[str, object]) -> bool:
     """Was the target only partly in both views (measured fraction, else the predicted one, below 1)?"""
-    fraction = _number(row.get("fraction_in_both_measured"))
+    fraction = finite_number(row.get("fraction_in_both_measured"))
     if fraction is None:
-        fraction = _number(row.get("fraction_in_both"))
+        fraction = finite_number(row.get("fraction_in_both"))
     return fraction is not None and fraction < 1.0 - 1e-9
 
 
@@ -173,7 +173,7 @@ def with_plan(rows: Sequence[Mapping[str, object]], plan: Sequence[Mapping[str, 
 
 
 def _axis(rows: Iterable[Mapping[str, object]], key: str) -> list[float]:
-    return sorted({value for row in rows if (value := _number(row.get(key))) is not None})
+    return sorted({value for row in rows if (value := finite_number(row.get(key))) is not None})
 
 
 def _group(rows: Iterable[Mapping[str, object]], key: Callable[[Mapping[str, object]], tuple]) -> dict[tuple, list]:
@@ -187,7 +187,7 @@ def _grid(rows: Sequence[Mapping[str, object]], row_key: str, column_key: str) -
     row_values, column_values = _axis(rows, row_key), _axis(rows, column_key)
     cells = [[EMPTY for _ in column_values] for _ in row_values]
     for row in rows:
-        r, c = _number(row.get(row_key)), _number(row.get(column_key))
+        r, c = finite_number(row.get(row_key)), finite_number(row.get(column_key))
         if r is None or c is None:
             continue
         cells[row_values.index(r)][column_values.index(c)] = Cell.from_row(row)
@@ -210,7 +210,7 @@ def distance_baseline_tables(rows: Sequence[Mapping[str, object]], *, prefix: st
     Only made for groups with more than one B or more than one Z (a single cell is no table).
     """
     tables = []
-    groups = _group(rows, lambda row: (_number(row.get("alpha_deg")), _number(row.get("tilt_deg")) or 0.0))
+    groups = _group(rows, lambda row: (finite_number(row.get("alpha_deg")), finite_number(row.get("tilt_deg")) or 0.0))
     for (alpha, tilt), group in groups.items():
         row_values, column_values, cells = _grid(group, "baseline_mm", "distance_mm")
         if len(row_values) < 2 and len(column_values) < 2:
@@ -230,16 +230,17 @@ def alpha_tables(rows: Sequence[Mapping[str, object]], *, prefix: str = "") -> l
     Only made when some (B, Z) has more than one α.
     """
     tables = []
-    for (tilt,), group in _group(rows, lambda row: (_number(row.get("tilt_deg")) or 0.0,)).items():
-        by_bz = _group(group, lambda row: (_number(row.get("baseline_mm")), _number(row.get("distance_mm"))))
-        if not any(len({_number(r.get("alpha_deg")) for r in members}) > 1 for members in by_bz.values()):
+    for (tilt,), group in _group(rows, lambda row: (finite_number(row.get("tilt_deg")) or 0.0,)).items():
+        by_bz = _group(group, lambda row: (finite_number(row.get("baseline_mm")),
+                                           finite_number(row.get("distance_mm"))))
+        if not any(len({finite_number(r.get("alpha_deg")) for r in members}) > 1 for members in by_bz.values()):
             continue
         column_values = _axis(group, "alpha_deg")
         cells, names, keys = [], [], []
         for (baseline, distance), members in by_bz.items():
             line = [EMPTY for _ in column_values]
             for row in members:
-                alpha = _number(row.get("alpha_deg"))
+                alpha = finite_number(row.get("alpha_deg"))
                 if alpha is not None:
                     line[column_values.index(alpha)] = Cell.from_row(row)
             cells.append(line)
