@@ -281,3 +281,19 @@ def _same(a, b) -> bool:
     if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
         return True
     return a == b
+
+
+def replay_job(job: tuple[str, str | None, dict]) -> dict:
+    """One replay as a picklable job for an executor: (session, out or None, pipeline) -> JSON-ready summary.
+
+    Errors come back as data (``error``) so one bad session does not sink a batch.
+    """
+    from stereo_bench.campaign.session import SessionError
+
+    session, out, pipeline = job
+    try:
+        summary = replay_session(session, out, pipeline=pipeline)
+    except (SessionError, KeyError, OSError) as error:
+        return {"session": session, "out": out, "error": str(error).strip("'\"")}
+    return {"session": session, "out": out, "compared": summary.compared, "identical": summary.identical,
+            "differences": summary.differences, "carried_over": summary.carried_over, "pipeline": pipeline}

@@ -1,54 +1,70 @@
-"""`stereo-bench replay SESSION [--out DIR]`: run a recorded session through the runner again."""
+"""`stereo-bench replay SESSION [SESSION ...] [--out DIR]`: run recorded sessions through the runner again."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from stereo_bench.cli import CliError
+from stereo_bench.cli.model import _add_executor_options, _executor
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from stereo_bench.campaign.execute import replay_session
-    from stereo_bench.campaign.session import SessionError
+    from stereo_bench.campaign.execute import replay_job
 
     pipeline = {}
     if args.intrinsics:
         pipeline["extrinsics"] = {"intrinsics": args.intrinsics}
     if pipeline and not args.out:
-        raise CliError("a re-analysis with changed pipeline options needs --out DIR for the new session")
-    try:
-        summary = replay_session(args.session, args.out, pipeline=pipeline)
-    except (SessionError, KeyError) as error:
-        raise CliError(str(error).strip("'\"")) from None
-    report = {
-        "session": args.session, "out": args.out, "compared": summary.compared, "identical": summary.identical,
-        "differences": summary.differences, "carried_over": summary.carried_over, "pipeline": pipeline,
-    }
+        raise CliError("a re-analysis with changed pipeline options needs --out DIR for the new session(s)")
+    sessions = [str(Path(s)) for s in args.session]
+    if len(set(Path(s).name for s in sessions)) != len(sessions) and args.out and len(sessions) > 1:
+        raise CliError("sessions with the same directory name cannot share one --out root")
+    if len(sessions) == 1:
+        jobs = [(sessions[0], args.out, pipeline)]
+        reports = [replay_job(jobs[0])]  # one session: in this process, no pool to start
+    else:
+        # A batch re-analysis: one job per session, through the executor (process pool or Dask).
+        jobs = [(s, str(Path(args.out) / Path(s).name) if args.out else None, pipeline) for s in sessions]
+        with _executor(args) as executor:
+            reports = executor.map(replay_job, jobs)
+    errors = [r for r in reports if "error" in r]
+    if len(sessions) == 1 and errors:
+        raise CliError(errors[0]["error"])
     if args.json:
-        json.dump(report, sys.stdout)
+        json.dump(reports[0] if len(reports) == 1 else {"sessions": reports}, sys.stdout)
         print()
     else:
-        print(f"replayed {summary.compared} measured configurations of {args.session}: {summary.identical} "
-              f"reproduced exactly" + (f", {summary.carried_over} failed/infeasible carried over"
-                                      if summary.carried_over else ""))
-        for line in summary.differences:
-            print(f"  differs: {line}")
-        if args.out:
-            print(f"new session: {args.out}")
-    return 0 if pipeline or not summary.differences else 1
+        for report in reports:
+            if "error" in report:
+                print(f"{report['session']}: error: {report['error']}")
+                continue
+            carried = f", {report['carried_over']} failed/infeasible carried over" if report["carried_over"] else ""
+            print(f"replayed {report['compared']} measured configurations of {report['session']}: "
+                  f"{report['identical']} reproduced exactly{carried}")
+            for line in report["differences"]:
+                print(f"  differs: {line}")
+            if report["out"]:
+                print(f"  new session: {report['out']}")
+    if errors:
+        return 2
+    return 0 if pipeline or all(not r["differences"] for r in reports) else 1
 
 
 def register(subparsers) -> None:
     replay = subparsers.add_parser(
-        "replay", help="replay a recorded session through the same runner and pipeline",
+        "replay", help="replay recorded sessions through the same runner and pipeline",
         description="Serve the recorded frames and rig telemetry through replay drivers to the campaign runner. "
                     "Without options the results must reproduce the recording exactly (exit 1 if not); with "
-                    "changed pipeline options the session is re-analysed into --out.",
+                    "changed pipeline options each session is re-analysed into --out. Several sessions are "
+                    "replayed in parallel through the executor (a local process pool, or Dask).",
     )
-    replay.add_argument("session", metavar="SESSION", help="recorded session directory")
-    replay.add_argument("--out", metavar="DIR", help="record the replay as a new session here")
+    replay.add_argument("session", nargs="+", metavar="SESSION", help="recorded session directory")
+    replay.add_argument("--out", metavar="DIR",
+                        help="record the replay as a new session here (several sessions: one subdirectory each)")
     replay.add_argument("--intrinsics", choices=("joint", "fixed"), help="re-analyse with this stereo calibration mode")
     replay.add_argument("--json", action="store_true", help="print one JSON object")
+    _add_executor_options(replay)
     replay.set_defaults(func=cmd_replay)
