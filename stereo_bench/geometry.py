@@ -216,16 +216,30 @@ class CameraModel:
         return (u >= margin_px - 0.5) & (u <= w - 0.5 - margin_px) & (v >= margin_px - 0.5) & (v <= h - 0.5 - margin_px)
 
 
+VIEW_MARGIN_PX = 10.0  # a corner closer than this to the image border counts as not seen
+
+
+def board_faces_camera(T_cam_board: np.ndarray) -> bool:
+    """The camera is on the board's printed side (board z points into the board, away from the viewer)."""
+    return float(T_cam_board[:3, 2] @ T_cam_board[:3, 3]) > 0.0
+
+
+def visible_in_view(
+    points_rig: np.ndarray, camera: CameraModel, T_rig_cam: np.ndarray, *, margin_px: float = VIEW_MARGIN_PX,
+) -> np.ndarray:
+    """(N,) bool: which rig-frame points (N, 3) one camera sees at least ``margin_px`` inside its image."""
+    pixels, valid = camera.project(transform_points(invert_transform(T_rig_cam), points_rig))
+    return valid & camera.in_image(pixels, margin_px=margin_px)
+
+
 def visible_in_both(
-    points_rig: np.ndarray, *, rig: RigPose, left: CameraModel, right: CameraModel, margin_px: float = 10.0,
+    points_rig: np.ndarray, *, rig: RigPose, left: CameraModel, right: CameraModel,
+    margin_px: float = VIEW_MARGIN_PX,
 ) -> np.ndarray:
     """(N,) bool: which rig-frame points (N, 3) project inside both images (``margin_px`` from the border).
 
     This is the geometric prediction of how much of a target a configuration shows both cameras,
     made before anything moves.
     """
-    seen = np.ones(len(points_rig), dtype=bool)
-    for camera, T_rig_cam in ((left, rig.T_rig_left), (right, rig.T_rig_right)):
-        pixels, valid = camera.project(transform_points(invert_transform(T_rig_cam), points_rig))
-        seen &= valid & camera.in_image(pixels, margin_px=margin_px)
-    return seen
+    return (visible_in_view(points_rig, left, rig.T_rig_left, margin_px=margin_px)
+            & visible_in_view(points_rig, right, rig.T_rig_right, margin_px=margin_px))

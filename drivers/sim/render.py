@@ -46,7 +46,14 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from stereo_bench.geometry import CameraModel, RigPose, invert_transform, make_transform, transform_points
+from stereo_bench.geometry import (
+    CameraModel,
+    RigPose,
+    board_faces_camera,
+    invert_transform,
+    make_transform,
+    transform_points,
+)
 from stereo_bench.targets import CharucoTarget, Checkerboard
 
 Target = Checkerboard | CharucoTarget
@@ -592,7 +599,7 @@ class StereoRenderer:
         camera = self.camera(side)
         T_cam_board = np.asarray(T_cam_board, dtype=np.float64)
         corners_px, valid = camera.project(transform_points(T_cam_board, self._object_points))
-        return corners_px, valid & camera.in_image(corners_px) & _faces_camera(T_cam_board)
+        return corners_px, valid & camera.in_image(corners_px) & board_faces_camera(T_cam_board)
 
     def render_view(self, side: str, T_cam_board: np.ndarray, rng: np.random.Generator) -> RenderedView:
         """Render the ``side`` ('left' or 'right') camera's frame of the target at ``T_cam_board`` (4x4, mm).
@@ -608,7 +615,7 @@ class StereoRenderer:
         corners_px, visible = self.truth(side, T_cam_board)
 
         R, t = T_cam_board[:3, :3], T_cam_board[:3, 3]
-        facing = _faces_camera(T_cam_board)
+        facing = board_faces_camera(T_cam_board)
         if not facing and self._back is None:
             self._back = _back_panel(self._front, self.optics.back_dn)
         mip = self._front if facing else self._back
@@ -677,11 +684,6 @@ def _auto_px_per_square(target: Target) -> int:
     if texels_at_px > _MAX_TEXELS:
         px = max(32, int(px * math.sqrt(_MAX_TEXELS / texels_at_px)))
     return px
-
-
-def _faces_camera(T_cam_board: np.ndarray) -> bool:
-    """The camera is on the board's printed side (z < 0 in the board frame, since z points into the board)."""
-    return float(T_cam_board[:3, 2] @ T_cam_board[:3, 3]) > 0.0
 
 
 # --------------------------------------------------------------------------------------------
@@ -761,7 +763,7 @@ def calibration_board_poses(
         seen = np.ones(len(object_points), dtype=bool)
         for camera, T_cam_rig in cameras:
             T_cam_board = T_cam_rig @ T_rig_board
-            if not _faces_camera(T_cam_board):
+            if not board_faces_camera(T_cam_board):
                 return False
             centre_cam = T_cam_board[:3, :3] @ grid_centre + T_cam_board[:3, 3]
             if abs(T_cam_board[:3, 2] @ centre_cam) < cos_limit * np.linalg.norm(centre_cam):

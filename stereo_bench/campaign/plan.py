@@ -43,18 +43,20 @@ from drivers.rig.config import QUANTITIES, LimitError, MoveRequestError, RigConf
 from drivers.sim.grbl_emulator import DEFAULT_AXES  # a table of axis rates/accelerations; no I/O at import
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.geometry import (
+    VIEW_MARGIN_PX,
     CameraModel,
     RigPose,
     board_pose_facing_rig,
-    invert_transform,
     make_transform,
     transform_points,
     visible_in_both,
+    visible_in_view,
 )
 from stereo_bench.targets import CharucoTarget, Checkerboard
+from stereo_bench.vision.pipeline import MIN_COMMON_CORNERS
 
-MIN_CORNERS_IN_BOTH = 6
-FEASIBILITY_MARGIN_PX = 10.0
+MIN_CORNERS_IN_BOTH = MIN_COMMON_CORNERS  # what the measurement needs, not a planning guess
+FEASIBILITY_MARGIN_PX = VIEW_MARGIN_PX
 CALIBRATION_DISTANCES_MM = (250.0, 1500.0)
 CALIBRATION_DISTANCE_STEP_MM = 10.0
 CHARUCO_MIN_CALIBRATION_FRACTION = 0.5
@@ -89,12 +91,6 @@ class Visibility:
         return self.in_both / self.n_corners
 
 
-def _seen_by(points_rig: np.ndarray, camera: CameraModel, T_rig_cam: np.ndarray, margin_px: float) -> np.ndarray:
-    """(N,) bool: rig-frame points (N, 3) that one camera sees at least ``margin_px`` inside its image."""
-    pixels, valid = camera.project(transform_points(invert_transform(T_rig_cam), points_rig))
-    return valid & camera.in_image(pixels, margin_px=margin_px)
-
-
 def target_visibility(
     target: Target, rig: RigPose, *, distance_mm: float, left: CameraModel, right: CameraModel,
     margin_px: float = FEASIBILITY_MARGIN_PX,
@@ -105,8 +101,8 @@ def target_visibility(
     both = visible_in_both(points, rig=rig, left=left, right=right, margin_px=margin_px)
     return Visibility(
         n_corners=len(points), in_both=int(both.sum()),
-        in_left=int(_seen_by(points, left, rig.T_rig_left, margin_px).sum()),
-        in_right=int(_seen_by(points, right, rig.T_rig_right, margin_px).sum()),
+        in_left=int(visible_in_view(points, left, rig.T_rig_left, margin_px=margin_px).sum()),
+        in_right=int(visible_in_view(points, right, rig.T_rig_right, margin_px=margin_px).sum()),
     )
 
 

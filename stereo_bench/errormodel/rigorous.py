@@ -37,8 +37,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from stereo_bench.geometry import (
+    VIEW_MARGIN_PX,
     CameraModel,
     RigPose,
+    board_faces_camera,
     board_pose_facing_rig,
     invert_transform,
     transform_points,
@@ -46,12 +48,11 @@ from stereo_bench.geometry import (
 from stereo_bench.targets import Checkerboard
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.measure import measure_square
+from stereo_bench.vision.pipeline import MIN_COMMON_CORNERS
 from stereo_bench.vision.triangulate import triangulate, triangulation_jacobian
 
-#: Same threshold as the pipeline (``stereo_bench.vision.pipeline.MIN_COMMON_CORNERS``).
-MIN_COMMON_CORNERS = 6
 #: Corners closer than this to an image border count as not seen (as in ``geometry.visible_in_both``).
-DEFAULT_MARGIN_PX = 10.0
+DEFAULT_MARGIN_PX = VIEW_MARGIN_PX
 DEFAULT_BOARD = Checkerboard(9, 6, 27.0)
 
 
@@ -151,11 +152,6 @@ def project_both(setup: Setup, points_rig: np.ndarray) -> tuple[np.ndarray, np.n
     return out[0], out[1], ok
 
 
-def _faces_camera(T_cam_board: np.ndarray) -> bool:
-    """The camera is on the board's printed side (board z points away from the viewer)."""
-    return float(T_cam_board[:3, 2] @ T_cam_board[:3, 3]) > 0.0
-
-
 class Visibility(BaseModel):
     """How much of the board a configuration puts in both views (predicted from geometry alone)."""
 
@@ -176,7 +172,7 @@ def visible_corners(setup: Setup, *, margin_px: float = DEFAULT_MARGIN_PX) -> tu
     """(ids (n,) of the corners seen in both views, :class:`Visibility`)."""
     board = setup.board
     left_px, right_px, in_front = project_both(setup, setup.corners_rig)
-    faces = [_faces_camera(invert_transform(T) @ setup.T_rig_board)
+    faces = [board_faces_camera(invert_transform(T) @ setup.T_rig_board)
              for T in (setup.rig.T_rig_left, setup.rig.T_rig_right)]
     in_left = in_front & setup.left.in_image(left_px, margin_px=margin_px) & faces[0]
     in_right = in_front & setup.right.in_image(right_px, margin_px=margin_px) & faces[1]
