@@ -12,13 +12,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stereo_bench.targets import Target
-from stereo_bench.vision.calibrate import StereoCalibration, calibrate_stereo
-from stereo_bench.vision.detect import AmbiguousViewError, common_corners, detect
-from stereo_bench.vision.pipeline import BoardNotFoundError, PairMeasurement, measure_pair
-from stereo_bench.vision.rectify import Rectification, epipolar_errors_px, rectify, rms
-
-MIN_CALIBRATION_VIEWS = 5
-MIN_COMMON_CORNERS = 6
+from stereo_bench.vision.calibrate import StereoCalibration
+from stereo_bench.vision.detect import AmbiguousViewError
+from stereo_bench.vision.pipeline import BoardNotFoundError, PairMeasurement, calibrate_from_images, measure_pair
+from stereo_bench.vision.rectify import Rectification
 
 
 class AnalysisError(RuntimeError):
@@ -87,38 +84,17 @@ def calibrate_configuration(
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: str = "joint",
 ) -> ConfigurationAnalysis:
     """Stereo calibration of one (B, alpha) from its calibration views; raises AnalysisError if it can't."""
-    analysis = ConfigurationAnalysis()
-    objects, lefts, rights, index = [], [], [], []
-    for i, (left_image, right_image) in enumerate(calibration_pairs):
-        left, right = detect(left_image, board), detect(right_image, board)
-        if left is None or right is None:
-            missing = " and ".join(s for s, d in (("left", left), ("right", right)) if d is None)
-            analysis.calibration_views_rejected.append({"index": i, "reason": f"board not found in the {missing} view"})
-            continue
-        ids, left_px, right_px = common_corners(left, right)
-        if len(ids) < MIN_COMMON_CORNERS:
-            analysis.calibration_views_rejected.append({"index": i, "reason": f"only {len(ids)} common corners"})
-            continue
-        objects.append(board.object_points[ids])
-        lefts.append(left_px)
-        rights.append(right_px)
-        index.append(i)
-    if len(objects) < MIN_CALIBRATION_VIEWS:
-        raise AnalysisError(f"calibration board found in only {len(objects)} of {len(calibration_pairs)} view "
-                            f"pairs (need {MIN_CALIBRATION_VIEWS})")
     try:
-        calib = calibrate_stereo(objects, lefts, rights, tuple(calibration_pairs[0][0].shape[1::-1]),
-                                 intrinsics=intrinsics, mode="fixed" if mode == "fixed" else "joint")
+        result = calibrate_from_images([left for left, _ in calibration_pairs],
+                                       [right for _, right in calibration_pairs], board, intrinsics=intrinsics,
+                                       mode="fixed" if mode == "fixed" else "joint", thorough=False)
     except (ValueError, np.linalg.LinAlgError) as error:
-        raise AnalysisError(f"stereo calibration failed: {error}") from None
-    analysis.calib = calib
-    analysis.rect = rectify(calib)
-    analysis.calibration_views_used = [index[i] for i in calib.views_used]
-    analysis.calibration_views_rejected += [{"index": index[r.index], "reason": r.reason} for r in calib.views_rejected]
-    analysis.calibration_epipolar_rms_px = rms(np.concatenate([
-        epipolar_errors_px(calib, analysis.rect, lefts[i], rights[i]) for i in calib.views_used
-    ]))
-    return analysis
+        raise AnalysisError(str(error)) from None
+    return ConfigurationAnalysis(
+        calib=result.calib, rect=result.rect, calibration_epipolar_rms_px=result.epipolar_rms_px,
+        calibration_views_used=result.views_used,
+        calibration_views_rejected=[r.as_dict() for r in result.views_rejected],
+    )
 
 
 def measure_configuration(

@@ -62,9 +62,10 @@ from drivers.rig.config import (
 )
 from stereo_bench.geometry import CameraModel
 from stereo_bench.targets import CharucoTarget, Checkerboard
+from stereo_bench.vision.calibrate import MIN_VIEWS
 
 # cv2.stereoCalibrate through stereo_bench.vision.calibrate.calibrate_stereo needs at least this many views.
-MIN_CALIBRATION_VIEWS = 5
+MIN_CALIBRATION_VIEWS = MIN_VIEWS  # what calibrate_stereo accepts
 
 PRESETS: dict[str, str] = {
     "paper-exp1": "Yang et al. 2024 experiment 1: Z = 300-700 mm step 100 x B = 50-250 mm step 50, alpha = 90 deg",

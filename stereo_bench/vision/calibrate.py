@@ -30,6 +30,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+MIN_VIEWS = 5  # fewer views of a flat board leave the intrinsics and R, T poorly determined
 OUTLIER_FACTOR = 3.0
 OUTLIER_FLOOR_PX = 1.0
 DEFAULT_FLAGS = cv2.CALIB_FIX_K3  # k3 is poorly constrained by a dozen views of a flat board
@@ -122,7 +123,7 @@ def _views_to_drop(per_view_rms_px: np.ndarray, n_keep_min: int) -> list[int]:
 
 def calibrate_mono(
     object_points: list[np.ndarray], image_points: list[np.ndarray], image_size: tuple[int, int], *,
-    flags: int = DEFAULT_FLAGS, min_views: int = 5, max_rounds: int = 3,
+    flags: int = DEFAULT_FLAGS, min_views: int = MIN_VIEWS, max_rounds: int = 3,
 ) -> MonoCalibration:
     """Calibrate one camera from views of a planar target.
 
@@ -164,7 +165,7 @@ def calibrate_mono(
 def calibrate_stereo(
     object_points: list[np.ndarray], left_points: list[np.ndarray], right_points: list[np.ndarray],
     image_size: tuple[int, int], *, intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
-    mode: StereoMode = "joint", flags: int = DEFAULT_FLAGS, min_views: int = 5, max_rounds: int = 3,
+    mode: StereoMode = "joint", flags: int = DEFAULT_FLAGS, min_views: int = MIN_VIEWS, max_rounds: int = 3,
 ) -> StereoCalibration:
     """Stereo calibration from views seen by both cameras.
 

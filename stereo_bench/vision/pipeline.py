@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereo_bench.targets import Target
-from stereo_bench.vision.calibrate import RejectedView, StereoCalibration, StereoMode, calibrate_stereo
+from stereo_bench.vision.calibrate import MIN_VIEWS, RejectedView, StereoCalibration, StereoMode, calibrate_stereo
 from stereo_bench.vision.detect import Detection, common_corners, common_sigmas, detect
 from stereo_bench.vision.measure import SquareMeasurement, measure_square, planar_fit_rms_px
 from stereo_bench.vision.rectify import Rectification, epipolar_errors_px, rectify, rms
@@ -52,15 +52,24 @@ class PairMeasurement:
 def calibrate_from_images(
     left_images: Sequence[np.ndarray], right_images: Sequence[np.ndarray], target: Target, *,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: StereoMode = "joint",
+    thorough: bool = True,
 ) -> CalibrationResult:
-    """Stereo calibration from image pairs of a calibration target (pairs in matching order)."""
+    """Stereo calibration from image pairs of a calibration target (pairs in matching order).
+
+    ``thorough`` retries a missed board with the slower detectors (right for stored images; a live
+    campaign, whose views are known to hold the board, passes False).
+
+    Raises:
+        ValueError: fewer than ``MIN_VIEWS`` pairs show the board in both images, or the solver fails.
+    """
     if len(left_images) != len(right_images):
         raise ValueError(f"{len(left_images)} left images but {len(right_images)} right images")
     image_size = left_images[0].shape[1::-1]
     rejected: list[RejectedView] = []
     pair_index, objects, lefts, rights = [], [], [], []
     for index, (left_image, right_image) in enumerate(zip(left_images, right_images, strict=True)):
-        left, right = detect(left_image, target, thorough=True), detect(right_image, target, thorough=True)
+        left = detect(left_image, target, thorough=thorough)
+        right = detect(right_image, target, thorough=thorough)
         missing = [side for side, d in (("left", left), ("right", right)) if d is None]
         if missing:
             rejected.append(RejectedView(index, f"board not found in the {' and '.join(missing)} image"))
@@ -73,6 +82,9 @@ def calibrate_from_images(
         objects.append(target.object_points[ids])
         lefts.append(left_px)
         rights.append(right_px)
+    if len(objects) < MIN_VIEWS:
+        raise ValueError(f"calibration board found in only {len(objects)} of {len(left_images)} view pairs "
+                         f"(need {MIN_VIEWS})")
     calib = calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode)
     rejected += [RejectedView(pair_index[r.index], r.reason) for r in calib.views_rejected]
     used = [pair_index[i] for i in calib.views_used]
