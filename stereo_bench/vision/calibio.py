@@ -8,14 +8,13 @@ keys and a file the sample wrote (no extra keys) loads here.
 from __future__ import annotations
 
 import datetime as _dt
-import os
-import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from stereo_bench import __version__
+from stereo_bench.atomic import atomic_path
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.rectify import Rectification
 
@@ -28,12 +27,10 @@ class CalibrationFileError(ValueError):
 
 
 def _write_storage(path: Path, items: dict[str, object]) -> None:
-    """Write one FileStorage YAML atomically (temporary file in the same directory, then rename)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".yml", dir=path.parent)
-    os.close(fd)
-    try:
-        storage = cv2.FileStorage(tmp_name, cv2.FILE_STORAGE_WRITE)
+    """Write one FileStorage YAML atomically (temporary file beside it, fsync, rename, directory fsync)."""
+    with atomic_path(path) as tmp:
+        # The temporary name does not end in .yml: name the format explicitly.
+        storage = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
         for key, value in items.items():
             if value is None:
                 continue
@@ -46,12 +43,6 @@ def _write_storage(path: Path, items: dict[str, object]) -> None:
             else:
                 raise TypeError(f"cannot write {key}={value!r} to {path}")
         storage.release()
-        with open(tmp_name, "rb") as handle:
-            os.fsync(handle.fileno())
-        os.replace(tmp_name, path)
-    finally:
-        if os.path.exists(tmp_name):
-            os.unlink(tmp_name)
 
 
 def write_calibration(
