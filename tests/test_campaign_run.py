@@ -208,3 +208,29 @@ def test_batch_reanalysis_of_several_sessions_goes_through_the_executor(executor
     assert [Path(r["session"]).name for r in reports] == ["first", "second"]
     # Same frames, same pipeline: the two re-analyses agree to the last digit, whichever worker ran them.
     assert _numbers(tmp_path / "re" / "first") == _numbers(tmp_path / "re" / "second")
+
+
+def test_a_frame_without_the_target_is_captured_again_and_replays(tmp_path):
+    config = campaign_from_dict(__import__("tomllib").loads(SMALL))
+    out = tmp_path / "retry"
+
+    def hide_the_target_once(runner):
+        presenter, shown = runner.presenter, []
+
+        def present_target(frame_index):
+            presenter.__class__.present_target(presenter, frame_index)
+            if not shown:  # someone walked in front of the rig: the first frame shows only the wall
+                shown.append(frame_index)
+                presenter.bench.show(None)
+
+        presenter.present_target = present_target
+
+    summary = run_campaign(config, out, yes=True, runner_hook=hide_the_target_once)
+    assert summary.counts()["measured"] == 2
+    reader = SessionReader(out)
+    missed = reader.events(kind="target_not_found")
+    assert len(missed) == 1 and missed[0]["data"]["retry"] == 0 and missed[0]["data"]["missing"] == ["left", "right"]
+    first = [e["data"] for e in reader.events(config_id=missed[0]["config_id"], kind="measurement_frame")]
+    assert [(d["index"], d["retry"]) for d in first][:2] == [(0, 0), (0, 1)]
+    # The replay asks for the same re-capture and finds the same numbers.
+    assert main(["replay", str(out)]) == 0

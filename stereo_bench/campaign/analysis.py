@@ -13,7 +13,7 @@ import numpy as np
 
 from stereo_bench.targets import Target
 from stereo_bench.vision.calibrate import StereoCalibration
-from stereo_bench.vision.detect import AmbiguousViewError
+from stereo_bench.vision.detect import AmbiguousViewError, Detection
 from stereo_bench.vision.pipeline import BoardNotFoundError, PairMeasurement, calibrate_from_images, measure_pair
 from stereo_bench.vision.rectify import Rectification
 
@@ -99,13 +99,17 @@ def calibrate_configuration(
 
 def measure_configuration(
     analysis: ConfigurationAnalysis, measurement_pairs: Sequence[tuple[np.ndarray, np.ndarray]], target: Target, *,
-    partial: bool,
+    partial: bool, detections: Sequence[tuple[Detection | None, Detection | None] | None] | None = None,
 ) -> ConfigurationAnalysis:
-    """Measure the square in every measurement frame; raises AnalysisError when no frame measures."""
+    """Measure the square in every measurement frame; raises AnalysisError when no frame measures.
+
+    ``detections``: per frame, the (left, right) detections already made while capturing (None: detect here).
+    """
     for i, (left_image, right_image) in enumerate(measurement_pairs):
         try:
             analysis.frames.append(measure_pair(left_image, right_image, analysis.calib, target,
-                                                rect=analysis.rect, partial=partial))
+                                                rect=analysis.rect, partial=partial,
+                                                detections=None if detections is None else detections[i]))
         except (BoardNotFoundError, AmbiguousViewError) as error:
             analysis.frames_failed.append({"index": i, "reason": str(error)})
     if not analysis.frames:

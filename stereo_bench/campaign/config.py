@@ -291,7 +291,9 @@ class CaptureSection(BaseModel):
     settle_s: float = Field(0.3, ge=0, allow_inf_nan=False, description="wait after a move before capturing, s")
     frames_per_config: int = Field(3, ge=1, description="stereo frames of the target measured per configuration")
     calibration_views: int = Field(12, ge=1, description="calibration-board views per configuration (per-config)")
-    board_retries: int = Field(3, ge=0, description="re-captures when the board is not detected")
+    board_retries: int = Field(3, ge=0, description="re-captures of a measurement frame whose target is not "
+                                                         "detected (calibration views without the board are "
+                                                         "dropped by the calibration instead)")
 
 
 class ExtrinsicsSection(BaseModel):

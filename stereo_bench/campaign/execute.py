@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import math
 import platform
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -102,7 +103,7 @@ def run_campaign(
                                     writer=writer, options=options, on_result=collect, on_step=on_step)
             if runner_hook:
                 runner_hook(runner)
-            if config.rig.homing and config.rig.kind != "replay":
+            if config.rig.homing:
                 writer.event("home", data={"rig": rig.home().to_dict()})
             try:
                 summary.exit_status = runner.run(skip=done)
@@ -161,6 +162,7 @@ class _ReplayPresenter:
     def __init__(self, cameras):
         self.cameras = cameras
         self.config_id = ""
+        self.retries: Counter = Counter()
 
     def begin_configuration(self, config_id, pose, distance_mm, n_views, *, calibration_range_mm=None) -> None:
         self.config_id = config_id
@@ -172,7 +174,10 @@ class _ReplayPresenter:
         return None
 
     def present_target(self, frame_index: int) -> None:
-        self.cameras.expect(f"{self.config_id}/measurement_frame/{frame_index}")
+        # The runner asks again for a frame whose target was not found: serve the recorded retries in turn.
+        retry = self.retries[(self.config_id, frame_index)]
+        self.retries[(self.config_id, frame_index)] += 1
+        self.cameras.expect(f"{self.config_id}/measurement_frame/{frame_index}/{retry}")
 
 
 class _MemoryWriter:
@@ -232,8 +237,10 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
             continue
         if event["kind"] == "move":
             readings.append(event["data"]["rig"])
-        elif event["kind"] in ("calibration_view", "measurement_frame"):
-            frames[f"{cid}/{event['kind']}/{event['data']['index']}"] = event
+        elif event["kind"] == "calibration_view":
+            frames[f"{cid}/calibration_view/{event['data']['index']}"] = event
+        elif event["kind"] == "measurement_frame":
+            frames[f"{cid}/measurement_frame/{event['data']['index']}/{event['data'].get('retry', 0)}"] = event
 
     def load_pair(key: str):
         event = frames.get(key)

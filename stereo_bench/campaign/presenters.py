@@ -8,6 +8,7 @@ a change of the simulated scene, in replay it is the next recorded pair.
 from __future__ import annotations
 
 import zlib
+from collections import Counter
 from collections.abc import Callable
 from typing import Protocol
 
@@ -51,6 +52,7 @@ class SimulatedPresenter:
         self.calibration_distance_mm = calibration_distance_mm or (lambda z: (max(250.0, 0.6 * z), 1.3 * z))
         self._poses: list[np.ndarray] = []
         self._config_id = ""
+        self._target_requests: Counter = Counter()
         bench.warm_up(calibration_board, target)
         self._distance_mm = 0.0
 
@@ -59,6 +61,7 @@ class SimulatedPresenter:
         from drivers.sim.render import calibration_board_poses
 
         self._config_id, self._distance_mm = config_id, distance_mm
+        self._target_requests = Counter()
         near, far = self.calibration_distance_mm(distance_mm)
         if calibration_range_mm:  # where the plan found the board fits both views
             near, far = max(near, calibration_range_mm[0]), min(far, calibration_range_mm[1])
@@ -85,7 +88,11 @@ class SimulatedPresenter:
 
     def present_target(self, frame_index: int) -> None:
         T_rig_board = board_pose_facing_rig(distance_mm=self._distance_mm, board_size_mm=self.target.grid_size_mm)
-        self.bench.show(self.target, T_rig_board, seed=scene_seed(self.seed, self._config_id, "target", frame_index))
+        # Asked again for the same frame (the target was not found): a fresh frame, not the same one.
+        retry = self._target_requests[frame_index]
+        self._target_requests[frame_index] += 1
+        kind = "target" if retry == 0 else f"target-retry{retry}"
+        self.bench.show(self.target, T_rig_board, seed=scene_seed(self.seed, self._config_id, kind, frame_index))
 
 
 class Coverage:

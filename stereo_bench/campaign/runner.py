@@ -38,7 +38,7 @@ from stereo_bench.campaign.plan import (
 )
 from stereo_bench.campaign.presenters import CalibrationPlacementError, Presenter
 from stereo_bench.vision.calibrate import StereoCalibration
-from stereo_bench.vision.detect import detect
+from stereo_bench.vision.detect import AmbiguousViewError, detect
 from stereo_bench.vision.rectify import rectify
 
 
@@ -58,6 +58,7 @@ class Captured:
     rig_reading: dict = field(default_factory=dict)
     calibration_pairs: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     measurement_pairs: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    measurement_detections: list[tuple] = field(default_factory=list)  # (left, right) Detection | None
 
 
 @dataclass
@@ -214,11 +215,12 @@ class CampaignRunner:
             self._record("event", "rig_unrecoverable", data={"error": str(error)})
             raise StopRequested() from error
 
-    def _capture(self, kind: str, index: int, configuration: Configuration) -> tuple[np.ndarray, np.ndarray]:
+    def _capture(self, kind: str, index: int, configuration: Configuration, **extra) -> tuple[np.ndarray, np.ndarray]:
         pair = self.cameras.capture_pair()
         self._record(
             "event", kind, config_id=configuration.config_id,
-            data={"index": index, "dt_s": pair.dt_s, "left": pair.left.describe(), "right": pair.right.describe()},
+            data={"index": index, "dt_s": pair.dt_s, "left": pair.left.describe(), "right": pair.right.describe(),
+                  **extra},
             frames={"left": pair.left.image, "right": pair.right.image},
         )
         return pair.left.image, pair.right.image
@@ -243,10 +245,32 @@ class CampaignRunner:
             captured.calibration_pairs.append((left, right))
 
     def _capture_measurement(self, n_frames: int, captured: Captured) -> None:
+        """Capture ``n_frames`` frames of the target; a frame without the target is captured again.
+
+        Up to ``board_retries`` re-captures per frame (every capture is recorded, with its ``retry``
+        number and whether the target was found); the detections travel on to the analysis, so
+        nothing is detected twice. A frame that never shows the target is kept: the analysis then
+        records why the configuration failed.
+        """
+        configuration = captured.configuration
+        partial = configuration.fraction_in_both < 1.0
         for index in range(n_frames):
-            self._check_stop()
-            self.presenter.present_target(index)
-            captured.measurement_pairs.append(self._capture("measurement_frame", index, captured.configuration))
+            for retry in range(self.options.board_retries + 1):
+                self._check_stop()
+                self.presenter.present_target(index)
+                left, right = self._capture("measurement_frame", index, configuration, retry=retry)
+                found = tuple(_detect_or_none(image, self.target, partial) for image in (left, right))
+                if all(d is not None for d in found):
+                    break
+                ambiguous = any(d is _AMBIGUOUS for d in found)
+                self._record("event", "target_not_found", config_id=configuration.config_id,
+                             data={"index": index, "retry": retry,
+                                   "missing": [side for side, d in zip(("left", "right"), found, strict=True)
+                                               if d is None or d is _AMBIGUOUS],
+                                   "ambiguous": ambiguous})
+            captured.measurement_pairs.append((left, right))
+            # An ambiguous partial view is left to the analysis to detect again, so its reason is kept.
+            captured.measurement_detections.append(None if _AMBIGUOUS in found else found)
 
     # -- analysis and results ------------------------------------------------------------------------------------
 
@@ -276,7 +300,8 @@ class CampaignRunner:
                 analysis = calibrate_configuration(captured.calibration_pairs, self.calibration_board,
                                                    intrinsics=options.intrinsics, mode=options.intrinsics_mode)
             measure_configuration(analysis, captured.measurement_pairs, self.target,
-                                  partial=configuration.fraction_in_both < 1.0)
+                                  partial=configuration.fraction_in_both < 1.0,
+                                  detections=captured.measurement_detections)
         except AnalysisError as error:
             return result_row(configuration, status="failed", reason=str(error), attempt=self.writer.attempt)
         row = result_row(configuration, status="measured", measured=analysis.row(), attempt=self.writer.attempt)
@@ -306,6 +331,17 @@ class CampaignRunner:
     def calibration_board_description(self) -> str:
         board = self.config.calibration_board
         return f"{board.kind} {board.cols}x{board.rows} square {board.square_mm:g} mm"
+
+
+_AMBIGUOUS = object()  # a partial view whose corner ids cannot be proven
+
+
+def _detect_or_none(image: np.ndarray, target, partial: bool):
+    """The target's detection, None when it is absent, _AMBIGUOUS when its corner ids cannot be proven."""
+    try:
+        return detect(image, target, partial=partial)
+    except AmbiguousViewError:
+        return _AMBIGUOUS
 
 
 def _done(row: dict) -> Future:

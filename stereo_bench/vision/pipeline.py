@@ -101,14 +101,17 @@ def calibrate_from_images(
 def measure_pair(
     left_image: np.ndarray, right_image: np.ndarray, calib: StereoCalibration, target: Target, *,
     rect: Rectification | None = None, pixel_sigma_px: float | None = None, thorough: bool = False,
-    partial: bool = False,
+    partial: bool = False, detections: tuple[Detection | None, Detection | None] | None = None,
 ) -> PairMeasurement:
     """Measure the target's square in one stereo pair with a known calibration.
 
     ``thorough``: retry a missed board with the slower detector (stored images, not live capture).
+    ``detections``: the (left, right) detections of these images, when the caller already has them.
     """
-    left = detect(left_image, target, thorough=thorough, partial=partial)
-    right = detect(right_image, target, thorough=thorough, partial=partial)
+    if detections is None:
+        detections = (detect(left_image, target, thorough=thorough, partial=partial),
+                      detect(right_image, target, thorough=thorough, partial=partial))
+    left, right = detections
     for side, found in (("left", left), ("right", right)):
         if found is None:
             raise BoardNotFoundError(f"{target.kind} {target.cols}x{target.rows} not found in the {side} image")
