@@ -111,6 +111,31 @@ class RigPose:
         return T_right_left[:3, :3].copy(), T_right_left[:3, 3].copy()
 
 
+def stereo_structure(R: np.ndarray, T: np.ndarray) -> dict[str, float]:
+    """The rig structure a pair of extrinsics (X_right = R @ X_left + T, T in mm) describes.
+
+    Returns ``baseline_mm`` (the optical baseline |T|), ``alpha_left_deg`` (angle between the baseline,
+    from the left optical centre to the right one, and the left optical axis), ``alpha_right_deg``
+    (between the baseline from the right centre to the left one and the right optical axis) and
+    ``rotation_deg`` (the angle of R). For a pose of :class:`RigPose` these are its B and alphas
+    (alpha 90 = parallel), whatever the tilt; angles are 3-D, so a camera that also looks up or down
+    counts that too.
+    """
+    R = np.asarray(R, dtype=float).reshape(3, 3)
+    T = np.asarray(T, dtype=float).reshape(3)
+    baseline = float(np.linalg.norm(T))
+    if baseline == 0.0:
+        raise ValueError("T is zero: the two optical centres coincide, there is no baseline")
+    right_in_left = -R.T @ T  # the right optical centre in left-camera coordinates
+    rvec, _ = cv2.Rodrigues(R)
+    return {
+        "baseline_mm": baseline,
+        "alpha_left_deg": float(np.degrees(np.arccos(np.clip(right_in_left[2] / baseline, -1.0, 1.0)))),
+        "alpha_right_deg": float(np.degrees(np.arccos(np.clip(T[2] / baseline, -1.0, 1.0)))),
+        "rotation_deg": float(np.degrees(np.linalg.norm(rvec))),
+    }
+
+
 def camera_pose_in_rig(*, baseline_mm: float, side: str, toe_in_deg: float, tilt_deg: float = 0.0) -> np.ndarray:
     """T_rig_cam (4x4, mm): camera frame -> rig frame for the ``side`` ('left' or 'right') camera.
 

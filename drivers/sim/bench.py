@@ -9,12 +9,28 @@ follows from where the motors really are — a move that did not finish shows up
 Noise is reproducible per scene: every change of the scene carries a seed, and the n-th frame a
 camera renders of that scene uses ``(seed, camera, n)``. A campaign that resumes after a crash
 therefore renders the same frames as one that never stopped.
+
+Imperfections come from a :class:`~drivers.sim.profile.SimProfile` (default: the ideal bench, which
+renders exactly what this bench rendered before profiles existed). They act downstream of what the
+emulator reports: the emulator says what the steppers were told, the cameras stand where the
+mechanics (:mod:`drivers.sim.mechanics`) really put them. Backlash, landing errors and the ringing
+after a move need the history of the axes: a watcher thread samples the emulator's position every
+``WATCH_PERIOD_S`` (real time) while the bench runs, and every frame samples it again. The ringing
+depends on the time between the end of a move and the frame, which follows the real clock (as at a
+real bench): frames taken while a head still rings are not bit-reproducible; once friction has
+stopped it (``vibration_stop_deg``; 0.24 s after a move on the ``lab`` profile) they are again.
+
+The bench knows the truth at every frame: the true camera poses, R and T of the pair
+(X_right = R X_left + T), the board's true pose, scale and bow. ``truth()`` returns it for the
+current state; every frame carries it in its metadata (``meta["truth"]``).
 """
 
 from __future__ import annotations
 
+import math
 import threading
 import time
+from collections import Counter
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -24,22 +40,69 @@ from drivers.camera.base import CameraSettings
 from drivers.camera.synthetic import SyntheticCamera
 from drivers.rig.config import RigConfig, alpha_from_toe_in, to_physical
 from drivers.sim.grbl_emulator import DEFAULT_AXES, AxisSpec, GrblEmulator
-from drivers.sim.render import Optics, StereoRenderer
-from stereo_bench.geometry import CameraModel, RigPose
+from drivers.sim.mechanics import MoveHistory, PairState, pair_state
+from drivers.sim.profile import IDEAL, BoardErrors, SimProfile
+from drivers.sim.render import BoardShape, Optics, StereoRenderer
+from stereo_bench.geometry import (
+    CameraModel,
+    RigPose,
+    board_pose_facing_rig,
+    invert_transform,
+    stereo_structure,
+)
 from stereo_bench.targets import CharucoTarget, Checkerboard
 
 Target = Checkerboard | CharucoTarget
 SIDES = ("left", "right")
 
 
+# How often (real seconds) the watcher samples the emulator's axes while the bench runs.
+WATCH_PERIOD_S = 0.001
+
+
 @dataclass
 class Scene:
-    """What stands in front of the rig: a target at ``T_rig_board`` (4x4, mm), or nothing."""
+    """What stands in front of the rig: a target at ``T_rig_board`` (4x4, mm), or nothing.
+
+    ``shape``: the print as it really is (None: flat and to scale); ``placement``: the operator's
+    error when the target was placed by hand (distance mm, yaw deg), for the truth.
+    """
 
     target: Target | None = None
     T_rig_board: np.ndarray | None = None
     seed: int = 0
     frames_rendered: dict[str, int] = field(default_factory=lambda: {side: 0 for side in SIDES})
+    shape: BoardShape | None = None
+    measured_target: bool = False
+    placement: dict | None = None
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    """What one trigger of the pair sees: the reported pose and the true one (for both cameras)."""
+
+    pose: RigPose
+    T_rig_cam: dict[str, np.ndarray]
+    state: PairState | None = None  # None on a mechanically ideal bench
+    smear_px: dict[str, tuple[float, float] | None] = field(default_factory=lambda: {"left": None, "right": None})
+    sim_time_s: float = math.nan
+
+
+def _with_thin_prism(camera: CameraModel, prism: tuple[float, float, float, float]) -> CameraModel:
+    """``camera`` whose lens also has OpenCV's thin-prism terms s1..s4 (12-coefficient model)."""
+    if not any(prism):
+        return camera
+    dist = np.zeros(max(12, camera.dist.size))
+    dist[: camera.dist.size] = np.asarray(camera.dist, dtype=float).ravel()
+    dist[8:12] += np.asarray(prism, dtype=float)
+    return CameraModel(K=camera.K, dist=dist, image_size=camera.image_size, name=camera.name)
+
+
+def board_shape(errors: BoardErrors) -> BoardShape | None:
+    """The render shape of a board with these errors (None: flat and to scale)."""
+    if errors.flat_and_true:
+        return None
+    return BoardShape(scale=1.0 + errors.print_scale_error, bow_mm=errors.bow_mm)
 
 
 class SimulatedBench:
@@ -47,22 +110,30 @@ class SimulatedBench:
 
     Args:
         rig_config: axis mapping shared with the real driver (default: X = B, Y/Z = toe-ins).
-        left, right: camera intrinsics (default 1920x1080, f = 4 mm, 3 um pixels).
-        optics: image formation (blur, noise, ...).
+        left, right: camera intrinsics (default 1920x1080, f = 4 mm, 3 um pixels); the profile's
+            thin-prism terms are added to them (``left_model``/``right_model`` are the true lenses).
+        optics: image formation (blur, noise, ...); the profile's ``jpeg_quality`` is applied on top.
         time_scale: > 1 runs motion and exposures faster than real time.
         exposure_s: simulated exposure + readout per frame (real-time seconds).
-        target_distance_axis: the emulator's axis letter for a motorised target distance, if any.
+        profile: the bench's imperfections (default: the ideal bench).
+        seed: seed of the profile's random draws (landing errors, target placements).
     """
 
     def __init__(
         self, *, rig_config: RigConfig | None = None, left: CameraModel | None = None,
         right: CameraModel | None = None, optics: Optics | None = None, time_scale: float = 1.0,
         exposure_s: float = 0.02, homing_enabled: bool = True, axis_specs: dict[str, AxisSpec] | None = None,
+        profile: SimProfile | None = None, seed: int = 0,
     ):
         self.rig_config = rig_config or RigConfig()
-        self.left_model = left or CameraModel.from_sensor(name="left")
-        self.right_model = right or CameraModel.from_sensor(name="right")
+        self.profile = profile or IDEAL
+        self.seed = int(seed)
+        cams = self.profile.cameras
+        self.left_model = _with_thin_prism(left or CameraModel.from_sensor(name="left"), cams.thin_prism_left)
+        self.right_model = _with_thin_prism(right or CameraModel.from_sensor(name="right"), cams.thin_prism_right)
         self.optics = optics or Optics()
+        if cams.jpeg_quality is not None:
+            self.optics = replace(self.optics, jpeg_quality=cams.jpeg_quality)
         self.time_scale = time_scale
         self.exposure_s = exposure_s
         self.emulator = GrblEmulator(
@@ -79,6 +150,14 @@ class SimulatedBench:
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-render")
         # What the operator would set by hand (the target distance unless it is motorised).
         self.manual_values: dict[str, float] = {}
+        # The axes' history (backlash, landing errors, ringing), when the profile needs one.
+        self.history = MoveHistory(self.profile, self.seed) if self.profile.moves_need_history else None
+        self._history_lock = threading.Lock()
+        self._watch_stop = threading.Event()
+        self._watcher: threading.Thread | None = None
+        self._placements: Counter = Counter()
+        self._placed: tuple | None = None  # (target, distance) of the current manual placement
+        self._placement: dict = {}
 
     def _axis_specs(self) -> dict[str, AxisSpec]:
         """Travel of each emulated axis from the soft limits of the quantity it drives (machine units)."""
@@ -89,9 +168,18 @@ class SimulatedBench:
 
     def start(self) -> SimulatedBench:
         self.emulator.start()
+        if self.history is not None:
+            self._observe()
+            self._watch_stop.clear()
+            self._watcher = threading.Thread(target=self._watch, name="sim-axis-watcher", daemon=True)
+            self._watcher.start()
         return self
 
     def stop(self) -> None:
+        self._watch_stop.set()
+        if self._watcher is not None:
+            self._watcher.join()
+            self._watcher = None
         self._pool.shutdown(wait=True)
         self.emulator.stop()
 
@@ -108,29 +196,174 @@ class SimulatedBench:
     # -- the scene ---------------------------------------------------------------------------------------------
 
     def show(self, target: Target | None, T_rig_board: np.ndarray | None = None, *, seed: int = 0) -> None:
-        """Put ``target`` at ``T_rig_board`` in front of the rig (None: an empty scene)."""
+        """Put ``target`` at ``T_rig_board`` in front of the rig (None: an empty scene).
+
+        A board shown this way is the calibration board, as the profile's ``calibration_board`` has
+        it; :meth:`place_target` places the measured target.
+        """
+        self._set_scene(Scene(target=target, T_rig_board=None if T_rig_board is None else np.array(T_rig_board),
+                              seed=int(seed), shape=board_shape(self.profile.calibration_board)))
+
+    def _set_scene(self, scene: Scene) -> None:
         with self._lock:
-            self._scene = Scene(target=target, T_rig_board=None if T_rig_board is None else np.array(T_rig_board),
-                                seed=int(seed))
+            self._scene = scene
             self._prefetched.clear()  # frames of the old scene
             self._trigger_used = set(SIDES)
+
+    def place_target(self, target: Target, *, distance_mm: float, seed: int = 0) -> np.ndarray:
+        """The operator places the measured ``target`` facing the rig at ``distance_mm``; returns T_rig_board.
+
+        The nominal pose is :func:`board_pose_facing_rig`'s. When the target distance is set by hand,
+        each placement (a new distance or target) stands off by a random distance and yaw error
+        (the profile's ``placement_*_sigma``), drawn once per placement: asking again for the same
+        distance (the next frame, a retry) keeps the target where it stands. The target is shown
+        with its print scale and bow. ``seed`` is the scene's noise seed, as for :meth:`show`.
+        """
+        nominal = board_pose_facing_rig(distance_mm=distance_mm, board_size_mm=target.grid_size_mm)
+        errors = self.profile.target
+        manual = self.rig_config.quantities["target_distance_mm"].axis == "manual"
+        key = (target, float(distance_mm))
+        if key != self._placed:
+            self._placed = key
+            placement = {"distance_error_mm": 0.0, "yaw_error_deg": 0.0}
+            if manual and (errors.placement_distance_sigma_mm > 0 or errors.placement_yaw_sigma_deg > 0):
+                where = int(round(distance_mm * 1000)) & 0xFFFFFFFF
+                rng = np.random.default_rng([self.seed & 0xFFFFFFFF, 0x91ACE, where, self._placements[where]])
+                self._placements[where] += 1
+                placement = {"distance_error_mm": float(rng.normal(0.0, errors.placement_distance_sigma_mm)),
+                             "yaw_error_deg": float(rng.normal(0.0, errors.placement_yaw_sigma_deg))}
+            self._placement = placement
+        placement = self._placement
+        if placement["distance_error_mm"] or placement["yaw_error_deg"]:
+            T_rig_board = board_pose_facing_rig(distance_mm=distance_mm + placement["distance_error_mm"],
+                                                board_size_mm=target.grid_size_mm,
+                                                yaw_deg=placement["yaw_error_deg"])
+        else:
+            T_rig_board = nominal
+        self._set_scene(Scene(target=target, T_rig_board=T_rig_board, seed=int(seed), shape=board_shape(errors),
+                              measured_target=True, placement=dict(placement, distance_mm=float(distance_mm))))
+        return T_rig_board
 
     def operator_prompt(self, message: str) -> None:
         """Stands in for the operator at a manual step: records the values the rig asked for."""
         self.last_prompt = message
 
-    def rig_pose(self) -> RigPose:
-        """The rig pose the emulator's axes are at now (fixed quantities from the config)."""
+    def reported_values(self) -> dict[str, float]:
+        """Physical values (``baseline_mm``, ``toe_in_*_deg``, ...) the emulator's axes report now."""
         physical = to_physical(self.rig_config, self.emulator.machine_position())
         for quantity, mapping in self.rig_config.quantities.items():
             if mapping.axis == "fixed":
                 physical.setdefault(quantity, float(mapping.value))
+        return physical
+
+    def rig_pose(self) -> RigPose:
+        """The rig pose the emulator's axes are at now (fixed quantities from the config): what is commanded."""
+        return self._pose_of(self.reported_values())
+
+    @staticmethod
+    def _pose_of(physical: dict[str, float]) -> RigPose:
         return RigPose(
             baseline_mm=physical["baseline_mm"],
             alpha_left_deg=alpha_from_toe_in(physical["toe_in_left_deg"]),
             alpha_right_deg=alpha_from_toe_in(physical["toe_in_right_deg"]),
             tilt_left_deg=physical.get("tilt_left_deg", 0.0), tilt_right_deg=physical.get("tilt_right_deg", 0.0),
         )
+
+    # -- the mechanics ---------------------------------------------------------------------------------------------
+
+    def _watch(self) -> None:
+        while not self._watch_stop.wait(WATCH_PERIOD_S):
+            try:
+                self._observe()
+            except Exception:  # noqa: BLE001 - the emulator stopping under the watcher ends it
+                if not self.emulator.running:
+                    return
+                raise
+
+    def _observe(self, *, idle: bool = False) -> tuple[dict[str, float], float]:
+        """Sample the reported values into the history; returns them and the simulated time."""
+        with self._history_lock:
+            values, now = self.reported_values(), self.emulator.sim_time()
+            if self.history is not None:
+                self.history.observe(values, now, idle=idle)
+            return values, now
+
+    def _snapshot(self) -> _Snapshot:
+        """The reported and true pose of the pair at a trigger starting now."""
+        if self.profile.mechanically_ideal and self.history is None:
+            pose = self.rig_pose()
+            return _Snapshot(pose=pose, T_rig_cam={"left": pose.T_rig_left, "right": pose.T_rig_right})
+        idle = self.emulator.state == "Idle" if self.history is not None else False
+        values, now = self._observe(idle=idle)
+        pose = self._pose_of(values)
+        # The frame sees the pair at mid-exposure (exposure_s is in simulated seconds).
+        at = now + 0.5 * self.exposure_s
+        with self._history_lock:
+            state = pair_state(self.profile, values, history=self.history, now_s=at)
+        smear = {}
+        for side in SIDES:
+            camera = self.left_model if side == "left" else self.right_model
+            # Pan ringing turns the camera about (nearly) its y axis: the image moves along x.
+            rate = math.radians(state.ringing_rate_deg_s[side])
+            sign = 1.0 if side == "left" else -1.0
+            dx = -sign * rate * self.exposure_s * camera.fx
+            smear[side] = (dx, 0.0) if dx else None
+        return _Snapshot(pose=pose, T_rig_cam={"left": state.T_bench_left, "right": state.T_bench_right},
+                         state=state, smear_px=smear, sim_time_s=at)
+
+    def truth(self) -> dict:
+        """JSON-ready truth of the bench now: reported and true axes, camera poses, R and T, the board.
+
+        ``cameras.*.T_bench_cam`` are 4x4 camera-to-bench transforms (mm; the bench frame is the
+        nominal rig frame), ``R``/``T`` the pair's true extrinsics (X_right = R X_left + T), and
+        ``structure`` their optical baseline, alphas and rotation angle (as
+        :func:`stereo_bench.geometry.stereo_structure` computes them). ``target`` describes the board
+        in the scene, if any: its true pose, print scale, bow and, when placed by hand, the
+        placement error; ``square_true_mm`` is the printed square as the board really is.
+        """
+        snapshot = self._snapshot()
+        scene = self._scene
+        return {
+            "profile": self.profile.name,
+            "profile_values": self.profile.model_dump(mode="json"),
+            "sim_time_s": None if math.isnan(snapshot.sim_time_s) else snapshot.sim_time_s,
+            "reported": {"baseline_mm": snapshot.pose.baseline_mm, "toe_in_left_deg": snapshot.pose.toe_in_left_deg,
+                         "toe_in_right_deg": snapshot.pose.toe_in_right_deg,
+                         "tilt_left_deg": snapshot.pose.tilt_left_deg, "tilt_right_deg": snapshot.pose.tilt_right_deg},
+            "axes": self._axes_truth(snapshot),
+            **self._pair_truth(snapshot),
+            "cameras": {side: {"T_bench_cam": snapshot.T_rig_cam[side].tolist(),
+                               "centre_mm": snapshot.T_rig_cam[side][:3, 3].tolist(),
+                               "K": np.asarray(model.K).tolist(), "dist": np.asarray(model.dist).ravel().tolist()}
+                        for side, model in (("left", self.left_model), ("right", self.right_model))},
+            "target": self._board_truth(scene),
+        }
+
+    def _axes_truth(self, snapshot: _Snapshot) -> dict:
+        if snapshot.state is None:
+            return {"separation_mm": snapshot.pose.baseline_mm, "pan_left_deg": snapshot.pose.toe_in_left_deg,
+                    "pan_right_deg": snapshot.pose.toe_in_right_deg}
+        state = snapshot.state
+        axes = {"separation_mm": state.separation_mm, "pan_left_deg": state.pan_left_deg,
+                "pan_right_deg": state.pan_right_deg, "ringing_deg": state.ringing_deg, "rock_deg": state.rock_deg}
+        if self.history is not None:
+            axes["history"] = self.history.snapshot()
+        return axes
+
+    @staticmethod
+    def _pair_truth(snapshot: _Snapshot) -> dict:
+        T_right_left = invert_transform(snapshot.T_rig_cam["right"]) @ snapshot.T_rig_cam["left"]
+        R, T = T_right_left[:3, :3], T_right_left[:3, 3]
+        return {"R": R.tolist(), "T": T.tolist(), "structure": stereo_structure(R, T)}
+
+    def _board_truth(self, scene: Scene) -> dict | None:
+        if scene.target is None or scene.T_rig_board is None:
+            return None
+        shape = scene.shape or BoardShape()
+        return {"kind": "target" if scene.measured_target else "calibration_board",
+                "T_bench_board": scene.T_rig_board.tolist(), "print_scale": shape.scale, "bow_mm": shape.bow_mm,
+                "square_nominal_mm": float(scene.target.square_mm),
+                "square_true_mm": float(scene.target.square_mm * shape.scale), "placement": scene.placement}
 
     def _renderer(self, target: Target) -> StereoRenderer:
         with self._renderers_lock:
@@ -156,27 +389,29 @@ class SimulatedBench:
             if prefetched is not None and not new_trigger:
                 job = prefetched
             else:
-                pose = self.rig_pose()
-                job = self._claim(side, pose)
+                snapshot = self._snapshot()
+                job = self._claim(side, snapshot)
                 if new_trigger:
                     other = "right" if side == "left" else "left"
-                    other_job = self._claim(other, pose)
+                    other_job = self._claim(other, snapshot)
                     self._prefetched[other] = self._pool.submit(self._render_job, *other_job)
         if isinstance(job, Future):
             return job.result()
         return self._render_job(*job)
 
-    def _claim(self, side: str, pose: RigPose) -> tuple:
+    def _claim(self, side: str, snapshot: _Snapshot) -> tuple:
         """Reserve the next frame index of ``side`` in the current scene (call with the lock held)."""
         scene = self._scene
         index = scene.frames_rendered[side]
         scene.frames_rendered[side] += 1
-        return side, pose, scene, index
+        return side, snapshot, scene, index
 
-    def _render_job(self, side: str, pose: RigPose, scene: Scene, index: int) -> tuple[np.ndarray, dict]:
-        T_rig_cam = pose.T_rig_left if side == "left" else pose.T_rig_right
+    def _render_job(self, side: str, snapshot: _Snapshot, scene: Scene, index: int) -> tuple[np.ndarray, dict]:
+        pose = snapshot.pose
+        T_rig_cam = snapshot.T_rig_cam[side]
         rng = np.random.default_rng([scene.seed, SIDES.index(side), index])
         target = scene.target
+        board = None
         if target is None:
             # Nothing in front of the rig: the renderer's wall only (the board behind the camera).
             target = Checkerboard(9, 6, 27.0)
@@ -184,9 +419,17 @@ class SimulatedBench:
             T_cam_board[2, 3] = -1000.0
         else:
             T_cam_board = np.linalg.inv(T_rig_cam) @ scene.T_rig_board
-        view = self._renderer(target).render_view(side, T_cam_board, rng)
+            shape = scene.shape or BoardShape()
+            board = {"T_cam_board": T_cam_board[:3].tolist(), "print_scale": shape.scale, "bow_mm": shape.bow_mm}
+        view = self._renderer(target).render_view(side, T_cam_board, rng, shape=scene.shape,
+                                                  smear_px=snapshot.smear_px[side])
+        truth = {"T_bench_cam": T_rig_cam[:3].tolist(), **self._pair_truth(snapshot), "board": board}
+        if snapshot.state is not None:
+            truth["ringing_deg"] = snapshot.state.ringing_deg[side]
+            truth["rock_deg"] = snapshot.state.rock_deg[side]
         meta = {"baseline_mm": pose.baseline_mm, "alpha_left_deg": pose.alpha_left_deg,
-                "alpha_right_deg": pose.alpha_right_deg, "scene_seed": scene.seed, "scene_frame": index}
+                "alpha_right_deg": pose.alpha_right_deg, "scene_seed": scene.seed, "scene_frame": index,
+                "truth": truth}
         return view.image, meta
 
     def _start_exposure(self, side: str) -> bool:

@@ -78,6 +78,9 @@ _MAX_TEXELS = 24_000_000
 _BLOCK = 8
 # Extra canvas around the undistorted sensor extent (1x px) so bilinear taps never leave it.
 _CANVAS_PAD = 4
+# Node spacing (canvas px) of the displacement field that draws a bent board (interpolation error
+# of a bend's smooth field over 16 px: < 1e-4 px).
+_BEND_STEP = 16
 
 
 @dataclass(frozen=True)
@@ -105,6 +108,9 @@ class Optics:
             side).
         wall_texture_dn: std of the wall's smooth, low-contrast texture (no edges, no corners).
         back_dn: level of the board's back, drawn when a camera sees the board from behind.
+        jpeg_quality: None (default): the 8-bit frame as the sensor gives it. An integer 1..100: the
+            frame passes through JPEG at this libjpeg quality, as UVC cameras deliver 1080p (MJPG).
+            The luma channel only: the pipeline works on grey images.
     """
 
     blur_sigma_px: float = 0.7
@@ -118,6 +124,7 @@ class Optics:
     wall_gradient: float = 0.25
     wall_texture_dn: float = 3.0
     back_dn: float = 70.0
+    jpeg_quality: int | None = None
 
     def __post_init__(self):
         if not (isinstance(self.supersample, int) and 1 <= self.supersample <= 4):
@@ -130,6 +137,8 @@ class Optics:
                 raise ValueError(f"{name} must lie in 0..255 DN, not {getattr(self, name)}")
         if not 0.0 <= self.vignetting < 1.0:
             raise ValueError(f"vignetting must lie in [0, 1), not {self.vignetting}")
+        if self.jpeg_quality is not None and not (isinstance(self.jpeg_quality, int) and 1 <= self.jpeg_quality <= 100):
+            raise ValueError(f"jpeg_quality must be None or an integer 1..100, not {self.jpeg_quality!r}")
 
 
 @dataclass(frozen=True, eq=False)  # eq=False: array fields cannot be compared with ==
@@ -162,6 +171,58 @@ class RenderedPair:
     T_rig_left: np.ndarray
     T_rig_right: np.ndarray
     T_rig_board: np.ndarray
+
+
+@dataclass(frozen=True)
+class BoardShape:
+    """A print as it really is: ``scale`` times its nominal size and bent by ``bow_mm``.
+
+    The print is scaled about the board origin (the first inner corner), then the sheet is bent into
+    a cylinder about the vertical centre line of the inner-corner grid: the centre line stands
+    ``bow_mm`` nearer the cameras (board -z) than the grid's left and right edge columns. A bent
+    sheet keeps its lengths along the print, so the chord between two corners is a little shorter
+    than their distance on the print (1e-6 relative for 1 mm over 200 mm).
+    """
+
+    scale: float = 1.0
+    bow_mm: float = 0.0
+
+    def __post_init__(self):
+        if not (math.isfinite(self.scale) and self.scale > 0.0):
+            raise ValueError(f"scale must be a positive number, not {self.scale}")
+        if not math.isfinite(self.bow_mm):
+            raise ValueError(f"bow_mm must be a number, not {self.bow_mm}")
+
+    @staticmethod
+    def _curvature(half_width_mm: float, bow_mm: float) -> float:
+        """Curvature (1/mm) of an arc of half-length ``half_width_mm`` whose sagitta is ``bow_mm``."""
+        if bow_mm == 0.0:
+            return 0.0
+        if abs(bow_mm) >= 0.6 * half_width_mm:
+            raise ValueError(f"a bow of {bow_mm:g} mm is too deep for a board {2 * half_width_mm:g} mm wide")
+        h, kappa = half_width_mm, 2.0 * bow_mm / half_width_mm**2
+        for _ in range(20):  # Newton on (1 - cos(kappa h)) / kappa = bow
+            f = (1.0 - math.cos(kappa * h)) / kappa - bow_mm
+            df = (kappa * h * math.sin(kappa * h) - (1.0 - math.cos(kappa * h))) / kappa**2
+            kappa -= f / df
+        return kappa
+
+    def surface(self, target: Target, xy_mm: np.ndarray) -> np.ndarray:
+        """(N, 3) board-frame points (mm) of the print points whose nominal coordinates are ``xy_mm`` (N, 2)."""
+        xy = np.asarray(xy_mm, dtype=np.float64).reshape(-1, 2)
+        u, y = self.scale * xy[:, 0], self.scale * xy[:, 1]
+        half = 0.5 * self.scale * target.grid_size_mm[0]
+        kappa = self._curvature(half, self.bow_mm)
+        if kappa == 0.0:
+            return np.column_stack([u, y, np.zeros(len(u))])
+        a = u - half
+        x = half + np.sin(kappa * a) / kappa
+        z = (1.0 - np.cos(kappa * a)) / kappa - self.bow_mm
+        return np.column_stack([x, y, z])
+
+    def object_points(self, target: Target) -> np.ndarray:
+        """(N, 3) true board-frame corners (mm), in target id order."""
+        return self.surface(target, np.asarray(target.object_points, dtype=np.float64)[:, :2])
 
 
 # --------------------------------------------------------------------------------------------
@@ -389,7 +450,8 @@ class _CameraRaster:
         return (int(rows[0]) * _BLOCK, min(h, (int(rows[-1]) + 1) * _BLOCK),
                 int(cols[0]) * _BLOCK, min(w, (int(cols[-1]) + 1) * _BLOCK))
 
-    def render(self, mip: _Mip, H_ideal_board: np.ndarray, depths_ok: bool) -> tuple[np.ndarray, float]:
+    def render(self, mip: _Mip, H_ideal_board: np.ndarray, depths_ok: bool,
+               displace: _BentBoard | None = None) -> tuple[np.ndarray, float]:
         """(H, W) uint16 (DN * 256) frame before blur and noise, with the board drawn by ``H_ideal_board``.
 
         Also returns the blur (Gaussian sigma, sensor px) the texture pre-filter already gave the
@@ -398,11 +460,15 @@ class _CameraRaster:
         ``H_ideal_board`` maps board (x, y, 1) to ideal pixels, built as K @ [r1 r2 t] so that the
         third homogeneous coordinate of its inverse is positive exactly for rays that meet the board
         in front of the camera. ``depths_ok`` says the whole print is in front of the camera.
+        ``displace`` (a bent board, ``depths_ok`` only): maps ideal points to where the flat print
+        shows what the bent one shows there; the board is then drawn through a dense remap.
         """
         frame = self.background_frame.copy()
         bbox = self._board_bbox(mip, H_ideal_board, depths_ok)
         if bbox is None:
             return frame, 0.0
+        if displace is not None:
+            bbox = self._bent_bbox(mip, H_ideal_board, displace, bbox)
         roi = self.sensor_roi(bbox)
         if roi is None:
             return frame, 0.0
@@ -426,7 +492,9 @@ class _CameraRaster:
             patch = self.canvas[cy0:cy1, cx0:cx1]
             source = mip.levels[level]
             try:
-                if depths_ok:
+                if displace is not None:
+                    self._warp_bent(source, H_roi, patch, displace, (cx0, cy0))
+                elif depths_ok:
                     drawn = cv2.warpPerspective(source, H_roi, (cx1 - cx0, cy1 - cy0), dst=patch,
                                                 flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_TRANSPARENT)
                     if drawn is not patch:  # an OpenCV build that did not write in place
@@ -438,6 +506,45 @@ class _CameraRaster:
             finally:
                 patch[...] = self.background[cy0:cy1, cx0:cx1]
         return frame, texture_sigma_px
+
+    def _bent_bbox(self, mip: _Mip, H_ideal_board: np.ndarray, displace: _BentBoard,
+                   bbox: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+        """The flat print's ideal bounding box grown by the largest displacement of the bend (+2 px)."""
+        (x0, y0), (x1, y1) = mip.outline_mm.min(axis=0), mip.outline_mm.max(axis=0)
+        u, v = np.meshgrid(np.linspace(x0, x1, 9), np.linspace(y0, y1, 9))
+        board = np.column_stack([u.ravel(), v.ravel(), np.ones(u.size)]) @ H_ideal_board.T
+        q = board[:, :2] / board[:, 2:3]
+        pad = float(np.abs(displace(q) - q).max()) * 1.5 + 2.0
+        cw, ch = self.canvas_size
+        ox, oy = self.origin
+        return (max(bbox[0] - pad, ox), max(bbox[1] - pad, oy), min(bbox[2] + pad, ox + cw - 1),
+                min(bbox[3] + pad, oy + ch - 1))
+
+    def _warp_bent(self, source: np.ndarray, H_roi: np.ndarray, patch: np.ndarray, displace: _BentBoard,
+                   origin_px: tuple[int, int]) -> None:
+        """Draw a bent print into ``patch`` (canvas pixels from ``origin_px``) by a dense remap.
+
+        Each canvas pixel samples the texel the flat print would show at its displaced position.
+        The displacement is smooth (a bend of a few pixels at most), so it is computed exactly on
+        nodes every ``_BEND_STEP`` canvas pixels and bilinearly interpolated (cv2.resize puts an
+        integer upscale's source pixel k at (k + 0.5) * step - 0.5); the projective part is exact per
+        pixel. Sampling is bilinear, as warpPerspective's.
+        """
+        h, w = patch.shape
+        s, step = self.s, _BEND_STEP
+        nx, ny = -(-w // step), -(-h // step)
+        gx = (np.arange(nx) + 0.5) * step - 0.5 + origin_px[0]
+        gy = (np.arange(ny) + 0.5) * step - 0.5 + origin_px[1]
+        nodes = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)  # canvas px
+        ideal = (nodes - self.S[:2, 2]) / s
+        shift = ((displace(ideal) - ideal) * s).reshape(ny, nx, 2).astype(np.float32)
+        dense = np.ascontiguousarray(cv2.resize(shift, (nx * step, ny * step), interpolation=cv2.INTER_LINEAR)[:h, :w])
+        dense[..., 0] += np.arange(w, dtype=np.float32)[None, :]
+        dense[..., 1] += np.arange(h, dtype=np.float32)[:, None]
+        texels = cv2.perspectiveTransform(dense.reshape(-1, 1, 2), np.linalg.inv(H_roi)).reshape(h, w, 2)
+        drawn = cv2.remap(source, texels, None, cv2.INTER_LINEAR, dst=patch, borderMode=cv2.BORDER_TRANSPARENT)
+        if drawn is not patch:
+            patch[...] = drawn
 
     @staticmethod
     def _warp_clipped(source: np.ndarray, H_roi: np.ndarray, patch: np.ndarray) -> None:
@@ -594,41 +701,59 @@ class StereoRenderer:
             raise ValueError(f"side must be 'left' or 'right', not {side!r}")
         return self.left if side == "left" else self.right
 
-    def truth(self, side: str, T_cam_board: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """((N, 2) distorted corner pixels, (N,) visible) of the target in the ``side`` camera."""
+    def truth(self, side: str, T_cam_board: np.ndarray, *, shape: BoardShape | None = None,
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """((N, 2) distorted corner pixels, (N,) visible) of the target in the ``side`` camera.
+
+        ``shape``: the print as it really is (None: flat and to scale).
+        """
         camera = self.camera(side)
         T_cam_board = np.asarray(T_cam_board, dtype=np.float64)
-        corners_px, valid = camera.project(transform_points(T_cam_board, self._object_points))
+        points = self._object_points if shape is None else shape.object_points(self.target)
+        corners_px, valid = camera.project(transform_points(T_cam_board, points))
         return corners_px, valid & camera.in_image(corners_px) & board_faces_camera(T_cam_board)
 
-    def render_view(self, side: str, T_cam_board: np.ndarray, rng: np.random.Generator) -> RenderedView:
+    def render_view(self, side: str, T_cam_board: np.ndarray, rng: np.random.Generator, *,
+                    shape: BoardShape | None = None, smear_px: tuple[float, float] | None = None) -> RenderedView:
         """Render the ``side`` ('left' or 'right') camera's frame of the target at ``T_cam_board`` (4x4, mm).
 
         ``rng`` drives the sensor noise only (one draw per call), so a seeded generator reproduces
-        the frame exactly.
+        the frame exactly. ``shape``: the print as it really is (scale, bow; None: flat and to
+        scale). ``smear_px``: (dx, dy) image motion during the exposure (a camera still ringing after
+        a move), integrated as a uniform smear along that segment; None: none.
         """
         camera = self.camera(side)
         raster = self._rasters[side]
         T_cam_board = np.array(T_cam_board, dtype=np.float64)
         if T_cam_board.shape != (4, 4):
             raise ValueError(f"T_cam_board must be 4x4, not {T_cam_board.shape}")
-        corners_px, visible = self.truth(side, T_cam_board)
+        corners_px, visible = self.truth(side, T_cam_board, shape=shape)
 
         R, t = T_cam_board[:3, :3], T_cam_board[:3, 3]
         facing = board_faces_camera(T_cam_board)
         if not facing and self._back is None:
             self._back = _back_panel(self._front, self.optics.back_dn)
         mip = self._front if facing else self._back
-        outline = np.column_stack([mip.outline_mm, np.zeros(4)])
+        scale = 1.0 if shape is None else shape.scale
+        outline = np.column_stack([scale * mip.outline_mm, np.zeros(4)])
         depths = (outline @ R.T + t)[:, 2]
         edge_on = abs(float(R[:, 2] @ t)) < 1e-9 * max(float(np.linalg.norm(t)), 1.0)
         if edge_on or not (depths > _Z_NEAR_MM).any():
             frame, texture_sigma_px = raster.background_frame, 0.0
         else:
             # K [r1 r2 t] maps board (x, y, 1) to the ideal image; its sign convention matters for clipping.
-            H_ideal_board = camera.K @ np.column_stack([R[:, 0], R[:, 1], t])
-            frame, texture_sigma_px = raster.render(mip, H_ideal_board, depths_ok=bool((depths > _Z_NEAR_MM).all()))
-        image = self._sensor(frame, raster, rng, texture_sigma_px)
+            # A print scaled by s maps its nominal (x, y) to (s x, s y): K [s r1, s r2, t].
+            if shape is None:
+                H_ideal_board = camera.K @ np.column_stack([R[:, 0], R[:, 1], t])
+            else:
+                H_ideal_board = camera.K @ np.column_stack([scale * R[:, 0], scale * R[:, 1], t])
+            depths_ok = bool((depths > _Z_NEAR_MM).all())
+            # A bent board is drawn through the displacement a flat one would need; a board that
+            # reaches behind the camera or is seen from behind is drawn flat.
+            bent = shape is not None and shape.bow_mm != 0.0 and facing and depths_ok
+            displace = _BentBoard(shape, self.target, camera.K, T_cam_board, H_ideal_board) if bent else None
+            frame, texture_sigma_px = raster.render(mip, H_ideal_board, depths_ok=depths_ok, displace=displace)
+        image = self._sensor(frame, raster, rng, texture_sigma_px, smear_px=smear_px)
         return RenderedView(image=image, corners_px=corners_px, visible=visible, T_cam_board=T_cam_board)
 
     def render_pair(self, rig: RigPose, T_rig_board: np.ndarray, rng: np.random.Generator) -> RenderedPair:
@@ -642,13 +767,13 @@ class StereoRenderer:
                             T_rig_board=T_rig_board)
 
     def _sensor(self, frame: np.ndarray, raster: _CameraRaster, rng: np.random.Generator,
-                texture_sigma_px: float) -> np.ndarray:
-        """Optical blur, vignetting, noise and 8-bit quantisation of a DN * 256 frame.
+                texture_sigma_px: float, *, smear_px: tuple[float, float] | None = None) -> np.ndarray:
+        """Optical blur, motion smear, vignetting, noise, 8-bit quantisation (and JPEG) of a DN * 256 frame.
 
         The frame is band-limited (texture pre-filter, pixel integration), so blurring it after
         sampling equals blurring before; the texture pre-filter counts toward the optical blur.
         With s = 1 there is no pixel integration: a Gaussian of the box's variance (1/12 px^2)
-        stands in for it.
+        stands in for it. A smear (image motion during the exposure) is a uniform line kernel.
         """
         o = self.optics
         signal = cv2.multiply(frame, raster.gain, dtype=cv2.CV_32F)  # DN, vignetted
@@ -656,6 +781,8 @@ class StereoRenderer:
         if variance > 0.01:
             # After the vignetting (smooth, so the two commute); float32 blurs 3x faster than uint16.
             signal = cv2.GaussianBlur(signal, (0, 0), math.sqrt(variance))
+        if smear_px is not None and math.hypot(*smear_px) >= _MIN_SMEAR_PX:
+            signal = cv2.filter2D(signal, -1, _smear_kernel(*smear_px), borderType=cv2.BORDER_REPLICATE)
         # cv2.randn is ~4x faster than numpy's normal generator on 2 Mpx; seed its per-thread RNG
         # from the caller's generator so frames stay reproducible.
         cv2.setRNGSeed(int(rng.integers(0, 2**31 - 1)))
@@ -669,7 +796,72 @@ class StereoRenderer:
         else:
             noise[:] = 0.0
         # saturate_cast rounds to nearest and clips to 0..255.
-        return cv2.add(signal, noise, dtype=cv2.CV_8U)
+        image = cv2.add(signal, noise, dtype=cv2.CV_8U)
+        if o.jpeg_quality is not None:
+            image = jpeg_roundtrip(image, o.jpeg_quality)
+        return image
+
+
+# Image motion below this (px over the exposure) is not drawn: far below the corner noise.
+_MIN_SMEAR_PX = 0.05
+
+
+def _smear_kernel(dx: float, dy: float) -> np.ndarray:
+    """Normalised kernel of a uniform motion along (dx, dy) px, centred (bilinear splats of 8 samples per px)."""
+    length = math.hypot(dx, dy)
+    radius = int(math.ceil(length / 2.0)) + 1
+    kernel = np.zeros((2 * radius + 1, 2 * radius + 1), np.float32)
+    n = max(2, int(math.ceil(8 * length)))
+    for f in (np.arange(n) + 0.5) / n - 0.5:
+        x, y = radius + f * dx, radius + f * dy
+        x0, y0 = int(math.floor(x)), int(math.floor(y))
+        ax, ay = x - x0, y - y0
+        kernel[y0, x0] += (1 - ax) * (1 - ay)
+        kernel[y0, x0 + 1] += ax * (1 - ay)
+        kernel[y0 + 1, x0] += (1 - ax) * ay
+        kernel[y0 + 1, x0 + 1] += ax * ay
+    return kernel / kernel.sum()
+
+
+def jpeg_roundtrip(image: np.ndarray, quality: int) -> np.ndarray:
+    """``image`` (uint8) encoded as JPEG at libjpeg ``quality`` and decoded again."""
+    ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError("JPEG encoding failed")
+    return cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+
+
+class _BentBoard:
+    """Where a flat board would have to be drawn so that a canvas pixel shows the bent board.
+
+    For ideal-image points q (N, 2) returns q' (N, 2): the point of the flat print (the homography
+    ``H_ideal_board``) that the bent print shows at q. The bent surface point seen at q is found by
+    a fixed-point iteration from the flat solution; the bend moves points by at most a few pixels
+    and its gradient is tiny, so four iterations converge far below 1e-4 px.
+    """
+
+    def __init__(self, shape: BoardShape, target: Target, K: np.ndarray, T_cam_board: np.ndarray,
+                 H_ideal_board: np.ndarray):
+        self.shape, self.target = shape, target
+        self.K = np.asarray(K, dtype=np.float64)
+        self.T = np.asarray(T_cam_board, dtype=np.float64)
+        self.H = np.asarray(H_ideal_board, dtype=np.float64)
+        self.H_inv = np.linalg.inv(self.H)
+
+    @staticmethod
+    def _apply(H: np.ndarray, points: np.ndarray) -> np.ndarray:
+        p = points @ H[:, :2].T + H[:, 2]
+        return p[:, :2] / p[:, 2:3]
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        q = np.asarray(q, dtype=np.float64).reshape(-1, 2)
+        flat = self._apply(self.H_inv, q)  # nominal print coordinates of the flat solution
+        xy = flat.copy()
+        for _ in range(4):
+            points = transform_points(self.T, self.shape.surface(self.target, xy))
+            seen = ((points / points[:, 2:3]) @ self.K.T)[:, :2]
+            xy += flat - self._apply(self.H_inv, seen)
+        return self._apply(self.H, xy)
 
 
 def _auto_px_per_square(target: Target) -> int:

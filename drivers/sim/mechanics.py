@@ -1,0 +1,275 @@
+"""Where the mechanics really put the cameras, downstream of what the controller reports.
+
+The GRBL emulator reports what the steppers were told (commanded, step-quantised axis positions);
+this module turns those reported values into the true poses of the two cameras, through the
+mechanical errors of a :class:`~drivers.sim.profile.SimProfile` (see that module for the geometry):
+
+    separation = zero_offset + (1 + scale_error) * B        - approach * backlash / 2 + landing error
+    pan        = zero_offset + (1 + scale_error) * toe_in   - approach * backlash / 2 + landing error
+    T_bench_cam = Trans(carriage point) @ R_z(rock) @ Rot(pan axis, +-(pan + ringing))
+                  @ Trans(optical centre on the head) @ R_mount @ R_x(-tilt)
+
+``approach`` is the sign of the last motion of the quantity (+1 toward larger values): the driven
+part trails the motor by half the backlash. Landing errors are drawn once per move, at rest.
+
+:class:`MoveHistory` keeps, per quantity, the direction of approach, the landing error and when the
+last move ended (for the ringing); the bench feeds it what the emulator reports.
+
+The bench frame is the nominal rig frame of ``stereo_bench.geometry`` (origin midway between the
+nominal optical centres of the parallel rig, x toward the right camera, y down, z forward). This is
+a simulator: it imports only the leaf module ``stereo_bench.geometry``, and it is deliberately
+written independently of ``stereo_bench.kinematics`` (the estimator), so a test that the estimator
+recovers these parameters tests both.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.sim.profile import CameraErrors, PanHeadErrors, SimProfile, SlideErrors
+from stereo_bench.geometry import make_transform
+
+SIDES = ("left", "right")
+# The quantities whose motion the mechanics model (tilts are fixed on every rig this simulates).
+MOVED = ("baseline_mm", "toe_in_left_deg", "toe_in_right_deg")
+_MOVE_EPS = 1e-9  # a reported value that changes by less than this has not moved
+
+
+def _rot_x(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _rot_y(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _rot_z(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rotation_about(axis: np.ndarray, deg: float) -> np.ndarray:
+    """(3, 3) right-handed rotation by ``deg`` about the unit vector ``axis`` (Rodrigues' formula)."""
+    k = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    a = math.radians(deg)
+    return np.eye(3) + math.sin(a) * K + (1.0 - math.cos(a)) * (K @ K)
+
+
+def slide_direction(slide: SlideErrors) -> np.ndarray:
+    """(3,) unit vector along which the right carriage moves away from the left one (bench frame)."""
+    return _rot_y(slide.direction_yaw_deg) @ _rot_z(slide.direction_pitch_deg) @ np.array([1.0, 0.0, 0.0])
+
+
+def pan_axis(head: PanHeadErrors) -> np.ndarray:
+    """(3,) unit direction of a head's pan axis (nominally the rig's +y, i.e. down)."""
+    return _rot_x(head.axis_tilt_x_deg) @ _rot_z(head.axis_tilt_z_deg) @ np.array([0.0, 1.0, 0.0])
+
+
+def mount_rotation(head: PanHeadErrors) -> np.ndarray:
+    """(3, 3) camera orientation on the head: yaw (about y, > 0 toward +x), pitch (> 0 down), roll (about z)."""
+    return _rot_y(head.mount_yaw_deg) @ _rot_x(-head.mount_pitch_deg) @ _rot_z(head.mount_roll_deg)
+
+
+def true_separation_mm(slide: SlideErrors, baseline_mm: float, *, approach: int = 0, landing_mm: float = 0.0) -> float:
+    """Pan-axis separation the slide really sets for a reported baseline (mm)."""
+    return (slide.zero_offset_mm + (1.0 + slide.scale_error) * baseline_mm - approach * slide.backlash_mm / 2.0
+            + landing_mm)
+
+
+def true_pan_deg(head: PanHeadErrors, toe_in_deg: float, *, approach: int = 0, landing_deg: float = 0.0) -> float:
+    """Pan angle (toward the other camera, deg) a head really turns to for a reported toe-in."""
+    return (head.zero_offset_deg + (1.0 + head.scale_error) * toe_in_deg - approach * head.backlash_deg / 2.0
+            + landing_deg)
+
+
+def camera_pose(
+    profile: SimProfile, side: str, *, separation_mm: float, pan_deg: float, tilt_deg: float = 0.0,
+    ringing_deg: float = 0.0, rock_deg: float = 0.0,
+) -> np.ndarray:
+    """T_bench_cam (4x4, mm) of the ``side`` camera for a true slide separation and pan angle.
+
+    ``ringing_deg`` adds to the pan angle (the head's oscillation about its pan axis), ``rock_deg``
+    turns the head about the rig z axis through the point where its pan axis meets the carriage.
+    Tilt turns the camera about its own x axis through its optical centre (> 0 looks down), as in
+    the nominal geometry; tilt errors are not modelled.
+    """
+    if side not in SIDES:
+        raise ValueError(f"side must be 'left' or 'right', not {side!r}")
+    head = profile.head(side)
+    sign = -1.0 if side == "left" else 1.0  # where the carriage is along the slide
+    toward = 1.0 if side == "left" else -1.0  # a pan toward the other camera turns about +y for the left one
+    # The slide line lies below and behind the optical centres so that the bench frame's origin is
+    # midway between the nominal centres of the parallel rig.
+    height = 0.5 * (profile.left_head.centre_height_mm + profile.right_head.centre_height_mm)
+    forward = 0.5 * (profile.left_head.centre_forward_mm + profile.right_head.centre_forward_mm)
+    carriage = sign * separation_mm / 2.0 * slide_direction(profile.slide) + np.array([0.0, height, -forward])
+    centre_on_head = np.array([head.centre_sideways_mm, -head.centre_height_mm, head.centre_forward_mm])
+    R_pan = rotation_about(pan_axis(head), toward * (pan_deg + ringing_deg))
+    R_rock = _rot_z(rock_deg)
+    R = R_rock @ R_pan @ mount_rotation(head) @ _rot_x(-tilt_deg)
+    return make_transform(R, carriage + R_rock @ R_pan @ centre_on_head)
+
+
+def ringing_deg(cameras: CameraErrors, amplitude_deg: float, since_s: float) -> tuple[float, float]:
+    """(angle deg, angular rate deg/s) of a damped oscillation ``since_s`` seconds after it was excited.
+
+    ``amplitude_deg * exp(-t / decay) * cos(2 pi f t)``; zero before the excitation and once the envelope
+    has fallen below ``vibration_stop_deg`` (friction holds the head).
+    """
+    if amplitude_deg <= 0.0 or not math.isfinite(since_s) or since_s < 0.0:
+        return 0.0, 0.0
+    envelope = amplitude_deg * math.exp(-since_s / cameras.vibration_decay_s)
+    if envelope < cameras.vibration_stop_deg:
+        return 0.0, 0.0
+    w = 2.0 * math.pi * cameras.vibration_frequency_hz
+    phase = w * since_s
+    angle = envelope * math.cos(phase)
+    rate = -envelope * (math.cos(phase) / cameras.vibration_decay_s + w * math.sin(phase))
+    return angle, rate
+
+
+@dataclass
+class AxisHistory:
+    """What the mechanics remember of one quantity's motion."""
+
+    value: float | None = None  # last reported value
+    approach: int = 0  # sign of the last motion (+1 toward larger values), 0 = never moved
+    moving: bool = False
+    last_change_s: float = -math.inf  # simulated time the reported value last changed
+    move_end_s: float = -math.inf  # simulated time the last completed move ended
+    landing: float = 0.0  # random landing error of the last completed move (mm or deg)
+    moves: int = 0
+
+
+class MoveHistory:
+    """Per moved quantity: direction of approach, landing error and end time of the last move.
+
+    Fed with reported physical values (``observe``) by a watcher while the axes move and before every
+    frame. A move has ended when its value stops changing (or the controller is idle). Landing errors
+    are drawn from ``(seed, quantity, position, visits of that position)``, so a resumed campaign
+    draws the same errors for the same moves.
+    """
+
+    def __init__(self, profile: SimProfile, seed: int = 0):
+        self.profile = profile
+        self.seed = int(seed) & 0xFFFFFFFF
+        self.axes = {q: AxisHistory() for q in MOVED}
+        self._visits: Counter = Counter()
+        self._last_observed_s = -math.inf
+
+    def _sigma(self, quantity: str) -> float:
+        if quantity == "baseline_mm":
+            return self.profile.slide.repeatability_mm
+        side = "left" if quantity == "toe_in_left_deg" else "right"
+        return self.profile.head(side).repeatability_deg
+
+    def _land(self, quantity: str, axis: AxisHistory, end_s: float) -> None:
+        axis.moving = False
+        axis.move_end_s = end_s
+        axis.moves += 1
+        sigma = self._sigma(quantity)
+        if sigma > 0.0:
+            position = int(round(float(axis.value) * 1e4)) & 0xFFFFFFFF
+            key = (quantity, position)
+            visit = self._visits[key]
+            self._visits[key] += 1
+            rng = np.random.default_rng([self.seed, 0x1A9D, MOVED.index(quantity), position, visit])
+            axis.landing = float(rng.normal(0.0, sigma))
+        else:
+            axis.landing = 0.0
+
+    def observe(self, values: Mapping[str, float], now_s: float, *, idle: bool = False) -> None:
+        """Record reported values at simulated time ``now_s``; ``idle``: the controller says nothing moves."""
+        previous_s = self._last_observed_s
+        self._last_observed_s = now_s
+        for quantity, axis in self.axes.items():
+            if quantity not in values:
+                continue
+            value = float(values[quantity])
+            if axis.value is None:
+                axis.value = value
+                continue
+            delta = value - axis.value
+            if abs(delta) > _MOVE_EPS:
+                axis.value = value
+                axis.approach = 1 if delta > 0 else -1
+                axis.moving = True
+                axis.landing = 0.0
+                axis.last_change_s = now_s
+                if idle:  # moved and stopped between two looks: it stopped after the earlier one
+                    self._land(quantity, axis, previous_s if math.isfinite(previous_s) else now_s)
+            elif axis.moving:
+                self._land(quantity, axis, axis.last_change_s)
+
+    def excited_since(self, side: str) -> tuple[float, float]:
+        """(simulated time the ``side`` head's pan ringing was last excited, time its rocking was)."""
+        slide = self.axes["baseline_mm"]
+        pan = self.axes["toe_in_left_deg" if side == "left" else "toe_in_right_deg"]
+        def end(axis: AxisHistory) -> float:
+            return -math.inf if axis.moving else axis.move_end_s
+        return max(end(slide), end(pan)), end(slide)
+
+    def snapshot(self) -> dict[str, dict]:
+        """JSON-ready: per quantity its approach, landing error, whether it moves and moves so far."""
+        return {q: {"approach": a.approach, "landing": a.landing, "moving": a.moving, "moves": a.moves}
+                for q, a in self.axes.items()}
+
+
+@dataclass(frozen=True)
+class PairState:
+    """The true state of the pair at one instant."""
+
+    T_bench_left: np.ndarray
+    T_bench_right: np.ndarray
+    separation_mm: float
+    pan_left_deg: float
+    pan_right_deg: float
+    ringing_deg: dict[str, float]  # per side: pan ringing angle at the instant
+    ringing_rate_deg_s: dict[str, float]
+    rock_deg: dict[str, float]
+
+    def T_bench_cam(self, side: str) -> np.ndarray:
+        return self.T_bench_left if side == "left" else self.T_bench_right
+
+
+def pair_state(
+    profile: SimProfile, reported: Mapping[str, float], *, history: MoveHistory | None = None,
+    now_s: float = math.inf,
+) -> PairState:
+    """True camera poses for reported physical values (``baseline_mm``, ``toe_in_*_deg``, ``tilt_*_deg``).
+
+    With ``history``, backlash follows each quantity's direction of approach, landing errors are added
+    and the heads ring according to the time since the last move ended (``now_s``, simulated seconds).
+    Without it, the poses are the mechanics' at rest with no backlash or landing error (approach 0).
+    """
+    def state(quantity: str) -> AxisHistory:
+        return history.axes[quantity] if history is not None else AxisHistory()
+
+    b, tl, tr = state("baseline_mm"), state("toe_in_left_deg"), state("toe_in_right_deg")
+    separation = true_separation_mm(profile.slide, reported["baseline_mm"], approach=b.approach, landing_mm=b.landing)
+    pans = {
+        "left": true_pan_deg(profile.left_head, reported["toe_in_left_deg"], approach=tl.approach,
+                             landing_deg=tl.landing),
+        "right": true_pan_deg(profile.right_head, reported["toe_in_right_deg"], approach=tr.approach,
+                              landing_deg=tr.landing),
+    }
+    ringing, rates, rocks, poses = {}, {}, {}, {}
+    for side in SIDES:
+        yaw_since, rock_since = history.excited_since(side) if history is not None else (-math.inf, -math.inf)
+        cams = profile.cameras
+        ringing[side], rates[side] = ringing_deg(cams, cams.vibration_yaw_deg, now_s - yaw_since)
+        rocks[side] = ringing_deg(cams, cams.vibration_rock_deg, now_s - rock_since)[0]
+        poses[side] = camera_pose(profile, side, separation_mm=separation, pan_deg=pans[side],
+                                  tilt_deg=float(reported.get(f"tilt_{side}_deg", 0.0)),
+                                  ringing_deg=ringing[side], rock_deg=rocks[side])
+    return PairState(T_bench_left=poses["left"], T_bench_right=poses["right"], separation_mm=separation,
+                     pan_left_deg=pans["left"], pan_right_deg=pans["right"], ringing_deg=ringing,
+                     ringing_rate_deg_s=rates, rock_deg=rocks)
