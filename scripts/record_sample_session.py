@@ -26,6 +26,7 @@ SAMPLE = {
     "cameras": {"optics": {"width_px": 960, "height_px": 540, "pixel_um": 6.0}},
     "calibration_board": {"kind": "checkerboard", "cols": 9, "rows": 6, "square_mm": 25.0},
     "capture": {"calibration_views": 7, "frames_per_config": 2, "settle_s": 0.2},
+    "sim": {"profile": "ideal"},  # the sample session was recorded on the ideal bench
     "plan": {"baseline_mm": [100, 150], "distance_mm": [450], "alpha_deg": [90, 35]},
 }
 

@@ -39,6 +39,8 @@ square_mm = 25
 calibration_views = 6
 frames_per_config = 2
 settle_s = 0.1
+[sim]
+profile = "ideal"  # exact reproducibility (resume, replay) needs frames that do not ring after a move
 [plan]
 baseline_mm = [100, 150]
 distance_mm = [450]

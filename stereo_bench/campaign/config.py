@@ -20,6 +20,8 @@ Sections (all optional except ``[plan]``; units in every key's name):
     [target]              the measured board (9x6 inner corners, 27 mm squares)
     [capture]             settle_s, frames_per_config, calibration_views, board_retries
     [extrinsics]          mode = "per-config" | "fixed", intrinsics = "joint" | "fixed", calib_dir
+    [sim]                 profile = "lab" | "ideal" (the simulated bench's imperfections), and
+                          [sim.slide] / [sim.left_head] / ... overrides (drivers/sim/profile.py)
     [plan]                baseline_mm, distance_mm, alpha_deg or toe_in_deg, tilt_deg
 
 Every model forbids unknown keys, so a typo is an error naming the key. Relative paths
@@ -60,6 +62,7 @@ from drivers.rig.config import (
     load_rig_config,
     rig_config_from_dict,
 )
+from drivers.sim.profile import SimSettings
 from stereo_bench.geometry import CameraModel
 from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision.calibrate import MIN_VIEWS
@@ -393,6 +396,8 @@ class CampaignConfig(BaseModel):
     target: TargetConfig = Field(default_factory=TargetConfig, description="the measured board")
     capture: CaptureSection = Field(default_factory=CaptureSection)
     extrinsics: ExtrinsicsSection = Field(default_factory=ExtrinsicsSection)
+    sim: SimSettings = Field(default_factory=SimSettings,
+                             description="the simulated bench's imperfections (simulated rig and cameras only)")
     plan: PlanSection
 
     @model_validator(mode="after")

@@ -131,6 +131,7 @@ def _hardware(config: CampaignConfig, writer: SessionWriter, stack: contextlib.E
             rig_config=rig_config, left=optics.camera_model("left"), right=optics.camera_model("right"),
             optics=Optics(noise_sigma_dn=optics.noise_dn, blur_sigma_px=optics.blur_px),
             time_scale=config.rig.time_scale, exposure_s=optics.exposure_s, homing_enabled=config.rig.homing,
+            profile=config.sim.resolve(), seed=config.seed,
         ))
         rig_prompt = bench.operator_prompt if yes else prompt
         rig = stack.enter_context(GrblRig(bench.tty_path, rig_config, prompt=rig_prompt,

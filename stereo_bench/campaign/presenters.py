@@ -14,7 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
-from stereo_bench.geometry import RigPose, board_pose_facing_rig
+from stereo_bench.geometry import RigPose
 from stereo_bench.targets import CharucoTarget, Target
 from stereo_bench.vision.detect import Detection
 
@@ -87,12 +87,13 @@ class SimulatedPresenter:
         return None
 
     def present_target(self, frame_index: int) -> None:
-        T_rig_board = board_pose_facing_rig(distance_mm=self._distance_mm, board_size_mm=self.target.grid_size_mm)
         # Asked again for the same frame (the target was not found): a fresh frame, not the same one.
         retry = self._target_requests[frame_index]
         self._target_requests[frame_index] += 1
         kind = "target" if retry == 0 else f"target-retry{retry}"
-        self.bench.show(self.target, T_rig_board, seed=scene_seed(self.seed, self._config_id, kind, frame_index))
+        # The simulated operator places the target (the bench draws a placement error per placement).
+        self.bench.place_target(self.target, distance_mm=self._distance_mm,
+                                seed=scene_seed(self.seed, self._config_id, kind, frame_index))
 
 
 class Coverage:
