@@ -88,12 +88,21 @@ class _Snapshot:
     sim_time_s: float = math.nan
 
 
-def _with_thin_prism(camera: CameraModel, prism: tuple[float, float, float, float]) -> CameraModel:
-    """``camera`` whose lens also has OpenCV's thin-prism terms s1..s4 (12-coefficient model)."""
-    if not any(prism):
+def true_lens(camera: CameraModel, high_order: float, prism: tuple[float, float, float, float]) -> CameraModel:
+    """``camera`` with the profile's lens terms (OpenCV's 12-coefficient model); unchanged when there are none.
+
+    ``high_order`` c adds c r^6 to the numerator (k3) and sets the rational k6 to c: the two cancel
+    to leading order and leave the terms from r^8 up. ``prism``: thin-prism s1..s4.
+    """
+    if high_order == 0.0 and not any(prism):
         return camera
     dist = np.zeros(max(12, camera.dist.size))
     dist[: camera.dist.size] = np.asarray(camera.dist, dtype=float).ravel()
+    if high_order != 0.0:
+        if dist[5] != 0.0 or dist[6] != 0.0 or dist[7] != 0.0:
+            raise ValueError(f"{camera.name}: the configured lens already has rational terms; cannot add more")
+        dist[4] += high_order
+        dist[7] = high_order
     dist[8:12] += np.asarray(prism, dtype=float)
     return CameraModel(K=camera.K, dist=dist, image_size=camera.image_size, name=camera.name)
 
@@ -111,7 +120,7 @@ class SimulatedBench:
     Args:
         rig_config: axis mapping shared with the real driver (default: X = B, Y/Z = toe-ins).
         left, right: camera intrinsics (default 1920x1080, f = 4 mm, 3 um pixels); the profile's
-            thin-prism terms are added to them (``left_model``/``right_model`` are the true lenses).
+            lens terms are added to them (``left_model``/``right_model`` are the true lenses).
         optics: image formation (blur, noise, ...); the profile's ``jpeg_quality`` is applied on top.
         time_scale: > 1 runs motion and exposures faster than real time.
         exposure_s: simulated exposure + readout per frame (real-time seconds).
@@ -129,8 +138,8 @@ class SimulatedBench:
         self.profile = profile or IDEAL
         self.seed = int(seed)
         cams = self.profile.cameras
-        self.left_model = _with_thin_prism(left or CameraModel.from_sensor(name="left"), cams.thin_prism_left)
-        self.right_model = _with_thin_prism(right or CameraModel.from_sensor(name="right"), cams.thin_prism_right)
+        self.left_model = true_lens(left or CameraModel.from_sensor(name="left"), *cams.lens_terms("left"))
+        self.right_model = true_lens(right or CameraModel.from_sensor(name="right"), *cams.lens_terms("right"))
         self.optics = optics or Optics()
         if cams.jpeg_quality is not None:
             self.optics = replace(self.optics, jpeg_quality=cams.jpeg_quality)

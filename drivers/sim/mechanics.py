@@ -273,3 +273,48 @@ def pair_state(
     return PairState(T_bench_left=poses["left"], T_bench_right=poses["right"], separation_mm=separation,
                      pan_left_deg=pans["left"], pan_right_deg=pans["right"], ringing_deg=ringing,
                      ringing_rate_deg_s=rates, rock_deg=rocks)
+
+
+def kinematic_parameters(profile: SimProfile, reference_baseline_mm: float) -> dict[str, float]:
+    """The profile's mechanics in the parametrisation of ``stereo_bench.kinematics`` (same names and units).
+
+    That model's frame S is the left camera at toe-in 0; pan axes are given in their own camera's
+    frame at toe-in 0 (direction as tilts of the camera's y axis about x then z; position where the
+    axis crosses the camera's y = 0 plane); the slide direction in S; the right camera's pose at
+    ``reference_baseline_mm`` and toe-in 0 in S. The truth a fitted model is compared with: derived
+    here from the simulator's own chain, not from the estimator's code.
+    """
+    separation = true_separation_mm(profile.slide, reference_baseline_mm)
+    poses = {side: camera_pose(profile, side, separation_mm=separation,
+                               pan_deg=true_pan_deg(profile.head(side), 0.0)) for side in SIDES}
+    height = 0.5 * (profile.left_head.centre_height_mm + profile.right_head.centre_height_mm)
+    forward = 0.5 * (profile.left_head.centre_forward_mm + profile.right_head.centre_forward_mm)
+    out: dict[str, float] = {}
+    for side in SIDES:
+        sign = -1.0 if side == "left" else 1.0
+        carriage = sign * separation / 2.0 * slide_direction(profile.slide) + np.array([0.0, height, -forward])
+        R, t = poses[side][:3, :3], poses[side][:3, 3]
+        direction = R.T @ pan_axis(profile.head(side))
+        point = R.T @ (carriage - t)
+        crossing = point - point[1] / direction[1] * direction
+        out[f"{side}_axis_tilt_x_deg"] = math.degrees(math.atan2(direction[2], direction[1]))
+        out[f"{side}_axis_tilt_z_deg"] = -math.degrees(math.asin(direction[0]))
+        out[f"{side}_axis_x_mm"] = float(crossing[0])
+        out[f"{side}_axis_z_mm"] = float(crossing[2])
+        out[f"{side}_angle_scale"] = 1.0 + profile.head(side).scale_error
+    d = poses["left"][:3, :3].T @ slide_direction(profile.slide)
+    out["slide_yaw_deg"] = math.degrees(math.atan2(-d[2], d[0]))
+    out["slide_pitch_deg"] = math.degrees(math.asin(d[1]))
+    out["slide_scale"] = 1.0 + profile.slide.scale_error
+    T_S_R0 = np.linalg.inv(poses["left"]) @ poses["right"]
+    angle = math.acos(max(-1.0, min(1.0, (np.trace(T_S_R0[:3, :3]) - 1.0) / 2.0)))
+    R = T_S_R0[:3, :3]
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    rvec = axis / (2.0 * math.sin(angle)) * angle if angle > 1e-12 else axis / 2.0
+    for k, name in enumerate(("x", "y", "z")):
+        out[f"right_rot_{name}_deg"] = math.degrees(rvec[k])
+        out[f"right_{name}_mm"] = float(T_S_R0[k, 3])
+    out["slide_backlash_mm"] = profile.slide.backlash_mm
+    out["left_backlash_deg"] = profile.left_head.backlash_deg
+    out["right_backlash_deg"] = profile.right_head.backlash_deg
+    return out
