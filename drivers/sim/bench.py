@@ -363,7 +363,9 @@ class SimulatedBench:
     def _pair_truth(snapshot: _Snapshot) -> dict:
         T_right_left = invert_transform(snapshot.T_rig_cam["right"]) @ snapshot.T_rig_cam["left"]
         R, T = T_right_left[:3, :3], T_right_left[:3, 3]
-        return {"R": R.tolist(), "T": T.tolist(), "structure": stereo_structure(R, T)}
+        # Both centres on one point (B = 0 at home on the ideal bench) have no baseline and no alphas.
+        structure = stereo_structure(R, T) if float(np.linalg.norm(T)) > 1e-9 else None
+        return {"R": R.tolist(), "T": T.tolist(), "structure": structure}
 
     def _board_truth(self, scene: Scene) -> dict | None:
         if scene.target is None or scene.T_rig_board is None:

@@ -272,9 +272,9 @@ LAB_JUSTIFICATIONS: dict[str, str] = {
     "calibration_board.placement_yaw_sigma_deg": "calibration views are free poses, estimated per view",
     "cameras.jpeg_quality": "UVC cameras deliver 1080p30 as MJPG at ~200-400 kB per frame, about libjpeg "
                             "quality 80-90",
-    "cameras.radial_high_order_left": "cheap M12 lens: leaves 0.06 px RMS (0.3 px at the corners) after stereo_bench's "
-                                      "calibration (k3 held 0), 0.008 px RMS with k3 free (measured, 1080p)",
-    "cameras.radial_high_order_right": "as radial_high_order_left, a different lens (0.04 px RMS)",
+    "cameras.radial_high_order_left": "cheap M12 lens: stereo_bench's calibration fits its views to 0.006 px but "
+                                      "misses the lens by 0.4 px RMS, 2.6 px at the image corners (measured, 1080p)",
+    "cameras.radial_high_order_right": "as radial_high_order_left, a different lens",
     "cameras.thin_prism_left": "0: to first order a thin prism is a turn of the camera frame (2 s1 rad) plus "
                                "tangential terms and a principal-point shift, which the calibration absorbs into its "
                                "frame: it would only make the true R ambiguous by ~0.1 deg (kept for experiments)",
