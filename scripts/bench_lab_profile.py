@@ -78,7 +78,7 @@ def main() -> None:
             renderer = StereoRenderer(board, camera, camera, optics=optics)
             rng = np.random.default_rng(0)
             view_shape = shape if (bent and measured) else None
-            row[name] = round(_time(lambda r=renderer, s=view_shape: r.render_view("left", T, rng, shape=s),
+            row[name] = round(_time(lambda r=renderer, s=view_shape, T=T, g=rng: r.render_view("left", T, g, shape=s),
                                     args.runs), 1)
         rows.append(row)
     smear = StereoRenderer(TARGET, nominal, nominal)

@@ -79,3 +79,20 @@ def test_the_recorded_config_keeps_the_sim_table():
     config = campaign_from_dict({**PLAN, "sim": {"profile": "ideal", "slide": {"backlash_mm": 0.1}}})
     again = campaign_from_dict(config.model_dump(mode="json"))
     assert again.sim.resolve() == config.sim.resolve()
+
+
+def test_campaign_run_sim_flag_picks_the_bench_and_refuses_real_hardware(tmp_path):
+    import argparse
+
+    from stereo_bench.cli import CliError
+    from stereo_bench.cli.campaign_run import _load
+
+    def load(**kwargs):
+        return _load(argparse.Namespace(**{"plan": None, "preset": None, "time_scale": None, "sim": None, **kwargs}))
+
+    assert load(preset="paper-exp1").sim.resolve() == LAB
+    assert load(preset="paper-exp1", sim="ideal").sim.resolve() == IDEAL
+    plan = tmp_path / "real.toml"
+    plan.write_text('[rig]\nkind = "grbl"\nport = "/dev/ttyUSB0"\n[plan]\nbaseline_mm = [100]\ndistance_mm = [500]\n')
+    with pytest.raises(CliError, match="--sim applies to the simulated rig and cameras only"):
+        load(plan=str(plan), sim="ideal")

@@ -24,6 +24,10 @@ def _load(args: argparse.Namespace):
         if config.rig.kind != "simulated":
             raise CliError("--time-scale applies to the simulated rig only")
         config = config.model_copy(update={"rig": config.rig.model_copy(update={"time_scale": args.time_scale})})
+    if args.sim is not None:
+        if not config.fully_simulated:
+            raise CliError("--sim applies to the simulated rig and cameras only")
+        config = config.model_copy(update={"sim": config.sim.model_copy(update={"profile": args.sim})})
     return config
 
 
@@ -111,5 +115,8 @@ def register_run(subparsers) -> None:
                           "asking")
     run.add_argument("--time-scale", type=float, metavar="X",
                      help="simulated rig: run motion and exposures X times faster than real time")
+    run.add_argument("--sim", choices=("lab", "ideal"),
+                     help="simulated bench: 'lab' (a bench as built: the default) or 'ideal' (perfect mechanics, "
+                          "optics and boards); replaces [sim] profile, keeps its overrides")
     run.add_argument("--quiet", action="store_true", help="no progress bar or per-configuration lines")
     run.set_defaults(func=cmd_run)
