@@ -96,3 +96,12 @@ def test_campaign_run_sim_flag_picks_the_bench_and_refuses_real_hardware(tmp_pat
     plan.write_text('[rig]\nkind = "grbl"\nport = "/dev/ttyUSB0"\n[plan]\nbaseline_mm = [100]\ndistance_mm = [500]\n')
     with pytest.raises(CliError, match="--sim applies to the simulated rig and cameras only"):
         load(plan=str(plan), sim="ideal")
+
+
+def test_the_documented_lab_table_is_the_code():
+    from pathlib import Path
+
+    from drivers.sim.profile import lab_table_markdown
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "SIMULATED_BENCH.md").read_text(encoding="utf-8")
+    assert lab_table_markdown() in doc, "regenerate the table with drivers.sim.profile.lab_table_markdown()"

@@ -351,3 +351,18 @@ class SimSettings(BaseModel):
                 known = type(getattr(base, section)).model_fields
                 message = f"unknown key; known: {', '.join(known)}"
             raise ValueError(f"{where}: {message}" if where else message) from None
+
+
+def _format(value: Any) -> str:
+    if isinstance(value, tuple):
+        return "(" + ", ".join(f"{v:g}" for v in value) + ")"
+    if isinstance(value, float):
+        return f"{value:g}"
+    return str(value)
+
+
+def lab_table_markdown() -> str:
+    """The lab profile as the markdown table of docs/SIMULATED_BENCH.md: parameter, value, why."""
+    lines = ["| parameter | lab | why |", "|---|---|---|"]
+    lines += [f"| `{name}` | {_format(value)} | {LAB_JUSTIFICATIONS[name]} |" for name, value, _ in LAB.rows()]
+    return "\n".join(lines) + "\n"
