@@ -1016,7 +1016,14 @@ def fit_kinematics(
     p0 = _initial_parameters(free, B_ref, configurations, T_rl)
 
     sigmas = (repeatability_mm, repeatability_left_deg, repeatability_right_deg)
-    sigma_px = 0.1
+    # The pixel weight to start from: what the single-view poses leave (6 pose unknowns per view).
+    squares, dof = 0.0, 0
+    for v, (tl, tr) in enumerate(zip(T_lb, T_rb, strict=True)):
+        for T, ids, px, (K, D) in ((tl, views[v][1], views[v][2], (K1, D1)), (tr, views[v][3], views[v][4], (K2, D2))):
+            seen = cv2.projectPoints(object_points[ids].reshape(-1, 1, 3), _rvec(T[:3, :3]), T[:3, 3], K, D)[0]
+            squares += float(((seen.reshape(-1, 2) - px) ** 2).sum())
+            dof += 2 * len(ids) - 6
+    sigma_px = max(math.sqrt(squares / max(dof, 1)), 1e-3)
     for _ in range(3):
         bundle = _Bundle(p0, free_index, B_ref, configurations, views, object_points, intr_l, intr_r,
                          refine_intrinsics, sigmas, sigma_px)
