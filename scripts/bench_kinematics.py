@@ -21,7 +21,6 @@ Prints tables and writes JSON (with the load average).
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import os
 import platform
@@ -36,10 +35,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from drivers.rig.rig import GrblRig  # noqa: E402
 from drivers.sim.bench import SimulatedBench  # noqa: E402
-from drivers.sim.mechanics import kinematic_parameters, pair_state  # noqa: E402
+from drivers.sim.mechanics import kinematic_parameters  # noqa: E402
 from drivers.sim.profile import LAB  # noqa: E402
 from drivers.sim.render import calibration_board_poses  # noqa: E402
-from stereo_bench.geometry import CameraModel, RigPose, stereo_structure  # noqa: E402
+from stereo_bench.geometry import CameraModel, RigPose  # noqa: E402
 from stereo_bench.kinematics import (  # noqa: E402
     NAMES,
     ConfigurationViews,
@@ -135,12 +134,7 @@ def main() -> None:
                 bench.place_target(TARGET, distance_mm=500.0, seed=len(rows))
                 images = [bench.render(side)[0] for side in ("left", "right")]
                 truth = bench.truth()
-                history = copy.deepcopy(bench.history)
-                for axis in history.axes.values():
-                    axis.landing = 0.0
-                state = pair_state(LAB, bench.reported_values(), history=history)
-                T_model = np.linalg.inv(state.T_bench_right) @ state.T_bench_left
-                without = stereo_structure(T_model[:3, :3], T_model[:3, 3])
+                without = bench.truth_without_landing()["structure"]
                 prediction = predict(model, values, approach)
                 square_true = truth["target"]["square_true_mm"]
                 kin = measure_pair(*images, _calibration(K1, D1, K2, D2, prediction.R, prediction.T, size), TARGET)

@@ -630,20 +630,23 @@ def _K_D(intr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), intr[4:].reshape(1, 5)
 
 
-def _levenberg_marquardt(residuals, normal, x0: np.ndarray, *, max_iterations: int = 50,
-                         tolerance: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
-    """Minimise |residuals(x)|^2 from ``x0``; ``normal(x, r)`` returns (J^T J, J^T r). Returns (x, J^T J)."""
+def _levenberg_marquardt(residuals, linearize, solve, x0: np.ndarray, *, max_iterations: int = 50,
+                         tolerance: float = 1e-12) -> tuple[np.ndarray, Any]:
+    """Minimise |residuals(x)|^2 from ``x0``. Returns (x, the linearisation at x).
+
+    ``linearize(x, r)`` returns whatever ``solve(linearisation, lam)`` needs to give the damped
+    Gauss-Newton step (Levenberg-Marquardt with the normal matrix's diagonal as scaling).
+    """
     x = np.array(x0, dtype=float)
     r = residuals(x)
     cost = float(r @ r)
     lam = 1e-4
-    A, g = normal(x, r)
+    lin = linearize(x, r)
     for _ in range(max_iterations):
-        diag = np.maximum(np.diag(A), 1e-12)
         improved = False
         for _ in range(12):
             try:
-                step = np.linalg.solve(A + lam * np.diag(diag), -g)
+                step = solve(lin, lam)
             except np.linalg.LinAlgError:
                 lam *= 10.0
                 continue
@@ -658,10 +661,15 @@ def _levenberg_marquardt(residuals, normal, x0: np.ndarray, *, max_iterations: i
         decrease = (cost - cost_new) / max(cost, 1e-300)
         x, r, cost = x + step, r_new, cost_new
         lam = max(lam / 10.0, 1e-9)
-        A, g = normal(x, r)
+        lin = linearize(x, r)
         if decrease < tolerance:
             break
-    return x, A
+    return x, lin
+
+
+def _solve_dense(lin: tuple[np.ndarray, np.ndarray], lam: float) -> np.ndarray:
+    A, g = lin
+    return np.linalg.solve(A + lam * np.diag(np.maximum(np.diag(A), 1e-12)), -g)
 
 
 def _identifiable(configurations: Sequence[ConfigurationViews]) -> tuple[set[str], dict[str, str]]:
@@ -753,7 +761,7 @@ def _initial_parameters(free: np.ndarray, B_ref: float, configurations: Sequence
             J[:, k] = (residuals(step) - r) / h
         return J.T @ J, J.T @ r
 
-    x, _ = _levenberg_marquardt(residuals, normal, p[index], max_iterations=100)
+    x, _ = _levenberg_marquardt(residuals, normal, _solve_dense, p[index], max_iterations=100)
     p[index] = x
     return p
 
@@ -909,36 +917,8 @@ class _Bundle:
         S = lin["U"] - np.einsum("vgk,vkl,vhl->gh", lin["W"], V_inv, lin["W"])
         return np.linalg.inv(S)
 
-    def minimise(self, x0: np.ndarray, *, max_iterations: int = 50, tolerance: float = 1e-12,
-                 ) -> tuple[np.ndarray, dict]:
-        x = np.array(x0, dtype=float)
-        r = self.residuals(x)
-        cost = float(r @ r)
-        lam = 1e-4
-        lin = self.linearize(x, r)
-        for _ in range(max_iterations):
-            improved = False
-            for _ in range(12):
-                try:
-                    step = self.solve(lin, lam)
-                except np.linalg.LinAlgError:
-                    lam *= 10.0
-                    continue
-                r_new = self.residuals(x + step)
-                cost_new = float(r_new @ r_new)
-                if cost_new < cost:
-                    improved = True
-                    break
-                lam *= 10.0
-            if not improved:
-                break
-            decrease = (cost - cost_new) / max(cost, 1e-300)
-            x, r, cost = x + step, r_new, cost_new
-            lam = max(lam / 10.0, 1e-9)
-            lin = self.linearize(x, r)
-            if decrease < tolerance:
-                break
-        return x, lin
+    def minimise(self, x0: np.ndarray) -> tuple[np.ndarray, dict]:
+        return _levenberg_marquardt(self.residuals, self.linearize, self.solve, x0)
 
 
 def fit_kinematics(

@@ -249,3 +249,22 @@ def test_the_calibration_board_is_shown_as_the_profile_has_it():
         bench.show(BOARD, board_pose_facing_rig(distance_mm=500.0, board_size_mm=BOARD.grid_size_mm))
         target = bench.truth()["target"]
     assert target["kind"] == "calibration_board" and target["bow_mm"] == 1.0 and target["print_scale"] == 1.0
+
+
+def test_the_truth_without_landing_errors_differs_from_the_truth_by_the_moves_landing_alone(lab_bench):
+    bench, rig = lab_bench
+    rig.move_to(baseline_mm=140.0, alpha_left_deg=84.0, alpha_right_deg=86.0)
+    time.sleep(0.4 / 50)  # settled: the heads no longer ring (the truth would include it, the rest pose not)
+    truth, knowable = bench.truth(), bench.truth_without_landing()
+    assert truth["axes"]["ringing_deg"] == {"left": 0.0, "right": 0.0}
+    history = truth["axes"]["history"]
+    assert history["baseline_mm"]["landing"] != 0.0
+    # Only the landing errors separate them: the slide's, plus the heads' turning centres that stand
+    # ~23 mm ahead of their pan axes.
+    heads_rad = np.radians(abs(history["toe_in_left_deg"]["landing"]) + abs(history["toe_in_right_deg"]["landing"]))
+    difference = truth["structure"]["baseline_mm"] - knowable["structure"]["baseline_mm"]
+    assert abs(difference - history["baseline_mm"]["landing"]) <= 25.0 * heads_rad + 1e-9
+    assert abs(truth["structure"]["alpha_left_deg"] - knowable["structure"]["alpha_left_deg"]) < 5 * 0.002
+    with SimulatedBench(profile=IDEAL, **cameras()) as ideal:
+        assert ideal.truth_without_landing() == {key: value for key, value in ideal.truth().items()
+                                                 if key in ("R", "T", "structure")}

@@ -27,6 +27,7 @@ current state; every frame carries it in its metadata (``meta["truth"]``).
 
 from __future__ import annotations
 
+import copy
 import math
 import threading
 import time
@@ -347,6 +348,22 @@ class SimulatedBench:
                         for side, model in (("left", self.left_model), ("right", self.right_model))},
             "target": self._board_truth(scene),
         }
+
+    def truth_without_landing(self) -> dict:
+        """The pair at rest at the reported axes without the moves' random landing errors: ``R``, ``T``, ``structure``.
+
+        Backlash still follows each axis' direction of approach. What a model of the rig can know:
+        the landing errors are the rig's repeatability, different at every move.
+        """
+        values, _ = self._observe()
+        with self._history_lock:
+            history = copy.deepcopy(self.history)
+        if history is not None:
+            for axis in history.axes.values():
+                axis.landing = 0.0
+        state = pair_state(self.profile, values, history=history)
+        return self._pair_truth(_Snapshot(pose=self._pose_of(values),
+                                          T_rig_cam={"left": state.T_bench_left, "right": state.T_bench_right}))
 
     def _axes_truth(self, snapshot: _Snapshot) -> dict:
         if snapshot.state is None:
