@@ -9,6 +9,7 @@ import re
 import numpy as np
 import pytest
 
+from drivers.rig.motion import REFERENCE_AXIS_MOTION, move_time_s
 from drivers.sim.grbl_emulator import DEFAULT_AXES, GrblEmulator
 from stereo_bench.campaign.config import campaign_from_dict, load_preset
 from stereo_bench.campaign.plan import (
@@ -24,7 +25,6 @@ from stereo_bench.campaign.plan import (
     estimate_duration,
     expand_plan,
     format_id_value,
-    move_time_s,
     plan_steps,
     plan_summary,
     predict_duration_s,
@@ -257,7 +257,13 @@ def test_move_time_matches_the_emulators_motion_model(deltas, feed):
     rates = {a: DEFAULT_AXES[a].max_rate_per_min for a in "XYZ"}
     accels = {a: DEFAULT_AXES[a].acceleration for a in "XYZ"}
     predicted = move_time_s(deltas, max_rate_per_min=rates, acceleration=accels, feed_per_min=feed)
-    assert predicted == pytest.approx(block.motion_duration, rel=1e-12)
+    assert predicted == block.motion_duration  # one model, so equal to the last digit
+
+
+def test_the_emulator_and_the_plan_share_the_reference_axes():
+    for axis, motion in REFERENCE_AXIS_MOTION.items():
+        assert (DEFAULT_AXES[axis].max_rate_per_min, DEFAULT_AXES[axis].acceleration) == (
+            motion.max_rate_per_min, motion.acceleration)
 
 
 def test_move_time_by_hand():

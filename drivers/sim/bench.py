@@ -23,6 +23,7 @@ import numpy as np
 from drivers.camera.base import CameraSettings
 from drivers.camera.synthetic import SyntheticCamera
 from drivers.rig.config import RigConfig, alpha_from_toe_in, to_physical
+from drivers.rig.motion import REFERENCE_HOMING_SEEK_RATE_PER_MIN, REFERENCE_HOMING_SETTLE_S
 from drivers.sim.grbl_emulator import DEFAULT_AXES, AxisSpec, GrblEmulator
 from drivers.sim.render import Optics, StereoRenderer
 from stereo_bench.geometry import CameraModel, RigPose
@@ -67,7 +68,8 @@ class SimulatedBench:
         self.exposure_s = exposure_s
         self.emulator = GrblEmulator(
             axes=self.rig_config.axes, axis_specs=axis_specs or self._axis_specs(), time_scale=time_scale,
-            homing_enabled=homing_enabled,
+            homing_enabled=homing_enabled, homing_seek_rate_per_min=REFERENCE_HOMING_SEEK_RATE_PER_MIN,
+            homing_settle_s=REFERENCE_HOMING_SETTLE_S,
         )
         self._scene = Scene()
         self._lock = threading.Lock()

@@ -43,6 +43,8 @@ from collections import deque
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
+from drivers.rig.motion import REFERENCE_AXIS_MOTION, path_limits, trapezoid
+
 AXIS_LETTERS = "XYZABC"
 RX_BUFFER_SIZE = 128
 PLANNER_BLOCKS = 15  # GRBL 1.1 on an Uno: 16-block ring buffer, one kept free
@@ -78,13 +80,12 @@ class AxisSpec:
         return min(max(0.0, low), high)
 
 
+# Rates and accelerations are the reference rig's (drivers.rig.motion), which the plan's estimate assumes too.
 DEFAULT_AXES: dict[str, AxisSpec] = {
-    "X": AxisSpec(travel=(0.0, 350.0), max_rate_per_min=3000.0, acceleration=200.0),
-    "Y": AxisSpec(travel=(0.0, 90.0), max_rate_per_min=1800.0, acceleration=180.0),
-    "Z": AxisSpec(travel=(0.0, 90.0), max_rate_per_min=1800.0, acceleration=180.0),
-    "A": AxisSpec(travel=(-45.0, 45.0), max_rate_per_min=1800.0, acceleration=180.0),
-    "B": AxisSpec(travel=(-45.0, 45.0), max_rate_per_min=1800.0, acceleration=180.0),
-    "C": AxisSpec(travel=(0.0, 2000.0), max_rate_per_min=6000.0, acceleration=300.0),
+    axis: AxisSpec(travel=travel, max_rate_per_min=REFERENCE_AXIS_MOTION[axis].max_rate_per_min,
+                   acceleration=REFERENCE_AXIS_MOTION[axis].acceleration)
+    for axis, travel in {"X": (0.0, 350.0), "Y": (0.0, 90.0), "Z": (0.0, 90.0), "A": (-45.0, 45.0),
+                         "B": (-45.0, 45.0), "C": (0.0, 2000.0)}.items()
 }
 
 
@@ -197,16 +198,9 @@ class _Block:
             self.motion_duration = 0.0
             self.duration = self.dwell_after
             return
-        t_acc = self.speed / self.accel
-        d_acc = 0.5 * self.accel * t_acc * t_acc
-        if 2.0 * d_acc >= self.length:  # never reaches cruise speed: triangular profile
-            t_acc = math.sqrt(self.length / self.accel)
-            self._t_cruise = 0.0
-        else:
-            self._t_cruise = (self.length - 2.0 * d_acc) / self.speed
-        self._t_acc = t_acc
-        self._v_peak = self.accel * t_acc
-        self.motion_duration = 2.0 * t_acc + self._t_cruise
+        profile = trapezoid(self.length, self.speed, self.accel)  # the plan's estimate uses the same model
+        self._t_acc, self._t_cruise, self._v_peak = profile.t_acc_s, profile.t_cruise_s, profile.v_peak
+        self.motion_duration = profile.duration_s
         self.duration = self.motion_duration + self.dwell_after
 
     def distance_at(self, tau: float) -> float:
@@ -1060,15 +1054,10 @@ class GrblEmulator:
         length = math.sqrt(sum(d * d for d in deltas.values()))
         if length <= 1e-12:
             return _Block(start=dict(start), end=dict(end), length=0.0, speed=1.0, accel=1.0, kind=kind, line=line)
-        # Each axis' limits bound the speed and acceleration along the path (GRBL's planner does the same).
-        speed = math.inf if feed_per_min is None else feed_per_min / 60.0
-        accel = math.inf
-        for axis, delta in deltas.items():
-            if abs(delta) > 0:
-                spec = self.specs[axis]
-                speed = min(speed, spec.max_rate_per_min / 60.0 * length / abs(delta))
-                accel = min(accel, spec.acceleration * length / abs(delta))
-        return _Block(start=dict(start), end=dict(end), length=length, speed=speed, accel=accel, kind=kind, line=line)
+        limits = path_limits(deltas, max_rate_per_min={a: self.specs[a].max_rate_per_min for a in self.axes},
+                             acceleration={a: self.specs[a].acceleration for a in self.axes}, feed_per_min=feed_per_min)
+        return _Block(start=dict(start), end=dict(end), length=limits.length, speed=limits.speed, accel=limits.accel,
+                      kind=kind, line=line)
 
     # ------------------------------------------------------------------ status report
 

@@ -40,7 +40,12 @@ import numpy as np
 
 from drivers.rig.codec import vector_feed
 from drivers.rig.config import QUANTITIES, LimitError, MoveRequestError, RigConfig, plan_move, to_machine
-from drivers.sim.grbl_emulator import DEFAULT_AXES  # a table of axis rates/accelerations; no I/O at import
+from drivers.rig.motion import (
+    REFERENCE_AXIS_MOTION,
+    REFERENCE_HOMING_SEEK_RATE_PER_MIN,
+    REFERENCE_HOMING_SETTLE_S,
+    move_time_s,
+)
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.geometry import (
     VIEW_MARGIN_PX,
@@ -66,9 +71,6 @@ OPERATOR_S_PER_PROMPT = 30.0  # move the target (or set another manual quantity)
 OPERATOR_S_PER_CALIBRATION_VIEW = 5.0  # present the calibration board in a new pose by hand
 ASSUMED_FPS = 30.0  # a V4L2 camera's frame rate when the settings do not fix it
 ASSUMED_FLUSH_FRAMES = 4  # frames a V4L2 flush discards when buffer_count is left to the driver
-# The GRBL emulator's homing defaults: seek at this rate, then a fixed locate/pull-off time.
-HOMING_SEEK_RATE_PER_MIN = 3000.0
-HOMING_SETTLE_S = 0.5
 
 Target = Checkerboard | CharucoTarget
 
@@ -452,29 +454,6 @@ def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration]) 
 # Duration
 
 
-def move_time_s(deltas: Mapping[str, float], *, max_rate_per_min: Mapping[str, float],
-                acceleration: Mapping[str, float], feed_per_min: float | None = None) -> float:
-    """Duration (s) of one straight move from rest to rest, as GRBL plans it and the emulator times it.
-
-    ``deltas``: axis letter -> machine units. Each axis' max rate (units/min) and acceleration (units/s²)
-    bound the speed and acceleration along the path; ``feed_per_min`` (None = rapid) bounds the speed too.
-    Trapezoidal velocity profile; triangular when the move is too short to reach full speed.
-    """
-    moving = {a: d for a, d in deltas.items() if abs(d) > 1e-12}
-    if not moving:
-        return 0.0
-    length = math.sqrt(sum(d * d for d in moving.values()))
-    speed = math.inf if feed_per_min is None else feed_per_min / 60.0
-    accel = math.inf
-    for axis, delta in moving.items():
-        speed = min(speed, max_rate_per_min[axis] / 60.0 * length / abs(delta))
-        accel = min(accel, acceleration[axis] * length / abs(delta))
-    t_acc = speed / accel
-    if accel * t_acc * t_acc >= length:  # the two ramps (a t^2 / 2 each) cover the whole move
-        return 2.0 * math.sqrt(length / accel)
-    return 2.0 * t_acc + (length - accel * t_acc * t_acc) / speed
-
-
 @dataclass(frozen=True)
 class DurationEstimate:
     """Predicted campaign time (s) by component, and the assumptions behind it."""
@@ -512,8 +491,10 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
 
     - Motion: each Move as one straight GRBL move from the previous position (the first from where
       homing leaves the axes), at the rig config's axis feeds where every moving axis has one (else a
-      rapid), capped by the axis max rates and accelerations of the simulated rig (the GRBL emulator's
-      DEFAULT_AXES; a real controller's $110-$125 are not known offline).
+      rapid), capped by the axis max rates and accelerations of the reference rig
+      (:data:`drivers.rig.motion.REFERENCE_AXIS_MOTION`, which the simulated rig runs with; a real
+      controller's $110-$125 are not known offline), timed by the model the emulator uses
+      (:func:`drivers.rig.motion.move_time_s`).
     - Homing (if enabled): the longest axis travel at the emulator's seek rate, plus its settle time.
       On the simulated rig, homing and motion run ``time_scale`` times faster.
     - Settle as configured. Frames: one exposure each on simulated cameras; max(exposure, 1/fps) on
@@ -526,8 +507,8 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
     rig_config = config.rig.rig_config()
     travel = rig_config.machine_travel()
     speed_factor = config.rig.time_scale if config.rig.kind == "simulated" else 1.0
-    rates = {a: DEFAULT_AXES[a].max_rate_per_min for a in travel}
-    accels = {a: DEFAULT_AXES[a].acceleration for a in travel}
+    rates = {a: REFERENCE_AXIS_MOTION[a].max_rate_per_min for a in travel}
+    accels = {a: REFERENCE_AXIS_MOTION[a].acceleration for a in travel}
     feeds = rig_config.axis_feeds_per_min()
     position = {a: min(max(0.0, low), high) for a, (low, high) in travel.items()}  # the emulator's home
     human = not config.fully_simulated
@@ -540,7 +521,7 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
     homing = 0.0
     if config.rig.homing and travel:
         longest = max(high - low for low, high in travel.values())
-        homing = (longest / (HOMING_SEEK_RATE_PER_MIN / 60.0) + HOMING_SETTLE_S) / speed_factor
+        homing = (longest / (REFERENCE_HOMING_SEEK_RATE_PER_MIN / 60.0) + REFERENCE_HOMING_SETTLE_S) / speed_factor
     motion = settle = flush = capture = operator = 0.0
     for step in steps:
         if isinstance(step, Move):
@@ -564,7 +545,7 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
             capture += step.n_frames * frame_s
 
     assumptions = (
-        "axis max rates and accelerations of the GRBL emulator's defaults"
+        "axis max rates and accelerations of the reference rig (the simulated rig's)"
         + (f", simulated rig {speed_factor:g}x faster than real time" if speed_factor != 1.0 else ""),
         f"{frame_s:g} s per stereo frame" + ("" if config.cameras.kind == "simulated"
                                               else f", {flush_frames} frames per flush"),
