@@ -27,6 +27,13 @@ import numpy as np
 
 PARALLEL_ALPHA_DEG = 90.0
 
+# The default camera, the one definition the campaign config (OpticsConfig), the error model and the
+# simulators take: 1920x1080, a 4 mm lens on 3 um pixels (f = 1333.3 px), mild barrel distortion.
+DEFAULT_FOCAL_MM = 4.0
+DEFAULT_PIXEL_UM = 3.0
+DEFAULT_IMAGE_SIZE = (1920, 1080)
+DEFAULT_DIST = (-0.05, 0.02, 0.0, 0.0, 0.0)
+
 
 def toe_in_from_alpha(alpha_deg: float) -> float:
     """Toe-in angle (deg, 0 = parallel) of a camera whose optical axis makes ``alpha_deg`` with the baseline."""
@@ -173,8 +180,8 @@ class CameraModel:
 
     @classmethod
     def from_sensor(
-        cls, *, focal_mm: float = 4.0, pixel_um: float = 3.0, image_size: tuple[int, int] = (1920, 1080),
-        dist: tuple[float, ...] = (-0.05, 0.02, 0.0, 0.0, 0.0), name: str = "camera",
+        cls, *, focal_mm: float = DEFAULT_FOCAL_MM, pixel_um: float = DEFAULT_PIXEL_UM,
+        image_size: tuple[int, int] = DEFAULT_IMAGE_SIZE, dist: tuple[float, ...] = DEFAULT_DIST, name: str = "camera",
     ) -> CameraModel:
         """A camera from its lens and sensor: f_px = focal / pixel pitch, principal point at the centre."""
         f_px = focal_mm * 1000.0 / pixel_um

@@ -204,3 +204,10 @@ def test_json_schema_describes_the_file():
     plan = schema["$defs"]["PlanSection"]
     assert plan["additionalProperties"] is False and set(plan["required"]) == {"baseline_mm", "distance_mm"}
     assert CampaignConfig.model_validate({"plan": {"baseline_mm": [1], "distance_mm": [1]}}).name == "campaign"
+
+
+def test_the_default_optics_are_the_default_camera():
+    from stereo_bench.campaign.config import OpticsConfig
+    from stereo_bench.geometry import CameraModel
+
+    assert OpticsConfig().camera_model("left") == CameraModel.from_sensor(name="left")

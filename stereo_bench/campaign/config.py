@@ -60,7 +60,13 @@ from drivers.rig.config import (
     load_rig_config,
     rig_config_from_dict,
 )
-from stereo_bench.geometry import CameraModel
+from stereo_bench.geometry import (
+    DEFAULT_DIST,
+    DEFAULT_FOCAL_MM,
+    DEFAULT_IMAGE_SIZE,
+    DEFAULT_PIXEL_UM,
+    CameraModel,
+)
 from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision.calibrate import MIN_VIEWS
 
@@ -150,11 +156,11 @@ class OpticsConfig(BaseModel):
 
     model_config = _STRICT
 
-    focal_mm: float = Field(4.0, gt=0, allow_inf_nan=False, description="lens focal length, mm")
-    pixel_um: float = Field(3.0, gt=0, allow_inf_nan=False, description="pixel pitch, micrometres")
-    width_px: int = Field(1920, gt=0)
-    height_px: int = Field(1080, gt=0)
-    dist: list[float] = Field(default_factory=lambda: [-0.05, 0.02, 0.0, 0.0, 0.0],
+    focal_mm: float = Field(DEFAULT_FOCAL_MM, gt=0, allow_inf_nan=False, description="lens focal length, mm")
+    pixel_um: float = Field(DEFAULT_PIXEL_UM, gt=0, allow_inf_nan=False, description="pixel pitch, micrometres")
+    width_px: int = Field(DEFAULT_IMAGE_SIZE[0], gt=0)
+    height_px: int = Field(DEFAULT_IMAGE_SIZE[1], gt=0)
+    dist: list[float] = Field(default_factory=lambda: list(DEFAULT_DIST),
                               description="OpenCV distortion coefficients (k1 k2 p1 p2 [k3 ...])")
     noise_dn: float = Field(2.0, ge=0, allow_inf_nan=False, description="read noise, 8-bit DN (std)")
     blur_px: float = Field(0.7, ge=0, allow_inf_nan=False, description="optical blur, Gaussian sigma, px")
