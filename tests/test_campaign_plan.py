@@ -119,6 +119,24 @@ def test_calibration_range_checkerboard_needs_the_whole_board_charuco_half():
     assert calibration_distance_range(CharucoTarget(8, 6, 15.0, 11.0), toed_in, left=camera, right=camera) is not None
 
 
+def test_where_the_plan_finds_the_board_fits_the_simulator_places_every_view():
+    """One calibration-fit rule: a configuration the plan calls feasible is one the presenter can fill."""
+    from drivers.sim.render import calibration_board_poses
+    from stereo_bench.geometry import calibration_view_fits
+
+    camera = CameraModel.from_sensor()
+    for board in (Checkerboard(11, 8, 25.0), CharucoTarget(8, 6, 15.0, 11.0)):
+        for alpha in (90.0, 80.0, 70.0, 62.0):
+            rig = RigPose.symmetric(100.0, alpha)
+            fits = calibration_distance_range(board, rig, left=camera, right=camera)
+            if fits is None:
+                continue
+            poses = calibration_board_poses(rig, board, n_views=8, rng=np.random.default_rng(int(alpha)),
+                                            distance_mm=fits, left=camera, right=camera)
+            assert len(poses) == 8
+            assert all(calibration_view_fits(board, T, rig=rig, left=camera, right=camera) for T in poses)
+
+
 def test_tilt_moves_the_bisector_and_the_config_id():
     config = _config({"baseline_mm": [100], "distance_mm": [500], "tilt_deg": 5},
                      rig={"quantities": {"tilt_left_deg": {"axis": "A", "min": -20, "max": 20},

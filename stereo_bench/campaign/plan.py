@@ -19,8 +19,9 @@ Feasibility of a configuration (B, Z, alpha, tilt), predicted before moving:
 - with per-configuration extrinsics, the calibration board must fit whole (with its outer squares,
   which chessboard detectors need) in both views somewhere: it is tried fronto-parallel, centred on
   the bisector of the optical axes, at :data:`CALIBRATION_DISTANCES_MM` in steps of
-  :data:`CALIBRATION_DISTANCE_STEP_MM`. A ChArUco calibration board, identified corner by corner,
-  needs only :data:`CHARUCO_MIN_CALIBRATION_FRACTION` of its corners in both views;
+  :data:`CALIBRATION_DISTANCE_STEP_MM`, by the rule the presenter places boards with
+  (:func:`stereo_bench.geometry.calibration_view_fits`: a ChArUco board, identified corner by corner,
+  needs only half of its corners in both views);
 - the move must pass the rig config's soft limits and axis mapping
   (:func:`drivers.rig.config.plan_move`); a violation is reported as ``limit_violation``.
 
@@ -31,7 +32,6 @@ a single :class:`Checkpoint` carrying the reason.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, ClassVar
@@ -52,6 +52,7 @@ from stereo_bench.geometry import (
     CameraModel,
     RigPose,
     board_pose_facing_rig,
+    calibration_view_fits,
     make_transform,
     transform_points,
     visible_in_both,
@@ -64,7 +65,6 @@ MIN_CORNERS_IN_BOTH = MIN_COMMON_CORNERS  # what the measurement needs, not a pl
 FEASIBILITY_MARGIN_PX = VIEW_MARGIN_PX
 CALIBRATION_DISTANCES_MM = (250.0, 1500.0)
 CALIBRATION_DISTANCE_STEP_MM = 10.0
-CHARUCO_MIN_CALIBRATION_FRACTION = 0.5
 
 # Duration assumptions (each estimate lists them).
 OPERATOR_S_PER_PROMPT = 30.0  # move the target (or set another manual quantity) and press Enter
@@ -108,35 +108,16 @@ def target_visibility(
     )
 
 
-def _calibration_points(board: Target) -> tuple[np.ndarray, int]:
-    """(N, 3) board-frame points that must be in both views, and how many of them must be.
-
-    Checkerboard: every inner corner and the outline of the outer squares (8 points per side), all of
-    them. ChArUco: its corners, :data:`CHARUCO_MIN_CALIBRATION_FRACTION` of them.
-    """
-    corners = np.asarray(board.object_points, dtype=float)
-    if isinstance(board, CharucoTarget):
-        return corners, math.ceil(CHARUCO_MIN_CALIBRATION_FRACTION * len(corners))
-    width_mm, height_mm = board.grid_size_mm
-    sq = board.square_mm
-    t = np.linspace(0.0, 1.0, 8)
-    x0, x1, y0, y1 = -sq, width_mm + sq, -sq, height_mm + sq
-    outline = np.concatenate([
-        np.column_stack([x0 + (x1 - x0) * t, np.full_like(t, y0)]),
-        np.column_stack([x0 + (x1 - x0) * t, np.full_like(t, y1)]),
-        np.column_stack([np.full_like(t, x0), y0 + (y1 - y0) * t]),
-        np.column_stack([np.full_like(t, x1), y0 + (y1 - y0) * t]),
-    ])
-    points = np.vstack([corners, np.column_stack([outline, np.zeros(len(outline))])])
-    return points, len(points)
-
-
 def calibration_distance_range(
-    board: Target, rig: RigPose, *, left: CameraModel, right: CameraModel, margin_px: float = FEASIBILITY_MARGIN_PX,
+    board: Target, rig: RigPose, *, left: CameraModel, right: CameraModel,
     distances_mm: tuple[float, float] = CALIBRATION_DISTANCES_MM, step_mm: float = CALIBRATION_DISTANCE_STEP_MM,
 ) -> tuple[float, float] | None:
     """(nearest, farthest) distance, mm along the bisector of the optical axes, at which the calibration
-    board, fronto-parallel to that bisector and centred on it, is in both views; None if at none.
+    board, fronto-parallel to that bisector and centred on it, is a usable calibration view; None if at none.
+
+    Usable by the one rule the simulator's board poses follow too,
+    :func:`stereo_bench.geometry.calibration_view_fits`, so a configuration the plan calls feasible is
+    one where the presenter can place the board.
     """
     bisector = rig.T_rig_left[:3, 2] + rig.T_rig_right[:3, 2]
     bisector = bisector / np.linalg.norm(bisector)
@@ -144,15 +125,10 @@ def calibration_distance_range(
     x_axis = np.array([1.0, 0.0, 0.0]) - bisector[0] * bisector
     x_axis /= np.linalg.norm(x_axis)
     R = np.column_stack([x_axis, np.cross(bisector, x_axis), bisector])
-    points_board, needed = _calibration_points(board)
     centre_board = np.array([board.grid_size_mm[0] / 2.0, board.grid_size_mm[1] / 2.0, 0.0])
-    fits = []
-    for distance in np.arange(distances_mm[0], distances_mm[1] + 1e-9, step_mm):
-        T_rig_board = make_transform(R, distance * bisector - R @ centre_board)
-        seen = visible_in_both(transform_points(T_rig_board, points_board), rig=rig, left=left, right=right,
-                               margin_px=margin_px)
-        if seen.sum() >= needed:
-            fits.append(float(distance))
+    fits = [float(distance) for distance in np.arange(distances_mm[0], distances_mm[1] + 1e-9, step_mm)
+            if calibration_view_fits(board, make_transform(R, distance * bisector - R @ centre_board),
+                                     rig=rig, left=left, right=right)]
     return (fits[0], fits[-1]) if fits else None
 
 
@@ -254,7 +230,7 @@ def _limit_violation(rig_config: RigConfig, request: Mapping[str, float]) -> str
 
 def _calibration_reason(config: CampaignConfig, board: Target, *, baseline_mm: float, alpha_deg: float) -> str:
     low, high = CALIBRATION_DISTANCES_MM
-    need = "whole" if isinstance(board, Checkerboard) else f"{CHARUCO_MIN_CALIBRATION_FRACTION:.0%} of it"
+    need = "whole" if board.min_calibration_fraction >= 1.0 else f"{board.min_calibration_fraction:.0%} of it"
     return (f"calibration board ({config.calibration_board.describe()}) never {need} in both views fronto-parallel "
             f"at {low:g}-{high:g} mm: the views overlap too little at B = {baseline_mm:g} mm, "
             f"alpha = {alpha_deg:g} deg")
@@ -294,7 +270,7 @@ def expand_plan(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN
                 if per_config:
                     if (baseline, alpha) not in calibration_ranges:
                         calibration_ranges[baseline, alpha] = calibration_distance_range(
-                            calibration_board, rig, left=left, right=right, margin_px=margin_px)
+                            calibration_board, rig, left=left, right=right)
                     calibration_range = calibration_ranges[baseline, alpha]
                     if calibration_range is None:
                         reasons.append(_calibration_reason(config, calibration_board, baseline_mm=baseline,

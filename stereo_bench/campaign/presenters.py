@@ -15,7 +15,7 @@ from typing import Protocol
 import numpy as np
 
 from stereo_bench.geometry import RigPose, board_pose_facing_rig
-from stereo_bench.targets import CharucoTarget, Target
+from stereo_bench.targets import Target
 from stereo_bench.vision.detect import Detection
 
 
@@ -69,11 +69,9 @@ class SimulatedPresenter:
                 near, far = calibration_range_mm
         rng = np.random.default_rng(scene_seed(self.seed, config_id, "calibration-poses", 0))
         try:
-            # A ChArUco board calibrates from partial views; a checkerboard must be whole in both.
-            fraction = 0.5 if isinstance(self.calibration_board, CharucoTarget) else 1.0
+            # Usable views by the rule the plan predicted with (geometry.calibration_view_fits).
             self._poses = calibration_board_poses(
-                pose, self.calibration_board, n_views=n_views, rng=rng, min_fraction_visible=fraction,
-                distance_mm=(near, far),
+                pose, self.calibration_board, n_views=n_views, rng=rng, distance_mm=(near, far),
                 left=self.bench.left_model, right=self.bench.right_model,
             )
         except ValueError as error:
