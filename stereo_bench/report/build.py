@@ -30,7 +30,7 @@ import shutil
 import tempfile
 import uuid
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -39,8 +39,8 @@ from stereo_bench import __version__, atomic
 from stereo_bench.campaign.session import DOCUMENTS_FILE, SessionError
 from stereo_bench.report import annotate, figures, html
 from stereo_bench.report.collect import ConfigReport, SessionReport, read_sessions
+from stereo_bench.report.page import ImageRef, SessionPage
 from stereo_bench.report.tables import (
-    Table,
     alpha_tables,
     distance_baseline_tables,
     format_value,
@@ -66,30 +66,6 @@ PREDICTION_COLUMNS = (
 
 class ReportError(RuntimeError):
     """The report cannot be written as asked; one line naming the file or directory."""
-
-
-@dataclass
-class ImageRef:
-    src: str  # relative to the report directory, '/'-separated
-    width: int
-    height: int
-    alt: str
-    caption: str = ""
-
-
-@dataclass
-class SessionPage:
-    """What the page shows of one session, with the report-relative paths of its files."""
-
-    session: SessionReport
-    tables1: list[tuple[Table, str]] = field(default_factory=list)
-    tables2: list[tuple[Table, str]] = field(default_factory=list)
-    error_figures: list[ImageRef] = field(default_factory=list)
-    comparison: ImageRef | None = None
-    calibration: ImageRef | None = None
-    calibration_csv: str = ""
-    images: dict[str, list[ImageRef]] = field(default_factory=dict)
-    image_notes: dict[str, list[str]] = field(default_factory=dict)
 
 
 @dataclass
