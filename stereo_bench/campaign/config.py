@@ -22,6 +22,10 @@ Sections (all optional except ``[plan]``; units in every key's name):
     [extrinsics]          mode = "per-config" | "fixed", intrinsics = "joint" | "fixed", calib_dir
     [plan]                baseline_mm, distance_mm, alpha_deg or toe_in_deg, tilt_deg
 
+Rig and cameras: simulated + simulated (the default), grbl + v4l2 (the real bench), or grbl +
+simulated ("bring-up": the real controller moves, simulated cameras render from the positions it
+reports); simulated rig + v4l2 cameras is refused.
+
 Every model forbids unknown keys, so a typo is an error naming the key. Relative paths
 (``rig.config_file``, ``extrinsics.calib_dir``) are resolved against the campaign file's directory.
 Errors are :class:`ConfigError` with one line: ``FILE: dotted.field: what is wrong``.
@@ -79,6 +83,22 @@ PRESETS: dict[str, str] = {
                   "alpha = 5-55 deg step 10 (alpha <= 45 deg: no corner in both views)",
     "paper-exp2-toe-in": "Yang et al. 2024 experiment 2 read as the pan from parallel: Z = 500 mm, B = 100 mm, "
                          "toe-in 5-55 deg step 10 (alpha = 85-35 deg)",
+}
+
+
+BenchKind = Literal["simulated", "hardware", "bring-up"]
+
+#: The (rig.kind, cameras.kind) combinations a campaign runs on, validated once here.
+BENCH_KINDS: dict[tuple[str, str], BenchKind] = {
+    ("simulated", "simulated"): "simulated",  # the GRBL emulator on a pty, cameras rendering from its axes
+    ("grbl", "v4l2"): "hardware",  # the real rig and the real cameras
+    # Bring-up: the real controller drives the motors while the cameras are not mounted yet; simulated
+    # cameras render from the positions the controller reports.
+    ("grbl", "simulated"): "bring-up",
+}
+UNSUPPORTED_BENCHES = {
+    ("simulated", "v4l2"): "real cameras cannot film the simulated rig; set rig.kind = \"grbl\" (and rig.port) "
+                           "for the real rig, or cameras.kind = \"simulated\"",
 }
 
 
@@ -403,6 +423,9 @@ class CampaignConfig(BaseModel):
 
     @model_validator(mode="after")
     def _check(self) -> CampaignConfig:
+        if (self.rig.kind, self.cameras.kind) not in BENCH_KINDS:
+            raise ValueError(f"rig.kind = \"{self.rig.kind}\" with cameras.kind = \"{self.cameras.kind}\" is not a "
+                             f"bench: {UNSUPPORTED_BENCHES[self.rig.kind, self.cameras.kind]}")
         if self.extrinsics.mode == "per-config" and self.capture.calibration_views < MIN_CALIBRATION_VIEWS:
             raise ValueError(f"capture.calibration_views: per-config extrinsics need at least "
                              f"{MIN_CALIBRATION_VIEWS} calibration views, not {self.capture.calibration_views}")
@@ -412,6 +435,11 @@ class CampaignConfig(BaseModel):
     def fully_simulated(self) -> bool:
         """True when no human is needed: simulated rig and simulated cameras."""
         return self.rig.kind == "simulated" and self.cameras.kind == "simulated"
+
+    @property
+    def bench_kind(self) -> BenchKind:
+        """What the campaign runs on: "simulated", "hardware" or "bring-up" (see :data:`BENCH_KINDS`)."""
+        return BENCH_KINDS[self.rig.kind, self.cameras.kind]
 
 
 # --------------------------------------------------------------------------------------------------
