@@ -87,7 +87,7 @@ WRITER = textwrap.dedent(
                           frames=frames_for(config_id))
             session.event("telemetry", config_id=config_id, data={"mpos": [entry["baseline_mm"], 0.0, 0.0]})
             session.result(config_id, {"config_id": config_id, "baseline_mm": entry["baseline_mm"],
-                                       "status": "ok", "square_mean_mm": 27.0 + int(config_id[1:]) / 1000})
+                                       "status": "measured", "square_mean_mm": 27.0 + int(config_id[1:]) / 1000})
             print("DONE", config_id, flush=True)
         session.stop(exit_status="success")
     print("FINISHED", flush=True)
