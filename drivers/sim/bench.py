@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -53,12 +54,15 @@ class SimulatedBench:
         time_scale: > 1 runs motion and exposures faster than real time.
         exposure_s: simulated exposure + readout per frame (real-time seconds).
         target_distance_axis: the emulator's axis letter for a motorised target distance, if any.
+        pose_source: where the rig is, when a real controller drives it (bring-up: the cameras are not
+            mounted yet and render from the positions the controller reports); no emulator is started.
     """
 
     def __init__(
         self, *, rig_config: RigConfig | None = None, left: CameraModel | None = None,
         right: CameraModel | None = None, optics: Optics | None = None, time_scale: float = 1.0,
         exposure_s: float = 0.02, homing_enabled: bool = True, axis_specs: dict[str, AxisSpec] | None = None,
+        pose_source: Callable[[], RigPose] | None = None,
     ):
         self.rig_config = rig_config or RigConfig()
         self.left_model = left or CameraModel.from_sensor(name="left")
@@ -66,7 +70,8 @@ class SimulatedBench:
         self.optics = optics or Optics()
         self.time_scale = time_scale
         self.exposure_s = exposure_s
-        self.emulator = GrblEmulator(
+        self.pose_source = pose_source
+        self.emulator = None if pose_source is not None else GrblEmulator(
             axes=self.rig_config.axes, axis_specs=axis_specs or self._axis_specs(), time_scale=time_scale,
             homing_enabled=homing_enabled, homing_seek_rate_per_min=REFERENCE_HOMING_SEEK_RATE_PER_MIN,
             homing_settle_s=REFERENCE_HOMING_SETTLE_S,
@@ -90,12 +95,14 @@ class SimulatedBench:
     # -- lifecycle ---------------------------------------------------------------------------------------------
 
     def start(self) -> SimulatedBench:
-        self.emulator.start()
+        if self.emulator is not None:
+            self.emulator.start()
         return self
 
     def stop(self) -> None:
         self._pool.shutdown(wait=True)
-        self.emulator.stop()
+        if self.emulator is not None:
+            self.emulator.stop()
 
     def __enter__(self) -> SimulatedBench:
         return self.start()
@@ -105,6 +112,8 @@ class SimulatedBench:
 
     @property
     def tty_path(self) -> str:
+        if self.emulator is None:
+            raise RuntimeError("this simulated bench renders from a real controller's positions: it has no emulator")
         return self.emulator.tty_path
 
     # -- the scene ---------------------------------------------------------------------------------------------
@@ -122,7 +131,9 @@ class SimulatedBench:
         self.last_prompt = message
 
     def rig_pose(self) -> RigPose:
-        """The rig pose the emulator's axes are at now (fixed quantities from the config)."""
+        """The rig pose the emulator's axes are at now (fixed quantities from the config), or the pose source's."""
+        if self.pose_source is not None:
+            return self.pose_source()
         physical = to_physical(self.rig_config, self.emulator.machine_position())
         for quantity, mapping in self.rig_config.quantities.items():
             if mapping.axis == "fixed":
