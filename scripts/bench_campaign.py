@@ -20,8 +20,8 @@ import time
 from pathlib import Path
 
 from stereo_bench.campaign.config import campaign_from_dict
-from stereo_bench.campaign.execute import replay_session, run_campaign
-from stereo_bench.campaign.plan import estimate_duration, expand_plan, plan_steps
+from stereo_bench.campaign.execute import CampaignPlan, replay_session, run_campaign
+from stereo_bench.campaign.plan import estimate_duration
 from stereo_bench.campaign.session import SessionReader
 
 CAMPAIGN = {
@@ -39,18 +39,20 @@ def main() -> None:
     parser.add_argument("--keep", metavar="DIR", help="keep the recorded session here")
     args = parser.parse_args()
     config = campaign_from_dict(CAMPAIGN)
-    configurations = expand_plan(config)
-    estimate = estimate_duration(config, configurations, plan_steps(config, configurations))
+    plan = CampaignPlan.of(config)
+    configurations = plan.configurations
+    estimate = estimate_duration(config, configurations, plan.steps)
     workdir = Path(tempfile.mkdtemp(prefix="bench-campaign-"))
     session = Path(args.keep) if args.keep else workdir / "session"
     try:
         started = time.monotonic()
-        summary = run_campaign(config, session, yes=True)
+        summary = run_campaign(config, session, yes=True, plan=plan)
         wall_s = time.monotonic() - started
         reader = SessionReader(session)
         pairs = sum(1 for e in reader.events() if e["kind"] in ("calibration_view", "measurement_frame"))
-        # Homing as it happened (the estimate assumes a full travel; the emulator starts near home).
-        homing_s = reader.events(kind="home")[0]["monotonic"] - reader.start()["monotonic"]
+        # Homing as it happened (the estimate assumes a full travel; the emulator starts near home): from
+        # the transcript event (the rig is open) to the home event.
+        homing_s = reader.events(kind="home")[0]["monotonic"] - reader.events(kind="transcript")[0]["monotonic"]
         started = time.monotonic()
         replay = replay_session(session)
         replay_s = time.monotonic() - started

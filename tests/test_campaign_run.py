@@ -14,8 +14,10 @@ from pathlib import Path
 
 import pytest
 
+from stereo_bench.campaign.bench import simulated_bench
 from stereo_bench.campaign.config import campaign_from_dict
-from stereo_bench.campaign.execute import run_campaign
+from stereo_bench.campaign.documents import MoveEvent
+from stereo_bench.campaign.execute import RunControl, run_campaign
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.cli import main
 
@@ -135,23 +137,20 @@ def test_sigkill_mid_campaign_then_resume_gives_every_configuration_once_with_th
 def test_stop_request_leaves_a_resumable_session(tmp_path):
     config = campaign_from_dict(__import__("tomllib").loads(SMALL))
     out = tmp_path / "stopped"
+    control = RunControl()
+    moves = []
 
-    def stop_at_second_move(runner):
-        from stereo_bench.campaign.plan import Move
+    def stop_at_second_move(document):  # a subscriber, as a live page's Stop button would be
+        if isinstance(document, MoveEvent):
+            moves.append(document)
+            if len(moves) == 2:
+                control.request_stop()
 
-        moves = []
-
-        def on_step(step):
-            if isinstance(step, Move):
-                moves.append(step)
-                if len(moves) == 2:  # as if Ctrl-C came while the rig moved to the second configuration
-                    runner.request_stop()
-
-        runner.on_step = on_step
-
-    summary = run_campaign(config, out, yes=True, runner_hook=stop_at_second_move)
+    summary = run_campaign(config, out, yes=True, subscribers=[stop_at_second_move], control=control,
+                           resume_command="stereo-bench campaign run small.toml --out stopped --resume")
     assert summary.exit_status == "interrupted"
-    assert SessionReader(out).stops()[-1]["exit_status"] == "interrupted"
+    stop = SessionReader(out).stops()[-1]
+    assert stop["exit_status"] == "interrupted" and stop["resume_command"].endswith("--resume")
     done = SessionReader(out).completed_config_ids()
     assert 1 <= len(done) < 4
     resumed = run_campaign(config, out, resume=True, yes=True)
@@ -214,8 +213,9 @@ def test_a_frame_without_the_target_is_captured_again_and_replays(tmp_path):
     config = campaign_from_dict(__import__("tomllib").loads(SMALL))
     out = tmp_path / "retry"
 
-    def hide_the_target_once(runner):
-        presenter, shown = runner.presenter, []
+    def bench_where_someone_walks_in_front_once(config, **options):
+        bench = simulated_bench(config, **options)
+        presenter, shown = bench.presenter, []
 
         def present_target(frame_index):
             presenter.__class__.present_target(presenter, frame_index)
@@ -224,8 +224,9 @@ def test_a_frame_without_the_target_is_captured_again_and_replays(tmp_path):
                 presenter.bench.show(None)
 
         presenter.present_target = present_target
+        return bench
 
-    summary = run_campaign(config, out, yes=True, runner_hook=hide_the_target_once)
+    summary = run_campaign(config, out, yes=True, bench_factory=bench_where_someone_walks_in_front_once)
     assert summary.counts()["measured"] == 2
     reader = SessionReader(out)
     missed = reader.events(kind="target_not_found")

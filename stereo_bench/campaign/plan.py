@@ -217,6 +217,16 @@ class Configuration:
         data.update(status=self.status, runnable=self.runnable)
         return data
 
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Configuration:
+        """The configuration a recorded plan entry (:meth:`as_dict`) describes: replay and resume run the
+        recorded plan, never today's re-planning of it."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        values = {key: value for key, value in data.items() if key in names}
+        if values.get("calibration_range_mm") is not None:
+            values["calibration_range_mm"] = tuple(values["calibration_range_mm"])
+        return cls(**values)
+
 
 def _limit_violation(rig_config: RigConfig, request: Mapping[str, float]) -> str | None:
     try:

@@ -418,7 +418,7 @@ class SessionReader:
 
 
 # -- writing -----------------------------------------------------------------------------------------
-def _first_difference(recorded: Any, now: Any, where: str) -> str | None:
+def first_difference(recorded: Any, now: Any, where: str) -> str | None:
     """Where two JSON values first differ, as ``key.path: recorded X, now Y``; None if equal."""
     def show(value: Any) -> str:
         text = json.dumps(value, ensure_ascii=False)
@@ -430,13 +430,13 @@ def _first_difference(recorded: Any, now: Any, where: str) -> str | None:
                 return f"{where}.{key}: recorded {show(recorded[key])}, now missing"
             if key not in recorded:
                 return f"{where}.{key}: not recorded, now {show(now[key])}"
-            found = _first_difference(recorded[key], now[key], f"{where}.{key}")
+            found = first_difference(recorded[key], now[key], f"{where}.{key}")
             if found:
                 return found
         return None
     if isinstance(recorded, list) and isinstance(now, list):
         for index, (a, b) in enumerate(zip(recorded, now, strict=False)):
-            found = _first_difference(a, b, f"{where}[{index}]")
+            found = first_difference(a, b, f"{where}[{index}]")
             if found:
                 return found
         if len(recorded) != len(now):
@@ -761,7 +761,7 @@ class SessionWriter:
                                              **({"recovery": self.recovery} if self.recovery else {}))
         else:
             for name, value in (("config", config), ("plan", plan)):
-                difference = _first_difference(recorded.get(name), value, name)
+                difference = first_difference(recorded.get(name), value, name)
                 if difference:
                     raise SessionError(f"{self.documents_path}: cannot resume with a different {name}: {difference}")
             document = Draft(ResumeDocument, software=software, extra=extra).build(
@@ -845,18 +845,19 @@ class SessionWriter:
         files_in = draft.calibration
         if files_in is None:
             raise SessionError("a calibration event needs the calibration to write")
-        config_id = _check_name(draft.fields.get("config_id"), "config_id")
+        config_id = draft.fields.get("config_id")
+        part = SESSION_LEVEL if config_id is None else _check_name(config_id, "config_id")
         calib, rect = files_in.calib, files_in.rect
         seq = self._next_seq
         data = {"board": files_in.board, "mode": calib.mode, "rms_px": calib.rms_px,
                 "baseline_mm": calib.baseline_mm, "image_size": list(calib.image_size),
                 "views_used": list(calib.views_used), "views_rejected": len(calib.views_rejected),
                 "extra": files_in.extra}
-        parent = self.directory / "calib" / config_id
+        parent = self.directory / "calib" / part
         name = f"a{self.attempt}"
         if (parent / name).exists():  # a second calibration of the configuration in this attempt
             name = f"a{self.attempt}-{seq}"
-        relative = f"calib/{config_id}/{name}"
+        relative = f"calib/{part}/{name}"
         files = {"intrinsics": f"{relative}/{calibio.INTRINSICS_FILE}",
                  "extrinsics": f"{relative}/{calibio.EXTRINSICS_FILE}"}
         document = draft.build(self._header("event", seq), kind="calibration", data=data, files=files)
@@ -947,6 +948,11 @@ class SessionWriter:
     def completed_config_ids(self) -> set[str]:
         return set(self._completed)
 
+    @property
+    def recorded_start(self) -> dict | None:
+        """The start document of the session being resumed (None for a new session)."""
+        return None if self._recorded_start is None else dict(self._recorded_start)
+
     def reader(self) -> SessionReader:
         """A reader of this session as recorded so far."""
         return SessionReader(self.directory)
@@ -959,5 +965,5 @@ class SessionWriter:
 
 __all__ = [
     "DOCUMENTS_FILE", "DOCUMENT_TYPES", "EXIT_STATUSES", "SCHEMA_VERSION", "SessionError", "SessionReader",
-    "SessionWriter", "TornLine", "encode_document", "normalise_row", "parse_stream",
+    "SessionWriter", "TornLine", "encode_document", "first_difference", "normalise_row", "parse_stream",
 ]
