@@ -326,6 +326,23 @@ def test_duration_counts_the_operator_on_a_real_bench_and_time_scale_on_the_simu
     assert fast_estimate.settle_s == slow_estimate.settle_s
 
 
+def test_bring_up_is_planned_as_it_runs_real_time_motion_simulated_frames_no_hand_placed_boards():
+    plan = {"baseline_mm": [100, 150], "distance_mm": [400, 500]}
+    bring_up = _config(plan, rig={"kind": "grbl", "port": "/dev/ttyUSB0"})
+    simulated = _config(plan)
+    assert bring_up.bench_kind == "bring-up" and not bring_up.fully_simulated
+    estimate = estimate_duration(bring_up, [], plan_steps(bring_up, expand_plan(bring_up)))
+    reference = estimate_duration(simulated, [], plan_steps(simulated, expand_plan(simulated)))
+    assert estimate.operator_s == 0.0  # the target and the calibration board are in the simulated scene
+    assert estimate.capture_s == reference.capture_s and estimate.flush_s == 0.0  # simulated frames
+    assert estimate.motion_s == pytest.approx(reference.motion_s)  # the real controller, at real time
+    manual_baseline = _config(plan, rig={"kind": "grbl", "port": "/dev/ttyUSB0",
+                                         "quantities": {"baseline_mm": {"axis": "manual"}}})
+    estimate = estimate_duration(manual_baseline, [], plan_steps(manual_baseline, expand_plan(manual_baseline)))
+    # The baseline is set by hand on the real slide: 100, 150, (150 stays for Z = 500: serpentine), 100.
+    assert estimate.operator_s == pytest.approx(3 * 30.0)
+
+
 def test_plan_summary_counts():
     summary = plan_summary(load_preset("paper-exp2-toe-in"))
     assert summary["n_configurations"] == 6 and summary["infeasible"] == 2 and summary["runnable"] == 4

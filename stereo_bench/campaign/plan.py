@@ -485,8 +485,9 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
       On the simulated rig, homing and motion run ``time_scale`` times faster.
     - Settle as configured. Frames: one exposure each on simulated cameras; max(exposure, 1/fps) on
       V4L2 (30 fps assumed when not set); a V4L2 flush discards ``buffer_count`` frames.
-    - Operator (unless rig and cameras are both simulated): 30 s per prompt, 5 s per calibration view
-      presented by hand.
+    - Operator: 30 s per prompt and 5 s per calibration view presented by hand, where a human does it:
+      boards and the target stand in the cameras' world (none with simulated cameras, bring-up
+      included), a manual rig quantity on the rig (none on the simulated rig).
     - Not included: computation (rendering, detection, calibration) and parking the rig at the end.
     """
     del configurations  # the steps carry what is needed; the argument keeps the documented signature
@@ -497,7 +498,9 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
     accels = {a: REFERENCE_AXIS_MOTION[a].acceleration for a in travel}
     feeds = rig_config.axis_feeds_per_min()
     position = {a: min(max(0.0, low), high) for a, (low, high) in travel.items()}  # the emulator's home
-    human = not config.fully_simulated
+    real_scene = config.cameras.kind != "simulated"  # boards and target are moved by hand
+    real_rig = config.rig.kind != "simulated"  # a manual rig quantity is set by hand
+    human = real_scene or real_rig
     frame_s = _frame_time_s(config)
     if config.cameras.kind == "simulated":
         flush_frames = 0
@@ -518,15 +521,17 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
             feed = vector_feed(deltas, feeds)
             motion += move_time_s(deltas, max_rate_per_min=rates, acceleration=accels, feed_per_min=feed) / speed_factor
             position.update(targets)
-        elif isinstance(step, PromptTarget | PromptManual):
-            operator += OPERATOR_S_PER_PROMPT if human else 0.0
+        elif isinstance(step, PromptTarget):
+            operator += OPERATOR_S_PER_PROMPT if real_scene else 0.0
+        elif isinstance(step, PromptManual):
+            operator += OPERATOR_S_PER_PROMPT if real_rig else 0.0
         elif isinstance(step, Settle):
             settle += step.seconds
         elif isinstance(step, Flush):
             flush += flush_frames * frame_s
         elif isinstance(step, CaptureCalibration):
             capture += step.n_views * frame_s
-            operator += step.n_views * OPERATOR_S_PER_CALIBRATION_VIEW if human else 0.0
+            operator += step.n_views * OPERATOR_S_PER_CALIBRATION_VIEW if real_scene else 0.0
         elif isinstance(step, CaptureMeasurement):
             capture += step.n_frames * frame_s
 
@@ -536,7 +541,9 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
         f"{frame_s:g} s per stereo frame" + ("" if config.cameras.kind == "simulated"
                                               else f", {flush_frames} frames per flush"),
         (f"operator {OPERATOR_S_PER_PROMPT:g} s per prompt and {OPERATOR_S_PER_CALIBRATION_VIEW:g} s per "
-         "calibration view" if human else "no operator time: rig and cameras simulated"),
+         "calibration view done by hand" + ("" if real_scene else " (the scene is simulated: boards and target "
+                                                                   "placed by the simulator)")
+         if human else "no operator time: rig and cameras simulated"),
         "computation (rendering, detection, calibration) not included",
     )
     return DurationEstimate(homing_s=homing, motion_s=motion, settle_s=settle, flush_s=flush, capture_s=capture,
