@@ -187,28 +187,29 @@ class CampaignRunner:
         """Execute the steps of every configuration not in ``skip``; returns the exit status."""
         abandon = False
         try:
-            for config_id, group in group_steps(self.steps):
-                if config_id in skip:
-                    continue
-                configuration = self.configurations[config_id]
-                captured, failed = Captured(configuration), None
-                self.bench.presenter.begin_configuration(configuration)
-                for step in group:
-                    self._between_steps()
-                    if isinstance(step, Checkpoint):
-                        self._checkpoint(configuration, captured, failed)
-                    elif failed is None:
-                        try:
-                            self._execute(step, captured)
-                        except ConfigurationFailed as error:
-                            failed = str(error)
-                    self._collect(block=False)
-            self._collect(block=True)
-            return "success"
-        except StopRequested:
-            self._collect(block=True)
-            return "interrupted"
-        except KeyboardInterrupt:  # a second Ctrl-C: stop at once
+            try:
+                for config_id, group in group_steps(self.steps):
+                    if config_id in skip:
+                        continue
+                    configuration = self.configurations[config_id]
+                    captured, failed = Captured(configuration), None
+                    self.bench.presenter.begin_configuration(configuration)
+                    for step in group:
+                        self._between_steps()
+                        if isinstance(step, Checkpoint):
+                            self._checkpoint(configuration, captured, failed)
+                        elif failed is None:
+                            try:
+                                self._execute(step, captured)
+                            except ConfigurationFailed as error:
+                                failed = str(error)
+                        self._collect(block=False)
+                self._collect(block=True)
+                return "success"
+            except StopRequested:
+                self._collect(block=True)  # what is complete is recorded
+                return "interrupted"
+        except KeyboardInterrupt:  # a second Ctrl-C, even while the first one is being honoured: stop at once
             abandon = True
             self.stop_reason = "stopped at once (second interrupt): analyses in progress were not recorded"
             return "interrupted"
