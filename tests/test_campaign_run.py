@@ -33,6 +33,7 @@ def plan_file(tmp_path) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_campaign_records_a_complete_session_and_streams_every_document_as_json(plan_file, tmp_path, capsys):
     out = tmp_path / "session"
     assert main(["campaign", "run", str(plan_file), "--out", str(out), "--yes", "--quiet", "--json"]) == 0
@@ -77,6 +78,7 @@ def test_an_existing_session_is_never_overwritten(plan_file, tmp_path, capsys):
     assert (out / "notes.txt").read_text() == "precious"
 
 
+@pytest.mark.slow
 def test_manual_steps_without_an_operator_are_a_clear_error(plan_file, tmp_path):
     result = subprocess.run(
         [sys.executable, "-m", "stereo_bench", "campaign", "run", str(plan_file), "--out", str(tmp_path / "s"),
