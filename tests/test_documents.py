@@ -89,6 +89,23 @@ def test_the_result_row_is_defined_once():
                             "per_square": [27.0, 27.02]}
 
 
+def test_a_new_column_is_one_line_and_a_nested_field_stays_out_of_the_columns(tmp_path):
+    from stereo_bench.campaign.documents import column, columns_of, nested
+    from stereo_bench.campaign.store import ResultStore
+
+    class Extended(ResultRow):
+        u_combined_mm: float | None = column("combined standard uncertainty of square_mean_mm, mm")
+        budget: dict[str, float] | None = nested("uncertainty budget: contribution -> mm")
+
+    assert columns_of(Extended) == (*RESULT_COLUMNS, "u_combined_mm")
+    row = Extended(config_id="c0", status="measured", u_combined_mm=0.01, budget={"pixel_noise": 0.008})
+    assert row.stored() == {"config_id": "c0", "status": "measured", "u_combined_mm": 0.01,
+                            "budget": {"pixel_noise": 0.008}}
+    with ResultStore(tmp_path / "results.sqlite") as store:  # the nested value lands in the JSON extra column
+        store.upsert(row.stored())
+        assert store.rows()[0]["budget"] == {"pixel_noise": 0.008}
+
+
 def test_session_schema_prints_the_json_schema_of_every_document(capsys):
     assert main(["session", "schema"]) == 0
     schema = json.loads(capsys.readouterr().out)

@@ -92,6 +92,12 @@ def column(description: str, *, compared: bool = False, report: bool = True) -> 
     return Field(None, description=description, json_schema_extra={"compared": compared, "report": report})
 
 
+def nested(description: str) -> Any:
+    """A result field holding a dict or list (e.g. an uncertainty budget): kept in SQLite's JSON ``extra`` column
+    and after the columns in the CSV, not a column of its own."""
+    return Field(None, description=description, json_schema_extra={"nested": True})
+
+
 class ResultRow(BaseModel):
     """One configuration's result: the row of ``results.csv`` and of the ``results`` table.
 
@@ -134,16 +140,22 @@ class ResultRow(BaseModel):
     def stored(self) -> dict[str, Any]:
         """The row as recorded (stream, store): strict JSON values, null known columns left out."""
         data = self.model_dump(mode="json")
-        return {key: value for key, value in data.items() if value is not None or key not in RESULT_COLUMNS}
+        declared = type(self).model_fields
+        return {key: value for key, value in data.items() if value is not None or key not in declared}
 
 
-def _flag(name: str, flag: str) -> bool:
-    extra = ResultRow.model_fields[name].json_schema_extra
+def _flag(name: str, flag: str, model: type[BaseModel] = ResultRow) -> bool:
+    extra = model.model_fields[name].json_schema_extra
     return bool(isinstance(extra, dict) and extra.get(flag))
 
 
+def columns_of(model: type[BaseModel]) -> tuple[str, ...]:
+    """The scalar columns of a result-row model, in field order (nested fields are not columns)."""
+    return tuple(name for name in model.model_fields if not _flag(name, "nested", model))
+
+
 #: Columns of ``results.csv`` and of the SQLite ``results`` table, in this order.
-RESULT_COLUMNS: tuple[str, ...] = tuple(ResultRow.model_fields)
+RESULT_COLUMNS: tuple[str, ...] = columns_of(ResultRow)
 #: What a replay must reproduce to the last digit.
 COMPARED_COLUMNS: tuple[str, ...] = tuple(name for name in RESULT_COLUMNS if _flag(name, "compared"))
 #: What a report's ``tables/results.csv`` shows of each row (in this order).
@@ -562,5 +574,6 @@ __all__ = [
     "CalibrationEvent", "CalibrationFiles", "CalibrationViewEvent", "Document", "DocumentError", "Draft",
     "EventDocument", "HomeEvent", "MeasurementFrameEvent", "MoveEvent", "PromptEvent", "ResultDocument", "ResultRow",
     "ResumeDocument", "StartDocument", "StopDocument", "TargetNotFoundEvent", "TranscriptEvent", "document_json",
-    "document_json_schema", "event_draft", "json_safe", "parse_document", "result_row",
+    "columns_of", "column", "document_json_schema", "event_draft", "json_safe", "nested", "parse_document",
+    "result_row",
 ]
