@@ -17,6 +17,7 @@ from dataclasses import replace
 import pytest
 
 from drivers.sim.grbl_emulator import DEFAULT_AXES, GrblEmulator
+from stereo_bench.campaign.config import load_campaign
 from stereo_bench.campaign.documents import MoveEvent
 from stereo_bench.campaign.execute import RunControl, replay_session, run_campaign
 from stereo_bench.campaign.operator import (
@@ -28,7 +29,8 @@ from stereo_bench.campaign.operator import (
     TerminalOperator,
 )
 from stereo_bench.campaign.session import SessionReader
-from tests.campaigns import SAMPLE_SESSION, small_config, transcript_commands
+from stereo_bench.cli import main
+from tests.campaigns import SAMPLE_SESSION, SMALL, small_config, transcript_commands
 
 HALF_RES = {"optics": {"width_px": 960, "height_px": 540, "pixel_um": 6.0}}
 
@@ -36,29 +38,32 @@ HALF_RES = {"optics": {"width_px": 960, "height_px": 540, "pixel_um": 6.0}}
 # -- bring-up: the real controller moves, simulated cameras render from what it reports ----------------------------
 
 
-def test_bring_up_mode_renders_from_the_positions_the_controller_reports(tmp_path):
-    """A GRBL controller on a pty stands in for the real one. Its X axis moves in 4 mm steps, so for
-    B = 150 mm it reports 152 mm while the emulator object holds 150: the cameras must see 152."""
+def test_bring_up_mode_renders_from_the_positions_the_controller_reports(tmp_path, capsys):
+    """``campaign run`` end to end with [rig] kind = "grbl" and simulated cameras. A GRBL controller on a
+    pty stands in for the real one; its X axis moves in 4 mm steps, so for B = 150 mm it reports 152 mm
+    while the emulator object holds 150: the cameras must see 152."""
     coarse_x = {"X": replace(DEFAULT_AXES["X"], steps_per_unit=0.25)}
+    plan = tmp_path / "bring-up.toml"
+    out = tmp_path / "bring-up"
     with GrblEmulator(axes="XYZ", axis_specs=coarse_x, time_scale=20.0) as controller:
-        config = small_config(
-            rig={"kind": "grbl", "port": controller.tty_path, "time_scale": 1.0,
-                 "quantities": {"baseline_mm": {"axis": "X", "min": 0, "max": 350, "tolerance": 3.0}}},
-            cameras=HALF_RES, plan={"baseline_mm": [100, 150], "distance_mm": [450], "alpha_deg": [90]})
-        assert config.bench_kind == "bring-up"
-        summary = run_campaign(config, tmp_path / "bring-up", yes=True)
+        rig = (f'[rig]\nkind = "grbl"\nport = "{controller.tty_path}"\n'
+               '[rig.quantities.baseline_mm]\naxis = "X"\nmin = 0\nmax = 350\ntolerance = 3.0\n')
+        text = SMALL.replace("[rig]\ntime_scale = 50\n", rig)
+        plan.write_text(text.replace("alpha_deg = [90, 35]", "alpha_deg = [90]"))
+        assert load_campaign(plan).bench_kind == "bring-up"
+        assert main(["campaign", "run", str(plan), "--out", str(out), "--yes", "--quiet"]) == 0
         assert controller.machine_position()["X"] == 150.0  # where the emulator object says the slide is
-    assert summary.exit_status == "success" and summary.counts() == {"measured": 2}
-    reader = SessionReader(tmp_path / "bring-up")
+    assert "campaign success" in capsys.readouterr().out
+    reader = SessionReader(out)
     assert reader.start()["bench"] == "bring-up"
     reported = {e["config_id"]: e["data"]["rig"]["baseline_mm"] for e in reader.events(kind="move")}
     assert reported == {"B100_Z450_A90": 100.0, "B150_Z450_A90": 152.0}
-    rows = {row["config_id"]: row for row in summary.rows}
+    rows = {row["config_id"]: row for row in reader.results()}
     for config_id, baseline in reported.items():
         # The stereo calibration finds the baseline the cameras were rendered at: the reported one.
+        assert rows[config_id]["status"] == "measured" and abs(rows[config_id]["error_mm"]) < 0.05
         assert rows[config_id]["baseline_estimated_mm"] == pytest.approx(baseline, abs=0.2)
-        assert abs(rows[config_id]["error_mm"]) < 0.05
-    sent = transcript_commands(next((tmp_path / "bring-up" / "transcripts").glob("serial-*.jsonl")))
+    sent = transcript_commands(next((out / "transcripts").glob("serial-*.jsonl")))
     assert sent[0] == "$H"  # the real controller homed, then moved
 
 

@@ -205,7 +205,8 @@ def run_campaign(
         except KeyboardInterrupt:  # a second Ctrl-C while the bench opened or closed
             status, reason = "interrupted", "stopped at once (second interrupt)"
         except BaseException as error:
-            bus.publish(Draft(StopDocument, exit_status="failed", reason=f"{type(error).__name__}: {error}"))
+            with contextlib.suppress(Exception):  # the original error is the one to report
+                bus.publish(Draft(StopDocument, exit_status="failed", reason=f"{type(error).__name__}: {error}"))
             raise
         finally:
             control.detach()
