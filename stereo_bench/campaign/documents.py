@@ -521,6 +521,13 @@ class CalibrationFiles:
     board: str
     extra: dict[str, Any] = field(default_factory=dict)
 
+    def data(self) -> dict[str, Any]:
+        """The CalibrationEvent's ``data`` (:class:`CalibrationData`)."""
+        calib = self.calib
+        return {"board": self.board, "mode": calib.mode, "rms_px": calib.rms_px, "baseline_mm": calib.baseline_mm,
+                "image_size": list(calib.image_size), "views_used": list(calib.views_used),
+                "views_rejected": len(calib.views_rejected), "extra": self.extra}
+
 
 class Draft:
     """A document before it is recorded: its model and its fields (no header), and what it brings along.

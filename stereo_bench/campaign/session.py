@@ -849,10 +849,7 @@ class SessionWriter:
         part = SESSION_LEVEL if config_id is None else _check_name(config_id, "config_id")
         calib, rect = files_in.calib, files_in.rect
         seq = self._next_seq
-        data = {"board": files_in.board, "mode": calib.mode, "rms_px": calib.rms_px,
-                "baseline_mm": calib.baseline_mm, "image_size": list(calib.image_size),
-                "views_used": list(calib.views_used), "views_rejected": len(calib.views_rejected),
-                "extra": files_in.extra}
+        data = files_in.data()
         parent = self.directory / "calib" / part
         name = f"a{self.attempt}"
         if (parent / name).exists():  # a second calibration of the configuration in this attempt

@@ -64,11 +64,7 @@ class MemoryRecorder:
         elif draft.model is StopDocument:
             document = draft.build(header, completed=len(self.rows))
         elif draft.model is CalibrationEvent:
-            calib = draft.calibration.calib
-            document = draft.build(header, data={
-                "board": draft.calibration.board, "mode": calib.mode, "rms_px": calib.rms_px,
-                "baseline_mm": calib.baseline_mm, "image_size": list(calib.image_size),
-                "views_used": list(calib.views_used), "views_rejected": len(calib.views_rejected)})
+            document = draft.build(header, data=draft.calibration.data())  # no files: nothing is written
         elif issubclass(draft.model, EventDocument):
             document = draft.build(header)  # frames and files are not kept
         else:
