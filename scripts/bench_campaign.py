@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import tempfile
 import time
@@ -67,6 +68,7 @@ def main() -> None:
         "wall_over_hardware": wall_s / hardware_s, "target": 1.10,
         "replay_s": replay_s, "replay_pairs_per_s": pairs / replay_s,
         "replay_identical": f"{replay.identical}/{replay.compared}",
+        "loadavg_1_5_15": list(os.getloadavg()),  # others share the machine: read the figures with this
     }
     print(f"{'configurations':32s} {len(configurations)} ({result['measured']} measured), {pairs} stereo pairs")
     print(f"{'hardware time':32s} {hardware_s:7.1f} s  (homing {homing_s:.1f} measured; predicted: motion "
@@ -75,6 +77,7 @@ def main() -> None:
     print(f"{'wall / hardware':32s} {result['wall_over_hardware']:7.2f}   (target <= 1.10)")
     print(f"{'replay':32s} {replay_s:7.1f} s, {result['replay_pairs_per_s']:.1f} pairs/s, "
           f"{result['replay_identical']} configurations identical")
+    print(f"{'load average (1, 5, 15 min)':32s} {' '.join(f'{v:.2f}' for v in result['loadavg_1_5_15'])}")
     with open(args.out, "w") as handle:
         json.dump(result, handle, indent=1)
 
