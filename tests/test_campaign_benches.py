@@ -67,12 +67,12 @@ def test_bring_up_mode_renders_from_the_positions_the_controller_reports(tmp_pat
     assert sent[0] == "$H"  # the real controller homed, then moved
 
 
-def test_bring_up_is_refused_when_the_controller_is_not_there(tmp_path):
-    from drivers.rig.config import RigError
-
-    config = small_config(rig={"kind": "grbl", "port": str(tmp_path / "no-such-tty"), "time_scale": 1.0})
-    with pytest.raises(RigError, match="no-such-tty"):
-        run_campaign(config, tmp_path / "s", yes=True)
+def test_bring_up_without_the_controller_is_one_line_and_a_failed_session(tmp_path, capsys):
+    plan = tmp_path / "bring-up.toml"
+    plan.write_text(SMALL.replace("[rig]\ntime_scale = 50\n", f'[rig]\nkind = "grbl"\nport = "{tmp_path}/no-tty"\n'))
+    assert main(["campaign", "run", str(plan), "--out", str(tmp_path / "s"), "--yes", "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no-tty" in err[0] and "stopped as failed" in err[0]
     assert SessionReader(tmp_path / "s").stops()[-1]["exit_status"] == "failed"
 
 

@@ -91,6 +91,8 @@ def _resume_command(args: argparse.Namespace, out: Path) -> str:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from drivers.camera.base import CameraError
+    from drivers.rig.config import RigError
     from stereo_bench.campaign.execute import CampaignPlan, OperatorAbsent, RunControl, run_campaign
     from stereo_bench.campaign.session import SessionError
     from stereo_bench.campaign.stream import JsonLines
@@ -122,6 +124,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                                control=control, plan=plan, resume_command=resume_command)
     except (SessionError, OperatorAbsent) as error:
         raise CliError(str(error)) from None
+    except (RigError, CameraError) as error:  # recorded as 'failed' in the session; one line here
+        raise CliError(f"{error} (session {out}: stopped as failed)", exit_code=1) from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -149,8 +153,8 @@ def register_run(subparsers) -> None:
         description="Drive the rig through every configuration of the plan: move, settle, flush, calibrate "
                     "(per-config extrinsics), capture and measure the square; record everything in --out. "
                     "Ctrl-C or SIGTERM stops at the next safe point (again: at once); --resume continues an "
-                    "interrupted session. Exit status: 0 done, 1 nothing measured, 2 a usage or config error, "
-                    "130 interrupted (resumable).",
+                    "interrupted session. Exit status: 0 done, 1 nothing measured or a rig/camera fault, 2 a usage "
+                    "or config error, 130 interrupted (resumable).",
     )
     run.add_argument("plan", nargs="?", metavar="PLAN.toml", help="campaign file")
     run.add_argument("--preset", metavar="NAME", help="a built-in campaign (see: stereo-bench campaign presets)")
