@@ -82,6 +82,12 @@ def open_bench(config: CampaignConfig, *, operators: Sequence[Operator], transcr
     return hardware_bench(config, operators=operators, transcript=transcript)
 
 
+def _open_rig(stack: contextlib.ExitStack, rig):
+    """Open ``rig`` with its close on ``stack`` first: a failed open still closes what it opened (the spy log)."""
+    stack.callback(rig.close)
+    return rig.open()
+
+
 # -- simulated (and bring-up) ----------------------------------------------------------------------
 
 
@@ -118,7 +124,7 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
         ))
         port = config.rig.port if bring_up else sim.tty_path
         # The runner does the manual steps (no prompt here): it moves only what the controller drives.
-        rig = stack.enter_context(GrblRig(port, rig_config, spy_log=transcript))
+        rig = _open_rig(stack, GrblRig(port, rig_config, spy_log=transcript))
         rig_holder.append(rig)
         cameras = stack.enter_context(StereoCamera(*sim.cameras(), max_skew_s=config.cameras.max_skew_s))
         presenter = SimulatedPresenter(sim, config.calibration_board.build(), config.target.build(), seed=config.seed)
@@ -209,7 +215,7 @@ def hardware_bench(config: CampaignConfig, *, operators: Sequence[Operator], tra
     optics = config.cameras.optics
     stack = contextlib.ExitStack()
     try:
-        rig = stack.enter_context(GrblRig(config.rig.port, config.rig.rig_config(), spy_log=transcript))
+        rig = _open_rig(stack, GrblRig(config.rig.port, config.rig.rig_config(), spy_log=transcript))
         settings = config.cameras.camera_settings()
         left = V4L2Camera(resolve_camera(config.cameras.left).capture_node, settings, name="left")
         right = V4L2Camera(resolve_camera(config.cameras.right).capture_node, settings, name="right")
