@@ -110,6 +110,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     signals = {"count": 0}
 
     def on_signal(signum, frame) -> None:
+        if signals.get("finished"):  # the run has ended and recorded its stop: nothing left to stop
+            return
         signals["count"] += 1
         if signals["count"] > 1:
             raise KeyboardInterrupt
@@ -122,6 +124,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:
         summary = run_campaign(config, out, resume=args.resume, yes=args.yes, subscribers=subscribers,
                                control=control, plan=plan, resume_command=resume_command)
+        signals["finished"] = True
+        progress.close()
+        return _summarise(args, summary, out, resume_command, time.monotonic() - started)
     except (SessionError, OperatorAbsent) as error:
         raise CliError(str(error)) from None
     except (RigError, CameraError) as error:  # recorded as 'failed' in the session; one line here
@@ -130,8 +135,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         progress.close()
+
+
+def _summarise(args: argparse.Namespace, summary, out: Path, resume_command: str, elapsed: float) -> int:
     counts = summary.counts()
-    elapsed = time.monotonic() - started
     parts = ", ".join(f"{n} {status}" for status, n in sorted(counts.items()))
     report = sys.stderr if args.json else sys.stdout  # --json: stdout holds only the documents
     if summary.plan_drift:
