@@ -48,6 +48,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from drivers.rig.errors import RigError
+
 QUANTITIES = (
     "baseline_mm", "toe_in_left_deg", "toe_in_right_deg", "tilt_left_deg", "tilt_right_deg", "target_distance_mm",
 )
@@ -55,10 +57,6 @@ MACHINE_AXES = ("X", "Y", "Z", "A", "B", "C")
 AxisName = Literal["X", "Y", "Z", "A", "B", "C", "fixed", "manual"]
 
 PARALLEL_ALPHA_DEG = 90.0
-
-
-class RigError(Exception):
-    """Base of every rig failure the caller can report in one line."""
 
 
 class RigConfigError(RigError):
