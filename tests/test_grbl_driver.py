@@ -224,7 +224,7 @@ def test_connecting_to_a_halted_controller_without_reset_names_the_halt():
         grbl = _controller(emu, reset_on_open=False, connect_timeout_s=0.6, boot_wait_s=0.3)
         with pytest.raises(GrblConnectionError, match="halted by a hard or soft limit.*until it is reset"):
             grbl.open()
-        with _controller(emu) as resetting:  # a soft reset at connect ends the halt
+        with _controller(emu, boot_wait_s=0.3) as resetting:  # a soft reset at connect ends the halt
             assert resetting.status().state == "Alarm" and not emu.halted
 
 

@@ -433,11 +433,12 @@ class GrblController:
     def open(self) -> GrblController:
         """Open the port, find out whether the controller just booted, (soft-reset and) read its state,
         build info, settings and startup lines. Returns self."""
-        if self.is_open:
+        if self.is_open and self._connection_error is None:
             return self
         if self._opened_before:
-            # After a lost connection the port object may still be "open" on a dead descriptor: start clean.
-            self.transport.close()
+            # After a lost connection its reader may still be running and the port object still "open" on a
+            # dead descriptor: stop and close both, then start clean.
+            self.close()
         self._reset_state()
         try:
             self.transport.open()
