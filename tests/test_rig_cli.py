@@ -5,6 +5,7 @@ The default rig mapping is stock Grbl's machine space: X = B - 350 mm, Y/Z = -to
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -150,32 +151,44 @@ def test_bad_fault_spec(tmp_path, capsys):
     assert code == 2 and "unknown fault 'explode'" in _one_line_error(err)
 
 
-def test_sim_controller_subprocess_and_status_json(tmp_path):
-    link = tmp_path / "grbl"
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
+ENV = dict(os.environ, PYTHONUNBUFFERED="1")
+
+
+@contextlib.contextmanager
+def _sim_controller(link, *options: str):
+    """``stereo-bench sim-controller --link LINK`` as a real process; yields it once the link exists, stops it
+    with SIGINT on exit (its output is then in ``process.outcome``)."""
     sim = subprocess.Popen(
-        [sys.executable, "-m", "stereo_bench", "sim-controller", "--link", str(link), "--time-scale", "50"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-    )
+        [sys.executable, "-m", "stereo_bench", "sim-controller", "--link", str(link), "--time-scale", "50",
+         *options], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
     try:
         deadline = time.monotonic() + 20.0
         while not link.is_symlink() and time.monotonic() < deadline and sim.poll() is None:
             time.sleep(0.05)
         assert link.is_symlink(), sim.stderr.read() if sim.poll() is not None else "no link"
-        status = subprocess.run(
-            [sys.executable, "-m", "stereo_bench", "rig", "--port", str(link), "status", "--json"],
-            capture_output=True, text=True, timeout=30, env=env,
-        )
-        assert status.returncode == 0, status.stderr
-        data = json.loads(status.stdout)
-        assert data["state"] == "Alarm" and data["baseline_mm"] == 350.0 and data["alpha_right_deg"] == 90.0
+        yield sim
     finally:
         sim.send_signal(signal.SIGINT)
         try:
-            out, err = sim.communicate(timeout=10)
+            sim.outcome = sim.communicate(timeout=10)
         except subprocess.TimeoutExpired:
             sim.kill()
-            out, err = sim.communicate()
+            sim.outcome = sim.communicate()
+
+
+def _cli(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "stereo_bench", *argv], capture_output=True, text=True,
+                          timeout=30, env=ENV)
+
+
+def test_sim_controller_subprocess_and_status_json(tmp_path):
+    link = tmp_path / "grbl"
+    with _sim_controller(link) as sim:
+        status = _cli("rig", "--port", str(link), "status", "--json")
+        assert status.returncode == 0, status.stderr
+        data = json.loads(status.stdout)
+        assert data["state"] == "Alarm" and data["baseline_mm"] == 350.0 and data["alpha_right_deg"] == 90.0
+    out, err = sim.outcome
     assert sim.returncode == 0, err
     assert "serving on /dev/pts/" in out and "GRBL emulator stopped" in out
     assert not link.exists() and not link.is_symlink()
@@ -252,14 +265,16 @@ def test_resume_completes_a_held_move_from_another_call(emulator, capsys):
     assert "stopped. Idle: B = 49.000 mm" in out and emulator.machine_position()["X"] == -301.0
 
 
-def test_reset_ends_a_halt_after_a_soft_limit_alarm(emulator, capsys):
+def test_reset_ends_a_halt_after_a_soft_limit_alarm(emulator, capsys, tmp_path):
+    quick = tmp_path / "rig.toml"
+    quick.write_text("[controller]\nconnect_timeout_s = 0.6\n")  # a halted Grbl never answers: don't wait 5 s
     with GrblController(emulator.tty_path) as grbl:
         grbl.unlock()
         with pytest.raises(Exception, match="ALARM:2"):
             grbl.move_to({"X": 5.0}).wait(5.0)  # past the homing switch: Grbl halts
     assert emulator.halted
     time.sleep(0.1)  # let the alarm's [MSG:Reset to continue] go out (0.5 s simulated) while nobody listens
-    code, _, err = _run(capsys, "rig", "--port", emulator.tty_path, "status")
+    code, _, err = _run(capsys, "rig", "--port", emulator.tty_path, "--rig-config", str(quick), "status")
     assert code == 2, err
     assert "halted by a hard or soft limit" in _one_line_error(err)
     code, out, err = _run(capsys, "rig", "--port", emulator.tty_path, "reset", "status")
@@ -302,25 +317,8 @@ def test_action_help_and_bad_actions(emulator, capsys):
 def test_lost_connection_exits_1_and_says_so_once(tmp_path):
     # A real process, so that logging is configured as for a user (no test log capture).
     link = tmp_path / "grbl"
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    sim = subprocess.Popen(
-        [sys.executable, "-m", "stereo_bench", "sim-controller", "--link", str(link), "--time-scale", "50",
-         "--fault", "vanish:0.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    try:
-        deadline = time.monotonic() + 20.0
-        while not link.is_symlink() and time.monotonic() < deadline and sim.poll() is None:
-            time.sleep(0.05)
-        assert link.is_symlink(), sim.stderr.read() if sim.poll() is not None else "no link"
-        result = subprocess.run(
-            [sys.executable, "-m", "stereo_bench", "rig", "--port", str(link), "home", "move", "--baseline", "100"],
-            capture_output=True, text=True, timeout=30, env=env)
-    finally:
-        sim.send_signal(signal.SIGINT)
-        try:
-            sim.communicate(timeout=10)
-        except subprocess.TimeoutExpired:
-            sim.kill()
-            sim.communicate()
+    with _sim_controller(link, "--fault", "vanish:0.5"):
+        result = _cli("rig", "--port", str(link), "home", "move", "--baseline", "100")
     assert result.returncode == 1, result.stderr
     assert "homed." in result.stdout
     lines = [line for line in result.stderr.splitlines() if line.strip()]
