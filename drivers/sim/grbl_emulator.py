@@ -63,7 +63,8 @@ from rest to rest) and a feed hold decelerates within the current block; homing 
 once at the seek rate, then a fixed settle time stands for the locate and pull-off phases; a
 motor never stalls at the end of its travel and there are no hard limit switches (``$21`` is stored,
 not acted on); a startup line's ``G4`` does not wait; arcs, probing, spindle, coolant, ``G10``/``G92``
-offsets, sleep and ``$RST`` are not modelled (their g-codes are refused with ``error:20``).
+offsets, sleep and ``$RST`` are not modelled (their g-codes are refused with ``error:20``, ``$SLP``
+and ``$RST=`` with ``error:3``).
 Units are machine units (mm; a rotary axis in whatever unit its settings are given in).
 """
 
