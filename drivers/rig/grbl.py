@@ -499,8 +499,9 @@ class GrblController:
         report means a boot.
         """
         start = time.monotonic()
-        with self._cond:
-            banners = self._banner_count
+        # Any banner since the port opened counts (the reset_state before open() zeroed the count): a board
+        # that boots fast may have printed it before this thread got here.
+        banners = 0
         wanted, asked_at = self._ask_status()
         next_retry = asked_at + self.status_retry_s
         while True:
