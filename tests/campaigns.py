@@ -54,6 +54,13 @@ def numbers(session: Path) -> dict[str, tuple]:
                                row["rms_px"]) for row in results_csv(session)}
 
 
+def motion_commands(path: Path) -> list[str]:
+    """The lines of a session's serial transcript that move the rig (homing, G0/G1): queries such as
+    ``$I``/``$$``/``$N`` at connect move nothing."""
+    return [line for line in transcript_commands(path)
+            if line.startswith("$H") or any(word in line.split() for word in ("G0", "G1"))]
+
+
 def transcript_commands(path: Path) -> list[str]:
     """The lines a session's serial transcript sent to the controller (real-time bytes left out)."""
     sent = []

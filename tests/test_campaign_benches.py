@@ -30,7 +30,7 @@ from stereo_bench.campaign.operator import (
 )
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.cli import main
-from tests.campaigns import SAMPLE_SESSION, SMALL, small_config, transcript_commands
+from tests.campaigns import SAMPLE_SESSION, SMALL, motion_commands, small_config, transcript_commands
 
 HALF_RES = {"optics": {"width_px": 960, "height_px": 540, "pixel_um": 6.0}}
 
@@ -40,31 +40,31 @@ HALF_RES = {"optics": {"width_px": 960, "height_px": 540, "pixel_um": 6.0}}
 
 def test_bring_up_mode_renders_from_the_positions_the_controller_reports(tmp_path, capsys):
     """``campaign run`` end to end with [rig] kind = "grbl" and simulated cameras. A GRBL controller on a
-    pty stands in for the real one; its X axis moves in 4 mm steps, so for B = 150 mm it reports 152 mm
-    while the emulator object holds 150: the cameras must see 152."""
+    pty stands in for the real one, in Grbl's negative machine space (X = B - 350); its X axis moves in 4 mm
+    steps, so for B = 100 mm (X = -250) it lands and reports X = -252, B = 98 mm: the cameras must see 98."""
     coarse_x = {"X": replace(DEFAULT_AXES["X"], steps_per_unit=0.25)}
     plan = tmp_path / "bring-up.toml"
     out = tmp_path / "bring-up"
     with GrblEmulator(axes="XYZ", axis_specs=coarse_x, time_scale=20.0) as controller:
         rig = (f'[rig]\nkind = "grbl"\nport = "{controller.tty_path}"\n'
-               '[rig.quantities.baseline_mm]\naxis = "X"\nmin = 0\nmax = 350\ntolerance = 3.0\n')
+               '[rig.quantities.baseline_mm]\naxis = "X"\noffset = -350\nmin = 0\nmax = 350\ntolerance = 3.0\n')
         text = SMALL.replace("[rig]\ntime_scale = 50\n", rig)
         plan.write_text(text.replace("alpha_deg = [90, 35]", "alpha_deg = [90]"))
         assert load_campaign(plan).bench_kind == "bring-up"
         assert main(["campaign", "run", str(plan), "--out", str(out), "--yes", "--quiet"]) == 0
-        assert controller.machine_position()["X"] == 150.0  # where the emulator object says the slide is
+        assert controller.machine_position()["X"] == -200.0  # B = 150 mm: a whole number of steps
     assert "campaign success" in capsys.readouterr().out
     reader = SessionReader(out)
     assert reader.start()["bench"] == "bring-up"
     reported = {e["config_id"]: e["data"]["rig"]["baseline_mm"] for e in reader.events(kind="move")}
-    assert reported == {"B100_Z450_A90": 100.0, "B150_Z450_A90": 152.0}
+    assert reported == {"B100_Z450_A90": 98.0, "B150_Z450_A90": 150.0}
     rows = {row["config_id"]: row for row in reader.results()}
     for config_id, baseline in reported.items():
         # The stereo calibration finds the baseline the cameras were rendered at: the reported one.
         assert rows[config_id]["status"] == "measured" and abs(rows[config_id]["error_mm"]) < 0.05
         assert rows[config_id]["baseline_estimated_mm"] == pytest.approx(baseline, abs=0.2)
     sent = transcript_commands(next((out / "transcripts").glob("serial-*.jsonl")))
-    assert sent[0] == "$H"  # the real controller homed, then moved
+    assert sent.index("$H") < min(i for i, line in enumerate(sent) if "G0" in line)  # homed, then moved
 
 
 def test_bring_up_without_the_controller_is_one_line_and_a_failed_session(tmp_path, capsys):
@@ -186,13 +186,13 @@ def test_nothing_moves_when_nothing_is_left_to_run(tmp_path, small_copy):
     assert summary.exit_status == "success" and summary.skipped == 4 and summary.rows == []
     reader = SessionReader(small_copy)
     assert not [e for e in reader.events(attempt=2) if e["kind"] in ("home", "move")]
-    assert transcript_commands(small_copy / "transcripts" / "serial-a2.jsonl") == []
+    assert motion_commands(small_copy / "transcripts" / "serial-a2.jsonl") == []
     # A campaign whose every configuration is infeasible: recorded with the reasons, and nothing moves.
     out = tmp_path / "infeasible"
     summary = run_campaign(small_config(plan={"baseline_mm": [100], "distance_mm": [450], "alpha_deg": [35]}), out,
                            yes=True)
     assert summary.counts() == {"infeasible": 1}
-    assert transcript_commands(out / "transcripts" / "serial-a1.jsonl") == []
+    assert motion_commands(out / "transcripts" / "serial-a1.jsonl") == []
     assert not SessionReader(out).events(kind="home")
 
 

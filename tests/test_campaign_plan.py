@@ -297,14 +297,16 @@ def test_duration_of_paper_exp1_on_the_simulated_rig():
     configurations = expand_plan(config)
     steps = plan_steps(config, configurations)
     estimate = estimate_duration(config, configurations, steps)
-    # Homing: 350 mm at 3000 mm/min + 0.5 s. Motion: 21 baseline moves of 50 mm (1.25 s each); the
-    # baseline stays put when only Z changes (serpentine). 25 x (0.3 s settle + 15 frames x 0.02 s).
+    # Homing: 350 mm at 3000 mm/min + 0.5 s. Motion: from the homing switch (X = 0, B = 350 mm in the default
+    # mapping) to B = 50 mm, 300 mm in 6.25 s (0.25 s ramps of 6.25 mm, 287.5 mm at 50 mm/s), then 20 baseline
+    # moves of 50 mm (1.25 s each); the baseline stays put when only Z changes (serpentine).
+    # 25 x (0.3 s settle + 15 frames x 0.02 s).
     assert estimate.homing_s == pytest.approx(7.5)
-    assert estimate.motion_s == pytest.approx(21 * 1.25)
+    assert estimate.motion_s == pytest.approx(6.25 + 20 * 1.25)
     assert estimate.settle_s == pytest.approx(25 * 0.3)
     assert estimate.capture_s == pytest.approx(25 * 15 * 0.02)
     assert estimate.operator_s == 0.0 and estimate.flush_s == 0.0
-    assert predict_duration_s(config, configurations, steps) == pytest.approx(estimate.total_s) == pytest.approx(48.75)
+    assert predict_duration_s(config, configurations, steps) == pytest.approx(estimate.total_s) == pytest.approx(53.75)
     assert any("no operator time" in a for a in estimate.assumptions)
 
 

@@ -17,7 +17,7 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,7 +25,7 @@ from drivers.camera.base import CameraSettings
 from drivers.camera.synthetic import SyntheticCamera
 from drivers.rig.config import RigConfig, alpha_from_toe_in, to_physical
 from drivers.rig.motion import REFERENCE_HOMING_SEEK_RATE_PER_MIN, REFERENCE_HOMING_SETTLE_S
-from drivers.sim.grbl_emulator import DEFAULT_AXES, AxisSpec, GrblEmulator
+from drivers.sim.grbl_emulator import AxisSpec, GrblEmulator, axis_specs_for_travel
 from drivers.sim.render import Optics, StereoRenderer
 from stereo_bench.geometry import CameraModel, RigPose
 from stereo_bench.targets import CharucoTarget, Checkerboard
@@ -71,10 +71,14 @@ class SimulatedBench:
         self.time_scale = time_scale
         self.exposure_s = exposure_s
         self.pose_source = pose_source
+        # The emulated controller's travel ($13x) comes from the rig config's soft limits, in the machine space
+        # a stock Grbl gives (negative from the homing switch); a config with positive machine targets gets
+        # the HOMING_FORCE_SET_ORIGIN build that serves them (see docs/RIG.md).
+        specs, force_set_origin = axis_specs_for_travel(self.rig_config.machine_travel())
         self.emulator = None if pose_source is not None else GrblEmulator(
-            axes=self.rig_config.axes, axis_specs=axis_specs or self._axis_specs(), time_scale=time_scale,
-            homing_enabled=homing_enabled, homing_seek_rate_per_min=REFERENCE_HOMING_SEEK_RATE_PER_MIN,
-            homing_settle_s=REFERENCE_HOMING_SETTLE_S,
+            axes=self.rig_config.axes, axis_specs=axis_specs or specs, time_scale=time_scale,
+            homing_enabled=homing_enabled, force_set_origin=force_set_origin,
+            homing_seek_rate_per_min=REFERENCE_HOMING_SEEK_RATE_PER_MIN, homing_settle_s=REFERENCE_HOMING_SETTLE_S,
         )
         self._scene = Scene()
         self._lock = threading.Lock()
@@ -86,11 +90,6 @@ class SimulatedBench:
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-render")
         # What the operator would set by hand (the target distance unless it is motorised).
         self.manual_values: dict[str, float] = {}
-
-    def _axis_specs(self) -> dict[str, AxisSpec]:
-        """Travel of each emulated axis from the soft limits of the quantity it drives (machine units)."""
-        return {axis: replace(DEFAULT_AXES.get(axis, AxisSpec()), travel=travel)
-                for axis, travel in self.rig_config.machine_travel().items()}
 
     # -- lifecycle ---------------------------------------------------------------------------------------------
 
@@ -131,10 +130,13 @@ class SimulatedBench:
         self.last_prompt = message
 
     def rig_pose(self) -> RigPose:
-        """The rig pose the emulator's axes are at now (fixed quantities from the config), or the pose source's."""
+        """The rig pose the emulator's axes are at now (fixed quantities from the config), or the pose source's.
+
+        Where the axes really are, not what the controller's step counters say: the two differ until the
+        controller is homed (after a boot the counters start at 0 wherever the axes stand)."""
         if self.pose_source is not None:
             return self.pose_source()
-        physical = to_physical(self.rig_config, self.emulator.machine_position())
+        physical = to_physical(self.rig_config, self.emulator.physical_position())
         for quantity, mapping in self.rig_config.quantities.items():
             if mapping.axis == "fixed":
                 physical.setdefault(quantity, float(mapping.value))
