@@ -94,8 +94,10 @@ def main() -> None:
     with SimulatedBench(time_scale=TIME_SCALE, profile=LAB, seed=5, **cameras) as bench:
         bench.warm_up(CALIBRATION_BOARD, TARGET)
         with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
-            rig.home()
-            previous = {"baseline_mm": 0.0, "toe_in_left_deg": 0.0, "toe_in_right_deg": 0.0}
+            home = rig.home()  # Grbl's machine space: homed at B = 349 mm, toe-ins 1 deg (the pull-off)
+            # The first design move's direction of approach is from there.
+            previous = {"baseline_mm": home.baseline_mm, "toe_in_left_deg": home.toe_in_left_deg,
+                        "toe_in_right_deg": home.toe_in_right_deg}
             approach: dict = {}
             configurations = []
             t0 = time.perf_counter()

@@ -1,16 +1,20 @@
 #!/usr/bin/env python3
-"""Rig-controller latency through the GRBL emulator on a pty: ``?`` status queries and small move + wait.
+"""Rig-controller latency through the GRBL emulator on a pty: connect, ``?`` status queries, small move + wait.
 
-    python scripts/bench_rig.py [--queries 2000] [--moves 50] [--move-mm 0.1] [--time-scale 1] [--out bench_rig.json]
+    python scripts/bench_rig.py [--queries 2000] [--moves 50] [--move-mm 0.1] [--connects 20] [--time-scale 1]
+                                [--out bench_rig.json]
 
-Three figures (median, p95, p99, max; milliseconds):
+Four figures (median, p95, p99, max; milliseconds):
 
+- connect: ``GrblController.open()`` + ``close()``: listen for a boot (one ``?``), soft reset and
+  banner, ``?``, then ``$I``, ``$$``, ``$N`` read and checked;
 - raw pty round trip: pyserial writes ``?`` and reads the report line, no driver (the floor);
 - driver status query: ``GrblController.status()`` through its reader thread;
-- small move + wait: ``move_to({"X": ±move_mm}).wait()`` (line, ``ok``, ``G4 P0``, ``ok``, ``?``),
+- small move + wait: ``move_to({"X": -10 - move_mm}).wait()`` (line, ``ok``, ``G4 P0``, ``ok``, ``?``),
   with the simulated motion time alongside so the driver's overhead can be read off.
 
-Target: status query <= 2 ms median. Prints a table and writes JSON.
+Target: status query <= 2 ms median. Prints a table and writes JSON (with the load average: other
+programs share the machine).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import platform
 import statistics
 import sys
@@ -58,6 +63,18 @@ def bench_raw_pty(emulator: GrblEmulator, n: int) -> list[float]:
         port.close()
 
 
+def bench_connect(emulator: GrblEmulator, n: int) -> list[float]:
+    samples = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        grbl = GrblController(emulator.tty_path).open()
+        grbl.close()
+        samples.append(time.perf_counter() - t0)
+        if not grbl.info.settings_read:
+            raise RuntimeError("connect did not read the settings")
+    return samples
+
+
 def bench_status(grbl: GrblController, n: int) -> list[float]:
     samples = []
     for _ in range(n):
@@ -78,7 +95,7 @@ def motion_time_s(distance: float, rate_per_min: float, accel: float) -> float:
 def bench_moves(grbl: GrblController, n: int, move_mm: float, base_mm: float) -> list[float]:
     samples = []
     for i in range(n):
-        target = base_mm + (move_mm if i % 2 == 0 else 0.0)
+        target = base_mm - (move_mm if i % 2 == 0 else 0.0)  # Grbl's machine space is negative
         t0 = time.perf_counter()
         reading = grbl.move_to({"X": target}, timeout_s=30.0).wait(30.0)
         samples.append(time.perf_counter() - t0)
@@ -92,17 +109,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--queries", type=int, default=2000, help="status queries to time")
     parser.add_argument("--moves", type=int, default=50, help="small moves to time")
     parser.add_argument("--move-mm", type=float, default=0.1, help="size of each small move, mm")
+    parser.add_argument("--connects", type=int, default=20, help="connects (open + close) to time")
     parser.add_argument("--time-scale", type=float, default=1.0, help="emulator time scale (1 = real time)")
     parser.add_argument("--out", type=Path, default=Path("bench_rig.json"), help="JSON results file")
     args = parser.parse_args(argv)
 
+    load_before = os.getloadavg()
     with GrblEmulator(time_scale=args.time_scale) as emulator:
+        connects = bench_connect(emulator, args.connects)
         raw = bench_raw_pty(emulator, min(args.queries, 1000))
         with GrblController(emulator.tty_path) as grbl:
             grbl.home(timeout=60.0)
             bench_status(grbl, 50)  # warm-up
             status = bench_status(grbl, args.queries)
-            base = 10.0
+            base = -10.0
             grbl.move_to({"X": base}).wait(60.0)
             moves = bench_moves(grbl, args.moves, args.move_mm, base)
             lost, garbled = grbl.lost_replies, grbl.garbled_lines
@@ -116,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
         "pyserial": serial.__version__,
         "time_scale": args.time_scale,
         "move_mm": args.move_mm,
+        "load_average_1_5_15_min": {"before": list(load_before), "after": list(os.getloadavg())},
+        "connect_ms": summarise(connects),
         "raw_pty_status_round_trip_ms": summarise(raw),
         "driver_status_query_ms": summarise(status),
         "small_move_and_wait_ms": summarise(moves),
@@ -126,7 +148,8 @@ def main(argv: list[str] | None = None) -> int:
         "garbled_lines": garbled,
     }
 
-    rows = [("raw pty '?' round trip", results["raw_pty_status_round_trip_ms"]),
+    rows = [("connect ($I $$ $N read)", results["connect_ms"]),
+            ("raw pty '?' round trip", results["raw_pty_status_round_trip_ms"]),
             ("driver status()", results["driver_status_query_ms"]),
             (f"move {args.move_mm:g} mm + wait", results["small_move_and_wait_ms"])]
     print(f"{'measurement':<28} {'n':>6} {'median':>9} {'p95':>9} {'p99':>9} {'max':>9}   (ms)")
@@ -135,6 +158,8 @@ def main(argv: list[str] | None = None) -> int:
     overhead = results["small_move_and_wait_ms"]["median"] - motion_ms
     print(f"simulated motion of one {args.move_mm:g} mm move: {motion_ms:.3f} ms "
           f"(time scale {args.time_scale:g}); driver + protocol overhead ~ {overhead:.3f} ms median")
+    print(f"load average (1, 5, 15 min): before {load_before[0]:.2f} {load_before[1]:.2f} {load_before[2]:.2f}, "
+          f"after {os.getloadavg()[0]:.2f}")
     verdict = "met" if results["status_target_met"] else "MISSED"
     print(f"status query target <= {STATUS_TARGET_MS:g} ms median: {verdict}")
     args.out.write_text(json.dumps(results, indent=2) + "\n")

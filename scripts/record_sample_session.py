@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from stereo_bench.campaign.config import campaign_from_dict
+from stereo_bench.campaign.documents import ResultDocument
 from stereo_bench.campaign.execute import run_campaign
 
 SAMPLE = {
@@ -43,8 +44,11 @@ def main() -> int:
             return 2
         shutil.rmtree(out)
     config = campaign_from_dict(SAMPLE)
-    summary = run_campaign(config, out, yes=True,
-                           on_result=lambda row: print(row["config_id"], row["status"], row.get("square_mean_mm")))
+    def show(document) -> None:  # a subscriber: one line per result
+        if isinstance(document, ResultDocument):
+            print(document.config_id, document.row.status, document.row.square_mean_mm)
+
+    summary = run_campaign(config, out, yes=True, subscribers=[show])
     size_mb = sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) / 1e6
     print(f"{summary.exit_status}: {summary.counts()}, {size_mb:.1f} MB in {out}")
     return 0

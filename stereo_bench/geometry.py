@@ -20,12 +20,20 @@ This module is a leaf: numpy and OpenCV only, so both the measurement code and t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 PARALLEL_ALPHA_DEG = 90.0
+
+# The default camera, the one definition the campaign config (OpticsConfig), the error model and the
+# simulators take: 1920x1080, a 4 mm lens on 3 um pixels (f = 1333.3 px), mild barrel distortion.
+DEFAULT_FOCAL_MM = 4.0
+DEFAULT_PIXEL_UM = 3.0
+DEFAULT_IMAGE_SIZE = (1920, 1080)
+DEFAULT_DIST = (-0.05, 0.02, 0.0, 0.0, 0.0)
 
 
 def toe_in_from_alpha(alpha_deg: float) -> float:
@@ -198,8 +206,8 @@ class CameraModel:
 
     @classmethod
     def from_sensor(
-        cls, *, focal_mm: float = 4.0, pixel_um: float = 3.0, image_size: tuple[int, int] = (1920, 1080),
-        dist: tuple[float, ...] = (-0.05, 0.02, 0.0, 0.0, 0.0), name: str = "camera",
+        cls, *, focal_mm: float = DEFAULT_FOCAL_MM, pixel_um: float = DEFAULT_PIXEL_UM,
+        image_size: tuple[int, int] = DEFAULT_IMAGE_SIZE, dist: tuple[float, ...] = DEFAULT_DIST, name: str = "camera",
     ) -> CameraModel:
         """A camera from its lens and sensor: f_px = focal / pixel pitch, principal point at the centre."""
         f_px = focal_mm * 1000.0 / pixel_um
@@ -268,3 +276,65 @@ def visible_in_both(
     """
     return (visible_in_view(points_rig, left, rig.T_rig_left, margin_px=margin_px)
             & visible_in_view(points_rig, right, rig.T_rig_right, margin_px=margin_px))
+
+
+# -- the calibration-fit rule ---------------------------------------------------------------------
+# One definition of "this pose of the calibration board is a usable calibration view", used by the
+# plan (does such a pose exist at this configuration?), the simulator's board poses and the presenter.
+CALIBRATION_MARGIN_PX = 20.0  # a calibration corner this far inside both images: room for cornerSubPix
+CALIBRATION_MAX_OBLIQUITY_DEG = 60.0  # a board turned further from a camera's line of sight is too foreshortened
+CALIBRATION_OUTLINE_POINTS_PER_SIDE = 8
+
+
+def calibration_outline(board) -> np.ndarray:
+    """(32, 3) board-frame points around the outer squares (one square beyond the inner corners, 8 per side).
+
+    A chessboard detector needs the outer squares of a whole board in view, not only its inner corners.
+    ``board`` has ``grid_size_mm`` and ``square_mm`` (``stereo_bench.targets`` boards).
+    """
+    width_mm, height_mm = board.grid_size_mm
+    sq = board.square_mm
+    t = np.linspace(0.0, 1.0, CALIBRATION_OUTLINE_POINTS_PER_SIDE)
+    x0, x1, y0, y1 = -sq, width_mm + sq, -sq, height_mm + sq
+    outline = np.concatenate([
+        np.column_stack([x0 + (x1 - x0) * t, np.full_like(t, y0)]),
+        np.column_stack([x0 + (x1 - x0) * t, np.full_like(t, y1)]),
+        np.column_stack([np.full_like(t, x0), y0 + (y1 - y0) * t]),
+        np.column_stack([np.full_like(t, x1), y0 + (y1 - y0) * t]),
+    ])
+    return np.column_stack([outline, np.zeros(len(outline))])
+
+
+def calibration_view_fits(
+    board, T_rig_board: np.ndarray, *, rig: RigPose, left: CameraModel, right: CameraModel,
+    margin_px: float = CALIBRATION_MARGIN_PX, max_obliquity_deg: float = CALIBRATION_MAX_OBLIQUITY_DEG,
+    min_fraction: float | None = None,
+) -> bool:
+    """True when the calibration board at ``T_rig_board`` (4x4, mm) is a usable view for both cameras.
+
+    Both cameras see its printed side, no more than ``max_obliquity_deg`` off their line of sight to
+    its centre; at least ``min_fraction`` (default: the board's ``min_calibration_fraction``: 1 for a
+    checkerboard, 0.5 for ChArUco) of its inner corners land ``margin_px`` inside both images, and a
+    board needed whole shows its outer squares too (:func:`calibration_outline`).
+    ``board``: a ``stereo_bench.targets`` board (object_points, grid_size_mm, square_mm).
+    """
+    fraction = board.min_calibration_fraction if min_fraction is None else min_fraction
+    object_points = np.asarray(board.object_points, dtype=np.float64)
+    width_mm, height_mm = board.grid_size_mm
+    centre_board = np.array([width_mm / 2.0, height_mm / 2.0, 0.0])
+    cos_limit = math.cos(math.radians(max_obliquity_deg))
+    seen = np.ones(len(object_points), dtype=bool)
+    for camera, T_rig_cam in ((left, rig.T_rig_left), (right, rig.T_rig_right)):
+        T_cam_board = invert_transform(T_rig_cam) @ T_rig_board
+        if not board_faces_camera(T_cam_board):
+            return False
+        centre_cam = T_cam_board[:3, :3] @ centre_board + T_cam_board[:3, 3]
+        if abs(T_cam_board[:3, 2] @ centre_cam) < cos_limit * np.linalg.norm(centre_cam):
+            return False
+        pixels, valid = camera.project(transform_points(T_cam_board, object_points))
+        seen &= valid & camera.in_image(pixels, margin_px=margin_px)
+        if fraction >= 1.0:
+            pixels, valid = camera.project(transform_points(T_cam_board, calibration_outline(board)))
+            if not (valid & camera.in_image(pixels, margin_px=margin_px)).all():
+                return False
+    return bool(seen.mean() >= fraction - 1e-12)

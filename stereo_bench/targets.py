@@ -107,6 +107,11 @@ class Checkerboard:
         """
         return (self.cols + self.rows) % 2 == 0
 
+    @property
+    def min_calibration_fraction(self) -> float:
+        """Share of the corners a calibration view must show: all (detected whole, with its outer squares)."""
+        return 1.0
+
     def adjacent_pairs(self) -> np.ndarray:
         """(M, 2) corner-id pairs one square apart along a row or a column."""
         return grid_adjacent_pairs(self.cols, self.rows)
@@ -170,6 +175,11 @@ class CharucoTarget:
         """(n_corners, 3) float32, indexed by charuco id, origin at the first inner corner."""
         corners = np.asarray(self.cv_board.getChessboardCorners(), np.float32).reshape(-1, 3)
         return corners - corners[0]
+
+    @property
+    def min_calibration_fraction(self) -> float:
+        """Share of the corners a calibration view must show: half (every corner is identified on its own)."""
+        return 0.5
 
     def adjacent_pairs(self) -> np.ndarray:
         """(M, 2) corner-id pairs one square apart along a row or a column."""

@@ -6,6 +6,9 @@
 
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
+
 import pytest
 
 
@@ -31,3 +34,42 @@ def serial_port(request: pytest.FixtureRequest) -> str:
     if not port:
         pytest.skip("hardware tier: pass --serial-port PATH to run")
     return port
+
+
+@pytest.fixture(scope="session")
+def small_reference(tmp_path_factory) -> Path:
+    """The small campaign (tests/campaigns.py) recorded once per test session. Read it; copy it to change it."""
+    from stereo_bench.campaign.execute import run_campaign
+    from tests.campaigns import small_config
+
+    out = tmp_path_factory.mktemp("reference") / "small"
+    summary = run_campaign(small_config(), out, yes=True)
+    assert summary.exit_status == "success", summary
+    return out
+
+
+@pytest.fixture
+def small_copy(small_reference, tmp_path) -> Path:
+    """A copy of the small reference session this test may resume or change."""
+    copy = tmp_path / "small"
+    shutil.copytree(small_reference, copy)
+    return copy
+
+
+@pytest.fixture(scope="session")
+def dask_cluster():
+    """One in-process Dask LocalCluster for every test that needs one (starting one takes seconds)."""
+    pytest.importorskip("distributed")
+    from dask.distributed import LocalCluster
+
+    cluster = LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None)
+    try:
+        yield cluster
+    finally:
+        cluster.close()
+
+
+@pytest.fixture(scope="session")
+def dask_scheduler(dask_cluster) -> str:
+    """The shared cluster's scheduler address (for ``--executor dask --scheduler ADDRESS``)."""
+    return dask_cluster.scheduler_address

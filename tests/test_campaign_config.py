@@ -85,6 +85,8 @@ def test_angle_defaults_to_parallel_and_toe_in_converts():
     (MINIMAL + "[rig.quantities.baseline_mm]\naxis = 'X'\n", "rig.quantities.baseline_mm: a quantity "
                                                                "driven by axis X needs soft limits"),
     (MINIMAL + "[cameras]\nkind = 'v4l2'\n", "cameras: kind = \"v4l2\" needs left and right"),
+    (MINIMAL + "[cameras]\nkind = 'v4l2'\nleft = 'usb-port:1-1'\nright = 'usb-port:1-2'\n",
+     "rig.kind = \"simulated\" with cameras.kind = \"v4l2\" is not a bench: real cameras cannot film"),
     (MINIMAL + "[capture]\ncalibration_views = 3\n", "capture.calibration_views: per-config extrinsics need"),
     (MINIMAL + "[capture]\nframes_per_config = 0\n", "capture.frames_per_config: Input should be greater"),
     (MINIMAL + "[extrinsics]\nmode = 'fixed'\n", "extrinsics: mode = \"fixed\" needs calib_dir"),
@@ -159,13 +161,25 @@ def test_calibration_directory_must_hold_the_files_the_mode_needs(tmp_path):
 
 def test_v4l2_cameras_and_their_settings():
     config = campaign_from_dict({
+        "rig": {"kind": "grbl", "port": "/dev/ttyUSB0"},
         "cameras": {"kind": "v4l2", "left": "by-id:usb-cam-L", "right": "usb-port:1-2",
                     "settings": {"exposure_us": 5000, "fps": 15, "pixel_format": "mjpg"}},
         "plan": {"baseline_mm": [100], "distance_mm": [500]},
     })
     settings = config.cameras.camera_settings()
     assert settings.exposure_us == 5000 and settings.pixel_format == "MJPG" and settings.auto_exposure is False
-    assert not config.fully_simulated
+    assert not config.fully_simulated and config.bench_kind == "hardware"
+
+
+@pytest.mark.parametrize("rig, cameras, kind", [
+    ({}, {}, "simulated"),
+    ({"kind": "grbl", "port": "/dev/ttyUSB0"}, {}, "bring-up"),
+    ({"kind": "grbl", "port": "/dev/ttyUSB0"}, {"kind": "v4l2", "left": "usb-port:1-1", "right": "usb-port:1-2"},
+     "hardware"),
+])
+def test_every_supported_rig_and_camera_combination_is_a_bench(rig, cameras, kind):
+    config = campaign_from_dict({"rig": rig, "cameras": cameras, "plan": {"baseline_mm": [100], "distance_mm": [500]}})
+    assert config.bench_kind == kind
 
 
 def test_target_build_checkerboard_and_charuco():
@@ -204,3 +218,10 @@ def test_json_schema_describes_the_file():
     plan = schema["$defs"]["PlanSection"]
     assert plan["additionalProperties"] is False and set(plan["required"]) == {"baseline_mm", "distance_mm"}
     assert CampaignConfig.model_validate({"plan": {"baseline_mm": [1], "distance_mm": [1]}}).name == "campaign"
+
+
+def test_the_default_optics_are_the_default_camera():
+    from stereo_bench.campaign.config import OpticsConfig
+    from stereo_bench.geometry import CameraModel
+
+    assert OpticsConfig().camera_model("left") == CameraModel.from_sensor(name="left")

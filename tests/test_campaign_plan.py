@@ -9,6 +9,7 @@ import re
 import numpy as np
 import pytest
 
+from drivers.rig.motion import REFERENCE_AXIS_MOTION, move_time_s
 from drivers.sim.grbl_emulator import DEFAULT_AXES, GrblEmulator
 from stereo_bench.campaign.config import campaign_from_dict, load_preset
 from stereo_bench.campaign.plan import (
@@ -24,7 +25,6 @@ from stereo_bench.campaign.plan import (
     estimate_duration,
     expand_plan,
     format_id_value,
-    move_time_s,
     plan_steps,
     plan_summary,
     predict_duration_s,
@@ -117,6 +117,24 @@ def test_calibration_range_checkerboard_needs_the_whole_board_charuco_half():
     toed_in = RigPose.symmetric(100.0, 55.0)
     assert calibration_distance_range(Checkerboard(11, 8, 25.0), toed_in, left=camera, right=camera) is None
     assert calibration_distance_range(CharucoTarget(8, 6, 15.0, 11.0), toed_in, left=camera, right=camera) is not None
+
+
+def test_where_the_plan_finds_the_board_fits_the_simulator_places_every_view():
+    """One calibration-fit rule: a configuration the plan calls feasible is one the presenter can fill."""
+    from drivers.sim.render import calibration_board_poses
+    from stereo_bench.geometry import calibration_view_fits
+
+    camera = CameraModel.from_sensor()
+    for board in (Checkerboard(11, 8, 25.0), CharucoTarget(8, 6, 15.0, 11.0)):
+        for alpha in (90.0, 80.0, 70.0, 62.0):
+            rig = RigPose.symmetric(100.0, alpha)
+            fits = calibration_distance_range(board, rig, left=camera, right=camera)
+            if fits is None:
+                continue
+            poses = calibration_board_poses(rig, board, n_views=8, rng=np.random.default_rng(int(alpha)),
+                                            distance_mm=fits, left=camera, right=camera)
+            assert len(poses) == 8
+            assert all(calibration_view_fits(board, T, rig=rig, left=camera, right=camera) for T in poses)
 
 
 def test_tilt_moves_the_bisector_and_the_config_id():
@@ -257,7 +275,13 @@ def test_move_time_matches_the_emulators_motion_model(deltas, feed):
     rates = {a: DEFAULT_AXES[a].max_rate_per_min for a in "XYZ"}
     accels = {a: DEFAULT_AXES[a].acceleration for a in "XYZ"}
     predicted = move_time_s(deltas, max_rate_per_min=rates, acceleration=accels, feed_per_min=feed)
-    assert predicted == pytest.approx(block.motion_duration, rel=1e-12)
+    assert predicted == block.motion_duration  # one model, so equal to the last digit
+
+
+def test_the_emulator_and_the_plan_share_the_reference_axes():
+    for axis, motion in REFERENCE_AXIS_MOTION.items():
+        assert (DEFAULT_AXES[axis].max_rate_per_min, DEFAULT_AXES[axis].acceleration) == (
+            motion.max_rate_per_min, motion.acceleration)
 
 
 def test_move_time_by_hand():
@@ -273,14 +297,16 @@ def test_duration_of_paper_exp1_on_the_simulated_rig():
     configurations = expand_plan(config)
     steps = plan_steps(config, configurations)
     estimate = estimate_duration(config, configurations, steps)
-    # Homing: 350 mm at 3000 mm/min + 0.5 s. Motion: 21 baseline moves of 50 mm (1.25 s each); the
-    # baseline stays put when only Z changes (serpentine). 25 x (0.3 s settle + 15 frames x 0.02 s).
+    # Homing: 350 mm at 3000 mm/min + 0.5 s. Motion: from the homing switch (X = 0, B = 350 mm in the default
+    # mapping) to B = 50 mm, 300 mm in 6.25 s (0.25 s ramps of 6.25 mm, 287.5 mm at 50 mm/s), then 20 baseline
+    # moves of 50 mm (1.25 s each); the baseline stays put when only Z changes (serpentine).
+    # 25 x (0.3 s settle + 15 frames x 0.02 s).
     assert estimate.homing_s == pytest.approx(7.5)
-    assert estimate.motion_s == pytest.approx(21 * 1.25)
+    assert estimate.motion_s == pytest.approx(6.25 + 20 * 1.25)
     assert estimate.settle_s == pytest.approx(25 * 0.3)
     assert estimate.capture_s == pytest.approx(25 * 15 * 0.02)
     assert estimate.operator_s == 0.0 and estimate.flush_s == 0.0
-    assert predict_duration_s(config, configurations, steps) == pytest.approx(estimate.total_s) == pytest.approx(48.75)
+    assert predict_duration_s(config, configurations, steps) == pytest.approx(estimate.total_s) == pytest.approx(53.75)
     assert any("no operator time" in a for a in estimate.assumptions)
 
 
@@ -300,6 +326,23 @@ def test_duration_counts_the_operator_on_a_real_bench_and_time_scale_on_the_simu
     assert fast_estimate.motion_s == pytest.approx(slow_estimate.motion_s / 10)
     assert fast_estimate.homing_s == pytest.approx(slow_estimate.homing_s / 10)
     assert fast_estimate.settle_s == slow_estimate.settle_s
+
+
+def test_bring_up_is_planned_as_it_runs_real_time_motion_simulated_frames_no_hand_placed_boards():
+    plan = {"baseline_mm": [100, 150], "distance_mm": [400, 500]}
+    bring_up = _config(plan, rig={"kind": "grbl", "port": "/dev/ttyUSB0"})
+    simulated = _config(plan)
+    assert bring_up.bench_kind == "bring-up" and not bring_up.fully_simulated
+    estimate = estimate_duration(bring_up, [], plan_steps(bring_up, expand_plan(bring_up)))
+    reference = estimate_duration(simulated, [], plan_steps(simulated, expand_plan(simulated)))
+    assert estimate.operator_s == 0.0  # the target and the calibration board are in the simulated scene
+    assert estimate.capture_s == reference.capture_s and estimate.flush_s == 0.0  # simulated frames
+    assert estimate.motion_s == pytest.approx(reference.motion_s)  # the real controller, at real time
+    manual_baseline = _config(plan, rig={"kind": "grbl", "port": "/dev/ttyUSB0",
+                                         "quantities": {"baseline_mm": {"axis": "manual"}}})
+    estimate = estimate_duration(manual_baseline, [], plan_steps(manual_baseline, expand_plan(manual_baseline)))
+    # The baseline is set by hand on the real slide: 100, 150, (150 stays for Z = 500: serpentine), 100.
+    assert estimate.operator_s == pytest.approx(3 * 30.0)
 
 
 def test_plan_summary_counts():

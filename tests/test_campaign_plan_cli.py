@@ -89,13 +89,19 @@ def test_plan_lists_steps_on_request(capsys):
 def test_plan_on_a_real_controller_opens_no_port_and_reports_limits(tmp_path, capsys, no_serial):
     path = tmp_path / "bench.toml"
     path.write_text(MINIMAL + '[rig]\nkind = "grbl"\nport = "/dev/ttyUSB7"\n'
-                    '[rig.quantities.baseline_mm]\naxis = "X"\nmin = 0\nmax = 120\n')
+                    '[rig.quantities.baseline_mm]\naxis = "X"\nmin = 0\nmax = 120\n'
+                    '[cameras]\nkind = "v4l2"\nleft = "usb-port:1-1"\nright = "usb-port:1-2"\n')
     code, out, err = _run(capsys, "plan", str(path))
     assert code == 0, err
     assert "2 to run (0 partial), 0 infeasible, 2 outside the soft limits" in out
     assert "limits: baseline_mm = 150 outside [0, 120]" in out
     assert "feasible, outside limits" in out
     assert "operator 0:03:00" in out  # 2 target prompts x 30 s + 2 x 12 calibration views x 5 s
+    # The same rig with simulated cameras is bring-up: boards and target are in the simulated scene.
+    path.write_text(path.read_text().split("[cameras]")[0])
+    code, out, err = _run(capsys, "plan", str(path))
+    assert code == 0, err
+    assert "rig grbl, cameras simulated" in out and "operator 0:00:00" in out
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -1,8 +1,9 @@
-"""Campaigns end to end on the simulated rig: record, refuse to overwrite, SIGKILL + resume, Ctrl-C, replay."""
+"""Campaigns end to end on the simulated rig: record, --json, refuse to overwrite, SIGKILL + resume, stop, replay."""
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import shutil
@@ -14,38 +15,15 @@ from pathlib import Path
 
 import pytest
 
-from stereo_bench.campaign.config import campaign_from_dict
-from stereo_bench.campaign.execute import run_campaign
+from stereo_bench.campaign.bench import simulated_bench
+from stereo_bench.campaign.documents import MoveEvent
+from stereo_bench.campaign.execute import RunControl, replay_session, run_campaign
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.cli import main
+from tests.campaigns import SAMPLE_SESSION, SMALL, numbers, results_csv, small_config
 
-SAMPLE_SESSION = Path(__file__).resolve().parents[1] / "calib_data" / "sample_session"
 REQUIRED_COLUMNS = ["config_id", "baseline_mm", "distance_mm", "alpha_deg", "status", "square_mean_mm",
                     "square_std_mm", "n_squares", "error_mm", "sigma_mm", "rms_px", "epipolar_rms_px"]
-SMALL = """
-name = "small"
-seed = 7
-[rig]
-time_scale = 50
-[cameras.optics]
-width_px = 960
-height_px = 540
-pixel_um = 6.0
-[calibration_board]
-cols = 9
-rows = 6
-square_mm = 25
-[capture]
-calibration_views = 6
-frames_per_config = 2
-settle_s = 0.1
-[sim]
-profile = "ideal"  # exact reproducibility (resume, replay) needs frames that do not ring after a move
-[plan]
-baseline_mm = [100, 150]
-distance_mm = [450]
-alpha_deg = [90, 35]
-"""
 
 
 @pytest.fixture
@@ -55,16 +33,16 @@ def plan_file(tmp_path) -> Path:
     return path
 
 
-def results_csv(session: Path) -> list[dict]:
-    with open(session / "results.csv", newline="") as handle:
-        return list(csv.DictReader(handle))
-
-
-def test_campaign_records_a_complete_session(plan_file, tmp_path, capsys):
+@pytest.mark.slow
+def test_campaign_records_a_complete_session_and_streams_every_document_as_json(plan_file, tmp_path, capsys):
     out = tmp_path / "session"
-    assert main(["campaign", "run", str(plan_file), "--out", str(out), "--yes", "--quiet"]) == 0
-    printed = capsys.readouterr().out
-    assert str(out / "results.csv") in printed and "stereo-bench report" in printed
+    assert main(["campaign", "run", str(plan_file), "--out", str(out), "--yes", "--quiet", "--json"]) == 0
+    captured = capsys.readouterr()
+    # --json: stdout is the document stream, line for line as recorded; the summary goes to stderr.
+    assert captured.out == (out / "documents.jsonl").read_text()
+    assert str(out / "results.csv") in captured.err and "stereo-bench report" in captured.err
+    types = [json.loads(line)["type"] for line in captured.out.splitlines()]
+    assert types[0] == "start" and types[-1] == "stop" and types.count("result") == 4
     rows = results_csv(out)
     with open(out / "results.csv", newline="") as handle:
         assert next(csv.reader(handle))[: len(REQUIRED_COLUMNS)] == REQUIRED_COLUMNS
@@ -80,6 +58,11 @@ def test_campaign_records_a_complete_session(plan_file, tmp_path, capsys):
     assert kinds.count("calibration_view") == 2 * 6 and kinds.count("measurement_frame") == 2 * 2
     for event in reader.events(kind="measurement_frame"):
         assert reader.frame(event["frames"]["left"]).shape == (540, 960)
+    # The target distance is set by hand: one prompt (Z = 450 once), answered by the simulator (--yes).
+    (prompt,) = reader.events(kind="prompt")
+    assert prompt["data"]["quantity"] == "target_distance_mm" and prompt["data"]["value"] == 450.0
+    assert prompt["data"]["answered_by"] == "simulator" and "Z = 450 mm" in prompt["data"]["message"]
+    assert reader.start()["bench"] == "simulated"
     assert (out / "calib").is_dir() and list((out / "calib").rglob("extrinsics.yml"))
     assert list((out / "transcripts").glob("serial-*.jsonl"))  # every byte to and from the controller
     assert reader.stops()[-1]["exit_status"] == "success"
@@ -95,6 +78,7 @@ def test_an_existing_session_is_never_overwritten(plan_file, tmp_path, capsys):
     assert (out / "notes.txt").read_text() == "precious"
 
 
+@pytest.mark.slow
 def test_manual_steps_without_an_operator_are_a_clear_error(plan_file, tmp_path):
     result = subprocess.run(
         [sys.executable, "-m", "stereo_bench", "campaign", "run", str(plan_file), "--out", str(tmp_path / "s"),
@@ -104,61 +88,145 @@ def test_manual_steps_without_an_operator_are_a_clear_error(plan_file, tmp_path)
     assert "standard input is closed" in result.stderr and "--yes" in result.stderr
 
 
-def _numbers(session: Path) -> dict[str, tuple]:
-    return {row["config_id"]: (row["status"], row["square_mean_mm"], row["square_std_mm"], row["sigma_mm"],
-                               row["rms_px"]) for row in results_csv(session)}
-
-
-def test_sigkill_mid_campaign_then_resume_gives_every_configuration_once_with_the_same_numbers(plan_file, tmp_path):
-    reference = tmp_path / "reference"
-    run_campaign(campaign_from_dict(__import__("tomllib").loads(SMALL)), reference, yes=True)
-    out = tmp_path / "killed"
+def _launch(plan_file: Path, out: Path, *more: str) -> subprocess.Popen:
     command = [sys.executable, "-m", "stereo_bench", "campaign", "run", str(plan_file), "--out", str(out), "--yes",
-               "--quiet"]
-    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+               "--quiet", *more]
+    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for_first_result(process: subprocess.Popen, out: Path) -> None:
     stream = out / "documents.jsonl"
     deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:  # kill once the first measured result is on disk
+    while time.monotonic() < deadline and process.poll() is None:
         if stream.exists() and '"measured"' in stream.read_text():
-            break
+            return
         time.sleep(0.05)
+    raise AssertionError(f"no measured result before the campaign ended: {process.communicate()}")
+
+
+def _wait_for_the_last_move(process: subprocess.Popen, out: Path) -> None:
+    """Until the rig stands at the last configuration (B150_Z450_A90): its settle and captures are still ahead."""
+    stream = out / "documents.jsonl"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and process.poll() is None:
+        if stream.exists() and stream.read_text().count('"kind": "move"') == 2:
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"the rig never reached the last configuration: {process.communicate()}")
+
+
+@pytest.mark.slow
+def test_sigkill_mid_campaign_then_resume_gives_every_configuration_once_with_the_same_numbers(
+        plan_file, tmp_path, small_reference):
+    out = tmp_path / "killed"
+    process = _launch(plan_file, out)
+    _wait_for_first_result(process, out)
     os.kill(process.pid, signal.SIGKILL)
     process.wait(timeout=30)
     assert len(SessionReader(out).completed_config_ids()) < 4  # it really was interrupted
-    resumed = subprocess.run(command + ["--resume"], capture_output=True, text=True, timeout=300)
+    resumed = subprocess.run(process.args + ["--resume"], capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr
     reader = SessionReader(out)
     results = [doc for doc in reader.documents() if doc["type"] == "result"]
     assert sorted(doc["config_id"] for doc in results) == sorted(set(doc["config_id"] for doc in results))
-    assert _numbers(out) == _numbers(reference)
+    assert numbers(out) == numbers(small_reference)
     assert reader.attempts() == [1, 2]
 
 
-def test_stop_request_leaves_a_resumable_session(tmp_path):
-    config = campaign_from_dict(__import__("tomllib").loads(SMALL))
+@pytest.mark.slow
+def test_sigterm_stops_like_ctrl_c_and_the_session_resumes(plan_file, tmp_path, small_reference):
+    out = tmp_path / "terminated"
+    process = _launch(plan_file, out)
+    _wait_for_the_last_move(process, out)
+    process.send_signal(signal.SIGTERM)  # what systemd and docker stop send
+    stdout, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    stop = SessionReader(out).stops()[-1]
+    assert stop["exit_status"] == "interrupted" and stop["reason"] == "stopped by SIGTERM"
+    assert stop["resume_command"] == f"stereo-bench campaign run {plan_file} --out {out} --resume"
+    assert f"resume:   {stop['resume_command']}" in stdout and "SIGTERM: stopping at the next safe point" in stderr
+    assert len(SessionReader(out).completed_config_ids()) == 3
+    resumed = subprocess.run(process.args + ["--resume"], capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    assert numbers(out) == numbers(small_reference)
+
+
+@pytest.mark.slow
+def test_ctrl_c_twice_records_interrupted_with_the_resume_command(plan_file, tmp_path):
+    out = tmp_path / "aborted"
+    process = _launch(plan_file, out)
+    _wait_for_the_last_move(process, out)
+    process.send_signal(signal.SIGINT)
+    time.sleep(0.02)  # two separate signals (the kernel merges two pending ones)
+    process.send_signal(signal.SIGINT)
+    stdout, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    stop = SessionReader(out).stops()[-1]
+    assert stop["exit_status"] == "interrupted" and stop["resume_command"].endswith("--resume")
+    assert "resume:   stereo-bench campaign run" in stdout
+
+
+def test_a_second_interrupt_stops_at_once_and_the_session_still_resumes(tmp_path):
+    """KeyboardInterrupt (the second Ctrl-C) mid-capture, while the first stop is pending: no waiting for
+    analyses, yet the stop document says 'interrupted', with the resume command, and resume completes."""
+    config = small_config()
+    out = tmp_path / "at-once"
+    control = RunControl()
+
+    def bench_interrupted_twice(config, **options):
+        bench = simulated_bench(config, **options)
+        presenter, calls = bench.presenter, []
+
+        def present_target(frame_index):
+            calls.append(frame_index)
+            if len(calls) == 3:  # the second configuration's first frame: Ctrl-C, and again
+                control.request_stop("stopped by SIGINT")
+                raise KeyboardInterrupt
+            presenter.__class__.present_target(presenter, frame_index)
+
+        presenter.present_target = present_target
+        return bench
+
+    summary = run_campaign(config, out, yes=True, control=control, bench_factory=bench_interrupted_twice,
+                           resume_command="stereo-bench campaign run small.toml --out at-once --resume")
+    assert summary.exit_status == "interrupted" and "second interrupt" in summary.reason
+    stop = SessionReader(out).stops()[-1]
+    assert stop["exit_status"] == "interrupted" and stop["resume_command"].endswith("--resume")
+    resumed = run_campaign(config, out, resume=True, yes=True)
+    assert resumed.exit_status == "success" and len(SessionReader(out).completed_config_ids()) == 4
+
+
+def test_stop_request_leaves_a_resumable_session_and_resume_runs_the_recorded_plan(tmp_path, monkeypatch):
+    config = small_config()
     out = tmp_path / "stopped"
+    control = RunControl()
+    moves = []
 
-    def stop_at_second_move(runner):
-        from stereo_bench.campaign.plan import Move
+    def stop_at_second_move(document):  # a subscriber, as a live page's Stop button would be
+        if isinstance(document, MoveEvent):
+            moves.append(document)
+            if len(moves) == 2:
+                control.request_stop()
 
-        moves = []
-
-        def on_step(step):
-            if isinstance(step, Move):
-                moves.append(step)
-                if len(moves) == 2:  # as if Ctrl-C came while the rig moved to the second configuration
-                    runner.request_stop()
-
-        runner.on_step = on_step
-
-    summary = run_campaign(config, out, yes=True, runner_hook=stop_at_second_move)
+    summary = run_campaign(config, out, yes=True, subscribers=[stop_at_second_move], control=control,
+                           resume_command="stereo-bench campaign run small.toml --out stopped --resume")
     assert summary.exit_status == "interrupted"
-    assert SessionReader(out).stops()[-1]["exit_status"] == "interrupted"
+    stop = SessionReader(out).stops()[-1]
+    assert stop["exit_status"] == "interrupted" and stop["resume_command"].endswith("--resume")
     done = SessionReader(out).completed_config_ids()
     assert 1 <= len(done) < 4
+    # Today's planner disagrees with the recorded plan (as after an upgrade): the recorded plan runs.
+    import stereo_bench.campaign.execute as execute
+
+    real_expand_plan = execute.expand_plan
+    monkeypatch.setattr(execute, "expand_plan", lambda config: [
+        dataclasses.replace(c, feasible=False, reason="a stricter rule") for c in real_expand_plan(config)])
     resumed = run_campaign(config, out, resume=True, yes=True)
     assert resumed.exit_status == "success" and resumed.skipped == len(done)
-    assert len(SessionReader(out).completed_config_ids()) == 4
+    assert "plan[0].feasible: recorded true, now false" in resumed.plan_drift
+    reader = SessionReader(out)
+    assert len(reader.completed_config_ids()) == 4 and reader.resumes()[0]["plan_drift"] == resumed.plan_drift
+    assert {row["status"] for row in reader.results()} == {"measured", "infeasible"}
 
 
 def test_replay_of_the_shipped_session_reproduces_its_results_exactly(capsys):
@@ -167,15 +235,59 @@ def test_replay_of_the_shipped_session_reproduces_its_results_exactly(capsys):
     assert report["compared"] >= 2 and report["identical"] == report["compared"] and report["differences"] == []
 
 
+def test_replay_runs_the_recorded_plan_and_reports_drift(monkeypatch):
+    """A change in the feasibility code must not make a recorded session unreplayable."""
+    import stereo_bench.campaign.execute as execute
+
+    real_expand_plan = execute.expand_plan
+    monkeypatch.setattr(execute, "expand_plan", lambda config: [
+        dataclasses.replace(c, feasible=False, reason="a stricter rule") for c in real_expand_plan(config)])
+    summary = replay_session(SAMPLE_SESSION)
+    assert summary.compared == 2 and summary.identical == 2 and summary.differences == []
+    assert "plan[0].feasible: recorded true, now false" in summary.plan_drift
+
+
 def test_replay_into_a_new_session_and_reanalysis(tmp_path, capsys):
     out = tmp_path / "replayed"
     assert main(["replay", str(SAMPLE_SESSION), "--out", str(out)]) == 0
-    assert _numbers(out) == _numbers(SAMPLE_SESSION)
+    assert numbers(out) == numbers(SAMPLE_SESSION)
+    assert SessionReader(out).start()["bench"] == "replay"
+    # Recorded before [sim] existed, on the ideal bench: the replay records that bench, not today's default.
+    assert "sim" not in SessionReader(SAMPLE_SESSION).start()["config"]
+    assert SessionReader(out).start()["config"]["sim"]["profile"] == "ideal"
     assert main(["replay", str(SAMPLE_SESSION), "--intrinsics", "fixed"]) == 2  # a re-analysis needs --out
     assert "--out" in capsys.readouterr().err
-    assert main(["replay", str(SAMPLE_SESSION), "--intrinsics", "fixed", "--out", str(tmp_path / "fixed")]) == 0
-    reanalysed = _numbers(tmp_path / "fixed")
-    assert reanalysed.keys() == _numbers(SAMPLE_SESSION).keys()
+    fixed = tmp_path / "fixed"
+    assert main(["replay", str(SAMPLE_SESSION), "--intrinsics", "fixed", "--out", str(fixed)]) == 0
+    assert "2 measured again" in capsys.readouterr().out
+    recorded = {row["config_id"]: row for row in results_csv(SAMPLE_SESSION)}
+    reanalysed = {row["config_id"]: row for row in results_csv(fixed)}
+    assert reanalysed.keys() == recorded.keys()
+    reader = SessionReader(fixed)
+    assert reader.start()["config"]["extrinsics"]["intrinsics"] == "fixed"
+    for config_id, row in reanalysed.items():
+        if recorded[config_id]["status"] != "measured":
+            assert row["status"] == recorded[config_id]["status"]  # carried over
+            continue
+        # Measured again, with the intrinsics held fixed: close to the truth, and not the joint numbers.
+        assert row["status"] == "measured" and int(row["n_squares"]) == int(recorded[config_id]["n_squares"])
+        assert abs(float(row["error_mm"])) < 0.05
+        assert row["rms_px"] != recorded[config_id]["rms_px"]
+        (calibration,) = reader.events(config_id, kind="calibration")
+        assert calibration["data"]["mode"] == "fixed"
+
+
+def test_a_reanalysis_that_measures_nothing_fails(tmp_path, capsys, monkeypatch):
+    from stereo_bench.campaign import runner
+    from stereo_bench.campaign.analysis import AnalysisError
+
+    def calibration_impossible(*args, **kwargs):
+        raise AnalysisError("calibration board found in only 0 of 7 view pairs (need 3)")
+
+    monkeypatch.setattr(runner, "calibrate_configuration", calibration_impossible)
+    assert main(["replay", str(SAMPLE_SESSION), "--intrinsics", "fixed", "--out", str(tmp_path / "none")]) == 1
+    assert "0 measured again" in capsys.readouterr().out
+    assert {row["status"] for row in results_csv(tmp_path / "none")} == {"failed", "infeasible"}
 
 
 def test_replay_refuses_a_manifest_path_outside_the_session(tmp_path, capsys):
@@ -197,27 +309,30 @@ def test_replay_refuses_a_manifest_path_outside_the_session(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("executor", ["local", "dask"])
-def test_batch_reanalysis_of_several_sessions_goes_through_the_executor(executor, tmp_path, capsys):
+def test_batch_reanalysis_of_several_sessions_goes_through_the_executor(executor, tmp_path, capsys, request):
+    args = ["--executor", executor, "--workers", "2"]
     if executor == "dask":
-        pytest.importorskip("distributed")
+        args = ["--executor", "dask", "--scheduler", request.getfixturevalue("dask_scheduler")]
     first, second = tmp_path / "first", tmp_path / "second"
     shutil.copytree(SAMPLE_SESSION, first)
     shutil.copytree(SAMPLE_SESSION, second)
     code = main(["replay", str(first), str(second), "--intrinsics", "fixed", "--out", str(tmp_path / "re"),
-                 "--executor", executor, "--workers", "2", "--json"])
+                 *args, "--json"])
     assert code == 0
     reports = json.loads(capsys.readouterr().out)["sessions"]
     assert [Path(r["session"]).name for r in reports] == ["first", "second"]
+    assert [r["measured"] for r in reports] == [2, 2]
     # Same frames, same pipeline: the two re-analyses agree to the last digit, whichever worker ran them.
-    assert _numbers(tmp_path / "re" / "first") == _numbers(tmp_path / "re" / "second")
+    assert numbers(tmp_path / "re" / "first") == numbers(tmp_path / "re" / "second")
 
 
 def test_a_frame_without_the_target_is_captured_again_and_replays(tmp_path):
-    config = campaign_from_dict(__import__("tomllib").loads(SMALL))
+    config = small_config()
     out = tmp_path / "retry"
 
-    def hide_the_target_once(runner):
-        presenter, shown = runner.presenter, []
+    def bench_where_someone_walks_in_front_once(config, **options):
+        bench = simulated_bench(config, **options)
+        presenter, shown = bench.presenter, []
 
         def present_target(frame_index):
             presenter.__class__.present_target(presenter, frame_index)
@@ -226,13 +341,14 @@ def test_a_frame_without_the_target_is_captured_again_and_replays(tmp_path):
                 presenter.bench.show(None)
 
         presenter.present_target = present_target
+        return bench
 
-    summary = run_campaign(config, out, yes=True, runner_hook=hide_the_target_once)
+    summary = run_campaign(config, out, yes=True, bench_factory=bench_where_someone_walks_in_front_once)
     assert summary.counts()["measured"] == 2
     reader = SessionReader(out)
     missed = reader.events(kind="target_not_found")
     assert len(missed) == 1 and missed[0]["data"]["retry"] == 0 and missed[0]["data"]["missing"] == ["left", "right"]
     first = [e["data"] for e in reader.events(config_id=missed[0]["config_id"], kind="measurement_frame")]
     assert [(d["index"], d["retry"]) for d in first][:2] == [(0, 0), (0, 1)]
-    # The replay asks for the same re-capture and finds the same numbers.
+    # The replay of this fresh session asks for the same re-capture and finds the same numbers.
     assert main(["replay", str(out)]) == 0

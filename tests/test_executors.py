@@ -78,26 +78,15 @@ def test_local_executor_validates():
 
 
 @pytest.fixture(scope="module")
-def dask_executor():
-    pytest.importorskip("distributed")
-    from dask.distributed import LocalCluster
-
-    cluster = LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None)
-    try:
-        with DaskExecutor(cluster) as ex:
-            yield ex
-    finally:
-        cluster.close()
+def dask_executor(dask_cluster):
+    with DaskExecutor(dask_cluster) as ex:
+        yield ex
 
 
-def test_dask_executor_by_scheduler_address():
-    pytest.importorskip("distributed")
-    from dask.distributed import LocalCluster
-
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
-        with DaskExecutor(cluster.scheduler_address) as ex:
-            assert ex.map(square, [3, 1, 2]) == [9, 1, 4]
-            assert ex.scheduler_address == cluster.scheduler_address
+def test_dask_executor_by_scheduler_address(dask_cluster):
+    with DaskExecutor(dask_cluster.scheduler_address) as ex:
+        assert ex.map(square, [3, 1, 2]) == [9, 1, 4]
+        assert ex.scheduler_address == dask_cluster.scheduler_address
 
 
 def test_dask_executor_keeps_order(dask_executor):

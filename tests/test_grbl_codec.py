@@ -13,13 +13,15 @@ import time
 
 import pytest
 
-from drivers.rig import codec
+from drivers.rig import RigError, codec
 from drivers.rig.grbl import (
     GrblAlarm,
     GrblCommandError,
+    GrblConnectionError,
     GrblController,
     GrblLocked,
     GrblResetError,
+    GrblSettingsError,
     GrblTimeout,
 )
 from drivers.rig.transport import ScriptedTransport, SpyTransport, expected_protocol, script_from_spy_log
@@ -96,6 +98,43 @@ def test_responses_are_classified():
     assert codec.parse_response("o\xffk") == codec.Unparsed("o\xffk")
 
 
+def test_startup_lines_and_their_echo_are_parsed_not_garbled():
+    # report.c: '$N' lists "$N0=G20"; after a reset Grbl echoes each startup line it ran, ">G20:ok".
+    assert codec.parse_response("$N0=G20") == codec.StartupLine(0, "G20")
+    assert codec.parse_response("$N1=") == codec.StartupLine(1, "")
+    echo = codec.parse_response(">G20:ok")
+    assert echo == codec.StartupEcho("G20", "ok") and echo.ok
+    failed = codec.parse_response(">G0X5:error:9")
+    assert failed == codec.StartupEcho("G0X5", "error:9") and not failed.ok
+    assert codec.parse_startup_lines(["$N0=G20", "$N1=", "ok"]) == {0: "G20", 1: ""}
+
+
+def test_build_info_and_settings_answers():
+    info = codec.parse_build_info(["[VER:1.1h.20190830:my rig]", "[OPT:VZ,15,128]"])
+    assert (info.version, info.user_info, info.options) == ("1.1h.20190830", "my rig", "VZ")
+    assert (info.planner_blocks, info.rx_buffer_size) == (15, 128)
+    settings = codec.parse_settings(["$0=10", "$11=0.010", "$130=200.000", "[MSG:x]"])
+    assert settings == {0: 10.0, 11: 0.01, 130: 200.0}
+
+
+def test_machine_space_follows_homing_direction_and_build():
+    settings = {22: 1, 23: 0b010, 130: 200.0, 131: 90.0}
+    # limits.c: homed to -$27 from the switch, machine space [-$13x, 0] whatever $23 says ...
+    assert codec.soft_limit_space(settings, "V", "X") == (-200.0, 0.0)
+    assert codec.soft_limit_space(settings, "V", "Y") == (-90.0, 0.0)
+    # ... except on a HOMING_FORCE_SET_ORIGIN build ('Z'), for the axes homing toward - ($23 bit set).
+    assert codec.soft_limit_space(settings, "VZ", "X") == (-200.0, 0.0)
+    assert codec.soft_limit_space(settings, "VZ", "Y") == (0.0, 90.0)
+    assert codec.soft_limit_space({**settings, 22: 0}, "V", "X") is None  # no homing: no fixed frame
+
+
+def test_startup_line_hazards():
+    assert codec.startup_line_hazards("G20") == ["G20 switches the controller to inches"]
+    assert codec.startup_line_hazards("G21 G90 (safe)") == []
+    assert codec.startup_line_hazards("G91.1") == []  # arc distance mode, not G91
+    assert codec.startup_line_hazards("G0 X-10") == ["it moves the axes"]
+
+
 def test_banners_grbl_and_grblhal():
     grbl = codec.parse_response("Grbl 1.1h ['$' for help]")
     assert grbl == codec.Banner("Grbl", "1.1h", "Grbl 1.1h ['$' for help]")
@@ -121,9 +160,11 @@ def test_line_splitter_handles_chunks_and_crlf():
 # ---------------------------------------------------------------------------------------------------- encoding
 
 
-def test_encode_move_machine_coordinates():
-    assert codec.encode_move({"Y": 5, "X": 100}) == "G53 G0 X100.000 Y5.000"
-    assert codec.encode_move({"X": -0.0001, "Z": 1.23456}, feed_per_min=1500) == "G53 G1 X0.000 Z1.235 F1500.0"
+def test_encode_move_machine_coordinates_in_mm_and_absolute():
+    # Units and distance mode are the controller's modal state: every motion line sets them itself.
+    assert codec.encode_move({"Y": -5, "X": -100}) == "G21 G90 G53 G0 X-100.000 Y-5.000"
+    assert codec.encode_move({"X": -0.0001, "Z": 1.23456}, feed_per_min=1500) == (
+        "G21 G90 G53 G1 X0.000 Z1.235 F1500.0")
     with pytest.raises(codec.EncodeError):
         codec.encode_move({})
     with pytest.raises(codec.EncodeError):
@@ -141,6 +182,15 @@ def test_encode_line_refuses_realtime_characters_and_overlong_lines():
             codec.encode_line(bad)
     with pytest.raises(codec.EncodeError):
         codec.encode_line("G1 " + "X1.000 " * 20)
+    # Grbl keeps 79 characters once spaces are dropped: a 6-axis move with spaces still fits.
+    six = codec.encode_move({"X": -350, "Y": -90, "Z": -90, "A": -90, "B": -90, "C": -2000}, feed_per_min=12000)
+    assert len(six) > 79 and codec.encode_line(six)
+
+
+def test_encode_error_is_a_rig_error():
+    # One 'except RigError' in a caller (the CLI, the campaign runner) covers a line that cannot be sent.
+    with pytest.raises(RigError):
+        codec.encode_line("G0 X1?")
 
 
 def test_vector_feed_keeps_every_axis_within_its_own_rate():
@@ -155,15 +205,31 @@ def test_vector_feed_keeps_every_axis_within_its_own_rate():
 
 
 def _controller(transport, **kwargs) -> GrblController:
-    options = dict(reset_on_open=True, connect_timeout_s=2.0, status_retry_s=0.2)
+    # Most scripts leave out the $I/$$/$N reads; test_connect_reads_build_settings_and_startup_lines has them.
+    options = dict(reset_on_open=True, connect_timeout_s=2.0, status_retry_s=0.2, read_settings=False)
     options.update(kwargs)
     return GrblController(transport, **options)
 
 
+ALARM_REPORT = b"<Alarm|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>\r\n"
+SETTINGS = b"".join(f"${n}={v}\r\n".encode() for n, v in [
+    (10, 1), (13, 0), (20, 1), (22, 1), (23, 0), (27, "1.000"), (100, "250.000"), (101, "250.000"),
+    (102, "250.000"), (130, "350.000"), (131, "90.000"), (132, "90.000")])
+
+
+def _settings_script(settings: bytes = SETTINGS, startup: bytes = b"$N0=\r\n$N1=\r\n", opt: bytes = b"V,15,128"):
+    return [
+        (b"$I\n", b"[VER:1.1h.20190830:]\r\n[OPT:" + opt + b"]\r\nok\r\n"),
+        (b"$$\n", settings + b"ok\r\n"),
+        (b"$N\n", startup + b"ok\r\n"),
+    ]
+
+
 def test_connect_resets_waits_for_banner_and_sees_boot_alarm():
     with expected_protocol([
+        (b"?", ALARM_REPORT),  # running: answers at once, so it did not just boot
         (b"\x18", BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n"),
-        (b"?", b"<Alarm|MPos:0.000,0.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>\r\n"),
+        (b"?", ALARM_REPORT),
     ]) as transport:
         with _controller(transport) as grbl:
             assert grbl.banner.version == "1.1h"
@@ -171,24 +237,102 @@ def test_connect_resets_waits_for_banner_and_sees_boot_alarm():
             assert grbl.axes == "XYZ"
             with pytest.raises(GrblLocked, match="homing required"):
                 grbl.move_to({"X": 10.0})  # refused: the script would fail on any write
+            assert not grbl.info.boot_detected
+
+
+def test_a_banner_before_any_report_is_a_boot_at_connect():
+    # An Arduino's auto-reset: the bootloader swallows the first '?', Grbl then boots and prints its banner.
+    with expected_protocol([
+        (b"?", b""),
+        (b"?", BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n"),
+        (b"?", ALARM_REPORT),  # no soft reset: it has just booted
+    ]) as transport:
+        with _controller(transport, status_retry_s=0.3) as grbl:  # one retry, even on a busy machine
+            assert grbl.info.boot_detected and grbl.locked
+            assert "position is unknown" in grbl.info.warnings[0]
+            assert "booted when the port was opened" in grbl.position_unknown
+
+
+class _RebootsOnDtr(ScriptedTransport):
+    """A board that reboots when DTR is pulsed and prints its banner before the driver asks anything."""
+
+    def pulse_dtr(self) -> bool:
+        self.push(BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n")
+        time.sleep(0.1)  # the reader thread has long dispatched it when the driver starts to listen
+        return True
+
+
+def test_a_banner_that_came_before_the_first_question_is_still_a_boot():
+    # The race the full suite found: a fast boot's banner arrived before the driver looked for one.
+    transport = _RebootsOnDtr([(b"?", ALARM_REPORT), (b"?", ALARM_REPORT)])
+    with _controller(transport, pulse_dtr_on_open=True) as grbl:
+        assert grbl.info.boot_detected and "booted when the port was opened" in grbl.position_unknown
+    transport.check()
+
+
+def test_connect_reads_build_settings_and_startup_lines():
+    with expected_protocol([
+        (b"?", ALARM_REPORT), (b"\x18", BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n"), (b"?", ALARM_REPORT),
+        *_settings_script(startup=b"$N0=G20\r\n$N1=\r\n", opt=b"V,15,256"),
+    ]) as transport:
+        with _controller(transport, read_settings=True) as grbl:
+            info = grbl.info
+            assert info.build == "1.1h.20190830" and info.options == "V" and info.planner_blocks == 15
+            assert info.settings[130] == 350.0 and info.steps_per_unit("Y") == 250.0
+            assert info.machine_space("X") == (-350.0, 0.0)
+            assert info.startup_lines == {0: "G20", 1: ""}
+            # One line per conflict: the buffer size the firmware reports wins; a G20 startup line is a trap.
+            assert grbl.rx_buffer_size == 256
+            assert any("receive buffer is 256 bytes" in w and "not the configured 128" in w for w in info.warnings)
+            assert any("$N0=G20" in w and "inches" in w for w in info.warnings)
+            data = json.loads(json.dumps(info.to_dict()))
+            assert data["settings"]["$130"] == 350 and data["startup_lines"] == ["G20", ""]
+            assert data["rx_buffer_size"] == 256 and data["boot_detected"] is False
+
+
+def test_inches_reporting_is_refused_at_connect():
+    inches = SETTINGS.replace(b"$13=0", b"$13=1")
+    with expected_protocol([(b"?", ALARM_REPORT), *_settings_script(settings=inches)]) as transport:
+        grbl = _controller(transport, read_settings=True, reset_on_open=False)
+        with pytest.raises(GrblSettingsError, match=r"\$13=1: the controller reports positions in inches"):
+            grbl.open()
+        assert not grbl.is_open
 
 
 def test_home_then_move_waits_with_g4_p0():
     with expected_protocol([
+        (b"?", ALARM_REPORT),
         (b"\x18", BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n"),
         (b"?", b"<Alarm|MPos:0.000,0.000,0.000|FS:0,0>\r\n"),
         (b"$H\n", b"ok\r\n"),
-        (b"?", IDLE),
-        (b"G53 G0 X120.000 Y5.000 Z5.000\n", b"ok\r\n"),
+        (b"?", b"<Idle|MPos:-1.000,-1.000,-1.000|FS:0,0|WCO:0.000,0.000,0.000>\r\n"),
+        (b"G21 G90 G53 G0 X-120.000 Y-5.000 Z-5.000\n", b"ok\r\n"),
         (b"G4 P0\n", b"ok\r\n"),
-        (b"?", b"<Idle|MPos:120.000,5.000,5.000|FS:0,0>\r\n"),
+        (b"?", b"<Idle|MPos:-120.000,-5.000,-5.000|FS:0,0>\r\n"),
     ]) as transport:
         with _controller(transport, poll_interval_s=10.0) as grbl:
-            assert grbl.home(timeout=2.0).machine_position == {"X": 0.0, "Y": 0.0, "Z": 0.0}
-            status = grbl.move_to({"X": 120.0, "Y": 5.0, "Z": 5.0})
+            assert grbl.home(timeout=2.0).machine_position == {"X": -1.0, "Y": -1.0, "Z": -1.0}
+            status = grbl.move_to({"X": -120.0, "Y": -5.0, "Z": -5.0})
             reading = status.wait(2.0)
             assert status.done and status.success
-            assert reading.machine_position == {"X": 120.0, "Y": 5.0, "Z": 5.0}
+            assert reading.machine_position == {"X": -120.0, "Y": -5.0, "Z": -5.0}
+
+
+def test_failed_homing_keeps_the_h_outstanding_for_its_late_ok():
+    # limits.c/system.c: ALARM:9, then the late 'ok' of $H, then the reboot. The old driver took that 'ok'
+    # as the answer to the next line ($X), which Grbl had discarded in its reset.
+    with expected_protocol([
+        (b"?", ALARM_REPORT), (b"\x18", BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n"), (b"?", ALARM_REPORT),
+        (b"$H\n", b"ALARM:9\r\nok\r\n" + BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n"),
+        (b"$X\n", b"[MSG:Caution: Unlocked]\r\nok\r\n"),
+        (b"?", IDLE),
+    ]) as transport:
+        with _controller(transport) as grbl:
+            with pytest.raises(GrblAlarm, match="ALARM:9.*homing failed"):
+                grbl.home(timeout=2.0)
+            assert grbl.locked and "homing failed" in grbl.position_unknown
+            assert grbl.stray_replies == 0
+            assert grbl.unlock().state == "Idle"  # its own 'ok', and no "reset unexpectedly"
 
 
 def test_error_reply_carries_grbl_meaning():
@@ -206,29 +350,32 @@ def test_error_reply_carries_grbl_meaning():
 def test_alarm_push_fails_the_wait_with_its_meaning():
     with expected_protocol([
         (b"?", IDLE),
-        (b"G53 G0 X300.000\n", b"ok\r\n"),
+        (b"G21 G90 G53 G0 X-300.000\n", b"ok\r\n"),
         (b"G4 P0\n", b"ALARM:1\r\n[MSG:Reset to continue]\r\n"),
     ]) as transport:
         with _controller(transport, reset_on_open=False, poll_interval_s=10.0) as grbl:
-            status = grbl.move_to({"X": 300.0})
+            status = grbl.move_to({"X": -300.0})
             with pytest.raises(GrblAlarm) as info:
                 status.wait(2.0)
             assert info.value.code == 1 and "Hard limit" in str(info.value)
             assert not status.success
-            assert grbl.locked
+            assert grbl.locked and grbl.halted
+            # Halted, Grbl answers nothing, not even '?': say so at once (the script fails on any write).
+            with pytest.raises(GrblAlarm, match="halted by it and answers nothing.*reset required"):
+                grbl.status(timeout=5.0)
 
 
 def test_unexpected_banner_fails_outstanding_lines():
     with expected_protocol([
         (b"?", IDLE),
-        (b"G53 G0 X10.000\n", b"ok\r\n"),
+        (b"G21 G90 G53 G0 X-10.000\n", b"ok\r\n"),
         (b"G4 P0\n", BANNER + b"[MSG:'$H'|'$X' to unlock]\r\n"),
     ]) as transport:
         with _controller(transport, reset_on_open=False, poll_interval_s=10.0) as grbl:
             with pytest.raises(GrblResetError, match="reset unexpectedly"):
-                grbl.move_to({"X": 10.0}).wait(2.0)
+                grbl.move_to({"X": -10.0}).wait(2.0)
             with pytest.raises(GrblLocked, match="reset unexpectedly"):
-                grbl.move_to({"X": 10.0})
+                grbl.move_to({"X": -10.0})
 
 
 def test_lost_status_report_is_asked_again():
@@ -254,18 +401,19 @@ def test_wpos_reports_use_the_last_wco():
             assert reading.work_position == {"X": 1.0, "Y": 1.0, "Z": 1.0}
 
 
-def test_status_timeout_when_the_controller_is_silent():
+def test_a_silent_controller_is_named_as_possibly_halted():
+    # After ALARM:1/2 a Grbl answers nothing until reset; a look without reset must say so, not only "baud rate".
     transport = ScriptedTransport([(b"?", b"")] * 100)
     grbl = _controller(transport, reset_on_open=False, connect_timeout_s=0.3, status_retry_s=0.05)
-    with pytest.raises(Exception, match="no GRBL status report"):
+    with pytest.raises(GrblConnectionError, match=r"no answer to '\?'.*halted by a hard or soft limit.*reset"):
         grbl.open()
     assert not grbl.is_open
 
 
 def test_no_banner_is_a_clear_connection_error():
-    transport = ScriptedTransport([(b"\x18", b"garbage\r\n"), (b"\x18", b"")])
-    grbl = _controller(transport, connect_timeout_s=0.4)
-    with pytest.raises(Exception, match="no GRBL banner"):
+    transport = ScriptedTransport([(b"?", b""), (b"\x18", b"garbage\r\n"), (b"\x18", b"")])
+    grbl = _controller(transport, connect_timeout_s=0.4, boot_wait_s=0.1)
+    with pytest.raises(GrblConnectionError, match="no GRBL banner"):
         grbl.open()
     transport.check()
 
@@ -332,14 +480,14 @@ def test_character_counting_never_exceeds_the_receive_buffer():
         streamer.start()
         seen_full = False
         answered = 0
-        deadline = time.monotonic() + 10.0
-        while answered < len(lines) and time.monotonic() < deadline:
-            before = len(transport.lines)
-            time.sleep(0.02)  # let the driver send whatever fits
-            if len(transport.lines) != before:
-                continue
+        while answered < len(lines):
+            expected = min(len(lines), answered + 6)
+            deadline = time.monotonic() + 5.0
+            while len(transport.lines) < expected and time.monotonic() < deadline:
+                time.sleep(0.005)
+            time.sleep(0.02)  # room for one line too many, if the driver were to send it
+            assert len(transport.lines) == expected
             seen_full |= len(transport.unanswered) == 6
-            assert len(transport.lines) == min(len(lines), answered + 6)
             transport.answer_one()
             answered += 1
         streamer.join(5.0)

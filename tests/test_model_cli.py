@@ -158,6 +158,7 @@ def test_advise_text_and_unreachable_target(capsys):
     assert "no configuration meets 0.001 mm" in out and "alpha range" in out
 
 
+@pytest.mark.slow
 def test_model_compare_coarse(capsys):
     code, out, _ = run(capsys, "model", "compare", "--coarse", "--executor", "serial", "--json")
     assert code == 0

@@ -11,6 +11,7 @@ from stereo_bench.targets import Checkerboard
 from stereo_bench.vision.pipeline import measure_pair
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("baseline_mm, distance_mm, alpha_deg", [(100.0, 500.0, 90.0), (60.0, 400.0, 80.0)])
 def test_predicted_square_sigma_matches_the_simulated_scatter_within_1_5(baseline_mm, distance_mm, alpha_deg):
     setup = Setup.make(baseline_mm, distance_mm, alpha_deg)

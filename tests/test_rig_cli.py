@@ -1,7 +1,11 @@
-"""``stereo-bench rig`` in-process against a running emulator, and ``sim-controller`` as a real subprocess."""
+"""``stereo-bench rig`` in-process against a running emulator, and ``sim-controller`` as a real subprocess.
+
+The default rig mapping is stock Grbl's machine space: X = B - 350 mm, Y/Z = -toe-in.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -12,6 +16,7 @@ import time
 
 import pytest
 
+from drivers.rig import GrblController, GrblRig
 from drivers.sim.grbl_emulator import AlarmMidMove, GrblEmulator
 from stereo_bench.cli import main
 
@@ -36,8 +41,10 @@ def test_status_json_before_homing(emulator, capsys):
     data = json.loads(out)
     for key in ("state", "baseline_mm", "toe_in_left_deg", "toe_in_right_deg", "alpha_left_deg", "alpha_right_deg"):
         assert key in data
-    assert data["state"] == "Alarm" and data["locked"] is True
+    assert data["state"] == "Alarm" and data["locked"] is True and data["halted"] is False
     assert data["alpha_left_deg"] == 90.0 and data["machine_position"] == {"X": 0.0, "Y": 0.0, "Z": 0.0}
+    assert data["baseline_mm"] == 350.0  # X = 0 is the homing switch: B = 350 mm in the default mapping
+    assert data["controller"]["settings"]["$130"] == 350 and data["controller"]["boot_detected"] is False
     assert emulator.resets == 0  # looking does not reset the controller
 
 
@@ -49,9 +56,9 @@ def test_home_move_status(emulator, capsys):
 
     code, out, err = _run(capsys, "rig", "--port", port, "move", "--baseline", "120", "--alpha", "85")
     assert code == 0, err
-    assert "moving: X120.000 Y5.000 Z5.000" in out
+    assert "moving: X-230.000 Y-5.000 Z-5.000" in out
     assert "stopped. Idle: B = 120.000 mm, toe-in L = 5.000 deg (alpha 85.000 deg)" in out
-    assert emulator.machine_position() == {"X": 120.0, "Y": 5.0, "Z": 5.0}  # returned only once stopped there
+    assert emulator.machine_position() == {"X": -230.0, "Y": -5.0, "Z": -5.0}  # returned only once stopped there
 
     code, out, err = _run(capsys, "rig", "--port", port, "move", "--toe-in-left", "2", "--toe-in-right", "3")
     assert code == 0, err
@@ -127,7 +134,7 @@ def test_spy_log_records_the_session(emulator, capsys, tmp_path):
     records = [json.loads(line) for line in log.read_text().splitlines()]
     sent = "".join(r["data"] for r in records if r.get("dir") == "tx")
     received = "".join(r["data"] for r in records if r.get("dir") == "rx")
-    assert sent.startswith("\x18") and "$H\n" in sent
+    assert sent.startswith("?\x18") and "$I\n$$\n$N\n" in sent and "$H\n" in sent
     assert "Grbl 1.1h ['$' for help]" in received and "ok\r\n" in received
 
 
@@ -144,32 +151,175 @@ def test_bad_fault_spec(tmp_path, capsys):
     assert code == 2 and "unknown fault 'explode'" in _one_line_error(err)
 
 
-def test_sim_controller_subprocess_and_status_json(tmp_path):
-    link = tmp_path / "grbl"
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
+ENV = dict(os.environ, PYTHONUNBUFFERED="1")
+
+
+@contextlib.contextmanager
+def _sim_controller(link, *options: str):
+    """``stereo-bench sim-controller --link LINK`` as a real process; yields it once the link exists, stops it
+    with SIGINT on exit (its output is then in ``process.outcome``)."""
     sim = subprocess.Popen(
-        [sys.executable, "-m", "stereo_bench", "sim-controller", "--link", str(link), "--time-scale", "50"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-    )
+        [sys.executable, "-m", "stereo_bench", "sim-controller", "--link", str(link), "--time-scale", "50",
+         *options], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
     try:
         deadline = time.monotonic() + 20.0
         while not link.is_symlink() and time.monotonic() < deadline and sim.poll() is None:
             time.sleep(0.05)
         assert link.is_symlink(), sim.stderr.read() if sim.poll() is not None else "no link"
-        status = subprocess.run(
-            [sys.executable, "-m", "stereo_bench", "rig", "--port", str(link), "status", "--json"],
-            capture_output=True, text=True, timeout=30, env=env,
-        )
-        assert status.returncode == 0, status.stderr
-        data = json.loads(status.stdout)
-        assert data["state"] == "Alarm" and data["baseline_mm"] == 0.0 and data["alpha_right_deg"] == 90.0
+        yield sim
     finally:
         sim.send_signal(signal.SIGINT)
         try:
-            out, err = sim.communicate(timeout=10)
+            sim.outcome = sim.communicate(timeout=10)
         except subprocess.TimeoutExpired:
             sim.kill()
-            out, err = sim.communicate()
+            sim.outcome = sim.communicate()
+
+
+def _cli(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "stereo_bench", *argv], capture_output=True, text=True,
+                          timeout=30, env=ENV)
+
+
+def test_sim_controller_subprocess_and_status_json(tmp_path):
+    link = tmp_path / "grbl"
+    with _sim_controller(link) as sim:
+        status = _cli("rig", "--port", str(link), "status", "--json")
+        assert status.returncode == 0, status.stderr
+        data = json.loads(status.stdout)
+        assert data["state"] == "Alarm" and data["baseline_mm"] == 350.0 and data["alpha_right_deg"] == 90.0
+    out, err = sim.outcome
     assert sim.returncode == 0, err
     assert "serving on /dev/pts/" in out and "GRBL emulator stopped" in out
     assert not link.exists() and not link.is_symlink()
+
+
+# ---------------------------------------------------------------------------------------------- one connection
+
+
+def test_chained_actions_run_on_one_connection(emulator, capsys):
+    code, out, err = _run(capsys, "rig", "--port", emulator.tty_path, "home", "move", "--baseline", "100",
+                          "--alpha", "88", "status", "--json")
+    assert code == 0, err
+    assert emulator.client_opens == 1
+    lines = out.splitlines()
+    assert lines[1].startswith("homed. Idle: B = 349.000 mm") and "stopped. Idle: B = 100.000 mm" in out
+    data = json.loads(lines[-1])
+    assert (data["baseline_mm"], data["alpha_left_deg"], data["state"]) == (100.0, 88.0, "Idle")
+    assert emulator.physical_position() == {"X": -250.0, "Y": -2.0, "Z": -2.0}
+
+
+def test_auto_reset_between_calls_is_named_and_chaining_works(capsys):
+    # An Arduino reboots whenever its port opens: two calls in a row each start at MPos 0, position unknown.
+    with GrblEmulator(time_scale=FAST, reboot_on_open=True) as emu:
+        port = emu.tty_path
+        code, out, err = _run(capsys, "rig", "--port", port, "home")
+        assert code == 0, err
+        assert "warning:" in err and "booted when the port was opened" in err
+        code, out, err = _run(capsys, "rig", "--port", port, "move", "--baseline", "30")
+        assert code == 1 and "moving" not in out
+        error = [line for line in err.splitlines() if "error:" in line]
+        assert len(error) == 1 and "booted when the port was opened" in error[0]
+        assert "chain actions in one call" in error[0] and "shell" in error[0]
+        assert emu.physical_position()["X"] == -1.0  # nothing moved
+        code, out, err = _run(capsys, "rig", "--port", port, "home", "move", "--baseline", "30")
+        assert code == 0, err
+        assert emu.physical_position()["X"] == -320.0 and "B = 30.000 mm" in out
+
+
+def test_shell_runs_commands_until_quit(emulator, capsys, monkeypatch):
+    monkeypatch.setattr(sys, "stdin", io.StringIO(
+        "home\nmove --baseline 100 --toe-in 3\nmove --baseline 999\nfly\nstatus --json\nmove --help\nquit\n"
+        "move --baseline 10\n"))
+    code, out, err = _run(capsys, "rig", "--port", emulator.tty_path, "shell")
+    assert code == 0, err
+    assert "homed. Idle" in out and "stopped. Idle: B = 100.000 mm, toe-in L = 3.000 deg" in out
+    errors = err.splitlines()
+    assert errors == ["error: move refused, outside soft limits: baseline_mm = 999 outside [0, 350]",
+                      "error: unknown action 'fly'; actions: home, unlock, move, status, resume, reset, shell"]
+    # Piped input is not echoed: the prompts of the refused commands share the line of the next output.
+    line = next(line for line in out.splitlines() if line.startswith("rig> rig> rig> {"))
+    status = json.loads(line.removeprefix("rig> rig> rig> "))
+    assert status["baseline_mm"] == 100.0
+    assert "--toe-in-left DEG" in out  # move --help
+    assert emulator.machine_position()["X"] == -250.0  # nothing ran after quit
+    assert emulator.client_opens == 1
+
+
+def test_shell_ends_at_end_of_input(emulator, capsys, monkeypatch):
+    monkeypatch.setattr(sys, "stdin", io.StringIO("status\n"))
+    code, out, _ = _run(capsys, "rig", "--port", emulator.tty_path, "shell")
+    assert code == 0 and out.count("Alarm: B = 350.000 mm") == 2
+
+
+def test_resume_completes_a_held_move_from_another_call(emulator, capsys):
+    with GrblController(emulator.tty_path) as grbl:
+        grbl.home(timeout=5.0)
+        grbl.move_to({"X": -301.0}, feed_per_min=600.0)
+        time.sleep(0.05)
+        grbl.feed_hold()
+        while grbl.status().full_state != "Hold:0":
+            time.sleep(0.01)
+    code, out, err = _run(capsys, "rig", "--port", emulator.tty_path, "resume")
+    assert code == 0, err
+    assert "stopped. Idle: B = 49.000 mm" in out and emulator.machine_position()["X"] == -301.0
+
+
+def test_reset_ends_a_halt_after_a_soft_limit_alarm(emulator, capsys, tmp_path):
+    quick = tmp_path / "rig.toml"
+    quick.write_text("[controller]\nconnect_timeout_s = 0.6\n")  # a halted Grbl never answers: don't wait 5 s
+    with GrblController(emulator.tty_path) as grbl:
+        grbl.unlock()
+        with pytest.raises(Exception, match="ALARM:2"):
+            grbl.move_to({"X": 5.0}).wait(5.0)  # past the homing switch: Grbl halts
+    assert emulator.halted
+    time.sleep(0.1)  # let the alarm's [MSG:Reset to continue] go out (0.5 s simulated) while nobody listens
+    code, _, err = _run(capsys, "rig", "--port", emulator.tty_path, "--rig-config", str(quick), "status")
+    assert code == 2, err
+    assert "halted by a hard or soft limit" in _one_line_error(err)
+    code, out, err = _run(capsys, "rig", "--port", emulator.tty_path, "reset", "status")
+    assert code == 0, err
+    assert "soft reset on connect. Alarm" in out and not emulator.halted
+
+
+def test_interrupted_move_names_the_commands_to_resume_or_reset(emulator, capsys, monkeypatch):
+    def interrupted(self, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(GrblRig, "move_to", interrupted)
+    code, _, err = _run(capsys, "rig", "--port", emulator.tty_path, "move", "--baseline", "100")
+    assert code == 130
+    assert f"`stereo-bench rig --port {emulator.tty_path} resume` continues the move" in err
+    assert "`... reset` abandons it" in err
+
+
+def test_controller_warnings_are_printed_once(capsys):
+    with GrblEmulator(time_scale=FAST, startup_lines=("G20",)) as emu:
+        code, out, err = _run(capsys, "rig", "--port", emu.tty_path, "status")
+    assert code == 0
+    warnings = [line for line in err.splitlines() if line.strip()]
+    assert len(warnings) == 1 and warnings[0].startswith("stereo-bench rig: warning: ")
+    assert "$N0=G20" in warnings[0] and "inches" in warnings[0]
+
+
+def test_action_help_and_bad_actions(emulator, capsys):
+    code, out, _ = _run(capsys, "rig", "--port", emulator.tty_path, "move", "--help")
+    assert code == 0 and "--baseline MM" in out
+    code, _, err = _run(capsys, "rig", "--port", emulator.tty_path)
+    assert code == 2 and "give an action" in _one_line_error(err)
+    code, _, err = _run(capsys, "rig", "--port", emulator.tty_path, "home", "shell")
+    assert code == 2 and "shell runs on its own" in _one_line_error(err)
+    code, _, err = _run(capsys, "rig", "--port", emulator.tty_path, "move", "--speed", "3")
+    assert code == 2 and "unrecognized arguments: --speed 3" in _one_line_error(err)
+    assert emulator.client_opens == 0  # none of these opened the port
+
+
+def test_lost_connection_exits_1_and_says_so_once(tmp_path):
+    # A real process, so that logging is configured as for a user (no test log capture).
+    link = tmp_path / "grbl"
+    with _sim_controller(link, "--fault", "vanish:0.5"):
+        result = _cli("rig", "--port", str(link), "home", "move", "--baseline", "100")
+    assert result.returncode == 1, result.stderr
+    assert "homed." in result.stdout
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "lost the connection" in lines[0], result.stderr

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import json
+import threading
+import time
+
 import pytest
 
 from drivers.rig import GrblRig, Rig, RigError
 from drivers.rig.config import (
     LimitError,
+    MachineSpaceError,
     MoveRequestError,
     RigConfig,
     RigConfigError,
@@ -18,7 +23,7 @@ from drivers.rig.config import (
     to_physical,
 )
 from drivers.rig.rig import manual_instruction, physical_request
-from drivers.sim.grbl_emulator import AxisSpec, GrblEmulator
+from drivers.sim.grbl_emulator import AxisSpec, GrblEmulator, axis_specs_for_travel
 from stereo_bench.geometry import RigPose
 
 FAST = 50.0
@@ -28,9 +33,10 @@ SIX_AXIS_TOML = """
 rx_buffer_size = 1024
 move_timeout_s = 20
 
+# Grbl's machine space is [-$13x, 0] once homed: every mapping lands there.
 [quantities.baseline_mm]
 axis = "X"
-offset = 10.0          # the slide's zero is 10 mm before B = 0
+offset = -310.0        # B = 310 mm at the homing switch
 scale = 1.0
 min = 40.0
 max = 300.0
@@ -38,28 +44,32 @@ feed_per_min = 2400
 
 [quantities.toe_in_left_deg]
 axis = "Y"
+scale = -1.0           # toe-in grows away from the switch
 min = 0
 max = 30
 
 [quantities.toe_in_right_deg]
 axis = "Z"
-scale = -1.0           # the right head turns the other way
-offset = 45.0
+scale = 1.0            # the right head turns the other way: its switch is at toe-in 45
+offset = -45.0
 min = 0
 max = 30
 
 [quantities.tilt_left_deg]
 axis = "A"
+offset = -10.0
 min = -10
 max = 10
 
 [quantities.tilt_right_deg]
 axis = "B"
+offset = -10.0
 min = -10
 max = 10
 
 [quantities.target_distance_mm]
 axis = "C"
+offset = -1700.0
 min = 200
 max = 1500
 """
@@ -74,11 +84,15 @@ def _write(tmp_path, text: str):
 # ---------------------------------------------------------------------------------------------- config
 
 
-def test_default_mapping():
+def test_default_mapping_is_grbls_machine_space():
+    # A stock Grbl 1.1h homes to its switches and counts negative from them: [-$13x, 0] (limits.c).
     config = RigConfig()
     assert config.driven == {"baseline_mm": "X", "toe_in_left_deg": "Y", "toe_in_right_deg": "Z"}
     assert config.axes == "XYZ"
-    assert config.machine_travel() == {"X": (0.0, 350.0), "Y": (0.0, 90.0), "Z": (0.0, 90.0)}
+    assert config.machine_travel() == {"X": (-350.0, 0.0), "Y": (-90.0, 0.0), "Z": (-90.0, 0.0)}
+    assert to_machine(config, {"baseline_mm": 350.0, "toe_in_left_deg": 0.0}) == {"X": 0.0, "Y": 0.0}
+    assert to_physical(config, {"X": -250.0, "Y": -5.0, "Z": 0.0}) == {
+        "baseline_mm": 100.0, "toe_in_left_deg": 5.0, "toe_in_right_deg": 0.0}
     assert config.quantities["tilt_left_deg"].axis == "fixed" and config.quantities["tilt_left_deg"].value == 0.0
     assert config.quantities["target_distance_mm"].axis == "manual"
 
@@ -87,7 +101,7 @@ def test_load_six_axis_toml(tmp_path):
     config = load_rig_config(_write(tmp_path, SIX_AXIS_TOML))
     assert config.axes == "XYZABC"
     assert config.controller.rx_buffer_size == 1024
-    assert config.machine_travel()["Z"] == (15.0, 45.0)
+    assert config.machine_travel()["Z"] == (-45.0, -15.0)
     assert config.axis_feeds_per_min() == {"X": 2400.0, "Y": None, "Z": None, "A": None, "B": None, "C": None}
 
 
@@ -131,7 +145,7 @@ def test_physical_machine_round_trip_with_offset_and_negative_scale():
     }})
     physical = {"baseline_mm": 25.0, "toe_in_left_deg": 3.0, "toe_in_right_deg": 7.5, "tilt_left_deg": 0.0}
     machine = to_machine(config, physical)
-    assert machine == {"X": 60.0, "Y": 3.0, "Z": 37.5}
+    assert machine == {"X": 60.0, "Y": -3.0, "Z": 37.5}
     back = to_physical(config, machine)
     assert back == {"baseline_mm": 25.0, "toe_in_left_deg": 3.0, "toe_in_right_deg": 7.5}
 
@@ -150,7 +164,7 @@ def test_plan_move_splits_driven_and_manual_and_refuses_fixed_changes():
     config = RigConfig()
     plan = plan_move(config, physical_request(baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=80.0,
                                               tilt_left_deg=0.0, target_distance_mm=400.0))
-    assert plan.machine_targets == {"X": 120.0, "Y": 5.0, "Z": 10.0}
+    assert plan.machine_targets == {"X": -230.0, "Y": -5.0, "Z": -10.0}
     assert plan.manual == {"target_distance_mm": 400.0}
     with pytest.raises(MoveRequestError, match="tilt_left_deg is fixed at 0"):
         plan_move(config, {"tilt_left_deg": 2.0})
@@ -192,7 +206,7 @@ def test_grbl_rig_moves_in_physical_units(emulator):
         assert reading.toe_in_right_deg == 6.0 and reading.alpha_right_deg == 84.0
         assert reading.tilt_left_deg == 0.0 and reading.sources["tilt_left_deg"] == "fixed"
         assert reading.target_distance_mm == 400.0 and reading.sources["target_distance_mm"] == "operator"
-        assert reading.machine_position == {"X": 120.0, "Y": 5.0, "Z": 6.0} == emulator.machine_position()
+        assert reading.machine_position == {"X": -230.0, "Y": -5.0, "Z": -6.0} == emulator.machine_position()
         assert prompts == ["move the target to Z = 400 mm, then press Enter"]
         # Same target again: nothing for the operator to do.
         rig.move_to(target_distance_mm=400.0, baseline_mm=100.0)
@@ -214,7 +228,7 @@ def test_refused_moves_send_nothing(emulator):
         with pytest.raises(MoveRequestError, match="no operator prompt"):
             rig.move_to(baseline_mm=10.0, target_distance_mm=500.0)
         assert list(emulator.lines_received) == received
-        assert emulator.machine_position()["X"] == 0.0
+        assert emulator.machine_position()["X"] == -1.0
 
 
 def test_move_to_pose_from_geometry(emulator):
@@ -226,19 +240,22 @@ def test_move_to_pose_from_geometry(emulator):
 
 def test_six_axis_mapping_offsets_scales_and_feeds(tmp_path):
     config = load_rig_config(_write(tmp_path, SIX_AXIS_TOML))
-    specs = {axis: AxisSpec(travel=travel) for axis, travel in config.machine_travel().items()}
+    specs, force_set_origin = axis_specs_for_travel(config.machine_travel())
+    assert not force_set_origin and specs["X"].max_travel == 270.0 and specs["C"].max_travel == 1500.0
     with GrblEmulator(time_scale=FAST, axes="XYZABC", axis_specs=specs, firmware="grblhal") as emu:
         with _rig(emu.tty_path, config) as rig:
+            assert rig.warnings == []
             rig.home(timeout_s=5.0)
             reading = rig.move_to(baseline_mm=100.0, toe_in_left_deg=4.0, toe_in_right_deg=4.0, tilt_left_deg=-2.0,
                                   tilt_right_deg=3.0, target_distance_mm=600.0)
-            assert emu.machine_position() == {"X": 110.0, "Y": 4.0, "Z": 41.0, "A": -2.0, "B": 3.0, "C": 600.0}
+            assert emu.machine_position() == {"X": -210.0, "Y": -4.0, "Z": -41.0, "A": -12.0, "B": -7.0,
+                                              "C": -1100.0}
             assert reading.baseline_mm == 100.0 and reading.toe_in_right_deg == 4.0
             assert reading.tilt_right_deg == 3.0 and reading.target_distance_mm == 600.0
             assert reading.sources["target_distance_mm"] == "controller axis C"
             # A baseline-only move runs at the configured feed (a G1, not a rapid).
             rig.move_to(baseline_mm=200.0)
-            assert emu.lines_received[-2] == "G53 G1 X210.000 F2400.0"
+            assert emu.lines_received[-2] == "G21 G90 G53 G1 X-110.000 F2400.0"
 
 
 def test_config_axis_missing_on_the_controller(tmp_path):
@@ -248,3 +265,104 @@ def test_config_axis_missing_on_the_controller(tmp_path):
         with pytest.raises(RigError, match="drives axis A, B, C but the controller .* reports only X, Y, Z"):
             rig.open()
         assert not rig.controller.is_open
+
+
+# ---------------------------------------------------------------------------------------------- vs the controller
+
+POSITIVE = {"quantities": {  # the mapping this project used to default to: every target positive
+    "baseline_mm": {"axis": "X", "min": 0, "max": 350},
+    "toe_in_left_deg": {"axis": "Y", "min": 0, "max": 90},
+    "toe_in_right_deg": {"axis": "Z", "min": 0, "max": 90},
+}}
+
+
+def test_a_positive_mapping_is_warned_at_connect_and_its_moves_refused_before_sending(emulator):
+    config = rig_config_from_dict(POSITIVE)
+    with _rig(emulator.tty_path, config) as rig:
+        warnings = rig.warnings
+        assert len(warnings) == 3 and all("Grbl homes to 0 and counts negative" in w for w in warnings)
+        assert "baseline_mm = 0..350 maps to X 0..350, but the controller's machine space is X -350..0" in warnings[0]
+        rig.home(timeout_s=5.0)
+        received = list(emulator.lines_received)
+        with pytest.raises(MachineSpaceError, match=r"X=120 is outside the controller's machine space X -350..0 "
+                                                    r"\(\$130=350; soft limits would halt it with ALARM:2\)"):
+            rig.move_to(baseline_mm=120.0)
+        assert list(emulator.lines_received) == received and not emulator.halted  # no ALARM:2, nothing sent
+
+
+def test_a_mapping_reaching_past_the_travel_is_warned_and_only_those_moves_refused(emulator):
+    config = rig_config_from_dict({"quantities": {"baseline_mm": {"axis": "X", "offset": -400, "min": 0, "max": 400}}})
+    with _rig(emulator.tty_path, config) as rig:
+        assert rig.warnings == ["baseline_mm = 0..400 maps to X -400..0, but the controller's machine space is "
+                                "X -350..0 ($130=350): moves of baseline_mm beyond it will be refused"]
+        rig.home(timeout_s=5.0)
+        assert rig.move_to(baseline_mm=100.0).machine_position["X"] == -300.0
+        with pytest.raises(MachineSpaceError, match="X=-360 is outside"):
+            rig.move_to(baseline_mm=40.0)
+
+
+def test_a_tolerance_finer_than_a_step_is_warned_and_a_step_used(emulator):
+    fine = {"quantities": {"baseline_mm": {"axis": "X", "offset": -350, "min": 0, "max": 350, "tolerance": 0.001}}}
+    with _rig(emulator.tty_path, rig_config_from_dict(fine)) as rig:
+        assert rig.warnings == ["baseline_mm: tolerance 0.001 mm is finer than one step of axis X (0.004 mm at "
+                                "$100=250): using one step"]
+        rig.home(timeout_s=5.0)
+        # X = -249.9985 is not on the 0.004 mm grid: the controller stops at -250.000 (0.0015 off).
+        reading = rig.move_to(baseline_mm=100.0015)
+        assert reading.machine_position["X"] == -250.0
+
+
+def test_homing_disabled_is_warned(tmp_path):
+    with GrblEmulator(time_scale=FAST, homing_enabled=False) as emu, _rig(emu.tty_path) as rig:
+        assert len(rig.warnings) == 1 and "homing is disabled ($22=0)" in rig.warnings[0]
+        # No fixed machine frame: nothing is refused for lying outside one.
+        assert rig.move_to(baseline_mm=300.0).machine_position["X"] == -50.0
+
+
+def test_controller_info_is_json_ready(emulator):
+    with _rig(emulator.tty_path) as rig:
+        info = json.loads(json.dumps(rig.controller_info()))
+    for key in ("build", "options", "settings", "startup_lines", "rx_buffer_size", "boot_detected", "warnings"):
+        assert key in info
+    assert info["build"] == "1.1h.20190830" and info["settings"]["$22"] == 1 and info["rx_buffer_size"] == 128
+
+
+def test_grbl_rig_stop_resume_and_reset(emulator):
+    with _rig(emulator.tty_path) as rig:
+        rig.home(timeout_s=5.0)
+        resets = emulator.resets
+        errors = []
+        mover = threading.Thread(
+            target=lambda: errors.append(_catch(lambda: rig.move_to(baseline_mm=50.0))))
+        mover.start()
+        deadline = time.monotonic() + 5.0
+        while emulator.state != "Run" and time.monotonic() < deadline:
+            time.sleep(0.001)
+        rig.stop()
+        mover.join(5.0)
+        assert errors and "feed hold" in str(errors[0])
+        reading = rig.resume(timeout_s=5.0)
+        assert reading.state == "Idle" and reading.baseline_mm == 50.0
+        assert rig.reset().state == "Idle" and emulator.resets == resets + 1
+
+
+def _catch(action):
+    try:
+        action()
+    except RigError as error:
+        return error
+    return None
+
+
+def test_the_emulator_is_sized_for_any_mapping():
+    specs, force = axis_specs_for_travel({"X": (-350.0, 0.0), "Y": (-90.0, -2.0)})
+    assert not force and specs["X"].max_travel == 350.0 and specs["Y"].max_travel == 90.0
+    # Positive targets exist only on a HOMING_FORCE_SET_ORIGIN build, homing toward - ($23 bit set).
+    specs, force = axis_specs_for_travel(RigConfig.model_validate(POSITIVE).machine_travel())
+    assert force and specs["X"] == AxisSpec(max_travel=350.0, home_negative=True)
+    with GrblEmulator(time_scale=FAST, axis_specs=specs, force_set_origin=force) as emu:
+        with _rig(emu.tty_path, rig_config_from_dict(POSITIVE)) as rig:
+            assert rig.warnings == []
+            rig.home(timeout_s=5.0)
+            assert rig.move_to(baseline_mm=120.0, toe_in_left_deg=5.0).machine_position == {"X": 120.0, "Y": 5.0,
+                                                                                             "Z": 0.0}

@@ -41,7 +41,7 @@ def frames(seed: int) -> dict[str, np.ndarray]:
 
 
 def result_row(config_id: str, **values) -> dict:
-    return {"config_id": config_id, "baseline_mm": 100.0, "distance_mm": 400.0, "alpha_deg": 90.0, "status": "ok",
+    return {"config_id": config_id, "baseline_mm": 100.0, "distance_mm": 400.0, "alpha_deg": 90.0, "status": "measured",
             "square_mean_mm": 27.01, "square_std_mm": 0.02, "n_squares": 84, "error_mm": 0.01,
             "sigma_mm": 0.004, "rms_px": 0.05, "epipolar_rms_px": 0.08, **values}
 
@@ -337,7 +337,7 @@ def test_a_newer_schema_is_refused_with_advice(tmp_path):
     start = json.loads(first)
     start["schema_version"] = SCHEMA_VERSION + 1
     stream.write_bytes(json.dumps(start).encode() + b"\n" + rest)
-    with pytest.raises(SessionError, match="line 1: written with schema version 2.*upgrade"):
+    with pytest.raises(SessionError, match=f"line 1: written with schema version {SCHEMA_VERSION + 1}.*upgrade"):
         SessionReader(out).start()
 
 

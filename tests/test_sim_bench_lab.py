@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 from drivers.rig.config import QuantityMapping, RigConfig
+from drivers.rig.grbl import GrblResetError
 from drivers.rig.rig import GrblRig
 from drivers.sim.bench import SimulatedBench, true_lens
+from drivers.sim.grbl_emulator import ResetMidMove
 from drivers.sim.mechanics import MoveHistory, pair_state
 from drivers.sim.profile import IDEAL, LAB, BoardErrors, CameraErrors, SimProfile, SlideErrors
 from drivers.sim.render import BoardShape, Optics, StereoRenderer, calibration_board_poses
@@ -103,6 +105,45 @@ def test_backlash_through_the_controller_depends_on_the_approach():
                 rig.move_to(baseline_mm=100.0)
                 separations.append(bench.truth()["axes"]["separation_mm"])
     assert separations == pytest.approx([100.0 - 0.02, 100.0 + 0.02], abs=1e-9)
+
+
+def test_the_mechanics_follow_where_the_motors_stand_when_the_step_counters_do_not():
+    """A reboot mid-move restarts Grbl's step counters at 0 (B = 350 mm by the default mapping) wherever the
+    axes stopped: the cameras stand where the axes are, through the mechanics (here a 0.1 % lead error)."""
+    profile = SimProfile(slide=SlideErrors(scale_error=0.001))
+    with SimulatedBench(time_scale=50.0, profile=profile, **cameras()) as bench:
+        with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+            rig.home()
+            bench.emulator.inject(ResetMidMove(fraction=0.5))
+            with pytest.raises(GrblResetError):
+                rig.move_to(baseline_mm=100.0)
+        assert bench.emulator.machine_position()["X"] == 0.0
+        stood_mm = bench.emulator.physical_position()["X"] + 350.0
+        assert 150.0 < stood_mm < 300.0  # halfway from 349 mm to 100 mm
+        assert bench.rig_pose().baseline_mm == pytest.approx(stood_mm, abs=1e-9)
+        assert bench.truth()["axes"]["separation_mm"] == pytest.approx(1.001 * stood_mm, abs=1e-9)
+
+
+def test_bring_up_renders_the_lab_bench_at_rest_from_the_reported_pose():
+    """No emulator: the profile's static mechanics act on the pose the controller reports; motion errors
+    (backlash, landing, ringing) need the axes' history and are left out."""
+    reported = RigPose(150.0, 85.0, 80.0)
+    T_rig_board = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm)
+    with SimulatedBench(profile=LAB, seed=3, pose_source=lambda: reported, **cameras()) as bench:
+        assert bench.emulator is None and bench.history is None
+        assert bench.rig_pose() == reported
+        at_rest = pair_state(LAB, bench.reported_values())
+        truth = bench.truth()
+        np.testing.assert_allclose(truth["cameras"]["left"]["T_bench_cam"], at_rest.T_bench_left, atol=1e-12)
+        np.testing.assert_allclose(truth["cameras"]["right"]["T_bench_cam"], at_rest.T_bench_right, atol=1e-12)
+        assert truth["axes"]["separation_mm"] == pytest.approx(LAB.slide.zero_offset_mm
+                                                               + (1 + LAB.slide.scale_error) * 150.0, abs=1e-9)
+        # Not the nominal pose: the lab heads turn the cameras about axes behind their optical centres.
+        assert abs(truth["structure"]["baseline_mm"] - 150.0) > 0.5
+        bench.show(BOARD, T_rig_board, seed=1)
+        image, meta = bench.render("left")
+        np.testing.assert_allclose(meta["truth"]["T_bench_cam"], at_rest.T_bench_left[:3], atol=1e-12)
+        assert image.shape == (540, 960) and meta["baseline_mm"] == 150.0
 
 
 def test_frames_taken_while_the_heads_ring_carry_it_and_a_settled_one_does_not():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from drivers.sim.profile import IDEAL, LAB, LAB_JUSTIFICATIONS, SimProfile, SimSettings
-from stereo_bench.campaign.config import ConfigError, campaign_from_dict, load_preset
+from stereo_bench.campaign.config import ConfigError, campaign_from_dict, load_preset, recorded_campaign
 
 PLAN = {"plan": {"baseline_mm": [100], "distance_mm": [500]}}
 
@@ -81,21 +81,28 @@ def test_the_recorded_config_keeps_the_sim_table():
     assert again.sim.resolve() == config.sim.resolve()
 
 
-def test_campaign_run_sim_flag_picks_the_bench_and_refuses_real_hardware(tmp_path):
-    import argparse
+def test_a_recording_without_a_sim_table_is_the_ideal_bench_and_a_new_campaign_the_lab_one():
+    """Sessions recorded before [sim] existed ran on the ideal bench; today's default is for new campaigns."""
+    assert campaign_from_dict(PLAN).sim.resolve() == LAB
+    assert recorded_campaign(PLAN).sim.resolve() == IDEAL
+    recorded_lab = campaign_from_dict({**PLAN, "sim": {"profile": "lab"}}).model_dump(mode="json")
+    assert recorded_campaign(recorded_lab).sim.resolve() == LAB
 
+
+def test_campaign_run_sim_flag_picks_the_bench_and_refuses_real_cameras(tmp_path):
     from stereo_bench.cli import CliError
-    from stereo_bench.cli.campaign_run import _load
+    from stereo_bench.cli.campaign_run import config_from_args
 
-    def load(**kwargs):
-        return _load(argparse.Namespace(**{"plan": None, "preset": None, "time_scale": None, "sim": None, **kwargs}))
-
-    assert load(preset="paper-exp1").sim.resolve() == LAB
-    assert load(preset="paper-exp1", sim="ideal").sim.resolve() == IDEAL
-    plan = tmp_path / "real.toml"
-    plan.write_text('[rig]\nkind = "grbl"\nport = "/dev/ttyUSB0"\n[plan]\nbaseline_mm = [100]\ndistance_mm = [500]\n')
-    with pytest.raises(CliError, match="--sim applies to the simulated rig and cameras only"):
-        load(plan=str(plan), sim="ideal")
+    assert config_from_args(None, "paper-exp1").sim.resolve() == LAB
+    assert config_from_args(None, "paper-exp1", sim="ideal").sim.resolve() == IDEAL
+    rig = '[rig]\nkind = "grbl"\nport = "/dev/ttyUSB0"\n[plan]\nbaseline_mm = [100]\ndistance_mm = [500]\n'
+    bring_up = tmp_path / "bring_up.toml"  # the real controller, simulated cameras: the profile renders them
+    bring_up.write_text(rig)
+    assert config_from_args(bring_up, None, sim="ideal").sim.resolve() == IDEAL
+    real = tmp_path / "real.toml"
+    real.write_text(rig + '[cameras]\nkind = "v4l2"\nleft = "usb-port:1-1"\nright = "usb-port:1-2"\n')
+    with pytest.raises(CliError, match="--sim applies to simulated cameras only"):
+        config_from_args(real, None, sim="ideal")
 
 
 def test_the_documented_lab_table_is_the_code():

@@ -24,7 +24,7 @@ REQUIRED = ["config_id", "baseline_mm", "distance_mm", "alpha_deg", "status", "s
 
 
 def row(config_id: str, **values) -> dict:
-    return {"config_id": config_id, "baseline_mm": 100.0, "distance_mm": 400.0, "alpha_deg": 90.0, "status": "ok",
+    return {"config_id": config_id, "baseline_mm": 100.0, "distance_mm": 400.0, "alpha_deg": 90.0, "status": "measured",
             "square_mean_mm": 27.01, "square_std_mm": 0.02, "n_squares": 84, "error_mm": 0.01, "sigma_mm": 0.004,
             "rms_px": 0.05, "epipolar_rms_px": 0.08, **values}
 
@@ -100,8 +100,10 @@ def test_normalise_row_drops_nulls_and_needs_a_config_id():
     assert clean["note"] is None  # an extra key keeps its null
     with pytest.raises(StoreError, match="config_id"):
         normalise_row({"baseline_mm": 1.0})
-    with pytest.raises(StoreError, match="'status' must be a scalar"):
-        normalise_row(row("c1", status=["ok"]))
+    with pytest.raises(StoreError, match="status: Input should be 'measured', 'failed', 'infeasible' or 'limit'"):
+        normalise_row(row("c1", status="ok"))
+    with pytest.raises(StoreError, match="n_squares: Input should be a valid integer"):
+        normalise_row(row("c1", n_squares=[84]))
 
 
 # -- the store ---------------------------------------------------------------------------------------

@@ -16,6 +16,7 @@ Typical use::
 
 from drivers.rig.config import (
     LimitError,
+    MachineSpaceError,
     MoveRequestError,
     QuantityMapping,
     RigConfig,
@@ -24,23 +25,27 @@ from drivers.rig.config import (
     load_rig_config,
 )
 from drivers.rig.grbl import (
+    ControllerInfo,
     GrblAlarm,
     GrblCommandError,
     GrblConnectionError,
+    GrblConnectionLost,
     GrblController,
     GrblError,
     GrblLocked,
     GrblMoveError,
     GrblReading,
     GrblResetError,
+    GrblSettingsError,
     GrblTimeout,
     MoveStatus,
 )
 from drivers.rig.rig import GrblRig, Rig, RigReading, manual_instruction, wait_for_enter
 
 __all__ = [
-    "GrblAlarm", "GrblCommandError", "GrblConnectionError", "GrblController", "GrblError", "GrblLocked",
-    "GrblMoveError", "GrblReading", "GrblResetError", "GrblRig", "GrblTimeout", "LimitError", "MoveRequestError",
-    "MoveStatus", "QuantityMapping", "Rig", "RigConfig", "RigConfigError", "RigError", "RigReading",
-    "load_rig_config", "manual_instruction", "wait_for_enter",
+    "ControllerInfo", "GrblAlarm", "GrblCommandError", "GrblConnectionError", "GrblConnectionLost", "GrblController",
+    "GrblError", "GrblLocked", "GrblMoveError", "GrblReading", "GrblResetError", "GrblRig", "GrblSettingsError",
+    "GrblTimeout", "LimitError", "MachineSpaceError", "MoveRequestError", "MoveStatus", "QuantityMapping", "Rig",
+    "RigConfig", "RigConfigError", "RigError", "RigReading", "load_rig_config", "manual_instruction",
+    "wait_for_enter",
 ]

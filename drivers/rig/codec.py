@@ -12,7 +12,13 @@ What GRBL 1.1 sends (one line each, terminated by ``\\r\\n``):
   missing or come in any order; grblHAL adds some (``H:``, ``SD:``, ...), which are kept as text.
 - ``[MSG:...]``, ``[GC:...]``, ``[VER:...]``, ``[OPT:...]`` ...: feedback, never an answer by itself.
 - ``Grbl 1.1h ['$' for help]`` / ``GrblHAL 1.1f ['$' or '$HELP' for help]``: the banner after a reset.
-- ``$N=value``: a setting line (answer to ``$$``).
+- ``$N=value``: a setting line (answer to ``$$``); ``$Nn=line``: a stored startup line (answer to ``$N``).
+- ``>line:ok`` / ``>line:error:N``: a startup line executed after a reset or homing, and its result
+  (report.c ``report_execute_startup_message``).
+
+Which settings matter to a driver (settings.c, limits.c, system.c of Grbl 1.1h): ``$13`` reports in
+inches; ``$20`` soft limits; ``$22`` homing; ``$23`` homing direction mask; ``$100``... steps per unit;
+``$130``... max travel. :func:`soft_limit_space` turns them into the machine space Grbl accepts.
 """
 
 from __future__ import annotations
@@ -21,6 +27,8 @@ import math
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+
+from drivers.rig.errors import RigError
 
 #: Serial receive buffer of a GRBL 1.1 build on an ATmega328p. The ring buffer keeps one slot free
 #: to tell full from empty, so at most ``RX_BUFFER_SIZE - 1`` bytes may be outstanding.
@@ -108,8 +116,29 @@ STATES = ("Idle", "Run", "Hold", "Jog", "Alarm", "Door", "Check", "Home", "Sleep
 #: (hard limit, soft limit; grblHAL's e-stop).
 CRITICAL_ALARMS = frozenset({1, 2, 10})
 
+#: Alarms that end a homing cycle (limits.c ``limits_go_home``): Grbl resets after them, still answers the
+#: ``$H`` line with a late ``ok`` and then prints its banner again.
+HOMING_ALARMS = frozenset({6, 7, 8, 9})
+
 UNLOCK_MESSAGE = "'$H'|'$X' to unlock"
 RESET_TO_CONTINUE_MESSAGE = "Reset to continue"
+CHECK_MODE_ENABLED_MESSAGE = "Enabled"
+CHECK_MODE_DISABLED_MESSAGE = "Disabled"
+
+#: Setting numbers (report.c ``report_grbl_settings``; axis settings are base + axis index).
+SETTING_STATUS_MASK = 10
+SETTING_REPORT_INCHES = 13
+SETTING_SOFT_LIMITS = 20
+SETTING_HARD_LIMITS = 21
+SETTING_HOMING = 22
+SETTING_HOMING_DIR_MASK = 23
+SETTING_HOMING_PULLOFF = 27
+SETTING_STEPS_PER_UNIT = 100
+SETTING_MAX_RATE = 110
+SETTING_ACCELERATION = 120
+SETTING_MAX_TRAVEL = 130
+#: ``[OPT:...]`` letter of a build with HOMING_FORCE_SET_ORIGIN (config.h): homing sets 0 instead of -pull-off.
+OPTION_FORCE_SET_ORIGIN = "Z"
 
 
 def error_meaning(code: int) -> str:
@@ -184,6 +213,26 @@ class Setting:
 
 
 @dataclass(frozen=True)
+class StartupLine:
+    """``$Nn=line``: startup line ``n`` as stored (answer to ``$N``; empty when unused)."""
+
+    number: int
+    line: str
+
+
+@dataclass(frozen=True)
+class StartupEcho:
+    """``>line:ok`` or ``>line:error:N``: a startup line Grbl executed after a reset or a homing cycle."""
+
+    line: str
+    result: str  # "ok" or "error:N"
+
+    @property
+    def ok(self) -> bool:
+        return self.result == "ok"
+
+
+@dataclass(frozen=True)
 class StatusReport:
     """A parsed ``<...>`` real-time status report. Positions are in machine units, per axis letter.
 
@@ -225,7 +274,8 @@ class Unparsed:
     text: str
 
 
-Response = Ok | ErrorReply | AlarmPush | Message | Feedback | Banner | Setting | StatusReport | Unparsed
+Response = (Ok | ErrorReply | AlarmPush | Message | Feedback | Banner | Setting | StartupLine | StartupEcho
+            | StatusReport | Unparsed)
 
 
 class ParseError(ValueError):
@@ -238,6 +288,8 @@ _BANNER_RE = re.compile(r"^(Grbl|GrblHAL|grblHAL)\s+v?(\d+\.\d+[a-zA-Z]?)\s+\[(.
 _ERROR_RE = re.compile(r"^error:(\d+)$")
 _ALARM_RE = re.compile(r"^ALARM:(\d+)$")
 _SETTING_RE = re.compile(r"^\$(\d+)=(\S*)$")
+_STARTUP_LINE_RE = re.compile(r"^\$N(\d+)=(.*)$")
+_STARTUP_ECHO_RE = re.compile(r"^>(.*):(ok|error:\d+)$")
 _FEEDBACK_RE = re.compile(r"^\[([A-Za-z]+):(.*)\]$")
 
 
@@ -353,6 +405,10 @@ def parse_response(line: str) -> Response:
         return Banner(firmware=firmware, version=m.group(2), text=text)
     if m := _SETTING_RE.match(text):
         return Setting(int(m.group(1)), m.group(2))
+    if m := _STARTUP_LINE_RE.match(text):
+        return StartupLine(int(m.group(1)), m.group(2))
+    if m := _STARTUP_ECHO_RE.match(text):
+        return StartupEcho(m.group(1), m.group(2))
     return Unparsed(text)
 
 
@@ -406,7 +462,7 @@ def machine_position(report: StatusReport, last_wco: tuple[float, ...] | None) -
 # Lines to the controller
 
 
-class EncodeError(ValueError):
+class EncodeError(RigError, ValueError):
     """A command that must not be sent as given."""
 
 
@@ -424,7 +480,8 @@ def encode_line(command: str) -> bytes:
     """One line of g-code or ``$`` command, terminated by ``\\n``.
 
     Refuses characters GRBL would take as real-time commands (they would be acted upon mid-line) and
-    lines longer than GRBL's line buffer.
+    lines longer than GRBL's line buffer, which holds what is left after Grbl drops spaces
+    (protocol.c ``protocol_main_loop``: characters <= ' ' are thrown away, at most 79 are kept).
     """
     text = command.strip()
     if not text:
@@ -435,7 +492,8 @@ def encode_line(command: str) -> bytes:
     bad = sorted({chr(b) for b in data if b in REALTIME_BYTES or b < 0x20})
     if bad:
         raise EncodeError(f"command {text!r} contains real-time or control characters {bad!r}")
-    if len(data) > MAX_LINE_LENGTH - 1:
+    kept = sum(1 for b in data if b > 0x20)
+    if kept > MAX_LINE_LENGTH - 1:
         raise EncodeError(f"command longer than GRBL's {MAX_LINE_LENGTH - 1}-character line: {text!r}")
     return data + b"\n"
 
@@ -448,7 +506,9 @@ def encode_move(
 
     With ``feed_per_min`` a feed move ``G1 ... F`` (units/min, vector feed over all moving axes),
     otherwise a rapid ``G0`` at each axis' maximum rate. ``G53`` makes the targets machine coordinates
-    whatever work offset or distance mode (G90/G91) is active; it applies to this line only.
+    whatever work offset is active; it applies to this line only. Every line also carries ``G21 G90``:
+    units and distance mode are modal on the controller (a startup line or an earlier program may have
+    left ``G20`` inches or ``G91`` relative), so they are set on the very line that moves.
     """
     if not targets:
         raise EncodeError("a move needs at least one axis")
@@ -459,7 +519,7 @@ def encode_move(
     unknown = sorted(set(targets) - set(AXIS_LETTERS))
     if unknown:
         raise EncodeError(f"unknown axis letter(s) {unknown}: GRBL axes are {AXIS_LETTERS}")
-    prefix = "G53 " if machine_coordinates else "G90 "
+    prefix = "G21 G90 G53 " if machine_coordinates else "G21 G90 "
     if feed_per_min is None:
         return prefix + "G0 " + " ".join(words)
     if not (math.isfinite(feed_per_min) and feed_per_min > 0):
@@ -490,3 +550,113 @@ def vector_feed(deltas: Mapping[str, float], axis_feeds_per_min: Mapping[str, fl
 def split_axes(values: tuple[float, ...], letters: str = AXIS_LETTERS) -> dict[str, float]:
     """Name the values of a position field by axis letter, in GRBL's order X Y Z A B C."""
     return dict(zip(letters, values, strict=False))
+
+
+# --------------------------------------------------------------------------------------------------
+# What the controller says about itself ($I, $$, $N)
+
+
+def parse_setting_value(text: str) -> float:
+    """The value of a ``$n=value`` line as a number (Grbl prints integers bare, floats with 3 decimals)."""
+    if not _FLOAT_RE.match(text):
+        raise ParseError(f"setting value is not a number: {text!r}")
+    return float(text)
+
+
+@dataclass(frozen=True)
+class BuildInfo:
+    """``$I``: ``[VER:1.1h.20190830:user text]`` and ``[OPT:V,15,128]`` (report.c ``report_build_info``).
+
+    ``options`` are the compile-time option letters (``Z`` = HOMING_FORCE_SET_ORIGIN, ...);
+    ``planner_blocks`` and ``rx_buffer_size`` the planner and serial receive buffer sizes.
+    """
+
+    version: str | None = None
+    user_info: str = ""
+    options: str = ""
+    planner_blocks: int | None = None
+    rx_buffer_size: int | None = None
+
+
+def parse_build_info(lines: list[str]) -> BuildInfo:
+    """The build information in the feedback lines of ``$I`` (other lines are ignored)."""
+    version, user_info, options, blocks, rx = None, "", "", None, None
+    for line in lines:
+        message = parse_response(line)
+        if not isinstance(message, Feedback):
+            continue
+        if message.kind == "VER":
+            version, _, user_info = message.text.partition(":")
+        elif message.kind == "OPT":
+            parts = message.text.split(",")
+            options = parts[0]
+            if len(parts) > 1 and parts[1].strip().isdigit():
+                blocks = int(parts[1])
+            if len(parts) > 2 and parts[2].strip().isdigit():
+                rx = int(parts[2])
+    return BuildInfo(version=version, user_info=user_info, options=options, planner_blocks=blocks,
+                     rx_buffer_size=rx)
+
+
+def parse_settings(lines: list[str]) -> dict[int, float]:
+    """``$$`` answer lines -> setting number -> value. Lines that are not settings are ignored."""
+    settings: dict[int, float] = {}
+    for line in lines:
+        message = parse_response(line)
+        if isinstance(message, Setting):
+            try:
+                settings[message.number] = parse_setting_value(message.value)
+            except ParseError:
+                continue
+    return settings
+
+
+def parse_startup_lines(lines: list[str]) -> dict[int, str]:
+    """``$N`` answer lines -> startup line number -> stored line (empty string when unused)."""
+    return {m.number: m.line for m in map(parse_response, lines) if isinstance(m, StartupLine)}
+
+
+_AXIS_WORD_RE = re.compile(r"[XYZABC][-+.\d]")
+
+
+def startup_line_hazards(line: str) -> list[str]:
+    """Why a stored startup line is a trap for a driver, if it is one (empty list if not).
+
+    Grbl runs its startup lines after every reset and every successful homing cycle
+    (protocol.c ``protocol_main_loop``, system.c ``$H``), so modal state they set is the state the
+    next program meets.
+    """
+    text = "".join(line.split()).upper()
+    text = re.sub(r"\([^)]*\)", "", text).split(";", 1)[0]
+    hazards = []
+    if re.search(r"G20(?!\d)", text):
+        hazards.append("G20 switches the controller to inches")
+    if re.search(r"G91(?!\.\d)", text):
+        hazards.append("G91 switches the controller to relative distances")
+    if _AXIS_WORD_RE.search(text) and not text.startswith("$"):
+        hazards.append("it moves the axes")
+    return hazards
+
+
+def axis_setting(settings: Mapping[int, float], base: int, axis: str) -> float | None:
+    """An axis setting (``base`` = 100 steps/unit, 110 max rate, 120 acceleration, 130 max travel)."""
+    return settings.get(base + AXIS_LETTERS.index(axis))
+
+
+def soft_limit_space(settings: Mapping[int, float], options: str, axis: str) -> tuple[float, float] | None:
+    """The machine coordinates (low, high) Grbl 1.1h gives ``axis`` once homed; None without homing ($22=0).
+
+    limits.c ``limits_go_home`` sets the homed axis to ``-$27`` (or ``-$13x + $27`` when its ``$23`` bit
+    is set): machine space is ``[-$13x, 0]``, and system.c ``system_check_travel_limits`` rejects any
+    target outside it when soft limits are on (``$20=1``: ALARM:2). Only a build with
+    HOMING_FORCE_SET_ORIGIN (``Z`` in ``[OPT:]``) homes to 0 and counts positive, ``[0, $13x]``, on the
+    axes whose ``$23`` bit is set.
+    """
+    if not settings.get(SETTING_HOMING):
+        return None
+    travel = axis_setting(settings, SETTING_MAX_TRAVEL, axis)
+    if travel is None:
+        return None
+    index = AXIS_LETTERS.index(axis)
+    positive = OPTION_FORCE_SET_ORIGIN in options and (int(settings.get(SETTING_HOMING_DIR_MASK, 0)) >> index) & 1
+    return (0.0, travel) if positive else (-travel, 0.0)

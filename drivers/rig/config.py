@@ -15,6 +15,12 @@ For a driven quantity::
 Soft limits ``min``/``max`` are in physical units, and a move outside them is refused before a byte is
 sent. Everything below the config classes is a pure function.
 
+The default mapping matches a stock Grbl 1.1h, which homes each axis to its switch at the positive end
+and counts machine space negative from there, ``[-$13x, 0]`` (see docs/RIG.md): X = baseline with
+``offset = -350`` (B = 350 mm at the switch, X = 0; B = 0 at X = -350), Y/Z = left/right toe-in with
+``scale = -1`` (toe-in 0, parallel, at the switch; 90 deg at -90). A controller with other travel
+($13x) needs its own file, e.g. for ``$130=200``: baseline ``offset = -200``, ``max = 200``.
+
 TOML layout (every table optional; what is missing keeps the default mapping)::
 
     [controller]
@@ -25,11 +31,18 @@ TOML layout (every table optional; what is missing keeps the default mapping)::
 
     [quantities.baseline_mm]
     axis = "X"
-    offset = 0.0        # machine units at B = 0
+    offset = -200.0     # machine units at B = 0
     scale = 1.0         # machine units per mm
     min = 0.0
-    max = 350.0
+    max = 200.0
     feed_per_min = 3000 # machine units/min; omit for GRBL's rapid rate
+
+    [quantities.toe_in_left_deg]
+    axis = "Y"
+    offset = 0.0
+    scale = -1.0        # toe-in grows toward negative Y
+    min = 0
+    max = 90
 
     [quantities.target_distance_mm]
     axis = "manual"
@@ -48,6 +61,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from drivers.rig.errors import RigError
+
 QUANTITIES = (
     "baseline_mm", "toe_in_left_deg", "toe_in_right_deg", "tilt_left_deg", "tilt_right_deg", "target_distance_mm",
 )
@@ -55,10 +70,6 @@ MACHINE_AXES = ("X", "Y", "Z", "A", "B", "C")
 AxisName = Literal["X", "Y", "Z", "A", "B", "C", "fixed", "manual"]
 
 PARALLEL_ALPHA_DEG = 90.0
-
-
-class RigError(Exception):
-    """Base of every rig failure the caller can report in one line."""
 
 
 class RigConfigError(RigError):
@@ -70,6 +81,14 @@ class LimitError(RigError):
 
     def __init__(self, violations: list[str]):
         super().__init__("move refused, outside soft limits: " + "; ".join(violations))
+        self.violations = violations
+
+
+class MachineSpaceError(LimitError):
+    """A move whose machine targets the controller would not accept (outside ``[-$13x, 0]`` once homed)."""
+
+    def __init__(self, violations: list[str]):
+        RigError.__init__(self, "move refused: " + "; ".join(violations))
         self.violations = violations
 
 
@@ -137,11 +156,16 @@ class ControllerSettings(BaseModel):
     reset_on_open: bool = True
 
 
+DEFAULT_BASELINE_TRAVEL_MM = 350.0
+
+
 def _default_quantities() -> dict[str, QuantityMapping]:
+    # Stock Grbl machine space [-$13x, 0] after homing (limits.c): the switches mark B = 350 mm and toe-in 0.
     return {
-        "baseline_mm": QuantityMapping(axis="X", min=0.0, max=350.0),
-        "toe_in_left_deg": QuantityMapping(axis="Y", min=0.0, max=90.0),
-        "toe_in_right_deg": QuantityMapping(axis="Z", min=0.0, max=90.0),
+        "baseline_mm": QuantityMapping(axis="X", offset=-DEFAULT_BASELINE_TRAVEL_MM, min=0.0,
+                                       max=DEFAULT_BASELINE_TRAVEL_MM),
+        "toe_in_left_deg": QuantityMapping(axis="Y", scale=-1.0, min=0.0, max=90.0),
+        "toe_in_right_deg": QuantityMapping(axis="Z", scale=-1.0, min=0.0, max=90.0),
         "tilt_left_deg": QuantityMapping(axis="fixed", value=0.0),
         "tilt_right_deg": QuantityMapping(axis="fixed", value=0.0),
         "target_distance_mm": QuantityMapping(axis="manual"),
@@ -151,8 +175,9 @@ def _default_quantities() -> dict[str, QuantityMapping]:
 class RigConfig(BaseModel):
     """The whole rig: controller settings and the mapping of every physical quantity.
 
-    Quantities missing from a file keep their default mapping (X = baseline 0-350 mm, Y/Z = left/right
-    toe-in 0-90 deg, tilts fixed at 0, target distance manual).
+    Quantities missing from a file keep their default mapping (X = baseline 0-350 mm at X -350..0, Y/Z =
+    left/right toe-in 0-90 deg at -0..-90, tilts fixed at 0, target distance manual): stock Grbl's
+    negative machine space.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -261,7 +286,7 @@ def to_physical(config: RigConfig, machine: Mapping[str, float]) -> dict[str, fl
     for quantity, axis in config.driven.items():
         if axis in machine:
             mapping = config.quantities[quantity]
-            values[quantity] = (float(machine[axis]) - mapping.offset) / mapping.scale
+            values[quantity] = (float(machine[axis]) - mapping.offset) / mapping.scale + 0.0  # no -0.0
     return values
 
 

@@ -13,6 +13,24 @@ and :class:`GrblController` (here) keeps the protocol's state:
   (its ``ok`` comes once the planner is empty), and while waiting for it the driver polls ``?`` so that
   a lost ``ok`` is detected (controller Idle, buffers empty, answer still missing) and recovered from.
 
+What Grbl 1.1h does that the driver must know (its source is the specification):
+
+- Opening an Arduino's port resets it (DTR auto-reset): the banner comes ~1.1 s later and the step
+  counters restart at 0 wherever the axes stand. :meth:`GrblController.open` listens before it acts:
+  a controller that answers ``?`` at once was running; one that prints its banner first has just
+  booted, and its position is unknown (``info.boot_detected``) until it is homed.
+- ``$I``, ``$$`` and ``$N`` are read at connect (:attr:`GrblController.info`): ``$13=1`` (inches) is
+  refused, a startup line that switches units or moves is warned about, the receive buffer size in
+  ``[OPT:]`` replaces a different configured one.
+- A failed homing cycle (``ALARM:8``/``9``) resets Grbl: the ``$H`` line still gets a late ``ok`` and a
+  banner follows (limits.c, system.c). The driver keeps the ``$H`` outstanding for that ``ok`` and
+  treats the banner as part of the failure; when the ALARM line is missing, the Alarm state after the
+  ``ok`` tells.
+- After ``ALARM:1``/``ALARM:2`` Grbl answers nothing, not even ``?``, until a soft reset (protocol.c):
+  the driver says so instead of timing out.
+- ``~`` during ``Hold:1`` (still decelerating) is ignored: :meth:`GrblController.resume` waits for ``Hold:0``.
+- Leaving check mode (``$C``) resets Grbl: expected, not an unexpected reset.
+
 Positions in readings are only ever what the controller reported (MPos, or WPos + the last WCO).
 Units are machine units (mm for G21; whatever a rotary axis is configured in).
 """
@@ -25,14 +43,14 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import serial
 
 from drivers.rig import codec
-from drivers.rig.config import RigError
+from drivers.rig.errors import RigError
 from drivers.rig.transport import SerialTransport, SpyTransport, Transport, TransportError
 
 log = logging.getLogger(__name__)
@@ -70,7 +88,15 @@ class GrblTimeout(GrblError, TimeoutError):
 
 
 class GrblConnectionError(GrblError):
-    """The port cannot be opened, went away, or does not speak GRBL."""
+    """The port cannot be opened, or does not speak GRBL."""
+
+
+class GrblConnectionLost(GrblConnectionError):
+    """The port went away (unplugged, emulator stopped) after the connection was made."""
+
+
+class GrblSettingsError(GrblError):
+    """The controller's settings make it unsafe to drive (e.g. ``$13=1``: positions reported in inches)."""
 
 
 class GrblResetError(GrblError):
@@ -122,6 +148,50 @@ class GrblReading:
         }
 
 
+@dataclass
+class ControllerInfo:
+    """What the controller said about itself at connect (``$I``, ``$$``, ``$N``, the banner), for the record.
+
+    ``settings`` maps setting numbers to values (``{100: 250.0, ...}``); ``startup_lines`` maps ``$N``
+    numbers to the stored lines; ``startup_executed`` lists the ``>line:result`` echoes seen; ``warnings``
+    are the one-line warnings issued at connect.
+    """
+
+    firmware: str | None = None
+    build: str | None = None
+    build_user_info: str = ""
+    options: str = ""
+    planner_blocks: int | None = None
+    rx_buffer_size: int | None = None
+    settings: dict[int, float] = field(default_factory=dict)
+    startup_lines: dict[int, str] = field(default_factory=dict)
+    startup_executed: list[str] = field(default_factory=list)
+    boot_detected: bool = False
+    settings_read: bool = False
+    warnings: list[str] = field(default_factory=list)
+
+    def setting(self, number: int) -> float | None:
+        return self.settings.get(number)
+
+    def steps_per_unit(self, axis: str) -> float | None:
+        return codec.axis_setting(self.settings, codec.SETTING_STEPS_PER_UNIT, axis)
+
+    def machine_space(self, axis: str) -> tuple[float, float] | None:
+        """The machine coordinates this axis can reach once homed (see :func:`codec.soft_limit_space`)."""
+        return codec.soft_limit_space(self.settings, self.options, axis)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: settings keyed ``"$100"``, startup lines as a list in ``$N`` order."""
+        return {
+            "firmware": self.firmware, "build": self.build, "build_user_info": self.build_user_info,
+            "options": self.options, "planner_blocks": self.planner_blocks, "rx_buffer_size": self.rx_buffer_size,
+            "settings": {f"${n}": (int(v) if float(v).is_integer() else v) for n, v in sorted(self.settings.items())},
+            "startup_lines": [self.startup_lines[n] for n in sorted(self.startup_lines)],
+            "startup_executed": list(self.startup_executed), "boot_detected": self.boot_detected,
+            "settings_read": self.settings_read, "warnings": list(self.warnings),
+        }
+
+
 class _Pending:
     """One line sent and not yet answered."""
 
@@ -150,11 +220,14 @@ class MoveStatus:
     """
 
     def __init__(self, controller: GrblController, target: dict[str, float], pending: _Pending,
-                 timeout_s: float, tolerance: Mapping[str, float]):
+                 timeout_s: float, tolerance: Mapping[str, float], *, sequence: int = 0,
+                 start: Mapping[str, float] | None = None):
         self.controller = controller
         self.target = target
         self.timeout_s = timeout_s
         self.tolerance = dict(tolerance)
+        self.sequence = sequence
+        self.start = dict(start) if start else None
         self._pending = pending
         self._lock = threading.Lock()  # guards the callbacks and the outcome
         self._wait_lock = threading.Lock()  # one waiter talks to the controller; others wait on it
@@ -228,14 +301,37 @@ class MoveStatus:
         if position is None:
             raise GrblMoveError("motion ended but the controller reported no machine position")
         off = []
+        reasons = set()
         for axis, target in self.target.items():
             actual = position.get(axis)
             if actual is None or abs(actual - target) > self.tolerance.get(axis, 0.01):
                 off.append(f"{axis}={actual} (target {target:g})")
+                reasons.add(self._why_off(axis, target, actual))
         if off:
-            raise GrblMoveError(
-                f"motion ended at {', '.join(off)}; the controller stopped short of the target "
-                f"(state {reading.full_state})")
+            raise GrblMoveError(f"motion ended at {', '.join(off)}: {'; '.join(sorted(reasons))} "
+                                f"(state {reading.full_state})")
+
+    def _why_off(self, axis: str, target: float, actual: float | None) -> str:
+        """Tell apart what can leave an axis off its target: a later move, step rounding, overshoot, a stop."""
+        later = self.controller._move_sequence > self.sequence
+        if later:
+            return ("a later move was queued before this one was waited for; the axes went on to its target "
+                    f"({self.controller._last_move_line!r})")
+        if actual is None:
+            return f"the controller reported no {axis} position"
+        spu = self.controller.info.steps_per_unit(axis)
+        if spu:
+            steps = target * spu
+            nearest = math.copysign(math.floor(abs(steps) + 0.5), steps) / spu  # planner.c: lround
+            if abs(actual - nearest) <= 0.0005 + 1e-9:  # reports carry 3 decimals
+                number = codec.SETTING_STEPS_PER_UNIT + codec.AXIS_LETTERS.index(axis)
+                return (f"step rounding: {axis} moves in whole steps of {1.0 / spu:g} (${number}={spu:g}) and "
+                        f"{nearest:.3f} is the step nearest the target; the tolerance "
+                        f"{self.tolerance.get(axis, 0.01):g} is finer than one step")
+        start = None if self.start is None else self.start.get(axis)
+        if start is not None and (actual - target) * (target - start) > 0:
+            return "overshoot: past the target in the direction of travel"
+        return "the controller stopped short of the target"
 
 
 class GrblController:
@@ -244,11 +340,16 @@ class GrblController:
     Args:
         port: a device path or pyserial URL, an open ``serial.SerialBase``, or any :class:`Transport`.
         baudrate: bits per second when ``port`` is a path or URL.
-        rx_buffer_size: the controller's serial receive buffer (bytes): 128 for GRBL 1.1 on an Uno.
-        connect_timeout_s: how long :meth:`open` waits for the banner / first status report.
+        rx_buffer_size: the controller's serial receive buffer (bytes): 128 for GRBL 1.1 on an Uno. The
+            size the controller reports in ``$I`` (``[OPT:V,15,128]``) replaces it, with a warning.
+        connect_timeout_s: how long :meth:`open` waits for the controller to answer.
         reset_on_open: soft-reset on open (flushes half-received lines; the position is kept when idle)
-            and wait for the banner. False: just ask for status, e.g. to look at a rig another program drives.
+            unless the controller has just booted. False: only look, e.g. at a rig that is holding or
+            that another program drives.
+        boot_wait_s: how long :meth:`open` listens for a boot (an Arduino prints its banner ~1.1 s after
+            the port opens) before it decides the controller is not answering.
         pulse_dtr_on_open: pulse DTR first (resets an Arduino the way the IDE does); tolerated on a pty.
+        read_settings: read ``$I``, ``$$`` and ``$N`` at connect (:attr:`info`).
         status_retry_s: resend ``?`` if no report came within this long (a report can be lost).
         poll_interval_s: how often to poll ``?`` while waiting for motion to end.
         ok_grace_s: how long the controller must look Idle, with nothing outstanding, before a missing
@@ -259,8 +360,9 @@ class GrblController:
     def __init__(
         self, port: str | serial.SerialBase | Transport, *, baudrate: int = 115200,
         rx_buffer_size: int = codec.RX_BUFFER_SIZE, connect_timeout_s: float = 5.0, reset_on_open: bool = True,
-        pulse_dtr_on_open: bool = False, status_retry_s: float = 0.25, poll_interval_s: float = 0.05,
-        ok_grace_s: float = 0.5, spy_log: str | Path | IO[str] | None = None,
+        boot_wait_s: float = 2.0, pulse_dtr_on_open: bool = False, read_settings: bool = True,
+        status_retry_s: float = 0.25, poll_interval_s: float = 0.05, ok_grace_s: float = 0.5,
+        spy_log: str | Path | IO[str] | None = None,
     ):
         if isinstance(port, (str, serial.SerialBase)):
             transport: Transport = SerialTransport(port, baudrate=baudrate)
@@ -270,10 +372,14 @@ class GrblController:
             transport = SpyTransport(transport, spy_log)
         self.transport = transport
         self.port_name = transport.name
+        self.baudrate = baudrate
+        self.configured_rx_buffer_size = rx_buffer_size
         self.rx_buffer_size = rx_buffer_size
         self.connect_timeout_s = connect_timeout_s
         self.reset_on_open = reset_on_open
+        self.boot_wait_s = boot_wait_s
         self.pulse_dtr_on_open = pulse_dtr_on_open
+        self.read_settings = read_settings
         self.status_retry_s = status_retry_s
         self.poll_interval_s = poll_interval_s
         self.ok_grace_s = ok_grace_s
@@ -283,6 +389,7 @@ class GrblController:
         self._write_lock = threading.Lock()  # real-time bytes never land inside a line's bytes
         self._reader: threading.Thread | None = None
         self._stop = threading.Event()
+        self._opened_before = False
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -297,12 +404,20 @@ class GrblController:
         self._alarm: codec.AlarmPush | None = None  # the alarm the controller is in, if known
         self._locked = False  # Alarm state: motion refused until $H / $X
         self._needs_reset = False  # critical alarm ("Reset to continue"): lines are ignored until 0x18
-        self._homing = False
+        self._homing = False  # $H outstanding: no status reports
+        self._in_home = False  # inside home(): a reboot is part of a homing failure, not unexpected
+        self._homing_alarm: codec.AlarmPush | None = None
+        self._check_mode = False
         self._expecting_banner = False
         self._banner_grace_until = 0.0
         self._banner: codec.Banner | None = None
         self._banner_count = 0
         self._unexpected_reset = False
+        self._position_unknown: str | None = None  # why the position cannot be trusted until homed
+        self._move_sequence = 0
+        self._last_move_line = ""
+        self.info = ControllerInfo()
+        self.rx_buffer_size = self.configured_rx_buffer_size
         self.messages: deque[str] = deque(maxlen=100)
         self.lost_replies = 0
         self._hold_requested = False  # set by feed_hold(): a wait for motion then ends at the hold
@@ -316,52 +431,149 @@ class GrblController:
         return self._reader is not None and self._reader.is_alive()
 
     def open(self) -> GrblController:
-        """Open the port, (soft-reset and) wait for the controller, and read its state. Returns self."""
-        if self.is_open:
+        """Open the port, find out whether the controller just booted, (soft-reset and) read its state,
+        build info, settings and startup lines. Returns self."""
+        if self.is_open and self._connection_error is None:
             return self
+        if self._opened_before:
+            # After a lost connection its reader may still be running and the port object still "open" on a
+            # dead descriptor: stop and close both, then start clean.
+            self.close()
         self._reset_state()
         try:
             self.transport.open()
         except TransportError as error:
             raise GrblConnectionError(error.strerror or str(error)) from None
+        self._opened_before = True
         self._stop.clear()
-        # Opening may reset an Arduino through DTR: a boot banner during the connect is expected.
-        self._banner_grace_until = time.monotonic() + self.connect_timeout_s
         self._reader = threading.Thread(target=self._read_loop, name=f"grbl-reader {self.port_name}", daemon=True)
         self._reader.start()
         try:
-            if self.pulse_dtr_on_open and hasattr(self.transport, "pulse_dtr"):
-                self.transport.pulse_dtr()  # type: ignore[attr-defined]
-            if self.reset_on_open:
-                self._connect_by_reset()
-            try:
-                self.status(timeout=self.connect_timeout_s)
-            except GrblTimeout:
-                raise GrblConnectionError(
-                    f"no GRBL status report from {self.port_name} within {self.connect_timeout_s:g} s: "
-                    "is a GRBL controller on this port, at the right baud rate?") from None
-            if not self.reset_on_open:
-                # It answered, so any boot after a DTR reset is over: a banner from now on is a real reset.
-                with self._cond:
-                    self._banner_grace_until = 0.0
+            self._connect()
+            if self.read_settings:
+                self._read_info()
         except BaseException:
             self.close()
             raise
         return self
 
-    def _connect_by_reset(self) -> None:
+    def _connect(self) -> None:
+        deadline = time.monotonic() + self.connect_timeout_s
+        with self._cond:
+            # An Arduino may be booting (DTR auto-reset): a banner during the connect is not a fault.
+            self._banner_grace_until = deadline
+        if self.pulse_dtr_on_open and hasattr(self.transport, "pulse_dtr"):
+            self.transport.pulse_dtr()  # type: ignore[attr-defined]
+        outcome = self._listen_for_boot(min(self.boot_wait_s, self.connect_timeout_s))
+        if outcome == "boot":
+            self.info.boot_detected = True
+            with self._cond:
+                self._position_unknown = (
+                    f"{self.port_name} booted when the port was opened (an Arduino's auto-reset?): its step "
+                    "counters restarted at 0 wherever the axes stand, so the rig's position is unknown")
+            self._warn(f"{self.port_name}: the controller booted when the port was opened (Arduino auto-reset?): "
+                       "machine position restarted at 0, the rig's position is unknown until it is homed")
+        elif self.reset_on_open:
+            self._connect_by_reset(deadline)
+        reading = self._last_reading
+        if outcome != "running" or self.reset_on_open or reading is None or reading.machine_position is None:
+            remaining = max(0.05, deadline - time.monotonic())
+            try:
+                self.status(timeout=remaining)
+            except GrblTimeout:
+                raise GrblConnectionError(self._silence_message(self.connect_timeout_s)) from None
+        with self._cond:
+            # It answered, so any boot is over: a banner from now on is a real reset.
+            self._banner_grace_until = 0.0
+
+    def _silence_message(self, waited_s: float) -> str:
+        return (f"no answer to '?' from {self.port_name} within {waited_s:g} s: a GRBL halted by a hard or soft "
+                "limit (ALARM:1/2) answers nothing until it is reset (soft reset, 0x18); otherwise check that a "
+                f"GRBL controller is on this port, at {self.baudrate} baud")
+
+    def _listen_for_boot(self, timeout: float) -> str | None:
+        """Ask ``?`` until a report ("running") or a banner ("boot") comes; None after ``timeout`` s of silence.
+
+        A running Grbl answers ``?`` within milliseconds. A board reset by the opening of its port is in
+        its bootloader, which swallows the ``?``, and then prints the banner: so a banner before any
+        report means a boot.
+        """
+        start = time.monotonic()
+        # Any banner since the port opened counts (the reset_state before open() zeroed the count): a board
+        # that boots fast may have printed it before this thread got here.
+        banners = 0
+        wanted, asked_at = self._ask_status()
+        next_retry = asked_at + self.status_retry_s
+        while True:
+            with self._cond:
+                self._usable_or_raise()
+                if self._banner_count != banners:
+                    return "boot"
+                reading = self._last_reading
+                if self._status_received >= wanted and reading is not None and reading.monotonic >= asked_at:
+                    return "running"
+                now = time.monotonic()
+                if now >= start + timeout:
+                    return None
+                if now < next_retry:
+                    self._cond.wait(min(next_retry, start + timeout) - now)
+                    continue
+                self._status_received = max(self._status_received, self._status_sent)
+            wanted, asked_at = self._ask_status()
+            next_retry = asked_at + self.status_retry_s
+
+    def _connect_by_reset(self, deadline: float) -> None:
         # An Arduino's bootloader may swallow the first reset byte; a second one, sent once the first
         # has gone unanswered, covers that.
         attempts = 2
         for attempt in range(attempts):
+            remaining = deadline - time.monotonic()
             try:
-                self.soft_reset(timeout=self.connect_timeout_s / attempts, query_status=False)
+                self.soft_reset(timeout=max(0.05, remaining / (attempts - attempt)), query_status=False)
                 return
             except GrblTimeout:
                 if attempt == attempts - 1:
                     raise GrblConnectionError(
                         f"no GRBL banner from {self.port_name} within {self.connect_timeout_s:g} s of a soft reset: "
-                        "is a GRBL controller on this port, at the right baud rate?") from None
+                        f"is a GRBL controller on this port, at {self.baudrate} baud?") from None
+
+    def _read_info(self) -> None:
+        """``$I``, ``$$``, ``$N``: what the controller is, how it is set up, what it runs at every reset."""
+        info = self.info
+        info.firmware = None if self._banner is None else self._banner.text
+        reading = self._last_reading
+        state = reading.full_state if reading is not None else "unknown"
+        if reading is None or reading.state not in ("Idle", "Alarm"):
+            self._warn(f"{self.port_name}: settings not read: the controller is {state} ($I, $$ and $N need Idle "
+                       "or Alarm); the rig config is not checked against them")
+            return
+        timeout = max(1.0, self.connect_timeout_s)
+        build = codec.parse_build_info(self.send("$I", timeout=timeout))
+        info.build, info.build_user_info, info.options = build.version, build.user_info, build.options
+        info.planner_blocks, info.rx_buffer_size = build.planner_blocks, build.rx_buffer_size
+        info.settings = codec.parse_settings(self.send("$$", timeout=timeout))
+        info.startup_lines = codec.parse_startup_lines(self.send("$N", timeout=timeout))
+        info.settings_read = True
+        if info.settings.get(codec.SETTING_REPORT_INCHES):
+            raise GrblSettingsError(
+                f"{self.port_name}: $13=1: the controller reports positions in inches; this driver works in mm: "
+                "set $13=0 (send '$13=0' from any serial terminal)")
+        if info.rx_buffer_size is not None and info.rx_buffer_size != self.configured_rx_buffer_size:
+            self._warn(f"{self.port_name}: the controller's receive buffer is {info.rx_buffer_size} bytes "
+                       f"([OPT:] of $I), not the configured {self.configured_rx_buffer_size}: using "
+                       f"{info.rx_buffer_size}")
+            with self._cond:
+                self.rx_buffer_size = info.rx_buffer_size
+        for number, line in sorted(info.startup_lines.items()):
+            hazards = codec.startup_line_hazards(line)
+            if hazards:
+                self._warn(f"{self.port_name}: startup line $N{number}={line} runs after every reset and homing and "
+                           f"{' and '.join(hazards)}; every move of this driver carries G21 G90, but clear it "
+                           f"(send '$N{number}=') unless it is meant")
+
+    def _warn(self, message: str) -> None:
+        self.info.warnings.append(message)
+        log.warning("%s", message)
 
     def close(self) -> None:
         """Stop the reader thread and close the port. Sends nothing: closing never moves or stops the rig."""
@@ -408,6 +620,16 @@ class GrblController:
         """True while the controller is in Alarm state (boot with homing enabled, or after an alarm)."""
         return self._locked or self._needs_reset
 
+    @property
+    def halted(self) -> bool:
+        """True after ALARM:1/2 until a soft reset: the controller answers nothing, not even ``?``."""
+        return self._needs_reset
+
+    @property
+    def position_unknown(self) -> str | None:
+        """Why the reported position cannot be trusted (a boot at connect, a reset, a failed homing), or None."""
+        return self._position_unknown
+
     # ------------------------------------------------------------------ reader thread
 
     def _read_loop(self) -> None:
@@ -433,10 +655,11 @@ class GrblController:
 
     def _lose_connection(self, message: str) -> None:
         with self._cond:
-            self._connection_error = GrblConnectionError(message)
+            self._connection_error = GrblConnectionLost(message)
             self._fail_pending(self._connection_error)
             self._cond.notify_all()
-        log.error("%s", message)
+        # Raised to every caller from now on; logged below warning level so that it is reported once.
+        log.info("%s", message)
 
     def _fail_pending(self, error: GrblError) -> None:
         while self._pending:
@@ -458,26 +681,21 @@ class GrblController:
             if isinstance(message, codec.Ok):
                 pending = self._pop_pending()
                 if pending is None:
-                    log.warning("'ok' with no line outstanding on %s (a late answer after recovery?)", self.port_name)
+                    # E.g. the late 'ok' of the line that hit a soft limit, after the reset that ended the halt.
+                    log.info("'ok' with no line outstanding on %s (a late answer after a reset or a recovery)",
+                             self.port_name)
                 else:
                     pending.finish(reply=message)
             elif isinstance(message, codec.ErrorReply):
                 pending = self._pop_pending()
                 if pending is None:
-                    log.warning("error:%d with no line outstanding on %s", message.code, self.port_name)
+                    log.info("error:%d with no line outstanding on %s", message.code, self.port_name)
                 else:
                     pending.finish(reply=message, error=GrblCommandError(message.code, pending.line))
             elif isinstance(message, codec.StatusReport):
                 self._on_status(message, now_wall, now_mono)
             elif isinstance(message, codec.AlarmPush):
-                self._alarm = message
-                self._locked = True
-                if message.code in codec.CRITICAL_ALARMS:
-                    # [MSG:Reset to continue] follows, but a caller must not be able to act in between.
-                    self._needs_reset = True
-                # An alarm aborts the stream: GRBL discards what it had buffered, so no answers will come.
-                self._fail_pending(GrblAlarm(message.code, f"while talking to {self.port_name}"))
-                log.error("ALARM:%d on %s: %s", message.code, self.port_name, message.meaning)
+                self._on_alarm(message, now_mono)
             elif isinstance(message, codec.Banner):
                 self._on_banner(message, now_mono)
             elif isinstance(message, codec.Message):
@@ -487,15 +705,45 @@ class GrblController:
                 elif message.text == codec.RESET_TO_CONTINUE_MESSAGE:
                     self._needs_reset = True
                     self._locked = True
+                elif message.text == codec.CHECK_MODE_ENABLED_MESSAGE:
+                    self._check_mode = True
+                elif message.text == codec.CHECK_MODE_DISABLED_MESSAGE:
+                    # system.c: leaving check mode resets Grbl; the banner that follows is expected.
+                    self._check_mode = False
+                    self._banner_grace_until = max(self._banner_grace_until, now_mono + self.connect_timeout_s)
                 if self._pending:
                     self._pending[0].feedback.append(line)
-            elif isinstance(message, (codec.Feedback, codec.Setting)):
+            elif isinstance(message, codec.StartupEcho):
+                self.info.startup_executed.append(line)
+                if not message.ok:
+                    log.warning("startup line %r failed on %s: %s", message.line, self.port_name, message.result)
+                if self._pending:
+                    self._pending[0].feedback.append(line)
+            elif isinstance(message, (codec.Feedback, codec.Setting, codec.StartupLine)):
                 if self._pending:
                     self._pending[0].feedback.append(line)
             else:
                 self.garbled_lines += 1
                 log.warning("unparsable line from %s: %r", self.port_name, line)
             self._cond.notify_all()
+
+    def _on_alarm(self, message: codec.AlarmPush, now_mono: float) -> None:
+        self._alarm = message
+        self._locked = True
+        if message.code in codec.CRITICAL_ALARMS:
+            # [MSG:Reset to continue] follows, but a caller must not be able to act in between.
+            self._needs_reset = True
+        if self._homing and message.code in codec.HOMING_ALARMS:
+            # limits.c: the failed cycle resets Grbl, but system.c still answers the $H line ('ok') before
+            # main.c prints the banner again: keep the $H outstanding so that 'ok' is not taken for the
+            # answer to the next line. home() reports the failure.
+            self._homing_alarm = message
+            self._banner_grace_until = max(self._banner_grace_until, now_mono + max(5.0, self.connect_timeout_s))
+        else:
+            # An alarm aborts the stream: GRBL discards what it had buffered, so no answers will come.
+            self._fail_pending(GrblAlarm(message.code, f"while talking to {self.port_name}"))
+        # Raised to the caller (or on the next command): logged below warning level, so it is reported once.
+        log.info("ALARM:%d on %s: %s", message.code, self.port_name, message.meaning)
 
     def _on_status(self, report: codec.StatusReport, now_wall: float, now_mono: float) -> None:
         if report.wco is not None:
@@ -524,29 +772,37 @@ class GrblController:
             # The controller is out of Alarm (someone homed or unlocked it): believe the controller.
             self._locked = False
             self._needs_reset = False
+        self._check_mode = report.state == "Check"
 
     def _on_banner(self, banner: codec.Banner, now_mono: float) -> None:
         self._banner = banner
         self._banner_count += 1
-        expected = self._expecting_banner or now_mono < self._banner_grace_until
-        self._homing = False
+        expected = (self._expecting_banner or now_mono < self._banner_grace_until or self._homing
+                    or self._in_home)
         self._needs_reset = False
+        self._check_mode = False
         self._status_received = self._status_sent  # a reset drops any '?' not yet answered
-        if expected:
+        if self._homing:
+            # A reboot during $H is the homing failing (with or without its ALARM line): home() says so.
+            self._homing = False
+            self._fail_pending(GrblResetError(f"{self.port_name} reset during the homing cycle"))
+        elif expected:
             self._fail_pending(GrblResetError(f"line discarded by a soft reset of {self.port_name}"))
         else:
             self._unexpected_reset = True
             self._locked = True
+            self._position_unknown = f"{self.port_name} reset unexpectedly"
             self._fail_pending(GrblResetError(
                 f"{self.port_name} reset unexpectedly (power, watchdog or a DTR pulse?): outstanding lines were "
                 "discarded and the position may be lost; home the rig"))
-            log.error("unexpected reset of %s: %s", self.port_name, banner.text)
+            log.info("unexpected reset of %s: %s", self.port_name, banner.text)
 
     # ------------------------------------------------------------------ sending
 
     def _usable_or_raise(self) -> None:
         if self._connection_error is not None:
-            raise GrblConnectionError(str(self._connection_error))
+            error = self._connection_error
+            raise type(error)(str(error))
         if not self.is_open:
             raise GrblConnectionError(f"controller on {self.port_name} is not open")
 
@@ -556,7 +812,7 @@ class GrblController:
                 self.transport.write(data)
         except TransportError as error:
             self._lose_connection(f"lost the connection to {self.port_name}: {error.strerror or error}")
-            raise GrblConnectionError(str(self._connection_error)) from None
+            raise GrblConnectionLost(str(self._connection_error)) from None
 
     def _send_line(self, line: str, deadline: float) -> _Pending:
         """Queue one line under character counting; returns its pending answer. Waits for buffer room."""
@@ -579,7 +835,8 @@ class GrblController:
                 self._pending.append(pending)
                 self._rx_used += len(data)
                 # The connect sequence is over once we send work: any banner from now on is a real reset.
-                self._banner_grace_until = 0.0
+                if not self._homing:
+                    self._banner_grace_until = min(self._banner_grace_until, time.monotonic())
             self._write(data)
         return pending
 
@@ -594,6 +851,8 @@ class GrblController:
             if pending.event.is_set():
                 self._raise_for(pending)
                 return pending
+            if self._needs_reset:
+                raise self._halted_error()
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 state = self._last_reading.full_state if self._last_reading else "unknown"
@@ -613,7 +872,7 @@ class GrblController:
                 continue
             if self._hold_requested and reading.state == "Hold" and reading.substate in (0, None):
                 raise GrblMoveError(f"{self.port_name}: motion stopped by a feed hold at {reading.full_state}; "
-                                    "resume (~) or reset to go on")
+                                    "resume or reset to go on")
             if reading.is_idle and (reading.rx_bytes_free is None or reading.rx_bytes_free >= self.rx_buffer_size - 1):
                 now = time.monotonic()
                 idle_since = idle_since or now
@@ -650,13 +909,39 @@ class GrblController:
         """Send one line (g-code or ``$`` command), wait for its ``ok``; return the feedback lines before it.
 
         Raises GrblCommandError on ``error:N``. Not for motion you need to wait on: see :meth:`move_to`.
+        ``$C`` that leaves check mode also waits for the reset it causes (see :meth:`set_check_mode`).
         """
         deadline = time.monotonic() + timeout
         if self._needs_reset:
             raise self._halted_error()
+        leaving_check = "".join(line.split()).upper() == "$C" and self._check_mode
+        with self._cond:
+            banners = self._banner_count
         pending = self._send_line(line, deadline)
         self._await(pending, deadline, timeout_s=timeout, watch_idle=False)
+        if leaving_check:
+            self._wait_for_banner(banners, deadline, what="the reset that ends check mode")
         return list(pending.feedback)
+
+    def set_check_mode(self, enabled: bool, *, timeout: float = 5.0) -> GrblReading:
+        """``$C``: enter or leave check mode (g-code parsed, soft limits checked, nothing moves).
+
+        Leaving it resets Grbl (system.c: ``mc_reset`` after ``[MSG:Disabled]``); the banner that follows is
+        expected, and the position is kept. Returns the state afterwards.
+        """
+        reading = self.status(timeout=timeout)
+        if (reading.state == "Check") != enabled:
+            self.send("$C", timeout=timeout)
+        return self.status(timeout=timeout)
+
+    def _wait_for_banner(self, count: int, deadline: float, *, what: str) -> None:
+        with self._cond:
+            while self._banner_count == count:
+                self._usable_or_raise()
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    raise GrblTimeout(f"no banner from {self.port_name} after {what}")
+                self._cond.wait(remaining)
 
     def stream(self, lines: Iterable[str], *, timeout: float = 60.0) -> list[str]:
         """Stream lines with character counting (as fast as GRBL's buffer allows); wait for every answer.
@@ -685,10 +970,12 @@ class GrblController:
 
         A report answers a ``?`` if it is at least the n-th report for the n-th ``?`` and arrived after it
         was sent, so an answer delayed from an earlier query is never taken for a fresh one.
-        Raises GrblTimeout if none comes within ``timeout`` s, and GrblError during homing: GRBL does not
-        answer ``?`` while homing.
+        Raises GrblAlarm at once while the controller is halted by ALARM:1/2 (it answers nothing then),
+        GrblError during homing (GRBL does not answer ``?`` then), GrblTimeout if no report comes.
         """
         self._usable_or_raise()
+        if self._needs_reset:
+            raise self._halted_error()
         if self._homing:
             raise GrblError("no status while homing: GRBL does not answer '?' during a homing cycle")
         deadline = time.monotonic() + timeout
@@ -697,6 +984,8 @@ class GrblController:
         while True:
             with self._cond:
                 self._usable_or_raise()
+                if self._needs_reset:
+                    raise self._halted_error()
                 if self._homing:
                     raise GrblError("no status while homing: GRBL does not answer '?' during a homing cycle")
                 reading = self._last_reading
@@ -705,8 +994,10 @@ class GrblController:
                 if answered and reading.machine_position is not None:
                     return reading
                 if now >= deadline:
-                    why = "only WPos and no WCO yet" if answered else "none"
-                    raise GrblTimeout(f"no usable status report from {self.port_name} within {timeout:g} s ({why})")
+                    if answered:
+                        raise GrblTimeout(f"no usable status report from {self.port_name} within {timeout:g} s "
+                                          "(only WPos and no WCO yet)")
+                    raise GrblTimeout(self._silence_message(timeout))
                 if not answered:
                     if now < next_retry:
                         self._cond.wait(min(deadline, next_retry) - now)
@@ -718,7 +1009,7 @@ class GrblController:
             next_retry = asked_at + self.status_retry_s
 
     def feed_hold(self) -> None:
-        """``!``: decelerate to a stop and hold (state Hold); :meth:`resume` continues.
+        """``!``: decelerate to a stop and hold (``Hold:1``, then ``Hold:0``); :meth:`resume` continues.
 
         A wait for motion in progress (``wait_idle``, ``MoveStatus.wait``) then ends with
         GrblMoveError once the controller reports the hold complete, instead of running into its timeout.
@@ -727,16 +1018,40 @@ class GrblController:
         self._hold_requested = True
         self._write(codec.RT_FEED_HOLD)
 
-    def resume(self) -> None:
-        """``~``: cycle start / resume after a feed hold."""
-        self._usable_or_raise()
+    def resume(self, *, timeout: float = 10.0) -> GrblReading:
+        """``~``: continue after a feed hold, once the hold is complete; return the first report out of it.
+
+        protocol.c starts a cycle only from Idle or from a *completed* hold: a ``~`` while the axes still
+        decelerate (``Hold:1``) is ignored. So this waits for ``Hold:0``, sends ``~`` and confirms that
+        the controller has left Hold (``Run``, or ``Idle`` if nothing was left to do). Not holding:
+        returns the current report and sends nothing.
+        Raises GrblTimeout if the hold does not complete, or the controller stays in it, within ``timeout``.
+        """
+        deadline = time.monotonic() + timeout
+        reading = self.status(timeout=timeout)
+        while reading.state == "Hold" and reading.substate == 1:
+            if time.monotonic() >= deadline:
+                raise GrblTimeout(f"{self.port_name} still decelerating (Hold:1) after {timeout:g} s")
+            time.sleep(self.poll_interval_s)
+            reading = self.status(timeout=max(0.05, deadline - time.monotonic()))
+        if reading.state != "Hold":
+            self._hold_requested = False
+            return reading
         self._hold_requested = False
         self._write(codec.RT_CYCLE_START)
+        while True:
+            reading = self.status(timeout=max(0.05, deadline - time.monotonic()))
+            if reading.state != "Hold":
+                return reading
+            if time.monotonic() >= deadline:
+                raise GrblTimeout(f"{self.port_name} still in {reading.full_state} {timeout:g} s after '~'")
+            time.sleep(self.poll_interval_s)
 
     def soft_reset(self, *, timeout: float = 5.0, query_status: bool = True) -> GrblReading | None:
         """0x18: stop at once, discard everything buffered, wait for the banner; return the state after it.
 
-        Reset while moving loses position (GRBL raises ALARM:3); reset while idle keeps it.
+        Reset while moving loses position (GRBL raises ALARM:3); reset while idle keeps it. The only
+        thing a controller halted by ALARM:1/2 listens to.
         """
         self._usable_or_raise()
         with self._cond:
@@ -744,19 +1059,13 @@ class GrblController:
             self._expecting_banner = True
         try:
             self._write(codec.RT_SOFT_RESET)
-            deadline = time.monotonic() + timeout
-            with self._cond:
-                while self._banner_count == count:
-                    self._usable_or_raise()
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0:
-                        raise GrblTimeout(f"no banner from {self.port_name} within {timeout:g} s of a soft reset")
-                    self._cond.wait(remaining)
+            self._wait_for_banner(count, time.monotonic() + timeout, what=f"a soft reset (within {timeout:g} s)")
         finally:
             with self._cond:
                 self._expecting_banner = False
                 # A second banner may follow closely (an Arduino booting after its DTR reset): not a fault.
                 self._banner_grace_until = time.monotonic() + 0.25
+        self._hold_requested = False
         return self.status(timeout=max(1.0, timeout)) if query_status else None
 
     # ------------------------------------------------------------------ motion
@@ -764,13 +1073,14 @@ class GrblController:
     def _halted_error(self) -> GrblAlarm | GrblLocked:
         alarm = self._alarm
         if alarm is not None:
-            return GrblAlarm(alarm.code, "the controller halted: soft-reset it, then home")
-        return GrblLocked(f"{self.port_name} halted ([MSG:Reset to continue]): soft-reset it, then home")
+            return GrblAlarm(alarm.code, f"{self.port_name} is halted by it and answers nothing, not even '?': "
+                                         "reset required (soft reset), then home")
+        return GrblLocked(f"{self.port_name} halted ([MSG:Reset to continue]) and answers nothing: reset required "
+                          "(soft reset), then home")
 
     def _lock_error(self) -> GrblLocked:
-        if self._unexpected_reset:
-            return GrblLocked(f"{self.port_name} reset unexpectedly; its position may be lost: "
-                              "home the rig ($H) before moving")
+        if self._position_unknown is not None:
+            return GrblLocked(f"{self._position_unknown}: home the rig ($H) before moving")
         if self._alarm is not None:
             return GrblLocked(
                 f"controller is in Alarm after ALARM:{self._alarm.code} ({self._alarm.meaning}): "
@@ -786,22 +1096,37 @@ class GrblController:
             raise self._halted_error()
         if self._locked or self._unexpected_reset:
             raise self._lock_error()
+        if self._position_unknown is not None and self.info.settings.get(codec.SETTING_HOMING):
+            raise self._lock_error()
 
     def home(self, *, timeout: float = 120.0) -> GrblReading:
         """``$H``: run the homing cycle and wait for its ``ok`` (GRBL reports no status while homing).
 
-        On timeout the cycle is stopped with a soft reset and GrblTimeout is raised.
+        A homing failure (``ALARM:8``/``9``, or a reboot without an ALARM line) raises GrblAlarm or
+        GrblError once the controller has rebooted from it. On timeout the cycle is stopped with a soft
+        reset and GrblTimeout is raised.
         """
         self._usable_or_raise()
         if self._needs_reset:
             raise self._halted_error()
         deadline = time.monotonic() + timeout
         with self._cond:
-            self._homing = True
+            self._homing = self._in_home = True
+            self._homing_alarm = None
+            banners = self._banner_count
+        try:
+            return self._home(deadline, timeout, banners)
+        finally:
+            with self._cond:
+                self._homing = self._in_home = False
+
+    def _home(self, deadline: float, timeout: float, banners: int) -> GrblReading:
         try:
             pending = self._send_line("$H", deadline)
             try:
                 self._await(pending, deadline, timeout_s=timeout, watch_idle=False)
+            except GrblResetError:
+                pass  # rebooted without answering: a failure, reported below
             except GrblTimeout:
                 with self._cond:
                     self._homing = False
@@ -821,14 +1146,38 @@ class GrblController:
                     raise GrblTimeout(
                         f"homing on {self.port_name} did not finish within {timeout:g} s; sent a soft reset to "
                         "stop it: check the limit switches and homing settings") from None
+            alarm = self._homing_alarm
+            if alarm is not None:
+                # The reboot follows the late 'ok': wait for it, so that nothing sent next is lost in it.
+                self._wait_for_banner(banners, min(deadline, time.monotonic() + max(5.0, self.connect_timeout_s)),
+                                      what=f"ALARM:{alarm.code} during homing")
+                self._homing_failed(f"homing failed with ALARM:{alarm.code}")
+                raise GrblAlarm(alarm.code, f"homing failed on {self.port_name}; Grbl reset itself: check the "
+                                            "limit switches, $23 (homing direction) and $13x (travel)")
         finally:
             with self._cond:
                 self._homing = False
+        reading = self.status(timeout=max(1.0, deadline - time.monotonic()))
+        with self._cond:
+            rebooted = self._banner_count != banners
+        if rebooted or reading.state == "Alarm":
+            # Seen on the real firmware: the ALARM line of a failed homing can be missing; only the reboot
+            # (banner, [MSG:'$H'|'$X' to unlock]) and Alarm state tell.
+            self._homing_failed("homing failed (the controller rebooted without an ALARM line)")
+            raise GrblError(f"homing failed on {self.port_name}: the controller rebooted and is in "
+                            f"{reading.full_state} (no ALARM line was received): check the limit switches, $23 "
+                            "(homing direction) and $13x (travel)")
         with self._cond:
             self._locked = False
             self._alarm = None
             self._unexpected_reset = False
-        return self.status(timeout=max(1.0, deadline - time.monotonic()))
+            self._position_unknown = None
+        return reading
+
+    def _homing_failed(self, why: str) -> None:
+        with self._cond:
+            self._locked = True
+            self._position_unknown = f"{self.port_name}: {why}; its position is unknown"
 
     def _status_or_none(self, *, timeout: float) -> GrblReading | None:
         try:
@@ -843,12 +1192,13 @@ class GrblController:
             log.error("soft reset after a timeout failed on %s: %s", self.port_name, error)
 
     def unlock(self, *, timeout: float = 5.0) -> GrblReading:
-        """``$X``: leave Alarm state without homing (the position is then trusted as is)."""
+        """``$X``: leave Alarm without homing. The position is then trusted as is: only when it is right."""
         self.send("$X", timeout=timeout)
         with self._cond:
             self._locked = False
             self._alarm = None
             self._unexpected_reset = False
+            self._position_unknown = None
         return self.status(timeout=timeout)
 
     def move_to(
@@ -859,7 +1209,9 @@ class GrblController:
 
         Returns once GRBL has accepted the line (its ``ok``: planned, usually not yet moving far); the
         returned :class:`MoveStatus` waits for the end of motion. Refused before sending anything if the
-        controller is in Alarm or an axis is not on it; GrblCommandError if GRBL answers ``error:N``.
+        controller is in Alarm, its position is unknown, or an axis is not on it; GrblCommandError if
+        GRBL answers ``error:N``. The line carries ``G21 G90 G53``: millimetres, absolute, machine
+        coordinates, whatever modal state the controller is in.
 
         Args:
             feed_per_min: vector feed (units/min); None for a rapid (G0) at GRBL's per-axis max rates.
@@ -877,12 +1229,17 @@ class GrblController:
             if not math.isfinite(value):
                 raise GrblError(f"target {axis}={value} is not a number")
         line = codec.encode_move(target, feed_per_min=feed_per_min)
+        start = self._last_reading.machine_position if self._last_reading is not None else None
         deadline = time.monotonic() + timeout_s
         pending = self._send_line(line, deadline)
+        with self._cond:
+            self._move_sequence += 1
+            sequence = self._move_sequence
+            self._last_move_line = line
         # Wait for 'ok' (accepted and planned, not done) so that a refusal (error:N) surfaces here.
         self._await(pending, deadline, timeout_s=timeout_s, watch_idle=True)
         tol = {a: float(tolerance) for a in target} if isinstance(tolerance, (int, float)) else dict(tolerance)
-        return MoveStatus(self, target, pending, timeout_s, tol)
+        return MoveStatus(self, target, pending, timeout_s, tol, sequence=sequence, start=start)
 
     def wait_idle(self, timeout: float = 60.0) -> GrblReading:
         """Block until every queued motion has ended (``G4 P0``, with ``?`` polling); return the final report.
@@ -906,7 +1263,7 @@ class GrblController:
 
 
 __all__ = [
-    "GrblAlarm", "GrblCommandError", "GrblConnectionError", "GrblController", "GrblError", "GrblLocked",
-    "GrblMoveError", "GrblReading", "GrblResetError", "GrblTimeout", "MoveStatus",
+    "ControllerInfo", "GrblAlarm", "GrblCommandError", "GrblConnectionError", "GrblConnectionLost", "GrblController",
+    "GrblError", "GrblLocked", "GrblMoveError", "GrblReading", "GrblResetError", "GrblSettingsError", "GrblTimeout",
+    "MoveStatus",
 ]
-

@@ -2,8 +2,13 @@
 
 A campaign asks for a baseline, toe-ins (or alphas), tilts and a target distance; :class:`GrblRig`
 turns that into one GRBL move through the :class:`~drivers.rig.config.RigConfig` mapping (refusing
-anything outside the soft limits before a byte is sent), waits until the controller has stopped,
-prompts the operator for the manual quantities, and reads back where the rig is.
+anything outside the soft limits, or outside the machine space the controller accepts, before a byte
+is sent), waits until the controller has stopped, prompts the operator for the manual quantities, and
+reads back where the rig is.
+
+At :meth:`GrblRig.open` the config is checked against what the controller reported (``$$``): machine
+targets outside ``[-$13x, 0]`` (Grbl's machine space once homed), a tolerance finer than one step
+(``$10x``), homing disabled. Each problem is one warning line in :meth:`GrblRig.controller_info`.
 
 Angles: toe-in t = 90 deg - alpha (0 = parallel). Lengths in mm, angles in degrees, times in seconds.
 """
@@ -20,9 +25,11 @@ from typing import IO, Any, Protocol, runtime_checkable
 
 import serial
 
+from drivers.rig import codec
 from drivers.rig.codec import vector_feed
 from drivers.rig.config import (
     QUANTITIES,
+    MachineSpaceError,
     MoveRequestError,
     RigConfig,
     RigError,
@@ -113,8 +120,8 @@ class GrblRig:
     Args:
         port: a device path or pyserial URL, an open ``serial.SerialBase``, a :class:`Transport`, or an
             already-built :class:`GrblController`.
-        config: the axis mapping and limits (default: X = baseline 0-350 mm, Y/Z = left/right toe-in 0-90
-            deg, tilts fixed at 0, target distance manual).
+        config: the axis mapping and limits (default: stock Grbl machine space, X = baseline 0-350 mm at
+            X -350..0, Y/Z = left/right toe-in 0-90 deg at -0..-90, tilts fixed at 0, target distance manual).
         prompt: ``prompt(message) -> None`` shows the operator what to do for a manual quantity and
             returns once it is done (e.g. after Enter). Without it, a move that needs a manual step is
             refused before anything moves.
@@ -143,7 +150,8 @@ class GrblRig:
     # lifecycle --------------------------------------------------------------------------------
 
     def open(self) -> GrblRig:
-        """Connect; check that the controller has every axis the config drives."""
+        """Connect; check that the controller has every axis the config drives, and the config against the
+        controller's settings (warnings, see :meth:`controller_info`)."""
         self.controller.open()
         axes = self.controller.axes or ""
         missing = [a for a in self.config.axes if a not in axes]
@@ -152,7 +160,18 @@ class GrblRig:
             raise RigError(
                 f"the rig config drives axis {', '.join(missing)} but the controller on {self.controller.port_name} "
                 f"reports only {', '.join(axes) or 'no axes'}")
+        for message in config_warnings(self.config, self.controller.info, port=self.controller.port_name):
+            self.controller._warn(message)
         return self
+
+    def controller_info(self) -> dict[str, Any]:
+        """What was read at connect, JSON-ready: build, options, settings (``{"$100": 250.0, ...}``),
+        startup lines, receive buffer size, whether the controller booted at connect, and every warning."""
+        return self.controller.info.to_dict()
+
+    @property
+    def warnings(self) -> list[str]:
+        return list(self.controller.info.warnings)
 
     def close(self) -> None:
         self.controller.close()
@@ -182,6 +201,25 @@ class GrblRig:
 
     def stop(self) -> None:
         self.controller.feed_hold()
+
+    def resume(self, *, timeout_s: float | None = None) -> RigReading:
+        """Continue after :meth:`stop` (a feed hold): wait until the hold is complete, send ``~``, confirm the
+        controller left Hold, and return once the resumed motion has ended."""
+        timeout = self.config.controller.move_timeout_s if timeout_s is None else timeout_s
+        with self._lock:
+            reading = self.controller.resume(timeout=timeout)
+            if reading.state in ("Run", "Jog"):
+                reading = self.controller.wait_idle(timeout)
+            return self._reading(reading)
+
+    def reset(self) -> RigReading:
+        """Soft reset (0x18): stops at once and discards queued moves; ends a halt after ALARM:1/2.
+
+        The controller keeps its position when it was standing still; a reset in motion raises ALARM:3
+        (home again)."""
+        with self._lock:
+            reading = self.controller.soft_reset(timeout=self.config.controller.connect_timeout_s)
+            return self._reading(reading)  # type: ignore[arg-type]
 
     def plan(self, **request: float | None) -> dict[str, float]:
         """The machine targets (axis letter -> machine units) a request would send; raises as move_to would."""
@@ -216,9 +254,11 @@ class GrblRig:
         with self._lock:
             reading: GrblReading | None = None
             if plan.machine_targets:
+                refused = machine_space_violations(plan.machine_targets, self.controller.info)
+                if refused:
+                    raise MachineSpaceError(refused)
                 feed = self._feed_for(plan.machine_targets)
-                tolerance = {self.config.quantities[q].axis: self.config.quantities[q].tolerance
-                             * abs(self.config.quantities[q].scale) for q in plan.driven}
+                tolerance = self._tolerances(plan.driven)
                 status = self.controller.move_to(
                     plan.machine_targets, feed_per_min=feed, timeout_s=timeout, tolerance=tolerance)
                 if on_moving is not None:
@@ -243,6 +283,16 @@ class GrblRig:
         )
 
     # helpers ----------------------------------------------------------------------------------
+
+    def _tolerances(self, driven: Mapping[str, float]) -> dict[str, float]:
+        """Machine-unit tolerance per axis: the config's, but never finer than one step (``$10x``)."""
+        tolerance = {}
+        for quantity in driven:
+            mapping = self.config.quantities[quantity]
+            spu = self.controller.info.steps_per_unit(mapping.axis)
+            step = 1.0 / spu if spu else 0.0
+            tolerance[mapping.axis] = max(mapping.tolerance * abs(mapping.scale), step)
+        return tolerance
 
     def _feed_for(self, targets: Mapping[str, float]) -> float | None:
         feeds = self.config.axis_feeds_per_min()
@@ -274,6 +324,71 @@ class GrblRig:
             state=grbl.full_state, timestamp=grbl.timestamp, machine_position=grbl.machine_position,
             sources=sources, **values,  # type: ignore[arg-type]
         )
+
+
+def machine_space_violations(targets: Mapping[str, float], info: Any) -> list[str]:
+    """One message per machine target the controller would not accept (empty when it would accept all).
+
+    ``info`` is the controller's :class:`~drivers.rig.grbl.ControllerInfo`. Homed, Grbl's machine space is
+    ``[-$13x, 0]`` (limits.c, system.c); with soft limits on (``$20=1``) a target outside it halts the
+    controller with ALARM:2, and without them it drives the axis past its homing switch. Targets are
+    compared as they go on the wire (3 decimals). Nothing is refused when homing is disabled
+    (``$22=0``): machine coordinates then mean nothing fixed.
+    """
+    problems = []
+    soft = bool(info.settings.get(codec.SETTING_SOFT_LIMITS))
+    for axis, value in targets.items():
+        space = info.machine_space(axis)
+        if space is None:
+            continue
+        sent = float(codec.format_number(value))
+        low, high = space
+        if not low <= sent <= high:
+            number = codec.SETTING_MAX_TRAVEL + codec.AXIS_LETTERS.index(axis)
+            consequence = "soft limits would halt it with ALARM:2" if soft else "it would drive past the switch"
+            problems.append(f"{axis}={sent:g} is outside the controller's machine space {axis} {low:g}..{high:g} "
+                            f"(${number}={info.settings[number]:g}; {consequence})")
+    return problems
+
+
+def config_warnings(config: RigConfig, info: Any, *, port: str = "controller") -> list[str]:
+    """One warning line per conflict between a rig config and the controller's settings (``info``, a
+    :class:`~drivers.rig.grbl.ControllerInfo`): machine targets outside the machine space, a tolerance finer
+    than one step, homing disabled. Empty when the settings were not read."""
+    if not info.settings_read:
+        return []
+    warnings = []
+    if not info.settings.get(codec.SETTING_HOMING):
+        warnings.append(f"{port}: homing is disabled ($22=0): machine positions count from wherever the axes "
+                        "stood when the controller booted, so the rig config's mapping holds only if they stood "
+                        "at machine 0 then; enable homing ($22=1) and soft limits ($20=1)")
+    elif not info.settings.get(codec.SETTING_SOFT_LIMITS):
+        warnings.append(f"{port}: soft limits are off ($20=0): the controller would not stop a move past its "
+                        "travel; this driver refuses targets outside the machine space, other programs will not")
+    for quantity, axis in config.driven.items():
+        mapping = config.quantities[quantity]
+        low, high = sorted((mapping.offset + mapping.scale * mapping.min,  # type: ignore[operator]
+                            mapping.offset + mapping.scale * mapping.max))  # type: ignore[operator]
+        space = info.machine_space(axis)
+        number = codec.AXIS_LETTERS.index(axis)
+        if space is not None:
+            a, b = space
+            where = (f"{quantity} = {mapping.min:g}..{mapping.max:g} maps to {axis} {low:g}..{high:g}, but the "
+                     f"controller's machine space is {axis} {a:g}..{b:g} ($13{number}="
+                     f"{info.settings.get(codec.SETTING_MAX_TRAVEL + number, 0):g}")
+            if min(high, b) - max(low, a) <= 0.0:  # no overlap (or a single point)
+                warnings.append(f"{where}; Grbl homes to 0 and counts negative): moves of {quantity} will be "
+                                "refused; set offset/scale in the rig config (docs/RIG.md)")
+            elif low < a or high > b:
+                warnings.append(f"{where}): moves of {quantity} beyond it will be refused")
+        spu = info.steps_per_unit(axis)
+        if spu:
+            step = 1.0 / spu / abs(mapping.scale)
+            if mapping.tolerance < step:
+                unit = "mm" if quantity.endswith("_mm") else "deg"
+                warnings.append(f"{quantity}: tolerance {mapping.tolerance:g} {unit} is finer than one step of axis "
+                                f"{axis} ({step:g} {unit} at $10{number}={spu:g}): using one step")
+    return warnings
 
 
 def physical_request(
@@ -333,5 +448,6 @@ def wait_for_enter(message: str, *, stream_in=None, stream_out=None) -> None:
 
 
 __all__ = [
-    "GrblRig", "PromptCallback", "Rig", "RigReading", "manual_instruction", "physical_request", "wait_for_enter",
+    "GrblRig", "PromptCallback", "Rig", "RigReading", "config_warnings", "machine_space_violations",
+    "manual_instruction", "physical_request", "wait_for_enter",
 ]

@@ -20,6 +20,19 @@ depends on the time between the end of a move and the frame, which follows the r
 real bench): frames taken while a head still rings are not bit-reproducible; once friction has
 stopped it (``vibration_stop_deg``; 0.24 s after a move on the ``lab`` profile) they are again.
 
+The mechanics take where the emulator's axes stand (``GrblEmulator.physical_position()``: whole motor
+steps, so step quantisation is in; once the controller is homed this is exactly what its step counters,
+``machine_position()``, report, and before homing it is where the motors really are, while the counters
+restart at 0 wherever the axes stand).
+
+Bring-up (``pose_source``): a real controller moves real motors, no emulator runs, and the cameras
+render from the positions the controller reports at each grab. The profile's static imperfections
+still apply to that pose (pan axes off the optical centres, scale errors, slide direction, camera
+mounts; lenses, JPEG, boards, target placement), so the frames look like the ``lab`` bench's; the
+imperfections of *motion* (backlash, landing errors, ringing) do not: they need the axes' history,
+which only a watcher of an emulator sees (a real controller is read once per grab, not every
+millisecond).
+
 The bench knows the truth at every frame: the true camera poses, R and T of the pair
 (X_right = R X_left + T), the board's true pose, scale and bow. ``truth()`` returns it for the
 current state; every frame carries it in its metadata (``meta["truth"]``).
@@ -32,6 +45,7 @@ import math
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -40,7 +54,8 @@ import numpy as np
 from drivers.camera.base import CameraSettings
 from drivers.camera.synthetic import SyntheticCamera
 from drivers.rig.config import RigConfig, alpha_from_toe_in, to_physical
-from drivers.sim.grbl_emulator import DEFAULT_AXES, AxisSpec, GrblEmulator
+from drivers.rig.motion import REFERENCE_HOMING_SEEK_RATE_PER_MIN, REFERENCE_HOMING_SETTLE_S
+from drivers.sim.grbl_emulator import AxisSpec, GrblEmulator, axis_specs_for_travel
 from drivers.sim.mechanics import MoveHistory, PairState, pair_state
 from drivers.sim.profile import IDEAL, BoardErrors, SimProfile
 from drivers.sim.render import BoardShape, Optics, StereoRenderer
@@ -119,7 +134,8 @@ class SimulatedBench:
     """Emulator + scene + two rendering cameras; ``start()``/``stop()`` or a context manager.
 
     Args:
-        rig_config: axis mapping shared with the real driver (default: X = B, Y/Z = toe-ins).
+        rig_config: axis mapping shared with the real driver (default: X = B - 350, Y/Z = -toe-ins, Grbl's
+            machine space).
         left, right: camera intrinsics (default 1920x1080, f = 4 mm, 3 um pixels); the profile's
             lens terms are added to them (``left_model``/``right_model`` are the true lenses).
         optics: image formation (blur, noise, ...); the profile's ``jpeg_quality`` is applied on top.
@@ -127,13 +143,16 @@ class SimulatedBench:
         exposure_s: simulated exposure + readout per frame (real-time seconds).
         profile: the bench's imperfections (default: the ideal bench).
         seed: seed of the profile's random draws (landing errors, target placements).
+        pose_source: where the rig is, when a real controller drives it (bring-up: the cameras are not
+            mounted yet and render from the positions the controller reports); no emulator is started, and
+            the profile's motion errors (backlash, landing, ringing) are left out (module docstring).
     """
 
     def __init__(
         self, *, rig_config: RigConfig | None = None, left: CameraModel | None = None,
         right: CameraModel | None = None, optics: Optics | None = None, time_scale: float = 1.0,
         exposure_s: float = 0.02, homing_enabled: bool = True, axis_specs: dict[str, AxisSpec] | None = None,
-        profile: SimProfile | None = None, seed: int = 0,
+        profile: SimProfile | None = None, seed: int = 0, pose_source: Callable[[], RigPose] | None = None,
     ):
         self.rig_config = rig_config or RigConfig()
         self.profile = profile or IDEAL
@@ -146,10 +165,17 @@ class SimulatedBench:
             self.optics = replace(self.optics, jpeg_quality=cams.jpeg_quality)
         self.time_scale = time_scale
         self.exposure_s = exposure_s
-        self.emulator = GrblEmulator(
-            axes=self.rig_config.axes, axis_specs=axis_specs or self._axis_specs(), time_scale=time_scale,
-            homing_enabled=homing_enabled,
+        self.pose_source = pose_source
+        # The emulated controller's travel ($13x) comes from the rig config's soft limits, in the machine space
+        # a stock Grbl gives (negative from the homing switch); a config with positive machine targets gets
+        # the HOMING_FORCE_SET_ORIGIN build that serves them (see docs/RIG.md).
+        specs, force_set_origin = axis_specs_for_travel(self.rig_config.machine_travel())
+        self.emulator = None if pose_source is not None else GrblEmulator(
+            axes=self.rig_config.axes, axis_specs=axis_specs or specs, time_scale=time_scale,
+            homing_enabled=homing_enabled, force_set_origin=force_set_origin,
+            homing_seek_rate_per_min=REFERENCE_HOMING_SEEK_RATE_PER_MIN, homing_settle_s=REFERENCE_HOMING_SETTLE_S,
         )
+        self._t0 = time.monotonic()  # bring-up's clock (real time) for the truth's time stamps
         self._scene = Scene()
         self._lock = threading.Lock()
         self._renderers: dict[Target, StereoRenderer] = {}
@@ -160,8 +186,10 @@ class SimulatedBench:
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-render")
         # What the operator would set by hand (the target distance unless it is motorised).
         self.manual_values: dict[str, float] = {}
-        # The axes' history (backlash, landing errors, ringing), when the profile needs one.
-        self.history = MoveHistory(self.profile, self.seed) if self.profile.moves_need_history else None
+        # The axes' history (backlash, landing errors, ringing), when the profile needs one and an emulator
+        # can be watched.
+        self.history = (MoveHistory(self.profile, self.seed)
+                        if self.profile.moves_need_history and self.emulator is not None else None)
         self._history_lock = threading.Lock()
         self._watch_stop = threading.Event()
         self._watcher: threading.Thread | None = None
@@ -169,15 +197,11 @@ class SimulatedBench:
         self._placed: tuple | None = None  # (target, distance) of the current manual placement
         self._placement: dict = {}
 
-    def _axis_specs(self) -> dict[str, AxisSpec]:
-        """Travel of each emulated axis from the soft limits of the quantity it drives (machine units)."""
-        return {axis: replace(DEFAULT_AXES.get(axis, AxisSpec()), travel=travel)
-                for axis, travel in self.rig_config.machine_travel().items()}
-
     # -- lifecycle ---------------------------------------------------------------------------------------------
 
     def start(self) -> SimulatedBench:
-        self.emulator.start()
+        if self.emulator is not None:
+            self.emulator.start()
         if self.history is not None:
             self._observe()
             self._watch_stop.clear()
@@ -191,7 +215,8 @@ class SimulatedBench:
             self._watcher.join()
             self._watcher = None
         self._pool.shutdown(wait=True)
-        self.emulator.stop()
+        if self.emulator is not None:
+            self.emulator.stop()
 
     def __enter__(self) -> SimulatedBench:
         return self.start()
@@ -201,6 +226,8 @@ class SimulatedBench:
 
     @property
     def tty_path(self) -> str:
+        if self.emulator is None:
+            raise RuntimeError("this simulated bench renders from a real controller's positions: it has no emulator")
         return self.emulator.tty_path
 
     # -- the scene ---------------------------------------------------------------------------------------------
@@ -259,15 +286,30 @@ class SimulatedBench:
         self.last_prompt = message
 
     def reported_values(self) -> dict[str, float]:
-        """Physical values (``baseline_mm``, ``toe_in_*_deg``, ...) the emulator's axes report now."""
-        physical = to_physical(self.rig_config, self.emulator.machine_position())
+        """Physical values (``baseline_mm``, ``toe_in_*_deg``, ...) of the axes now: what the mechanics are told.
+
+        From where the emulator's motors stand (``physical_position()``, whole steps), not from its step
+        counters: the two agree once the controller is homed, and before that the counters restart at 0
+        wherever the axes stand while the cameras stand where the axes do. Bring-up: the pose source's.
+        """
+        if self.pose_source is not None:
+            pose = self.pose_source()
+            return {"baseline_mm": pose.baseline_mm, "toe_in_left_deg": pose.toe_in_left_deg,
+                    "toe_in_right_deg": pose.toe_in_right_deg, "tilt_left_deg": pose.tilt_left_deg,
+                    "tilt_right_deg": pose.tilt_right_deg}
+        physical = to_physical(self.rig_config, self.emulator.physical_position())
         for quantity, mapping in self.rig_config.quantities.items():
             if mapping.axis == "fixed":
                 physical.setdefault(quantity, float(mapping.value))
         return physical
 
     def rig_pose(self) -> RigPose:
-        """The rig pose the emulator's axes are at now (fixed quantities from the config): what is commanded."""
+        """The rig pose the axes are at now (fixed quantities from the config): what the mechanics are commanded.
+
+        On a mechanically ideal bench the cameras stand exactly there. Bring-up: the pose source's.
+        """
+        if self.pose_source is not None:
+            return self.pose_source()
         return self._pose_of(self.reported_values())
 
     @staticmethod
@@ -286,14 +328,15 @@ class SimulatedBench:
             try:
                 self._observe()
             except Exception:  # noqa: BLE001 - the emulator stopping under the watcher ends it
-                if not self.emulator.running:
+                if self.emulator is None or not self.emulator.running:
                     return
                 raise
 
     def _observe(self, *, idle: bool = False) -> tuple[dict[str, float], float]:
         """Sample the reported values into the history; returns them and the simulated time."""
         with self._history_lock:
-            values, now = self.reported_values(), self.emulator.sim_time()
+            now = self.emulator.sim_time() if self.emulator is not None else time.monotonic() - self._t0
+            values = self.reported_values()
             if self.history is not None:
                 self.history.observe(values, now, idle=idle)
             return values, now

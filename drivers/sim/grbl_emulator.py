@@ -1,56 +1,122 @@
-"""A stateful GRBL 1.1 controller served on a pseudo-terminal, so the real driver opens a real tty.
+"""A GRBL 1.1h controller served on a pseudo-terminal, so the real driver opens a real tty.
 
     with GrblEmulator(time_scale=20.0) as emulator:       # 20x faster than real time
         controller = GrblController(emulator.tty_path)    # pyserial opens /dev/pts/N
         ...
-        emulator.machine_position()                        # {"X": ..., "Y": ..., "Z": ...}, thread-safe
+        emulator.machine_position()    # what Grbl's step counters say (MPos), thread-safe
+        emulator.physical_position()   # where the axes really are
 
-What it models, as GRBL 1.1 does it:
+The firmware is the specification: gnea/grbl 1.1h with its default config.h (3 axes, HOMING_INIT_LOCK,
+two startup lines, 128-byte serial buffer, 16-block planner). Comments name the file and function each
+behaviour mirrors. What it does:
 
-- the 128-byte serial receive buffer (bytes arriving when it holds 127 are dropped and counted), a
-  15-block planner, lines answered ``ok``/``error:N`` in order once planned;
-- real-time bytes ``?`` ``!`` ``~`` 0x18 (and 0x85 jog cancel) acted on at once, without ``ok``;
-- timed motion: each block a trapezoidal velocity profile from rest to rest (per-axis max rate and
-  acceleration), on a clock running ``time_scale`` times faster than real time;
-- ``G4 P<s>`` waits for the planner to empty, so its ``ok`` marks the end of motion;
-- homing (``$H``: no status reports while homing), boot into Alarm with ``[MSG:'$H'|'$X' to unlock]``
-  when homing is enabled, ``$X``;
-- soft limits: a jog beyond travel is ``error:15``; a g-code move beyond travel raises ``ALARM:2`` and
-  halts (``[MSG:Reset to continue]``) until a soft reset; a reset during motion raises ``ALARM:3``;
-- injectable faults (see :class:`LostOk`, :class:`GarbledLine`, :class:`Delay`, :class:`AlarmMidMove`,
-  :class:`ResetMidMove`, :class:`VanishMidMove` and :meth:`GrblEmulator.vanish`).
+- Serial (serial.c, protocol.c ``protocol_main_loop``): a 128-byte receive buffer (bytes arriving when
+  it holds 127 are dropped and counted); spaces and comments dropped, at most 79 characters kept
+  (``error:11`` beyond); lines answered ``ok``/``error:N`` in order once planned; real-time bytes
+  ``?`` ``!`` ``~`` 0x18 and 0x85 acted on at once, without ``ok``.
+- Settings (settings.c, report.c): ``$$`` lists defaults.h DEFAULTS_GENERIC overridden by the
+  constructor's arguments, ``$x=value`` stores with the firmware's checks. Honoured: ``$10`` status
+  mask, ``$13`` report inches, ``$20`` soft limits, ``$22`` homing, ``$23`` homing direction mask,
+  ``$25`` seek rate, ``$27`` pull-off, ``$100``.. steps/unit, ``$110``.. max rates, ``$120``..
+  accelerations, ``$130``.. max travel. ``$I`` answers ``[VER:1.1h.20190830:]`` ``[OPT:V,15,128]``;
+  ``$N`` lists the two startup lines, ``$Nn=line`` stores one (executing it, as system.c does).
+- Positions are step counts (``sys_position``): a target is rounded to whole steps (planner.c
+  ``plan_buffer_line``, ``lround``), MPos = steps / ``$10x``. Power-up and a reboot zero them wherever
+  the axes stand (main.c); a soft reset keeps them. :meth:`physical_position` is where the axes really
+  are, in the machine frame a successful homing establishes.
+- Homing (limits.c ``limits_go_home``): the switch is at the positive end of each axis (at the negative
+  end with its ``$23`` bit set); after pull-off the axis is set to ``-$27`` (``-$13x + $27``): machine
+  space is ``[-$13x, 0]``. A HOMING_FORCE_SET_ORIGIN build (``force_set_origin``, ``Z`` in ``[OPT:]``)
+  sets 0 instead, and ``[0, $13x]`` on the axes whose ``$23`` bit is set. No status is reported while
+  homing. With homing enabled the controller boots in Alarm (``[MSG:'$H'|'$X' to unlock]``). After a
+  successful ``$H`` the startup lines run (echoed ``>line:ok``) before the ``ok`` of the ``$H``.
+- Homing failure (:class:`HomingFail`): ``ALARM:8``/``ALARM:9``, then - Grbl has reset itself - the late
+  ``ok`` of the ``$H`` line and the banner with ``[MSG:'$H'|'$X' to unlock]`` (system.c ``$H`` still
+  returns STATUS_OK, main.c re-initialises). The ALARM line can be left out (``alarm_line=False``),
+  as was seen on the real firmware.
+- Soft limits (motion_control.c ``mc_line``, limits.c ``limits_soft_check``): a g-code target outside
+  machine space with ``$20=1`` raises ``ALARM:2`` (after a controlled stop if the axes are moving) and
+  ``[MSG:Reset to continue]``; then nothing is answered - not even ``?`` - until 0x18 (protocol.c
+  ``protocol_exec_rt_system``, critical-event loop). After the reset the offending line is answered
+  ``ok`` (its ``gc_execute_line`` still returns STATUS_OK), then the banner. A jog beyond travel is
+  ``error:15``. Check mode (``$C``) checks soft limits too.
+- Feed hold (protocol.c): ``!`` decelerates (``Hold:1``), then ``Hold:0``; ``~`` resumes only a
+  completed hold (a ``~`` during ``Hold:1`` is ignored). ``!`` during a jog cancels it.
+- Soft reset (motion_control.c ``mc_reset``, main.c): ``ALARM:3`` if the axes were moving (including
+  ``Hold:1``), ``ALARM:6`` during homing; a line still being executed (waiting for planner space or a
+  ``G4``) is answered ``ok``; then the banner; Alarm stays Alarm, anything else comes back Idle and
+  runs the startup lines. Leaving check mode (``$C`` again) resets the same way after
+  ``[MSG:Disabled]`` and ``ok``.
+- Every ``ALARM:N`` line is followed by a 0.5 s pause (report.c ``report_alarm_message``), in
+  simulated time.
+- ``G20``/``G21``, ``G90``/``G91``, ``G53``, ``G0``/``G1`` (F in units/min), ``G4 P<s>`` (its ``ok``
+  comes once the planner is empty, so it marks the end of motion), ``$X``, ``$J=``, ``$G``, ``$#``.
+- Arduino auto-reset (``reboot_on_open``): opening the port reboots the board; the bootloader swallows
+  what is sent for ``boot_delay_s`` (1.1 s on the real board), then Grbl boots (MPos 0, Alarm with
+  homing enabled). The pty runs in packet mode (TIOCPKT), and an open is seen as the input flush that
+  pyserial makes when it opens a port (a program that flushes its input later would reboot it too).
+- Injectable faults (see :class:`LostOk`, :class:`GarbledLine`, :class:`Delay`, :class:`AlarmMidMove`,
+  :class:`ResetMidMove`, :class:`VanishMidMove`, :class:`HomingFail` and :meth:`GrblEmulator.vanish`).
 
-Simplifications (the driver does not depend on them): a feed hold stops at once instead of
-decelerating; blocks do not blend at junctions; at power-up the reported position is the simulated
-physical position (a real GRBL starts at 0 wherever the axes are); ``$C`` check mode, arcs, probing,
-spindle and coolant are not modelled (their g-codes are accepted where harmless, refused otherwise).
-Units are machine units (mm; a rotary axis in whatever unit its travel is given in).
+Simplifications (the driver does not depend on them): blocks do not blend at junctions (each runs
+from rest to rest) and a feed hold decelerates within the current block; homing moves every axis at
+once at the seek rate, then a fixed settle time stands for the locate and pull-off phases; a
+motor never stalls at the end of its travel and there are no hard limit switches (``$21`` is stored,
+not acted on); a startup line's ``G4`` does not wait; arcs, probing, spindle, coolant, ``G10``/``G92``
+offsets, sleep and ``$RST`` are not modelled (their g-codes are refused with ``error:20``, ``$SLP``
+and ``$RST=`` with ``error:3``).
+Units are machine units (mm; a rotary axis in whatever unit its settings are given in).
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import math
 import os
 import random
 import re
 import select
+import struct
+import termios
 import threading
 import time
 import tty
 from collections import deque
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+
+from drivers.rig.motion import REFERENCE_AXIS_MOTION, path_limits, trapezoid
 
 AXIS_LETTERS = "XYZABC"
 RX_BUFFER_SIZE = 128
-PLANNER_BLOCKS = 15  # GRBL 1.1 on an Uno: 16-block ring buffer, one kept free
+PLANNER_BLOCKS = 15  # GRBL 1.1 on an Uno: 16-block ring buffer, one kept free ([OPT:...,15,...])
 LINE_BUFFER_SIZE = 80
+N_STARTUP_LINES = 2  # config.h N_STARTUP_LINE
+MM_PER_INCH = 25.4
 
+GRBL_VERSION = "1.1h.20190830"  # grbl.h GRBL_VERSION "." GRBL_VERSION_BUILD
+GRBLHAL_VERSION = "1.1f.20231210"
 GRBL_BANNER = "Grbl 1.1h ['$' for help]"
 GRBLHAL_BANNER = "GrblHAL 1.1f ['$' or '$HELP' for help]"
 UNLOCK_MESSAGE = "[MSG:'$H'|'$X' to unlock]"
+RESET_MESSAGE = "[MSG:Reset to continue]"
+HELP_MESSAGE = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"
+
+ALARM_REPORT_DELAY_S = 0.5  # report.c report_alarm_message: delay_ms(500) after every ALARM line
+HOMING_SEARCH_SCALAR = 1.5  # limits.c HOMING_AXIS_SEARCH_SCALAR: a failed search covers 1.5 x $13x
+AUTO_RESET_BOOT_S = 1.1  # seen on the real board: the banner ~1.1 s after the port was opened
+CLIENT_POLL_S = 0.02  # how often to look for a client while nobody has the port open
+
+#: defaults.h DEFAULTS_GENERIC (the non-axis settings; axis settings come from each AxisSpec).
+DEFAULT_SETTINGS: dict[int, float] = {
+    0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010, 12: 0.002, 13: 0, 20: 0, 21: 0, 22: 0,
+    23: 0, 24: 25.0, 25: 500.0, 26: 250, 27: 1.0, 30: 1000.0, 31: 0.0, 32: 0,
+}
+#: Settings report.c prints as floats (3 decimals; the spindle rpm ones with none); the rest are integers.
+_FLOAT_SETTINGS = frozenset({11, 12, 24, 25, 27})
+_RPM_SETTINGS = frozenset({30, 31})
 
 
 # --------------------------------------------------------------------------------------------------
@@ -59,33 +125,51 @@ UNLOCK_MESSAGE = "[MSG:'$H'|'$X' to unlock]"
 
 @dataclass(frozen=True)
 class AxisSpec:
-    """One simulated axis. Positions in machine units; rate in units/min (GRBL $11x), accel in units/s² ($12x).
+    """One simulated axis, as its firmware settings describe it (machine units, mm for a linear axis).
 
-    ``home_position`` is where ``$H`` leaves the axis; None = 0 if inside the travel, else the nearer end.
+    ``max_travel`` is ``$13x`` (and the real length of the axis: the emulator assumes it was set right),
+    ``max_rate_per_min`` ``$11x`` (units/min), ``acceleration`` ``$12x`` (units/s²), ``steps_per_unit``
+    ``$10x``; ``home_negative`` is this axis' bit of ``$23`` (its homing switch at the negative end).
     """
 
-    travel: tuple[float, float] = (0.0, 350.0)
+    max_travel: float = 350.0
     max_rate_per_min: float = 3000.0
     acceleration: float = 200.0
-    home_position: float | None = None
-    steps_per_unit: float | None = None  # quantise reported positions to whole steps, like real firmware
-
-    @property
-    def home(self) -> float:
-        if self.home_position is not None:
-            return self.home_position
-        low, high = self.travel
-        return min(max(0.0, low), high)
+    steps_per_unit: float = 250.0
+    home_negative: bool = False
 
 
+# Rates and accelerations are the reference rig's (drivers.rig.motion), which the plan's estimate assumes too.
 DEFAULT_AXES: dict[str, AxisSpec] = {
-    "X": AxisSpec(travel=(0.0, 350.0), max_rate_per_min=3000.0, acceleration=200.0),
-    "Y": AxisSpec(travel=(0.0, 90.0), max_rate_per_min=1800.0, acceleration=180.0),
-    "Z": AxisSpec(travel=(0.0, 90.0), max_rate_per_min=1800.0, acceleration=180.0),
-    "A": AxisSpec(travel=(-45.0, 45.0), max_rate_per_min=1800.0, acceleration=180.0),
-    "B": AxisSpec(travel=(-45.0, 45.0), max_rate_per_min=1800.0, acceleration=180.0),
-    "C": AxisSpec(travel=(0.0, 2000.0), max_rate_per_min=6000.0, acceleration=300.0),
+    axis: AxisSpec(max_travel=travel, max_rate_per_min=REFERENCE_AXIS_MOTION[axis].max_rate_per_min,
+                   acceleration=REFERENCE_AXIS_MOTION[axis].acceleration)
+    for axis, travel in {"X": 350.0, "Y": 90.0, "Z": 90.0, "A": 90.0, "B": 90.0, "C": 2000.0}.items()
 }
+
+
+def axis_specs_for_travel(travel: Mapping[str, tuple[float, float]],
+                          base: Mapping[str, AxisSpec] | None = None) -> tuple[dict[str, AxisSpec], bool]:
+    """Axis settings whose machine space covers ``travel`` (axis -> (low, high), machine units).
+
+    Returns the specs and whether they need a HOMING_FORCE_SET_ORIGIN build. A range at or below 0 is
+    what a stock Grbl gives once homed: ``$13x = -low``, homing toward +. A range at or above 0 exists
+    only on a HOMING_FORCE_SET_ORIGIN build, homing toward - (``$23`` bit set), ``$13x = high``. A range
+    across 0 fits no Grbl build: it gets ``$13x = high - low`` on the stock space, and its positive
+    targets meet the soft limits as they would on the real controller.
+    """
+    base = DEFAULT_AXES if base is None else base
+    specs: dict[str, AxisSpec] = {}
+    force_origin = False
+    for axis, (low, high) in travel.items():
+        spec = base.get(axis, AxisSpec())
+        if high <= 0.0:
+            specs[axis] = replace(spec, max_travel=max(-low, 1e-3), home_negative=False)
+        elif low >= 0.0:
+            specs[axis] = replace(spec, max_travel=max(high, 1e-3), home_negative=True)
+            force_origin = True
+        else:
+            specs[axis] = replace(spec, max_travel=high - low, home_negative=False)
+    return specs, force_origin
 
 
 @dataclass
@@ -135,11 +219,20 @@ class VanishMidMove:
     fraction: float = 0.5
 
 
-Fault = LostOk | GarbledLine | Delay | AlarmMidMove | ResetMidMove | VanishMidMove
+@dataclass
+class HomingFail:
+    """The next ``$H`` fails with ``ALARM:code``: 9 = switch not found within 1.5 x ``$13x``, 8 = pull-off
+    did not clear it. ``alarm_line=False`` leaves the ALARM line out (only the late ``ok`` and the reboot)."""
+
+    code: int = 9
+    alarm_line: bool = True
+
+
+Fault = LostOk | GarbledLine | Delay | AlarmMidMove | ResetMidMove | VanishMidMove | HomingFail
 
 FAULT_HELP = (
     "lost-ok[:MATCH] | garble[:ok|status|any] | delay:SECONDS[:COUNT] | alarm[:CODE[:FRACTION]] | "
-    "reset[:FRACTION] | vanish[:FRACTION]"
+    "reset[:FRACTION] | vanish[:FRACTION] | homing-fail[:8|9[:silent]]"
 )
 
 
@@ -165,6 +258,13 @@ def parse_fault(spec: str) -> Fault:
             return ResetMidMove(fraction=float(args[0]) if args else 0.5)
         if name == "vanish":
             return VanishMidMove(fraction=float(args[0]) if args else 0.5)
+        if name == "homing-fail":
+            code = int(args[0]) if args else 9
+            if code not in (8, 9):
+                raise ValueError(f"homing-fail wants alarm 8 or 9, not {code}")
+            if len(args) > 1 and args[1] != "silent":
+                raise ValueError(f"homing-fail's second field can only be 'silent', not {args[1]!r}")
+            return HomingFail(code=code, alarm_line=len(args) < 2)
     except (IndexError, ValueError) as error:
         raise ValueError(f"bad fault {spec!r}: {error}") from None
     raise ValueError(f"unknown fault {spec!r}; expected {FAULT_HELP}")
@@ -197,16 +297,9 @@ class _Block:
             self.motion_duration = 0.0
             self.duration = self.dwell_after
             return
-        t_acc = self.speed / self.accel
-        d_acc = 0.5 * self.accel * t_acc * t_acc
-        if 2.0 * d_acc >= self.length:  # never reaches cruise speed: triangular profile
-            t_acc = math.sqrt(self.length / self.accel)
-            self._t_cruise = 0.0
-        else:
-            self._t_cruise = (self.length - 2.0 * d_acc) / self.speed
-        self._t_acc = t_acc
-        self._v_peak = self.accel * t_acc
-        self.motion_duration = 2.0 * t_acc + self._t_cruise
+        profile = trapezoid(self.length, self.speed, self.accel)  # the plan's estimate uses the same model
+        self._t_acc, self._t_cruise, self._v_peak = profile.t_acc_s, profile.t_cruise_s, profile.v_peak
+        self.motion_duration = profile.duration_s
         self.duration = self.motion_duration + self.dwell_after
 
     def distance_at(self, tau: float) -> float:
@@ -239,33 +332,90 @@ class _Block:
         return {a: self.start[a] + (self.end[a] - self.start[a]) * f for a in self.start}
 
 
+@dataclass
+class _Stop:
+    """A controlled stop from speed ``v0`` at constant deceleration: a feed hold, a jog cancel, or the
+    stop before a soft-limit alarm (protocol.c: the hold decelerates along the path; ``Hold:1`` until
+    the axes stand still). ``interrupted`` is the block it cut short; its rest is planned again on resume."""
+
+    start: dict[str, float]
+    direction: dict[str, float]  # unit vector along the path, per axis
+    v0: float  # units/s
+    accel: float  # units/s²
+    reason: str  # "hold", "cancel" (jog) or "soft_limit"
+    interrupted: _Block | None = None
+    line: str = ""
+    kind: str = "stop"
+    t_start: float | None = None
+    dwell_after: float = 0.0
+    length: float = field(init=False)
+    duration: float = field(init=False)
+    motion_duration: float = field(init=False)
+    end: dict[str, float] = field(init=False)
+
+    def __post_init__(self) -> None:
+        moving = self.v0 > 0.0 and self.accel > 0.0
+        self.motion_duration = self.v0 / self.accel if moving else 0.0
+        self.duration = self.motion_duration
+        self.length = 0.5 * self.v0 * self.motion_duration
+        self.end = {a: self.start[a] + self.direction[a] * self.length for a in self.start}
+
+    def distance_at(self, tau: float) -> float:
+        t = min(max(tau, 0.0), self.motion_duration)
+        return self.v0 * t - 0.5 * self.accel * t * t
+
+    def speed_at(self, tau: float) -> float:
+        if tau <= 0.0 or tau >= self.motion_duration:
+            return 0.0 if tau >= self.motion_duration else self.v0
+        return self.v0 - self.accel * tau
+
+    def position_at(self, tau: float) -> dict[str, float]:
+        d = self.distance_at(tau)
+        return {a: self.start[a] + self.direction[a] * d for a in self.start}
+
+
+def _lround(value: float) -> int:
+    """C's lround: to the nearest integer, halves away from zero (planner.c rounds targets to steps so)."""
+    return int(math.copysign(math.floor(abs(value) + 0.5), value))
+
+
 # --------------------------------------------------------------------------------------------------
 # The emulator
 
 
 class GrblEmulator:
-    """A GRBL 1.1 controller on a pty, served by one thread. See the module docstring.
+    """A GRBL 1.1h controller on a pty, served by one thread. See the module docstring.
 
     Args:
         axes: axis letters, in GRBL order (``"XYZ"``, or ``"XYZABC"`` for a grblHAL-like 6-axis board).
-        axis_specs: per-axis travel/rates (defaults: X 0-350 mm, Y and Z 0-90 deg, A B -45..45, C 0-2000).
+        axis_specs: per-axis settings (defaults :data:`DEFAULT_AXES`: X 350 mm, Y and Z 90 deg of travel).
         time_scale: simulated seconds per real second (1 = real time; 20 = twenty times faster).
         homing_enabled: ``$22``; with it the controller boots into Alarm and must be homed or unlocked.
         soft_limits: ``$20``; needs homing enabled, as on GRBL.
-        homing_seek_rate_per_min: speed of the homing cycle (units/min); plus ``homing_settle_s``.
+        homing_seek_rate_per_min: ``$25``, the speed of the homing search; plus ``homing_settle_s``.
+        homing_pulloff: ``$27``: where homing leaves an axis, from its switch.
         status_mask: ``$10``: bit 0 set reports MPos (else WPos), bit 1 adds ``Bf:``.
+        report_inches: ``$13``: status reports in inches.
+        force_set_origin: a build with HOMING_FORCE_SET_ORIGIN (homing sets 0; ``Z`` in ``[OPT:]``).
+        startup_lines: ``$N0``, ``$N1`` (e.g. ``("G20",)``), run after every reset into Idle and every homing.
         firmware: ``"grbl"`` or ``"grblhal"`` (banner; grblHAL's 1024-byte receive buffer).
         rx_buffer_size: the serial receive buffer in bytes.
         shuffle_fields: report status fields in a random order (seeded), as a robustness test.
         faults: faults armed from the start; more with :meth:`inject`.
+        start_position: where the axes physically stand at power-up (machine frame of a homed controller;
+            default 0, so that MPos and the physical position agree until something moves them apart).
+        reboot_on_open: reboot whenever a client opens the port (an Arduino's DTR auto-reset).
+        boot_delay_s: simulated seconds from the open to the banner of such a reboot.
     """
 
     def __init__(
         self, *, axes: str = "XYZ", axis_specs: Mapping[str, AxisSpec] | None = None, time_scale: float = 1.0,
         homing_enabled: bool = True, soft_limits: bool = True, homing_seek_rate_per_min: float = 3000.0,
-        homing_settle_s: float = 0.5, status_mask: int = 1, firmware: str = "grbl",
-        rx_buffer_size: int | None = None, shuffle_fields: bool = False, seed: int = 0,
+        homing_settle_s: float = 0.5, homing_pulloff: float = 1.0, status_mask: int = 1,
+        report_inches: bool = False, force_set_origin: bool = False, startup_lines: Iterable[str] = (),
+        firmware: str = "grbl", rx_buffer_size: int | None = None, shuffle_fields: bool = False, seed: int = 0,
         faults: Iterable[Fault] = (), start_position: Mapping[str, float] | None = None,
+        reboot_on_open: bool = False, boot_delay_s: float = AUTO_RESET_BOOT_S,
     ):
         if not axes or axes != "".join(a for a in AXIS_LETTERS if a in axes) or len(set(axes)) != len(axes):
             raise ValueError(f"axes must be letters of {AXIS_LETTERS} in that order, not {axes!r}")
@@ -273,33 +423,46 @@ class GrblEmulator:
             raise ValueError("time_scale must be > 0")
         if firmware not in ("grbl", "grblhal"):
             raise ValueError("firmware must be 'grbl' or 'grblhal'")
+        lines = [_clean_line(line) for line in startup_lines]
+        if len(lines) > N_STARTUP_LINES:
+            raise ValueError(f"GRBL keeps {N_STARTUP_LINES} startup lines, not {len(lines)}")
         self.axes = axes
         specs = dict(DEFAULT_AXES)
         specs.update(axis_specs or {})
         self.specs = {a: specs[a] for a in axes}
         self.time_scale = float(time_scale)
-        self.homing_enabled = homing_enabled
-        self.soft_limits = soft_limits and homing_enabled
-        self.homing_seek_rate_per_min = homing_seek_rate_per_min
         self.homing_settle_s = homing_settle_s
-        self.status_mask = status_mask
+        self.force_set_origin = force_set_origin
         self.firmware = firmware
         self.rx_buffer_size = rx_buffer_size or (1024 if firmware == "grblhal" else RX_BUFFER_SIZE)
         self.shuffle_fields = shuffle_fields
+        self.reboot_on_open = reboot_on_open
+        self.boot_delay_s = boot_delay_s
+        self.startup_lines = lines + [""] * (N_STARTUP_LINES - len(lines))
+        self.settings: dict[int, float] = dict(DEFAULT_SETTINGS)
+        self.settings.update({10: status_mask, 13: int(report_inches), 22: int(homing_enabled),
+                              20: int(soft_limits and homing_enabled), 25: homing_seek_rate_per_min,
+                              27: homing_pulloff})
+        self.settings[23] = sum(1 << i for i, a in enumerate(axes) if self.specs[a].home_negative)
+        for i, axis in enumerate(axes):
+            spec = self.specs[axis]
+            self.settings.update({100 + i: spec.steps_per_unit, 110 + i: spec.max_rate_per_min,
+                                  120 + i: spec.acceleration, 130 + i: spec.max_travel})
         self._rng = random.Random(seed)
         self._faults: list[Fault] = list(faults)
-        self._start_position = {a: float((start_position or {}).get(a, self.specs[a].home)) for a in axes}
+        self._start_position = {a: float((start_position or {}).get(a, 0.0)) for a in axes}
 
         self._lock = threading.RLock()
         self._thread: threading.Thread | None = None
         self._master: int | None = None
-        self._slave: int | None = None
         self._wake_r: int | None = None
         self._wake_w: int | None = None
         self._stop = threading.Event()
         self.tty_path: str | None = None
         self.vanished = False
         self._vanish_requested = False
+        self._client = False  # a program has the port open
+        self._booting_until: float | None = None  # real monotonic time an auto-reset boot ends
 
         self._t0_real = time.monotonic()
         self._power_up()
@@ -309,6 +472,63 @@ class GrblEmulator:
         self.lines_received: deque[str] = deque(maxlen=1000)
         self.status_reports_sent = 0
         self.resets = 0
+        self.client_opens = 0
+
+    # ------------------------------------------------------------------ settings
+
+    @property
+    def homing_enabled(self) -> bool:
+        return bool(self.settings[22])
+
+    @property
+    def soft_limits(self) -> bool:
+        return bool(self.settings[20])
+
+    @property
+    def status_mask(self) -> int:
+        return int(self.settings[10])
+
+    @property
+    def report_inches(self) -> bool:
+        return bool(self.settings[13])
+
+    def _axis_setting(self, base: int, axis: str) -> float:
+        return float(self.settings[base + self.axes.index(axis)])
+
+    def _steps_per_unit(self, axis: str) -> float:
+        return self._axis_setting(100, axis)
+
+    def _max_travel(self, axis: str) -> float:
+        return self._axis_setting(130, axis)
+
+    def _home_negative(self, axis: str) -> bool:
+        return bool((int(self.settings[23]) >> self.axes.index(axis)) & 1)
+
+    def _on_grid(self, pos: Mapping[str, float]) -> dict[str, float]:
+        """Whole steps (planner.c: targets are lround(target * $10x) steps; stepper.c counts whole steps)."""
+        return {a: _lround(v * self._steps_per_unit(a)) / self._steps_per_unit(a) for a, v in pos.items()}
+
+    def _machine_space(self, axis: str) -> tuple[float, float]:
+        """system.c system_check_travel_limits: [-$13x, 0], or [0, $13x] on a HOMING_FORCE_SET_ORIGIN build
+        for an axis homing toward - ."""
+        travel = self._max_travel(axis)
+        if self.force_set_origin and self._home_negative(axis):
+            return 0.0, travel
+        return -travel, 0.0
+
+    def _switch_physical(self, axis: str) -> float:
+        return -self._max_travel(axis) if self._home_negative(axis) else 0.0
+
+    def _home_physical(self, axis: str) -> float:
+        pulloff = float(self.settings[27])
+        return -self._max_travel(axis) + pulloff if self._home_negative(axis) else -pulloff
+
+    def _home_machine(self, axis: str) -> float:
+        """limits.c limits_go_home: the machine position a homed axis is set to."""
+        if self.force_set_origin:
+            return 0.0
+        spu = self._steps_per_unit(axis)
+        return _lround(self._home_physical(axis) * spu) / spu
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -317,19 +537,22 @@ class GrblEmulator:
         if self._thread is not None:
             return self
         master, slave = os.openpty()
-        # Raw at once: with the default line discipline the banner written before anyone opens the
-        # slave would be echoed back to us as if it were input.
+        # Raw at once: with the default line discipline our output would be echoed back to us as input.
+        # The setting outlives this descriptor, which is closed: the pty then reports a hang-up while
+        # nobody has the port open. Packet mode reports the flush of every pyserial open (reboot_on_open).
         tty.setraw(slave)
+        fcntl.ioctl(master, termios.TIOCPKT, struct.pack("i", 1))
         os.set_blocking(master, False)
-        self._master, self._slave = master, slave
         self.tty_path = os.ttyname(slave)
+        os.close(slave)
+        self._master = master
         self._wake_r, self._wake_w = os.pipe()
         self._stop.clear()
         with self._lock:
             self._t0_real = time.monotonic()
             self._power_up()
-            self._banner()
-            # Booted before anyone connects, like a real board: the banner waits in the tty's queue.
+            self._client = False
+            self._banner()  # booted before anyone connects, like a real board: nobody hears it
             self._flush_output()
         self._thread = threading.Thread(target=self._serve, name=f"grbl-emulator {self.tty_path}", daemon=True)
         self._thread.start()
@@ -361,7 +584,7 @@ class GrblEmulator:
 
     def _close_fds(self) -> None:
         with self._lock:
-            for name in ("_master", "_slave", "_wake_r", "_wake_w"):
+            for name in ("_master", "_wake_r", "_wake_w"):
                 fd = getattr(self, name)
                 if fd is not None:
                     with contextlib.suppress(OSError):
@@ -389,12 +612,10 @@ class GrblEmulator:
     def _vanish(self) -> None:
         self.vanished = True
         self._stop.set()
-        for name in ("_master", "_slave"):
-            fd = getattr(self, name)
-            if fd is not None:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-                setattr(self, name, None)
+        if self._master is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._master)
+            self._master = None
 
     # ------------------------------------------------------------------ public state (thread-safe)
 
@@ -404,9 +625,22 @@ class GrblEmulator:
             self._faults.append(fault)
 
     def machine_position(self) -> dict[str, float]:
-        """Where the axes are now (machine units), between status reports too. Thread-safe."""
+        """What the step counters say now (MPos, machine units, whole steps), between reports too."""
         with self._lock:
-            return self._current_position(self._sim_now())
+            return self._on_grid(self._current_position(self._sim_now()))
+
+    def physical_position(self) -> dict[str, float]:
+        """Where the axes really are now, in the machine frame a successful homing sets up.
+
+        Equal to :meth:`machine_position` once homed; different after a power-up or reboot (the counters
+        restart at 0 wherever the axes stand) or a failed homing.
+        """
+        with self._lock:
+            now = self._sim_now()
+            if self._homing_block is not None and self._homing_block.t_start is not None:
+                return self._homing_block.position_at(now - self._homing_block.t_start)
+            machine = self._on_grid(self._current_position(now))
+            return {a: machine[a] + self._offset[a] for a in self.axes}
 
     @property
     def state(self) -> str:
@@ -418,6 +652,12 @@ class GrblEmulator:
                 with contextlib.suppress(OSError):
                     os.write(self._wake_w, b"x")  # let the serving thread send what advancing produced
             return text
+
+    @property
+    def halted(self) -> bool:
+        """In the critical-event loop after ALARM:1/2: nothing but a soft reset is heard."""
+        with self._lock:
+            return self._halted
 
     @property
     def homed(self) -> bool:
@@ -432,10 +672,12 @@ class GrblEmulator:
     # ------------------------------------------------------------------ machine model
 
     def _power_up(self) -> None:
-        self._position = dict(self._start_position)
+        """main.c from the top: step counters zeroed wherever the axes stand; Alarm if homing is enabled."""
+        self._position = {a: 0.0 for a in self.axes}
+        self._offset = dict(self._start_position)  # physical = machine + offset
         self._wco = dict.fromkeys(self.axes, 0.0)
         self._homed = False
-        self._state = "Alarm" if self.homing_enabled else "Idle"
+        self._state = "Alarm" if self.homing_enabled else "Idle"  # config.h HOMING_INIT_LOCK
         self._hold_complete = False
         # Output survives a soft reset (GRBL flushes its receive buffer, not its transmit buffer).
         self._out: deque[tuple[float, bytes]] = deque()
@@ -443,16 +685,20 @@ class GrblEmulator:
         self._reset_common()
 
     def _reset_common(self) -> None:
-        self._halted = False  # critical alarm: only reset and status are served
+        """What main.c clears at every re-initialisation (the step counters are not among it)."""
+        self._halted = False  # critical alarm: only reset is served
+        self._halted_line: str | None = None  # the line that gets its late 'ok' once reset
         self._alarm_code: int | None = None
-        self._planner: deque[_Block] = deque()
+        self._planner: deque[_Block | _Stop] = deque()
         self._rx = bytearray()
-        self._current: tuple[str, dict] | None = None  # a line waiting for the planner or a dwell
+        self._current: tuple[str, dict] | None = None  # a line waiting for the planner, a dwell or a stop
         self._dwell_end: float | None = None
         self._homing_block: _Block | None = None
-        self._modal = {"motion": 0, "distance": 90, "units": 21, "feed": 0.0}
+        self._homing_fail: HomingFail | None = None
+        self._modal = {"motion": 0, "distance": 90, "units": 21, "feed": 0.0}  # gcode.c gc_init
         self._wco_counter = 0
         self._ovr_counter = 0
+        self._reply_prefix = ""
 
     def _sim_now(self) -> float:
         return (time.monotonic() - self._t0_real) * self.time_scale
@@ -461,40 +707,38 @@ class GrblEmulator:
         return max(0.0, sim_seconds / self.time_scale)
 
     def _current_position(self, now: float) -> dict[str, float]:
-        block = self._homing_block or (self._planner[0] if self._planner else None)
+        """Machine position (continuous; :meth:`_on_grid` makes it steps)."""
+        if self._homing_block is not None and self._homing_block.t_start is not None:
+            physical = self._homing_block.position_at(now - self._homing_block.t_start)
+            return {a: physical[a] - self._offset[a] for a in self.axes}
+        block = self._planner[0] if self._planner else None
         if block is not None and block.t_start is not None:
-            pos = block.position_at(now - block.t_start)
-        else:
-            pos = dict(self._position)
-        return pos
-
-    def _quantise(self, pos: Mapping[str, float]) -> dict[str, float]:
-        out = {}
-        for axis, value in pos.items():
-            steps = self.specs[axis].steps_per_unit
-            out[axis] = round(value * steps) / steps if steps else value
-        return out
+            return block.position_at(now - block.t_start)
+        return dict(self._position)
 
     def _state_text(self) -> str:
         if self._state == "Hold":
             return f"Hold:{0 if self._hold_complete else 1}"
         return self._state
 
+    def _moving(self) -> bool:
+        """In motion as mc_reset sees it: cycle, jog, homing, or a hold still decelerating."""
+        return (self._homing_block is not None or self._state in ("Run", "Jog", "Home")
+                or (self._state == "Hold" and not self._hold_complete))
+
     def _advance(self, now: float) -> None:
         """Bring motion, homing and dwells up to sim time ``now``; fire mid-move faults."""
+        if self._booting_until is not None:
+            return
         if self._homing_block is not None:
             block = self._homing_block
             if now >= block.t_start + block.duration:  # type: ignore[operator]
-                self._position = {a: self.specs[a].home for a in self.axes}
-                self._homing_block = None
-                self._homed = True
-                self._state = "Idle"
-                self._alarm_code = None
-                self._finish_current("ok")
+                self._finish_homing()
             return
         while self._planner:
             block = self._planner[0]
             if block.t_start is None:
+                # protocol.c auto-cycle start: queued blocks run unless a hold keeps them.
                 if self._state in ("Run", "Jog", "Idle"):
                     block.t_start = now
                     if self._state == "Idle":
@@ -503,38 +747,44 @@ class GrblEmulator:
                     break
             if self._check_mid_move_faults(block, now):
                 break
-            if now >= block.t_start + block.duration:
-                self._position = dict(block.end)
-                self._planner.popleft()
-                if self._planner:
-                    nxt = self._planner[0]
-                    nxt.t_start = block.t_start + block.duration
-                    if self._state in ("Run", "Jog"):
-                        self._state = "Jog" if nxt.kind == "jog" else "Run"
+            end = block.t_start + block.duration
+            if now < end:
+                break
+            self._position = self._on_grid(block.end)
+            self._planner.popleft()
+            if isinstance(block, _Stop):
+                self._stop_complete(block)
+                if self._halted:
+                    return
                 continue
-            break
+            if self._planner and self._state in ("Run", "Jog"):
+                nxt = self._planner[0]
+                nxt.t_start = end
+                self._state = "Jog" if nxt.kind == "jog" else "Run"
         if not self._planner and self._state in ("Run", "Jog"):
             self._state = "Idle"
         if self._current is not None:
             self._try_current(now)
 
-    def _check_mid_move_faults(self, block: _Block, now: float) -> bool:
+    def _check_mid_move_faults(self, block: _Block | _Stop, now: float) -> bool:
         """Fire a fault due during ``block``; True if one fired (the block is then gone)."""
-        if block.t_start is None or block.duration <= 0:
+        if block.t_start is None or block.duration <= 0 or isinstance(block, _Stop):
             return False
         done = (now - block.t_start) / block.duration
         for fault in list(self._faults):
             if isinstance(fault, (AlarmMidMove, ResetMidMove, VanishMidMove)) and done >= fault.fraction:
                 self._faults.remove(fault)
                 at = block.t_start + fault.fraction * block.duration
+                self._stop_motion_at(at)
                 if isinstance(fault, AlarmMidMove):
-                    self._stop_motion_at(at)
+                    if fault.code in (1, 2):
+                        # A line waiting for planner space is still inside mc_line: answered once reset.
+                        self._halted_line = self._current[0] if self._current else None
+                        self._current = None
                     self._raise_alarm(fault.code)
                 elif isinstance(fault, ResetMidMove):
-                    self._stop_motion_at(at)
                     self._reboot()
                 else:
-                    self._stop_motion_at(at)
                     self._vanish()
                 return True
         return False
@@ -555,57 +805,159 @@ class GrblEmulator:
 
     def _stop_motion_at(self, when: float) -> None:
         """Freeze the axes where they are at sim time ``when`` and drop all queued motion."""
-        self._position = self._current_position(when)
+        if self._homing_block is not None and self._homing_block.t_start is not None:
+            physical = self._homing_block.position_at(when - self._homing_block.t_start)
+            self._position = self._on_grid({a: physical[a] - self._offset[a] for a in self.axes})
+        else:
+            self._position = self._on_grid(self._current_position(when))
         self._planner.clear()
         self._homing_block = None
+        self._homing_fail = None
         self._dwell_end = None
         self._current = None
+
+    # -- feed hold, cycle start, controlled stops (protocol.c protocol_exec_rt_system)
+
+    def _begin_stop(self, now: float, reason: str, line: str = "") -> None:
+        """Decelerate the running block to a stop along its path (st_update_plan_block_parameters)."""
+        block = self._planner[0] if self._planner and self._planner[0].t_start is not None else None
+        if isinstance(block, _Stop):
+            return
+        if block is None:
+            stop = _Stop(start=dict(self._position), direction=dict.fromkeys(self.axes, 0.0), v0=0.0, accel=1.0,
+                         reason=reason, line=line)
+            stop.t_start = now
+            self._planner.appendleft(stop)
+            return
+        tau = now - block.t_start  # type: ignore[operator]
+        here = block.position_at(tau)
+        length = block.length or 1.0
+        direction = {a: (block.end[a] - block.start[a]) / length for a in self.axes}
+        stop = _Stop(start=here, direction=direction, v0=block.speed_at(tau), accel=block.accel, reason=reason,
+                     interrupted=block, line=line)
+        stop.t_start = now
+        self._planner[0] = stop
+
+    def _stop_complete(self, stop: _Stop) -> None:
+        """EXEC_CYCLE_STOP after a stop: hold complete, jog cancelled, or the soft-limit alarm."""
+        if stop.reason == "hold":
+            rest = stop.interrupted
+            if rest is not None:
+                block = self._make_block(self._position, rest.end, rest.speed * 60.0, kind=rest.kind, line=rest.line)
+                if block.length > 0:
+                    self._planner.appendleft(block)
+            self._hold_complete = True  # Hold:0, ready to resume
+        elif stop.reason == "cancel":
+            self._planner.clear()  # jog cancel: plan_reset, back to Idle
+            self._state = "Idle"
+        else:  # soft limit (limits.c limits_soft_check): stopped under control, now the critical alarm
+            self._planner.clear()
+            self._current = None
+            self._halted_line = stop.line
+            self._raise_alarm(2)
+
+    def _feed_hold(self) -> None:
+        if self._state in ("Alarm", "Check", "Home", "Hold") or self._halted:
+            return
+        now = self._sim_now()
+        if self._state == "Idle":
+            self._state, self._hold_complete = "Hold", True  # not moving: the hold is complete at once
+        elif self._state == "Jog":
+            self._begin_stop(now, "cancel")  # a hold cancels a jog (state stays Jog until stopped)
+        else:
+            self._begin_stop(now, "hold")
+            self._state, self._hold_complete = "Hold", False
+
+    def _cycle_start(self) -> None:
+        # Cycle start only when IDLE or when a hold is complete and ready to resume: '~' during Hold:1 is lost.
+        if self._state != "Hold" or not self._hold_complete:
+            return
+        self._hold_complete = False
+        if self._planner:
+            self._state = "Jog" if self._planner[0].kind == "jog" else "Run"
+            self._planner[0].t_start = self._sim_now()
+        else:
+            self._state = "Idle"
+
+    def _jog_cancel(self) -> None:
+        if self._state == "Jog":
+            self._begin_stop(self._sim_now(), "cancel")
+
+    # -- alarms, resets, boots
 
     def _raise_alarm(self, code: int) -> None:
         self._state = "Alarm"
         self._alarm_code = code
-        self._rx.clear()
         self._emit(f"ALARM:{code}", "alarm")
+        self._alarm_pause()
         if code in (1, 2):
-            # Hard and soft limits are critical in GRBL 1.1: nothing but reset and status until a reset.
+            # Hard and soft limits are critical in GRBL 1.1: protocol.c blocks everything but a reset -
+            # no line, no status report - until 0x18 (what arrives meanwhile is flushed by the reset).
             self._halted = True
-            self._emit("[MSG:Reset to continue]", "msg")
+            self._rx.clear()
+            self._emit(RESET_MESSAGE, "msg")
+
+    def _alarm_pause(self) -> None:
+        """report.c report_alarm_message: delay_ms(500) after the ALARM line; nothing else goes out meanwhile."""
+        self._last_release = max(self._last_release, time.monotonic()) + self._real_delay(ALARM_REPORT_DELAY_S)
+
+    def _soft_reset(self) -> None:
+        """0x18: motion_control.c mc_reset, then main.c re-initialises (step counters kept)."""
+        self.resets += 1
+        now = self._sim_now()
+        moving = self._moving()
+        homing = self._homing_block is not None
+        late = self._halted_line or (self._current[0] if self._current else None)
+        self._stop_motion_at(now)
+        was_alarm = self._state == "Alarm"
+        if moving:
+            self._state = "Alarm"
+            self._emit(f"ALARM:{6 if homing else 3}", "alarm")
+            self._alarm_pause()
+        if late is not None:
+            # The line was inside gc_execute_line (waiting for the planner, a dwell, or in the soft-limit
+            # loop); it still returns STATUS_OK once the abort unwinds it.
+            self._reply(late, "ok", "ok")
+        if homing:
+            self._homed = False
+        self._reset_common()
+        self._state = "Alarm" if (moving or was_alarm) else "Idle"
+        self._hold_complete = False
+        self._banner()
 
     def _reboot(self) -> None:
-        """Power-cycle-like reset: the controller forgets it was homed and boots as at power-up."""
+        """Power cycle, watchdog or DTR auto-reset: main() from the top. The axes stay where they are, the
+        step counters restart at 0 there (physical = machine + offset), the controller forgets it was homed."""
         self.resets += 1
-        pos = dict(self._position)
+        physical = {a: self._position[a] + self._offset[a] for a in self.axes}
+        self._planner.clear()
+        self._homing_block = None
+        self._position = {a: 0.0 for a in self.axes}
+        self._offset = physical
         self._homed = False
         self._state = "Alarm" if self.homing_enabled else "Idle"
         self._hold_complete = False
         self._reset_common()
-        self._position = pos
-        self._banner()
-
-    def _soft_reset(self) -> None:
-        self.resets += 1
-        now = self._sim_now()
-        # A completed hold (Hold:0) is not motion: GRBL keeps the position without an alarm.
-        moving = self._homing_block is not None or self._state in ("Run", "Jog", "Home")
-        homing = self._homing_block is not None
-        self._stop_motion_at(now)
-        was_alarm = self._state == "Alarm"
-        self._reset_common()
-        if moving:
-            self._state = "Alarm"
-            self._emit(f"ALARM:{6 if homing else 3}", "alarm")
-        elif was_alarm:
-            self._state = "Alarm"
-        else:
-            self._state = "Idle"
-        self._hold_complete = False
         self._banner()
 
     def _banner(self) -> None:
+        """report.c report_init_message, then protocol_main_loop's first words: the unlock message in
+        Alarm, or the startup lines otherwise."""
         self._emit("", "banner")
         self._emit(GRBLHAL_BANNER if self.firmware == "grblhal" else GRBL_BANNER, "banner")
         if self._state == "Alarm":
             self._emit(UNLOCK_MESSAGE, "msg")
+        else:
+            self._state = "Idle"
+            self._run_startup_lines()
+
+    def _run_startup_lines(self) -> None:
+        """system.c system_execute_startup: each stored line through the g-code parser, echoed ``>line:result``."""
+        now = self._sim_now()
+        for stored in self.startup_lines:
+            if stored:
+                result = self._gcode(stored, stored, now, startup=True)
+                self._emit(f">{stored}:{result}", "startup")
 
     # ------------------------------------------------------------------ output and faults
 
@@ -664,19 +1016,29 @@ class GrblEmulator:
                     if self._vanish_requested:
                         self._vanish()
                         return
-                    now = self._sim_now()
-                    self._advance(now)
-                    self._process_lines(now)
-                    self._flush_output()
+                    self._tick()
                     timeout = 0.1
                     nxt = self._next_event_sim(self._sim_now())
                     if nxt is not None:
                         timeout = min(timeout, self._real_delay(nxt - self._sim_now()))
                     if self._out:
                         timeout = min(timeout, max(0.0, self._out[0][0] - time.monotonic()))
-                    master, wake = self._master, self._wake_r
+                    if self._booting_until is not None:
+                        timeout = min(timeout, max(0.0, self._booting_until - time.monotonic()))
+                    master, wake, client = self._master, self._wake_r, self._client
                 if master is None or wake is None:
                     return
+                if not client:
+                    # Nobody has the port open: the master reports a hang-up (select would not block on it),
+                    # so look for an open every few ms instead.
+                    readable, _, _ = select.select([wake], [], [], min(timeout, CLIENT_POLL_S))
+                    if wake in readable:
+                        with contextlib.suppress(OSError):
+                            os.read(wake, 64)
+                    if _client_present(master):
+                        with self._lock:
+                            self._client = True
+                    continue
                 try:
                     readable, _, _ = select.select([master, wake], [], [], timeout)
                 except (OSError, ValueError):
@@ -692,9 +1054,15 @@ class GrblEmulator:
                             data = os.read(master, 4096)
                         except BlockingIOError:
                             continue
-                        except OSError:
+                        except OSError as error:
+                            if error.errno == errno.EIO:  # the last client closed the port
+                                self._client = False
+                                continue
                             return
-                        self._receive(data)
+                        if data[:1] == b"\x00":  # packet mode: a data packet
+                            self._receive(data[1:])
+                        elif data and data[0] & termios.TIOCPKT_FLUSHREAD:
+                            self._port_opened()  # pyserial flushes its input as it opens the port
                         self._flush_output()
         except Exception:
             # A bug in the model must not leave a tty that accepts bytes and never answers.
@@ -702,15 +1070,41 @@ class GrblEmulator:
                 self._vanish()
             raise
 
+    def _tick(self) -> None:
+        if self._booting_until is not None and time.monotonic() >= self._booting_until:
+            self._booting_until = None
+            self._reboot()
+        now = self._sim_now()
+        self._advance(now)
+        self._process_lines(now)
+        self._flush_output()
+
+    def _port_opened(self) -> None:
+        self.client_opens += 1
+        if self.reboot_on_open:
+            # DTR auto-reset: the board restarts as the port opens; its bootloader owns the UART (what is
+            # sent now is lost) until Grbl boots and prints its banner.
+            self._stop_motion_at(self._sim_now())
+            self._out.clear()
+            self._rx.clear()
+            self._booting_until = time.monotonic() + self._real_delay(self.boot_delay_s)
+
     def _receive(self, data: bytes) -> None:
+        if self._booting_until is not None:
+            return
         now = self._sim_now()
         self._advance(now)
         for byte in data:
+            if self._halted:
+                if byte == 0x18:
+                    self._soft_reset()
+                # The critical-event loop hears only a reset: '?', '!', '~' and lines go unanswered.
+                continue
             if byte == 0x18:
                 self._soft_reset()
             elif byte == ord("?"):
                 self._advance(self._sim_now())
-                if self._homing_block is None:  # GRBL 1.1 does not report while homing
+                if self._homing_block is None and not self._halted:  # GRBL 1.1 does not report while homing
                     self._emit(self._status_report(), "status")
             elif byte == ord("!"):
                 self._feed_hold()
@@ -720,8 +1114,6 @@ class GrblEmulator:
                 self._jog_cancel()
             elif byte >= 0x80:
                 pass  # overrides: accepted, not modelled
-            elif self._halted:
-                pass  # critical alarm: input is ignored until reset
             elif len(self._rx) >= self.rx_buffer_size - 1:
                 self.rx_overflow_bytes += 1
             else:
@@ -729,40 +1121,8 @@ class GrblEmulator:
                 self.max_rx_fill = max(self.max_rx_fill, len(self._rx))
         self._process_lines(self._sim_now())
 
-    def _feed_hold(self) -> None:
-        if self._state in ("Alarm", "Hold", "Home") or self._halted:
-            return
-        now = self._sim_now()
-        if self._planner and self._planner[0].t_start is not None:
-            block = self._planner[0]
-            here = block.position_at(now - block.t_start)
-            rest = self._make_block(here, block.end, block.speed * 60.0, kind=block.kind, line=block.line)
-            self._position = here
-            self._planner[0] = rest
-        if self._state == "Jog":
-            # A hold during a jog cancels it, as GRBL does.
-            self._planner.clear()
-            self._state = "Idle"
-            return
-        self._state = "Hold"
-        self._hold_complete = True
-
-    def _cycle_start(self) -> None:
-        if self._state != "Hold":
-            return
-        self._hold_complete = False
-        self._state = "Run" if self._planner else "Idle"
-        if self._planner:
-            self._planner[0].t_start = self._sim_now()
-
-    def _jog_cancel(self) -> None:
-        if self._state != "Jog":
-            return
-        self._stop_motion_at(self._sim_now())
-        self._state = "Idle"
-
     def _process_lines(self, now: float) -> None:
-        while not self._halted:
+        while not self._halted and self._booting_until is None:
             if self._current is not None:
                 self._try_current(now)
                 if self._current is not None:
@@ -794,100 +1154,207 @@ class GrblEmulator:
     # ------------------------------------------------------------------ lines
 
     def _execute_line(self, line: str, now: float) -> None:
+        """protocol.c protocol_main_loop: one complete line."""
         self.lines_received.append(line)
-        text = re.sub(r"\([^)]*\)", "", line).split(";", 1)[0]
-        text = "".join(text.split()).upper()
+        text = _clean_line(line)
         if len(text) > LINE_BUFFER_SIZE - 1:  # GRBL counts what it keeps: no spaces, no comments
             self._reply(line, "error:11", "error")
             return
         if not text:
-            self._reply(line, "ok", "ok")
-            return
-        if text.startswith("$"):
+            result: str | None = "ok"
+        elif text.startswith("$"):
             result = self._system_command(line, text, now)
+        elif self._state in ("Alarm", "Jog"):
+            result = "error:9"  # g-code is locked out in Alarm and while jogging
         else:
             result = self._gcode(line, text, now)
         if result is not None:
             self._reply(line, result, "ok" if result == "ok" else "error")
 
-    def _settings(self) -> list[tuple[int, float]]:
-        rows = [(0, 10), (1, 25), (2, 0), (3, 0), (4, 0), (5, 0), (6, 0), (10, self.status_mask), (11, 0.010),
-                (12, 0.002), (13, 0), (20, int(self.soft_limits)), (21, 0), (22, int(self.homing_enabled)), (23, 0),
-                (24, 25.0), (25, self.homing_seek_rate_per_min), (26, 250), (27, 1.0), (30, 1000), (31, 0), (32, 0)]
-        for i, axis in enumerate(self.axes):
-            spec = self.specs[axis]
-            rows += [(100 + i, spec.steps_per_unit or 250.0), (110 + i, spec.max_rate_per_min),
-                     (120 + i, spec.acceleration), (130 + i, spec.travel[1] - spec.travel[0])]
-        return sorted(rows)
+    def _settings_lines(self) -> list[str]:
+        """report.c report_grbl_settings: $0..$32, then per axis $100.., $110.., $120.., $130.."""
+        rows = []
+        for number in sorted(n for n in self.settings if n < 100):
+            rows.append(f"${number}={_fmt_setting(number, self.settings[number])}")
+        for base in (100, 110, 120, 130):
+            for i in range(len(self.axes)):
+                rows.append(f"${base + i}={self.settings[base + i]:.3f}")
+        return rows
 
     def _system_command(self, line: str, text: str, now: float) -> str | None:
-        if text == "$H":
+        """system.c system_execute_line."""
+        if text == "$":
+            self._emit(HELP_MESSAGE, "feedback")
+            return "ok"
+        command = text[1]
+        if command == "J":
+            if self._state not in ("Idle", "Jog"):
+                return "error:8"
+            if not text.startswith("$J="):
+                return "error:3"
+            return self._jog(line, text[3:], now)
+        if command in "$GCX":
+            if len(text) != 2:
+                return "error:3"
+            if command == "$":
+                if self._state in ("Run", "Hold"):
+                    return "error:8"  # takes too long to print during a cycle
+                for row in self._settings_lines():
+                    self._emit(row, "setting")
+            elif command == "G":
+                m = self._modal
+                self._emit(f"[GC:G{m['motion']} G54 G17 G{m['units']} G{m['distance']} G94 M5 M9 T0 "
+                           f"F{_fmt_number(m['feed'])} S0]", "feedback")
+            elif command == "C":
+                if self._state == "Check":
+                    # Leaving check mode resets Grbl (mc_reset), after [MSG:Disabled] and this line's 'ok'.
+                    self._emit("[MSG:Disabled]", "msg")
+                    self._reply(line, "ok", "ok")
+                    self._reset_common()
+                    self._state = "Idle"
+                    self._banner()
+                    return None
+                if self._state != "Idle":
+                    return "error:8"
+                self._state = "Check"
+                self._emit("[MSG:Enabled]", "msg")
+            elif command == "X" and self._state == "Alarm":
+                self._emit("[MSG:Caution: Unlocked]", "msg")
+                self._state = "Idle"  # no startup lines: stored moves must not run after an unlock
+                self._alarm_code = None
+            return "ok"
+        # Everything else needs Idle or Alarm (EEPROM access, homing).
+        if self._state not in ("Idle", "Alarm"):
+            return "error:8"
+        if command == "#":
+            if len(text) != 2:
+                return "error:3"
+            zero = ",".join("0.000" for _ in self.axes)
+            for name in ("G54", "G55", "G56", "G57", "G58", "G59", "G28", "G30", "G92"):
+                self._emit(f"[{name}:{zero}]", "feedback")
+            self._emit("[TLO:0.000]", "feedback")
+            self._emit(f"[PRB:{zero}:0]", "feedback")
+            return "ok"
+        if command == "H":
             if not self.homing_enabled:
                 return "error:5"
-            if self._state not in ("Idle", "Alarm") or self._planner:
-                return "error:8"
+            if text != "$H":
+                return "error:3"  # HOMING_SINGLE_AXIS_COMMANDS is off in the default build
             self._start_homing(line, now)
             return None
-        if text == "$X":
-            if self._state == "Alarm":
-                self._state = "Idle"
-                self._alarm_code = None
-                self._emit("[MSG:Caution: Unlocked]", "msg")
-            return "ok"
-        if text == "$$":
-            for number, value in self._settings():
-                self._emit(f"${number}={_fmt_setting(value)}", "setting")
-            return "ok"
-        if text == "$I":
-            version = "1.1f.20231210" if self.firmware == "grblhal" else "1.1h.20190825"
+        if command == "I":
+            if text != "$I":
+                return "error:3"
+            version = GRBLHAL_VERSION if self.firmware == "grblhal" else GRBL_VERSION
+            options = "V" + ("Z" if self.force_set_origin else "")
             self._emit(f"[VER:{version}:]", "feedback")
-            self._emit(f"[OPT:V,{PLANNER_BLOCKS},{self.rx_buffer_size}]", "feedback")
+            self._emit(f"[OPT:{options},{PLANNER_BLOCKS},{self.rx_buffer_size}]", "feedback")
             return "ok"
-        if text == "$G":
-            m = self._modal
-            self._emit(f"[GC:G{m['motion']} G54 G17 G{m['units']} G{m['distance']} G94 M5 M9 T0 "
-                       f"F{_fmt_setting(m['feed'])} S0]", "feedback")
+        if command == "N":
+            if text == "$N":
+                for n, stored in enumerate(self.startup_lines):
+                    self._emit(f"$N{n}={stored}", "setting")
+                return "ok"
+            m = re.fullmatch(r"\$N(\d+)=(.*)", text)
+            if m is None:
+                return "error:3"
+            if self._state != "Idle":
+                return "error:8"  # stored only when idle: prevents motion during an alarm
+            number, stored = int(m.group(1)), m.group(2)
+            if number >= N_STARTUP_LINES:
+                return "error:3"
+            if stored:
+                result = self._gcode(stored, stored, now, startup=True)  # executed to check it
+                if result != "ok":
+                    return result
+            self.startup_lines[number] = stored
             return "ok"
-        if text == "$#":
-            for name in ("G54", "G55", "G56", "G57", "G58", "G59", "G28", "G30", "G92"):
-                self._emit(f"[{name}:{','.join('0.000' for _ in self.axes)}]", "feedback")
-            self._emit("[TLO:0.000]", "feedback")
-            return "ok"
-        if text.startswith("$J="):
-            return self._jog(line, text[3:], now)
         if m := re.fullmatch(r"\$(\d+)=([-+]?\d*\.?\d+)", text):
             return self._write_setting(int(m.group(1)), float(m.group(2)))
         return "error:3"
 
     def _write_setting(self, number: int, value: float) -> str:
-        if self._state not in ("Idle", "Alarm"):
-            return "error:8"
-        if number == 10:
-            self.status_mask = int(value)
-        elif number == 20:
-            if value and not self.homing_enabled:
-                return "error:10"
-            self.soft_limits = bool(value)
-        elif number == 22:
-            self.homing_enabled = bool(value)
-            if not self.homing_enabled:
-                self.soft_limits = False
-        elif number not in dict(self._settings()):
+        """settings.c settings_store_global_setting."""
+        if value < 0.0:
+            return "error:4"
+        if number >= 100:
+            base, index = 100 + (number - 100) // 10 * 10, (number - 100) % 10
+            if base > 130 or index >= len(self.axes):
+                return "error:3"
+            self.settings[number] = value
+            return "ok"
+        integer = int(value)
+        if number not in DEFAULT_SETTINGS:
             return "error:3"
+        if number == 0 and integer < 3:
+            return "error:6"
+        if number == 20 and integer and not self.homing_enabled:
+            return "error:10"
+        if number == 22 and not integer:
+            self.settings[20] = 0  # disabling homing disables soft limits
+        self.settings[number] = value if number in _FLOAT_SETTINGS | _RPM_SETTINGS else integer
         return "ok"
 
     def _start_homing(self, line: str, now: float) -> None:
-        home = {a: self.specs[a].home for a in self.axes}
-        here = dict(self._position)
-        rate = self.homing_seek_rate_per_min / 60.0
-        far = max(abs(home[a] - here[a]) for a in self.axes)
-        # Seek at the homing rate (no ramps), then the locate/pull-off phases as a fixed settle time.
-        block = _Block(start=here, end=home, length=far, speed=rate, accel=1e12, kind="home", line=line,
-                       dwell_after=self.homing_settle_s)
+        """limits.c limits_go_home, as one move of every axis at the seek rate plus a settle time."""
+        fail = next((f for f in self._faults if isinstance(f, HomingFail)), None)
+        if fail is not None:
+            self._faults.remove(fail)
+        here = {a: self._position[a] + self._offset[a] for a in self.axes}
+        rate = float(self.settings[25]) / 60.0
+        if fail is None:
+            target = {a: self._home_physical(a) for a in self.axes}
+            dwell = self.homing_settle_s
+        else:
+            target = {a: self._switch_physical(a) for a in self.axes}  # it gets stuck at the end of travel
+            dwell = self.homing_settle_s
+        far = max(abs(target[a] - here[a]) for a in self.axes)
+        if fail is not None and fail.code == 9:
+            search = HOMING_SEARCH_SCALAR * max(self._max_travel(a) for a in self.axes)
+            dwell = max(0.0, search - far) / rate
+        block = _Block(start=here, end=target, length=far, speed=rate, accel=1e12, kind="home", line=line,
+                       dwell_after=dwell)
         block.t_start = now
         self._homing_block = block
+        self._homing_fail = fail
         self._state = "Home"
         self._current = (line, {})
+
+    def _finish_homing(self) -> None:
+        block = self._homing_block
+        fail = self._homing_fail
+        self._homing_block = None
+        self._homing_fail = None
+        if fail is None:
+            self._position = {a: self._home_machine(a) for a in self.axes}
+            self._offset = {a: block.end[a] - self._position[a] for a in self.axes}  # type: ignore[union-attr]
+            self._homed = True
+            self._state = "Idle"
+            self._alarm_code = None
+            self._run_startup_lines()  # system.c: after a successful $H, before its 'ok'
+            self._finish_current("ok")
+            return
+        # limits.c: each cycle restarts the counters of its axes at 0 and counts the search; a failure
+        # leaves whatever was counted.
+        counted = {}
+        for a in self.axes:
+            if fail.code == 9:
+                distance = HOMING_SEARCH_SCALAR * self._max_travel(a)
+            else:
+                distance = abs(block.end[a] - block.start[a])  # type: ignore[union-attr]
+            counted[a] = -distance if self._home_negative(a) else distance
+        self._position = self._on_grid(counted)
+        self._offset = {a: block.end[a] - self._position[a] for a in self.axes}  # type: ignore[union-attr]
+        self._homed = False
+        self._state = "Alarm"
+        if fail.alarm_line:
+            self._emit(f"ALARM:{fail.code}", "alarm")
+            self._alarm_pause()
+        # mc_reset has aborted Grbl, yet system.c's $H returns STATUS_OK: the late 'ok', then main.c
+        # re-initialises (banner, [MSG:'$H'|'$X' to unlock]).
+        self._finish_current("ok")
+        self._reset_common()
+        self._banner()
 
     def _try_current(self, now: float) -> None:
         """Retry a line that waits: a G4 for the planner to empty and then its dwell; motion for a free block."""
@@ -910,9 +1377,8 @@ class GrblEmulator:
             self._current = None
             self._reply(line, "ok", "ok")
 
-    def _gcode(self, line: str, text: str, now: float) -> str | None:
-        if self._state == "Alarm":
-            return "error:9"
+    def _gcode(self, line: str, text: str, now: float, *, startup: bool = False) -> str | None:
+        """gcode.c gc_execute_line for the words this rig uses. ``startup``: a startup line (answers at once)."""
         words = re.findall(r"([A-Z])([^A-Z]*)", text)
         if "".join(letter + value for letter, value in words) != text:
             return "error:1"
@@ -949,10 +1415,12 @@ class GrblEmulator:
             self._modal["units"] = int(units[0])
         if distance:
             self._modal["distance"] = int(distance[0])
+        inches = self._modal["units"] == 20
+        scale = MM_PER_INCH if inches else 1.0  # gcode.c: G20 words are converted to mm
         if "F" in values:
             if values["F"] < 0:
                 return "error:4"
-            self._modal["feed"] = values["F"] * (25.4 if self._modal["units"] == 20 else 1.0)
+            self._modal["feed"] = values["F"] * scale
         if motion:
             self._modal["motion"] = int(motion[0])
         axis_words = {a: v for a, v in values.items() if a in self.axes}
@@ -963,6 +1431,8 @@ class GrblEmulator:
                 return "error:28"
             if values["P"] < 0:
                 return "error:4"
+            if self._state == "Check" or startup:
+                return "ok"  # mc_dwell does nothing in check mode
             self._current = (line, {"dwell": values["P"]})
             self._try_current(now)
             return None
@@ -976,7 +1446,6 @@ class GrblEmulator:
             return "error:31"
         if 53 in g_codes and self._modal["motion"] not in (0, 1):
             return "error:30"
-        scale = 25.4 if self._modal["units"] == 20 else 1.0
         base = self._planned_end()
         target = dict(base)
         for axis, value in axis_words.items():
@@ -990,34 +1459,49 @@ class GrblEmulator:
         if self._modal["motion"] == 1 and self._modal["feed"] <= 0:
             return "error:22"
         if self.soft_limits and self._outside_travel(target):
-            # GRBL 1.1: motion beyond travel with soft limits on is a critical alarm, not an error.
+            # motion_control.c mc_line -> limits.c limits_soft_check: beyond machine space with $20=1 is a
+            # critical alarm, not an error. Moving: a controlled stop first (feed hold), then the alarm.
+            if self._state == "Run":
+                self._begin_stop(now, "soft_limit", line=line)
+                self._state, self._hold_complete = "Hold", False
+                self._current = (line, {"stopping": True})
+                return None
             self._stop_motion_at(now)
+            self._halted_line = line
             self._raise_alarm(2)
             return None
+        if self._state == "Check":
+            return "ok"  # check mode: the planner is blocked, soft limits still apply
         feed = None if self._modal["motion"] == 0 else self._modal["feed"]
-        block = self._make_block(base, target, feed, kind=f"G{self._modal['motion']}", line=line)
+        block = self._make_block(base, self._on_grid(target), feed, kind=f"G{self._modal['motion']}", line=line)
         if block.length <= 0:
             return "ok"
-        self._current = (line, {"block": block})
-        self._try_current(now)
+        if len(self._planner) < PLANNER_BLOCKS:
+            self._planner.append(block)
+            return "ok"
+        self._current = (line, {"block": block})  # mc_line waits for planner space before answering
         return None
 
     def _jog(self, line: str, body: str, now: float) -> str | None:
-        if self._state not in ("Idle", "Jog"):
-            return "error:8"
+        """jog.c jog_execute: soft limits refuse the jog with error:15 instead of an alarm."""
         words = re.findall(r"([A-Z])([-+]?\d*\.?\d*)", body)
         if "".join(a + b for a, b in words) != body:
             return "error:16"
         values: dict[str, float] = {}
         relative = False
         machine = False
+        inches = self._modal["units"] == 20
         for letter, value in words:
             if letter == "G":
                 if value in ("91",):
                     relative = True
                 elif value in ("53",):
                     machine = True
-                elif value not in ("90", "21", "20"):
+                elif value == "20":
+                    inches = True
+                elif value == "21":
+                    inches = False
+                elif value != "90":
                     return "error:16"
                 continue
             if letter != "F" and letter not in self.axes:
@@ -1025,21 +1509,24 @@ class GrblEmulator:
             values[letter] = float(value)
         if "F" not in values:
             return "error:22"
+        scale = MM_PER_INCH if inches else 1.0
         base = self._planned_end()
         target = dict(base)
         for axis in self.axes:
             if axis in values:
                 if relative:
-                    target[axis] = base[axis] + values[axis]
+                    target[axis] = base[axis] + values[axis] * scale
                 else:
-                    target[axis] = values[axis] + (0.0 if machine else self._wco[axis])
+                    target[axis] = values[axis] * scale + (0.0 if machine else self._wco[axis])
         if self.soft_limits and self._outside_travel(target):
             return "error:15"
-        block = self._make_block(base, target, values["F"], kind="jog", line=line)
+        block = self._make_block(base, self._on_grid(target), values["F"] * scale, kind="jog", line=line)
         if block.length <= 0:
             return "ok"
+        if len(self._planner) < PLANNER_BLOCKS:
+            self._planner.append(block)
+            return "ok"
         self._current = (line, {"block": block})
-        self._try_current(now)
         return None
 
     def _planned_end(self) -> dict[str, float]:
@@ -1048,9 +1535,10 @@ class GrblEmulator:
         return dict(self._position)
 
     def _outside_travel(self, target: Mapping[str, float]) -> bool:
+        """system.c system_check_travel_limits (exact comparisons, as the firmware makes them)."""
         for axis, value in target.items():
-            low, high = self.specs[axis].travel
-            if not low - 1e-9 <= value <= high + 1e-9:
+            low, high = self._machine_space(axis)
+            if value > high or value < low:
                 return True
         return False
 
@@ -1060,51 +1548,73 @@ class GrblEmulator:
         length = math.sqrt(sum(d * d for d in deltas.values()))
         if length <= 1e-12:
             return _Block(start=dict(start), end=dict(end), length=0.0, speed=1.0, accel=1.0, kind=kind, line=line)
-        # Each axis' limits bound the speed and acceleration along the path (GRBL's planner does the same).
-        speed = math.inf if feed_per_min is None else feed_per_min / 60.0
-        accel = math.inf
-        for axis, delta in deltas.items():
-            if abs(delta) > 0:
-                spec = self.specs[axis]
-                speed = min(speed, spec.max_rate_per_min / 60.0 * length / abs(delta))
-                accel = min(accel, spec.acceleration * length / abs(delta))
-        return _Block(start=dict(start), end=dict(end), length=length, speed=speed, accel=accel, kind=kind, line=line)
+        # Each axis' limits ($11x, $12x as set now) bound the speed and acceleration along the path, as GRBL's
+        # planner does; the same model as the plan's estimate (drivers.rig.motion).
+        limits = path_limits(deltas, max_rate_per_min={a: self._axis_setting(110, a) for a in deltas},
+                             acceleration={a: self._axis_setting(120, a) for a in deltas}, feed_per_min=feed_per_min)
+        return _Block(start=dict(start), end=dict(end), length=limits.length, speed=limits.speed, accel=limits.accel,
+                      kind=kind, line=line)
 
     # ------------------------------------------------------------------ status report
 
     def _status_report(self) -> str:
+        """report.c report_realtime_status."""
         now = self._sim_now()
-        pos = self._quantise(self._current_position(now))
+        pos = self._on_grid(self._current_position(now))
         self.status_reports_sent += 1
+        inches = self.report_inches
+        coord = (lambda v: f"{v / MM_PER_INCH:.4f}") if inches else (lambda v: f"{v:.3f}")
         fields: list[str] = []
         if self.status_mask & 1:
-            fields.append("MPos:" + ",".join(f"{pos[a]:.3f}" for a in self.axes))
+            fields.append("MPos:" + ",".join(coord(pos[a]) for a in self.axes))
         else:
-            fields.append("WPos:" + ",".join(f"{pos[a] - self._wco[a]:.3f}" for a in self.axes))
+            fields.append("WPos:" + ",".join(coord(pos[a] - self._wco[a]) for a in self.axes))
         if self.status_mask & 2:
             fields.append(f"Bf:{PLANNER_BLOCKS - len(self._planner)},{self.rx_buffer_size - len(self._rx)}")
         speed = 0.0
-        if self._planner and self._planner[0].t_start is not None and self._state in ("Run", "Jog"):
+        if self._planner and self._planner[0].t_start is not None and self._state in ("Run", "Jog", "Hold"):
             block = self._planner[0]
             speed = block.speed_at(now - block.t_start) * 60.0
-        fields.append(f"FS:{speed:.0f},0")
+        fields.append(f"FS:{speed / MM_PER_INCH:.1f},0" if inches else f"FS:{speed:.0f},0")
+        busy = self._state in ("Run", "Jog", "Hold", "Home")
         if self._wco_counter > 0:
             self._wco_counter -= 1
         else:
-            busy = self._state in ("Run", "Jog", "Hold", "Home")
-            self._wco_counter = (30 if busy else 10) - 1
+            self._wco_counter = (30 if busy else 10) - 1  # config.h REPORT_WCO_REFRESH_BUSY/IDLE_COUNT
             if self._ovr_counter == 0:
                 self._ovr_counter = 1
-            fields.append("WCO:" + ",".join(f"{self._wco[a]:.3f}" for a in self.axes))
+            fields.append("WCO:" + ",".join(coord(self._wco[a]) for a in self.axes))
         if self._ovr_counter > 0:
             self._ovr_counter -= 1
         else:
-            self._ovr_counter = 19
+            self._ovr_counter = (20 if busy else 10) - 1  # config.h REPORT_OVR_REFRESH_BUSY/IDLE_COUNT
             fields.append("Ov:100,100,100")
         if self.shuffle_fields:
             self._rng.shuffle(fields)
         return "<" + "|".join([self._state_text(), *fields]) + ">"
 
 
-def _fmt_setting(value: float) -> str:
+def _client_present(master: int) -> bool:
+    """True once a program has the pty's slave open (the master stops reporting a hang-up)."""
+    poller = select.poll()
+    poller.register(master, select.POLLIN)
+    return not any(event & select.POLLHUP for _, event in poller.poll(0))
+
+
+def _clean_line(line: str) -> str:
+    """protocol.c protocol_main_loop: drop whitespace, control characters and comments; upper-case."""
+    text = re.sub(r"\([^)]*\)", "", line).split(";", 1)[0]
+    return "".join(ch for ch in text if ch > " ").upper()
+
+
+def _fmt_number(value: float) -> str:
     return str(int(value)) if float(value).is_integer() else f"{value:.3f}"
+
+
+def _fmt_setting(number: int, value: float) -> str:
+    """report.c: integer settings bare, float settings with 3 decimals, the rpm ones with none."""
+    if number in _RPM_SETTINGS:
+        return f"{value:.0f}"
+    if number in _FLOAT_SETTINGS:
+        return f"{value:.3f}"
+    return str(int(value))

@@ -47,9 +47,12 @@ import cv2
 import numpy as np
 
 from stereo_bench.geometry import (
+    CALIBRATION_MARGIN_PX,
+    CALIBRATION_MAX_OBLIQUITY_DEG,
     CameraModel,
     RigPose,
     board_faces_camera,
+    calibration_view_fits,
     invert_transform,
     make_transform,
     transform_points,
@@ -900,8 +903,9 @@ def _rotation(axis: str, angle_deg: float) -> np.ndarray:
 def calibration_board_poses(
     rig: RigPose, target: Target, *, n_views: int, rng: np.random.Generator,
     distance_mm: tuple[float, float] = (300.0, 700.0), left: CameraModel | None = None,
-    right: CameraModel | None = None, min_fraction_visible: float = 1.0, max_tilt_deg: float = 40.0,
-    margin_px: float = 20.0, max_obliquity_deg: float = 60.0, max_attempts: int = 200,
+    right: CameraModel | None = None, min_fraction_visible: float | None = None, max_tilt_deg: float = 40.0,
+    margin_px: float = CALIBRATION_MARGIN_PX, max_obliquity_deg: float = CALIBRATION_MAX_OBLIQUITY_DEG,
+    max_attempts: int = 200,
 ) -> list[np.ndarray]:
     """T_rig_board (4x4, mm) poses of a calibration board presented as an operator would for calibration.
 
@@ -909,10 +913,11 @@ def calibration_board_poses(
     direction), in tilt (up to ``max_tilt_deg`` about the board's x and y axes, direction stratified
     around the circle, plus a +-15 deg roll) and in position: most boards are pushed out toward the
     edge of the common field of view (where distortion is observable), a quarter stay near its
-    centre. Each pose shows at least ``min_fraction_visible`` of the corners inside both images,
-    ``margin_px`` from the border (room for the corner refinement window), on the board's printed
-    side and no more than ``max_obliquity_deg`` off each camera's line of sight. With the default
-    fraction 1.0 the outer squares must be in view too, as chessboard detectors require.
+    centre. Each pose is a usable calibration view by the project's one rule,
+    :func:`stereo_bench.geometry.calibration_view_fits` (the plan predicts with it too): at least
+    ``min_fraction_visible`` of the corners (default: the board's own, all of a checkerboard with its
+    outer squares, half of a ChArUco board) inside both images ``margin_px`` from the border, on the
+    board's printed side and no more than ``max_obliquity_deg`` off each camera's line of sight.
 
     Raises:
         ValueError: if a view cannot be placed in ``max_attempts`` tries (e.g. the rig's views
@@ -920,6 +925,8 @@ def calibration_board_poses(
     """
     if n_views < 1:
         raise ValueError(f"n_views must be >= 1, not {n_views}")
+    if min_fraction_visible is None:
+        min_fraction_visible = target.min_calibration_fraction
     if not 0.0 < min_fraction_visible <= 1.0:
         raise ValueError(f"min_fraction_visible must lie in (0, 1], not {min_fraction_visible}")
     lo, hi = distance_mm
@@ -930,13 +937,6 @@ def calibration_board_poses(
     object_points = np.asarray(target.object_points, dtype=np.float64)
     width_mm, height_mm = target.grid_size_mm
     grid_centre = np.array([width_mm / 2.0, height_mm / 2.0, 0.0])
-    # A whole board must show its outer squares too: chessboard detectors need them.
-    sq = target.square_mm
-    xs, ys = (-sq, width_mm / 2.0, width_mm + sq), (-sq, height_mm / 2.0, height_mm + sq)
-    pattern_outline = np.array([[x, y, 0.0] for x in xs for y in ys if (x, y) != (xs[1], ys[1])])
-    need_outline = min_fraction_visible >= 1.0
-    cameras = ((left, invert_transform(rig.T_rig_left)), (right, invert_transform(rig.T_rig_right)))
-    cos_limit = math.cos(math.radians(max_obliquity_deg))
 
     # Mean viewing frame: z along the sum of the optical axes, x along the baseline.
     z_axis = rig.T_rig_left[:3, 2] + rig.T_rig_right[:3, 2]
@@ -958,21 +958,8 @@ def calibration_board_poses(
         return make_transform(R, centre - R @ grid_centre)
 
     def acceptable(T_rig_board):
-        seen = np.ones(len(object_points), dtype=bool)
-        for camera, T_cam_rig in cameras:
-            T_cam_board = T_cam_rig @ T_rig_board
-            if not board_faces_camera(T_cam_board):
-                return False
-            centre_cam = T_cam_board[:3, :3] @ grid_centre + T_cam_board[:3, 3]
-            if abs(T_cam_board[:3, 2] @ centre_cam) < cos_limit * np.linalg.norm(centre_cam):
-                return False
-            pixels, valid = camera.project(transform_points(T_cam_board, object_points))
-            seen &= valid & camera.in_image(pixels, margin_px=margin_px)
-            if need_outline:
-                pixels, valid = camera.project(transform_points(T_cam_board, pattern_outline))
-                if not (valid & camera.in_image(pixels, margin_px=margin_px)).all():
-                    return False
-        return seen.mean() >= min_fraction_visible - 1e-12
+        return calibration_view_fits(target, T_rig_board, rig=rig, left=left, right=right, margin_px=margin_px,
+                                     max_obliquity_deg=max_obliquity_deg, min_fraction=min_fraction_visible)
 
     distance_order = rng.permutation(n_views)
     tilt_phase, position_phase = rng.uniform(0, 2 * np.pi, size=2)

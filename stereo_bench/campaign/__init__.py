@@ -1,9 +1,13 @@
-"""Campaigns: a validated config (TOML), its plan as data, and (elsewhere) the runner that executes it.
+"""Campaigns: a validated config (TOML), its plan as data, a bench, the runner, and the documents it records.
 
-    config = load_campaign("plan.toml")            # or load_preset("paper-exp1")
+    config = load_campaign("plan.toml")            # or load_preset("paper-exp1"); the bench kind is validated here
     configurations = expand_plan(config)            # ordered, with predicted feasibility and limit checks
     steps = plan_steps(config, configurations)      # Move, PromptTarget, Settle, Flush, Capture..., Checkpoint
     predict_duration_s(config, configurations, steps)
+
+Running it (``stereo_bench.campaign.execute.run_campaign``) opens a Bench (``campaign.bench``), lets the
+runner (``campaign.runner``) execute the steps and publishes typed documents (``campaign.documents``)
+through a DocumentBus (``campaign.stream``) to the session writer and any other subscriber.
 """
 
 from stereo_bench.campaign.config import (

@@ -24,6 +24,10 @@ Sections (all optional except ``[plan]``; units in every key's name):
                           [sim.slide] / [sim.left_head] / ... overrides (drivers/sim/profile.py)
     [plan]                baseline_mm, distance_mm, alpha_deg or toe_in_deg, tilt_deg
 
+Rig and cameras: simulated + simulated (the default), grbl + v4l2 (the real bench), or grbl +
+simulated ("bring-up": the real controller moves, simulated cameras render from the positions it
+reports); simulated rig + v4l2 cameras is refused.
+
 Every model forbids unknown keys, so a typo is an error naming the key. Relative paths
 (``rig.config_file``, ``extrinsics.calib_dir``) are resolved against the campaign file's directory.
 Errors are :class:`ConfigError` with one line: ``FILE: dotted.field: what is wrong``.
@@ -63,7 +67,13 @@ from drivers.rig.config import (
     rig_config_from_dict,
 )
 from drivers.sim.profile import SimSettings
-from stereo_bench.geometry import CameraModel
+from stereo_bench.geometry import (
+    DEFAULT_DIST,
+    DEFAULT_FOCAL_MM,
+    DEFAULT_IMAGE_SIZE,
+    DEFAULT_PIXEL_UM,
+    CameraModel,
+)
 from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision.calibrate import MIN_VIEWS
 
@@ -76,6 +86,22 @@ PRESETS: dict[str, str] = {
                   "alpha = 5-55 deg step 10 (alpha <= 45 deg: no corner in both views)",
     "paper-exp2-toe-in": "Yang et al. 2024 experiment 2 read as the pan from parallel: Z = 500 mm, B = 100 mm, "
                          "toe-in 5-55 deg step 10 (alpha = 85-35 deg)",
+}
+
+
+BenchKind = Literal["simulated", "hardware", "bring-up"]
+
+#: The (rig.kind, cameras.kind) combinations a campaign runs on, validated once here.
+BENCH_KINDS: dict[tuple[str, str], BenchKind] = {
+    ("simulated", "simulated"): "simulated",  # the GRBL emulator on a pty, cameras rendering from its axes
+    ("grbl", "v4l2"): "hardware",  # the real rig and the real cameras
+    # Bring-up: the real controller drives the motors while the cameras are not mounted yet; simulated
+    # cameras render from the positions the controller reports.
+    ("grbl", "simulated"): "bring-up",
+}
+UNSUPPORTED_BENCHES = {
+    ("simulated", "v4l2"): "real cameras cannot film the simulated rig; set rig.kind = \"grbl\" (and rig.port) "
+                           "for the real rig, or cameras.kind = \"simulated\"",
 }
 
 
@@ -153,11 +179,11 @@ class OpticsConfig(BaseModel):
 
     model_config = _STRICT
 
-    focal_mm: float = Field(4.0, gt=0, allow_inf_nan=False, description="lens focal length, mm")
-    pixel_um: float = Field(3.0, gt=0, allow_inf_nan=False, description="pixel pitch, micrometres")
-    width_px: int = Field(1920, gt=0)
-    height_px: int = Field(1080, gt=0)
-    dist: list[float] = Field(default_factory=lambda: [-0.05, 0.02, 0.0, 0.0, 0.0],
+    focal_mm: float = Field(DEFAULT_FOCAL_MM, gt=0, allow_inf_nan=False, description="lens focal length, mm")
+    pixel_um: float = Field(DEFAULT_PIXEL_UM, gt=0, allow_inf_nan=False, description="pixel pitch, micrometres")
+    width_px: int = Field(DEFAULT_IMAGE_SIZE[0], gt=0)
+    height_px: int = Field(DEFAULT_IMAGE_SIZE[1], gt=0)
+    dist: list[float] = Field(default_factory=lambda: list(DEFAULT_DIST),
                               description="OpenCV distortion coefficients (k1 k2 p1 p2 [k3 ...])")
     noise_dn: float = Field(2.0, ge=0, allow_inf_nan=False, description="read noise, 8-bit DN (std)")
     blur_px: float = Field(0.7, ge=0, allow_inf_nan=False, description="optical blur, Gaussian sigma, px")
@@ -397,11 +423,15 @@ class CampaignConfig(BaseModel):
     capture: CaptureSection = Field(default_factory=CaptureSection)
     extrinsics: ExtrinsicsSection = Field(default_factory=ExtrinsicsSection)
     sim: SimSettings = Field(default_factory=SimSettings,
-                             description="the simulated bench's imperfections (simulated rig and cameras only)")
+                             description="the simulated bench's imperfections (simulated cameras: the simulated "
+                                         "bench and bring-up)")
     plan: PlanSection
 
     @model_validator(mode="after")
     def _check(self) -> CampaignConfig:
+        if (self.rig.kind, self.cameras.kind) not in BENCH_KINDS:
+            raise ValueError(f"rig.kind = \"{self.rig.kind}\" with cameras.kind = \"{self.cameras.kind}\" is not a "
+                             f"bench: {UNSUPPORTED_BENCHES[self.rig.kind, self.cameras.kind]}")
         if self.extrinsics.mode == "per-config" and self.capture.calibration_views < MIN_CALIBRATION_VIEWS:
             raise ValueError(f"capture.calibration_views: per-config extrinsics need at least "
                              f"{MIN_CALIBRATION_VIEWS} calibration views, not {self.capture.calibration_views}")
@@ -411,6 +441,11 @@ class CampaignConfig(BaseModel):
     def fully_simulated(self) -> bool:
         """True when no human is needed: simulated rig and simulated cameras."""
         return self.rig.kind == "simulated" and self.cameras.kind == "simulated"
+
+    @property
+    def bench_kind(self) -> BenchKind:
+        """What the campaign runs on: "simulated", "hardware" or "bring-up" (see :data:`BENCH_KINDS`)."""
+        return BENCH_KINDS[self.rig.kind, self.cameras.kind]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -465,6 +500,21 @@ def campaign_from_dict(data: Mapping[str, Any], *, source: str = "campaign confi
         return CampaignConfig.model_validate(dict(data), context={"base_dir": base_dir})
     except ValidationError as error:
         raise _one_line(error, source) from None
+
+
+# What a recorded config means by a section it lacks because the section did not exist yet: the bench
+# the session was recorded on, not today's default. Before [sim] every simulated bench was the ideal one.
+RECORDED_BEFORE_SECTIONS: dict[str, dict[str, Any]] = {"sim": {"profile": "ideal"}}
+
+
+def recorded_campaign(data: Mapping[str, Any]) -> CampaignConfig:
+    """The campaign config a session's start document recorded (raises pydantic's ``ValidationError``).
+
+    A section the recording lacks takes the value the session ran with (:data:`RECORDED_BEFORE_SECTIONS`),
+    so a session recorded before ``[sim]`` existed replays and reports as the ideal bench it was; a new
+    campaign without ``[sim]`` runs on the ``lab`` bench.
+    """
+    return CampaignConfig.model_validate({**RECORDED_BEFORE_SECTIONS, **data})
 
 
 def _check_files(config: CampaignConfig, source: str) -> None:

@@ -19,8 +19,9 @@ Feasibility of a configuration (B, Z, alpha, tilt), predicted before moving:
 - with per-configuration extrinsics, the calibration board must fit whole (with its outer squares,
   which chessboard detectors need) in both views somewhere: it is tried fronto-parallel, centred on
   the bisector of the optical axes, at :data:`CALIBRATION_DISTANCES_MM` in steps of
-  :data:`CALIBRATION_DISTANCE_STEP_MM`. A ChArUco calibration board, identified corner by corner,
-  needs only :data:`CHARUCO_MIN_CALIBRATION_FRACTION` of its corners in both views;
+  :data:`CALIBRATION_DISTANCE_STEP_MM`, by the rule the presenter places boards with
+  (:func:`stereo_bench.geometry.calibration_view_fits`: a ChArUco board, identified corner by corner,
+  needs only half of its corners in both views);
 - the move must pass the rig config's soft limits and axis mapping
   (:func:`drivers.rig.config.plan_move`); a violation is reported as ``limit_violation``.
 
@@ -31,7 +32,6 @@ a single :class:`Checkpoint` carrying the reason.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, ClassVar
@@ -40,13 +40,19 @@ import numpy as np
 
 from drivers.rig.codec import vector_feed
 from drivers.rig.config import QUANTITIES, LimitError, MoveRequestError, RigConfig, plan_move, to_machine
-from drivers.sim.grbl_emulator import DEFAULT_AXES  # a table of axis rates/accelerations; no I/O at import
+from drivers.rig.motion import (
+    REFERENCE_AXIS_MOTION,
+    REFERENCE_HOMING_SEEK_RATE_PER_MIN,
+    REFERENCE_HOMING_SETTLE_S,
+    move_time_s,
+)
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.geometry import (
     VIEW_MARGIN_PX,
     CameraModel,
     RigPose,
     board_pose_facing_rig,
+    calibration_view_fits,
     make_transform,
     transform_points,
     visible_in_both,
@@ -59,16 +65,12 @@ MIN_CORNERS_IN_BOTH = MIN_COMMON_CORNERS  # what the measurement needs, not a pl
 FEASIBILITY_MARGIN_PX = VIEW_MARGIN_PX
 CALIBRATION_DISTANCES_MM = (250.0, 1500.0)
 CALIBRATION_DISTANCE_STEP_MM = 10.0
-CHARUCO_MIN_CALIBRATION_FRACTION = 0.5
 
 # Duration assumptions (each estimate lists them).
 OPERATOR_S_PER_PROMPT = 30.0  # move the target (or set another manual quantity) and press Enter
 OPERATOR_S_PER_CALIBRATION_VIEW = 5.0  # present the calibration board in a new pose by hand
 ASSUMED_FPS = 30.0  # a V4L2 camera's frame rate when the settings do not fix it
 ASSUMED_FLUSH_FRAMES = 4  # frames a V4L2 flush discards when buffer_count is left to the driver
-# The GRBL emulator's homing defaults: seek at this rate, then a fixed locate/pull-off time.
-HOMING_SEEK_RATE_PER_MIN = 3000.0
-HOMING_SETTLE_S = 0.5
 
 Target = Checkerboard | CharucoTarget
 
@@ -106,35 +108,16 @@ def target_visibility(
     )
 
 
-def _calibration_points(board: Target) -> tuple[np.ndarray, int]:
-    """(N, 3) board-frame points that must be in both views, and how many of them must be.
-
-    Checkerboard: every inner corner and the outline of the outer squares (8 points per side), all of
-    them. ChArUco: its corners, :data:`CHARUCO_MIN_CALIBRATION_FRACTION` of them.
-    """
-    corners = np.asarray(board.object_points, dtype=float)
-    if isinstance(board, CharucoTarget):
-        return corners, math.ceil(CHARUCO_MIN_CALIBRATION_FRACTION * len(corners))
-    width_mm, height_mm = board.grid_size_mm
-    sq = board.square_mm
-    t = np.linspace(0.0, 1.0, 8)
-    x0, x1, y0, y1 = -sq, width_mm + sq, -sq, height_mm + sq
-    outline = np.concatenate([
-        np.column_stack([x0 + (x1 - x0) * t, np.full_like(t, y0)]),
-        np.column_stack([x0 + (x1 - x0) * t, np.full_like(t, y1)]),
-        np.column_stack([np.full_like(t, x0), y0 + (y1 - y0) * t]),
-        np.column_stack([np.full_like(t, x1), y0 + (y1 - y0) * t]),
-    ])
-    points = np.vstack([corners, np.column_stack([outline, np.zeros(len(outline))])])
-    return points, len(points)
-
-
 def calibration_distance_range(
-    board: Target, rig: RigPose, *, left: CameraModel, right: CameraModel, margin_px: float = FEASIBILITY_MARGIN_PX,
+    board: Target, rig: RigPose, *, left: CameraModel, right: CameraModel,
     distances_mm: tuple[float, float] = CALIBRATION_DISTANCES_MM, step_mm: float = CALIBRATION_DISTANCE_STEP_MM,
 ) -> tuple[float, float] | None:
     """(nearest, farthest) distance, mm along the bisector of the optical axes, at which the calibration
-    board, fronto-parallel to that bisector and centred on it, is in both views; None if at none.
+    board, fronto-parallel to that bisector and centred on it, is a usable calibration view; None if at none.
+
+    Usable by the one rule the simulator's board poses follow too,
+    :func:`stereo_bench.geometry.calibration_view_fits`, so a configuration the plan calls feasible is
+    one where the presenter can place the board.
     """
     bisector = rig.T_rig_left[:3, 2] + rig.T_rig_right[:3, 2]
     bisector = bisector / np.linalg.norm(bisector)
@@ -142,15 +125,10 @@ def calibration_distance_range(
     x_axis = np.array([1.0, 0.0, 0.0]) - bisector[0] * bisector
     x_axis /= np.linalg.norm(x_axis)
     R = np.column_stack([x_axis, np.cross(bisector, x_axis), bisector])
-    points_board, needed = _calibration_points(board)
     centre_board = np.array([board.grid_size_mm[0] / 2.0, board.grid_size_mm[1] / 2.0, 0.0])
-    fits = []
-    for distance in np.arange(distances_mm[0], distances_mm[1] + 1e-9, step_mm):
-        T_rig_board = make_transform(R, distance * bisector - R @ centre_board)
-        seen = visible_in_both(transform_points(T_rig_board, points_board), rig=rig, left=left, right=right,
-                               margin_px=margin_px)
-        if seen.sum() >= needed:
-            fits.append(float(distance))
+    fits = [float(distance) for distance in np.arange(distances_mm[0], distances_mm[1] + 1e-9, step_mm)
+            if calibration_view_fits(board, make_transform(R, distance * bisector - R @ centre_board),
+                                     rig=rig, left=left, right=right)]
     return (fits[0], fits[-1]) if fits else None
 
 
@@ -239,6 +217,16 @@ class Configuration:
         data.update(status=self.status, runnable=self.runnable)
         return data
 
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Configuration:
+        """The configuration a recorded plan entry (:meth:`as_dict`) describes: replay and resume run the
+        recorded plan, never today's re-planning of it."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        values = {key: value for key, value in data.items() if key in names}
+        if values.get("calibration_range_mm") is not None:
+            values["calibration_range_mm"] = tuple(values["calibration_range_mm"])
+        return cls(**values)
+
 
 def _limit_violation(rig_config: RigConfig, request: Mapping[str, float]) -> str | None:
     try:
@@ -252,7 +240,7 @@ def _limit_violation(rig_config: RigConfig, request: Mapping[str, float]) -> str
 
 def _calibration_reason(config: CampaignConfig, board: Target, *, baseline_mm: float, alpha_deg: float) -> str:
     low, high = CALIBRATION_DISTANCES_MM
-    need = "whole" if isinstance(board, Checkerboard) else f"{CHARUCO_MIN_CALIBRATION_FRACTION:.0%} of it"
+    need = "whole" if board.min_calibration_fraction >= 1.0 else f"{board.min_calibration_fraction:.0%} of it"
     return (f"calibration board ({config.calibration_board.describe()}) never {need} in both views fronto-parallel "
             f"at {low:g}-{high:g} mm: the views overlap too little at B = {baseline_mm:g} mm, "
             f"alpha = {alpha_deg:g} deg")
@@ -292,7 +280,7 @@ def expand_plan(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN
                 if per_config:
                     if (baseline, alpha) not in calibration_ranges:
                         calibration_ranges[baseline, alpha] = calibration_distance_range(
-                            calibration_board, rig, left=left, right=right, margin_px=margin_px)
+                            calibration_board, rig, left=left, right=right)
                     calibration_range = calibration_ranges[baseline, alpha]
                     if calibration_range is None:
                         reasons.append(_calibration_reason(config, calibration_board, baseline_mm=baseline,
@@ -452,29 +440,6 @@ def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration]) 
 # Duration
 
 
-def move_time_s(deltas: Mapping[str, float], *, max_rate_per_min: Mapping[str, float],
-                acceleration: Mapping[str, float], feed_per_min: float | None = None) -> float:
-    """Duration (s) of one straight move from rest to rest, as GRBL plans it and the emulator times it.
-
-    ``deltas``: axis letter -> machine units. Each axis' max rate (units/min) and acceleration (units/s²)
-    bound the speed and acceleration along the path; ``feed_per_min`` (None = rapid) bounds the speed too.
-    Trapezoidal velocity profile; triangular when the move is too short to reach full speed.
-    """
-    moving = {a: d for a, d in deltas.items() if abs(d) > 1e-12}
-    if not moving:
-        return 0.0
-    length = math.sqrt(sum(d * d for d in moving.values()))
-    speed = math.inf if feed_per_min is None else feed_per_min / 60.0
-    accel = math.inf
-    for axis, delta in moving.items():
-        speed = min(speed, max_rate_per_min[axis] / 60.0 * length / abs(delta))
-        accel = min(accel, acceleration[axis] * length / abs(delta))
-    t_acc = speed / accel
-    if accel * t_acc * t_acc >= length:  # the two ramps (a t^2 / 2 each) cover the whole move
-        return 2.0 * math.sqrt(length / accel)
-    return 2.0 * t_acc + (length - accel * t_acc * t_acc) / speed
-
-
 @dataclass(frozen=True)
 class DurationEstimate:
     """Predicted campaign time (s) by component, and the assumptions behind it."""
@@ -512,25 +477,30 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
 
     - Motion: each Move as one straight GRBL move from the previous position (the first from where
       homing leaves the axes), at the rig config's axis feeds where every moving axis has one (else a
-      rapid), capped by the axis max rates and accelerations of the simulated rig (the GRBL emulator's
-      DEFAULT_AXES; a real controller's $110-$125 are not known offline).
+      rapid), capped by the axis max rates and accelerations of the reference rig
+      (:data:`drivers.rig.motion.REFERENCE_AXIS_MOTION`, which the simulated rig runs with; a real
+      controller's $110-$125 are not known offline), timed by the model the emulator uses
+      (:func:`drivers.rig.motion.move_time_s`).
     - Homing (if enabled): the longest axis travel at the emulator's seek rate, plus its settle time.
       On the simulated rig, homing and motion run ``time_scale`` times faster.
     - Settle as configured. Frames: one exposure each on simulated cameras; max(exposure, 1/fps) on
       V4L2 (30 fps assumed when not set); a V4L2 flush discards ``buffer_count`` frames.
-    - Operator (unless rig and cameras are both simulated): 30 s per prompt, 5 s per calibration view
-      presented by hand.
+    - Operator: 30 s per prompt and 5 s per calibration view presented by hand, where a human does it:
+      boards and the target stand in the cameras' world (none with simulated cameras, bring-up
+      included), a manual rig quantity on the rig (none on the simulated rig).
     - Not included: computation (rendering, detection, calibration) and parking the rig at the end.
     """
     del configurations  # the steps carry what is needed; the argument keeps the documented signature
     rig_config = config.rig.rig_config()
     travel = rig_config.machine_travel()
     speed_factor = config.rig.time_scale if config.rig.kind == "simulated" else 1.0
-    rates = {a: DEFAULT_AXES[a].max_rate_per_min for a in travel}
-    accels = {a: DEFAULT_AXES[a].acceleration for a in travel}
+    rates = {a: REFERENCE_AXIS_MOTION[a].max_rate_per_min for a in travel}
+    accels = {a: REFERENCE_AXIS_MOTION[a].acceleration for a in travel}
     feeds = rig_config.axis_feeds_per_min()
     position = {a: min(max(0.0, low), high) for a, (low, high) in travel.items()}  # the emulator's home
-    human = not config.fully_simulated
+    real_scene = config.cameras.kind != "simulated"  # boards and target are moved by hand
+    real_rig = config.rig.kind != "simulated"  # a manual rig quantity is set by hand
+    human = real_scene or real_rig
     frame_s = _frame_time_s(config)
     if config.cameras.kind == "simulated":
         flush_frames = 0
@@ -540,7 +510,7 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
     homing = 0.0
     if config.rig.homing and travel:
         longest = max(high - low for low, high in travel.values())
-        homing = (longest / (HOMING_SEEK_RATE_PER_MIN / 60.0) + HOMING_SETTLE_S) / speed_factor
+        homing = (longest / (REFERENCE_HOMING_SEEK_RATE_PER_MIN / 60.0) + REFERENCE_HOMING_SETTLE_S) / speed_factor
     motion = settle = flush = capture = operator = 0.0
     for step in steps:
         if isinstance(step, Move):
@@ -551,25 +521,29 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
             feed = vector_feed(deltas, feeds)
             motion += move_time_s(deltas, max_rate_per_min=rates, acceleration=accels, feed_per_min=feed) / speed_factor
             position.update(targets)
-        elif isinstance(step, PromptTarget | PromptManual):
-            operator += OPERATOR_S_PER_PROMPT if human else 0.0
+        elif isinstance(step, PromptTarget):
+            operator += OPERATOR_S_PER_PROMPT if real_scene else 0.0
+        elif isinstance(step, PromptManual):
+            operator += OPERATOR_S_PER_PROMPT if real_rig else 0.0
         elif isinstance(step, Settle):
             settle += step.seconds
         elif isinstance(step, Flush):
             flush += flush_frames * frame_s
         elif isinstance(step, CaptureCalibration):
             capture += step.n_views * frame_s
-            operator += step.n_views * OPERATOR_S_PER_CALIBRATION_VIEW if human else 0.0
+            operator += step.n_views * OPERATOR_S_PER_CALIBRATION_VIEW if real_scene else 0.0
         elif isinstance(step, CaptureMeasurement):
             capture += step.n_frames * frame_s
 
     assumptions = (
-        "axis max rates and accelerations of the GRBL emulator's defaults"
+        "axis max rates and accelerations of the reference rig (the simulated rig's)"
         + (f", simulated rig {speed_factor:g}x faster than real time" if speed_factor != 1.0 else ""),
         f"{frame_s:g} s per stereo frame" + ("" if config.cameras.kind == "simulated"
                                               else f", {flush_frames} frames per flush"),
         (f"operator {OPERATOR_S_PER_PROMPT:g} s per prompt and {OPERATOR_S_PER_CALIBRATION_VIEW:g} s per "
-         "calibration view" if human else "no operator time: rig and cameras simulated"),
+         "calibration view done by hand" + ("" if real_scene else " (the scene is simulated: boards and target "
+                                                                   "placed by the simulator)")
+         if human else "no operator time: rig and cameras simulated"),
         "computation (rendering, detection, calibration) not included",
     )
     return DurationEstimate(homing_s=homing, motion_s=motion, settle_s=settle, flush_s=flush, capture_s=capture,

@@ -1,21 +1,21 @@
 """Who puts boards in front of the rig: the operator at the bench, the simulator, or a replay.
 
-The runner asks a presenter for "the next calibration view" and "the measured target"; at the bench
-that is a prompt (with coverage feedback on the calibration views kept so far), in simulation it is
-a change of the simulated scene, in replay it is the next recorded pair.
+The runner tells a presenter where each configuration stands and asks it for "the next calibration
+view" and "the measured target"; at the bench the presenter answers with a :class:`Prompt` (with
+coverage feedback on the calibration views kept so far) that the runner puts to the operators and
+records, in simulation it changes the simulated scene (``stereo_bench.campaign.bench``), in replay it
+queues the next recorded pair.
 """
 
 from __future__ import annotations
 
 import zlib
-from collections import Counter
-from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
 
-from stereo_bench.geometry import RigPose
-from stereo_bench.targets import CharucoTarget, Target
+from stereo_bench.campaign.operator import Prompt
+from stereo_bench.campaign.plan import Configuration
 from stereo_bench.vision.detect import Detection
 
 
@@ -24,76 +24,28 @@ class CalibrationPlacementError(RuntimeError):
 
 
 class Presenter(Protocol):
-    def begin_configuration(self, config_id: str, pose: RigPose, distance_mm: float, n_views: int, *,
-                            calibration_range_mm: tuple[float, float] | None = None) -> None: ...
+    """Puts boards in front of the cameras. A returned :class:`Prompt` is a step for the operator."""
 
-    def present_calibration_view(self, index: int) -> None: ...
+    wants_detections: bool  # calibration_view_captured wants the views' detections (coverage feedback)
+
+    def begin_configuration(self, configuration: Configuration) -> None:
+        """The rig stands at ``configuration``: the measured target is at its distance from now on."""
+
+    def prepare_calibration(self, n_views: int) -> Prompt | None:
+        """``n_views`` calibration views follow; raises CalibrationPlacementError if none can be shown."""
+
+    def present_calibration_view(self, index: int) -> Prompt | None: ...
 
     def calibration_view_captured(self, index: int, left: Detection | None, right: Detection | None) -> None: ...
 
-    def present_target(self, frame_index: int) -> None: ...
+    def present_target(self, frame_index: int) -> Prompt | None:
+        """Show the measured target (asked again for the same frame when the target was not found)."""
 
 
 def scene_seed(seed: int, config_id: str, kind: str, index: int) -> int:
     """A reproducible seed for one capture, independent of what ran before it (so resume = no crash)."""
     words = [seed & 0xFFFFFFFF, zlib.crc32(config_id.encode()), zlib.crc32(kind.encode()), index]
     return int(np.random.SeedSequence(words).generate_state(1)[0])
-
-
-class SimulatedPresenter:
-    """Places boards in a :class:`drivers.sim.bench.SimulatedBench` scene."""
-
-    def __init__(self, bench, calibration_board: Target, target: Target, *, seed: int = 0,
-                 calibration_distance_mm: Callable[[float], tuple[float, float]] | None = None):
-        self.bench = bench
-        self.calibration_board = calibration_board
-        self.target = target
-        self.seed = seed
-        self.calibration_distance_mm = calibration_distance_mm or (lambda z: (max(250.0, 0.6 * z), 1.3 * z))
-        self._poses: list[np.ndarray] = []
-        self._config_id = ""
-        self._target_requests: Counter = Counter()
-        bench.warm_up(calibration_board, target)
-        self._distance_mm = 0.0
-
-    def begin_configuration(self, config_id: str, pose: RigPose, distance_mm: float, n_views: int, *,
-                            calibration_range_mm: tuple[float, float] | None = None) -> None:
-        from drivers.sim.render import calibration_board_poses
-
-        self._config_id, self._distance_mm = config_id, distance_mm
-        self._target_requests = Counter()
-        near, far = self.calibration_distance_mm(distance_mm)
-        if calibration_range_mm:  # where the plan found the board fits both views
-            near, far = max(near, calibration_range_mm[0]), min(far, calibration_range_mm[1])
-            if near > far:
-                near, far = calibration_range_mm
-        rng = np.random.default_rng(scene_seed(self.seed, config_id, "calibration-poses", 0))
-        try:
-            # A ChArUco board calibrates from partial views; a checkerboard must be whole in both.
-            fraction = 0.5 if isinstance(self.calibration_board, CharucoTarget) else 1.0
-            self._poses = calibration_board_poses(
-                pose, self.calibration_board, n_views=n_views, rng=rng, min_fraction_visible=fraction,
-                distance_mm=(near, far),
-                left=self.bench.left_model, right=self.bench.right_model,
-            )
-        except ValueError as error:
-            raise CalibrationPlacementError(f"calibration board cannot be shown to both cameras: {error}") from None
-
-    def present_calibration_view(self, index: int) -> None:
-        self.bench.show(self.calibration_board, self._poses[index],
-                        seed=scene_seed(self.seed, self._config_id, "calibration", index))
-
-    def calibration_view_captured(self, index: int, left: Detection | None, right: Detection | None) -> None:
-        return None
-
-    def present_target(self, frame_index: int) -> None:
-        # Asked again for the same frame (the target was not found): a fresh frame, not the same one.
-        retry = self._target_requests[frame_index]
-        self._target_requests[frame_index] += 1
-        kind = "target" if retry == 0 else f"target-retry{retry}"
-        # The simulated operator places the target (the bench draws a placement error per placement).
-        self.bench.place_target(self.target, distance_mm=self._distance_mm,
-                                seed=scene_seed(self.seed, self._config_id, kind, frame_index))
 
 
 class Coverage:
@@ -122,33 +74,39 @@ class Coverage:
 
 
 class OperatorPresenter:
-    """At the real bench: prompts the operator for each board placement, with coverage feedback."""
+    """At the real bench: a prompt for each board placement, with coverage feedback."""
 
     wants_detections = True
 
-    def __init__(self, prompt: Callable[[str], None], *, image_size: tuple[int, int], target_description: str):
-        self.prompt = prompt
+    def __init__(self, *, image_size: tuple[int, int], target_description: str):
         self.image_size = image_size
         self.target_description = target_description
         self.coverage = Coverage(image_size)
         self._n_views = 0
+        self._config_id: str | None = None
 
-    def begin_configuration(self, config_id: str, pose: RigPose, distance_mm: float, n_views: int, *,
-                            calibration_range_mm: tuple[float, float] | None = None) -> None:
+    def begin_configuration(self, configuration: Configuration) -> None:
+        self._config_id = configuration.config_id
+
+    def prepare_calibration(self, n_views: int) -> Prompt:
         self.coverage = Coverage(self.image_size)
         self._n_views = n_views
-        self.prompt(f"[{config_id}] calibration: present the calibration board {n_views} times, each time at a new "
-                    "position and tilt (up to ~40 deg), near and far, filling the corners of both views.")
+        return Prompt("calibration_board", f"[{self._config_id}] calibration: present the calibration board "
+                      f"{n_views} times, each time at a new position and tilt (up to ~40 deg), near and far, "
+                      "filling the corners of both views; press Enter to begin", config_id=self._config_id)
 
-    def present_calibration_view(self, index: int) -> None:
-        self.prompt(f"calibration view {index + 1}/{self._n_views}: hold the board still in both views, then press "
-                    f"Enter ({self.coverage.summary()})")
+    def present_calibration_view(self, index: int) -> Prompt:
+        return Prompt("calibration_view", f"calibration view {index + 1}/{self._n_views}: hold the board still in "
+                      f"both views, then press Enter ({self.coverage.summary()})", config_id=self._config_id,
+                      index=index)
 
     def calibration_view_captured(self, index: int, left: Detection | None, right: Detection | None) -> None:
         for side, detection in (("left", left), ("right", right)):
             if detection is not None:
                 self.coverage.add(side, detection)
 
-    def present_target(self, frame_index: int) -> None:
+    def present_target(self, frame_index: int) -> Prompt | None:
         if frame_index == 0:
-            self.prompt(f"put the measured {self.target_description} back facing the rig, then press Enter")
+            return Prompt("measured_target", f"put the measured {self.target_description} back facing the rig, "
+                          "then press Enter", config_id=self._config_id, index=frame_index)
+        return None

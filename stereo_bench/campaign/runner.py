@@ -1,30 +1,58 @@
-"""The runner: executes a campaign's steps on any rig and cameras that implement the drivers' protocols.
+"""The runner: executes every step of a campaign on a :class:`~stereo_bench.campaign.bench.Bench` and
+publishes what happens as documents.
 
-One runner owns execution (STYLE.md, bluesky's RunEngine): it moves the rig, waits for it to settle,
-flushes stale frames, has the presenter put boards in front of the cameras, captures and records
-every frame as it comes, and hands each configuration's frames to an analysis thread, so the
-calibration and measurement of one configuration overlap the motion to the next. Results are
-written in plan order, each one only when its configuration is complete: that is the checkpoint a
-resume starts from.
+One runner owns execution (STYLE.md, bluesky's RunEngine): it homes the rig before the first move,
+moves it (only the quantities the controller drives), asks the operators for every manual step
+(target distance, calibration board, measured target: each recorded as a ``prompt`` document),
+waits for the rig to settle, flushes stale frames, has the presenter put boards in front of the
+cameras, captures and records every frame as it comes, and hands each configuration's frames to an
+analysis thread, so the calibration and measurement of one configuration overlap the motion to the
+next. Results are published in plan order, each one only when its configuration is complete: that
+is the checkpoint a resume starts from.
+
+Everything it records goes through one :class:`~stereo_bench.campaign.stream.DocumentBus` (on an
+ordered recorder thread): the session writer, a progress display, a ``--json`` line stream or a
+test collector are its subscribers. Nothing else watches the runner.
 
 Faults: a configuration that fails (board not found after retries, calibration impossible, an
 alarm) is recorded as failed with its reason and the campaign goes on; an alarm is cleared by
-homing again first. Ctrl-C (``request_stop``) feeds-hold the rig, finishes nothing new, records
-what is complete, and leaves the session resumable.
+homing again first. :meth:`CampaignRunner.request_stop` (Ctrl-C, SIGTERM, a live page's Stop)
+feeds-hold the rig, cuts a settle or an operator prompt short, finishes nothing new, records what
+is complete and leaves the session resumable. A KeyboardInterrupt (a second Ctrl-C) stops at once:
+analyses still running are dropped (their configurations run again on resume).
+:meth:`request_pause` holds the run at the next step boundary until :meth:`request_resume`.
 """
 
 from __future__ import annotations
 
 import threading
-import time
-from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
-from stereo_bench.campaign.analysis import AnalysisError, calibrate_configuration, measure_configuration
+from stereo_bench.campaign.analysis import (
+    AnalysisError,
+    ConfigurationAnalysis,
+    calibrate_configuration,
+    measure_configuration,
+)
+from stereo_bench.campaign.documents import (
+    AnalysisEvent,
+    CalibrationEvent,
+    CalibrationFiles,
+    CalibrationViewEvent,
+    Draft,
+    HomeEvent,
+    MeasurementFrameEvent,
+    MoveEvent,
+    PromptEvent,
+    ResultDocument,
+    RigRecoveredEvent,
+    RigUnrecoverableEvent,
+    TargetNotFoundEvent,
+)
+from stereo_bench.campaign.operator import OperatorDesk, Prompt, StopRequested
 from stereo_bench.campaign.plan import (
     CaptureCalibration,
     CaptureMeasurement,
@@ -36,14 +64,12 @@ from stereo_bench.campaign.plan import (
     PromptTarget,
     Settle,
 )
-from stereo_bench.campaign.presenters import CalibrationPlacementError, Presenter
+from stereo_bench.campaign.presenters import CalibrationPlacementError
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.detect import AmbiguousViewError, detect
 from stereo_bench.vision.rectify import rectify
 
-
-class StopRequested(Exception):
-    """Raised inside the runner when the operator asked it to stop."""
+__all__ = ["CampaignRunner", "ConfigurationFailed", "RunnerOptions", "StopRequested", "group_steps"]
 
 
 class ConfigurationFailed(Exception):
@@ -55,7 +81,6 @@ class Captured:
     """What was captured at one configuration (images stay in memory until the analysis is done)."""
 
     configuration: Configuration
-    rig_reading: dict = field(default_factory=dict)
     calibration_pairs: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     measurement_pairs: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     measurement_detections: list[tuple] = field(default_factory=list)  # (left, right) Detection | None
@@ -63,130 +88,150 @@ class Captured:
 
 @dataclass
 class RunnerOptions:
-    settle_s: float = 0.3
     board_retries: int = 3
-    time_scale: float = 1.0  # simulated rig only: waits are divided by it
     intrinsics_mode: str = "joint"
     intrinsics: tuple | None = None  # (K1, D1, K2, D2) to start from / keep fixed
     fixed_calibration: StereoCalibration | None = None  # extrinsics mode "fixed"
+    calibration_board: str = ""  # how calibrations name their board, e.g. 'checkerboard 11x8 square 25 mm'
 
 
-def result_row(configuration: Configuration, *, status: str, reason: str | None = None,
-               measured: dict | None = None, attempt: int = 1) -> dict:
-    """One row of the results table."""
+def result_fields(configuration: Configuration, *, status: str, reason: str | None = None,
+                  measured: dict | None = None) -> dict:
+    """One result row (a :class:`~stereo_bench.campaign.documents.ResultRow`; the recorder adds attempt, time)."""
     row = {
         "config_id": configuration.config_id, "baseline_mm": configuration.baseline_mm,
         "distance_mm": configuration.distance_mm, "alpha_deg": configuration.alpha_deg,
         "toe_in_deg": configuration.toe_in_deg, "tilt_deg": configuration.tilt_deg,
         "fraction_in_both": configuration.fraction_in_both, "status": status, "reason": reason,
         "square_mean_mm": None, "square_std_mm": None, "n_squares": 0, "error_mm": None, "sigma_mm": None,
-        "rms_px": None, "epipolar_rms_px": None, "attempt": attempt,
+        "rms_px": None, "epipolar_rms_px": None,
     }
     row.update(measured or {})
     return row
 
 
 class CampaignRunner:
-    """Runs ``steps`` (from :func:`stereo_bench.campaign.plan.plan_steps`) and records them with ``writer``.
+    """Runs ``steps`` (from :func:`stereo_bench.campaign.plan.plan_steps`) on ``bench``, publishing to ``bus``."""
 
-    ``rig`` implements drivers.rig.rig.Rig; ``cameras`` a stereo camera (``capture_pair()``,
-    ``flush()``); ``presenter`` a :class:`Presenter`. ``on_result(row)`` is called after each result.
-    """
-
-    def __init__(
-        self, config, configurations: list[Configuration], steps: list, *, rig, cameras, presenter: Presenter,
-        writer, options: RunnerOptions,
-        on_result: Callable[[dict], None] | None = None, on_step: Callable[[Any], None] | None = None,
-        sleep: Callable[[float], None] = time.sleep,
-    ):
+    def __init__(self, config, configurations: list[Configuration], steps: list, *, bench, bus,
+                 options: RunnerOptions):
         self.config = config
         self.configurations = {c.config_id: c for c in configurations}
         self.steps = steps
-        self.rig = rig
-        self.cameras = cameras
-        self.presenter = presenter
-        self.writer = writer
+        self.bench = bench
+        self.bus = bus
         self.options = options
-        self.on_result = on_result or (lambda row: None)
-        self.on_step = on_step or (lambda step: None)
-        self.sleep = sleep
+        self.desk = OperatorDesk(bench.operators)
         self.calibration_board = config.calibration_board.build()
         self.target = config.target.build()
+        quantities = config.rig.rig_config().quantities
+        self._manual_quantities = {q for q, mapping in quantities.items() if mapping.axis == "manual"}
+        self._homed = not bench.homes
         self._stop = threading.Event()
+        self._running = threading.Event()  # cleared while paused
+        self._running.set()
+        self.stop_reason: str | None = None
         self._analysis = ThreadPoolExecutor(max_workers=1, thread_name_prefix="analysis")
-        # Every write to the session goes through one recorder thread, in submission order: PNG
-        # encoding and fsync then overlap the next capture instead of delaying it.
+        # Every document goes through one recorder thread, in submission order: PNG encoding and fsync
+        # then overlap the next capture instead of delaying it.
         self._recorder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="recorder")
         self._recording: list[Future] = []
         self._pending: list[tuple[Captured, Future]] = []
 
-    # -- control -------------------------------------------------------------------------------------------------
+    # -- control (thread- and signal-safe) ----------------------------------------------------------------------
 
-    def request_stop(self) -> None:
-        """Stop at the next safe point (thread- and signal-safe); a move in progress is feed-held."""
+    def request_stop(self, reason: str = "stopped by the operator") -> None:
+        """Stop at the next safe point; a move in progress is feed-held, a settle or a prompt cut short."""
+        if self.stop_reason is None:
+            self.stop_reason = reason
         self._stop.set()
+        self._running.set()
         try:
-            self.rig.stop()
+            self.bench.rig.stop()
         except Exception:  # noqa: BLE001 - the rig may be mid-reply; the runner re-reads it at the safe point
             pass
 
-    def _record(self, method: str, *args, **kwargs) -> None:
-        """Queue a session write (``writer.<method>(*args, **kwargs)``); failures surface at the next sync."""
-        self._recording.append(self._recorder.submit(getattr(self.writer, method), *args, **kwargs))
+    def request_pause(self) -> None:
+        """Hold the run at the next step boundary (the current step finishes; nothing is feed-held)."""
+        self._running.clear()
+
+    def request_resume(self) -> None:
+        self._running.set()
+
+    @property
+    def paused(self) -> bool:
+        return not self._running.is_set()
+
+    def _between_steps(self) -> None:
+        while not self._running.wait(0.1):
+            pass
+        if self._stop.is_set():
+            raise StopRequested()
+
+    # -- recording ----------------------------------------------------------------------------------------------
+
+    def _publish(self, draft: Draft) -> None:
+        """Queue a document; failures surface at the next sync."""
+        self._recording.append(self._recorder.submit(self.bus.publish, draft))
         if len(self._recording) > 64:
             self._sync_recording(keep=32)
 
     def _sync_recording(self, keep: int = 0) -> None:
-        """Wait until all but ``keep`` queued writes are on disk; re-raise the first failure."""
+        """Wait until all but ``keep`` queued documents are recorded; re-raise the first failure."""
         while len(self._recording) > keep:
             self._recording.pop(0).result()
-
-    def _check_stop(self) -> None:
-        if self._stop.is_set():
-            raise StopRequested()
 
     # -- execution -----------------------------------------------------------------------------------------------
 
     def run(self, *, skip: set[str] = frozenset()) -> str:
         """Execute the steps of every configuration not in ``skip``; returns the exit status."""
+        abandon = False
         try:
-            for config_id, group in group_steps(self.steps):
-                if config_id in skip:
-                    continue
-                configuration = self.configurations[config_id]
-                captured, failed = Captured(configuration), None
-                for step in group:
-                    self._check_stop()
-                    self.on_step(step)
-                    if isinstance(step, Checkpoint):
-                        self._checkpoint(configuration, captured, failed)
-                    elif failed is None:
-                        try:
-                            self._execute(step, captured)
-                        except ConfigurationFailed as error:
-                            failed = str(error)
-                    self._collect(block=False)
-            self._collect(block=True)
-            return "success"
-        except (StopRequested, KeyboardInterrupt):
-            self._collect(block=True)
+            try:
+                for config_id, group in group_steps(self.steps):
+                    if config_id in skip:
+                        continue
+                    configuration = self.configurations[config_id]
+                    captured, failed = Captured(configuration), None
+                    self.bench.presenter.begin_configuration(configuration)
+                    for step in group:
+                        self._between_steps()
+                        if isinstance(step, Checkpoint):
+                            self._checkpoint(configuration, captured, failed)
+                        elif failed is None:
+                            try:
+                                self._execute(step, captured)
+                            except ConfigurationFailed as error:
+                                failed = str(error)
+                        self._collect(block=False)
+                self._collect(block=True)
+                return "success"
+            except StopRequested:
+                self._collect(block=True)  # what is complete is recorded
+                return "interrupted"
+        except KeyboardInterrupt:  # a second Ctrl-C, even while the first one is being honoured: stop at once
+            abandon = True
+            self.stop_reason = "stopped at once (second interrupt): analyses in progress were not recorded"
             return "interrupted"
         finally:
-            self._analysis.shutdown(wait=True)
+            self._analysis.shutdown(wait=not abandon, cancel_futures=abandon)
             try:
                 self._sync_recording()
             finally:
                 self._recorder.shutdown(wait=True)
 
-    def _execute(self, step, captured: Captured | None) -> None:
+    def _execute(self, step, captured: Captured) -> None:
+        configuration = captured.configuration
         if isinstance(step, Move):
-            self._move(step.configuration, captured)
-        elif isinstance(step, PromptTarget | PromptManual):
-            pass  # GrblRig.move_to asks the operator for manual quantities through its prompt callback
+            self._move(configuration)
+        elif isinstance(step, PromptTarget):
+            self._set_by_hand(configuration, "target_distance_mm", step.distance_mm)
+        elif isinstance(step, PromptManual):
+            self._set_by_hand(configuration, step.quantity, step.value)
         elif isinstance(step, Settle):
-            self.sleep(step.seconds / self.options.time_scale)
+            self.bench.clock.wait(step.seconds, self._stop)
         elif isinstance(step, Flush):
-            self.cameras.flush()
+            self.bench.cameras.flush()
         elif isinstance(step, CaptureCalibration):
             self._capture_calibration(step.n_views, captured)
         elif isinstance(step, CaptureMeasurement):
@@ -194,53 +239,80 @@ class CampaignRunner:
         else:
             raise TypeError(f"unknown step {step!r}")
 
-    def _move(self, configuration: Configuration, captured: Captured) -> None:
+    def _ask(self, prompt: Prompt) -> None:
+        """Put an operator step to the operators (first answer wins) and record who did it."""
+        answer = self.desk.ask(prompt, stop=self._stop)
+        self._publish(Draft(PromptEvent, config_id=prompt.config_id, data={
+            "prompt": prompt.kind, "message": prompt.message, "quantity": prompt.quantity, "value": prompt.value,
+            "index": prompt.index, "answered_by": answer.operator, "waited_s": answer.waited_s}))
+
+    def _set_by_hand(self, configuration: Configuration, quantity: str, value: float) -> None:
+        from drivers.rig.rig import manual_instruction
+
+        self._ask(Prompt("target" if quantity == "target_distance_mm" else "manual",
+                         manual_instruction(quantity, value), config_id=configuration.config_id,
+                         quantity=quantity, value=value))
+
+    def _home(self) -> None:
+        reading = self.bench.rig.home()
+        self._homed = True
+        self._publish(Draft(HomeEvent, data={"rig": reading.to_dict()}))
+
+    def _move(self, configuration: Configuration) -> None:
         from drivers.rig.config import RigError
 
+        # The motors only: the operator sets the manual quantities in the prompt steps that follow.
+        request = {quantity: None if quantity in self._manual_quantities else value
+                   for quantity, value in configuration.move_request().items()}
         try:
-            reading = self.rig.move_to(**configuration.move_request())
+            if not self._homed:  # the first move homes first, so nothing moves when nothing is left to run
+                self._home()
+            reading = self.bench.rig.move_to(**request)
         except RigError as error:
-            self._check_stop()  # a feed hold for Ctrl-C surfaces here as a move error
+            if self._stop.is_set():  # a feed hold for Ctrl-C surfaces here as a move error
+                raise StopRequested() from None
             self._recover_rig()
             raise ConfigurationFailed(f"rig: {error}") from None
-        captured.rig_reading = reading.to_dict()
-        self._record("event", "move", config_id=configuration.config_id, data={"rig": captured.rig_reading})
+        self._publish(Draft(MoveEvent, config_id=configuration.config_id, data={"rig": reading.to_dict()}))
 
     def _recover_rig(self) -> None:
         """After an alarm or a failed move, home again so the next configuration starts from a known state."""
         try:
-            self.rig.home()
-            self._record("event", "rig_recovered", data={"action": "homed after a failed move"})
+            self.bench.rig.home()
+            self._publish(Draft(RigRecoveredEvent, data={"action": "homed after a failed move"}))
         except Exception as error:  # noqa: BLE001 - the campaign cannot go on without a working rig
-            self._record("event", "rig_unrecoverable", data={"error": str(error)})
+            self._publish(Draft(RigUnrecoverableEvent, data={"error": str(error)}))
+            self.request_stop(f"rig unrecoverable: {error}")
             raise StopRequested() from error
 
-    def _capture(self, kind: str, index: int, configuration: Configuration, **extra) -> tuple[np.ndarray, np.ndarray]:
-        pair = self.cameras.capture_pair()
-        self._record(
-            "event", kind, config_id=configuration.config_id,
+    def _capture(self, model, index: int, configuration: Configuration, **extra) -> tuple[np.ndarray, np.ndarray]:
+        pair = self.bench.cameras.capture_pair()
+        self._publish(Draft(
+            model, config_id=configuration.config_id,
             data={"index": index, "dt_s": pair.dt_s, "left": pair.left.describe(), "right": pair.right.describe(),
                   **extra},
             frames={"left": pair.left.image, "right": pair.right.image},
-        )
+        ))
         return pair.left.image, pair.right.image
 
     def _capture_calibration(self, n_views: int, captured: Captured) -> None:
-        configuration = captured.configuration
         if self.options.fixed_calibration is not None:
             return
+        presenter = self.bench.presenter
         try:
-            self.presenter.begin_configuration(configuration.config_id, configuration.rig_pose(),
-                                               configuration.distance_mm, n_views,
-                                               calibration_range_mm=configuration.calibration_range_mm)
+            prompt = presenter.prepare_calibration(n_views)
         except CalibrationPlacementError as error:
             raise ConfigurationFailed(str(error)) from None
+        if prompt is not None:
+            self._ask(prompt)
         for index in range(n_views):
-            self._check_stop()
-            self.presenter.present_calibration_view(index)
-            left, right = self._capture("calibration_view", index, configuration)
-            if getattr(self.presenter, "wants_detections", False):  # coverage feedback for an operator
-                self.presenter.calibration_view_captured(
+            self._between_steps()
+            prompt = presenter.present_calibration_view(index)
+            if prompt is not None:
+                self._ask(prompt)
+            left, right = self._capture(CalibrationViewEvent, index, captured.configuration)
+            if presenter.wants_detections:  # coverage feedback for an operator
+                presenter.calibration_view_captured(
                     index, detect(left, self.calibration_board), detect(right, self.calibration_board))
             captured.calibration_pairs.append((left, right))
 
@@ -256,18 +328,19 @@ class CampaignRunner:
         partial = configuration.fraction_in_both < 1.0
         for index in range(n_frames):
             for retry in range(self.options.board_retries + 1):
-                self._check_stop()
-                self.presenter.present_target(index)
-                left, right = self._capture("measurement_frame", index, configuration, retry=retry)
+                self._between_steps()
+                prompt = self.bench.presenter.present_target(index)
+                if prompt is not None:
+                    self._ask(prompt)
+                left, right = self._capture(MeasurementFrameEvent, index, configuration, retry=retry)
                 found = tuple(_detect_or_none(image, self.target, partial) for image in (left, right))
                 if all(d is not None for d in found):
                     break
                 ambiguous = any(d is _AMBIGUOUS for d in found)
-                self._record("event", "target_not_found", config_id=configuration.config_id,
-                             data={"index": index, "retry": retry,
-                                   "missing": [side for side, d in zip(("left", "right"), found, strict=True)
-                                               if d is None or d is _AMBIGUOUS],
-                                   "ambiguous": ambiguous})
+                self._publish(Draft(TargetNotFoundEvent, config_id=configuration.config_id, data={
+                    "index": index, "retry": retry, "ambiguous": ambiguous,
+                    "missing": [side for side, d in zip(("left", "right"), found, strict=True)
+                                if d is None or d is _AMBIGUOUS]}))
             captured.measurement_pairs.append((left, right))
             # An ambiguous partial view is left to the analysis to detect again, so its reason is kept.
             captured.measurement_detections.append(None if _AMBIGUOUS in found else found)
@@ -277,12 +350,11 @@ class CampaignRunner:
     def _checkpoint(self, configuration: Configuration, captured: Captured, failed: str | None) -> None:
         if not configuration.runnable:
             status = "infeasible" if not configuration.feasible else "limit"
-            reason = configuration.skip_reason
-            self._pending.append((Captured(configuration), _done(result_row(
-                configuration, status=status, reason=reason, attempt=self.writer.attempt))))
+            self._pending.append((Captured(configuration), _done(result_fields(
+                configuration, status=status, reason=configuration.skip_reason))))
         elif failed is not None or not captured.measurement_pairs:
-            self._pending.append((Captured(configuration), _done(result_row(
-                configuration, status="failed", reason=failed or "nothing captured", attempt=self.writer.attempt))))
+            self._pending.append((Captured(configuration), _done(result_fields(
+                configuration, status="failed", reason=failed or "nothing captured"))))
         else:
             self._pending.append((captured, self._analysis.submit(self._analyse, captured)))
 
@@ -292,8 +364,6 @@ class CampaignRunner:
         options = self.options
         try:
             if options.fixed_calibration is not None:
-                from stereo_bench.campaign.analysis import ConfigurationAnalysis
-
                 analysis = ConfigurationAnalysis(calib=options.fixed_calibration,
                                                  rect=rectify(options.fixed_calibration))
             else:
@@ -303,13 +373,13 @@ class CampaignRunner:
                                   partial=configuration.fraction_in_both < 1.0,
                                   detections=captured.measurement_detections)
         except AnalysisError as error:
-            return result_row(configuration, status="failed", reason=str(error), attempt=self.writer.attempt)
-        row = result_row(configuration, status="measured", measured=analysis.row(), attempt=self.writer.attempt)
+            return result_fields(configuration, status="failed", reason=str(error))
+        row = result_fields(configuration, status="measured", measured=analysis.row())
         row["_analysis"] = analysis
         return row
 
     def _collect(self, *, block: bool) -> None:
-        """Record finished analyses in plan order (a result is written only after all earlier ones)."""
+        """Publish finished analyses in plan order (a result only after all earlier ones)."""
         while self._pending:
             captured, future = self._pending[0]
             if not block and not future.done():
@@ -320,17 +390,12 @@ class CampaignRunner:
             config_id = captured.configuration.config_id
             if analysis is not None:
                 if self.options.fixed_calibration is None:
-                    self._record("write_calibration", config_id, analysis.calib, analysis.rect,
-                                 board=self.calibration_board_description())
-                self._record("event", "analysis", config_id=config_id, data=analysis.details())
+                    self._publish(Draft(CalibrationEvent, config_id=config_id, calibration=CalibrationFiles(
+                        analysis.calib, analysis.rect, board=self.options.calibration_board)))
+                self._publish(Draft(AnalysisEvent, config_id=config_id, data=analysis.details()))
             # A result is the checkpoint: everything of its configuration must be on disk first.
-            self._record("result", config_id, row)
+            self._publish(Draft(ResultDocument, config_id=config_id, row=row))
             self._sync_recording()
-            self.on_result(row)
-
-    def calibration_board_description(self) -> str:
-        board = self.config.calibration_board
-        return f"{board.kind} {board.cols}x{board.rows} square {board.square_mm:g} mm"
 
 
 _AMBIGUOUS = object()  # a partial view whose corner ids cannot be proven

@@ -50,12 +50,33 @@ import cv2
 import numpy as np
 
 from stereo_bench import atomic
+from stereo_bench.campaign.documents import (
+    DOCUMENT_TYPES,
+    EXIT_STATUSES,
+    READABLE_SCHEMA_VERSIONS,
+    SCHEMA_VERSION,
+    CalibrationEvent,
+    CalibrationFiles,
+    Document,
+    DocumentError,
+    Draft,
+    EventDocument,
+    ResultDocument,
+    ResumeDocument,
+    StartDocument,
+    StopDocument,
+    TranscriptEvent,
+    document_json,
+    event_draft,
+    json_safe,
+    parse_document,
+    result_row,
+)
 from stereo_bench.campaign.store import (
     CSV_FILE,
     STORE_FILE,
     ResultStore,
     StoreError,
-    json_safe,
     normalise_row,
     order_rows,
 )
@@ -63,11 +84,8 @@ from stereo_bench.vision import calibio
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.rectify import Rectification
 
-SCHEMA_VERSION = 1
 DOCUMENTS_FILE = "documents.jsonl"
 RECOVERED_DIR = "recovered"
-EXIT_STATUSES = ("success", "aborted", "failed", "interrupted")
-DOCUMENT_TYPES = ("start", "resume", "event", "result", "stop")
 SESSION_LEVEL = "_session"  # the directory of side files of events that belong to no configuration
 
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
@@ -92,8 +110,10 @@ def _check_name(value: object, what: str) -> str:
     return value
 
 
-def encode_document(doc: Mapping[str, Any]) -> bytes:
+def encode_document(doc: Mapping[str, Any] | Document) -> bytes:
     """One document as one strict-JSON line (NaN → null, numpy → Python), newline-terminated."""
+    if isinstance(doc, Document):
+        doc = document_json(doc)
     try:
         clean = json_safe(doc, str(doc.get("type", "document")))
         return (json.dumps(clean, allow_nan=False, ensure_ascii=False) + "\n").encode("utf-8")
@@ -115,7 +135,8 @@ class TornLine:
 
 @dataclass
 class ParsedStream:
-    documents: list[dict]
+    documents: list[dict]  # as recorded, each with its line number under '_line'
+    typed: list[Document]  # the same documents parsed into their models (stereo_bench.campaign.documents)
     torn: TornLine | None
     needs_newline: bool  # the last document is complete but its newline never made it to disk
 
@@ -125,10 +146,12 @@ def _reject_constant(name: str) -> None:
 
 
 def parse_stream(path: Path) -> ParsedStream:
-    """Parse ``documents.jsonl``: every line must be a JSON object with a ``type``.
+    """Parse ``documents.jsonl``: every line must be a JSON object that follows its document's schema.
 
     A last line that does not parse (cut by a crash, or zeros after a power loss) is returned as
     ``torn``; a bad line anywhere else raises :class:`SessionError` naming the file and the line.
+    Lines are first read as JSON, then checked in order (start first, schema version, each document
+    against its model), so a corrupt file is reported where its JSON breaks.
     """
     try:
         data = path.read_bytes()
@@ -162,11 +185,12 @@ def parse_stream(path: Path) -> ParsedStream:
         documents.append(doc)
         needs_newline = not complete
         offset = next_offset
-    _check_documents(path, documents)
-    return ParsedStream(documents, torn, needs_newline)
+    typed = _check_documents(path, documents)
+    return ParsedStream(documents, typed, torn, needs_newline)
 
 
-def _check_documents(path: Path, documents: list[dict]) -> None:
+def _check_documents(path: Path, documents: list[dict]) -> list[Document]:
+    typed = []
     for index, doc in enumerate(documents):
         kind = doc["type"]
         line = doc["_line"]
@@ -183,10 +207,18 @@ def _check_documents(path: Path, documents: list[dict]) -> None:
                     f"{path} line {line}: written with schema version {version}; "
                     f"this stereo-bench reads up to {SCHEMA_VERSION}: upgrade it"
                 )
+            if version not in READABLE_SCHEMA_VERSIONS:
+                raise SessionError(f"{path} line {line}: schema version {version} is not one this stereo-bench "
+                                   f"reads ({', '.join(map(str, READABLE_SCHEMA_VERSIONS))})")
         if kind in ("event", "result") and not isinstance(doc.get("attempt"), int):
             raise SessionError(f"{path} line {line}: {kind} document has no integer 'attempt'")
         if kind == "result" and (not isinstance(doc.get("row"), dict) or not isinstance(doc.get("config_id"), str)):
             raise SessionError(f"{path} line {line}: result document needs 'config_id' and a 'row' object")
+        try:
+            typed.append(parse_document(_strip(doc)))
+        except DocumentError as error:
+            raise SessionError(f"{path} line {line}: {error}") from None
+    return typed
 
 
 def _completed(documents: Iterable[dict]) -> set[str]:
@@ -217,6 +249,7 @@ class SessionReader:
         self.directory = Path(directory)
         self.documents_path = self.directory / DOCUMENTS_FILE
         self._documents: list[dict] | None = None
+        self._typed: list[Document] = []
         self._torn: TornLine | None = None
 
     def reload(self) -> SessionReader:
@@ -226,6 +259,7 @@ class SessionReader:
             raise SessionError(f"{self.directory}: not a session (no {DOCUMENTS_FILE})")
         parsed = parse_stream(self.documents_path)
         self._documents = parsed.documents
+        self._typed = parsed.typed
         self._torn = parsed.torn
         return self
 
@@ -252,7 +286,14 @@ class SessionReader:
 
     # -- documents ---------------------------------------------------------------------------------
     def documents(self, type: str | None = None) -> list[dict]:
+        """The documents as recorded (JSON objects), optionally of one type."""
         return [_strip(doc) for doc in self._docs() if type is None or doc["type"] == type]
+
+    def parsed(self, model: type[Document] = Document) -> list[Document]:
+        """The documents parsed into their models (:mod:`stereo_bench.campaign.documents`), optionally of one
+        model, e.g. ``reader.parsed(MoveEvent)``."""
+        self._docs()
+        return [doc for doc in self._typed if isinstance(doc, model)]
 
     def start(self) -> dict:
         docs = self._docs()
@@ -377,7 +418,7 @@ class SessionReader:
 
 
 # -- writing -----------------------------------------------------------------------------------------
-def _first_difference(recorded: Any, now: Any, where: str) -> str | None:
+def first_difference(recorded: Any, now: Any, where: str) -> str | None:
     """Where two JSON values first differ, as ``key.path: recorded X, now Y``; None if equal."""
     def show(value: Any) -> str:
         text = json.dumps(value, ensure_ascii=False)
@@ -389,13 +430,13 @@ def _first_difference(recorded: Any, now: Any, where: str) -> str | None:
                 return f"{where}.{key}: recorded {show(recorded[key])}, now missing"
             if key not in recorded:
                 return f"{where}.{key}: not recorded, now {show(now[key])}"
-            found = _first_difference(recorded[key], now[key], f"{where}.{key}")
+            found = first_difference(recorded[key], now[key], f"{where}.{key}")
             if found:
                 return found
         return None
     if isinstance(recorded, list) and isinstance(now, list):
         for index, (a, b) in enumerate(zip(recorded, now, strict=False)):
-            found = _first_difference(a, b, f"{where}[{index}]")
+            found = first_difference(a, b, f"{where}[{index}]")
             if found:
                 return found
         if len(recorded) != len(now):
@@ -662,40 +703,81 @@ class SessionWriter:
         self._store.export_csv(self.directory / CSV_FILE, order=self._plan_order)
 
     # -- the document stream -----------------------------------------------------------------------
-    def start(self, *, config: dict, plan: list[dict], software: dict, extra: dict | None = None) -> None:
-        """Write the 'start' document — or, when resuming, check the config and write 'resume'."""
+    def record(self, draft: Draft) -> list[Document]:
+        """Stamp ``draft`` (seq, time, attempt), validate it against its model, write it; the documents written.
+
+        The one way into the stream, routed by the draft's model: a start (or, when resuming, the
+        resume document, plus the transcript events registered before it), a result (SQLite first,
+        then its line), a stop, a calibration (YAML files first) or any other event (side files first).
+        A draft that does not follow its schema raises :class:`SessionError` before anything is written.
+        """
+        try:
+            if draft.model is StartDocument:
+                return self._record_start(draft)
+            self._require_started()
+            if draft.model is ResultDocument:
+                return [self._record_result(draft)]
+            if draft.model is StopDocument:
+                return [self._record_stop(draft)]
+            if draft.model is CalibrationEvent:
+                return [self._record_calibration(draft)]
+            if issubclass(draft.model, EventDocument):
+                return [self._record_event(draft)]
+        except DocumentError as error:
+            raise SessionError(f"cannot record: {error}") from None
+        raise SessionError(f"cannot record a {draft.model.__name__}: start, event, result or stop only")
+
+    def _write(self, document: Document) -> Document:
+        self._append(document_json(document))
+        return document
+
+    def start(self, *, config: dict, plan: list[dict], software: dict, extra: dict | None = None,
+              **more: Any) -> Document:
+        """Write the 'start' document — or, when resuming, check the config and plan and write 'resume'.
+
+        ``more``: further start fields (``bench``; on resume ``plan_drift``). Returns the document written.
+        """
+        return self.record(Draft(StartDocument, config=config, plan=plan, software=software, extra=extra or {},
+                                 **more))[0]
+
+    def _record_start(self, draft: Draft) -> list[Document]:
         if self._fd is None:
             raise SessionError(f"{self.directory}: session is not open")
         if self._started:
             raise SessionError(f"{self.directory}: start() called twice")
+        fields = dict(draft.fields)
         try:
-            config, plan = json_safe(config, "config"), json_safe(plan, "plan")
+            config, plan = json_safe(fields.pop("config"), "config"), json_safe(fields.pop("plan"), "plan")
         except TypeError as error:
             raise SessionError(f"cannot record {error}") from None
         host = {"hostname": socket.gethostname(), "pid": os.getpid()}
+        software, extra = fields.pop("software"), fields.pop("extra", None) or {}
+        plan_drift = fields.pop("plan_drift", None)
         recorded = self._recorded_start
         if recorded is None:
-            doc = {**self._header("start", self._reserve_seq()), "schema_version": SCHEMA_VERSION,
-                   "uid": uuid.uuid4().hex, "config": config, "plan": plan, "software": software, "host": host,
-                   "extra": extra or {}}
-            if self.recovery:
-                doc["recovery"] = self.recovery
+            document = Draft(StartDocument, config=config, plan=plan, software=software, extra=extra,
+                             **fields).build(self._header("start", self._next_seq), schema_version=SCHEMA_VERSION,
+                                             uid=uuid.uuid4().hex, host=host,
+                                             **({"recovery": self.recovery} if self.recovery else {}))
         else:
             for name, value in (("config", config), ("plan", plan)):
-                difference = _first_difference(recorded.get(name), value, name)
+                difference = first_difference(recorded.get(name), value, name)
                 if difference:
                     raise SessionError(f"{self.documents_path}: cannot resume with a different {name}: {difference}")
-            doc = {**self._header("resume", self._reserve_seq()), "schema_version": SCHEMA_VERSION,
-                   "uid": uuid.uuid4().hex, "start_uid": recorded.get("uid"),
-                   "previous_attempt": self._previous_attempt, "software": software, "host": host,
-                   "completed": sorted(self._completed), "recovery": self.recovery, "extra": extra or {}}
-        self._append(doc)
+            document = Draft(ResumeDocument, software=software, extra=extra).build(
+                self._header("resume", self._next_seq), schema_version=SCHEMA_VERSION, uid=uuid.uuid4().hex,
+                start_uid=recorded.get("uid"), previous_attempt=self._previous_attempt, host=host,
+                completed=sorted(self._completed), recovery=self.recovery,
+                **({"plan_drift": plan_drift} if plan_drift else {}))
+        self._reserve_seq()
+        written = [self._write(document)]
         self._started = True
         self._plan_order = [entry["config_id"] for entry in plan
                             if isinstance(entry, dict) and isinstance(entry.get("config_id"), str)]
         for name in self._pending_transcripts:
-            self._record_transcript(name)
+            written.append(self._record_transcript(name))
         self._pending_transcripts.clear()
+        return written
 
     def _side_dir(self, area: str, config_id: str | None) -> tuple[Path, str]:
         part = SESSION_LEVEL if config_id is None else _check_name(config_id, "config_id")
@@ -706,34 +788,44 @@ class SessionWriter:
         self, kind: str, *, config_id: str | None = None, data: dict | None = None,
         frames: dict[str, np.ndarray] | None = None, files: dict[str, bytes] | None = None,
     ) -> dict:
-        """Record one event: side files first (atomically, never overwriting), then its line (fsynced)."""
-        self._require_started()
+        """Record one event of ``kind`` (its typed model when the kind is known); returns it as recorded."""
         if not isinstance(kind, str) or not kind:
             raise SessionError(f"event kind {kind!r} must be a non-empty string")
-        for name in list(frames or {}) + list(files or {}):
+        return document_json(self.record(event_draft(kind, config_id=config_id, data=data, frames=frames,
+                                                      files=files))[0])
+
+    def _record_event(self, draft: Draft) -> Document:
+        """Side files first (atomically, never overwriting), then the event's line (fsynced)."""
+        frames, files = dict(draft.frames or {}), dict(draft.files or {})
+        for name in list(frames) + list(files):
             _check_name(name, "side file name")
-        seq = self._reserve_seq()
-        doc = {**self._header("event", seq), "kind": kind, "config_id": config_id, "data": data or {},
-               "frames": {}, "files": {}}
-        encode_document(doc)  # refuse unrecordable data before any side file is written
+        config_id = draft.fields.get("config_id")
+        seq = self._next_seq
+        frame_paths, file_paths = {}, {}
         if frames:
-            directory, relative = self._side_dir("frames", config_id)
+            _, relative = self._side_dir("frames", config_id)
+            frame_paths = {name: f"{relative}/{seq:06d}_{name}.png" for name in frames}
+        if files:
+            _, relative = self._side_dir("files", config_id)
+            file_paths = {name: f"{relative}/{seq:06d}_{name}" for name in files}
+        # Validated before any side file is written: an unrecordable event leaves nothing behind.
+        document = draft.build(self._header("event", seq), frames=frame_paths, files=file_paths)
+        self._reserve_seq()
+        kind = draft.fields.get("kind")
+        if frames:
+            directory, _ = self._side_dir("frames", config_id)
             self._mkdir(directory)
             for name, image in frames.items():
-                filename = f"{seq:06d}_{name}.png"
                 try:
-                    atomic.write_png(directory / filename, image, overwrite=False)
+                    atomic.write_png(self.directory / frame_paths[name], image, overwrite=False)
                 except ValueError as error:
                     raise SessionError(f"frame {name!r} of event {kind!r}: {error}") from None
-                doc["frames"][name] = f"{relative}/{filename}"
         if files:
-            directory, relative = self._side_dir("files", config_id)
+            directory, _ = self._side_dir("files", config_id)
             self._mkdir(directory)
             for name, payload in files.items():
-                filename = f"{seq:06d}_{name}"
-                atomic.write_bytes(directory / filename, bytes(payload), overwrite=False)
-                doc["files"][name] = f"{relative}/{filename}"
-        return self._append(doc)
+                atomic.write_bytes(self.directory / file_paths[name], bytes(payload), overwrite=False)
+        return self._write(document)
 
     def write_calibration(
         self, config_id: str, calib: StereoCalibration, rect: Rectification | None, *,
@@ -741,35 +833,43 @@ class SessionWriter:
     ) -> dict[str, str]:
         """Write the configuration's calibration (OpenCV stereo_calib YAML) and a 'calibration' event.
 
-        Both files are written into a temporary directory that is renamed into place, so the pair
-        appears together or not at all. Returns ``{"intrinsics": path, "extrinsics": path}``.
+        Returns ``{"intrinsics": path, "extrinsics": path}``.
         """
-        self._require_started()
-        _check_name(config_id, "config_id")
-        seq = self._reserve_seq()
-        parent = self.directory / "calib" / config_id
-        self._mkdir(parent)
+        document = self.record(Draft(CalibrationEvent, config_id=config_id,
+                                     calibration=CalibrationFiles(calib, rect, board, extra or {})))[0]
+        return dict(document.files)
+
+    def _record_calibration(self, draft: Draft) -> Document:
+        """Both YAML files are written into a temporary directory that is renamed into place, so the pair
+        appears together or not at all; then the 'calibration' event that references them."""
+        files_in = draft.calibration
+        if files_in is None:
+            raise SessionError("a calibration event needs the calibration to write")
+        config_id = draft.fields.get("config_id")
+        part = SESSION_LEVEL if config_id is None else _check_name(config_id, "config_id")
+        calib, rect = files_in.calib, files_in.rect
+        seq = self._next_seq
+        data = files_in.data()
+        parent = self.directory / "calib" / part
         name = f"a{self.attempt}"
         if (parent / name).exists():  # a second calibration of the configuration in this attempt
             name = f"a{self.attempt}-{seq}"
+        relative = f"calib/{part}/{name}"
+        files = {"intrinsics": f"{relative}/{calibio.INTRINSICS_FILE}",
+                 "extrinsics": f"{relative}/{calibio.EXTRINSICS_FILE}"}
+        document = draft.build(self._header("event", seq), kind="calibration", data=data, files=files)
+        self._reserve_seq()
+        self._mkdir(parent)
         tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=atomic.TEMP_SUFFIX, dir=parent))
         try:
-            calibio.write_calibration(tmp, calib, rect, board=board, extra=extra)
+            calibio.write_calibration(tmp, calib, rect, board=files_in.board, extra=files_in.extra)
             atomic.fsync_dir(tmp)
             os.rename(tmp, parent / name)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
         atomic.fsync_dir(parent)
-        relative = f"calib/{config_id}/{name}"
-        files = {"intrinsics": f"{relative}/{calibio.INTRINSICS_FILE}",
-                 "extrinsics": f"{relative}/{calibio.EXTRINSICS_FILE}"}
-        data = {"board": board, "mode": calib.mode, "rms_px": calib.rms_px, "baseline_mm": calib.baseline_mm,
-                "image_size": list(calib.image_size), "views_used": list(calib.views_used),
-                "views_rejected": len(calib.views_rejected), "extra": extra or {}}
-        self._append({**self._header("event", seq), "kind": "calibration", "config_id": config_id, "data": data,
-                      "frames": {}, "files": files})
-        return files
+        return self._write(document)
 
     def transcript_path(self, name: str = "serial") -> Path:
         """Where the rig's byte-level transcript of this attempt goes (recorded in the stream)."""
@@ -786,44 +886,69 @@ class SessionWriter:
                 self._pending_transcripts.append(name)
         return self.directory / relative
 
-    def _record_transcript(self, name: str) -> None:
-        self._append({**self._header("event", self._reserve_seq()), "kind": "transcript", "config_id": None,
-                      "data": {"name": name}, "frames": {}, "files": {name: self._transcripts[name]}})
+    def _record_transcript(self, name: str) -> Document:
+        draft = Draft(TranscriptEvent, config_id=None, data={"name": name})
+        document = draft.build(self._header("event", self._next_seq), files={name: self._transcripts[name]})
+        self._reserve_seq()
+        return self._write(document)
 
     def result(self, config_id: str, row: dict) -> None:
         """Record the configuration's result: SQLite upsert, then its 'result' document, then results.csv."""
-        self._require_started()
-        _check_name(config_id, "config_id")
+        self.record(Draft(ResultDocument, config_id=config_id, row=row))
+
+    def _record_result(self, draft: Draft) -> Document:
+        config_id = _check_name(draft.fields.get("config_id"), "config_id")
+        raw = draft.fields.get("row")
+        try:
+            row = result_row(raw if raw is not None else {"config_id": config_id}).stored()
+        except DocumentError as error:
+            raise SessionError(f"cannot record the result of {config_id}: {error}") from None
         if row.get("config_id", config_id) != config_id:
             raise SessionError(f"result row says config_id {row.get('config_id')!r}, recorded as {config_id!r}")
-        try:
-            clean = normalise_row({**row, "config_id": config_id, "attempt": row.get("attempt", self.attempt),
-                                   "time": row.get("time") or utc_now()})
-        except (TypeError, StoreError) as error:
-            raise SessionError(f"cannot record the result of {config_id}: {error}") from None
-        doc = {**self._header("result", self._reserve_seq()), "config_id": config_id, "row": clean}
-        encode_document(doc)
+        row = {**row, "config_id": config_id, "attempt": row.get("attempt", self.attempt),
+               "time": row.get("time") or utc_now()}
+        document = draft.build(self._header("result", self._next_seq), row=row)
+        self._reserve_seq()
         assert self._store is not None
-        self._store.upsert(clean)
-        self._append(doc)
+        try:
+            self._store.upsert(document.row.stored())
+        except StoreError as error:
+            raise SessionError(f"cannot record the result of {config_id}: {error}") from None
+        self._write(document)
         self._completed.add(config_id)
         self._export_csv()
+        return document
 
-    def stop(self, *, exit_status: str, reason: str | None = None) -> None:
+    def stop(self, *, exit_status: str, reason: str | None = None, resume_command: str | None = None) -> Document:
         """Write the 'stop' document, then export results.csv (atomically)."""
-        self._require_started()
+        more = {"resume_command": resume_command} if resume_command else {}
+        return self.record(Draft(StopDocument, exit_status=exit_status, reason=reason, **more))[0]
+
+    def _record_stop(self, draft: Draft) -> Document:
         if self._stopped:
             raise SessionError(f"{self.directory}: stop() called twice")
+        exit_status = draft.fields.get("exit_status")
         if exit_status not in EXIT_STATUSES:
             raise SessionError(f"exit_status {exit_status!r} is not one of {', '.join(EXIT_STATUSES)}")
         assert self._store is not None
-        self._append({**self._header("stop", self._reserve_seq()), "exit_status": exit_status, "reason": reason,
-                      "completed": len(self._completed)})
+        document = draft.build(self._header("stop", self._next_seq), completed=len(self._completed))
+        self._reserve_seq()
+        self._write(document)
         self._stopped = True
         self._export_csv()
+        return document
+
+    @property
+    def stopped(self) -> bool:
+        return self._stopped
 
     def completed_config_ids(self) -> set[str]:
         return set(self._completed)
+
+    @property
+    def recorded_start(self) -> dict | None:
+        """The start document of the session being resumed (None for a new session)."""
+        return None if self._recorded_start is None else dict(self._recorded_start)
 
     def reader(self) -> SessionReader:
         """A reader of this session as recorded so far."""
@@ -836,6 +961,6 @@ class SessionWriter:
 
 
 __all__ = [
-    "DOCUMENTS_FILE", "EXIT_STATUSES", "SCHEMA_VERSION", "SessionError", "SessionReader", "SessionWriter",
-    "TornLine", "normalise_row", "parse_stream",
+    "DOCUMENTS_FILE", "DOCUMENT_TYPES", "EXIT_STATUSES", "SCHEMA_VERSION", "SessionError", "SessionReader",
+    "SessionWriter", "TornLine", "encode_document", "first_difference", "normalise_row", "parse_stream",
 ]

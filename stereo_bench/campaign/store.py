@@ -13,84 +13,38 @@ from __future__ import annotations
 import csv
 import io
 import json
-import math
 import sqlite3
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from stereo_bench import atomic
+from stereo_bench.campaign import documents
+from stereo_bench.campaign.documents import json_safe
 
 STORE_FILE = "results.sqlite"
 CSV_FILE = "results.csv"
 STORE_SCHEMA_VERSION = 1
 
-#: The columns of ``results.csv`` and of the ``results`` table, in this order. Other keys of a row
-#: are kept as JSON in an ``extra`` column and exported after these, sorted.
-RESULT_COLUMNS: list[str] = [
-    "config_id", "baseline_mm", "distance_mm", "alpha_deg", "status",
-    "square_mean_mm", "square_std_mm", "n_squares", "error_mm", "sigma_mm", "rms_px", "epipolar_rms_px",
-    "toe_in_deg", "tilt_deg", "fraction_in_both", "depth_mm", "reason",
-    "attempt", "n_frames", "calib_views_used", "calib_views_rejected", "time",
-]
+__all__ = ["CSV_FILE", "RESULT_COLUMNS", "STORE_FILE", "ResultStore", "StoreError", "json_safe", "normalise_row",
+           "order_rows", "rows_to_csv"]
+
+#: The columns of ``results.csv`` and of the ``results`` table, in this order: the fields of
+#: :class:`stereo_bench.campaign.documents.ResultRow`. Other keys of a row are kept as JSON in an
+#: ``extra`` column and exported after these, sorted.
+RESULT_COLUMNS: list[str] = list(documents.RESULT_COLUMNS)
 
 
 class StoreError(ValueError):
     """The results store is unreadable or a row is invalid; the message names the file or the key."""
 
 
-def json_safe(value: Any, where: str = "value") -> Any:
-    """``value`` as strict JSON data: NaN/inf → None, numpy scalars/arrays → Python, tuples → lists.
-
-    Dict keys must be strings (numpy strings and ints are converted); anything else that JSON cannot
-    hold raises ``TypeError`` naming where it was found (e.g. ``data.rig.pose``).
-    """
-    if value is None or isinstance(value, bool | str):
-        return value
-    if isinstance(value, int):
-        return int(value)
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, np.generic):
-        return json_safe(value.item(), where)
-    if isinstance(value, np.ndarray):
-        return json_safe(value.tolist(), where)
-    if isinstance(value, Path):
-        return value.as_posix()
-    if isinstance(value, Mapping):
-        out = {}
-        for key, item in value.items():
-            if isinstance(key, np.generic):
-                key = key.item()
-            if isinstance(key, bool) or not isinstance(key, str | int):
-                raise TypeError(f"{where}: key {key!r} is not a string")
-            out[str(key)] = json_safe(item, f"{where}.{key}")
-        return out
-    if isinstance(value, list | tuple):
-        return [json_safe(item, f"{where}[{i}]") for i, item in enumerate(value)]
-    raise TypeError(f"{where}: {type(value).__name__} cannot be stored as JSON")
-
-
 def normalise_row(row: Mapping[str, Any]) -> dict[str, Any]:
-    """A result row as stored: strict JSON values, scalars in the known columns, ``config_id`` a string.
-
-    A known column that is None (or NaN) is left out, as the store gives it back; bools become 0/1.
-    """
-    clean = json_safe(dict(row), "row")
-    config_id = clean.get("config_id")
-    if not isinstance(config_id, str) or not config_id:
-        raise StoreError(f"result row: 'config_id' must be a non-empty string, got {config_id!r}")
-    for column in RESULT_COLUMNS:
-        value = clean.get(column)
-        if value is None:
-            clean.pop(column, None)  # a NULL column is an absent key, in the store and in the stream alike
-        elif isinstance(value, bool):
-            clean[column] = int(value)
-        elif isinstance(value, dict | list):
-            raise StoreError(f"result row {config_id}: column {column!r} must be a scalar, got {type(value).__name__}")
-    return clean
+    """A result row as stored: validated as a ResultRow, strict JSON values, null known columns left out."""
+    try:
+        return documents.result_row(row).stored()
+    except documents.DocumentError as error:
+        raise StoreError(str(error)) from None
 
 
 def _csv_cell(value: Any) -> str:

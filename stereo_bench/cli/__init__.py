@@ -20,6 +20,7 @@ COMMAND_MODULES = (
     "stereo_bench.cli.model",
     "stereo_bench.cli.campaign",
     "stereo_bench.cli.replay",
+    "stereo_bench.cli.session",
     "stereo_bench.cli.report",
 )
 

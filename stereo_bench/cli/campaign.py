@@ -19,13 +19,11 @@ from typing import Any
 from stereo_bench.campaign.config import (
     PRESETS,
     CampaignConfig,
-    ConfigError,
     campaign_json_schema_text,
-    load_campaign,
-    load_preset,
 )
 from stereo_bench.campaign.plan import plan_summary
-from stereo_bench.cli import CliError, campaign_run
+from stereo_bench.cli import campaign_run
+from stereo_bench.cli.campaign_run import config_from_args
 
 
 def register(subparsers) -> None:
@@ -57,18 +55,6 @@ def register(subparsers) -> None:
 
     # ---- the campaign runner's CLI (``campaign run``) lives in stereo_bench/cli/campaign_run.py ----
     campaign_run.register_run(actions)
-
-
-def config_from_args(plan_file: Path | None, preset: str | None) -> CampaignConfig:
-    """The campaign config named by a file or a preset (exactly one); ConfigError -> CliError."""
-    if plan_file is not None and preset is not None:
-        raise CliError("give a campaign file or --preset NAME, not both")
-    if plan_file is None and preset is None:
-        raise CliError("give a campaign file or --preset NAME")
-    try:
-        return load_preset(preset) if preset is not None else load_campaign(plan_file)  # type: ignore[arg-type]
-    except ConfigError as error:
-        raise CliError(str(error)) from None
 
 
 def format_duration(seconds: float) -> str:

@@ -1,4 +1,9 @@
-"""`stereo-bench campaign run`: run a campaign (or resume one) on the simulated or the real rig."""
+"""`stereo-bench campaign run`: run a campaign (or resume one) on the simulated, bring-up or real bench.
+
+Stopping: Ctrl-C or SIGTERM (what systemd and ``docker stop`` send) feed-holds the rig and stops at
+the next safe point, recording a 'stop' document and leaving the session resumable; a second one
+stops at once, still recording "interrupted" and printing the command that resumes.
+"""
 
 from __future__ import annotations
 
@@ -10,25 +15,39 @@ from pathlib import Path
 
 from stereo_bench.cli import CliError
 
+EXIT_INTERRUPTED = 130
 
-def _load(args: argparse.Namespace):
+
+def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: float | None = None,
+                     sim: str | None = None):
+    """The campaign config named by a file or a preset (exactly one), ``time_scale`` and the ``sim`` profile
+    applied; errors -> CliError.
+
+    The one way the CLI loads a campaign (``campaign plan`` and ``campaign run``).
+    """
+    if plan_file is not None and preset is not None:
+        raise CliError("give a campaign file or --preset NAME, not both")
+    if plan_file is None and preset is None:
+        raise CliError("give a campaign file or --preset NAME")
     from stereo_bench.campaign.config import ConfigError, load_campaign, load_preset
 
-    if bool(args.plan) == bool(args.preset):
-        raise CliError("give a PLAN.toml or --preset NAME (one of them)")
     try:
-        config = load_preset(args.preset) if args.preset else load_campaign(args.plan)
-    except (ConfigError, FileNotFoundError) as error:
+        config = load_preset(preset) if preset is not None else load_campaign(plan_file)  # type: ignore[arg-type]
+    except ConfigError as error:
         raise CliError(str(error)) from None
-    if args.time_scale is not None:
+    if time_scale is not None:
         if config.rig.kind != "simulated":
             raise CliError("--time-scale applies to the simulated rig only")
-        config = config.model_copy(update={"rig": config.rig.model_copy(update={"time_scale": args.time_scale})})
-    if args.sim is not None:
-        if not config.fully_simulated:
-            raise CliError("--sim applies to the simulated rig and cameras only")
-        config = config.model_copy(update={"sim": config.sim.model_copy(update={"profile": args.sim})})
+        if not time_scale > 0:
+            raise CliError(f"--time-scale must be > 0, not {time_scale:g}")
+        config = config.model_copy(update={"rig": config.rig.model_copy(update={"time_scale": time_scale})})
+    if sim is not None:
+        if config.cameras.kind != "simulated":
+            raise CliError("--sim applies to simulated cameras only (the simulated bench or bring-up)")
+        config = config.model_copy(update={"sim": config.sim.model_copy(update={"profile": sim})})
     return config
+
+
 
 
 def _format_row(row: dict) -> str:
@@ -40,83 +59,131 @@ def _format_row(row: dict) -> str:
     return f"{head}  {row['status'].upper()}: {row.get('reason')}"
 
 
+class Progress:
+    """A subscriber: a progress bar over the configurations and one line per result (stderr)."""
+
+    def __init__(self, total: int, name: str, *, quiet: bool):
+        from tqdm import tqdm
+
+        self._tqdm = tqdm
+        self.quiet = quiet
+        self.bar = tqdm(total=total, unit="config", disable=quiet, dynamic_ncols=True, desc=name, file=sys.stderr)
+
+    def __call__(self, document) -> None:
+        from stereo_bench.campaign.documents import MoveEvent, PromptEvent, ResultDocument, ResumeDocument
+
+        if isinstance(document, ResumeDocument):
+            self.bar.update(len(document.completed))
+        elif isinstance(document, MoveEvent):
+            rig = document.data.rig
+            self.bar.set_postfix_str(f"at {document.config_id}: B {rig.baseline_mm:g} mm")
+        elif isinstance(document, PromptEvent) and document.data.answered_by != "simulator":
+            self.bar.set_postfix_str(f"{document.data.prompt} done by {document.data.answered_by}")
+        elif isinstance(document, ResultDocument):
+            self.bar.update(1)
+            if not self.quiet:
+                self._tqdm.write(_format_row(document.row.stored()), file=sys.stderr)
+
+    def write(self, text: str) -> None:
+        self._tqdm.write(text, file=sys.stderr)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def _resume_command(args: argparse.Namespace, out: Path) -> str:
+    source = args.plan if args.plan else f"--preset {args.preset}"
+    return f"stereo-bench campaign run {source} --out {out} --resume"
+
+
 def cmd_run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from stereo_bench.campaign.execute import OperatorAbsent, run_campaign
-    from stereo_bench.campaign.plan import Move, expand_plan
+    from drivers.camera.base import CameraError
+    from drivers.rig.config import RigError
+    from stereo_bench.campaign.execute import CampaignPlan, OperatorAbsent, RunControl, run_campaign
     from stereo_bench.campaign.session import SessionError
+    from stereo_bench.campaign.stream import JsonLines
 
-    config = _load(args)
+    config = config_from_args(Path(args.plan) if args.plan else None, args.preset, time_scale=args.time_scale,
+                              sim=args.sim)
     out = Path(args.out)
-    if args.yes and config.rig.kind != "simulated":
-        raise CliError("--yes answers manual steps for the simulator only; at the real bench the operator does them")
-    n_configurations = len(expand_plan(config))
-    bar = tqdm(total=n_configurations, unit="config", disable=args.quiet, dynamic_ncols=True,
-               desc=config.name, file=sys.stderr)
-    state = {"runner": None, "stops": 0}
+    if args.yes and config.cameras.kind != "simulated":
+        raise CliError("--yes lets the simulator do the manual steps, for simulated cameras only; at the real "
+                       "bench the operator does them")
+    plan = CampaignPlan.of(config)  # expanded once: the progress bar and the run share it
+    resume_command = _resume_command(args, out)
+    progress = Progress(len(plan.configurations), config.name, quiet=args.quiet)
+    subscribers = [progress] + ([JsonLines(sys.stdout)] if args.json else [])
+    control = RunControl()
+    signals = {"count": 0}
 
-    def on_result(row: dict) -> None:
-        bar.update(1)
-        if not args.quiet:
-            tqdm.write(_format_row(row), file=sys.stderr)
-
-    def on_step(step) -> None:
-        if isinstance(step, Move):
-            c = step.configuration
-            bar.set_postfix_str(f"moving to B {c.baseline_mm:g} mm, Z {c.distance_mm:g} mm, alpha {c.alpha_deg:g}")
-
-    def on_sigint(signum, frame) -> None:
-        state["stops"] += 1
-        if state["stops"] > 1 or state["runner"] is None:
+    def on_signal(signum, frame) -> None:
+        if signals.get("finished"):  # the run has ended and recorded its stop: nothing left to stop
+            return
+        signals["count"] += 1
+        if signals["count"] > 1:
             raise KeyboardInterrupt
-        tqdm.write("stopping at the next safe point (feed hold sent); Ctrl-C again to abort at once", file=sys.stderr)
-        state["runner"].request_stop()
+        name = signal.Signals(signum).name
+        progress.write(f"{name}: stopping at the next safe point (feed hold sent); again to stop at once")
+        control.request_stop(f"stopped by {name}")
 
-    previous = signal.signal(signal.SIGINT, on_sigint)
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     started = time.monotonic()
     try:
-        summary = run_campaign(config, out, resume=args.resume, yes=args.yes, on_result=on_result, on_step=on_step,
-                               runner_hook=lambda runner: state.update(runner=runner))
-    except SessionError as error:
+        summary = run_campaign(config, out, resume=args.resume, yes=args.yes, subscribers=subscribers,
+                               control=control, plan=plan, resume_command=resume_command)
+        signals["finished"] = True
+        progress.close()
+        return _summarise(args, summary, out, resume_command, time.monotonic() - started)
+    except (SessionError, OperatorAbsent) as error:
         raise CliError(str(error)) from None
-    except OperatorAbsent as error:
-        raise CliError(str(error)) from None
+    except (RigError, CameraError) as error:  # recorded as 'failed' in the session; one line here
+        raise CliError(f"{error} (session {out}: stopped as failed)", exit_code=1) from None
     finally:
-        signal.signal(signal.SIGINT, previous)
-        bar.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        progress.close()
+
+
+def _summarise(args: argparse.Namespace, summary, out: Path, resume_command: str, elapsed: float) -> int:
     counts = summary.counts()
-    elapsed = time.monotonic() - started
     parts = ", ".join(f"{n} {status}" for status, n in sorted(counts.items()))
+    report = sys.stderr if args.json else sys.stdout  # --json: stdout holds only the documents
+    if summary.plan_drift:
+        print(f"note: the recorded plan runs; {summary.plan_drift}", file=report)
     print(f"campaign {summary.exit_status} in {elapsed:.0f} s: {parts or 'nothing run'}"
-          + (f" ({summary.skipped} already complete)" if summary.skipped else ""))
-    print(f"session:  {out}/  (documents.jsonl, frames/, calib/, results.sqlite)")
-    print(f"results:  {out / 'results.csv'}")
-    print(f"report:   stereo-bench report {out}")
+          + (f" ({summary.skipped} already complete)" if summary.skipped else ""), file=report)
+    print(f"session:  {out}/  (documents.jsonl, frames/, calib/, results.sqlite)", file=report)
+    print(f"results:  {out / 'results.csv'}", file=report)
+    print(f"report:   stereo-bench report {out}", file=report)
     if summary.exit_status == "interrupted":
-        print(f"resume:   stereo-bench campaign run {args.plan or '--preset ' + args.preset} --out {out} --resume")
-        return 130
+        print(f"resume:   {resume_command}", file=report)
+        return EXIT_INTERRUPTED
     return 0 if counts.get("measured", 0) or not counts else 1
 
 
 def register_run(subparsers) -> None:
     run = subparsers.add_parser(
-        "run", help="run a campaign on the simulated or the real rig, recording a session",
+        "run", help="run a campaign on the simulated, bring-up or real bench, recording a session",
         description="Drive the rig through every configuration of the plan: move, settle, flush, calibrate "
                     "(per-config extrinsics), capture and measure the square; record everything in --out. "
-                    "Ctrl-C stops at the next safe point; --resume continues an interrupted session.",
+                    "Ctrl-C or SIGTERM stops at the next safe point (again: at once); --resume continues an "
+                    "interrupted session. Exit status: 0 done, 1 nothing measured or a rig/camera fault, 2 a usage "
+                    "or config error, 130 interrupted (resumable).",
     )
     run.add_argument("plan", nargs="?", metavar="PLAN.toml", help="campaign file")
     run.add_argument("--preset", metavar="NAME", help="a built-in campaign (see: stereo-bench campaign presets)")
     run.add_argument("--out", required=True, metavar="DIR", help="session directory (never overwritten)")
     run.add_argument("--resume", action="store_true", help="continue the interrupted session in --out")
     run.add_argument("--yes", action="store_true",
-                     help="simulated rig: let the simulator do the manual steps (moving the target) instead of "
-                          "asking")
+                     help="simulated cameras: let the simulator do the manual steps (moving the target in the "
+                          "simulated scene) instead of asking")
     run.add_argument("--time-scale", type=float, metavar="X",
                      help="simulated rig: run motion and exposures X times faster than real time")
     run.add_argument("--sim", choices=("lab", "ideal"),
-                     help="simulated bench: 'lab' (a bench as built: the default) or 'ideal' (perfect mechanics, "
-                          "optics and boards); replaces [sim] profile, keeps its overrides")
+                     help="simulated cameras: the simulated bench's profile, 'lab' (a bench as built: the default) or "
+                          "'ideal' (perfect mechanics, optics and boards); replaces [sim] profile, keeps its overrides")
+    run.add_argument("--json", action="store_true",
+                     help="print every document (start, events, results, stop) as one JSON line on stdout, as it "
+                          "is recorded; the summary goes to stderr")
     run.add_argument("--quiet", action="store_true", help="no progress bar or per-configuration lines")
     run.set_defaults(func=cmd_run)

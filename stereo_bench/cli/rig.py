@@ -1,28 +1,42 @@
-"""``stereo-bench rig`` (home / move / status / unlock) and ``stereo-bench sim-controller``.
+"""``stereo-bench rig`` (home / move / status / unlock / resume / reset / shell) and ``stereo-bench sim-controller``.
 
-    stereo-bench sim-controller --link /tmp/grbl [--fault alarm:1] [--time-scale 10]
+    stereo-bench sim-controller --link /tmp/grbl [--fault alarm:1] [--time-scale 10] [--reboot-on-open]
     stereo-bench rig --port /tmp/grbl home
-    stereo-bench rig --port /tmp/grbl move --baseline 120 --alpha 85
+    stereo-bench rig --port /tmp/grbl home move --baseline 120 --alpha 85 status    # one connection
+    stereo-bench rig --port /tmp/grbl shell                                          # an interactive prompt
     stereo-bench rig --port /tmp/grbl status --json
 
-Exit status: 0 done; 2 for what the user can fix (a refused move, a bad rig config, an unreachable
-port); 1 for a controller fault (alarm, timeout, lost connection); 130 interrupted.
+Actions given together run in order on one connection. That matters on an Arduino-based controller: opening
+its port reboots it (DTR auto-reset), so each separate call starts from machine position 0 with the
+position unknown; chain the actions, use ``shell``, or disable the auto-reset (docs/RIG.md).
+
+Exit status: 0 done; 2 for what the user can fix (a refused move, a bad rig config or action, an
+unreachable port, unusable controller settings); 1 for a controller fault (alarm, timeout, lost
+connection); 130 interrupted.
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import json
+import logging
 import os
+import shlex
 import signal
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 from drivers.rig import (
     GrblConnectionError,
+    GrblConnectionLost,
+    GrblLocked,
     GrblRig,
+    GrblSettingsError,
     LimitError,
     MoveRequestError,
     RigConfig,
@@ -34,30 +48,104 @@ from drivers.rig import (
 )
 from drivers.rig.config import plan_move
 from drivers.rig.rig import physical_request
-from drivers.sim.grbl_emulator import AXIS_LETTERS, FAULT_HELP, AxisSpec, GrblEmulator, parse_fault
+from drivers.sim.grbl_emulator import (
+    AXIS_LETTERS,
+    FAULT_HELP,
+    AxisSpec,
+    GrblEmulator,
+    axis_specs_for_travel,
+    parse_fault,
+)
 from stereo_bench.cli import CliError
 
 EXIT_FAULT = 1
+ACTIONS = ("home", "unlock", "move", "status", "resume", "reset", "shell")
+#: Actions that connect without the soft reset: looking must not disturb, and a reset would abandon a hold.
+_LOOKING = ("status", "resume", "shell")
+
+ACTIONS_HELP = """\
+actions (several run in order on one connection; ACTION --help for its options):
+  home                  run the homing cycle ($H)
+  unlock                leave Alarm without homing ($X): only if the positions are right
+  move OPTIONS          move to a configuration; returns once the rig has stopped there
+  status [--json]       where the rig is (no soft reset on connect)
+  resume                continue a move held by Ctrl-C / feed hold (waits until the hold is complete)
+  reset                 soft reset: abandon a held move, end a halt after ALARM:1/2
+  shell                 an interactive prompt for all of the above, on one connection
+
+Opening the port of an Arduino-based controller reboots it (DTR auto-reset) and its position is then
+unknown: chain actions in one call (`rig --port P home move --baseline 100 status`) or use `shell`."""
 
 
 def register(subparsers) -> None:
     rig = subparsers.add_parser(
-        "rig", help="drive the rig's GRBL controller: home, move, status",
+        "rig", help="drive the rig's GRBL controller: home, move, status, resume, reset, shell",
         description="Drive the stereo rig through its GRBL 1.1 controller, in mm and degrees.",
+        epilog=ACTIONS_HELP, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     rig.add_argument("--port", required=True, metavar="PORT",
                      help="serial device or pyserial URL of the controller (e.g. /dev/ttyUSB0, a sim-controller link)")
     rig.add_argument("--rig-config", type=Path, metavar="FILE",
-                     help="rig configuration TOML (axis mapping, limits); default: X = baseline 0-350 mm, "
-                          "Y/Z = left/right toe-in 0-90 deg")
+                     help="rig configuration TOML (axis mapping, limits); default: stock Grbl machine space, "
+                          "X = baseline 0-350 mm at X -350..0, Y/Z = left/right toe-in 0-90 deg at -0..-90")
     rig.add_argument("--timeout", type=float, metavar="S", help="bound on homing or a move, seconds")
     rig.add_argument("--spy-log", type=Path, metavar="FILE", help="record every byte on the link as JSON lines")
-    actions = rig.add_subparsers(dest="rig_action", metavar="ACTION", required=True)
+    rig.add_argument("actions", nargs=argparse.REMAINDER, metavar="ACTION [OPTIONS] ...",
+                     help="home | unlock | move ... | status [--json] | resume | reset | shell")
+    rig.set_defaults(func=_cmd_rig)
 
-    home = actions.add_parser("home", help="run the homing cycle ($H)")
-    home.set_defaults(func=_cmd_home)
+    sim = subparsers.add_parser(
+        "sim-controller", help="run a GRBL 1.1h emulator on a pseudo-terminal",
+        description="Serve a simulated GRBL 1.1h controller on a pty and link PATH to it, until interrupted.",
+    )
+    sim.add_argument("--link", required=True, type=Path, metavar="PATH", help="symlink to create to the pty")
+    sim.add_argument("--fault", action="append", default=[], metavar="SPEC", help=f"inject a fault: {FAULT_HELP}")
+    sim.add_argument("--rig-config", type=Path, metavar="FILE",
+                     help="size the axes' travel ($13x) from a rig config's machine targets")
+    sim.add_argument("--axes", default=None, help="GRBL axis letters (default XYZ, or what the rig config drives)")
+    sim.add_argument("--time-scale", type=float, default=1.0, metavar="X",
+                     help="simulated seconds per real second (default 1: real time)")
+    sim.add_argument("--no-homing", action="store_true", help="homing disabled ($22=0): boot Idle, no soft limits")
+    sim.add_argument("--reboot-on-open", action="store_true",
+                     help="reboot whenever the port is opened, like an Arduino with DTR auto-reset")
+    sim.add_argument("--startup-line", action="append", default=[], metavar="LINE",
+                     help="a startup line ($N0, $N1) run after every reset, e.g. G20")
+    sim.add_argument("--force-set-origin", action="store_true",
+                     help="a HOMING_FORCE_SET_ORIGIN build: homing sets 0 (positive machine space on $23 axes)")
+    sim.add_argument("--firmware", choices=("grbl", "grblhal"), default="grbl")
+    sim.set_defaults(func=_cmd_sim_controller)
 
-    move = actions.add_parser("move", help="move to a configuration; returns once the rig has stopped there")
+
+# ---------------------------------------------------------------------------------------------- actions
+
+
+class _HelpShown(Exception):
+    """An action's --help was printed: nothing to run."""
+
+
+class _ActionParser(argparse.ArgumentParser):
+    """Parses one action's options; errors become one-line CliErrors (the shell must not exit on them)."""
+
+    def error(self, message: str):
+        raise CliError(f"{self.prog.removeprefix('stereo-bench ')}: {message}")
+
+    def exit(self, status: int = 0, message: str | None = None):
+        if message:
+            print(message, file=sys.stderr, end="")
+        raise _HelpShown()
+
+
+def _action_parsers() -> dict[str, _ActionParser]:
+    parsers = {}
+    for name, text in (("home", "run the homing cycle ($H)"),
+                       ("unlock", "leave Alarm without homing ($X): only if the positions are right"),
+                       ("move", "move to a configuration; returns once the rig has stopped there"),
+                       ("status", "where the rig is (does not reset the controller)"),
+                       ("resume", "continue a held move: waits until the hold is complete, then '~'"),
+                       ("reset", "soft reset (0x18): abandons a held move, ends a halt after ALARM:1/2"),
+                       ("shell", "an interactive prompt: home, unlock, move ..., status, resume, reset, quit")):
+        parsers[name] = _ActionParser(prog=f"stereo-bench rig {name}", description=text)
+    move = parsers["move"]
     move.add_argument("--baseline", type=float, metavar="MM", help="baseline B, mm")
     move.add_argument("--alpha", type=float, metavar="DEG",
                       help="angle between baseline and both optical axes, deg (90 = parallel)")
@@ -68,85 +156,49 @@ def register(subparsers) -> None:
     move.add_argument("--toe-in-right", type=float, metavar="DEG", help="right camera's toe-in, deg")
     move.add_argument("--tilt", type=float, metavar="DEG", help="tilt of both cameras, deg (> 0 looks down)")
     move.add_argument("--target", type=float, metavar="MM", help="target distance Z from the baseline, mm")
-    move.set_defaults(func=_cmd_move)
-
-    status = actions.add_parser("status", help="where the rig is (does not reset the controller)")
-    status.add_argument("--json", action="store_true", help="print one JSON object")
-    status.set_defaults(func=_cmd_status)
-
-    unlock = actions.add_parser("unlock", help="leave Alarm without homing ($X): only if the positions are right")
-    unlock.set_defaults(func=_cmd_unlock)
-
-    sim = subparsers.add_parser(
-        "sim-controller", help="run a GRBL 1.1 emulator on a pseudo-terminal",
-        description="Serve a simulated GRBL 1.1 controller on a pty and link PATH to it, until interrupted.",
-    )
-    sim.add_argument("--link", required=True, type=Path, metavar="PATH", help="symlink to create to the pty")
-    sim.add_argument("--fault", action="append", default=[], metavar="SPEC", help=f"inject a fault: {FAULT_HELP}")
-    sim.add_argument("--rig-config", type=Path, metavar="FILE", help="size the axes' travel from a rig config")
-    sim.add_argument("--axes", default=None, help="GRBL axis letters (default XYZ, or what the rig config drives)")
-    sim.add_argument("--time-scale", type=float, default=1.0, metavar="X",
-                     help="simulated seconds per real second (default 1: real time)")
-    sim.add_argument("--no-homing", action="store_true", help="homing disabled: boot Idle, no soft limits")
-    sim.add_argument("--firmware", choices=("grbl", "grblhal"), default="grbl")
-    sim.set_defaults(func=_cmd_sim_controller)
+    parsers["status"].add_argument("--json", action="store_true", help="print one JSON object")
+    return parsers
 
 
-# ---------------------------------------------------------------------------------------------- rig
+@dataclass
+class _Action:
+    name: str
+    options: argparse.Namespace
+    request: dict[str, float | None] | None = None  # move only
 
 
-def _config(args) -> RigConfig:
-    if args.rig_config is None:
-        return RigConfig()
-    try:
-        return load_rig_config(args.rig_config)
-    except RigConfigError as error:
-        raise CliError(str(error)) from None
+def _parse_actions(tokens: list[str], config: RigConfig) -> list[_Action]:
+    """Split ``home move --baseline 100 status`` into actions and parse each; moves are checked against the
+    rig config here, before the port is even opened."""
+    if not tokens:
+        raise CliError(f"give an action: {', '.join(ACTIONS)} (several run in order on one connection)")
+    groups: list[list[str]] = []
+    for token in tokens:
+        if token in ACTIONS:
+            groups.append([token])
+        elif not groups:
+            raise CliError(f"unknown action {token!r}; actions: {', '.join(ACTIONS)}")
+        else:
+            groups[-1].append(token)
+    parsers = _action_parsers()
+    actions = [_parse_action(parsers, group[0], group[1:], config) for group in groups]
+    if len(actions) > 1 and any(a.name == "shell" for a in actions):
+        raise CliError("shell runs on its own: give it alone (`rig --port P shell`)")
+    return actions
 
 
-def _fail(error: RigError) -> CliError:
-    text = " ".join(str(error).split())
-    if isinstance(error, (LimitError, MoveRequestError, RigConfigError, GrblConnectionError)):
-        return CliError(text)
-    return CliError(text, exit_code=EXIT_FAULT)
-
-
-@contextlib.contextmanager
-def _connected(args, config: RigConfig, **options):
-    rig = GrblRig(args.port, config, prompt=wait_for_enter, spy_log=args.spy_log, **options)
-    try:
-        rig.open()
-    except RigError as error:
-        raise _fail(error) from None
-    try:
-        yield rig
-    except RigError as error:
-        raise _fail(error) from None
-    finally:
-        rig.close()
-
-
-def _describe(reading: RigReading) -> str:
-    def fmt(value: float | None, unit: str) -> str:
-        return "?" if value is None else f"{value:.3f} {unit}"
-
-    parts = [f"B = {fmt(reading.baseline_mm, 'mm')}"]
-    parts.append(f"toe-in L = {fmt(reading.toe_in_left_deg, 'deg')} (alpha {fmt(reading.alpha_left_deg, 'deg')})")
-    parts.append(f"R = {fmt(reading.toe_in_right_deg, 'deg')} (alpha {fmt(reading.alpha_right_deg, 'deg')})")
-    parts.append(f"tilt L/R = {fmt(reading.tilt_left_deg, 'deg')} / {fmt(reading.tilt_right_deg, 'deg')}")
-    parts.append(f"target Z = {fmt(reading.target_distance_mm, 'mm')}")
-    machine = reading.machine_position or {}
-    raw = " ".join(f"{axis}{value:.3f}" for axis, value in machine.items())
-    return f"{reading.state}: " + ", ".join(parts) + (f" [machine {raw}]" if raw else "")
-
-
-def _cmd_home(args) -> int:
-    config = _config(args)
-    with _connected(args, config) as rig:
-        print(f"homing the rig on {args.port} ...", flush=True)
-        reading = rig.home(timeout_s=args.timeout)
-        print(f"homed. {_describe(reading)}", flush=True)
-    return 0
+def _parse_action(parsers: dict[str, _ActionParser], name: str, argv: list[str], config: RigConfig) -> _Action:
+    if name not in parsers:
+        raise CliError(f"unknown action {name!r}; actions: {', '.join(ACTIONS)}")
+    options = parsers[name].parse_args(argv)
+    action = _Action(name, options)
+    if name == "move":
+        action.request = _move_request(options)
+        try:
+            plan_move(config, physical_request(**action.request))
+        except RigError as error:
+            raise _fail(error) from None
+    return action
 
 
 def _move_request(args) -> dict[str, float | None]:
@@ -169,59 +221,222 @@ def _move_request(args) -> dict[str, float | None]:
     return request
 
 
-def _cmd_move(args) -> int:
-    config = _config(args)
-    request = _move_request(args)
-    # Refuse before the port is even opened: bad combinations, fixed quantities, soft limits.
-    try:
-        plan_move(config, physical_request(**request))
-    except RigError as error:
-        raise _fail(error) from None
+# ---------------------------------------------------------------------------------------------- rig
 
+
+def _config(args) -> RigConfig:
+    if args.rig_config is None:
+        return RigConfig()
+    try:
+        return load_rig_config(args.rig_config)
+    except RigConfigError as error:
+        raise CliError(str(error)) from None
+
+
+def _fail(error: RigError, rig: GrblRig | None = None) -> CliError:
+    text = " ".join(str(error).split())
+    if isinstance(error, GrblLocked) and rig is not None and rig.controller.info.boot_detected:
+        text += (" (opening the port rebooted the controller: chain actions in one call, e.g. `rig --port P home "
+                 "move ...`, or use `rig --port P shell`; docs/RIG.md says how to disable the auto-reset)")
+    if isinstance(error, GrblConnectionLost):
+        return CliError(text, exit_code=EXIT_FAULT)
+    if isinstance(error, (LimitError, MoveRequestError, RigConfigError, GrblConnectionError, GrblSettingsError)):
+        return CliError(text)
+    return CliError(text, exit_code=EXIT_FAULT)
+
+
+class _StderrWarnings(logging.Handler):
+    """The driver's warnings (settings conflicts at connect, a boot, a recovered reply), one line each."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        print(f"stereo-bench rig: warning: {' '.join(record.getMessage().split())}", file=sys.stderr, flush=True)
+
+
+@contextlib.contextmanager
+def _warnings_to_stderr() -> Iterator[None]:
+    logger = logging.getLogger("drivers.rig")
+    handler = _StderrWarnings(level=logging.WARNING)
+    logger.addHandler(handler)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+
+
+def _cmd_rig(args) -> int:
+    config = _config(args)
+    try:
+        actions = _parse_actions(list(args.actions), config)
+    except _HelpShown:
+        return 0
+    first = actions[0].name
+    # One soft reset at connect flushes half-received lines; not when looking, resuming a hold or in the shell.
+    options = {"reset_on_open": first == "reset" or (first not in _LOOKING and config.controller.reset_on_open)}
+    with _warnings_to_stderr():
+        rig = GrblRig(args.port, config, prompt=wait_for_enter, spy_log=args.spy_log, **options)
+        try:
+            rig.open()
+        except RigError as error:
+            raise _fail(error) from None
+        try:
+            if first == "shell":
+                return _shell(rig, args)
+            for index, action in enumerate(actions):
+                if action.name == "reset" and index == 0:
+                    # The connect already reset it: report the state it is in now.
+                    print(f"soft reset on connect. {_describe(rig.read())}", flush=True)
+                    continue
+                _run(rig, action, args, interactive=False)
+        except RigError as error:
+            raise _fail(error, rig) from None
+        except _HelpShown:
+            return 0
+        finally:
+            rig.close()
+    return 0
+
+
+def _run(rig: GrblRig, action: _Action, args, *, interactive: bool) -> None:
+    """One action on an open rig. Raises RigError."""
+    name = action.name
+    if name == "home":
+        print(f"homing the rig on {args.port} ...", flush=True)
+        try:
+            reading = rig.home(timeout_s=args.timeout)
+        except KeyboardInterrupt:
+            # A homing cycle cannot be held: only a soft reset stops it (Grbl reports ALARM:6).
+            with contextlib.suppress(RigError):
+                rig.reset()
+            print("interrupted: homing stopped with a soft reset (ALARM:6); home again before moving",
+                  file=sys.stderr, flush=True)
+            raise
+        print(f"homed. {_describe(reading)}", flush=True)
+    elif name == "unlock":
+        reading = rig.unlock()
+        print(f"unlocked: positions are trusted as they are. {_describe(reading)}", flush=True)
+    elif name == "move":
+        _move(rig, action, args, interactive=interactive)
+    elif name == "status":
+        _status(rig, args, as_json=action.options.json)
+    elif name == "resume":
+        print("resuming ...", flush=True)
+        reading = rig.resume(timeout_s=args.timeout)
+        print(f"stopped. {_describe(reading)}", flush=True)
+    elif name == "reset":
+        reading = rig.reset()
+        print(f"soft reset. {_describe(reading)}", flush=True)
+
+
+def _move(rig: GrblRig, action: _Action, args, *, interactive: bool) -> None:
     def moving(targets: dict[str, float]) -> None:
         text = " ".join(f"{axis}{value:.3f}" for axis, value in targets.items())
         print(f"moving: {text} (machine units) ...", flush=True)
 
-    with _connected(args, config) as rig:
+    try:
+        reading = rig.move_to(timeout_s=args.timeout, on_moving=moving, **action.request)  # type: ignore[arg-type]
+    except KeyboardInterrupt:
+        # The controller would carry on with the queued move: hold it before giving up.
+        with contextlib.suppress(RigError):
+            rig.stop()
+        if interactive:
+            print("interrupted: feed hold sent; the rig holds where it stopped: `resume` continues the move, "
+                  "`reset` abandons it", file=sys.stderr, flush=True)
+            return
+        print(f"interrupted: feed hold sent; the rig holds where it stopped: `stereo-bench rig --port {args.port} "
+              f"resume` continues the move, `... reset` abandons it (an Arduino that reboots when its port opens "
+              "drops the hold: use `rig ... shell` there)", file=sys.stderr, flush=True)
+        raise
+    print(f"stopped. {_describe(reading)}", flush=True)
+
+
+def _status(rig: GrblRig, args, *, as_json: bool) -> None:
+    reading = rig.read()
+    controller = rig.controller
+    if as_json:
+        data = reading.to_dict()
+        data["port"] = args.port
+        data["locked"] = controller.locked
+        data["halted"] = controller.halted
+        data["alarm"] = None if controller.alarm is None else {"code": controller.alarm.code,
+                                                               "meaning": controller.alarm.meaning}
+        data["firmware"] = None if controller.banner is None else controller.banner.text
+        data["position_unknown"] = controller.position_unknown
+        data["controller"] = rig.controller_info()
+        print(json.dumps(data), flush=True)
+        return
+    print(_describe(reading), flush=True)
+    if controller.position_unknown:
+        print(f"position unknown: {controller.position_unknown}: home the rig before moving", flush=True)
+    elif controller.locked:
+        print("controller is in Alarm: run `home` (or `unlock`) before moving", flush=True)
+
+
+def _describe(reading: RigReading) -> str:
+    def fmt(value: float | None, unit: str) -> str:
+        return "?" if value is None else f"{value:.3f} {unit}"
+
+    parts = [f"B = {fmt(reading.baseline_mm, 'mm')}"]
+    parts.append(f"toe-in L = {fmt(reading.toe_in_left_deg, 'deg')} (alpha {fmt(reading.alpha_left_deg, 'deg')})")
+    parts.append(f"R = {fmt(reading.toe_in_right_deg, 'deg')} (alpha {fmt(reading.alpha_right_deg, 'deg')})")
+    parts.append(f"tilt L/R = {fmt(reading.tilt_left_deg, 'deg')} / {fmt(reading.tilt_right_deg, 'deg')}")
+    parts.append(f"target Z = {fmt(reading.target_distance_mm, 'mm')}")
+    machine = reading.machine_position or {}
+    raw = " ".join(f"{axis}{value:.3f}" for axis, value in machine.items())
+    return f"{reading.state}: " + ", ".join(parts) + (f" [machine {raw}]" if raw else "")
+
+
+SHELL_HELP = """\
+commands: home | unlock | move OPTIONS | status [--json] | resume | reset | help | quit
+  move options: --baseline MM --alpha DEG --alpha-left/--alpha-right DEG --toe-in DEG
+                --toe-in-left/--toe-in-right DEG --tilt DEG --target MM   (move --help for details)
+Ctrl-C during a move holds the rig: `resume` continues, `reset` abandons. quit or Ctrl-D leaves."""
+
+
+def _shell(rig: GrblRig, args) -> int:
+    """An interactive prompt on one connection. Errors are printed and the prompt goes on; a lost connection
+    ends it with status 1."""
+    parsers = _action_parsers()
+    controller = rig.controller
+    firmware = controller.banner.text if controller.banner else f"GRBL {controller.info.build or '(version unknown)'}"
+    print(f"connected to {args.port} ({firmware}). {_describe(rig.read())}", flush=True)
+    print(SHELL_HELP, flush=True)
+    while True:
         try:
-            reading = rig.move_to(timeout_s=args.timeout, on_moving=moving, **request)
+            line = input("rig> ")
+        except EOFError:
+            print(flush=True)
+            return 0
         except KeyboardInterrupt:
-            # The controller would carry on with the queued move: hold it before giving up.
-            with contextlib.suppress(RigError):
-                rig.stop()
-            print("interrupted: feed hold sent; the rig is holding (resume with '~' or reset)", file=sys.stderr)
-            raise
-        print(f"stopped. {_describe(reading)}", flush=True)
-    return 0
-
-
-def _cmd_status(args) -> int:
-    config = _config(args)
-    # Looking must not disturb: no soft reset on connect.
-    with _connected(args, config, reset_on_open=False) as rig:
-        reading = rig.read()
-        controller = rig.controller
-        if args.json:
-            data = reading.to_dict()
-            data["port"] = args.port
-            data["locked"] = controller.locked
-            data["alarm"] = None if controller.alarm is None else {"code": controller.alarm.code,
-                                                                   "meaning": controller.alarm.meaning}
-            data["firmware"] = None if controller.banner is None else controller.banner.text
-            print(json.dumps(data), flush=True)
-        else:
-            print(_describe(reading), flush=True)
-            if controller.locked:
-                print("controller is in Alarm: run `stereo-bench rig ... home` (or `unlock`) before moving", flush=True)
-    return 0
-
-
-def _cmd_unlock(args) -> int:
-    config = _config(args)
-    with _connected(args, config) as rig:
-        reading = rig.unlock()
-        print(f"unlocked. {_describe(reading)}", flush=True)
-    return 0
+            print("\n(quit or Ctrl-D to leave)", flush=True)
+            continue
+        try:
+            words = shlex.split(line)
+        except ValueError as error:
+            print(f"error: {error}", file=sys.stderr, flush=True)
+            continue
+        if not words:
+            continue
+        if words[0] in ("quit", "exit"):
+            return 0
+        if words[0] == "help":
+            print(SHELL_HELP, flush=True)
+            continue
+        try:
+            if words[0] == "shell":
+                raise CliError("already in the shell")
+            action = _parse_action(parsers, words[0], words[1:], rig.config)
+            _run(rig, action, args, interactive=True)
+        except _HelpShown:
+            continue
+        except CliError as error:
+            print(f"error: {error}", file=sys.stderr, flush=True)
+        except RigError as error:
+            failure = _fail(error, rig)
+            print(f"error: {failure}", file=sys.stderr, flush=True)
+            if isinstance(error, GrblConnectionLost):
+                return failure.exit_code
+        except KeyboardInterrupt:
+            print(flush=True)  # Ctrl-C during homing or a prompt: the action said what it did
 
 
 # ---------------------------------------------------------------------------------------------- sim
@@ -230,10 +445,17 @@ def _cmd_unlock(args) -> int:
 def _emulator_from_args(args) -> GrblEmulator:
     specs: dict[str, AxisSpec] = {}
     axes = args.axes
+    force_set_origin = args.force_set_origin
     if args.rig_config is not None:
         config = _config(args)
-        for axis, (low, high) in config.machine_travel().items():
-            specs[axis] = AxisSpec(travel=(low, high))
+        specs, needs_force = axis_specs_for_travel(config.machine_travel())
+        if needs_force and not force_set_origin:
+            # A stock build: same travel, homing toward +; the driver will say which targets it refuses.
+            specs = {axis: AxisSpec(max_travel=spec.max_travel, max_rate_per_min=spec.max_rate_per_min,
+                                    acceleration=spec.acceleration, steps_per_unit=spec.steps_per_unit)
+                     for axis, spec in specs.items()}
+            print("note: the rig config has positive machine targets, which a stock Grbl refuses once homed "
+                  "(--force-set-origin emulates a build that accepts them)", flush=True)
         if axes is None and config.axes:
             last = max(AXIS_LETTERS.index(a) for a in config.axes)
             axes = AXIS_LETTERS[: max(last + 1, 3)]
@@ -248,7 +470,9 @@ def _emulator_from_args(args) -> GrblEmulator:
         raise CliError("--time-scale must be > 0")
     try:
         return GrblEmulator(axes=axes, axis_specs=specs, time_scale=args.time_scale,
-                            homing_enabled=not args.no_homing, firmware=args.firmware, faults=faults)
+                            homing_enabled=not args.no_homing, firmware=args.firmware, faults=faults,
+                            reboot_on_open=args.reboot_on_open, startup_lines=args.startup_line,
+                            force_set_origin=force_set_origin)
     except ValueError as error:
         raise CliError(f"--axes: {error}") from None
 
@@ -277,7 +501,8 @@ def _cmd_sim_controller(args) -> int:
     try:
         _link(args.link, tty_path)
         faults = f", faults: {', '.join(args.fault)}" if args.fault else ""
-        print(f"GRBL emulator ({args.firmware}, axes {emulator.axes}, time x{args.time_scale:g}{faults}) "
+        reboot = ", reboots when opened" if args.reboot_on_open else ""
+        print(f"GRBL emulator ({args.firmware}, axes {emulator.axes}, time x{args.time_scale:g}{reboot}{faults}) "
               f"serving on {tty_path}, linked at {args.link}; Ctrl-C to stop", flush=True)
         try:
             while not stop.is_set():

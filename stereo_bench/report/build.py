@@ -30,17 +30,18 @@ import shutil
 import tempfile
 import uuid
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from stereo_bench import __version__, atomic
+from stereo_bench.campaign.documents import REPORT_COLUMNS
 from stereo_bench.campaign.session import DOCUMENTS_FILE, SessionError
 from stereo_bench.report import annotate, figures, html
 from stereo_bench.report.collect import ConfigReport, SessionReport, read_sessions
+from stereo_bench.report.page import ImageRef, SessionPage
 from stereo_bench.report.tables import (
-    Table,
     alpha_tables,
     distance_baseline_tables,
     format_value,
@@ -52,11 +53,9 @@ MANIFEST = "report.json"
 REPORT_KIND = "stereo-bench report"
 DEFAULT_DIR_NAME = "report"
 
-RESULT_COLUMNS = (
-    "config_id", "baseline_mm", "distance_mm", "alpha_deg", "toe_in_deg", "tilt_deg", "K", "status", "reason",
-    "fraction_in_both", "fraction_in_both_measured", "square_mean_mm", "square_std_mm", "n_squares", "n_frames",
-    "error_mm", "sigma_mm", "rms_px", "epipolar_rms_px", "calib_views_used", "calib_views_rejected",
-)
+# The result row's report columns (stereo_bench.campaign.documents.ResultRow), with K = B / Z after the geometry.
+_AFTER_K = REPORT_COLUMNS.index("alpha_deg") + 1
+RESULT_COLUMNS = (*REPORT_COLUMNS[:_AFTER_K], "K", *REPORT_COLUMNS[_AFTER_K:])
 PREDICTION_COLUMNS = (
     ("predicted_sigma_mm", "sigma_mm"), ("predicted_expected_error_mm", "expected_error_mm"),
     ("predicted_sigma_frame_mm", "sigma_frame_mm"), ("pixel_sigma_px", "pixel_sigma_px"),
@@ -66,30 +65,6 @@ PREDICTION_COLUMNS = (
 
 class ReportError(RuntimeError):
     """The report cannot be written as asked; one line naming the file or directory."""
-
-
-@dataclass
-class ImageRef:
-    src: str  # relative to the report directory, '/'-separated
-    width: int
-    height: int
-    alt: str
-    caption: str = ""
-
-
-@dataclass
-class SessionPage:
-    """What the page shows of one session, with the report-relative paths of its files."""
-
-    session: SessionReport
-    tables1: list[tuple[Table, str]] = field(default_factory=list)
-    tables2: list[tuple[Table, str]] = field(default_factory=list)
-    error_figures: list[ImageRef] = field(default_factory=list)
-    comparison: ImageRef | None = None
-    calibration: ImageRef | None = None
-    calibration_csv: str = ""
-    images: dict[str, list[ImageRef]] = field(default_factory=dict)
-    image_notes: dict[str, list[str]] = field(default_factory=dict)
 
 
 @dataclass

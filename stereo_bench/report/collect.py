@@ -19,7 +19,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from stereo_bench.campaign.config import CampaignConfig
+from stereo_bench.campaign.config import CampaignConfig, recorded_campaign
 from stereo_bench.campaign.session import SessionError, SessionReader
 from stereo_bench.report.tables import NOT_RUN, with_plan
 from stereo_bench.report.tables import finite_number as _finite
@@ -83,7 +83,7 @@ def safe_key(text: str) -> str:
 
 def _load_config(reader: SessionReader, start: dict) -> tuple[CampaignConfig | None, str | None]:
     try:
-        return CampaignConfig.model_validate(start.get("config") or {}), None
+        return recorded_campaign(start.get("config") or {}), None
     except ValidationError as error:
         first = error.errors()[0]
         where = ".".join(str(part) for part in first.get("loc", ())) or "config"

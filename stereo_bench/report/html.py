@@ -9,16 +9,13 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from html import escape
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from stereo_bench.report.collect import ConfigReport, SessionReport
+from stereo_bench.report.page import ImageRef, SessionPage
 from stereo_bench.report.tables import PARTIAL_MARK, Table, format_value, status_counts
 from stereo_bench.report.tables import finite_number as _finite
-
-if TYPE_CHECKING:
-    from stereo_bench.report.build import ImageRef, SessionPage
-    from stereo_bench.report.collect import ConfigReport, SessionReport
 
 CSS = """
 :root { --fg: #1a1a1a; --muted: #5f6368; --line: #d0d4d9; --bg-alt: #f5f7f9; }

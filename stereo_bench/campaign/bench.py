@@ -1,0 +1,309 @@
+"""The bench a campaign runs on: rig, cameras, presenter, operators and clock, from exactly three factories.
+
+    bench = open_bench(config, operators=[TerminalOperator()], transcript=path)   # by config.bench_kind
+    with bench:
+        runner = CampaignRunner(config, configurations, steps, bench=bench, bus=bus, options=options)
+
+- :func:`simulated_bench`: simulated cameras rendering a simulated scene. The rig is the GRBL emulator
+  on a pty (``rig.kind = "simulated"``), or the real controller on ``rig.port`` (``"grbl"``: bring-up
+  mode, the cameras render from the positions the controller *reports*).
+- :func:`hardware_bench`: the real controller and two V4L2 cameras; the operator presents the boards.
+- :func:`replay_bench`: a recorded session's telemetry and frames behind the same protocols.
+
+Which combination is allowed is decided once, by the config (``CampaignConfig.bench_kind``). This
+is the only module of ``stereo_bench`` outside the CLI that imports the simulators (``drivers.sim``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import threading
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stereo_bench.campaign.config import CampaignConfig
+from stereo_bench.campaign.operator import Operator, Prompt
+from stereo_bench.campaign.plan import Configuration
+from stereo_bench.campaign.presenters import CalibrationPlacementError, OperatorPresenter, Presenter, scene_seed
+from stereo_bench.geometry import RigPose, alpha_from_toe_in
+from stereo_bench.targets import Target
+from stereo_bench.vision.detect import Detection
+
+
+class Clock:
+    """The bench's waits (settle times): divided by ``time_scale``, and cut short by a stop request."""
+
+    def __init__(self, time_scale: float = 1.0):
+        self.time_scale = time_scale
+
+    def wait(self, seconds: float, stop: threading.Event) -> None:
+        real = seconds / self.time_scale if self.time_scale != math.inf else 0.0
+        if real > 0:
+            stop.wait(real)
+
+
+@dataclass
+class Bench:
+    """What a campaign runs on; :meth:`close` (or the context manager) closes everything the factory opened.
+
+    ``rig`` implements ``drivers.rig.rig.Rig``; ``cameras`` a stereo camera (``capture_pair()``,
+    ``flush()``); ``presenter`` a :class:`Presenter`; ``operators`` answer the operator steps.
+    """
+
+    kind: str  # "simulated", "bring-up", "hardware" or "replay"
+    rig: Any
+    cameras: Any
+    presenter: Presenter
+    operators: list[Operator]
+    clock: Clock
+    homes: bool = True  # run the homing cycle before the first move
+    _stack: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
+
+    def close(self) -> None:
+        self._stack.close()
+
+    def __enter__(self) -> Bench:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def open_bench(config: CampaignConfig, *, operators: Sequence[Operator], transcript: Path | None = None) -> Bench:
+    """The bench ``config`` asks for (simulated, bring-up or hardware), opened."""
+    if config.cameras.kind == "simulated":
+        return simulated_bench(config, operators=operators, transcript=transcript)
+    return hardware_bench(config, operators=operators, transcript=transcript)
+
+
+def _open_rig(stack: contextlib.ExitStack, rig):
+    """Open ``rig`` with its close on ``stack`` first: a failed open still closes what it opened (the spy log)."""
+    stack.callback(rig.close)
+    return rig.open()
+
+
+# -- simulated (and bring-up) ----------------------------------------------------------------------
+
+
+def pose_from_reading(reading) -> RigPose:
+    """The rig pose a ``RigReading`` reports (a quantity it cannot say, e.g. an unmapped tilt, is 0)."""
+    return RigPose(baseline_mm=float(reading.baseline_mm or 0.0),
+                   alpha_left_deg=alpha_from_toe_in(float(reading.toe_in_left_deg or 0.0)),
+                   alpha_right_deg=alpha_from_toe_in(float(reading.toe_in_right_deg or 0.0)),
+                   tilt_left_deg=float(reading.tilt_left_deg or 0.0),
+                   tilt_right_deg=float(reading.tilt_right_deg or 0.0))
+
+
+def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
+                    transcript: Path | None = None) -> Bench:
+    """Simulated cameras and scene; the rig is the emulator on a pty, or (bring-up) the real controller."""
+    from drivers.camera.stereo import StereoCamera
+    from drivers.rig.rig import GrblRig
+    from drivers.sim.bench import SimulatedBench
+    from drivers.sim.render import Optics
+
+    rig_config = config.rig.rig_config()
+    optics = config.cameras.optics
+    bring_up = config.rig.kind == "grbl"
+    stack = contextlib.ExitStack()
+    try:
+        rig_holder: list = []
+        sim = stack.enter_context(SimulatedBench(
+            rig_config=rig_config, left=optics.camera_model("left"), right=optics.camera_model("right"),
+            optics=Optics(noise_sigma_dn=optics.noise_dn, blur_sigma_px=optics.blur_px),
+            time_scale=1.0 if bring_up else config.rig.time_scale, exposure_s=optics.exposure_s,
+            homing_enabled=config.rig.homing, profile=config.sim.resolve(), seed=config.seed,
+            # Bring-up: render from where the real controller says the axes are, read at each grab.
+            pose_source=(lambda: pose_from_reading(rig_holder[0].read())) if bring_up else None,
+        ))
+        port = config.rig.port if bring_up else sim.tty_path
+        # The runner does the manual steps (no prompt here): it moves only what the controller drives.
+        rig = _open_rig(stack, GrblRig(port, rig_config, spy_log=transcript))
+        rig_holder.append(rig)
+        cameras = stack.enter_context(StereoCamera(*sim.cameras(), max_skew_s=config.cameras.max_skew_s))
+        presenter = SimulatedPresenter(sim, config.calibration_board.build(), config.target.build(), seed=config.seed)
+    except BaseException:
+        stack.close()
+        raise
+    return Bench(kind="bring-up" if bring_up else "simulated", rig=rig, cameras=cameras, presenter=presenter,
+                 operators=list(operators), clock=Clock(1.0 if bring_up else config.rig.time_scale),
+                 homes=config.rig.homing, _stack=stack)
+
+
+class SimulatedPresenter:
+    """Places boards in a :class:`drivers.sim.bench.SimulatedBench` scene."""
+
+    wants_detections = False
+
+    def __init__(self, bench, calibration_board: Target, target: Target, *, seed: int = 0,
+                 calibration_distance_mm: Callable[[float], tuple[float, float]] | None = None):
+        self.bench = bench
+        self.calibration_board = calibration_board
+        self.target = target
+        self.seed = seed
+        # Where an operator would hold the calibration board, around the target distance.
+        self.calibration_distance_mm = calibration_distance_mm or (lambda z: (max(250.0, 0.6 * z), 1.3 * z))
+        self._poses: list[np.ndarray] = []
+        self._configuration: Configuration | None = None
+        self._target_requests: Counter = Counter()
+        bench.warm_up(calibration_board, target)
+
+    def begin_configuration(self, configuration: Configuration) -> None:
+        self._configuration = configuration
+        self._target_requests = Counter()
+        self._poses = []
+
+    def prepare_calibration(self, n_views: int) -> None:
+        from drivers.sim.render import calibration_board_poses
+
+        configuration = self._configuration
+        assert configuration is not None, "begin_configuration() first"
+        near, far = self.calibration_distance_mm(configuration.distance_mm)
+        fits = configuration.calibration_range_mm
+        if fits:  # where the plan found the board fits both views
+            near, far = max(near, fits[0]), min(far, fits[1])
+            if near > far:
+                near, far = fits
+        rng = np.random.default_rng(scene_seed(self.seed, configuration.config_id, "calibration-poses", 0))
+        try:
+            # Usable views by the rule the plan predicted with (geometry.calibration_view_fits).
+            self._poses = calibration_board_poses(
+                configuration.rig_pose(), self.calibration_board, n_views=n_views, rng=rng, distance_mm=(near, far),
+                left=self.bench.left_model, right=self.bench.right_model,
+            )
+        except ValueError as error:
+            raise CalibrationPlacementError(f"calibration board cannot be shown to both cameras: {error}") from None
+        return None
+
+    def present_calibration_view(self, index: int) -> None:
+        assert self._configuration is not None
+        self.bench.show(self.calibration_board, self._poses[index],
+                        seed=scene_seed(self.seed, self._configuration.config_id, "calibration", index))
+
+    def calibration_view_captured(self, index: int, left: Detection | None, right: Detection | None) -> None:
+        return None
+
+    def present_target(self, frame_index: int) -> None:
+        configuration = self._configuration
+        assert configuration is not None, "begin_configuration() first"
+        # Asked again for the same frame (the target was not found): a fresh frame, not the same one.
+        retry = self._target_requests[frame_index]
+        self._target_requests[frame_index] += 1
+        kind = "target" if retry == 0 else f"target-retry{retry}"
+        # The simulated operator places the target (the bench draws a placement error per placement).
+        self.bench.place_target(self.target, distance_mm=configuration.distance_mm,
+                                seed=scene_seed(self.seed, configuration.config_id, kind, frame_index))
+
+
+# -- the real bench --------------------------------------------------------------------------------
+
+
+def hardware_bench(config: CampaignConfig, *, operators: Sequence[Operator], transcript: Path | None = None) -> Bench:
+    """The real controller on ``rig.port`` and two V4L2 cameras bound by identity."""
+    from drivers.camera.stereo import StereoCamera
+    from drivers.camera.usb_identity import resolve_camera
+    from drivers.camera.v4l2 import V4L2Camera
+    from drivers.rig.rig import GrblRig
+
+    optics = config.cameras.optics
+    stack = contextlib.ExitStack()
+    try:
+        rig = _open_rig(stack, GrblRig(config.rig.port, config.rig.rig_config(), spy_log=transcript))
+        settings = config.cameras.camera_settings()
+        left = V4L2Camera(resolve_camera(config.cameras.left).capture_node, settings, name="left")
+        right = V4L2Camera(resolve_camera(config.cameras.right).capture_node, settings, name="right")
+        cameras = stack.enter_context(StereoCamera(left, right, max_skew_s=config.cameras.max_skew_s))
+    except BaseException:
+        stack.close()
+        raise
+    presenter = OperatorPresenter(image_size=(optics.width_px, optics.height_px),
+                                  target_description=config.target.describe())
+    return Bench(kind="hardware", rig=rig, cameras=cameras, presenter=presenter, operators=list(operators),
+                 clock=Clock(1.0), homes=config.rig.homing, _stack=stack)
+
+
+# -- replay ----------------------------------------------------------------------------------------
+
+
+class ReplayPresenter:
+    """Queues the recorded pair the runner is about to capture."""
+
+    wants_detections = False
+
+    def __init__(self, cameras):
+        self.cameras = cameras
+        self.config_id = ""
+        self.retries: Counter = Counter()
+
+    def begin_configuration(self, configuration: Configuration) -> None:
+        self.config_id = configuration.config_id
+
+    def prepare_calibration(self, n_views: int) -> None:
+        return None
+
+    def present_calibration_view(self, index: int) -> None:
+        self.cameras.expect(f"{self.config_id}/calibration_view/{index}")
+
+    def calibration_view_captured(self, index, left, right) -> None:
+        return None
+
+    def present_target(self, frame_index: int) -> None:
+        # The runner asks again for a frame whose target was not found: serve the recorded retries in turn.
+        retry = self.retries[(self.config_id, frame_index)]
+        self.retries[(self.config_id, frame_index)] += 1
+        self.cameras.expect(f"{self.config_id}/measurement_frame/{frame_index}/{retry}")
+
+
+class ReplayOperator:
+    """Answers the operator steps of a replay at once: what the operator did is in the recorded frames."""
+
+    name = "replay"
+
+    def offer(self, ticket) -> None:
+        ticket.answer(self.name)
+
+    def withdraw(self, ticket) -> None:
+        return None
+
+
+def replay_bench(reader, config_ids: set[str]) -> Bench:
+    """The recorded rig telemetry and frames of ``config_ids`` (a ``SessionReader``'s session), opened."""
+    from drivers.replay import ReplayRig, ReplayStereoCamera
+
+    frames: dict[str, dict] = {}
+    readings = []
+    for event in reader.events():
+        config_id = event.get("config_id")
+        if config_id not in config_ids:
+            continue
+        data = event["data"]
+        if event["kind"] == "move":
+            readings.append(data["rig"])
+        elif event["kind"] == "calibration_view":
+            frames[f"{config_id}/calibration_view/{data['index']}"] = event
+        elif event["kind"] == "measurement_frame":
+            frames[f"{config_id}/measurement_frame/{data['index']}/{data.get('retry', 0)}"] = event
+
+    def load_pair(key: str):
+        event = frames.get(key)
+        if event is None:
+            raise KeyError(f"{reader.directory}: recording holds no {key}")
+        return reader.frame(event["frames"]["left"]), reader.frame(event["frames"]["right"]), event["data"]
+
+    stack = contextlib.ExitStack()
+    rig = stack.enter_context(ReplayRig(readings))
+    cameras = stack.enter_context(ReplayStereoCamera(load_pair))
+    return Bench(kind="replay", rig=rig, cameras=cameras, presenter=ReplayPresenter(cameras),
+                 operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack)
+
+
+__all__ = [
+    "Bench", "CalibrationPlacementError", "Clock", "Prompt", "ReplayOperator", "ReplayPresenter", "SimulatedPresenter",
+    "hardware_bench", "open_bench", "pose_from_reading", "replay_bench", "simulated_bench",
+]

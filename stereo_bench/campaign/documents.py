@@ -1,0 +1,586 @@
+"""The documents of a session: one versioned pydantic model per document and event kind.
+
+A campaign is a stream of documents (bluesky's event model): ``start`` (or ``resume``), then
+``event`` documents of known kinds and ``result`` documents, then ``stop``. Every document is
+validated against its model before it is written (:meth:`SessionWriter.record`) and parsed into its
+model when it is read (:func:`parse_document`), so the format is defined here and nowhere else;
+``stereo-bench session schema`` prints it as JSON Schema and docs/SESSION_FORMAT.md explains it.
+
+    draft = Draft(MoveEvent, config_id="B100_Z450_A90", data=RigData(rig=reading.to_dict()))
+    document = writer.record(draft)[0]        # stamped (seq, time, attempt), validated, written
+    parse_document(json.loads(line))           # -> MoveEvent (or StartDocument, ResultDocument, ...)
+
+The result row (:class:`ResultRow`) is defined once: the columns of ``results.csv`` and of the SQLite
+store (:data:`RESULT_COLUMNS`), the report's columns (:data:`REPORT_COLUMNS`) and what a replay
+compares (:data:`COMPARED_COLUMNS`) all derive from its fields. Adding a column is one line there.
+
+Versions: :data:`SCHEMA_VERSION` is written into ``start`` and ``resume``; a reader accepts every
+version in :data:`READABLE_SCHEMA_VERSIONS`. Version 2 only adds to version 1 (the ``prompt`` event,
+``start.bench``, ``resume.plan_drift``, ``stop.resume_command``, typed result columns that version 1
+kept as extra keys), so the same models read both. A later change that is not additive gets a new
+version number and an upgrade step in :func:`parse_document`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, TypeAdapter, ValidationError
+
+SCHEMA_VERSION = 2
+READABLE_SCHEMA_VERSIONS = (1, 2)
+EXIT_STATUSES = ("success", "aborted", "failed", "interrupted")
+ExitStatus = Literal["success", "aborted", "failed", "interrupted"]
+ResultStatus = Literal["measured", "failed", "infeasible", "limit"]
+BenchName = Literal["simulated", "hardware", "bring-up", "replay"]
+
+
+class DocumentError(ValueError):
+    """A document that does not follow its schema; one line naming the document and the field."""
+
+
+def json_safe(value: Any, where: str = "value") -> Any:
+    """``value`` as strict JSON data: NaN/inf → None, numpy scalars/arrays → Python, tuples → lists.
+
+    Dict keys must be strings (numpy strings and ints are converted); anything else that JSON cannot
+    hold raises ``TypeError`` naming where it was found (e.g. ``data.rig.pose``).
+    """
+    if value is None or isinstance(value, bool | str):
+        return value
+    if isinstance(value, int):
+        return int(value)
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, np.generic):
+        return json_safe(value.item(), where)
+    if isinstance(value, np.ndarray):
+        return json_safe(value.tolist(), where)
+    if isinstance(value, Path):
+        return value.as_posix()
+    if isinstance(value, BaseModel):
+        return json_safe(value.model_dump(mode="json", exclude_unset=True), where)
+    if isinstance(value, Mapping):
+        out = {}
+        for key, item in value.items():
+            if isinstance(key, np.generic):
+                key = key.item()
+            if isinstance(key, bool) or not isinstance(key, str | int):
+                raise TypeError(f"{where}: key {key!r} is not a string")
+            out[str(key)] = json_safe(item, f"{where}.{key}")
+        return out
+    if isinstance(value, list | tuple):
+        return [json_safe(item, f"{where}[{i}]") for i, item in enumerate(value)]
+    raise TypeError(f"{where}: {type(value).__name__} cannot be stored as JSON")
+
+
+_STRICT = ConfigDict(extra="forbid")
+# Records that a driver describes (rig readings, frame descriptions) may carry more than listed here.
+_OPEN = ConfigDict(extra="allow")
+
+
+# --------------------------------------------------------------------------------------------------
+# The result row
+
+
+def column(description: str, *, compared: bool = False, report: bool = True) -> Any:
+    """A scalar result column (CSV, SQLite). ``compared``: a replay must reproduce it to the last digit."""
+    return Field(None, description=description, json_schema_extra={"compared": compared, "report": report})
+
+
+def nested(description: str) -> Any:
+    """A result field holding a dict or list (e.g. an uncertainty budget): kept in SQLite's JSON ``extra`` column
+    and after the columns in the CSV, not a column of its own."""
+    return Field(None, description=description, json_schema_extra={"nested": True})
+
+
+class ResultRow(BaseModel):
+    """One configuration's result: the row of ``results.csv`` and of the ``results`` table.
+
+    Field order is column order. A known column that is missing or null is left out of the stored row
+    (the store gives it back absent); keys not listed here are kept (SQLite: in the ``extra`` JSON
+    column; CSV: after these columns, sorted).
+    """
+
+    model_config = ConfigDict(extra="allow")
+
+    config_id: str = Field(min_length=1, description="the configuration's id, e.g. B100_Z450_A90",
+                           json_schema_extra={"compared": False, "report": True})
+    baseline_mm: float | None = column("baseline B, mm")
+    distance_mm: float | None = column("target distance Z from the baseline, mm")
+    alpha_deg: float | None = column("angle between the baseline and each optical axis, deg (90 = parallel)")
+    status: ResultStatus | None = column("measured | failed | infeasible | limit (outside the rig's soft limits)",
+                                         compared=True)
+    square_mean_mm: float | None = column("mean measured square side over every frame, mm", compared=True)
+    square_std_mm: float | None = column("standard deviation of the individual square sides, mm", compared=True)
+    n_squares: int | None = column("square sides measured (adjacent corner pairs, all frames)", compared=True)
+    error_mm: float | None = column("square_mean_mm minus the nominal side, mm", compared=True)
+    sigma_mm: float | None = column("sigma of square_mean_mm propagated from the corner noise, mm", compared=True)
+    rms_px: float | None = column("stereo calibration RMS reprojection error, px", compared=True)
+    epipolar_rms_px: float | None = column("rectified epipolar error of the measured corners, px", compared=True)
+    toe_in_deg: float | None = column("toe-in of each camera, deg (90 - alpha)")
+    tilt_deg: float | None = column("tilt of both cameras, deg (> 0 looks down)")
+    fraction_in_both: float | None = column("predicted share of the target's corners in both views")
+    depth_mm: float | None = column("mean depth of the measured corners, mm")
+    reason: str | None = column("why the configuration failed or was not run")
+    attempt: int | None = column("the session attempt that recorded this row", report=False)
+    n_frames: int | None = column("measurement frames measured")
+    calib_views_used: int | None = column("calibration views the stereo calibration used")
+    calib_views_rejected: int | None = column("calibration views it rejected")
+    time: str | None = column("when the row was recorded (UTC, ISO-8601)", report=False)
+    frame_scatter_mm: float | None = column("standard deviation of the per-frame means, mm", report=False)
+    calibration_epipolar_rms_px: float | None = column("epipolar error of the calibration views, px", report=False)
+    fraction_in_both_measured: float | None = column("measured share of the target's corners in both views")
+    baseline_estimated_mm: float | None = column("|T| of the stereo calibration, mm", report=False)
+
+    def stored(self) -> dict[str, Any]:
+        """The row as recorded (stream, store): strict JSON values, null known columns left out."""
+        data = self.model_dump(mode="json")
+        declared = type(self).model_fields
+        return {key: value for key, value in data.items() if value is not None or key not in declared}
+
+
+def _flag(name: str, flag: str, model: type[BaseModel] = ResultRow) -> bool:
+    extra = model.model_fields[name].json_schema_extra
+    return bool(isinstance(extra, dict) and extra.get(flag))
+
+
+def columns_of(model: type[BaseModel]) -> tuple[str, ...]:
+    """The scalar columns of a result-row model, in field order (nested fields are not columns)."""
+    return tuple(name for name in model.model_fields if not _flag(name, "nested", model))
+
+
+#: Columns of ``results.csv`` and of the SQLite ``results`` table, in this order.
+RESULT_COLUMNS: tuple[str, ...] = columns_of(ResultRow)
+#: What a replay must reproduce to the last digit.
+COMPARED_COLUMNS: tuple[str, ...] = tuple(name for name in RESULT_COLUMNS if _flag(name, "compared"))
+#: What a report's ``tables/results.csv`` shows of each row (in this order).
+REPORT_COLUMNS: tuple[str, ...] = tuple(name for name in RESULT_COLUMNS if _flag(name, "report"))
+
+
+def result_row(row: ResultRow | Mapping[str, Any]) -> ResultRow:
+    """A row validated as a :class:`ResultRow` (NaN and numpy values made strict JSON first)."""
+    if isinstance(row, ResultRow):
+        return row
+    try:
+        return ResultRow.model_validate(json_safe(dict(row), "row"))
+    except ValidationError as error:
+        raise DocumentError(_one_line(error, f"result row {row.get('config_id')!r}")) from None
+
+
+# --------------------------------------------------------------------------------------------------
+# Records inside documents
+
+
+class RigReadingRecord(BaseModel):
+    """Where the rig was (``drivers.rig.rig.RigReading.to_dict()``): physical units, source per quantity."""
+
+    model_config = _OPEN
+
+    state: str
+    timestamp: float | None = None
+    baseline_mm: float | None = None
+    toe_in_left_deg: float | None = None
+    toe_in_right_deg: float | None = None
+    tilt_left_deg: float | None = None
+    tilt_right_deg: float | None = None
+    target_distance_mm: float | None = None
+    machine_position: dict[str, float] | None = None
+    sources: dict[str, str] = Field(default_factory=dict)
+    alpha_left_deg: float | None = None
+    alpha_right_deg: float | None = None
+
+
+class FrameRecord(BaseModel):
+    """One camera's frame as the camera describes it (``drivers.camera.base.Frame.describe()``), no pixels."""
+
+    model_config = _OPEN
+
+    source: str
+    sequence: int | None = None
+    timestamp_s: float | None = None
+    timestamp_source: str | None = None
+    shape: list[int]
+    dtype: str
+    settings: dict[str, Any] = Field(default_factory=dict)
+    meta: dict[str, Any] | None = None
+
+
+class RigData(BaseModel):
+    model_config = _STRICT
+    rig: RigReadingRecord
+
+
+class ActionData(BaseModel):
+    model_config = _STRICT
+    action: str
+
+
+class ErrorData(BaseModel):
+    model_config = _STRICT
+    error: str
+
+
+class CaptureData(BaseModel):
+    """One stereo capture: ``index`` within its step, grab skew ``dt_s`` and both frames' descriptions."""
+
+    model_config = _STRICT
+    index: int = Field(ge=0)
+    dt_s: float | None = None
+    left: FrameRecord
+    right: FrameRecord
+    retry: int | None = Field(None, ge=0, description="measurement frames: re-capture number (0 = first)")
+
+
+class TargetNotFoundData(BaseModel):
+    model_config = _STRICT
+    index: int = Field(ge=0)
+    retry: int = Field(ge=0)
+    missing: list[Literal["left", "right"]]
+    ambiguous: bool = False
+
+
+class CalibrationData(BaseModel):
+    """A stereo calibration written as OpenCV YAML (``files``: intrinsics, extrinsics)."""
+
+    model_config = _STRICT
+    board: str
+    mode: str
+    rms_px: float | None = None
+    baseline_mm: float | None = None
+    image_size: list[int]
+    views_used: list[int]
+    views_rejected: int
+    extra: dict[str, Any] = Field(default_factory=dict)
+
+
+class AnalysisData(BaseModel):
+    """Per-view and per-frame figures behind a result (``calibration``: RMS, per-view RMS, T; ``frames``)."""
+
+    model_config = _STRICT
+    calibration: dict[str, Any]
+    frames: list[dict[str, Any]]
+    frames_failed: list[dict[str, Any]] = Field(default_factory=list)
+
+
+class TranscriptData(BaseModel):
+    model_config = _STRICT
+    name: str
+
+
+PromptKind = Literal["target", "manual", "calibration_board", "calibration_view", "measured_target"]
+
+
+class PromptData(BaseModel):
+    """An operator step the runner asked for and who answered it (the first operator to answer wins)."""
+
+    model_config = _STRICT
+    prompt: PromptKind
+    message: str
+    quantity: str | None = Field(None, description="manual prompts: the quantity set by hand, e.g. target_distance_mm")
+    value: float | None = Field(None, description="the value asked for, in the quantity's units")
+    index: int | None = Field(None, description="calibration views and measured frames: which one")
+    answered_by: str = Field(description="the operator that answered: terminal, simulator, web, ...")
+    waited_s: float = Field(ge=0, description="seconds between the question and the answer")
+
+
+# --------------------------------------------------------------------------------------------------
+# Documents
+
+
+class Document(BaseModel):
+    """Every document's header: its type, order in the stream, wall and monotonic time, attempt."""
+
+    model_config = _STRICT
+
+    type: str
+    seq: int = Field(ge=0, description="position in the stream, from 0, never reused")
+    time: str = Field(description="UTC, ISO-8601 with microseconds and a Z")
+    monotonic: float = Field(description="time.monotonic() of the writing process, s")
+    attempt: int = Field(ge=0, description="1 for the first run, +1 per resume")
+
+
+class Host(BaseModel):
+    model_config = _OPEN
+    hostname: str
+    pid: int
+
+
+class StartDocument(Document):
+    type: Literal["start"] = "start"
+    schema_version: int
+    uid: str
+    config: dict[str, Any] = Field(description="the campaign config (CampaignConfig as JSON)")
+    plan: list[dict[str, Any]] = Field(description="the configurations in order (Configuration.as_dict())")
+    software: dict[str, Any] = Field(description="versions: stereo_bench, opencv, numpy, python")
+    host: Host
+    extra: dict[str, Any] = Field(default_factory=dict)
+    recovery: dict[str, Any] | None = None
+    bench: BenchName | None = Field(None, description="v2: what recorded it: simulated, hardware, bring-up, replay")
+
+
+class ResumeDocument(Document):
+    type: Literal["resume"] = "resume"
+    schema_version: int
+    uid: str
+    start_uid: str | None
+    previous_attempt: int
+    software: dict[str, Any] = Field(description="versions: stereo_bench, opencv, numpy, python")
+    host: Host
+    completed: list[str] = Field(description="configurations complete before this attempt")
+    recovery: dict[str, Any] = Field(default_factory=dict)
+    extra: dict[str, Any] = Field(default_factory=dict)
+    plan_drift: str | None = Field(None, description="v2: where today's planner differs from the recorded plan "
+                                                     "(the recorded plan is what runs)")
+
+
+class EventDocument(Document):
+    """An event: ``kind`` says what happened, ``data`` holds it, ``frames``/``files`` its side files."""
+
+    type: Literal["event"] = "event"
+    kind: str
+    config_id: str | None = None
+    data: dict[str, Any] = Field(default_factory=dict)
+    frames: dict[str, str] = Field(default_factory=dict, description="name -> PNG path relative to the session")
+    files: dict[str, str] = Field(default_factory=dict, description="name -> path relative to the session")
+
+
+class HomeEvent(EventDocument):
+    kind: Literal["home"] = "home"
+    data: RigData
+
+
+class MoveEvent(EventDocument):
+    kind: Literal["move"] = "move"
+    data: RigData
+
+
+class RigRecoveredEvent(EventDocument):
+    kind: Literal["rig_recovered"] = "rig_recovered"
+    data: ActionData
+
+
+class RigUnrecoverableEvent(EventDocument):
+    kind: Literal["rig_unrecoverable"] = "rig_unrecoverable"
+    data: ErrorData
+
+
+class CalibrationViewEvent(EventDocument):
+    kind: Literal["calibration_view"] = "calibration_view"
+    data: CaptureData
+
+
+class MeasurementFrameEvent(EventDocument):
+    kind: Literal["measurement_frame"] = "measurement_frame"
+    data: CaptureData
+
+
+class TargetNotFoundEvent(EventDocument):
+    kind: Literal["target_not_found"] = "target_not_found"
+    data: TargetNotFoundData
+
+
+class CalibrationEvent(EventDocument):
+    kind: Literal["calibration"] = "calibration"
+    data: CalibrationData
+
+
+class AnalysisEvent(EventDocument):
+    kind: Literal["analysis"] = "analysis"
+    data: AnalysisData
+
+
+class TranscriptEvent(EventDocument):
+    kind: Literal["transcript"] = "transcript"
+    data: TranscriptData
+
+
+class PromptEvent(EventDocument):
+    kind: Literal["prompt"] = "prompt"
+    data: PromptData
+
+
+class ResultDocument(Document):
+    type: Literal["result"] = "result"
+    config_id: str
+    row: ResultRow
+
+
+class StopDocument(Document):
+    type: Literal["stop"] = "stop"
+    exit_status: ExitStatus
+    reason: str | None = None
+    completed: int = Field(ge=0, description="configurations with a result, all attempts")
+    resume_command: str | None = Field(None, description="v2: the command that continues an interrupted session")
+
+
+#: The typed event kinds. A kind not listed is read (and may be written, e.g. by other tools) as a
+#: plain EventDocument; the runner writes only these. A new kind is a class above and a line here.
+EVENT_MODELS: dict[str, type[EventDocument]] = {
+    model.model_fields["kind"].default: model
+    for model in (HomeEvent, MoveEvent, RigRecoveredEvent, RigUnrecoverableEvent, CalibrationViewEvent,
+                  MeasurementFrameEvent, TargetNotFoundEvent, CalibrationEvent, AnalysisEvent, TranscriptEvent,
+                  PromptEvent)
+}
+DOCUMENT_MODELS: dict[str, type[Document]] = {
+    "start": StartDocument, "resume": ResumeDocument, "event": EventDocument, "result": ResultDocument,
+    "stop": StopDocument,
+}
+DOCUMENT_TYPES = tuple(DOCUMENT_MODELS)
+
+
+def _tag(value: Any) -> str:
+    get = value.get if isinstance(value, dict) else (lambda key, default=None: getattr(value, key, default))
+    kind = get("type")
+    if kind == "event":
+        return f"event:{get('kind')}" if get("kind") in EVENT_MODELS else "event"
+    return str(kind)
+
+
+AnyDocument = Annotated[
+    Annotated[StartDocument, Tag("start")] | Annotated[ResumeDocument, Tag("resume")]
+    | Annotated[ResultDocument, Tag("result")] | Annotated[StopDocument, Tag("stop")]
+    | Annotated[EventDocument, Tag("event")]
+    | Annotated[HomeEvent, Tag("event:home")] | Annotated[MoveEvent, Tag("event:move")]
+    | Annotated[RigRecoveredEvent, Tag("event:rig_recovered")]
+    | Annotated[RigUnrecoverableEvent, Tag("event:rig_unrecoverable")]
+    | Annotated[CalibrationViewEvent, Tag("event:calibration_view")]
+    | Annotated[MeasurementFrameEvent, Tag("event:measurement_frame")]
+    | Annotated[TargetNotFoundEvent, Tag("event:target_not_found")]
+    | Annotated[CalibrationEvent, Tag("event:calibration")] | Annotated[AnalysisEvent, Tag("event:analysis")]
+    | Annotated[TranscriptEvent, Tag("event:transcript")] | Annotated[PromptEvent, Tag("event:prompt")],
+    Discriminator(_tag),
+]
+_ADAPTER: TypeAdapter = TypeAdapter(AnyDocument)
+
+
+def _dotted(loc: tuple) -> str:
+    parts = [str(part) for part in loc if not (isinstance(part, str) and (part.startswith("event:") or
+                                                                          part in DOCUMENT_MODELS))]
+    return ".".join(parts) or "(document)"
+
+
+def _one_line(error: ValidationError, what: str) -> str:
+    first = error.errors()[0]
+    message = first.get("msg", "invalid").removeprefix("Value error, ")
+    more = f" (and {error.error_count() - 1} more)" if error.error_count() > 1 else ""
+    return f"{what}: {_dotted(tuple(first.get('loc', ())))}: {message}{more}"
+
+
+def describe(doc: Mapping[str, Any]) -> str:
+    """E.g. 'event document (kind move)' for messages."""
+    kind = doc.get("kind")
+    return f"{doc.get('type')} document" + (f" (kind {kind})" if doc.get("type") == "event" and kind else "")
+
+
+def parse_document(doc: Mapping[str, Any]) -> Document:
+    """The typed document of a parsed JSON line; raises :class:`DocumentError` naming the field.
+
+    Accepts every schema version in :data:`READABLE_SCHEMA_VERSIONS` (versions 1 and 2 share these models).
+    """
+    if doc.get("type") not in DOCUMENT_MODELS:
+        raise DocumentError(f"unknown document type {doc.get('type')!r}; known: {', '.join(DOCUMENT_TYPES)}")
+    try:
+        return _ADAPTER.validate_python(dict(doc))
+    except ValidationError as error:
+        raise DocumentError(_one_line(error, describe(doc))) from None
+
+
+def document_json(document: Document) -> dict[str, Any]:
+    """The document as its JSON line holds it (fields that were never given are left out)."""
+    data = document.model_dump(mode="json", exclude_unset=True)
+    if isinstance(document, ResultDocument):
+        data["row"] = document.row.stored()
+    return data
+
+
+def document_json_schema() -> dict[str, Any]:
+    """JSON Schema (draft 2020-12) of one line of ``documents.jsonl``."""
+    schema = _ADAPTER.json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = f"stereo-bench session document (schema version {SCHEMA_VERSION})"
+    schema["description"] = ("One line of a session's documents.jsonl. Event documents of a kind not listed "
+                             "here validate as the generic event.")
+    return schema
+
+
+# --------------------------------------------------------------------------------------------------
+# Drafts: what the runner publishes, before a recorder stamps and writes it
+
+
+@dataclass(frozen=True)
+class CalibrationFiles:
+    """The calibration a CalibrationEvent writes as OpenCV YAML (``StereoCalibration``, ``Rectification``)."""
+
+    calib: Any
+    rect: Any
+    board: str
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def data(self) -> dict[str, Any]:
+        """The CalibrationEvent's ``data`` (:class:`CalibrationData`)."""
+        calib = self.calib
+        return {"board": self.board, "mode": calib.mode, "rms_px": calib.rms_px, "baseline_mm": calib.baseline_mm,
+                "image_size": list(calib.image_size), "views_used": list(calib.views_used),
+                "views_rejected": len(calib.views_rejected), "extra": self.extra}
+
+
+class Draft:
+    """A document before it is recorded: its model and its fields (no header), and what it brings along.
+
+    ``frames``: name -> image array, written as PNG side files; ``files``: name -> bytes;
+    ``calibration``: for a :class:`CalibrationEvent`, the calibration to write as YAML.
+    """
+
+    __slots__ = ("calibration", "fields", "files", "frames", "model")
+
+    def __init__(self, model: type[Document], *, frames: Mapping[str, np.ndarray] | None = None,
+                 files: Mapping[str, bytes] | None = None, calibration: CalibrationFiles | None = None,
+                 **fields: Any):
+        self.model = model
+        kind = model.model_fields["kind"].default if "kind" in model.model_fields else None
+        if isinstance(kind, str):  # a typed event: its kind is written, not left to the default
+            fields = {"kind": kind, **fields}
+        self.fields = fields
+        self.frames = frames
+        self.files = files
+        self.calibration = calibration
+
+    def __repr__(self) -> str:
+        return f"Draft({self.model.__name__}, {self.fields!r})"
+
+    @property
+    def type(self) -> str:
+        return self.model.model_fields["type"].default
+
+    def build(self, header: Mapping[str, Any], **more: Any) -> Document:
+        """The complete document: header + fields + ``more``, validated (raises DocumentError)."""
+        try:
+            data = json_safe({**self.fields, **more}, self.type)
+        except TypeError as error:
+            raise DocumentError(f"cannot record {error}") from None
+        try:
+            return self.model.model_validate({**header, **data})
+        except ValidationError as error:
+            raise DocumentError(_one_line(error, describe({"type": self.type, **data}))) from None
+
+
+def event_draft(kind: str, *, config_id: str | None = None, data: Any = None, **bring: Any) -> Draft:
+    """A draft of an event of ``kind``: its typed model when the kind is known, else a plain event."""
+    return Draft(EVENT_MODELS.get(kind, EventDocument), kind=kind, config_id=config_id,
+                 data={} if data is None else data, **bring)
+
+
+__all__ = [
+    "COMPARED_COLUMNS", "DOCUMENT_MODELS", "DOCUMENT_TYPES", "EVENT_MODELS", "EXIT_STATUSES",
+    "READABLE_SCHEMA_VERSIONS", "REPORT_COLUMNS", "RESULT_COLUMNS", "SCHEMA_VERSION", "AnalysisEvent",
+    "CalibrationEvent", "CalibrationFiles", "CalibrationViewEvent", "Document", "DocumentError", "Draft",
+    "EventDocument", "HomeEvent", "MeasurementFrameEvent", "MoveEvent", "PromptEvent", "ResultDocument", "ResultRow",
+    "ResumeDocument", "StartDocument", "StopDocument", "TargetNotFoundEvent", "TranscriptEvent", "document_json",
+    "columns_of", "column", "document_json_schema", "event_draft", "json_safe", "nested", "parse_document",
+    "result_row",
+]

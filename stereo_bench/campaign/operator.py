@@ -1,0 +1,214 @@
+"""Operators: who does the manual steps of a campaign, and how several of them race for one prompt.
+
+The runner executes every operator step itself (move the target, present the calibration board,
+put the measured target back) by asking an :class:`OperatorDesk`; the desk offers the
+:class:`Prompt` to every :class:`Operator` at once, the first answer wins and the others are told
+to withdraw it. Today's operators are the terminal (Enter on stdin) and the simulator (``--yes``:
+the simulated scene is set by the presenter, so there is nothing to do); a live web page is a
+second operator next to the terminal::
+
+    desk = OperatorDesk([TerminalOperator(), web_page])
+    answer = desk.ask(Prompt("target", "move the target to Z = 400 mm, then press Enter"), stop=stop_event)
+    answer.operator, answer.waited_s      # who answered, after how long (recorded as a 'prompt' event)
+
+An operator's :meth:`Operator.offer` must not block: it shows the prompt and later calls
+``ticket.answer(name)`` (or ``ticket.give_up(name, why)`` when it cannot answer, e.g. stdin closed).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import IO, Protocol, runtime_checkable
+
+from stereo_bench.campaign.documents import PromptKind
+
+
+class OperatorAbsent(RuntimeError):
+    """A manual step needs an operator but none can answer (e.g. no terminal)."""
+
+
+class StopRequested(Exception):
+    """Raised inside the runner when the operator asked it to stop."""
+
+
+@dataclass(frozen=True)
+class Prompt:
+    """One operator step: what to do (``message``), and for a manual quantity which one and its value."""
+
+    kind: PromptKind
+    message: str
+    config_id: str | None = None
+    quantity: str | None = None
+    value: float | None = None
+    index: int | None = None
+
+
+class Ticket:
+    """One prompt offered to several operators: the first :meth:`answer` wins, later ones return False."""
+
+    def __init__(self, prompt: Prompt, n_operators: int):
+        self.prompt = prompt
+        self.asked_at = time.monotonic()
+        self.answered_by: str | None = None
+        self.answered_at: float | None = None
+        self.gave_up: dict[str, str] = {}
+        self._n_operators = n_operators
+        self._lock = threading.Lock()
+        self._done = threading.Event()
+
+    def answer(self, operator: str) -> bool:
+        """``operator`` has done the step; True if it was the first to answer."""
+        with self._lock:
+            if self._done.is_set():
+                return False
+            self.answered_by, self.answered_at = operator, time.monotonic()
+            self._done.set()
+            return True
+
+    def give_up(self, operator: str, reason: str) -> None:
+        """``operator`` cannot answer (e.g. its input closed); when every operator has given up, nobody can."""
+        with self._lock:
+            self.gave_up[operator] = reason
+            if len(self.gave_up) >= self._n_operators:
+                self._done.set()
+
+    @property
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    def wait(self, timeout: float) -> bool:
+        return self._done.wait(timeout)
+
+
+@runtime_checkable
+class Operator(Protocol):
+    """Somebody (or something) that can do a campaign's manual steps."""
+
+    name: str
+
+    def offer(self, ticket: Ticket) -> None:
+        """Show ``ticket.prompt`` and return at once; call ``ticket.answer(self.name)`` when it is done."""
+
+    def withdraw(self, ticket: Ticket) -> None:
+        """The prompt was answered by another operator, or the run stopped: stop showing it."""
+
+
+@dataclass(frozen=True)
+class Answer:
+    operator: str
+    waited_s: float
+
+
+class OperatorDesk:
+    """Asks every operator at once; the first to answer wins (see the module docstring)."""
+
+    def __init__(self, operators: Sequence[Operator]):
+        self.operators = list(operators)
+
+    def ask(self, prompt: Prompt, *, stop: threading.Event, poll_s: float = 0.05) -> Answer:
+        """Block until an operator answers ``prompt``.
+
+        Raises StopRequested when ``stop`` is set first, OperatorAbsent when no operator can answer.
+        """
+        if not self.operators:
+            raise OperatorAbsent(f"the campaign needs an operator here ({prompt.message!r}) but none is connected")
+        ticket = Ticket(prompt, len(self.operators))
+        try:
+            for operator in self.operators:
+                operator.offer(ticket)
+                if ticket.done:
+                    break
+            while not ticket.wait(poll_s):
+                if stop.is_set():
+                    raise StopRequested()
+        finally:
+            for operator in self.operators:
+                if operator.name != ticket.answered_by:
+                    operator.withdraw(ticket)
+        if ticket.answered_by is None:
+            reasons = "; ".join(f"{name}: {why}" for name, why in ticket.gave_up.items())
+            raise OperatorAbsent(f"the campaign needs the operator here ({prompt.message!r}) but nobody can "
+                                 f"answer ({reasons})")
+        assert ticket.answered_at is not None
+        return Answer(operator=ticket.answered_by, waited_s=ticket.answered_at - ticket.asked_at)
+
+
+class SimulatedOperator:
+    """Answers every prompt at once: on the simulated bench the presenter sets the scene (``--yes``)."""
+
+    def __init__(self, name: str = "simulator"):
+        self.name = name
+        self.prompts: list[Prompt] = []
+
+    def offer(self, ticket: Ticket) -> None:
+        self.prompts.append(ticket.prompt)
+        ticket.answer(self.name)
+
+    def withdraw(self, ticket: Ticket) -> None:
+        return None
+
+
+class TerminalOperator:
+    """The operator at the terminal: the prompt is printed, Enter on standard input answers it.
+
+    One reader thread owns standard input for the whole run, so a prompt answered elsewhere (a live
+    page) leaves no blocked ``input()`` behind; a line typed while no prompt is shown is ignored.
+    End of input means nobody is at the terminal: the prompt is given up with advice.
+    """
+
+    name = "terminal"
+
+    def __init__(self, stream_in: IO[str] | None = None, stream_out: IO[str] | None = None, *,
+                 absent_advice: str = "run it in a terminal, or pass --yes on the simulated bench"):
+        self._in = stream_in
+        self._out = stream_out
+        self.absent_advice = absent_advice
+        self._lock = threading.Lock()
+        self._ticket: Ticket | None = None
+        self._closed = False
+        self._reader: threading.Thread | None = None
+
+    def offer(self, ticket: Ticket) -> None:
+        with self._lock:
+            if self._closed:
+                ticket.give_up(self.name, f"standard input is closed: {self.absent_advice}")
+                return
+            self._ticket = ticket
+            if self._reader is None:
+                self._reader = threading.Thread(target=self._read, name="terminal-operator", daemon=True)
+                self._reader.start()
+        out = self._out or sys.stderr
+        out.write(f"\n>>> {ticket.prompt.message} ")
+        out.flush()
+
+    def withdraw(self, ticket: Ticket) -> None:
+        with self._lock:
+            if self._ticket is ticket:
+                self._ticket = None
+                if ticket.answered_by is not None:
+                    (self._out or sys.stderr).write(f"(done: answered by {ticket.answered_by})\n")
+
+    def _read(self) -> None:
+        stream = self._in or sys.stdin
+        while True:
+            try:
+                line = stream.readline()
+            except (OSError, ValueError):
+                line = ""
+            with self._lock:
+                ticket = self._ticket
+                if line == "":
+                    self._closed = True
+                    self._ticket = None
+            if line == "":
+                if ticket is not None:
+                    ticket.give_up(self.name, f"standard input is closed: {self.absent_advice}")
+                return
+            if ticket is not None and ticket.answer(self.name):
+                with self._lock:
+                    if self._ticket is ticket:
+                        self._ticket = None

@@ -1,0 +1,134 @@
+"""The document bus: the runner publishes drafts, a recorder stamps and writes them, subscribers watch.
+
+    bus = DocumentBus(SessionWriter(out).open())        # or DocumentBus(MemoryRecorder()) for a dry replay
+    bus.subscribe(progress)                             # progress display, --json lines, a test collector,
+    bus.subscribe(JsonLines(sys.stdout))                # a live page: all of them see every document
+    bus.publish(Draft(MoveEvent, config_id=..., data=...))
+
+The recorder (:class:`~stereo_bench.campaign.session.SessionWriter` or :class:`MemoryRecorder`) gives
+each document its header (seq, time, attempt) and its side files; subscribers then get the typed
+document as recorded, in stream order, on the thread that published it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import IO, Protocol
+
+from stereo_bench.campaign.documents import (
+    CalibrationEvent,
+    Document,
+    Draft,
+    EventDocument,
+    ResultDocument,
+    StartDocument,
+    StopDocument,
+    result_row,
+)
+from stereo_bench.campaign.session import encode_document, utc_now
+
+Subscriber = Callable[[Document], None]
+
+
+class Recorder(Protocol):
+    """Turns drafts into documents: :class:`SessionWriter` (a session directory) or :class:`MemoryRecorder`."""
+
+    attempt: int
+
+    def record(self, draft: Draft) -> list[Document]: ...
+
+
+class MemoryRecorder:
+    """Records nothing to disk: stamps documents and keeps the result rows (a replay without ``--out``)."""
+
+    def __init__(self, attempt: int = 1):
+        self.attempt = attempt
+        self.rows: dict[str, dict] = {}
+        self._seq = 0
+        self._lock = threading.Lock()
+
+    def record(self, draft: Draft) -> list[Document]:
+        with self._lock:
+            header = {"type": draft.type, "seq": self._seq, "time": utc_now(), "monotonic": time.monotonic(),
+                      "attempt": self.attempt}
+            self._seq += 1
+        if draft.model is StartDocument:
+            document = draft.build(header, schema_version=0, uid="memory", host={"hostname": "memory", "pid": 0})
+        elif draft.model is ResultDocument:
+            row = {"attempt": self.attempt, **result_row(draft.fields["row"]).stored()}
+            row.setdefault("time", header["time"])
+            document = draft.build(header, row=row)
+            self.rows[document.config_id] = document.row.stored()
+        elif draft.model is StopDocument:
+            document = draft.build(header, completed=len(self.rows))
+        elif draft.model is CalibrationEvent:
+            document = draft.build(header, data=draft.calibration.data())  # no files: nothing is written
+        elif issubclass(draft.model, EventDocument):
+            document = draft.build(header)  # frames and files are not kept
+        else:
+            raise TypeError(f"cannot record a {draft.model.__name__}")
+        return [document]
+
+
+class DocumentBus:
+    """Publishes drafts through one recorder to every subscriber (see the module docstring)."""
+
+    def __init__(self, recorder: Recorder):
+        self.recorder = recorder
+        self._subscribers: list[Subscriber] = []
+        self._lock = threading.Lock()
+
+    @property
+    def attempt(self) -> int:
+        return self.recorder.attempt
+
+    def subscribe(self, subscriber: Subscriber) -> Callable[[], None]:
+        """Call ``subscriber(document)`` for every document from now on; returns the unsubscribe function."""
+        with self._lock:
+            self._subscribers.append(subscriber)
+        return lambda: self._unsubscribe(subscriber)
+
+    def _unsubscribe(self, subscriber: Subscriber) -> None:
+        with self._lock:
+            if subscriber in self._subscribers:
+                self._subscribers.remove(subscriber)
+
+    def publish(self, draft: Draft) -> list[Document]:
+        """Record ``draft`` and hand every document written to the subscribers, in order."""
+        documents = self.recorder.record(draft)
+        with self._lock:
+            subscribers = list(self._subscribers)
+        for document in documents:
+            for subscriber in subscribers:
+                subscriber(document)
+        return documents
+
+
+class JsonLines:
+    """A subscriber that writes each document as one JSON line (``campaign run --json``)."""
+
+    def __init__(self, stream: IO[str]):
+        self.stream = stream
+
+    def __call__(self, document: Document) -> None:
+        self.stream.write(encode_document(document).decode("utf-8"))
+        self.stream.flush()
+
+
+class Collector:
+    """A subscriber that keeps every document (tests, summaries)."""
+
+    def __init__(self):
+        self.documents: list[Document] = []
+
+    def __call__(self, document: Document) -> None:
+        self.documents.append(document)
+
+    def of(self, model: type[Document]) -> list:
+        return [doc for doc in self.documents if isinstance(doc, model)]
+
+    @property
+    def rows(self) -> list[dict]:
+        return [doc.row.stored() for doc in self.of(ResultDocument)]

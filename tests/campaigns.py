@@ -1,0 +1,73 @@
+"""Small campaigns the campaign tests share (simulated rig, half-resolution cameras: seconds, not minutes)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import tomllib
+from pathlib import Path
+
+from stereo_bench.campaign.config import CampaignConfig, campaign_from_dict
+
+SAMPLE_SESSION = Path(__file__).resolve().parents[1] / "calib_data" / "sample_session"
+
+# Two baselines x two angles at one distance: alpha = 90 measured, alpha = 35 infeasible.
+SMALL = """
+name = "small"
+seed = 7
+[rig]
+time_scale = 50
+[cameras.optics]
+width_px = 960
+height_px = 540
+pixel_um = 6.0
+[calibration_board]
+cols = 9
+rows = 6
+square_mm = 25
+[capture]
+calibration_views = 6
+frames_per_config = 2
+settle_s = 0.1
+[sim]
+profile = "ideal"  # exact reproducibility (resume, replay) needs frames that do not ring after a move
+[plan]
+baseline_mm = [100, 150]
+distance_mm = [450]
+alpha_deg = [90, 35]
+"""
+
+
+def small_config(**sections) -> CampaignConfig:
+    data = tomllib.loads(SMALL)
+    for name, values in sections.items():
+        data[name] = {**data.get(name, {}), **values} if isinstance(values, dict) else values
+    return campaign_from_dict(data)
+
+
+def results_csv(session: Path) -> list[dict]:
+    with open(session / "results.csv", newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def numbers(session: Path) -> dict[str, tuple]:
+    """What must be identical between two recordings of the same campaign, per configuration."""
+    return {row["config_id"]: (row["status"], row["square_mean_mm"], row["square_std_mm"], row["sigma_mm"],
+                               row["rms_px"]) for row in results_csv(session)}
+
+
+def motion_commands(path: Path) -> list[str]:
+    """The lines of a session's serial transcript that move the rig (homing, G0/G1): queries such as
+    ``$I``/``$$``/``$N`` at connect move nothing."""
+    return [line for line in transcript_commands(path)
+            if line.startswith("$H") or any(word in line.split() for word in ("G0", "G1"))]
+
+
+def transcript_commands(path: Path) -> list[str]:
+    """The lines a session's serial transcript sent to the controller (real-time bytes left out)."""
+    sent = []
+    for line in path.read_text().splitlines():
+        record = json.loads(line)
+        if record.get("dir") == "tx" and record["data"].endswith("\n"):
+            sent.append(record["data"].strip())
+    return sent

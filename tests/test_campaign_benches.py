@@ -1,0 +1,222 @@
+"""The benches a campaign runs on, the operators who do its manual steps, and what stopping does.
+
+Bring-up (a real GRBL controller, simulated cameras), fixed extrinsics on every bench, prompts as
+recorded steps where the first operator to answer wins, a stop that cuts a settle short, and no
+motion when nothing is left to run.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import shutil
+import threading
+import time
+from dataclasses import replace
+
+import pytest
+
+from drivers.sim.grbl_emulator import DEFAULT_AXES, GrblEmulator
+from stereo_bench.campaign.config import load_campaign
+from stereo_bench.campaign.documents import MoveEvent
+from stereo_bench.campaign.execute import RunControl, replay_session, run_campaign
+from stereo_bench.campaign.operator import (
+    OperatorAbsent,
+    OperatorDesk,
+    Prompt,
+    SimulatedOperator,
+    StopRequested,
+    TerminalOperator,
+)
+from stereo_bench.campaign.session import SessionReader
+from stereo_bench.cli import main
+from tests.campaigns import SAMPLE_SESSION, SMALL, motion_commands, small_config, transcript_commands
+
+HALF_RES = {"optics": {"width_px": 960, "height_px": 540, "pixel_um": 6.0}}
+
+
+# -- bring-up: the real controller moves, simulated cameras render from what it reports ----------------------------
+
+
+def test_bring_up_mode_renders_from_the_positions_the_controller_reports(tmp_path, capsys):
+    """``campaign run`` end to end with [rig] kind = "grbl" and simulated cameras. A GRBL controller on a
+    pty stands in for the real one, in Grbl's negative machine space (X = B - 350); its X axis moves in 4 mm
+    steps, so for B = 100 mm (X = -250) it lands and reports X = -252, B = 98 mm: the cameras must see 98."""
+    coarse_x = {"X": replace(DEFAULT_AXES["X"], steps_per_unit=0.25)}
+    plan = tmp_path / "bring-up.toml"
+    out = tmp_path / "bring-up"
+    with GrblEmulator(axes="XYZ", axis_specs=coarse_x, time_scale=20.0) as controller:
+        rig = (f'[rig]\nkind = "grbl"\nport = "{controller.tty_path}"\n'
+               '[rig.quantities.baseline_mm]\naxis = "X"\noffset = -350\nmin = 0\nmax = 350\ntolerance = 3.0\n')
+        text = SMALL.replace("[rig]\ntime_scale = 50\n", rig)
+        plan.write_text(text.replace("alpha_deg = [90, 35]", "alpha_deg = [90]"))
+        assert load_campaign(plan).bench_kind == "bring-up"
+        assert main(["campaign", "run", str(plan), "--out", str(out), "--yes", "--quiet"]) == 0
+        assert controller.machine_position()["X"] == -200.0  # B = 150 mm: a whole number of steps
+    assert "campaign success" in capsys.readouterr().out
+    reader = SessionReader(out)
+    assert reader.start()["bench"] == "bring-up"
+    reported = {e["config_id"]: e["data"]["rig"]["baseline_mm"] for e in reader.events(kind="move")}
+    assert reported == {"B100_Z450_A90": 98.0, "B150_Z450_A90": 150.0}
+    rows = {row["config_id"]: row for row in reader.results()}
+    for config_id, baseline in reported.items():
+        # The stereo calibration finds the baseline the cameras were rendered at: the reported one.
+        assert rows[config_id]["status"] == "measured" and abs(rows[config_id]["error_mm"]) < 0.05
+        assert rows[config_id]["baseline_estimated_mm"] == pytest.approx(baseline, abs=0.2)
+    sent = transcript_commands(next((out / "transcripts").glob("serial-*.jsonl")))
+    assert sent.index("$H") < min(i for i, line in enumerate(sent) if "G0" in line)  # homed, then moved
+
+
+def test_bring_up_without_the_controller_is_one_line_and_a_failed_session(tmp_path, capsys):
+    plan = tmp_path / "bring-up.toml"
+    plan.write_text(SMALL.replace("[rig]\ntime_scale = 50\n", f'[rig]\nkind = "grbl"\nport = "{tmp_path}/no-tty"\n'))
+    assert main(["campaign", "run", str(plan), "--out", str(tmp_path / "s"), "--yes", "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no-tty" in err[0] and "stopped as failed" in err[0]
+    assert SessionReader(tmp_path / "s").stops()[-1]["exit_status"] == "failed"
+
+
+# -- fixed extrinsics work on every bench ------------------------------------------------------------------------
+
+
+def test_fixed_extrinsics_measure_on_the_simulated_rig_and_replay_from_inside_the_session(tmp_path):
+    """The sample session's calibration at B = 100 mm, alpha = 90 deg, used as fixed extrinsics."""
+    calib_dir = tmp_path / "calib"
+    shutil.copytree(SAMPLE_SESSION / "calib" / "B100_Z450_A90" / "a1", calib_dir)
+    config = small_config(extrinsics={"mode": "fixed", "calib_dir": str(calib_dir)},
+                          plan={"baseline_mm": [100], "distance_mm": [400, 500], "alpha_deg": [90]})
+    out = tmp_path / "fixed"
+    summary = run_campaign(config, out, yes=True)
+    assert summary.counts() == {"measured": 2}
+    for row in summary.rows:  # the target was placed at each distance (it used to stay at 0: blank frames)
+        assert abs(row["error_mm"]) < 0.05 and row["depth_mm"] == pytest.approx(row["distance_mm"], abs=5.0)
+    reader = SessionReader(out)
+    assert not reader.events(kind="calibration_view")
+    (used,) = reader.events(kind="calibration", config_id=None)
+    assert used["data"]["board"] == f"fixed: {calib_dir}"
+    shutil.rmtree(calib_dir)  # the replay reads the calibration the session recorded, nothing outside it
+    replayed = replay_session(out)
+    assert replayed.identical == replayed.compared == 2
+
+
+# -- operators ---------------------------------------------------------------------------------------------------
+
+
+class _Web:
+    """A second operator (as a live page would be) that answers after ``delay_s`` unless withdrawn."""
+
+    name = "web"
+
+    def __init__(self, delay_s: float | None):
+        self.delay_s = delay_s
+        self.withdrawn = []
+
+    def offer(self, ticket) -> None:
+        if self.delay_s is not None:
+            threading.Timer(self.delay_s, ticket.answer, args=(self.name,)).start()
+
+    def withdraw(self, ticket) -> None:
+        self.withdrawn.append(ticket.prompt)
+
+
+def test_the_first_operator_to_answer_wins_and_the_other_withdraws():
+    read_end, write_end = os.pipe()
+    with open(read_end, encoding="utf-8") as stdin, open(write_end, "w", encoding="utf-8") as keyboard:
+        terminal = TerminalOperator(stdin, io.StringIO())
+        web = _Web(delay_s=0.05)
+        desk = OperatorDesk([terminal, web])
+        stop = threading.Event()
+        answer = desk.ask(Prompt("target", "move the target to Z = 400 mm"), stop=stop)
+        assert answer.operator == "web" and answer.waited_s >= 0.05
+        web.delay_s = None  # the page is closed: the terminal answers the next prompt
+        threading.Timer(0.05, lambda: (keyboard.write("\n"), keyboard.flush())).start()
+        second = Prompt("target", "move the target to Z = 500 mm")
+        assert desk.ask(second, stop=stop).operator == "terminal"
+        assert web.withdrawn[-1] == second
+        threading.Timer(0.05, stop.set).start()
+        with pytest.raises(StopRequested):  # a stop request cuts a prompt short
+            desk.ask(Prompt("target", "move the target to Z = 600 mm"), stop=stop)
+        keyboard.close()
+        with pytest.raises(OperatorAbsent, match="terminal: standard input is closed"):
+            OperatorDesk([terminal]).ask(Prompt("target", "anyone?"), stop=threading.Event())
+
+
+def test_manual_steps_are_prompts_the_runner_records_and_the_rig_never_prompts(tmp_path):
+    """The target distance and a hand-set tilt: the runner asks (recorded), the rig only moves its motors."""
+    simulator = SimulatedOperator()
+    config = small_config(rig={"quantities": {"tilt_left_deg": {"axis": "manual"},
+                                              "tilt_right_deg": {"axis": "manual"}}},
+                          plan={"baseline_mm": [100], "distance_mm": [450, 500], "alpha_deg": [90]},
+                          capture={"calibration_views": 6, "frames_per_config": 1, "settle_s": 0.1})
+    summary = run_campaign(config, tmp_path / "manual", operators=[simulator])
+    assert summary.counts() == {"measured": 2}
+    prompts = [e["data"] for e in SessionReader(tmp_path / "manual").events(kind="prompt")]
+    assert [(p["quantity"], p["value"]) for p in prompts] == [
+        ("tilt_left_deg", 0.0), ("tilt_right_deg", 0.0), ("target_distance_mm", 450.0),
+        ("target_distance_mm", 500.0)]
+    assert {p["answered_by"] for p in prompts} == {"simulator"} and len(simulator.prompts) == 4
+    moves = SessionReader(tmp_path / "manual").events(kind="move")
+    assert all(m["data"]["rig"]["sources"]["target_distance_mm"] == "unknown (manual)" for m in moves)
+
+
+# -- stopping ------------------------------------------------------------------------------------------------------
+
+
+def test_a_stop_request_cuts_a_settle_short(tmp_path):
+    config = small_config(capture={"settle_s": 3000.0})  # 60 s at time_scale 50
+    control = RunControl()
+
+    def stop_soon_after_the_first_move(document):
+        if isinstance(document, MoveEvent):
+            threading.Timer(0.2, control.request_stop).start()
+
+    summary = run_campaign(config, tmp_path / "settle", yes=True, control=control,
+                           subscribers=[stop_soon_after_the_first_move])
+    assert summary.exit_status == "interrupted"
+    reader = SessionReader(tmp_path / "settle")
+    (move,) = reader.events(kind="move")
+    waited = reader.stops()[-1]["monotonic"] - move["monotonic"]
+    assert waited < 30.0  # the settle alone would have taken 60 s
+    assert not reader.events(kind="calibration_view")
+
+
+def test_nothing_moves_when_nothing_is_left_to_run(tmp_path, small_copy):
+    # Resuming a finished session: no homing, no motion.
+    summary = run_campaign(small_config(), small_copy, resume=True, yes=True)
+    assert summary.exit_status == "success" and summary.skipped == 4 and summary.rows == []
+    reader = SessionReader(small_copy)
+    assert not [e for e in reader.events(attempt=2) if e["kind"] in ("home", "move")]
+    assert motion_commands(small_copy / "transcripts" / "serial-a2.jsonl") == []
+    # A campaign whose every configuration is infeasible: recorded with the reasons, and nothing moves.
+    out = tmp_path / "infeasible"
+    summary = run_campaign(small_config(plan={"baseline_mm": [100], "distance_mm": [450], "alpha_deg": [35]}), out,
+                           yes=True)
+    assert summary.counts() == {"infeasible": 1}
+    assert motion_commands(out / "transcripts" / "serial-a1.jsonl") == []
+    assert not SessionReader(out).events(kind="home")
+
+
+def test_pause_holds_the_run_at_a_step_boundary_until_resumed(tmp_path):
+    config = small_config(plan={"baseline_mm": [100], "distance_mm": [450], "alpha_deg": [90]})
+    control = RunControl()
+    paused_at: list[float] = []
+
+    def pause_after_the_move(document):
+        if isinstance(document, MoveEvent):
+            control.request_pause()
+            paused_at.append(time.monotonic())
+            threading.Timer(0.5, control.request_resume).start()
+
+    summary = run_campaign(config, tmp_path / "paused", yes=True, control=control, subscribers=[pause_after_the_move])
+    assert summary.counts() == {"measured": 1}
+    reader = SessionReader(tmp_path / "paused")
+    first_view = reader.events(kind="calibration_view")[0]
+    (move,) = reader.events(kind="move")
+    assert first_view["monotonic"] - move["monotonic"] >= 0.5  # held until resumed
+
+
+def test_the_runner_owns_prompting_grbl_rig_gets_no_prompt(tmp_path):
+    from stereo_bench.campaign.bench import open_bench
+
+    with open_bench(small_config(), operators=[SimulatedOperator()], transcript=None) as bench:
+        assert bench.kind == "simulated" and bench.rig.prompt is None
