@@ -105,6 +105,19 @@ def test_campaign_run_sim_flag_picks_the_bench_and_refuses_real_cameras(tmp_path
         config_from_args(real, None, sim="ideal")
 
 
+def test_the_resume_command_keeps_the_bench_given_on_the_command_line():
+    """The rest of an interrupted campaign must render on the bench its first part did."""
+    import argparse
+    from pathlib import Path
+
+    from stereo_bench.cli.campaign_run import _resume_command
+
+    args = argparse.Namespace(plan="small.toml", preset=None, sim="ideal")
+    assert _resume_command(args, Path("out")) == "stereo-bench campaign run small.toml --out out --resume --sim ideal"
+    args.sim = None
+    assert _resume_command(args, Path("out")) == "stereo-bench campaign run small.toml --out out --resume"
+
+
 def test_the_documented_lab_table_is_the_code():
     from pathlib import Path
 

@@ -93,7 +93,9 @@ class Progress:
 
 def _resume_command(args: argparse.Namespace, out: Path) -> str:
     source = args.plan if args.plan else f"--preset {args.preset}"
-    return f"stereo-bench campaign run {source} --out {out} --resume"
+    # The rest must render on the bench the first part did.
+    sim = f" --sim {args.sim}" if args.sim else ""
+    return f"stereo-bench campaign run {source} --out {out} --resume{sim}"
 
 
 def cmd_run(args: argparse.Namespace) -> int:
