@@ -78,12 +78,13 @@ def test_covariance_round_trip_in_both_files(tmp_path):
     names += EXTRINSIC_NAMES
     rng = np.random.default_rng(1)
     root = rng.normal(size=(len(names), len(names))) * 0.1
-    covariance = CalibrationCovariance(names, root @ root.T, sigma_px=0.07, dof=1234)
+    covariance = CalibrationCovariance(names, root @ root.T, sigma_px=0.07, dof=1234, pixel_locking_px=(0.02, -0.001))
     calib = sample_calibration()
     calib = StereoCalibration(**{**calib.__dict__, "covariance": covariance})
     write_calibration(tmp_path, calib)
     loaded = read_calibration(tmp_path).covariance
     assert loaded.names == names and loaded.dof == 1234 and loaded.sigma_px == pytest.approx(0.07)
+    assert loaded.pixel_locking_px == pytest.approx((0.02, -0.001))
     np.testing.assert_allclose(loaded.matrix, covariance.matrix, rtol=1e-12)
     intrinsic = read_intrinsics_covariance(tmp_path)
     assert intrinsic.names == names[:8]

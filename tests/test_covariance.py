@@ -198,3 +198,19 @@ def test_reported_sigmas_match_the_monte_carlo_scatter_within_25_percent(mode):
     result = _monte_carlo(mode)
     ratios = {n: scatter / reported for n, (scatter, reported) in result.items()}
     assert all(0.75 <= r <= 1.25 for r in ratios.values()), ratios
+
+
+def locked(pixels: np.ndarray, amplitude_px: float) -> np.ndarray:
+    """A detector with pixel locking: each coordinate pulled by amplitude sin(2 pi frac(p))."""
+    return pixels + amplitude_px * np.sin(2 * np.pi * np.mod(pixels, 1.0))
+
+
+def test_calibration_residuals_measure_the_detectors_pixel_locking():
+    _, objects, lefts, rights = synthetic_views(10, np.random.default_rng(14), noise_px=0.0)
+    rng = np.random.default_rng(15)
+    noisy = [[locked(p, 0.03) + rng.normal(0, 0.01, p.shape) for p in side] for side in (lefts, rights)]
+    locking = calibrate_stereo(objects, *noisy, CAMERA.image_size).covariance.pixel_locking_px
+    assert locking[0] == pytest.approx(0.03, abs=0.003) and abs(locking[1]) < 0.003
+    # Without locking the fit finds none.
+    plain = [[p + rng.normal(0, 0.01, p.shape) for p in side] for side in (lefts, rights)]
+    assert calibrate_stereo(objects, *plain, CAMERA.image_size).covariance.pixel_locking_px is None

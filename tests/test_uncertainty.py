@@ -16,10 +16,12 @@ from stereo_bench.vision.measure import measure_square
 from stereo_bench.vision.uncertainty import (
     DEFAULT_BOARD_SCALE_U_REL,
     BoardScale,
+    FrameCorners,
     configuration_budget,
     square_sensitivities,
 )
 from tests.synthetic_rig import TARGET, Configuration, calibrate, measurement_frames
+from tests.test_covariance import locked
 
 NOISE_PX = 0.1
 #: Five configurations spanning B (50-300 mm), Z (300-800 mm) and alpha (75-90 deg).
@@ -77,24 +79,31 @@ def test_square_sensitivity_to_the_baseline_is_the_square_over_the_baseline():
     assert g[2] == pytest.approx((square(R=turn[0]) - square(R=turn[1])) / 2e-4, rel=1e-3)
 
 
-def test_structure_covariance_replaces_the_calibrations_extrinsics():
+def test_structure_covariance_with_calibrated_or_rig_model_extrinsics():
     config = CONFIGURATIONS[0]
     calib = _true_calibration(config)
     names = ("left.fx", "right.fx") + EXTRINSIC_NAMES
     cov = CalibrationCovariance(names, np.diag([0.25, 0.25] + [1e-8] * 3 + [0.01] * 3), sigma_px=NOISE_PX)
     calib = replace(calib, covariance=cov)
     frames = measurement_frames(config, calib, np.random.default_rng(3), noise_px=0.0, n_frames=1)
-    from_calibration = configuration_budget(frames, calib, TARGET)
-    structure = np.diag([0.0] * 3 + [0.3**2, 0.0, 0.0])  # a 0.3 mm baseline tolerance, nothing else
-    budget = configuration_budget(frames, calib, TARGET, structure_covariance=structure,
-                                  structure_source="rig tolerance")
-    assert budget.structure == pytest.approx(27.0 / 100.0 * 0.3, rel=1e-5)
-    g = budget.sensitivities
+    g = configuration_budget(frames, calib, TARGET).sensitivities
+    variances = dict(zip(names, np.diag(cov.matrix), strict=True))
+    everything = math.sqrt(sum(variances[n] * g[n] ** 2 for n in names))
     intrinsics_only = math.sqrt(0.25 * (g["left.fx"] ** 2 + g["right.fx"] ** 2))
-    assert budget.calibration == pytest.approx(intrinsics_only)
-    assert from_calibration.calibration > intrinsics_only  # there the calibration's T counts as well
-    zero = configuration_budget(frames, calib, TARGET, structure_covariance=np.zeros((6, 6)))
-    assert zero.structure == 0.0 and "structure" not in zero.unknown
+    tolerance = np.diag([0.0] * 3 + [0.3**2, 0.0, 0.0])  # a 0.3 mm baseline tolerance, nothing else
+    # Kinematic/nominal extrinsics: the rig model's R, T replace the calibration's.
+    model = configuration_budget(frames, calib, TARGET, structure_covariance=tolerance,
+                                 extrinsics_from_calibration=False, structure_source="rig tolerance")
+    assert model.structure == pytest.approx(27.0 / 100.0 * 0.3, rel=1e-5)
+    assert model.calibration == pytest.approx(intrinsics_only)
+    # Calibrated in place: the calibration carries R, T; a rig that has not moved adds nothing.
+    unmoved = configuration_budget(frames, calib, TARGET, structure_covariance=np.zeros((6, 6)))
+    assert unmoved.calibration == pytest.approx(everything) and everything > 1.5 * intrinsics_only
+    assert unmoved.structure == 0.0 and "structure" not in unmoved.unknown
+    # Nothing said about the structure: unknown, not zero.
+    assert configuration_budget(frames, calib, TARGET).unknown == ["structure"]
+    unknown_model = configuration_budget(frames, calib, TARGET, extrinsics_from_calibration=False)
+    assert unknown_model.structure is None and unknown_model.calibration == pytest.approx(intrinsics_only)
     with pytest.raises(ValueError, match="structure_covariance"):
         configuration_budget(frames, calib, TARGET, structure_covariance=np.eye(3))
 
@@ -109,6 +118,24 @@ def test_noise_component_matches_the_scatter_of_frames_with_an_exact_calibration
     assert budget.noise_bias_mm == pytest.approx(errors.mean(), rel=0.15)  # standard error 5 %
     assert budget.noise_random_mm == pytest.approx(errors.std(ddof=1), rel=0.12)  # standard error 4 %
     assert budget.noise == pytest.approx(np.sqrt(np.mean(errors**2)), rel=0.12)
+
+
+def test_detector_bias_predicts_the_square_error_of_a_locking_detector():
+    # A detector whose corners lock to the pixel grid (0.03 px, as the simulator's): with an exact
+    # calibration the square's error is that locking's alone, the same in every frame.
+    config = CONFIGURATIONS[0]
+    names = ("left.fx",) + EXTRINSIC_NAMES
+    covariance = CalibrationCovariance(names, np.diag([1e-6] * 7), sigma_px=math.sqrt(1e-6 + 0.03**2 / 2), dof=5000,
+                                       pixel_locking_px=(0.03, 0.0))
+    calib = replace(_true_calibration(config), covariance=covariance)
+    frames = measurement_frames(config, calib, np.random.default_rng(5), noise_px=0.0, n_frames=1)
+    f = frames[0]
+    lock = [FrameCorners(f.ids, locked(f.left_px, 0.03), locked(f.right_px, 0.03), 0.0, (1e-3, 1e-3))]
+    budget = configuration_budget(lock, calib, TARGET, board_scale=BoardScale(0.0, 0.0))
+    assert abs(budget.error_mm) > 5e-4  # the locking matters here: 0.02 px on a 270 px disparity
+    assert budget.detector_bias_mm == pytest.approx(budget.error_mm, rel=0.05)
+    assert budget.details()["corrected_mm"] == pytest.approx(27.0, abs=0.05 * abs(budget.error_mm))
+    assert budget.noise >= abs(budget.error_mm) and budget.corner_systematic_px == 0.0  # locking explains it
 
 
 @cache

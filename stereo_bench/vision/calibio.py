@@ -4,10 +4,11 @@
 them as extra keys (image size, RMS, board, mode, date, software); OpenCV's sample ignores extra
 keys and a file the sample wrote (no extra keys) loads here.
 
-The calibration's covariance (:mod:`stereo_bench.vision.covariance`) is written as four more keys:
+The calibration's covariance (:mod:`stereo_bench.vision.covariance`) is written as more keys:
 ``covariance_parameters`` (the parameter names, space-separated, in the matrix's order),
 ``covariance`` (P x P; px, unitless, rad, mm as the names say), ``covariance_sigma_px`` (the corner
-noise it is scaled by) and ``covariance_dof``. ``extrinsics.yml`` holds the whole matrix (both
+noise it is scaled by), ``covariance_dof`` and ``pixel_locking_px`` (1 x 2: the detector's fitted
+pixel locking, sin and cos coefficients, when estimated). ``extrinsics.yml`` holds the whole matrix (both
 cameras' intrinsics, rvec, T and their correlations); ``intrinsics.yml`` the intrinsics' block, so
 that intrinsics reused alone (``--intrinsics``) keep their uncertainty. A file without these keys
 loads with the covariance None: unknown, not zero (``covariance_note`` says why).
@@ -58,9 +59,11 @@ def _write_storage(path: Path, items: dict[str, object]) -> None:
 def _covariance_items(covariance: CalibrationCovariance | None, note: str) -> dict[str, object]:
     if covariance is None:
         return {"covariance_note": note or "not computed"}
+    locking = None if covariance.pixel_locking_px is None else np.array([covariance.pixel_locking_px])
     return {
         "covariance_parameters": " ".join(covariance.names), "covariance": covariance.matrix,
         "covariance_sigma_px": float(covariance.sigma_px), "covariance_dof": int(covariance.dof),
+        "pixel_locking_px": locking,
     }
 
 
@@ -135,10 +138,14 @@ def _covariance(storage: cv2.FileStorage, path: Path) -> tuple[CalibrationCovari
         raise CalibrationFileError(f"{path}: key 'covariance' is not a finite symmetric matrix with a "
                                    "non-negative diagonal")
     sigma_node, dof_node = storage.getNode("covariance_sigma_px"), storage.getNode("covariance_dof")
+    locking = None
+    if not storage.getNode("pixel_locking_px").empty():
+        a_sin, a_cos = _matrix(storage, path, "pixel_locking_px", (2,))
+        locking = (float(a_sin), float(a_cos))
     try:
         covariance = CalibrationCovariance(
             names, matrix, sigma_px=float("nan") if sigma_node.empty() else float(sigma_node.real()),
-            dof=0 if dof_node.empty() else int(dof_node.real()))
+            dof=0 if dof_node.empty() else int(dof_node.real()), pixel_locking_px=locking)
     except ValueError as error:
         raise CalibrationFileError(f"{path}: key 'covariance_parameters': {error}") from None
     return covariance, ""
@@ -150,6 +157,17 @@ def read_intrinsics_covariance(path: str | Path) -> CalibrationCovariance | None
     storage = _open(path)
     try:
         return _covariance(storage, path)[0]
+    finally:
+        storage.release()
+
+
+def calibration_board_scale_u(calib_dir: str | Path) -> float | None:
+    """The calibration board's relative scale uncertainty a calibration recorded (``board_scale_u_rel``), or None."""
+    path = _resolve(calib_dir, EXTRINSICS_FILE)
+    storage = _open(path)
+    try:
+        node = storage.getNode("board_scale_u_rel")
+        return None if node.empty() else float(node.real())
     finally:
         storage.release()
 

@@ -16,8 +16,12 @@ pose projected out); ``Jhat`` gives the influence of each observation on the par
 data (fixed intrinsics from mono calibrations of the same views) needs.
 
 sigma is the residual standard deviation of the fit: ``sigma^2 = SSR / (n_coordinates - n_parameters)``
-(a Type A evaluation; the corner noise plus whatever the lens model cannot fit). The Jacobian is
-exact: ``cv2.projectPoints`` returns d(pixels)/d(rvec, tvec, fx, fy, cx, cy, dist) and
+(a Type A evaluation; the corner noise plus whatever the lens model cannot fit). The residuals also
+show the corner detector's pixel locking, an error periodic in each coordinate's sub-pixel phase
+phi = frac(p): regressed on sin(2 pi phi) and cos(2 pi phi) (both axes, both cameras, every view)
+they give its first harmonic (:attr:`CalibrationCovariance.pixel_locking_px`), which a measurement
+of a static target does not average away (see :mod:`stereo_bench.vision.uncertainty`). The Jacobian
+is exact: ``cv2.projectPoints`` returns d(pixels)/d(rvec, tvec, fx, fy, cx, cy, dist) and
 ``cv2.composeRT`` the chain rule through X_right = R X_left + T.
 
 Parameters (names in :attr:`CalibrationCovariance.names`): per camera ``fx fy cx cy`` (px) and the
@@ -68,6 +72,9 @@ class CalibrationCovariance:
     matrix: np.ndarray
     sigma_px: float
     dof: int = 0
+    # (a_sin, a_cos) px: the detector's corner error e(p) = a_sin sin(2 pi frac(p)) + a_cos cos(2 pi frac(p))
+    # per coordinate, fitted to the residuals; None when not estimated.
+    pixel_locking_px: tuple[float, float] | None = None
 
     def __post_init__(self):
         matrix = np.asarray(self.matrix, float)
@@ -94,10 +101,12 @@ class CalibrationCovariance:
     def subset(self, names: Sequence[str]) -> CalibrationCovariance:
         """The marginal covariance of ``names`` (in that order)."""
         i = self.index(names)
-        return CalibrationCovariance(tuple(names), self.matrix[np.ix_(i, i)], self.sigma_px, self.dof)
+        return CalibrationCovariance(tuple(names), self.matrix[np.ix_(i, i)], self.sigma_px, self.dof,
+                                     self.pixel_locking_px)
 
     def prefixed(self, prefix: str) -> CalibrationCovariance:
-        return CalibrationCovariance(tuple(prefix + n for n in self.names), self.matrix, self.sigma_px, self.dof)
+        return CalibrationCovariance(tuple(prefix + n for n in self.names), self.matrix, self.sigma_px, self.dof,
+                                     self.pixel_locking_px)
 
     def with_prefix(self, prefix: str) -> tuple[str, ...]:
         return tuple(n for n in self.names if n.startswith(prefix))
@@ -142,6 +151,7 @@ class _View:
     J_pose: np.ndarray  # (m, 6)
     J_external: np.ndarray | None  # (m, E): parameters the solver held at given values
     residual: np.ndarray  # (m,) projected - observed, px
+    observed: np.ndarray  # (m,) the observed coordinates, interleaved like the residual
 
 
 @dataclass(frozen=True)
@@ -151,6 +161,7 @@ class _Solution:
     ssr: float
     n_rows: int
     n_parameters: int  # P + 6 per view
+    pixel_locking_px: tuple[float, float] | None
 
     @property
     def dof(self) -> int:
@@ -185,7 +196,30 @@ def _solve(views: list[_View]) -> _Solution:
     return _Solution(
         S_inv=S_inv, Jhat=Jhat, ssr=float(sum(view.residual @ view.residual for view in views)),
         n_rows=sum(len(view.residual) for view in views), n_parameters=P + 6 * len(views),
+        pixel_locking_px=pixel_locking(np.concatenate([v.observed for v in views]),
+                                       np.concatenate([v.residual for v in views])),
     )
+
+
+def pixel_locking(observed_px: np.ndarray, residual_px: np.ndarray) -> tuple[float, float] | None:
+    """(a_sin, a_cos) px of the corner error e(p) = a_sin sin(2 pi frac(p)) + a_cos cos(2 pi frac(p)).
+
+    Least squares of the observed-minus-projected coordinates (-``residual_px``) on the two
+    harmonics of each coordinate's sub-pixel phase (``observed_px``, same (m,) layout). The fit's
+    parameters absorb little of it: neighbouring corners of a view differ in phase. None with
+    fewer than 20 coordinates, or when the amplitude is within 3 standard errors of zero (noise).
+    """
+    if len(observed_px) < 20:
+        return None
+    phase = 2.0 * np.pi * np.mod(observed_px, 1.0)
+    design = np.column_stack([np.sin(phase), np.cos(phase)])
+    target = -np.asarray(residual_px, float)
+    coefficients, *_ = np.linalg.lstsq(design, target, rcond=None)
+    scatter = np.sqrt(np.sum((target - design @ coefficients) ** 2) / (len(target) - 2))
+    standard_error = scatter / np.sqrt(0.5 * len(target))  # each harmonic has mean square 1/2
+    if np.hypot(*coefficients) < 3.0 * standard_error:
+        return None
+    return float(coefficients[0]), float(coefficients[1])
 
 
 def _mono_views(object_points, image_points, K, D, rvecs, tvecs, free: tuple[str, ...], indices, side: str,
@@ -198,7 +232,7 @@ def _mono_views(object_points, image_points, K, D, rvecs, tvecs, free: tuple[str
         views.append(_View(
             key=((index, side),), sizes=(len(pixels),), J_global=jac[:, cols], J_pose=jac[:, :6],
             J_external=jac[:, ext_cols] if external else None,
-            residual=pixels - np.asarray(img, np.float64).reshape(-1),
+            residual=pixels - np.asarray(img, np.float64).reshape(-1), observed=np.asarray(img, np.float64).reshape(-1),
         ))
     return views
 
@@ -219,7 +253,8 @@ def mono_covariance(
         raise CovarianceUnavailable("all intrinsics were fixed: nothing was estimated")
     views = _mono_views(object_points, image_points, K, D, rvecs, tvecs, free, range(len(object_points)), "")
     solution = _solve(views)
-    return CalibrationCovariance(free, solution.sigma_px**2 * solution.S_inv, solution.sigma_px, solution.dof)
+    return CalibrationCovariance(free, solution.sigma_px**2 * solution.S_inv, solution.sigma_px, solution.dof,
+                                 solution.pixel_locking_px)
 
 
 @dataclass(frozen=True)
@@ -281,6 +316,8 @@ def _stereo_views(object_points, left_points, right_points, K1, D1, K2, D2, R, T
             J_pose=np.vstack([jac_l[:, :6], jac_r[:, :6] @ d_pose]), J_external=J_external,
             residual=np.concatenate([px_l - np.asarray(left, np.float64).reshape(-1),
                                      px_r - np.asarray(right, np.float64).reshape(-1)]),
+            observed=np.concatenate([np.asarray(left, np.float64).reshape(-1),
+                                     np.asarray(right, np.float64).reshape(-1)]),
         ))
     return views
 
@@ -331,7 +368,8 @@ def stereo_covariance(
     sigma2 = solution.sigma_px**2
     names = tuple("left." + n for n in free_l) + tuple("right." + n for n in free_r) + EXTRINSIC_NAMES
     if not fixed:
-        return CalibrationCovariance(names, sigma2 * solution.S_inv, solution.sigma_px, solution.dof)
+        return CalibrationCovariance(names, sigma2 * solution.S_inv, solution.sigma_px, solution.dof,
+                                     solution.pixel_locking_px)
 
     ext_names = tuple("left." + n for n in ext_l) + tuple("right." + n for n in ext_r)
     # The intrinsics held fixed move the stereo solution: d(rvec, T) = S^-1 Jhat^T (dq - J_ext d(intrinsics)).
@@ -341,7 +379,8 @@ def stereo_covariance(
         cov_rt = sigma2 * solution.S_inv + G @ C_e @ G.T
         cross = -G @ C_e  # Cov(rvec T, intrinsics)
         matrix = np.block([[C_e, cross.T], [cross, cov_rt]])
-        return CalibrationCovariance(ext_names + EXTRINSIC_NAMES, matrix, solution.sigma_px, solution.dof)
+        return CalibrationCovariance(ext_names + EXTRINSIC_NAMES, matrix, solution.sigma_px, solution.dof,
+                                     solution.pixel_locking_px)
 
     # Same data: write every estimate as a linear map of the observed corners, block by block, then
     # Cov = sigma^2 sum_blocks L L^T (independent corners of equal noise).
@@ -369,7 +408,8 @@ def stereo_covariance(
             else:
                 full[key] = np.vstack([np.zeros((n_e, size)), direct])
     matrix = sigma2 * sum(L @ L.T for L in full.values())
-    return CalibrationCovariance(ext_names + EXTRINSIC_NAMES, matrix, solution.sigma_px, solution.dof)
+    return CalibrationCovariance(ext_names + EXTRINSIC_NAMES, matrix, solution.sigma_px, solution.dof,
+                                 solution.pixel_locking_px)
 
 
 def extrinsic_sigmas(R: np.ndarray, T: np.ndarray, covariance: CalibrationCovariance) -> dict:

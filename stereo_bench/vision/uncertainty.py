@@ -10,16 +10,37 @@ mean adjacent-corner length (mm). Its standard-uncertainty components:
   at a small B/Z the depth noise makes this bias as large as the random part (B 100, Z 500 mm,
   0.1 px: 0.003 mm), and averaging frames does not shrink it. It is not corrected (the measured
   value stays what the pipeline reports); as GUM F.2.4.5 allows for an uncorrected known bias, it is
-  added in quadrature: noise = sqrt(sum sigma_i^2 / n^2 + bias^2), both parts in ``details()``.
+  added in quadrature. A third part is the corner detector's systematic error: its residual pixel
+  locking: the saddle-point estimate is pulled by an amount periodic in each coordinate's sub-pixel
+  phase (on the simulator e = A sin(2 pi frac(p)), A 0.021-0.034 px, R^2 0.9, 2.5 times the random
+  noise). For a static target it repeats in every frame, and on a regular grid seen nearly
+  square-on the phases are alike, so the errors add up instead of averaging (rendered 1080p, B 100
+  mm, Z 500 mm, parallel: the left image 0.014 px left, the right 0.014 px right, a square 0.0023 mm
+  long with the TRUE calibration, 9 random sigmas; the model below predicts 0.0021 mm). The
+  calibration's residuals measure the locking (``covariance.pixel_locking_px``: its first harmonic,
+  fitted over every corner of every view); on the measured corners it predicts a bias of the square
+  b = Im(a C) (:func:`phase_sum`), reported as ``detector_bias_mm`` and, uncorrected, counted like
+  the noise bias. The amplitude carries over from the calibration views to the target only
+  approximately (it depends on the edges' angle to the pixel grid, contrast and blur: on the
+  simulator the target's corners lock 1.0-1.4 times as strongly as the calibration views'), so b
+  gets a relative standard uncertainty of :data:`LOCKING_TRANSFER_U_REL`. Corner error the fit
+  shows beyond the random noise and the locking (:func:`corner_systematic_px`, when significant)
+  has no known pattern; part of it is smooth across the board (edges curved by the lens), which no
+  averaging over corners removes, so it is propagated as an unknown shift and magnification of each
+  image (:func:`coherent_displacement_mm`). The detector part, sqrt(b^2 (1 + 0.5^2) + rest^2), is
+  not divided by the number of frames; noise = sqrt(sum sigma_i^2 / n^2 + bias^2 + detector^2),
+  every part in ``details()``.
 - ``calibration``: the calibration's covariance C (:mod:`stereo_bench.vision.covariance`) pushed
   through the square's sensitivity to each calibrated parameter, g = d(square)/d(parameters)
   evaluated at the measured corners: sqrt(g^T C g). One calibration serves every frame of a
   configuration, so its error is shared: n frames do not divide it.
-- ``structure``: the stereo extrinsics' covariance from another source (the kinematic rig model, the
-  rig's repeatability or its stated tolerances), when the R, T used to triangulate come from that
-  source rather than from the calibration: then the calibration component covers the intrinsics
-  only. None (unknown) when no source is given: it is not included in ``combined``, and is listed
-  in ``unknown``; zero only when the source says zero.
+- ``structure``: the stereo extrinsics' uncertainty beyond what the calibration says, from another
+  source. With extrinsics calibrated at the configuration (``extrinsics_from_calibration``), the
+  calibration component carries R, T and the structure covariance is how far the rig may have moved
+  since (its repeatability; zero when it has not moved). With kinematic or nominal extrinsics the
+  R, T come from the rig model or the rig's stated tolerances: their covariance is the structure
+  component and the calibration component covers the intrinsics only. None (unknown) when no source
+  is given: not included in ``combined``, listed in ``unknown``; zero only when the source says zero.
 - ``target``: the boards' certified scale. Triangulated lengths are in units of the calibration
   board's square (R, T are scaled by it), and the measured board's true square differs from its
   nominal by its own scale error: u = nominal x sqrt(u_rel,target^2 + u_rel,calibration board^2);
@@ -57,6 +78,9 @@ K_COVERAGE = 2.0
 #: printer is typically 1e-3 to 5e-3 off in scale and should be given as such (or measured).
 DEFAULT_BOARD_SCALE_U_REL = 1e-4
 COMPONENTS = ("noise", "calibration", "structure", "target")
+#: Relative standard uncertainty of the detector bias predicted from the calibration's fitted pixel
+#: locking (the amplitude transfers from the calibration views to the target only approximately).
+LOCKING_TRANSFER_U_REL = 0.5
 
 #: Central-difference step per parameter kind: small against its uncertainty, large against the
 #: 1e-10 convergence of the iterative undistortion (the square is linear in each over this range).
@@ -138,7 +162,8 @@ def perturbed(calib: StereoCalibration, name: str, delta: float) -> StereoCalibr
 
 
 def _square_function(frames: list[FrameCorners], target: Target):
-    """f(calib) -> the configuration's square: mean over frames of each frame's mean adjacent length (mm)."""
+    """f(calib, left=None, right=None) -> the configuration's square (mm): mean over frames of each
+    frame's mean adjacent length; ``left``/``right`` replace the frames' stacked pixels (sum N_i, 2)."""
     left = np.vstack([f.left_px for f in frames])
     right = np.vstack([f.right_px for f in frames])
     offsets = np.cumsum([0] + [len(f.ids) for f in frames])
@@ -154,10 +179,97 @@ def _square_function(frames: list[FrameCorners], target: Target):
         weights += [1.0 / (len(pairs) * len(frames))] * len(pairs)
     a_idx, b_idx, weights = np.array(a_idx), np.array(b_idx), np.array(weights)
 
-    def square(calib: StereoCalibration) -> float:
-        points = triangulate(calib, left, right)
+    def square(calib: StereoCalibration, left_px: np.ndarray | None = None,
+               right_px: np.ndarray | None = None) -> float:
+        points = triangulate(calib, left if left_px is None else left_px, right if right_px is None else right_px)
         return float(weights @ np.linalg.norm(points[a_idx] - points[b_idx], axis=1))
     return square
+
+
+def pixel_gradients(calib: StereoCalibration, frames: Sequence[PairMeasurement | FrameCorners],
+                    target: Target) -> list[np.ndarray]:
+    """Per frame (N_i, 4): d(configuration square)/d(u_left, v_left, u_right, v_right) of each corner (mm/px).
+
+    First order through the triangulation's Jacobian, as :func:`~stereo_bench.vision.measure.measure_square`
+    propagates the noise; the configuration square weighs each frame 1/n.
+    """
+    frames = _frames(frames)
+    out = []
+    for frame in frames:
+        position = {int(c): i for i, c in enumerate(frame.ids)}
+        pairs = np.array([(position[a], position[b]) for a, b in target.adjacent_pairs()
+                          if a in position and b in position], int).reshape(-1, 2)
+        points = triangulate(calib, frame.left_px, frame.right_px)
+        jac = triangulation_jacobian(calib, frame.left_px, frame.right_px)  # (N, 3, 4)
+        d = points[pairs[:, 0]] - points[pairs[:, 1]]
+        u = d / np.linalg.norm(d, axis=1)[:, None] / (len(pairs) * len(frames))
+        gradient = np.zeros((len(frame.ids), 4))
+        np.add.at(gradient, pairs[:, 0], np.einsum("kj,kjc->kc", u, jac[pairs[:, 0]]))
+        np.add.at(gradient, pairs[:, 1], -np.einsum("kj,kjc->kc", u, jac[pairs[:, 1]]))
+        out.append(gradient)
+    return out
+
+
+def phase_sum(calib: StereoCalibration, frames: Sequence[PairMeasurement | FrameCorners], target: Target) -> complex:
+    """C = sum_k g_k exp(2 pi i frac(p_k)) over every corner coordinate p_k of every frame (g: :func:`pixel_gradients`).
+
+    A corner error e(p) = Im(a exp(2 pi i frac(p))) (a = a_sin + i a_cos, px) moves the square by
+    Im(a C): corners of alike phase (a regular grid seen square-on) add up, spread phases cancel.
+    """
+    frames = _frames(frames)
+    total = 0j
+    for frame, gradient in zip(frames, pixel_gradients(calib, frames, target), strict=True):
+        pixels = np.column_stack([frame.left_px, frame.right_px])  # (N, 4) like the gradient's columns
+        total += np.sum(gradient * np.exp(2j * np.pi * np.mod(pixels, 1.0)))
+    return complex(total)
+
+
+#: Steps (px, and relative) of the coherent image shift and magnification differentiated for the detector term.
+_SHIFT_STEP_PX, _MAGNIFICATION_STEP = 0.01, 1e-5
+
+
+def coherent_displacement_mm(calib: StereoCalibration, frames: Sequence[PairMeasurement | FrameCorners],
+                             target: Target, sigma_px: float) -> float:
+    """Standard uncertainty (mm) of the square from a corner error of ``sigma_px`` per coordinate that is smooth
+    across the board: in each image an unknown shift (sigma_px per axis) and magnification about the corners'
+    centroid (sigma_px at their RMS radius), independent between the images, shared by the frames."""
+    frames = _frames(frames)
+    square = _square_function(frames, target)
+    left, right = np.vstack([f.left_px for f in frames]), np.vstack([f.right_px for f in frames])
+    offsets = np.cumsum([0] + [len(f.ids) for f in frames])
+    variance = 0.0
+    for side, pixels in (("left", left), ("right", right)):
+        centroid = np.vstack([np.broadcast_to(pixels[a:b].mean(axis=0), (b - a, 2))
+                              for a, b in zip(offsets[:-1], offsets[1:], strict=True)])
+        radial = pixels - centroid
+        radius = float(np.sqrt(np.mean(np.sum(radial**2, axis=1))))
+
+        def slope(delta: np.ndarray, step: float, side: str = side) -> float:
+            plus = (left + delta, right) if side == "left" else (left, right + delta)
+            minus = (left - delta, right) if side == "left" else (left, right - delta)
+            return (square(calib, *plus) - square(calib, *minus)) / (2 * step)
+        for axis in (0, 1):
+            delta = np.zeros_like(pixels)
+            delta[:, axis] = _SHIFT_STEP_PX
+            variance += (slope(delta, _SHIFT_STEP_PX) * sigma_px) ** 2
+        variance += (slope(_MAGNIFICATION_STEP * radial, _MAGNIFICATION_STEP) * sigma_px / radius) ** 2
+    return float(math.sqrt(variance))
+
+
+def corner_systematic_px(covariance: CalibrationCovariance | None, random_px: float) -> float:
+    """Systematic corner error per coordinate (px) the calibration's residuals show and the fitted locking does not.
+
+    sqrt(sigma_fit^2 - random^2 - (a_sin^2 + a_cos^2) / 2) when sigma_fit^2 exceeds the rest by more
+    than three standard errors of a residual variance (sqrt(2 / dof) relative), else 0; 0 without
+    a covariance (nothing to compare with).
+    """
+    if covariance is None or not covariance.dof > 0 or not math.isfinite(covariance.sigma_px) or not random_px > 0:
+        return 0.0
+    locking = covariance.pixel_locking_px or (0.0, 0.0)
+    explained = random_px**2 + 0.5 * (locking[0] ** 2 + locking[1] ** 2)
+    if covariance.sigma_px**2 <= explained * (1.0 + 3.0 * math.sqrt(2.0 / covariance.dof)):
+        return 0.0
+    return float(math.sqrt(covariance.sigma_px**2 - explained))
 
 
 def noise_bias_mm(calib: StereoCalibration, frame: FrameCorners, target: Target) -> float:
@@ -217,6 +329,10 @@ class UncertaintyBudget:
     sensitivities: dict[str, float] = field(default_factory=dict)  # d(square)/d(parameter), parameter units
     noise_random_mm: float = float("nan")  # sqrt(sum sigma_i^2) / n: the campaign's sigma_mm
     noise_bias_mm: float = float("nan")  # expected lengthening by the noise (uncorrected)
+    noise_systematic_mm: float = float("nan")  # the detector's systematic error, shared by the frames
+    detector_bias_mm: float = float("nan")  # its predictable part: the fitted pixel locking on these corners
+    corner_systematic_px: float = float("nan")  # systematic corner error the locking fit leaves (per coordinate)
+    pixel_locking_px: tuple[float, float] | None = None  # (a_sin, a_cos) from the calibration's residuals
 
     @property
     def components(self) -> dict[str, float | None]:
@@ -252,9 +368,14 @@ class UncertaintyBudget:
         return {
             "n_frames": self.n_frames, "unknown": self.unknown, "dominant": self.dominant,
             "noise_random_mm": self.noise_random_mm, "noise_bias_mm": self.noise_bias_mm,
+            "noise_systematic_mm": self.noise_systematic_mm, "detector_bias_mm": self.detector_bias_mm,
+            "corner_systematic_px": self.corner_systematic_px,
+            "pixel_locking_px": None if self.pixel_locking_px is None else list(self.pixel_locking_px),
             "complete": not self.unknown, "structure_source": self.structure_source or None,
             "calibration_note": self.calibration_note or None,
             "normalised_error": self.error_mm / self.combined if self.combined > 0 else None,
+            # The measured square less the two predictable biases, for a caller that corrects them.
+            "corrected_mm": self.measured_mm - self.noise_bias_mm - self.detector_bias_mm,
             "sensitivities": self.sensitivities,
         }
 
@@ -262,7 +383,9 @@ class UncertaintyBudget:
 def configuration_budget(
     frames: Sequence[PairMeasurement | FrameCorners], calib: StereoCalibration, target: Target, *,
     covariance: CalibrationCovariance | None | str = "calib", structure_covariance: np.ndarray | None = None,
-    structure_source: str = "", board_scale: BoardScale | None = None, k: float = K_COVERAGE,
+    extrinsics_from_calibration: bool = True, structure_source: str = "", board_scale: BoardScale | None = None,
+    k: float = K_COVERAGE,
+    corner_systematic: float | None = None,
 ) -> UncertaintyBudget:
     """The uncertainty budget of one configuration's measured square.
 
@@ -272,16 +395,21 @@ def configuration_budget(
         calib: the calibration the frames were triangulated with.
         target: the measured board (its adjacent pairs and nominal square).
         covariance: of the calibration's parameters; default ``calib.covariance`` (None: unknown).
-        structure_covariance: (6, 6) covariance of the stereo extrinsics over (rvec x y z in rad,
-            T x y z in mm; X_right = R X_left + T, R = Rodrigues(rvec)), from the source the R, T of
-            ``calib`` came from when that is not the calibration: the kinematic rig model (its
-            covariance plus the rig's repeatability) or the rig's stated tolerances (nominal
-            extrinsics). Given, the calibration component keeps only the intrinsics; None: the
-            structure component is unknown (extrinsics calibrated: the calibration covers them,
-            but whether the rig moved since is not known here). Zeros: the source says zero.
+        structure_covariance: (6, 6) covariance over (rvec x y z in rad, T x y z in mm) of the
+            stereo extrinsics (X_right = R X_left + T, R = Rodrigues(rvec)) beyond the
+            calibration: with ``extrinsics_from_calibration`` the rig's possible change since the
+            calibration (repeatability; zeros: it has not moved), else the uncertainty of the
+            source R, T came from (the kinematic rig model's covariance plus the rig's
+            repeatability, or the rig's stated tolerances). None: the structure component is unknown.
+        extrinsics_from_calibration: the R, T of ``calib`` are the calibration's (default). False:
+            they come from the rig model or its nominal geometry; the calibration component then
+            covers the intrinsics only.
         structure_source: a short description of that source, reported with the budget.
         board_scale: the boards' scale uncertainties (default :class:`BoardScale`()).
         k: coverage factor of the expanded uncertainty.
+        corner_systematic: the detector's systematic corner error per coordinate (px) beyond the
+            pixel locking the calibration fitted, when known from elsewhere (a detector
+            characterisation); None: :func:`corner_systematic_px` of the calibration's residuals.
 
     Returns: :class:`UncertaintyBudget` (``as_dict()`` for the ``uncertainty_mm`` record).
     """
@@ -293,8 +421,7 @@ def configuration_budget(
     note = "" if covariance is not None else (calib.covariance_note or "the calibration has no covariance")
     names: list[str] = []
     if covariance is not None:
-        names = [n for n in covariance.names
-                 if structure_covariance is None or n.startswith(("left.", "right."))]
+        names = [n for n in covariance.names if extrinsics_from_calibration or n.startswith(("left.", "right."))]
     if structure_covariance is not None:
         structure_covariance = np.asarray(structure_covariance, float)
         if structure_covariance.shape != (6, 6) or not np.all(np.isfinite(structure_covariance)):
@@ -313,10 +440,22 @@ def configuration_budget(
     sigmas = np.array([f.sigma_mean_mm for f in frames], float)
     random = float(np.sqrt(np.sum(sigmas**2)) / len(sigmas))
     bias = float(np.mean([noise_bias_mm(calib, f, target) for f in frames]))
+    if corner_systematic is None:
+        random_px = float(np.sqrt(np.mean([np.mean(np.square(f.pixel_sigma_px)) for f in frames])))
+        corner_systematic = corner_systematic_px(covariance, random_px)
+    locking = None if covariance is None else covariance.pixel_locking_px
+    detector_bias = rest = 0.0
+    if locking is not None:
+        detector_bias = float((complex(*locking) * phase_sum(calib, frames, target)).imag)
+    if corner_systematic > 0:
+        rest = coherent_displacement_mm(calib, frames, target, corner_systematic)
+    systematic = float(math.sqrt(detector_bias**2 * (1.0 + LOCKING_TRANSFER_U_REL**2) + rest**2))
     measured = _square_function(frames, target)(calib)
     return UncertaintyBudget(
         measured_mm=measured, nominal_mm=float(target.square_mm), n_frames=len(frames),
-        noise=float(math.hypot(random, bias)), calibration=u_calibration, structure=u_structure,
-        target=board_scale.u_mm(target.square_mm), k=float(k), structure_source=structure_source,
-        calibration_note=note, sensitivities=gradient, noise_random_mm=random, noise_bias_mm=bias,
+        noise=float(math.sqrt(random**2 + bias**2 + systematic**2)), calibration=u_calibration,
+        structure=u_structure, target=board_scale.u_mm(target.square_mm), k=float(k),
+        structure_source=structure_source, calibration_note=note, sensitivities=gradient, noise_random_mm=random,
+        noise_bias_mm=bias, noise_systematic_mm=systematic, corner_systematic_px=float(corner_systematic),
+        detector_bias_mm=detector_bias, pixel_locking_px=locking,
     )
