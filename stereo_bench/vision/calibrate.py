@@ -198,7 +198,7 @@ def calibrate_stereo(
     object_points: list[np.ndarray], left_points: list[np.ndarray], right_points: list[np.ndarray],
     image_size: tuple[int, int], *, intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
     mode: StereoMode = "joint", flags: int = DEFAULT_FLAGS, min_views: int = MIN_VIEWS, max_rounds: int = 3,
-    intrinsics_covariance: CalibrationCovariance | None = None,
+    intrinsics_covariance: CalibrationCovariance | None = None, covariance: bool = True,
 ) -> StereoCalibration:
     """Stereo calibration from views seen by both cameras.
 
@@ -209,6 +209,8 @@ def calibrate_stereo(
         mode: "joint" refines the intrinsics with R, T; "fixed" keeps them.
         intrinsics_covariance: of the given ``intrinsics`` (names ``left.*``, ``right.*``), from a
             calibration independent of these views; fixed mode propagates it into R, T.
+        covariance: compute the parameters' covariance (~2 % of a 12-view calibration's time,
+            scripts/bench_covariance.py); False leaves it None ("not computed").
     """
     if not len(object_points) == len(left_points) == len(right_points):
         raise ValueError("object, left and right point lists must have one entry per view")
@@ -252,8 +254,10 @@ def calibrate_stereo(
                                                          f"{threshold:.3f} px"))
         used = [index for position, index in enumerate(used) if position not in set(drop)]
     D1n, D2n, T = np.asarray(D1n).reshape(1, -1), np.asarray(D2n).reshape(1, -1), np.asarray(T, float).reshape(3)
-    covariance, note = None, ""
+    cov, note = None, ""
     try:
+        if not covariance:
+            raise CovarianceUnavailable("not computed")
         intrinsics_from = None
         if mode == "fixed" and left is not None:
             intrinsics_from = tuple(
@@ -262,7 +266,7 @@ def calibrate_stereo(
                                    view_indices=mono.views_used, side=side)
                 for mono, points, side in ((left, left_points, "left"), (right, right_points, "right"))
             )
-        covariance = stereo_covariance(
+        cov = stereo_covariance(
             [object_points[i] for i in used], [left_points[i] for i in used], [right_points[i] for i in used],
             K1n, D1n, K2n, D2n, R, T, rvecs, tvecs, flags=stereo_flags, view_indices=used,
             intrinsics_covariance=intrinsics_covariance, intrinsics_from=intrinsics_from,
@@ -272,5 +276,5 @@ def calibrate_stereo(
     return StereoCalibration(
         K1=K1n, D1=D1n, K2=K2n, D2=D2n, R=R, T=T, image_size=tuple(image_size), rms_px=float(rms),
         per_view_rms_px=per_view, views_used=used, views_rejected=sorted(rejected, key=lambda r: r.index),
-        mode=mode, E=E, F=F, covariance=covariance, covariance_note=note,
+        mode=mode, E=E, F=F, covariance=cov, covariance_note=note,
     )

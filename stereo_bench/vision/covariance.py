@@ -172,32 +172,38 @@ class _Solution:
         return float(np.sqrt(self.ssr / self.dof)) if self.dof > 0 else float("nan")
 
 
-def _solve(views: list[_View]) -> _Solution:
-    """Schur complement of the per-view poses; raises CovarianceUnavailable if the problem is singular."""
-    P = views[0].J_global.shape[1]
-    S = np.zeros((P, P))
-    reductions = []
-    for view in views:
-        C = view.J_pose.T @ view.J_pose
-        B = view.J_global.T @ view.J_pose  # (P, 6)
-        try:
-            C_inv_Bt = np.linalg.solve(C, B.T)  # (6, P)
-        except np.linalg.LinAlgError:
-            raise CovarianceUnavailable(f"view {view.key[0][0]}: its board pose is undetermined") from None
-        S += view.J_global.T @ view.J_global - B @ C_inv_Bt
-        reductions.append(C_inv_Bt)
+def _solve(views: list[_View], *, locking: bool = True) -> _Solution:
+    """Schur complement of the per-view poses; raises CovarianceUnavailable if the problem is singular.
+
+    All views at once: each view's rows are zero-padded to the longest view's (zero rows add nothing
+    to the normal equations), so the per-view algebra runs as a few batched numpy calls.
+    """
+    sizes = [len(view.residual) for view in views]
+    n, m, P = len(views), max(sizes), views[0].J_global.shape[1]
+    J_global, J_pose = np.zeros((n, m, P)), np.zeros((n, m, 6))
+    for i, view in enumerate(views):
+        J_global[i, :sizes[i]], J_pose[i, :sizes[i]] = view.J_global, view.J_pose
+    J_pose_t = J_pose.transpose(0, 2, 1)
+    C = J_pose_t @ J_pose  # (n, 6, 6)
+    Bt = J_pose_t @ J_global  # (n, 6, P)
+    try:
+        C_inv_Bt = np.linalg.solve(C, Bt)  # (n, 6, P)
+    except np.linalg.LinAlgError:
+        raise CovarianceUnavailable("a view's board pose is undetermined") from None
+    stacked = J_global.reshape(n * m, P)
+    S = stacked.T @ stacked - (Bt.transpose(0, 2, 1) @ C_inv_Bt).sum(axis=0)
     try:
         S_inv = np.linalg.inv(S)
     except np.linalg.LinAlgError:
         raise CovarianceUnavailable("the calibration parameters are not determined by these views") from None
     if not np.all(np.isfinite(S_inv)) or np.any(np.diag(S_inv) <= 0):
         raise CovarianceUnavailable("the calibration parameters are not determined by these views")
-    Jhat = [view.J_global - view.J_pose @ reduction for view, reduction in zip(views, reductions, strict=True)]
+    Jhat = J_global - J_pose @ C_inv_Bt
+    residual = np.concatenate([view.residual for view in views])
     return _Solution(
-        S_inv=S_inv, Jhat=Jhat, ssr=float(sum(view.residual @ view.residual for view in views)),
-        n_rows=sum(len(view.residual) for view in views), n_parameters=P + 6 * len(views),
-        pixel_locking_px=pixel_locking(np.concatenate([v.observed for v in views]),
-                                       np.concatenate([v.residual for v in views])),
+        S_inv=S_inv, Jhat=[Jhat[i, :size] for i, size in enumerate(sizes)], ssr=float(residual @ residual),
+        n_rows=len(residual), n_parameters=P + 6 * n,
+        pixel_locking_px=pixel_locking(np.concatenate([v.observed for v in views]), residual) if locking else None,
     )
 
 
@@ -212,10 +218,10 @@ def pixel_locking(observed_px: np.ndarray, residual_px: np.ndarray) -> tuple[flo
     if len(observed_px) < 20:
         return None
     phase = 2.0 * np.pi * np.mod(observed_px, 1.0)
-    design = np.column_stack([np.sin(phase), np.cos(phase)])
+    design = np.stack([np.sin(phase), np.cos(phase)])  # (2, m)
     target = -np.asarray(residual_px, float)
-    coefficients, *_ = np.linalg.lstsq(design, target, rcond=None)
-    scatter = np.sqrt(np.sum((target - design @ coefficients) ** 2) / (len(target) - 2))
+    coefficients = np.linalg.solve(design @ design.T, design @ target)
+    scatter = np.sqrt(np.sum((target - coefficients @ design) ** 2) / (len(target) - 2))
     standard_error = scatter / np.sqrt(0.5 * len(target))  # each harmonic has mean square 1/2
     if np.hypot(*coefficients) < 3.0 * standard_error:
         return None
@@ -261,11 +267,13 @@ def mono_covariance(
 class MonoLinearisation:
     """How one camera's intrinsics, estimated from some views, respond to those views' corners.
 
-    ``influence[(view index, side)]`` (P, 2 N_v): d(intrinsics)/d(observed pixels) of that view.
+    d(intrinsics) = S_inv @ sum_v jhat[v].T @ d(observed pixels of view v); ``jhat[(view index,
+    side)]`` (2 N_v, P) is the view's Jacobian with its pose projected out, ``S_inv`` (P, P).
     """
 
     names: tuple[str, ...]
-    influence: dict[tuple, np.ndarray]
+    S_inv: np.ndarray
+    jhat: dict[tuple, np.ndarray]
 
 
 def mono_linearisation(
@@ -275,11 +283,10 @@ def mono_linearisation(
     """The influence of each view's corners on a mono calibration's intrinsics (views keyed by ``view_indices``)."""
     free = free_intrinsics(flags, np.asarray(D).size)
     views = _mono_views(object_points, image_points, K, D, rvecs, tvecs, free, list(view_indices), side)
-    solution = _solve(views)
+    solution = _solve(views, locking=False)  # the stereo fit of the same corners measures it
     # dp = S^-1 Jhat^T dq: the residual is projected - observed, and the fit moves to follow the corners.
-    return MonoLinearisation(
-        names=free, influence={v.key[0]: solution.S_inv @ Jh.T for v, Jh in zip(views, solution.Jhat, strict=True)},
-    )
+    return MonoLinearisation(names=free, S_inv=solution.S_inv,
+                             jhat={v.key[0]: Jh for v, Jh in zip(views, solution.Jhat, strict=True)})
 
 
 def _stereo_views(object_points, left_points, right_points, K1, D1, K2, D2, R, T, rvecs, tvecs,
@@ -299,13 +306,17 @@ def _stereo_views(object_points, left_points, right_points, K1, D1, K2, D2, R, T
         rvec_r, tvec_r, dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2 = cv2.composeRT(
             np.asarray(rvec, np.float64).reshape(3, 1), np.asarray(tvec, np.float64).reshape(3, 1), rvec_rt, T)
         px_r, jac_r = _projection(obj, rvec_r, tvec_r, K2, D2)
-        d_pose = np.block([[dr3dr1, dr3dt1], [dt3dr1, dt3dt1]])  # d(right pose)/d(left pose)
-        d_rt = np.block([[dr3dr2, dr3dt2], [dt3dr2, dt3dt2]])  # d(right pose)/d(rvec, T)
+        d_pose = np.empty((6, 6))  # d(right pose)/d(left pose)
+        d_pose[:3, :3], d_pose[:3, 3:], d_pose[3:, :3], d_pose[3:, 3:] = dr3dr1, dr3dt1, dt3dr1, dt3dt1
+        d_rt = np.empty((6, 6))  # d(right pose)/d(rvec, T)
+        d_rt[:3, :3], d_rt[:3, 3:], d_rt[3:, :3], d_rt[3:, 3:] = dr3dr2, dr3dt2, dt3dr2, dt3dt2
         m_l, m_r = len(px_l), len(px_r)
         J_global = np.zeros((m_l + m_r, P))
         J_global[:m_l, :nl] = jac_l[:, cols_l]
         J_global[m_l:, nl:nl + nr] = jac_r[:, cols_r]
         J_global[m_l:, nl + nr:] = jac_r[:, :6] @ d_rt
+        J_pose = np.empty((m_l + m_r, 6))
+        J_pose[:m_l], J_pose[m_l:] = jac_l[:, :6], jac_r[:, :6] @ d_pose
         J_external = None
         if E:
             J_external = np.zeros((m_l + m_r, E))
@@ -313,7 +324,7 @@ def _stereo_views(object_points, left_points, right_points, K1, D1, K2, D2, R, T
             J_external[m_l:, len(ext_l):] = jac_r[:, ext_r]
         views.append(_View(
             key=((index, "left"), (index, "right")), sizes=(m_l, m_r), J_global=J_global,
-            J_pose=np.vstack([jac_l[:, :6], jac_r[:, :6] @ d_pose]), J_external=J_external,
+            J_pose=J_pose, J_external=J_external,
             residual=np.concatenate([px_l - np.asarray(left, np.float64).reshape(-1),
                                      px_r - np.asarray(right, np.float64).reshape(-1)]),
             observed=np.concatenate([np.asarray(left, np.float64).reshape(-1),
@@ -382,32 +393,27 @@ def stereo_covariance(
         return CalibrationCovariance(ext_names + EXTRINSIC_NAMES, matrix, solution.sigma_px, solution.dof,
                                      solution.pixel_locking_px)
 
-    # Same data: write every estimate as a linear map of the observed corners, block by block, then
-    # Cov = sigma^2 sum_blocks L L^T (independent corners of equal noise).
+    # Same data. Every estimate is linear in the observed corners q (independent, variance sigma^2):
+    # intrinsics e = M q with M = S_m^-1 Jhat_m^T (per camera), the stereo fit a = D q - G e with
+    # D = S^-1 Jhat^T. Then sum M M^T = S_m^-1, sum D D^T = S^-1, and only X = sum D M^T needs the
+    # views that both fits used.
     left_lin, right_lin = intrinsics_from
     n_el, n_e = len(ext_l), len(ext_l) + len(ext_r)
-    maps: dict[tuple, np.ndarray] = {}
-    for key, influence in left_lin.influence.items():
-        block = np.zeros((n_e, influence.shape[1]))
-        block[:n_el] = influence
-        maps[key] = block
-    for key, influence in right_lin.influence.items():
-        block = np.zeros((n_e, influence.shape[1]))
-        block[n_el:] = influence
-        maps[key] = block
-    full: dict[tuple, np.ndarray] = {}
-    for key, intr_map in maps.items():
-        full[key] = np.vstack([intr_map, -G @ intr_map])
+    B = np.zeros((n_e, n_e))
+    B[:n_el, :n_el], B[n_el:, n_el:] = left_lin.S_inv, right_lin.S_inv
+    X = np.zeros((6, n_e))
     for view, Jh in zip(views, solution.Jhat, strict=True):
         start = 0
         for key, size in zip(view.key, view.sizes, strict=True):
-            direct = solution.S_inv @ Jh[start:start + size].T  # (6, size)
+            rows = Jh[start:start + size]
             start += size
-            if key in full:
-                full[key][n_e:] += direct
-            else:
-                full[key] = np.vstack([np.zeros((n_e, size)), direct])
-    matrix = sigma2 * sum(L @ L.T for L in full.values())
+            for lin, columns in ((left_lin, slice(0, n_el)), (right_lin, slice(n_el, n_e))):
+                if key in lin.jhat:
+                    X[:, columns] += rows.T @ lin.jhat[key] @ lin.S_inv
+    X = solution.S_inv @ X
+    cov_rt = solution.S_inv - G @ X.T - X @ G.T + G @ B @ G.T
+    cross = X - G @ B  # Cov(rvec T, intrinsics) / sigma^2
+    matrix = sigma2 * np.block([[B, cross.T], [cross, cov_rt]])
     return CalibrationCovariance(ext_names + EXTRINSIC_NAMES, matrix, solution.sigma_px, solution.dof,
                                  solution.pixel_locking_px)
 
