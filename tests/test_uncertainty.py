@@ -145,9 +145,10 @@ def _coverage(mode: str) -> dict[str, np.ndarray]:
     ``z``: error / u_c of 5 noisy frames; ``over_U``: abs(error) / U; ``old``: error / the random
     noise sigma alone (the campaign's sigma_mm before the budget); ``z_calibration``: error of a
     noise-free frame measured with the same calibration / the calibration component (what is left
-    of the error there is the calibration's alone).
+    of the error there is the calibration's alone); ``error_calibration``: that error (mm),
+    configuration-major.
     """
-    out: dict[str, list[float]] = {"z": [], "over_U": [], "old": [], "z_calibration": []}
+    out: dict[str, list[float]] = {"z": [], "over_U": [], "old": [], "z_calibration": [], "error_calibration": []}
     for config in CONFIGURATIONS:
         for seed in range(20):
             rng = np.random.default_rng([41, seed, int(config.baseline_mm), int(config.distance_mm)])
@@ -162,6 +163,7 @@ def _coverage(mode: str) -> dict[str, np.ndarray]:
             alone = configuration_budget(exact, calib, TARGET, board_scale=BoardScale(0.0, 0.0))
             assert alone.noise == 0.0 and alone.unknown == ["structure"]
             out["z_calibration"].append(alone.error_mm / alone.calibration)
+            out["error_calibration"].append(alone.error_mm)
     return {name: np.array(values) for name, values in out.items()}
 
 
@@ -180,3 +182,18 @@ def test_coverage_on_the_ideal_synthetic_bench():
     assert np.mean(result["over_U"] <= 1.0) >= 0.90, np.mean(result["over_U"] <= 1.0)
     # The old sigma (image noise, random part only) does not hold on the same errors.
     assert np.sqrt(np.mean(result["old"] ** 2)) > 1.4
+
+
+@pytest.mark.slow
+def test_predicted_calibration_component_matches_the_recalibrations():
+    # model predict / the advisor predict the calibration's error from the planned views alone
+    # (noise-free, their own deterministic placement); the campaign's placement, drawn afresh per seed,
+    # must scatter as predicted.
+    from stereo_bench.errormodel.rigorous import CalibrationPlan, calibration_sigmas
+
+    errors = _coverage("joint")["error_calibration"].reshape(len(CONFIGURATIONS), -1)
+    predicted = np.array([calibration_sigmas(c.setup, CalibrationPlan(), NOISE_PX)[0] for c in CONFIGURATIONS])
+    ratios = np.sqrt(np.mean(errors**2, axis=1)) / predicted
+    assert np.all((0.6 < ratios) & (ratios < 1.6)), ratios  # 20 seeds each: standard error 16 %
+    pooled = np.sqrt(np.mean((errors / predicted[:, None]) ** 2))
+    assert 0.8 < pooled < 1.25, pooled  # 100 samples: standard error 7 %

@@ -34,7 +34,7 @@ construction of the model.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -162,13 +162,16 @@ class _Solution:
     n_rows: int
     n_parameters: int  # P + 6 per view
     pixel_locking_px: tuple[float, float] | None
+    assumed_sigma_px: float | None = None  # given instead of estimated from the residuals
 
     @property
     def dof(self) -> int:
-        return self.n_rows - self.n_parameters
+        return 0 if self.assumed_sigma_px is not None else self.n_rows - self.n_parameters
 
     @property
     def sigma_px(self) -> float:
+        if self.assumed_sigma_px is not None:
+            return self.assumed_sigma_px
         return float(np.sqrt(self.ssr / self.dof)) if self.dof > 0 else float("nan")
 
 
@@ -339,7 +342,7 @@ def stereo_covariance(
     rvecs: Sequence[np.ndarray], tvecs: Sequence[np.ndarray], *, flags: int,
     intrinsics_covariance: CalibrationCovariance | None = None,
     intrinsics_from: tuple[MonoLinearisation, MonoLinearisation] | None = None,
-    view_indices: Sequence[int] | None = None,
+    view_indices: Sequence[int] | None = None, sigma_px: float | None = None,
 ) -> CalibrationCovariance:
     """Covariance of both cameras' intrinsics and R (rotation vector), T after cv2.stereoCalibrate.
 
@@ -354,6 +357,9 @@ def stereo_covariance(
             views (keyed by ``view_indices``), whose noise is shared with the stereo fit: propagated
             jointly, the correlation included.
         view_indices: the views' keys for ``intrinsics_from`` (default 0..n-1).
+        sigma_px: the corner noise per coordinate to scale by; default the fit's residual sigma.
+            Given, it predicts a planned calibration's covariance from noise-free projections
+            (``dof`` is then 0: assumed, not estimated).
 
     Returns: names ``left.* right.* rvec.* T.*`` (intrinsics: those estimated here or given).
 
@@ -375,7 +381,9 @@ def stereo_covariance(
         ext_r = tuple(n[6:] for n in intrinsics_covariance.with_prefix("right."))
     views = _stereo_views(object_points, left_points, right_points, K1, D1, K2, D2, R, T, rvecs, tvecs,
                           free_l, free_r, ext_l, ext_r, view_indices)
-    solution = _solve(views)
+    solution = _solve(views, locking=sigma_px is None)
+    if sigma_px is not None:
+        solution = replace(solution, assumed_sigma_px=float(sigma_px))
     sigma2 = solution.sigma_px**2
     names = tuple("left." + n for n in free_l) + tuple("right." + n for n in free_r) + EXTRINSIC_NAMES
     if not fixed:

@@ -161,6 +161,11 @@ def perturbed(calib: StereoCalibration, name: str, delta: float) -> StereoCalibr
     return replace(calib, **({"K1": K, "D1": D} if side == "left" else {"K2": K, "D2": D}))
 
 
+def parameter_step(name: str) -> float:
+    """Central-difference step for a calibration parameter (a covariance name), in its unit."""
+    return _STEP[name.partition(".")[0] if name.startswith(("rvec.", "T.")) else name.partition(".")[2]]
+
+
 def _square_function(frames: list[FrameCorners], target: Target):
     """f(calib, left=None, right=None) -> the configuration's square (mm): mean over frames of each
     frame's mean adjacent length; ``left``/``right`` replace the frames' stacked pixels (sum N_i, 2)."""
@@ -307,7 +312,7 @@ def square_sensitivities(
     square = _square_function(_frames(frames), target)
     gradient = np.empty(len(names))
     for i, name in enumerate(names):
-        step = _STEP[name.partition(".")[0] if name.startswith(("rvec.", "T.")) else name.partition(".")[2]]
+        step = parameter_step(name)
         gradient[i] = (square(perturbed(calib, name, step)) - square(perturbed(calib, name, -step))) / (2 * step)
     return gradient
 
