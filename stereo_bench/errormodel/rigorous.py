@@ -66,7 +66,13 @@ from stereo_bench.vision.covariance import (
 from stereo_bench.vision.measure import measure_square
 from stereo_bench.vision.pipeline import MIN_COMMON_CORNERS
 from stereo_bench.vision.triangulate import triangulate, triangulation_jacobian
-from stereo_bench.vision.uncertainty import FrameCorners, parameter_step, perturbed, square_sensitivities
+from stereo_bench.vision.uncertainty import (
+    FrameCorners,
+    noise_bias_mm,
+    parameter_step,
+    perturbed,
+    square_sensitivities,
+)
 
 #: Corners closer than this to an image border count as not seen (as in ``geometry.visible_in_both``).
 DEFAULT_MARGIN_PX = VIEW_MARGIN_PX
@@ -245,23 +251,11 @@ def square_noise_bias_mm(
     with Σ_d = Σ_a + Σ_b (independent corners) and u = d / |d|. Depth noise, large at small K,
     lengthens every pair on average. The triangulation's own curvature (a relative bias of order
     σ_d² / d², disparity d) is left out: below 1e-6 of the length on this bench.
-    ``left_px``/``right_px`` (n, 2): true pixels of the corners ``ids`` (n,).
+    ``left_px``/``right_px`` (n, 2): true pixels of the corners ``ids`` (n,). The measurement's
+    uncertainty budget counts the same bias (:func:`stereo_bench.vision.uncertainty.noise_bias_mm`).
     """
-    ids = np.asarray(ids)
-    points = triangulate(calib, left_px, right_px)
-    jac = triangulation_jacobian(calib, left_px, right_px)
-    cov = pixel_sigma_px**2 * np.einsum("nik,njk->nij", jac, jac)  # (n, 3, 3), rotation-invariant here
-    position = {corner_id: i for i, corner_id in enumerate(ids.tolist())}
-    pairs = np.array([(position[a], position[b]) for a, b in board.adjacent_pairs()
-                      if a in position and b in position], int).reshape(-1, 2)
-    if not len(pairs):
-        return float("nan")
-    d = points[pairs[:, 0]] - points[pairs[:, 1]]
-    length = np.linalg.norm(d, axis=1)
-    u = d / length[:, None]
-    cov_d = cov[pairs[:, 0]] + cov[pairs[:, 1]]
-    transverse = np.trace(cov_d, axis1=1, axis2=2) - np.einsum("ki,kij,kj->k", u, cov_d, u)
-    return float(np.mean(transverse / (2.0 * length)))
+    frame = FrameCorners(np.asarray(ids), left_px, right_px, 0.0, (pixel_sigma_px, pixel_sigma_px))
+    return noise_bias_mm(calib, frame, board)
 
 
 def parallel_depth_sigma_mm(distance_mm: float, baseline_mm: float, focal_px: float, pixel_sigma_px: float) -> float:
