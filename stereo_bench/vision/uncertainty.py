@@ -73,9 +73,11 @@ from stereo_bench.vision.triangulate import triangulate, triangulation_jacobian
 
 K_COVERAGE = 2.0
 #: Default relative standard uncertainty of a board's square (scale). 1e-4 is 2.7 um on the 27 mm
-#: square: the order of the pitch tolerance stated for commercial rigid (printed-on-aluminium or
-#: glass) calibration targets, a few tens of um over a few hundred mm. A board printed on an office
-#: printer is typically 1e-3 to 5e-3 off in scale and should be given as such (or measured).
+#: square: the conservative end of what inspection reports of precision (glass, ceramic,
+#: photolithographic) targets state, feature positions within +-2 um (e.g. calibvision.com's
+#: reports; dot-vision's show a few um over 30 mm). A UV print on aluminium composite or a paper
+#: print is not certified at that level (an office print is easily 1e-3 off in scale): give its own
+#: value (``BoardScale``, ``--board-scale-u``), ideally measured.
 DEFAULT_BOARD_SCALE_U_REL = 1e-4
 COMPONENTS = ("noise", "calibration", "structure", "target")
 #: Relative standard uncertainty of the detector bias predicted from the calibration's fitted pixel
