@@ -5,11 +5,10 @@ drivers.sim.render.calibration_board_poses at B 100 mm, Z 500 mm, parallel rig),
 with 0.05 px of corner noise: the solver's work is the same as on detected corners, and detection
 (which the covariance does not touch) stays out of the figure. Per mode, ``--runs`` times in turn:
 the calibration without its covariance, and the covariance computation alone on that solver's
-outputs (the very calls calibrate_stereo makes after the solver: mono linearisations in fixed mode,
-then the stereo covariance). The overhead is covariance / calibration, each the fastest of its runs:
-on a shared machine the minimum is the figure least disturbed by other work (medians are printed
-too; the difference of two whole-calibration timings drowns in that noise). Target: the covariance
-adds at most 10 % (issue 12).
+outputs (the very call calibrate_stereo makes after the solver). The overhead is covariance /
+calibration, each the fastest of its runs: on a shared machine the minimum is the figure least
+disturbed by other work (medians are printed too; the difference of two whole-calibration timings
+drowns in that noise). Target: the covariance adds at most 10 % (issue 12).
 
     python scripts/bench_covariance.py [--runs 30] [--views 12]
 
@@ -32,7 +31,7 @@ from drivers.sim.render import calibration_board_poses
 from stereo_bench.geometry import CameraModel, RigPose, invert_transform, transform_points
 from stereo_bench.targets import Checkerboard
 from stereo_bench.vision.calibrate import CRITERIA, DEFAULT_FLAGS, calibrate_mono, calibrate_stereo
-from stereo_bench.vision.covariance import mono_linearisation, stereo_covariance
+from stereo_bench.vision.covariance import stereo_covariance
 
 BOARD = Checkerboard(11, 8, 25.0)
 CAMERA = CameraModel.from_sensor()
@@ -64,15 +63,10 @@ def covariance_job(objects, lefts, rights, mode: str):
     views = list(range(len(objects)))
 
     def job():
-        intrinsics_from = None
-        if mode == "fixed":
-            intrinsics_from = tuple(
-                mono_linearisation(objects, points, mono.K, mono.dist, mono.rvecs, mono.tvecs, flags=DEFAULT_FLAGS,
-                                   view_indices=views, side=side)
-                for mono, points, side in ((monos[0], lefts, "left"), (monos[1], rights, "right")))
+        # As calibrate_stereo: fixed intrinsics from mono fits of these same views.
         return stereo_covariance(objects, lefts, rights, K1, D1.reshape(1, -1), K2, D2.reshape(1, -1), R,
-                                 np.ravel(T), rvecs, tvecs, flags=flags, intrinsics_from=intrinsics_from,
-                                 view_indices=views)
+                                 np.ravel(T), rvecs, tvecs, flags=flags, view_indices=views,
+                                 intrinsics_from="these views" if mode == "fixed" else None)
     return job
 
 

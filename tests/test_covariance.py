@@ -214,3 +214,27 @@ def test_calibration_residuals_measure_the_detectors_pixel_locking():
     # Without locking the fit finds none.
     plain = [[p + rng.normal(0, 0.01, p.shape) for p in side] for side in (lefts, rights)]
     assert calibrate_stereo(objects, *plain, CAMERA.image_size).covariance.pixel_locking_px is None
+
+
+def test_fixed_intrinsics_from_these_views_equal_the_separate_mono_linearisations():
+    # The shortcut (mono linearisations from the stereo fit's own rows) against the mono fits' own.
+    from stereo_bench.vision.covariance import mono_linearisation
+
+    _, objects, lefts, rights = synthetic_views(8, np.random.default_rng(16), noise_px=NOISE_PX)
+    calib = calibrate_stereo(objects, lefts, rights, CAMERA.image_size, mode="fixed")
+    monos = [calibrate_mono(objects, side, CAMERA.image_size) for side in (lefts, rights)]
+    views = list(range(8))
+    exact = tuple(mono_linearisation(objects, side, m.K, m.dist, m.rvecs, m.tvecs, flags=DEFAULT_FLAGS,
+                                     view_indices=views, side=name)
+                  for m, side, name in ((monos[0], lefts, "left"), (monos[1], rights, "right")))
+    flags = DEFAULT_FLAGS | cv2.CALIB_FIX_INTRINSIC
+    *_, rvecs, tvecs, _ = cv2.stereoCalibrateExtended(
+        [np.float32(o).reshape(-1, 1, 3) for o in objects], [np.float32(p).reshape(-1, 1, 2) for p in lefts],
+        [np.float32(p).reshape(-1, 1, 2) for p in rights], calib.K1.copy(), calib.D1.copy(), calib.K2.copy(),
+        calib.D2.copy(), CAMERA.image_size, None, None, flags=flags,
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12))
+    separate = stereo_covariance(objects, lefts, rights, calib.K1, calib.D1, calib.K2, calib.D2, calib.R, calib.T,
+                                 rvecs, tvecs, flags=flags, intrinsics_from=exact, view_indices=views)
+    assert calib.covariance.names == separate.names
+    np.testing.assert_allclose(np.sqrt(np.diag(calib.covariance.matrix)), np.sqrt(np.diag(separate.matrix)),
+                               rtol=2e-3)

@@ -259,7 +259,9 @@ def calibrate_stereo(
         if not covariance:
             raise CovarianceUnavailable("not computed")
         intrinsics_from = None
-        if mode == "fixed" and left is not None:
+        if mode == "fixed" and left is not None and left.views_used == right.views_used == used:
+            intrinsics_from = "these views"  # the usual case: the linearisations come from the stereo fit's rows
+        elif mode == "fixed" and left is not None:
             intrinsics_from = tuple(
                 mono_linearisation([object_points[i] for i in mono.views_used], [points[i] for i in mono.views_used],
                                    mono.K, mono.dist, mono.rvecs, mono.tvecs, flags=flags,

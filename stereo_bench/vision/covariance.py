@@ -157,7 +157,7 @@ class _View:
 @dataclass(frozen=True)
 class _Solution:
     S_inv: np.ndarray  # (P, P)
-    Jhat: list[np.ndarray]  # per view (m, P): the Jacobian with the view's pose projected out
+    Jhat: list[np.ndarray] | None  # per view (m, P): the Jacobian with the view's pose projected out
     ssr: float
     n_rows: int
     n_parameters: int  # P + 6 per view
@@ -175,11 +175,12 @@ class _Solution:
         return float(np.sqrt(self.ssr / self.dof)) if self.dof > 0 else float("nan")
 
 
-def _solve(views: list[_View], *, locking: bool = True) -> _Solution:
+def _solve(views: list[_View], *, locking: bool = True, jhat: bool = False) -> _Solution:
     """Schur complement of the per-view poses; raises CovarianceUnavailable if the problem is singular.
 
     All views at once: each view's rows are zero-padded to the longest view's (zero rows add nothing
-    to the normal equations), so the per-view algebra runs as a few batched numpy calls.
+    to the normal equations), so the per-view algebra runs as a few batched numpy calls. ``jhat``:
+    also the pose-projected Jacobian (only estimates that depend on other estimates need it).
     """
     sizes = [len(view.residual) for view in views]
     n, m, P = len(views), max(sizes), views[0].J_global.shape[1]
@@ -201,10 +202,13 @@ def _solve(views: list[_View], *, locking: bool = True) -> _Solution:
         raise CovarianceUnavailable("the calibration parameters are not determined by these views") from None
     if not np.all(np.isfinite(S_inv)) or np.any(np.diag(S_inv) <= 0):
         raise CovarianceUnavailable("the calibration parameters are not determined by these views")
-    Jhat = J_global - J_pose @ C_inv_Bt
+    Jhat = None
+    if jhat:
+        projected = J_global - J_pose @ C_inv_Bt
+        Jhat = [projected[i, :size] for i, size in enumerate(sizes)]
     residual = np.concatenate([view.residual for view in views])
     return _Solution(
-        S_inv=S_inv, Jhat=[Jhat[i, :size] for i, size in enumerate(sizes)], ssr=float(residual @ residual),
+        S_inv=S_inv, Jhat=Jhat, ssr=float(residual @ residual),
         n_rows=len(residual), n_parameters=P + 6 * n,
         pixel_locking_px=pixel_locking(np.concatenate([v.observed for v in views]), residual) if locking else None,
     )
@@ -286,7 +290,7 @@ def mono_linearisation(
     """The influence of each view's corners on a mono calibration's intrinsics (views keyed by ``view_indices``)."""
     free = free_intrinsics(flags, np.asarray(D).size)
     views = _mono_views(object_points, image_points, K, D, rvecs, tvecs, free, list(view_indices), side)
-    solution = _solve(views, locking=False)  # the stereo fit of the same corners measures it
+    solution = _solve(views, locking=False, jhat=True)  # the stereo fit of the same corners measures the locking
     # dp = S^-1 Jhat^T dq: the residual is projected - observed, and the fit moves to follow the corners.
     return MonoLinearisation(names=free, S_inv=solution.S_inv,
                              jhat={v.key[0]: Jh for v, Jh in zip(views, solution.Jhat, strict=True)})
@@ -341,7 +345,7 @@ def stereo_covariance(
     K1: np.ndarray, D1: np.ndarray, K2: np.ndarray, D2: np.ndarray, R: np.ndarray, T: np.ndarray,
     rvecs: Sequence[np.ndarray], tvecs: Sequence[np.ndarray], *, flags: int,
     intrinsics_covariance: CalibrationCovariance | None = None,
-    intrinsics_from: tuple[MonoLinearisation, MonoLinearisation] | None = None,
+    intrinsics_from: tuple[MonoLinearisation, MonoLinearisation] | str | None = None,
     view_indices: Sequence[int] | None = None, sigma_px: float | None = None,
 ) -> CalibrationCovariance:
     """Covariance of both cameras' intrinsics and R (rotation vector), T after cv2.stereoCalibrate.
@@ -355,7 +359,11 @@ def stereo_covariance(
             a calibration independent of these views (e.g. an intrinsics.yml written with one);
         intrinsics_from: (left, right) :func:`mono_linearisation` of mono calibrations of these same
             views (keyed by ``view_indices``), whose noise is shared with the stereo fit: propagated
-            jointly, the correlation included.
+            jointly, the correlation included. ``"these views"``: the mono calibrations used exactly
+            these views (with ``flags`` without CALIB_FIX_INTRINSIC, the mono flags): their
+            linearisations are taken from this fit's projections (the poses differ from the mono
+            fits' at noise level only; a right pose reached through the left one spans the same
+            directions), which saves projecting every view twice more.
         view_indices: the views' keys for ``intrinsics_from`` (default 0..n-1).
         sigma_px: the corner noise per coordinate to scale by; default the fit's residual sigma.
             Given, it predicts a planned calibration's covariance from noise-free projections
@@ -374,14 +382,19 @@ def stereo_covariance(
                                     "the calibration's uncertainty is unknown")
     ext_l: tuple[str, ...] = ()
     ext_r: tuple[str, ...] = ()
-    if fixed and intrinsics_from is not None:
+    mono_flags = flags & ~cv2.CALIB_FIX_INTRINSIC
+    if fixed and isinstance(intrinsics_from, str):
+        if intrinsics_from != "these views":
+            raise ValueError(f"intrinsics_from: two MonoLinearisations or 'these views', not {intrinsics_from!r}")
+        ext_l, ext_r = free_intrinsics(mono_flags, n_dist1), free_intrinsics(mono_flags, n_dist2)
+    elif fixed and intrinsics_from is not None:
         ext_l, ext_r = intrinsics_from[0].names, intrinsics_from[1].names
     elif fixed:
         ext_l = tuple(n[5:] for n in intrinsics_covariance.with_prefix("left."))
         ext_r = tuple(n[6:] for n in intrinsics_covariance.with_prefix("right."))
     views = _stereo_views(object_points, left_points, right_points, K1, D1, K2, D2, R, T, rvecs, tvecs,
                           free_l, free_r, ext_l, ext_r, view_indices)
-    solution = _solve(views, locking=sigma_px is None)
+    solution = _solve(views, locking=sigma_px is None, jhat=fixed)
     if sigma_px is not None:
         solution = replace(solution, assumed_sigma_px=float(sigma_px))
     sigma2 = solution.sigma_px**2
@@ -405,6 +418,8 @@ def stereo_covariance(
     # intrinsics e = M q with M = S_m^-1 Jhat_m^T (per camera), the stereo fit a = D q - G e with
     # D = S^-1 Jhat^T. Then sum M M^T = S_m^-1, sum D D^T = S^-1, and only X = sum D M^T needs the
     # views that both fits used.
+    if isinstance(intrinsics_from, str):
+        intrinsics_from = _mono_linearisations_from(views, ext_l, ext_r)
     left_lin, right_lin = intrinsics_from
     n_el, n_e = len(ext_l), len(ext_l) + len(ext_r)
     B = np.zeros((n_e, n_e))
@@ -424,6 +439,26 @@ def stereo_covariance(
     matrix = sigma2 * np.block([[B, cross.T], [cross, cov_rt]])
     return CalibrationCovariance(ext_names + EXTRINSIC_NAMES, matrix, solution.sigma_px, solution.dof,
                                  solution.pixel_locking_px)
+
+
+def _mono_linearisations_from(views: list[_View], names_left: tuple[str, ...], names_right: tuple[str, ...],
+                              ) -> tuple[MonoLinearisation, MonoLinearisation]:
+    """Each camera's mono linearisation from a fixed-intrinsics stereo fit's rows: its intrinsics' columns
+    (held in ``J_external``) and its own pose columns."""
+    n_l = len(names_left)
+    out = []
+    for side, names, columns in (("left", names_left, slice(0, n_l)), ("right", names_right, slice(n_l, None))):
+        mono_views = []
+        for view in views:
+            rows = slice(0, view.sizes[0]) if side == "left" else slice(view.sizes[0], None)
+            key = view.key[0] if side == "left" else view.key[1]
+            mono_views.append(_View(key=(key,), sizes=(view.sizes[0 if side == "left" else 1],),
+                                    J_global=view.J_external[rows, columns], J_pose=view.J_pose[rows],
+                                    J_external=None, residual=view.residual[rows], observed=view.observed[rows]))
+        solution = _solve(mono_views, locking=False, jhat=True)
+        out.append(MonoLinearisation(names=names, S_inv=solution.S_inv,
+                                     jhat={v.key[0]: Jh for v, Jh in zip(mono_views, solution.Jhat, strict=True)}))
+    return out[0], out[1]
 
 
 def extrinsic_sigmas(R: np.ndarray, T: np.ndarray, covariance: CalibrationCovariance) -> dict:
