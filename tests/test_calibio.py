@@ -68,3 +68,48 @@ def test_missing_and_corrupt_files(tmp_path):
     (tmp_path / "intrinsics.yml").write_text("this: [is not: an opencv file\n")
     with pytest.raises(CalibrationFileError, match="intrinsics.yml"):
         read_calibration(tmp_path)
+
+
+def test_covariance_round_trip_in_both_files(tmp_path):
+    from stereo_bench.vision.calibio import read_intrinsics_covariance
+    from stereo_bench.vision.covariance import EXTRINSIC_NAMES, CalibrationCovariance
+
+    names = ("left.fx", "left.fy", "left.cx", "left.cy", "right.fx", "right.fy", "right.cx", "right.cy")
+    names += EXTRINSIC_NAMES
+    rng = np.random.default_rng(1)
+    root = rng.normal(size=(len(names), len(names))) * 0.1
+    covariance = CalibrationCovariance(names, root @ root.T, sigma_px=0.07, dof=1234, pixel_locking_px=(0.02, -0.001))
+    calib = sample_calibration()
+    calib = StereoCalibration(**{**calib.__dict__, "covariance": covariance})
+    write_calibration(tmp_path, calib)
+    loaded = read_calibration(tmp_path).covariance
+    assert loaded.names == names and loaded.dof == 1234 and loaded.sigma_px == pytest.approx(0.07)
+    assert loaded.pixel_locking_px == pytest.approx((0.02, -0.001))
+    np.testing.assert_allclose(loaded.matrix, covariance.matrix, rtol=1e-12)
+    intrinsic = read_intrinsics_covariance(tmp_path)
+    assert intrinsic.names == names[:8]
+    np.testing.assert_allclose(intrinsic.matrix, covariance.matrix[:8, :8], rtol=1e-12)
+
+
+def test_a_file_without_covariance_loads_with_the_uncertainty_unknown(tmp_path):
+    from stereo_bench.vision.calibio import read_intrinsics_covariance
+
+    calib = read_calibration(OPENCV_FORMAT, image_size=(640, 480))  # OpenCV's own sample: no covariance keys
+    assert calib.covariance is None and "unknown" in calib.covariance_note
+    assert read_intrinsics_covariance(OPENCV_FORMAT) is None
+    # Written without one, the reason travels with the files.
+    write_calibration(tmp_path, StereoCalibration(**{**sample_calibration().__dict__,
+                                                     "covariance_note": "intrinsics given without covariance"}))
+    assert read_calibration(tmp_path).covariance_note == "intrinsics given without covariance"
+
+
+def test_a_covariance_of_the_wrong_size_names_the_file_and_key(tmp_path):
+    from stereo_bench.vision.covariance import EXTRINSIC_NAMES, CalibrationCovariance
+
+    calib = StereoCalibration(**{**sample_calibration().__dict__, "covariance": CalibrationCovariance(
+        EXTRINSIC_NAMES, np.eye(6), sigma_px=0.1)})
+    write_calibration(tmp_path, calib)
+    text = (tmp_path / "extrinsics.yml").read_text().replace("rvec.x rvec.y ", "")
+    (tmp_path / "extrinsics.yml").write_text(text)
+    with pytest.raises(CalibrationFileError, match="extrinsics.yml: key 'covariance' has shape"):
+        read_calibration(tmp_path)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 
+import numpy as np
 import pytest
 
 from stereo_bench.cli import main
@@ -105,3 +106,57 @@ def test_measure_errors_are_one_line_with_exit_2(capsys, calib_dir, tmp_path):
         code, out, err = run(capsys, "measure", "--board", "9x6", "--square", "30", *extra)
         assert code == 2, (extra, err)
         assert message in err and len(err.strip().splitlines()) == 1
+
+
+def test_measure_reports_the_uncertainty_budget(capsys, calib_dir):
+    left, right = OPENCV_SAMPLE / "left03.jpg", OPENCV_SAMPLE / "right03.jpg"
+    args = ("measure", "--calib", str(calib_dir), "--board", "9x6", "--square", "30", str(left), str(right))
+    code, out, _ = run(capsys, *args, "--json")
+    assert code == 0
+    report = json.loads(out)
+    u = report["uncertainty_mm"]
+    assert list(u) == ["noise", "calibration", "structure", "target", "combined", "expanded", "k"]
+    assert u["structure"] is None and report["uncertainty"]["unknown"] == ["structure"]  # not zero: unknown
+    assert u["k"] == 2 and u["expanded"] == pytest.approx(2 * u["combined"])
+    assert u["calibration"] > 0 and u["noise"] >= report["uncertainty"]["noise_random_mm"] > 0
+    assert u["combined"] == pytest.approx(float(np.sqrt(u["noise"] ** 2 + u["calibration"] ** 2 + u["target"] ** 2)))
+    # Two boards, 1e-4 each (calibrate records its board's; measure's default): 30 mm x sqrt(2) x 1e-4.
+    assert u["target"] == pytest.approx(30 * np.sqrt(2) * 1e-4)
+    code, out, _ = run(capsys, *args, "--json", "--same-board")
+    assert json.loads(out)["uncertainty_mm"]["target"] == 0.0
+    code, out, _ = run(capsys, *args, "--json", "--board-scale-u", "1e-3")
+    assert json.loads(out)["uncertainty_mm"]["target"] == pytest.approx(30 * np.hypot(1e-3, 1e-4))
+    code, out, _ = run(capsys, *args)
+    assert code == 0 and f"+- {u['expanded']:.4f} mm (k=2)" in out and "structure unknown" in out
+    code, _, err = run(capsys, *args, "--board-scale-u=-1")
+    assert code == 2 and "--board-scale-u must be" in err and len(err.strip().splitlines()) == 1
+
+
+def test_measure_with_a_calibration_without_covariance_says_unknown(capsys, calib_dir, tmp_path):
+    old = tmp_path / "old"
+    shutil.copytree(calib_dir, old)
+    for name in ("intrinsics.yml", "extrinsics.yml"):  # as an older stereo-bench or OpenCV's sample wrote them
+        text = (old / name).read_text()
+        (old / name).write_text(text[:text.index("covariance_parameters:")])
+    code, out, _ = run(capsys, "measure", "--calib", str(old), "--board", "9x6", "--square", "30",
+                       str(OPENCV_SAMPLE / "left03.jpg"), str(OPENCV_SAMPLE / "right03.jpg"), "--json")
+    report = json.loads(out)
+    assert code == 0 and report["uncertainty_mm"]["calibration"] is None
+    assert report["uncertainty"]["unknown"] == ["calibration", "structure"]
+    assert "no covariance" in report["uncertainty"]["calibration_note"]
+
+
+def test_calibrate_reports_parameter_sigmas(capsys, tmp_path):
+    argv = ("calibrate", "--board", "9x6", "--square", "30", "--left", str(OPENCV_SAMPLE / "left*.jpg"),
+            "--right", str(OPENCV_SAMPLE / "right*.jpg"))
+    code, out, _ = run(capsys, *argv, "--out", str(tmp_path / "c"), "--json")
+    assert code == 0
+    u = json.loads(out)["uncertainty"]
+    for side in ("left", "right"):
+        assert set(u[side]) >= {"fx", "fy", "cx", "cy", "k1", "k2"}
+        assert 0.05 < u[side]["fx"] < 2.0  # px: 13 views of a 9x6 board at 640x480
+    assert 0.005 < u["baseline_mm"] < 0.5 and len(u["T_mm"]) == 3 and len(u["rvec_deg"]) == 3
+    assert 0 < u["rotation_deg"] < 0.5 and 0.05 < u["sigma_px"] < 0.5
+    code, out, _ = run(capsys, *argv, "--out", str(tmp_path / "t"))
+    assert code == 0 and "baseline |T| = 99.8" in out and f"+- {u['baseline_mm']:.3f} mm" in out
+    assert "fx 534." in out and f"+- {u['left']['fx']:.2f}" in out

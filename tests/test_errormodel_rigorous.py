@@ -266,3 +266,70 @@ def test_advice_validation():
         advise(500.0, 0.05, metric="volume")
     with pytest.raises(ValueError, match="target_error_mm"):
         advise(500.0, -1.0)
+
+
+def test_planned_calibration_views_show_the_whole_board_in_both_images_over_the_range():
+    from stereo_bench.errormodel.rigorous import CalibrationPlan, planned_board_poses, project_both
+    from stereo_bench.geometry import transform_points
+
+    setup = Setup.make(200.0, 500.0, 80.0)
+    plan = CalibrationPlan(n_views=12)
+    poses = planned_board_poses(setup, plan)
+    assert len(poses) == 12
+    points = np.asarray(plan.board.object_points, float)
+    depths = []
+    for T_rig_board in poses:
+        left, right, in_front = project_both(setup, transform_points(T_rig_board, points))
+        assert in_front.all() and setup.left.in_image(left, margin_px=20).all()
+        assert setup.right.in_image(right, margin_px=20).all()
+        depths.append(T_rig_board[2, 3])
+    near, far = plan.distance_range(500.0)
+    assert (near, far) == (300.0, 650.0)
+    assert max(depths) - min(depths) > 0.5 * (far - near)  # spread over the range, not bunched
+    with pytest.raises(ValueError, match="does not fit both images"):
+        planned_board_poses(Setup.make(300.0, 300.0, 90.0), CalibrationPlan(distance_mm=(150.0, 160.0)))
+
+
+def test_prediction_includes_the_calibration_component_that_more_views_shrink():
+    from stereo_bench.errormodel.rigorous import CalibrationPlan
+
+    setup = Setup.make(200.0, 500.0, 80.0)
+    assert predict(setup, SIGMA).sigma_calibration_mm is None  # not asked for
+    few = predict(setup, SIGMA, calibration=CalibrationPlan(n_views=6))
+    many = predict(setup, SIGMA, calibration=CalibrationPlan(n_views=24))
+    assert few.calibration_views == 6 and "6 planned views" in few.calibration_note
+    assert few.sigma_calibration_mm > 0 and few.sigma_calibration_depth_mm > 0
+    assert 1.4 < few.sigma_calibration_mm / many.sigma_calibration_mm < 2.8  # about sqrt(4)
+    # Linear in the image noise, like the noise term.
+    double = predict(setup, 2 * SIGMA, calibration=CalibrationPlan(n_views=6))
+    assert double.sigma_calibration_mm == pytest.approx(2 * few.sigma_calibration_mm, rel=1e-6)
+    # Intrinsics from mono calibrations of the same views, held fixed: a larger error here.
+    fixed = predict(setup, SIGMA, calibration=CalibrationPlan(n_views=6, mode="fixed"))
+    assert fixed.sigma_calibration_mm > few.sigma_calibration_mm
+
+
+def test_unplaceable_calibration_views_leave_the_component_unknown_with_the_reason():
+    from stereo_bench.errormodel.rigorous import CalibrationPlan
+
+    pred = predict(Setup.make(300.0, 300.0, 90.0), SIGMA, calibration=CalibrationPlan(distance_mm=(150.0, 160.0)))
+    assert pred.sigma_calibration_mm is None and "does not fit both images" in pred.calibration_note
+
+
+def test_advice_includes_the_calibrations_error_by_default():
+    from stereo_bench.errormodel.advisor import advise
+    from stereo_bench.errormodel.rigorous import CalibrationPlan
+
+    grid = {"baselines_mm": [100.0, 300.0], "alphas_deg": [80.0, 90.0]}
+    noise_only = advise(800.0, 1.0, calibration=None, **grid)
+    plan = CalibrationPlan(n_views=6, mode="fixed")  # few views, intrinsics fixed: a large calibration error
+    with_calibration = advise(800.0, 1.0, calibration=plan, **grid)
+    assert noise_only.calibration_views == 0 and "no calibration error" in noise_only.message
+    assert with_calibration.calibration_views == 6 and "calibration from 6 views" in with_calibration.message
+    best, best_noise = with_calibration.best, noise_only.best
+    assert best.sigma_calibration_mm > 0.3 * best.predicted_error_mm  # it matters here
+    assert best.predicted_error_mm == pytest.approx(
+        math.sqrt(best.sigma_noise_mm**2 + best.bias_mm**2 + best.sigma_calibration_mm**2))
+    # A target the image noise alone would meet is out of reach once the calibration counts.
+    target = 0.5 * (best_noise.predicted_error_mm + best.predicted_error_mm)
+    assert advise(800.0, target, calibration=None, **grid).meets_target
+    assert not advise(800.0, target, calibration=plan, **grid).meets_target

@@ -168,3 +168,33 @@ def test_model_compare_coarse(capsys):
     assert report["experiment2_claimed_alpha_measurable"] is False
     code, out, _ = run(capsys, "model", "compare", "--coarse", "--executor", "serial")
     assert code == 0 and "converging rig" in out and "anything measurable at 30-40 deg: False" in out
+
+
+def test_model_predict_includes_the_planned_calibration(capsys):
+    argv = ("model", "predict", "--baseline", "200", "--distance", "500", "--alpha", "80", "--no-sensitivities")
+    code, out, _ = run(capsys, *argv, "--json")
+    report = json.loads(out)
+    assert code == 0 and report["calibration_views"] == 12 and report["sigma_calibration_mm"] > 0
+    assert report["sigma_calibration_depth_mm"] > 0
+    assert report["sigma_square_total_mm"] == pytest.approx(
+        (report["sigma_square_mm"] ** 2 + report["bias_square_mm"] ** 2 + report["sigma_calibration_mm"] ** 2) ** 0.5)
+    code, out, _ = run(capsys, *argv, "--json", "--calibration-views", "6", "--calibration-mode", "fixed",
+                       "--calibration-board", "9x6", "--calibration-square", "30")
+    fewer = json.loads(out)
+    assert fewer["sigma_calibration_mm"] > report["sigma_calibration_mm"] and "9x6" in fewer["calibration_note"]
+    code, out, _ = run(capsys, *argv, "--json", "--calibration-views", "0")
+    alone = json.loads(out)
+    assert alone["sigma_calibration_mm"] is None and alone["calibration_views"] == 0
+    assert alone["sigma_square_total_mm"] < report["sigma_square_total_mm"]
+    code, out, _ = run(capsys, *argv)
+    assert "calibration:  square sigma" in out and "shared by every frame" in out
+    code, _, err = run(capsys, *argv, "--calibration-views", "3")
+    assert code == 2 and "--calibration-views must be 0" in err
+
+
+def test_advise_reports_the_calibration_it_assumed(capsys):
+    code, out, _ = run(capsys, "advise", "--distance", "500", "--target-error-mm", "0.05", "--baselines", "100",
+                       "300", "200", "--alphas", "80", "90", "10", "--executor", "serial", "--json")
+    advice = json.loads(out)
+    assert code == 0 and advice["calibration_views"] == 12 and advice["best"]["sigma_calibration_mm"] > 0
+    assert "calibration from 12 views" in advice["message"]

@@ -48,6 +48,39 @@ def _add_scene_options(parser: argparse.ArgumentParser) -> None:
                        help="a corner closer than this to an image border counts as not seen (default 10)")
 
 
+def _add_calibration_options(parser: argparse.ArgumentParser) -> None:
+    """The planned stereo calibration whose own error is predicted (same names as the campaign's)."""
+    group = parser.add_argument_group("calibration (its predicted error is included; defaults: the campaign's)")
+    group.add_argument("--calibration-views", type=int, default=12, metavar="N",
+                       help="calibration views planned per configuration (default 12; 0 leaves the calibration's "
+                            "error out: image noise only)")
+    group.add_argument("--calibration-board", default="11x8", metavar="COLSxROWS",
+                       help="calibration checkerboard inner corners (default 11x8)")
+    group.add_argument("--calibration-square", type=float, default=25.0, metavar="MM",
+                       help="its square size (default 25)")
+    group.add_argument("--calibration-distance", type=float, nargs=2, metavar=("NEAR", "FAR"),
+                       help="board distances of the views, mm (default: max(250, 0.6 Z) to 1.3 Z)")
+    group.add_argument("--calibration-mode", choices=("joint", "fixed"), default="joint",
+                       help="joint: intrinsics refined with R, T (default); fixed: from mono calibrations")
+
+
+def _calibration_plan(args):
+    from stereo_bench.errormodel.rigorous import CalibrationPlan
+
+    if args.calibration_views == 0:
+        return None
+    if args.calibration_views < 5:
+        raise CliError(f"--calibration-views must be 0 (left out) or at least 5, not {args.calibration_views}")
+    try:
+        cols, rows = parse_pattern(args.calibration_board)
+        board = Checkerboard(cols, rows, args.calibration_square)
+        return CalibrationPlan(n_views=args.calibration_views, board=board, mode=args.calibration_mode,
+                               distance_mm=None if args.calibration_distance is None
+                               else tuple(args.calibration_distance))
+    except ValueError as error:
+        raise CliError(f"--calibration-board/--calibration-square/--calibration-distance: {error}") from None
+
+
 def _add_executor_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("execution")
     group.add_argument("--executor", choices=("local", "serial", "dask"), default="local",
@@ -227,8 +260,14 @@ def cmd_predict(args: argparse.Namespace) -> int:
                            board_offset_mm=tuple(args.board_offset))
     except ValueError as error:
         raise CliError(str(error)) from None
-    prediction = predict(setup, sigma, margin_px=scene["margin_px"])
+    prediction = predict(setup, sigma, margin_px=scene["margin_px"], calibration=_calibration_plan(args))
     result = prediction.model_dump()
+    terms = [result["sigma_square_mm"], result["bias_square_mm"]]
+    if prediction.calibration_views:
+        terms.append(result["sigma_calibration_mm"])
+    # Image noise, its bias and (when planned) the calibration's error, in quadrature: the square's 1-sigma error.
+    result["sigma_square_total_mm"] = (None if any(t is None for t in terms)
+                                       else float(math.sqrt(sum(t * t for t in terms))))
     k = args.baseline / args.distance
     f_px = setup.left.fx
     dx, dz = paper.components_mm(k, args.distance, f_px, sigma)
@@ -267,6 +306,13 @@ def _print_prediction(r: dict) -> None:
     print(f"{state} ({r['n_in_both']} corners, {r['n_pairs']} pairs)")
     print(f"square:       sigma {_fmt(r['sigma_square_mm'])} mm (mean of pairs), one pair {_fmt(r['sigma_length_mm'])}"
           f" mm, noise bias {_fmt(r['bias_square_mm'], '+.4f')} mm")
+    if r["calibration_views"]:
+        print(f"calibration:  square sigma {_fmt(r['sigma_calibration_mm'])} mm, centre depth sigma "
+              f"{_fmt(r['sigma_calibration_depth_mm'])} mm ({r['calibration_note']}; shared by every frame)")
+    else:
+        print("calibration:  not included (--calibration-views 0): image noise only")
+    print(f"square total: sigma {_fmt(r['sigma_square_total_mm'])} mm (noise, its bias"
+          + (", calibration)" if r["calibration_views"] else ")"))
     print(f"board centre: sigma x {_fmt(r['sigma_x_mm'])}  y {_fmt(r['sigma_y_mm'])}  z {_fmt(r['sigma_z_mm'])} mm "
           f"(rig frame); gamma_xz {_fmt(r['gamma_xz_mm'])} mm, paper's gamma {r['paper']['gamma_mm']:.4f} mm")
     if "textbook_parallel_sigma_z_mm" in r:
@@ -404,7 +450,8 @@ def cmd_advise(args: argparse.Namespace) -> int:
     with _executor(args) as executor:
         advice = advise(args.distance, args.target_error_mm, pixel_sigma_px=sigma, metric=args.metric,
                         baseline_error_mm=args.baseline_error_mm, alpha_error_deg=args.alpha_error_deg,
-                        baselines_mm=baselines, alphas_deg=alphas, executor=executor, **scene)
+                        baselines_mm=baselines, alphas_deg=alphas, executor=executor,
+                        calibration=_calibration_plan(args), **scene)
     if args.json:
         _print_json(advice.model_dump())
         return 0 if advice.meets_target else 1
@@ -457,6 +504,7 @@ def register(subparsers) -> None:
     predict.add_argument("--no-sensitivities", action="store_true", help="skip the structural sensitivities")
     predict.add_argument("--json", action="store_true", help="print one JSON object")
     _add_scene_options(predict)
+    _add_calibration_options(predict)
     _add_executor_options(predict)
     predict.set_defaults(func=cmd_predict)
 
@@ -511,5 +559,6 @@ def register(subparsers) -> None:
                      help="alpha grid, deg (default 30 90 2)")
     adv.add_argument("--json", action="store_true", help="print one JSON object")
     _add_scene_options(adv)
+    _add_calibration_options(adv)
     _add_executor_options(adv)
     adv.set_defaults(func=cmd_advise)

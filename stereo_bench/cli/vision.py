@@ -63,11 +63,41 @@ def camera_summary(K: np.ndarray, D: np.ndarray) -> dict:
             "dist": [float(x) for x in np.ravel(D)]}
 
 
+def check_board_scale_u(value: float | None, option: str) -> float | None:
+    """A relative standard uncertainty of a board's scale: finite, >= 0 and < 0.1 (None passes)."""
+    if value is not None and not (np.isfinite(value) and 0.0 <= value < 0.1):
+        raise CliError(f"{option} must be a relative standard uncertainty in [0, 0.1), e.g. 1e-4, not {value:g}")
+    return value
+
+
+def calibration_uncertainty(calib) -> dict | None:
+    """Standard uncertainties of a calibration's parameters in the units they are shown in; None if unknown."""
+    from stereo_bench.vision.covariance import extrinsic_sigmas
+
+    cov = calib.covariance
+    if cov is None:
+        return None
+    sides = {side: {name.split(".", 1)[1]: sigma for name, sigma in cov.sigmas().items() if name.startswith(side + ".")}
+             for side in ("left", "right")}
+    return {"sigma_px": cov.sigma_px, "dof": cov.dof, **sides, **extrinsic_sigmas(calib.R, calib.T, cov),
+            "pixel_locking_px": None if cov.pixel_locking_px is None else list(cov.pixel_locking_px)}
+
+
+def _pm(value: float, sigma: float | None, spec: str) -> str:
+    return format(value, spec) + ("" if sigma is None else " +- " + format(sigma, spec))
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from stereo_bench.vision.calibio import CalibrationFileError, read_intrinsics, write_calibration
+    from stereo_bench.vision.calibio import (
+        CalibrationFileError,
+        read_intrinsics,
+        read_intrinsics_covariance,
+        write_calibration,
+    )
     from stereo_bench.vision.pipeline import calibrate_from_images
 
     target = target_from_args(args)
+    check_board_scale_u(args.board_scale_u, "--board-scale-u")
     left_paths, right_paths = expand_glob(args.left, "--left"), expand_glob(args.right, "--right")
     if len(left_paths) != len(right_paths):
         raise CliError(f"--left matches {len(left_paths)} files but --right matches {len(right_paths)}: "
@@ -76,10 +106,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     existing = [p for p in (out / "intrinsics.yml", out / "extrinsics.yml") if p.exists()]
     if existing and not args.force:
         raise CliError(f"{existing[0]} exists: choose another --out or pass --force to replace it")
-    intrinsics = None
+    intrinsics = intrinsics_covariance = None
     if args.intrinsics:
         try:
             intrinsics = read_intrinsics(args.intrinsics)[:4]
+            intrinsics_covariance = read_intrinsics_covariance(args.intrinsics)
         except CalibrationFileError as error:
             raise CliError(str(error)) from None
     mode = args.mode or ("fixed" if intrinsics is not None else "joint")
@@ -89,12 +120,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if len(sizes) != 1:
         raise CliError(f"all images must have the same size, found {sorted(sizes)}")
     try:
-        result = calibrate_from_images(left_images, right_images, target, intrinsics=intrinsics, mode=mode)
+        result = calibrate_from_images(left_images, right_images, target, intrinsics=intrinsics, mode=mode,
+                                       intrinsics_covariance=intrinsics_covariance)
     except (ValueError, cv2.error) as error:
         raise CliError(f"calibration failed: {error}") from None
     calib = result.calib
     write_calibration(out, calib, result.rect, board=f"{target.kind} {args.board} square {target.square_mm} mm",
-                      extra={"epipolar_rms_px": result.epipolar_rms_px, "views_used": len(result.views_used)})
+                      extra={"epipolar_rms_px": result.epipolar_rms_px, "views_used": len(result.views_used),
+                             "board_scale_u_rel": args.board_scale_u})
+    uncertainty = calibration_uncertainty(calib)
     report = {
         "rms_px": calib.rms_px, "views_used": len(result.views_used),
         "views_used_files": [[left_paths[i], right_paths[i]] for i in result.views_used],
@@ -105,6 +139,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         "epipolar_rms_px": result.epipolar_rms_px, "mode": mode,
         "left": camera_summary(calib.K1, calib.D1), "right": camera_summary(calib.K2, calib.D2),
         "image_size": list(calib.image_size), "out": str(out),
+        "uncertainty": uncertainty, "uncertainty_note": calib.covariance_note or None,
+        "board_scale_u_rel": args.board_scale_u,
     }
     if args.json:
         json.dump(report, sys.stdout)
@@ -112,10 +148,18 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     else:
         print(f"calibrated {len(result.views_used)} of {len(left_paths)} pairs ({mode} intrinsics), "
               f"RMS {calib.rms_px:.3f} px, epipolar RMS {result.epipolar_rms_px:.3f} px")
-        print(f"baseline |T| = {calib.baseline_mm:.3f} mm, T = {np.round(calib.T, 3).tolist()} mm")
+        u = uncertainty or {}
+        print(f"baseline |T| = {_pm(calib.baseline_mm, u.get('baseline_mm'), '.3f')} mm, "
+              f"T = {np.round(calib.T, 3).tolist()} mm"
+              + (f" (+- {np.round(u['T_mm'], 3).tolist()}), rotation +- {u['rotation_deg']:.4f} deg" if u else ""))
         for side in ("left", "right"):
-            s = report[side]
-            print(f"{side:5s} fx {s['fx']:.2f} fy {s['fy']:.2f} cx {s['cx']:.2f} cy {s['cy']:.2f}")
+            s, su = report[side], u.get(side, {})
+            print(f"{side:5s} " + " ".join(f"{k} {_pm(s[k], su.get(k), '.2f')}" for k in ("fx", "fy", "cx", "cy")))
+        if uncertainty:
+            print(f"uncertainties are standard (1 sigma), from the fit's residual corner noise "
+                  f"{uncertainty['sigma_px']:.3f} px")
+        else:
+            print(f"uncertainty unknown: {calib.covariance_note}")
         for r in report["views_rejected"]:
             print(f"rejected pair {r['index']} ({Path(r['left']).name}, {Path(r['right']).name}): {r['reason']}")
         print(f"wrote {out / 'intrinsics.yml'} and {out / 'extrinsics.yml'}")
@@ -123,11 +167,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_measure(args: argparse.Namespace) -> int:
-    from stereo_bench.vision.calibio import CalibrationFileError, read_calibration
+    from stereo_bench.vision.calibio import CalibrationFileError, calibration_board_scale_u, read_calibration
     from stereo_bench.vision.detect import AmbiguousViewError
     from stereo_bench.vision.pipeline import BoardNotFoundError, measure_pair
+    from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL, BoardScale, configuration_budget
 
     target = target_from_args(args)
+    check_board_scale_u(args.board_scale_u, "--board-scale-u")
+    check_board_scale_u(args.calib_board_scale_u, "--calib-board-scale-u")
     left, right = read_gray(args.left), read_gray(args.right)
     if left.shape != right.shape:
         raise CliError(f"{args.left} is {left.shape[1]}x{left.shape[0]} but {args.right} is "
@@ -135,8 +182,14 @@ def cmd_measure(args: argparse.Namespace) -> int:
     image_size = (left.shape[1], left.shape[0])
     try:
         calib = read_calibration(args.calib, image_size=image_size)
+        calib_board_u = args.calib_board_scale_u
+        if calib_board_u is None:
+            calib_board_u = calibration_board_scale_u(args.calib)
     except CalibrationFileError as error:
         raise CliError(str(error)) from None
+    board_scale = BoardScale(target_u_rel=args.board_scale_u, same_board=args.same_board,
+                             calibration_board_u_rel=DEFAULT_BOARD_SCALE_U_REL if calib_board_u is None
+                             else calib_board_u)
     if tuple(calib.image_size) != image_size:
         raise CliError(f"{args.calib} is for {calib.image_size[0]}x{calib.image_size[1]} images, "
                        f"{args.left} is {image_size[0]}x{image_size[1]}")
@@ -145,7 +198,12 @@ def cmd_measure(args: argparse.Namespace) -> int:
                               partial=args.partial)
     except (BoardNotFoundError, AmbiguousViewError) as error:
         raise CliError(f"{args.left}, {args.right}: {error}") from None
-    report = {**result.as_dict(), "left": str(args.left), "right": str(args.right), "calib": str(args.calib)}
+    budget = configuration_budget([result], calib, target, board_scale=board_scale)
+    report = {**result.as_dict(), "left": str(args.left), "right": str(args.right), "calib": str(args.calib),
+              "uncertainty_mm": budget.as_dict(), "uncertainty": {
+                  **budget.details(), "board_scale": {"target_u_rel": board_scale.target_u_rel,
+                                                      "calibration_board_u_rel": board_scale.calibration_board_u_rel,
+                                                      "same_board": board_scale.same_board}}}
     if args.per_square:
         report["squares"] = [{"ids": [int(a), int(b)], "length_mm": float(length)}
                              for (a, b), length in zip(result.square.pairs, result.square.lengths_mm, strict=True)]
@@ -154,7 +212,12 @@ def cmd_measure(args: argparse.Namespace) -> int:
         print()
     else:
         sq = result.square
-        print(f"square: {sq.mean_mm:.4f} mm  (nominal {sq.nominal_mm:g}, error {sq.error_mm:+.4f} mm)")
+        print(f"square: {sq.mean_mm:.4f} mm  (nominal {sq.nominal_mm:g}, error {sq.error_mm:+.4f} +- "
+              f"{budget.expanded:.4f} mm (k={budget.k:g}))")
+        parts = ", ".join(f"{name} {'unknown' if value is None else format(value, '.4f')}"
+                          for name, value in budget.components.items())
+        print(f"        uncertainty: {parts} -> u_c {budget.combined:.4f} mm, dominant: {budget.dominant}"
+              + (f"; not included: {', '.join(budget.unknown)}" if budget.unknown else ""))
         print(f"        std {sq.std_mm:.4f} mm over n = {sq.n} adjacent pairs, sigma of mean {sq.sigma_mean_mm:.4f} mm")
         print(f"depth:  {sq.depth_mm:.1f} mm (left camera frame); corners in both views: {len(sq.ids)} "
               f"of {target.n_corners}")
@@ -237,6 +300,9 @@ def register(subparsers) -> None:
                            help="joint: refine intrinsics with R, T (default, measured more accurate); "
                                 "fixed: keep the intrinsics")
     calibrate.add_argument("--force", action="store_true", help="replace calibration files already in --out")
+    calibrate.add_argument("--board-scale-u", type=float, default=1e-4, metavar="REL",
+                           help="relative standard uncertainty of the calibration board's square, recorded for "
+                                "'measure' (default 1e-4)")
     calibrate.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     calibrate.set_defaults(func=cmd_calibrate)
 
@@ -257,6 +323,15 @@ def register(subparsers) -> None:
     measure.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     measure.add_argument("--partial", action="store_true",
                          help="accept a checkerboard cut by the image border (ids proven from the board's edges)")
+    measure.add_argument("--board-scale-u", type=float, default=1e-4, metavar="REL",
+                         help="relative standard uncertainty of the measured board's square (certificate or "
+                              "stated tolerance; default 1e-4, a rigid printed target; an office print is 1e-3 "
+                              "or worse)")
+    measure.add_argument("--calib-board-scale-u", type=float, metavar="REL",
+                         help="the same for the board the calibration used (default: as recorded by "
+                              "'stereo-bench calibrate', else 1e-4)")
+    measure.add_argument("--same-board", action="store_true",
+                         help="the calibration used this very board: its scale error cancels")
     measure.set_defaults(func=cmd_measure)
 
     render = subparsers.add_parser(

@@ -7,6 +7,12 @@ combines, in quadrature (all 1σ, mm):
 - image noise: σ of the quantity from ``pixel_sigma_px`` per image coordinate (first order);
 - for the square and single lengths, the noise bias (second order; a length is the norm of a noisy
   difference, so noise lengthens it on average);
+- the calibration's own error (by default): each configuration's stereo calibration is predicted
+  from its planned views (``calibration``: a :class:`~stereo_bench.errormodel.rigorous.CalibrationPlan`,
+  by default the campaign's 12 views of the 11x8, 25 mm board) with the same image noise, and its
+  covariance pushed through the measurement (``rigorous.calibration_sigmas``). One calibration
+  serves all frames of a configuration, so no number of frames averages it away: without it a
+  recommendation rests on image noise alone. ``calibration=None`` leaves it out (and says so);
 - structural errors, when given: a baseline wrong by ``baseline_error_mm`` and each camera's angle
   independently wrong by ``alpha_error_deg`` (first-order sensitivities × error; √2 × one camera's
   sensitivity for the two cameras).
@@ -27,7 +33,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from stereo_bench.errormodel.rigorous import DEFAULT_MARGIN_PX
+from stereo_bench.errormodel.rigorous import DEFAULT_MARGIN_PX, CalibrationPlan
 from stereo_bench.errormodel.surfaces import SurfacePoint, evaluate_configs
 from stereo_bench.executors import Executor
 from stereo_bench.geometry import CameraModel
@@ -41,8 +47,12 @@ DEFAULT_ALPHAS_DEG = tuple(float(a) for a in np.arange(30.0, 90.001, 2.0))
 
 
 def predicted_error_mm(point: SurfacePoint, metric: str, *, baseline_error_mm: float = 0.0,
-                       alpha_error_deg: float = 0.0) -> float | None:
-    """Combined 1σ error (mm) of ``metric`` at a configuration; None when it cannot be computed."""
+                       alpha_error_deg: float = 0.0, calibration: bool = False) -> float | None:
+    """Combined 1σ error (mm) of ``metric`` at a configuration; None when it cannot be computed.
+
+    ``calibration``: include the point's predicted calibration component (None there: not computable).
+    A single length's calibration error is taken as the square's (the calibration scales every length alike).
+    """
     if metric not in ADVICE_METRICS:
         raise ValueError(f"metric must be one of {', '.join(ADVICE_METRICS)}, not {metric!r}")
     if metric == "depth":
@@ -53,6 +63,8 @@ def predicted_error_mm(point: SurfacePoint, metric: str, *, baseline_error_mm: f
         bias = point.bias_square_mm
         per_b, per_a = point.square_per_mm_baseline, point.square_per_deg_alpha
     terms = [noise, bias]
+    if calibration:
+        terms.append(point.sigma_calibration_depth_mm if metric == "depth" else point.sigma_calibration_mm)
     if baseline_error_mm:
         terms.append(None if per_b is None else per_b * baseline_error_mm)
     if alpha_error_deg:
@@ -85,6 +97,7 @@ class Configuration(BaseModel):
     predicted_error_mm: float
     sigma_noise_mm: float | None
     bias_mm: float | None
+    sigma_calibration_mm: float | None = None
 
 
 class Advice(BaseModel):
@@ -96,6 +109,7 @@ class Advice(BaseModel):
     metric: str
     baseline_error_mm: float
     alpha_error_deg: float
+    calibration_views: int  # planned calibration views behind the calibration component; 0: left out
     baselines_mm: tuple[float, float, float]  # first, last, step of the grid
     alphas_deg: tuple[float, float, float]
     meets_target: bool
@@ -140,9 +154,13 @@ def advise(
     baselines_mm: tuple[float, ...] | np.ndarray = DEFAULT_BASELINES_MM,
     alphas_deg: tuple[float, ...] | np.ndarray = DEFAULT_ALPHAS_DEG, board: Checkerboard | None = None,
     left: CameraModel | None = None, right: CameraModel | None = None, margin_px: float = DEFAULT_MARGIN_PX,
-    executor: Executor | None = None,
+    executor: Executor | None = None, calibration: CalibrationPlan | None = CalibrationPlan(),  # noqa: B008
 ) -> Advice:
-    """Recommend B and α ranges (symmetric rig) meeting ``target_error_mm`` on ``metric`` at ``distance_mm``."""
+    """Recommend B and α ranges (symmetric rig) meeting ``target_error_mm`` on ``metric`` at ``distance_mm``.
+
+    ``calibration``: the planned calibration views whose predicted error is included; None: image noise
+    (and the structural errors given) only.
+    """
     if not distance_mm > 0:
         raise ValueError(f"distance_mm must be positive, not {distance_mm}")
     if not target_error_mm > 0:
@@ -161,10 +179,12 @@ def advise(
     points = evaluate_configs(
         [(b, distance_mm, a, a) for b in baselines for a in alphas], pixel_sigma_px=pixel_sigma_px, board=board,
         left=left, right=right, margin_px=margin_px, with_sensitivities=structural, executor=executor,
+        calibration=calibration,
     )
     errors = np.array([
         np.nan if (e := predicted_error_mm(p, metric, baseline_error_mm=baseline_error_mm,
-                                           alpha_error_deg=alpha_error_deg)) is None else e
+                                           alpha_error_deg=alpha_error_deg, calibration=calibration is not None))
+        is None else e
         for p in points
     ]).reshape(len(baselines), len(alphas))
     feasible = np.array([p.feasible for p in points]).reshape(errors.shape)
@@ -194,6 +214,7 @@ def advise(
             predicted_error_mm=float(errors[i, j]),
             sigma_noise_mm={"square": p.sigma_square_mm, "length": p.sigma_length_mm, "depth": p.sigma_z_mm}[metric],
             bias_mm=None if metric == "depth" else p.bias_square_mm,
+            sigma_calibration_mm=p.sigma_calibration_depth_mm if metric == "depth" else p.sigma_calibration_mm,
         )
     rect = _largest_rectangle(ok)
     rec_b = rec_a = worst = None
@@ -214,12 +235,18 @@ def advise(
                    f"{best.baseline_mm:g} mm, alpha {best.alpha_deg:g} deg, predicts {best.predicted_error_mm:.4g} mm")
     else:
         message = f"no configuration of the grid keeps the whole board in both views at Z = {distance_mm:g} mm"
-    if not structural:
-        message += " (image noise only: pass a baseline or angle error to include structural errors)"
+    if calibration is None:
+        message += " (image noise only, no calibration error"
+        message += "" if structural else ", no structural error: pass a baseline or angle error"
+        message += ")"
+    elif not structural:
+        message += (f" (image noise and the error of a calibration from {calibration.n_views} views; pass a "
+                    "baseline or angle error to include structural errors)")
     return Advice(
         distance_mm=distance_mm, target_error_mm=target_error_mm, pixel_sigma_px=pixel_sigma_px, metric=metric,
         baseline_error_mm=baseline_error_mm, alpha_error_deg=alpha_error_deg,
-        baselines_mm=_grid_spec(baselines), alphas_deg=_grid_spec(alphas), meets_target=bool(n_ok),
+        calibration_views=0 if calibration is None else calibration.n_views, baselines_mm=_grid_spec(baselines),
+        alphas_deg=_grid_spec(alphas), meets_target=bool(n_ok),
         recommended_baseline_mm=rec_b, recommended_alpha_deg=rec_a, recommended_worst_error_mm=worst, best=best,
         n_feasible=int(feasible.sum()), n_meeting=n_ok, rows=rows, message=message,
     )

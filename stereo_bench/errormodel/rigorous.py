@@ -23,6 +23,14 @@ takes, so a prediction and a simulated measurement describe the same scene):
   by a small step in one structural parameter (baseline, α of both cameras or of one, focal
   length, principal point); central differences give how far the measured square and the
   measured depth of the board centre move per unit of that error.
+- **Calibration component** (:func:`calibration_sigmas`): the calibration a configuration will
+  get is predicted from its planned views (:class:`CalibrationPlan`: number, board, distance
+  range, tilt; placed by :func:`planned_board_poses` with the spread of the simulated campaign's
+  choreography, in a few ms instead of its ~80), projected without noise: the
+  covariance of its parameters from their Jacobian with the assumed image noise
+  (:func:`stereo_bench.vision.covariance.stereo_covariance`), pushed through the square's and the
+  centre depth's sensitivity to each parameter at the target's true pixels. One calibration serves
+  every frame: this error is not reduced by measuring more frames.
 
 All functions are pure: inputs are left untouched and results are new arrays or pydantic models.
 """
@@ -33,6 +41,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Literal
 
+import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
@@ -43,17 +52,33 @@ from stereo_bench.geometry import (
     board_faces_camera,
     board_pose_facing_rig,
     invert_transform,
+    make_transform,
     transform_points,
 )
 from stereo_bench.targets import Checkerboard
-from stereo_bench.vision.calibrate import StereoCalibration
+from stereo_bench.vision.calibrate import DEFAULT_FLAGS, StereoCalibration
+from stereo_bench.vision.covariance import (
+    CalibrationCovariance,
+    CovarianceUnavailable,
+    mono_linearisation,
+    stereo_covariance,
+)
 from stereo_bench.vision.measure import measure_square
 from stereo_bench.vision.pipeline import MIN_COMMON_CORNERS
 from stereo_bench.vision.triangulate import triangulate, triangulation_jacobian
+from stereo_bench.vision.uncertainty import (
+    FrameCorners,
+    noise_bias_mm,
+    parameter_step,
+    perturbed,
+    square_sensitivities,
+)
 
 #: Corners closer than this to an image border count as not seen (as in ``geometry.visible_in_both``).
 DEFAULT_MARGIN_PX = VIEW_MARGIN_PX
 DEFAULT_BOARD = Checkerboard(9, 6, 27.0)
+#: The campaign's default calibration board (campaign.config: 11x8 inner corners, 25 mm).
+DEFAULT_CALIBRATION_BOARD = Checkerboard(11, 8, 25.0)
 
 
 def default_camera(name: str = "camera") -> CameraModel:
@@ -226,23 +251,11 @@ def square_noise_bias_mm(
     with Σ_d = Σ_a + Σ_b (independent corners) and u = d / |d|. Depth noise, large at small K,
     lengthens every pair on average. The triangulation's own curvature (a relative bias of order
     σ_d² / d², disparity d) is left out: below 1e-6 of the length on this bench.
-    ``left_px``/``right_px`` (n, 2): true pixels of the corners ``ids`` (n,).
+    ``left_px``/``right_px`` (n, 2): true pixels of the corners ``ids`` (n,). The measurement's
+    uncertainty budget counts the same bias (:func:`stereo_bench.vision.uncertainty.noise_bias_mm`).
     """
-    ids = np.asarray(ids)
-    points = triangulate(calib, left_px, right_px)
-    jac = triangulation_jacobian(calib, left_px, right_px)
-    cov = pixel_sigma_px**2 * np.einsum("nik,njk->nij", jac, jac)  # (n, 3, 3), rotation-invariant here
-    position = {corner_id: i for i, corner_id in enumerate(ids.tolist())}
-    pairs = np.array([(position[a], position[b]) for a, b in board.adjacent_pairs()
-                      if a in position and b in position], int).reshape(-1, 2)
-    if not len(pairs):
-        return float("nan")
-    d = points[pairs[:, 0]] - points[pairs[:, 1]]
-    length = np.linalg.norm(d, axis=1)
-    u = d / length[:, None]
-    cov_d = cov[pairs[:, 0]] + cov[pairs[:, 1]]
-    transverse = np.trace(cov_d, axis1=1, axis2=2) - np.einsum("ki,kij,kj->k", u, cov_d, u)
-    return float(np.mean(transverse / (2.0 * length)))
+    frame = FrameCorners(np.asarray(ids), left_px, right_px, 0.0, (pixel_sigma_px, pixel_sigma_px))
+    return noise_bias_mm(calib, frame, board)
 
 
 def parallel_depth_sigma_mm(distance_mm: float, baseline_mm: float, focal_px: float, pixel_sigma_px: float) -> float:
@@ -291,10 +304,19 @@ class Prediction(BaseModel):
     sigma_z_mm: float | None
     gamma_xz_mm: float | None
     gamma_mm: float | None
+    # The calibration's own error (see calibration_sigmas); None when not asked for or not placeable.
+    calibration_views: int = 0
+    sigma_calibration_mm: float | None = None  # of the measured square
+    sigma_calibration_depth_mm: float | None = None  # of the board centre's rig z
+    calibration_note: str = ""
 
 
-def predict(setup: Setup, pixel_sigma_px: float, *, margin_px: float = DEFAULT_MARGIN_PX) -> Prediction:
-    """First-order σ of the measured square and of the board centre for image noise ``pixel_sigma_px``."""
+def predict(setup: Setup, pixel_sigma_px: float, *, margin_px: float = DEFAULT_MARGIN_PX,
+            calibration: CalibrationPlan | None = None) -> Prediction:
+    """First-order σ of the measured square and of the board centre for image noise ``pixel_sigma_px``.
+
+    ``calibration``: also predict the calibration's own error from these planned views (same noise).
+    """
     if not pixel_sigma_px >= 0:
         raise ValueError(f"pixel_sigma_px must be >= 0, not {pixel_sigma_px}")
     ids, vis = visible_corners(setup, margin_px=margin_px)
@@ -315,7 +337,13 @@ def predict(setup: Setup, pixel_sigma_px: float, *, margin_px: float = DEFAULT_M
         cov = point_covariances_rig(setup, centre, pixel_sigma_px)[0]
         sx, sy, sz = (float(v) for v in np.sqrt(np.diag(cov)))
     rig = setup.rig
+    calibration_fields = {}
+    if calibration is not None:
+        square_cal, depth_cal, note = calibration_sigmas(setup, calibration, pixel_sigma_px, margin_px=margin_px)
+        calibration_fields = {"calibration_views": calibration.n_views, "sigma_calibration_mm": square_cal,
+                              "sigma_calibration_depth_mm": depth_cal, "calibration_note": note}
     return Prediction(
+        **calibration_fields,
         baseline_mm=rig.baseline_mm, distance_mm=setup.distance_mm, alpha_left_deg=rig.alpha_left_deg,
         alpha_right_deg=rig.alpha_right_deg, K=rig.baseline_mm / setup.distance_mm, pixel_sigma_px=pixel_sigma_px,
         margin_px=margin_px, feasible=vis.feasible, measurable=vis.measurable, reason=vis.reason,
@@ -458,3 +486,222 @@ def sensitivities(
             depth_mm_per_unit=_nan_to_none(float(d_centre[2])), lateral_mm_per_unit=_nan_to_none(float(d_centre[0])),
         )
     return result
+
+
+# ----------------------------------------------------------------------------------------------
+# The calibration's own error, predicted from the planned calibration views
+
+
+@dataclass(frozen=True)
+class CalibrationPlan:
+    """The calibration views a configuration will be calibrated from, as the campaign plans them.
+
+    ``distance_mm``: (near, far) of the board along the rig's viewing direction; None: the simulated
+    campaign's rule for a target at Z, (max(250, 0.6 Z), 1.3 Z). ``mode``: "joint" refines the
+    intrinsics with R, T; "fixed" takes them from mono calibrations of the same views.
+    ``max_tilt_deg``: largest tilt of the board out of facing the rig.
+    """
+
+    n_views: int = 12
+    board: Checkerboard = DEFAULT_CALIBRATION_BOARD
+    distance_mm: tuple[float, float] | None = None
+    mode: Literal["joint", "fixed"] = "joint"
+    max_tilt_deg: float = 40.0
+
+    def __post_init__(self):
+        if self.n_views < 5:
+            raise ValueError(f"a stereo calibration needs at least 5 views, not {self.n_views}")
+        if self.mode not in ("joint", "fixed"):
+            raise ValueError(f"mode must be 'joint' or 'fixed', not {self.mode!r}")
+        if self.distance_mm is not None and not 0 < self.distance_mm[0] <= self.distance_mm[1]:
+            raise ValueError(f"distance_mm must be (near, far) with 0 < near <= far, not {self.distance_mm}")
+
+    def distance_range(self, target_distance_mm: float) -> tuple[float, float]:
+        if self.distance_mm is not None:
+            return tuple(float(v) for v in self.distance_mm)
+        return max(250.0, 0.6 * target_distance_mm), 1.3 * target_distance_mm
+
+
+_VIEW_MARGIN_PX = 20.0  # room for the corner refinement window, as the campaign's choreography keeps
+
+
+def planned_board_poses(setup: Setup, plan: CalibrationPlan) -> list[np.ndarray]:
+    """T_rig_board (4x4, mm) of ``plan.n_views`` calibration views, deterministic, whole board in both images.
+
+    The spread of the simulated campaign's choreography (drivers.sim.render.calibration_board_poses):
+    distances stratified over the plan's range along the rig's mean viewing direction, tilts of
+    0.4-1 x ``max_tilt_deg`` about the board's axes with the direction stepping round the circle, a
+    +-10 deg roll, and three views in four pushed toward the edge of the common field of view
+    (where distortion shows), the fourth near its centre. A view that does not fit is eased (less
+    offset, then less tilt, then farther) until it does.
+
+    Raises:
+        ValueError: a view cannot be placed (the views overlap too little for this board).
+    """
+    rig, board = setup.rig, plan.board
+    near, far = plan.distance_range(setup.distance_mm)
+    points = np.asarray(board.object_points, float)
+    width, height = board.grid_size_mm
+    centre = np.array([width / 2.0, height / 2.0, 0.0])
+    sq = board.square_mm  # the outer squares must show too: chessboard detectors need them
+    outline = np.array([[x, y, 0.0] for x in (-sq, width + sq) for y in (-sq, height + sq)])
+    check = np.vstack([points, outline])
+    z_axis = rig.T_rig_left[:3, 2] + rig.T_rig_right[:3, 2]
+    z_axis /= np.linalg.norm(z_axis)
+    x_axis = np.array([1.0, 0.0, 0.0]) - z_axis[0] * z_axis
+    x_axis /= np.linalg.norm(x_axis)
+    R_view = np.column_stack([x_axis, np.cross(z_axis, x_axis), z_axis])
+    f = 0.5 * (setup.left.fx + setup.right.fx)
+    half_fov = np.array(setup.left.image_size, float) / 2.0 / f
+    cameras = [(camera, invert_transform(T)) for camera, T in ((setup.left, rig.T_rig_left),
+                                                              (setup.right, rig.T_rig_right))]
+
+    def pose(distance, offset, yaw, pitch, roll):
+        position = distance * (R_view @ np.array([offset[0], offset[1], 1.0]))
+        normal = position / np.linalg.norm(position)
+        bx = x_axis - (x_axis @ normal) * normal
+        bx /= np.linalg.norm(bx)
+        R_face = np.column_stack([bx, np.cross(normal, bx), normal])
+        R = R_face @ _rotation_y(yaw) @ _rotation_x(pitch) @ _rotation_z(roll)
+        return make_transform(R, position - R @ centre)
+
+    def fits(T_rig_board):
+        for camera, T_cam_rig in cameras:
+            T_cam_board = T_cam_rig @ T_rig_board
+            if not board_faces_camera(T_cam_board):
+                return False
+            pixels, valid = camera.project(transform_points(T_cam_board, check))
+            if not (valid & camera.in_image(pixels, margin_px=_VIEW_MARGIN_PX)).all():
+                return False
+        return True
+
+    golden = 0.618034
+    order = [int(v) for v in np.argsort([(i * golden) % 1.0 for i in range(plan.n_views)])]
+    poses = []
+    for i in range(plan.n_views):
+        distance = near + (far - near) * (order[i] + 0.5) / plan.n_views
+        phi = 2 * np.pi * i / plan.n_views
+        tilt = plan.max_tilt_deg * (0.4 + 0.6 * ((i * golden * 2) % 1.0))
+        theta = 2 * np.pi * ((i * golden) % 1.0)
+        push = 0.3 if i % 4 == 3 else 0.85
+        roll = 10.0 * (1 if i % 2 else -1)
+        for ease in np.linspace(0.0, 1.0, 11):
+            d = distance + (far - distance) * max(0.0, ease - 0.5) * 2
+            t = tilt * (1.0 - ease)
+            # The largest offset the board's size leaves in the mean field of view, scaled by the push.
+            room = np.maximum(half_fov - np.array([width, height]) / 2.0 / d, 0.0)
+            offset = push * (1.0 - ease) * room * np.array([math.cos(theta), math.sin(theta)])
+            candidate = pose(d, offset, t * math.cos(phi), t * math.sin(phi), roll * (1.0 - ease))
+            if fits(candidate):
+                poses.append(candidate)
+                break
+        else:
+            raise ValueError(f"calibration view {i + 1} of {plan.n_views} does not fit both images at "
+                             f"{near:g}-{far:g} mm: the views overlap too little for a {board.cols}x{board.rows} "
+                             f"board of {board.square_mm:g} mm squares")
+    return poses
+
+
+def _rotation_x(angle_deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _rotation_y(angle_deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _rotation_z(angle_deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def planned_calibration(setup: Setup, plan: CalibrationPlan, pixel_sigma_px: float) -> StereoCalibration:
+    """The rig's true calibration with the covariance its planned views would give (image noise ``pixel_sigma_px``).
+
+    Raises:
+        ValueError: the planned views cannot be placed in both cameras (with the reason).
+        CovarianceUnavailable: the views leave the parameters undetermined.
+    """
+    poses = planned_board_poses(setup, plan)
+    calib = calibration_of(setup)
+    D1, D2 = np.asarray(calib.D1, float).reshape(1, -1), np.asarray(calib.D2, float).reshape(1, -1)
+    calib = replace(calib, D1=D1, D2=D2)
+    points = np.asarray(plan.board.object_points, float)
+    T_left_rig = invert_transform(setup.rig.T_rig_left)
+    objects, lefts, rights, rvecs, tvecs = [], [], [], [], []
+    for T_rig_board in poses:
+        left_px, right_px, in_front = project_both(setup, transform_points(T_rig_board, points))
+        seen = in_front & setup.left.in_image(left_px) & setup.right.in_image(right_px)
+        T_left_board = T_left_rig @ T_rig_board
+        objects.append(points[seen])
+        lefts.append(left_px[seen])
+        rights.append(right_px[seen])
+        rvecs.append(cv2.Rodrigues(T_left_board[:3, :3])[0].ravel())
+        tvecs.append(T_left_board[:3, 3])
+    if plan.mode == "joint":
+        flags = DEFAULT_FLAGS | cv2.CALIB_USE_INTRINSIC_GUESS
+        covariance = stereo_covariance(objects, lefts, rights, calib.K1, D1, calib.K2, D2, calib.R, calib.T,
+                                       rvecs, tvecs, flags=flags, sigma_px=pixel_sigma_px)
+    else:
+        views = list(range(len(objects)))
+        T_right_left = invert_transform(setup.rig.T_rig_right) @ setup.rig.T_rig_left
+        right_poses = [T_right_left @ np.vstack([np.column_stack([cv2.Rodrigues(r)[0], t]), [0, 0, 0, 1]])
+                       for r, t in zip(rvecs, tvecs, strict=True)]
+        right_rvecs = [cv2.Rodrigues(T[:3, :3])[0].ravel() for T in right_poses]
+        monos = (
+            mono_linearisation(objects, lefts, calib.K1, D1, rvecs, tvecs, flags=DEFAULT_FLAGS, view_indices=views,
+                               side="left"),
+            mono_linearisation(objects, rights, calib.K2, D2, right_rvecs, [T[:3, 3] for T in right_poses],
+                               flags=DEFAULT_FLAGS, view_indices=views, side="right"),
+        )
+        covariance = stereo_covariance(objects, lefts, rights, calib.K1, D1, calib.K2, D2, calib.R, calib.T, rvecs,
+                                       tvecs, flags=DEFAULT_FLAGS | cv2.CALIB_FIX_INTRINSIC, intrinsics_from=monos,
+                                       view_indices=views, sigma_px=pixel_sigma_px)
+    return replace(calib, covariance=covariance, mode=f"planned ({plan.mode})")
+
+
+def _depth_sensitivities(calib: StereoCalibration, setup: Setup, names: tuple[str, ...]) -> np.ndarray | None:
+    """(P,) d(rig z of the board centre)/d(parameter), from its true pixels; None when behind a camera."""
+    left_px, right_px, in_front = project_both(setup, setup.board_centre_rig)
+    if not in_front[0]:
+        return None
+    R_rig_left, t_rig_left = setup.rig.T_rig_left[:3, :3], setup.rig.T_rig_left[:3, 3]
+
+    def depth(c: StereoCalibration) -> float:
+        return float((R_rig_left @ triangulate(c, left_px, right_px)[0] + t_rig_left)[2])
+    out = np.empty(len(names))
+    for i, name in enumerate(names):
+        step = parameter_step(name)
+        out[i] = (depth(perturbed(calib, name, step)) - depth(perturbed(calib, name, -step))) / (2 * step)
+    return out
+
+
+def calibration_sigmas(
+    setup: Setup, plan: CalibrationPlan, pixel_sigma_px: float, *, margin_px: float = DEFAULT_MARGIN_PX,
+) -> tuple[float | None, float | None, str]:
+    """(sigma of the measured square, sigma of the board centre's rig z, note): mm, from the calibration alone.
+
+    None with the reason in the note when the planned views cannot be placed or determine nothing,
+    or nothing of the target is measurable. The square's sensitivities are those of the measurement
+    (:func:`stereo_bench.vision.uncertainty.square_sensitivities`) at the target's true pixels.
+    """
+    if not pixel_sigma_px > 0:
+        return 0.0, 0.0, "no image noise: a perfect calibration"
+    try:
+        calib = planned_calibration(setup, plan, pixel_sigma_px)
+    except (ValueError, CovarianceUnavailable) as error:
+        return None, None, f"calibration not predictable: {error}"
+    covariance: CalibrationCovariance = calib.covariance
+    names = covariance.names
+    square = None
+    ids, vis = visible_corners(setup, margin_px=margin_px)
+    if vis.measurable:
+        left_px, right_px, _ = project_both(setup, setup.corners_rig[ids])
+        frame = FrameCorners(ids, left_px, right_px, 0.0, (pixel_sigma_px, pixel_sigma_px))
+        g = square_sensitivities(calib, [frame], setup.board, names)
+        square = float(np.sqrt(max(g @ covariance.matrix @ g, 0.0)))
+    g_depth = _depth_sensitivities(calib, setup, names)
+    depth = None if g_depth is None else float(np.sqrt(max(g_depth @ covariance.matrix @ g_depth, 0.0)))
+    return square, depth, f"{plan.n_views} planned views of the {plan.board.cols}x{plan.board.rows} board ({plan.mode})"

@@ -21,7 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from stereo_bench.errormodel import paper
-from stereo_bench.errormodel.rigorous import DEFAULT_MARGIN_PX, Setup, predict, sensitivities
+from stereo_bench.errormodel.rigorous import DEFAULT_MARGIN_PX, CalibrationPlan, Setup, predict, sensitivities
 from stereo_bench.executors import Executor, SerialExecutor, group
 from stereo_bench.geometry import CameraModel
 from stereo_bench.targets import Checkerboard
@@ -69,6 +69,9 @@ class SurfacePoint(BaseModel):
     depth_per_deg_alpha: float | None
     square_per_deg_alpha_both: float | None  # both cameras turned by the same error
     depth_per_deg_alpha_both: float | None
+    # The calibration's own error from the planned views (rigorous.calibration_sigmas); None: not asked/placeable.
+    sigma_calibration_mm: float | None = None
+    sigma_calibration_depth_mm: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,6 +85,7 @@ class _Job:
     right: CameraModel
     margin_px: float
     with_sensitivities: bool
+    calibration: CalibrationPlan | None = None
 
 
 def _evaluate(job: _Job) -> list[SurfacePoint]:
@@ -89,7 +93,7 @@ def _evaluate(job: _Job) -> list[SurfacePoint]:
     for baseline, distance, alpha_left, alpha_right in job.configs:
         setup = Setup.make(baseline, distance, alpha_left, alpha_right_deg=alpha_right, board=job.board,
                            left=job.left, right=job.right)
-        pred = predict(setup, job.pixel_sigma_px, margin_px=job.margin_px)
+        pred = predict(setup, job.pixel_sigma_px, margin_px=job.margin_px, calibration=job.calibration)
         sens = {}
         if job.with_sensitivities:
             sens = sensitivities(setup, ("baseline_mm", "alpha_right_deg", "alpha_both_deg"), margin_px=job.margin_px)
@@ -108,6 +112,7 @@ def _evaluate(job: _Job) -> list[SurfacePoint]:
             depth_per_deg_alpha=s_a.depth_mm_per_unit if s_a else None,
             square_per_deg_alpha_both=s_ab.square_mm_per_unit if s_ab else None,
             depth_per_deg_alpha_both=s_ab.depth_mm_per_unit if s_ab else None,
+            sigma_calibration_mm=pred.sigma_calibration_mm, sigma_calibration_depth_mm=pred.sigma_calibration_depth_mm,
         ))
     return rows
 
@@ -128,13 +133,17 @@ def evaluate_configs(
     configs: list[tuple[float, float, float, float]], *, pixel_sigma_px: float = 0.1, board: Checkerboard | None = None,
     left: CameraModel | None = None, right: CameraModel | None = None, margin_px: float = DEFAULT_MARGIN_PX,
     with_sensitivities: bool = True, executor: Executor | None = None, points_per_task: int = 16,
+    calibration: CalibrationPlan | None = None,
 ) -> list[SurfacePoint]:
-    """:class:`SurfacePoint` for each (B mm, Z mm, α_left deg, α_right deg), in order, run through ``executor``."""
+    """:class:`SurfacePoint` for each (B mm, Z mm, α_left deg, α_right deg), in order, run through ``executor``.
+
+    ``calibration``: also predict each configuration's calibration error from these planned views.
+    """
     probe = Setup.make(100.0, 500.0, board=board, left=left, right=right)
     chunks = group(list(configs), max(1, math.ceil(len(configs) / max(1, points_per_task))))
     jobs = [_Job(configs=tuple(tuple(float(v) for v in c) for c in chunk), pixel_sigma_px=float(pixel_sigma_px),
                  board=probe.board, left=probe.left, right=probe.right, margin_px=float(margin_px),
-                 with_sensitivities=with_sensitivities) for chunk in chunks]
+                 with_sensitivities=with_sensitivities, calibration=calibration) for chunk in chunks]
     results = (executor or SerialExecutor()).map(_evaluate, jobs)
     return [row for rows in results for row in rows]
 

@@ -3,6 +3,15 @@
 ``intrinsics.yml``: M1, D1, M2, D2. ``extrinsics.yml``: R, T, R1, R2, P1, P2, Q. We add what produced
 them as extra keys (image size, RMS, board, mode, date, software); OpenCV's sample ignores extra
 keys and a file the sample wrote (no extra keys) loads here.
+
+The calibration's covariance (:mod:`stereo_bench.vision.covariance`) is written as more keys:
+``covariance_parameters`` (the parameter names, space-separated, in the matrix's order),
+``covariance`` (P x P; px, unitless, rad, mm as the names say), ``covariance_sigma_px`` (the corner
+noise it is scaled by), ``covariance_dof`` and ``pixel_locking_px`` (1 x 2: the detector's fitted
+pixel locking, sin and cos coefficients, when estimated). ``extrinsics.yml`` holds the whole matrix (both
+cameras' intrinsics, rvec, T and their correlations); ``intrinsics.yml`` the intrinsics' block, so
+that intrinsics reused alone (``--intrinsics``) keep their uncertainty. A file without these keys
+loads with the covariance None: unknown, not zero (``covariance_note`` says why).
 """
 
 from __future__ import annotations
@@ -16,10 +25,12 @@ import numpy as np
 from stereo_bench import __version__
 from stereo_bench.atomic import atomic_path
 from stereo_bench.vision.calibrate import StereoCalibration
+from stereo_bench.vision.covariance import CalibrationCovariance
 from stereo_bench.vision.rectify import Rectification
 
 INTRINSICS_FILE = "intrinsics.yml"
 EXTRINSICS_FILE = "extrinsics.yml"
+NO_COVARIANCE_NOTE = "the calibration file has no covariance: its uncertainty is unknown"
 
 
 class CalibrationFileError(ValueError):
@@ -45,6 +56,17 @@ def _write_storage(path: Path, items: dict[str, object]) -> None:
         storage.release()
 
 
+def _covariance_items(covariance: CalibrationCovariance | None, note: str) -> dict[str, object]:
+    if covariance is None:
+        return {"covariance_note": note or "not computed"}
+    locking = None if covariance.pixel_locking_px is None else np.array([covariance.pixel_locking_px])
+    return {
+        "covariance_parameters": " ".join(covariance.names), "covariance": covariance.matrix,
+        "covariance_sigma_px": float(covariance.sigma_px), "covariance_dof": int(covariance.dof),
+        "pixel_locking_px": locking,
+    }
+
+
 def write_calibration(
     out_dir: str | Path, calib: StereoCalibration, rect: Rectification | None = None, *, board: str = "",
     extra: dict[str, object] | None = None,
@@ -59,9 +81,13 @@ def write_calibration(
     }
     intrinsics = out_dir / INTRINSICS_FILE
     extrinsics = out_dir / EXTRINSICS_FILE
-    _write_storage(intrinsics, {"M1": calib.K1, "D1": calib.D1, "M2": calib.K2, "D2": calib.D2, **common})
+    cov = calib.covariance
+    intrinsic_cov = None if cov is None else cov.subset([n for n in cov.names if n.startswith(("left.", "right."))])
+    _write_storage(intrinsics, {"M1": calib.K1, "D1": calib.D1, "M2": calib.K2, "D2": calib.D2, **common,
+                                **_covariance_items(intrinsic_cov, calib.covariance_note)})
     rect_items = {} if rect is None else {"R1": rect.R1, "R2": rect.R2, "P1": rect.P1, "P2": rect.P2, "Q": rect.Q}
-    _write_storage(extrinsics, {"R": calib.R, "T": np.asarray(calib.T).reshape(3, 1), **rect_items, **common})
+    _write_storage(extrinsics, {"R": calib.R, "T": np.asarray(calib.T).reshape(3, 1), **rect_items, **common,
+                                **_covariance_items(cov, calib.covariance_note)})
     return intrinsics, extrinsics
 
 
@@ -94,6 +120,56 @@ def _image_size(storage: cv2.FileStorage) -> tuple[int, int] | None:
     if width.empty() or height.empty():
         return None
     return int(width.real()), int(height.real())
+
+
+def _covariance(storage: cv2.FileStorage, path: Path) -> tuple[CalibrationCovariance | None, str]:
+    """(covariance, note) from the covariance keys; (None, why) when the file has none."""
+    names_node = storage.getNode("covariance_parameters")
+    if names_node.empty():
+        note_node = storage.getNode("covariance_note")
+        return None, NO_COVARIANCE_NOTE if note_node.empty() else note_node.string()
+    names = tuple(names_node.string().split())
+    matrix = _matrix(storage, path, "covariance")
+    if matrix.shape != (len(names), len(names)):
+        raise CalibrationFileError(f"{path}: key 'covariance' has shape {matrix.shape}, expected "
+                                   f"{(len(names), len(names))} for its {len(names)} covariance_parameters")
+    if not np.all(np.isfinite(matrix)) or np.any(np.diag(matrix) < 0) or not np.allclose(matrix, matrix.T, rtol=1e-9,
+                                                                                          atol=0):
+        raise CalibrationFileError(f"{path}: key 'covariance' is not a finite symmetric matrix with a "
+                                   "non-negative diagonal")
+    sigma_node, dof_node = storage.getNode("covariance_sigma_px"), storage.getNode("covariance_dof")
+    locking = None
+    if not storage.getNode("pixel_locking_px").empty():
+        a_sin, a_cos = _matrix(storage, path, "pixel_locking_px", (2,))
+        locking = (float(a_sin), float(a_cos))
+    try:
+        covariance = CalibrationCovariance(
+            names, matrix, sigma_px=float("nan") if sigma_node.empty() else float(sigma_node.real()),
+            dof=0 if dof_node.empty() else int(dof_node.real()), pixel_locking_px=locking)
+    except ValueError as error:
+        raise CalibrationFileError(f"{path}: key 'covariance_parameters': {error}") from None
+    return covariance, ""
+
+
+def read_intrinsics_covariance(path: str | Path) -> CalibrationCovariance | None:
+    """The covariance of the intrinsics (``left.*``, ``right.*``) stored with them, or None (unknown)."""
+    path = _resolve(path, INTRINSICS_FILE)
+    storage = _open(path)
+    try:
+        return _covariance(storage, path)[0]
+    finally:
+        storage.release()
+
+
+def calibration_board_scale_u(calib_dir: str | Path) -> float | None:
+    """The calibration board's relative scale uncertainty a calibration recorded (``board_scale_u_rel``), or None."""
+    path = _resolve(calib_dir, EXTRINSICS_FILE)
+    storage = _open(path)
+    try:
+        node = storage.getNode("board_scale_u_rel")
+        return None if node.empty() else float(node.real())
+    finally:
+        storage.release()
 
 
 def _resolve(path: str | Path, name: str) -> Path:
@@ -134,9 +210,11 @@ def read_calibration(calib_dir: str | Path, *, image_size: tuple[int, int] | Non
         rms_px = float("nan") if rms_node.empty() else float(rms_node.real())
         mode_node = storage.getNode("mode")
         mode = "given" if mode_node.empty() else mode_node.string()
+        covariance, note = _covariance(storage, path)
     finally:
         storage.release()
     size = stored_size or image_size
     if size is None:
         raise CalibrationFileError(f"{calib_dir}: files do not record the image size (image_width, image_height)")
-    return StereoCalibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=size, rms_px=rms_px, mode=mode)
+    return StereoCalibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=size, rms_px=rms_px, mode=mode,
+                             covariance=covariance, covariance_note=note)

@@ -18,6 +18,13 @@ error 0.0019 mm RMS either way); on opencv_sample abs(T) = 99.842 mm joint vs 99
 (Bouguet: 99.81); on present_cjn 49.313 vs 49.304 mm (published 49.30). Joint refinement is never
 much worse and guards against the scale bias a slightly wrong focal length puts into abs(T).
 Fixed mode is right when the intrinsics come from a better, separate calibration (``--intrinsics``).
+
+Every calibration carries the covariance of what it estimated (:mod:`stereo_bench.vision.covariance`):
+mono, the camera's intrinsics; stereo, both cameras' intrinsics and R (rotation vector), T. In fixed
+mode the intrinsics' own uncertainty is propagated into R, T: from the mono calibrations of the same
+views (jointly, their shared noise included) or from the covariance given with the intrinsics;
+intrinsics given without one leave the covariance unknown (None, with the reason in
+``covariance_note``), never zero.
 """
 
 from __future__ import annotations
@@ -29,6 +36,14 @@ from typing import Literal
 
 import cv2
 import numpy as np
+
+from stereo_bench.vision.covariance import (
+    CalibrationCovariance,
+    CovarianceUnavailable,
+    mono_covariance,
+    mono_linearisation,
+    stereo_covariance,
+)
 
 MIN_VIEWS = 5  # fewer views of a flat board leave the intrinsics and R, T poorly determined
 OUTLIER_FACTOR = 3.0
@@ -60,6 +75,10 @@ class MonoCalibration:
     std_intrinsics: dict[str, float]  # fx, fy, cx, cy, k1, k2, p1, p2, k3 (px / unitless)
     views_used: list[int]
     views_rejected: list[RejectedView] = field(default_factory=list)
+    rvecs: list[np.ndarray] = field(default_factory=list)  # per used view: board pose (rad), as the solver found it
+    tvecs: list[np.ndarray] = field(default_factory=list)  # (mm)
+    covariance: CalibrationCovariance | None = None  # of fx fy cx cy and the free distortion coefficients
+    covariance_note: str = ""  # why the covariance is None
 
     @property
     def fx(self) -> float:
@@ -84,6 +103,9 @@ class StereoCalibration:
     mode: str = "given"
     E: np.ndarray | None = None
     F: np.ndarray | None = None
+    # Of left.* right.* intrinsics, rvec.* (rad, rotation vector of R) and T.* (mm); None = unknown.
+    covariance: CalibrationCovariance | None = None
+    covariance_note: str = ""  # why the covariance is None
 
     @property
     def baseline_mm(self) -> float:
@@ -123,7 +145,7 @@ def _views_to_drop(per_view_rms_px: np.ndarray, n_keep_min: int) -> list[int]:
 
 def calibrate_mono(
     object_points: list[np.ndarray], image_points: list[np.ndarray], image_size: tuple[int, int], *,
-    flags: int = DEFAULT_FLAGS, min_views: int = MIN_VIEWS, max_rounds: int = 3,
+    flags: int = DEFAULT_FLAGS, min_views: int = MIN_VIEWS, max_rounds: int = 3, covariance: bool = True,
 ) -> MonoCalibration:
     """Calibrate one camera from views of a planar target.
 
@@ -131,6 +153,7 @@ def calibrate_mono(
         object_points: per view (N_i, 3) float32 board coordinates (mm).
         image_points: per view (N_i, 2) pixel coordinates.
         image_size: (width, height) px.
+        covariance: compute the intrinsics' covariance (a few % of the calibration's time).
     """
     if len(object_points) < min_views:
         raise ValueError(f"mono calibration needs at least {min_views} views with the board, got {len(object_points)}")
@@ -138,7 +161,7 @@ def calibrate_mono(
     rejected: list[RejectedView] = []
     for _ in range(max_rounds + 1):
         with _deterministic():
-            rms, K, dist, _, _, std_int, _, per_view = cv2.calibrateCameraExtended(
+            rms, K, dist, rvecs, tvecs, std_int, _, per_view = cv2.calibrateCameraExtended(
                 [np.asarray(object_points[i], np.float32).reshape(-1, 1, 3) for i in used],
                 [np.asarray(image_points[i], np.float32).reshape(-1, 1, 2) for i in used],
                 image_size, None, None, flags=flags, criteria=CRITERIA,
@@ -155,10 +178,19 @@ def calibrate_mono(
         used = [index for position, index in enumerate(used) if position not in set(drop)]
     std = np.asarray(std_int, float).reshape(-1)
     names = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]
+    dist = np.asarray(dist, float).reshape(1, -1)
+    rvecs, tvecs = [np.asarray(r, float).reshape(3) for r in rvecs], [np.asarray(t, float).reshape(3) for t in tvecs]
+    cov, note = None, "not computed"
+    if covariance:
+        try:
+            cov, note = mono_covariance([object_points[i] for i in used], [image_points[i] for i in used], K, dist,
+                                        rvecs, tvecs, flags=flags), ""
+        except CovarianceUnavailable as error:
+            note = str(error)
     return MonoCalibration(
-        K=K, dist=np.asarray(dist, float).reshape(1, -1), image_size=tuple(image_size), rms_px=float(rms),
+        K=K, dist=dist, image_size=tuple(image_size), rms_px=float(rms),
         per_view_rms_px=per_view, std_intrinsics={n: float(s) for n, s in zip(names, std, strict=False)},
-        views_used=used, views_rejected=rejected,
+        views_used=used, views_rejected=rejected, rvecs=rvecs, tvecs=tvecs, covariance=cov, covariance_note=note,
     )
 
 
@@ -166,6 +198,7 @@ def calibrate_stereo(
     object_points: list[np.ndarray], left_points: list[np.ndarray], right_points: list[np.ndarray],
     image_size: tuple[int, int], *, intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
     mode: StereoMode = "joint", flags: int = DEFAULT_FLAGS, min_views: int = MIN_VIEWS, max_rounds: int = 3,
+    intrinsics_covariance: CalibrationCovariance | None = None, covariance: bool = True,
 ) -> StereoCalibration:
     """Stereo calibration from views seen by both cameras.
 
@@ -174,6 +207,10 @@ def calibrate_stereo(
         left_points, right_points: per view (N_i, 2) pixels, same corner order as ``object_points``.
         intrinsics: (K1, D1, K2, D2) to start from; when None each camera is first calibrated alone.
         mode: "joint" refines the intrinsics with R, T; "fixed" keeps them.
+        intrinsics_covariance: of the given ``intrinsics`` (names ``left.*``, ``right.*``), from a
+            calibration independent of these views; fixed mode propagates it into R, T.
+        covariance: compute the parameters' covariance (~2 % of a 12-view calibration's time,
+            scripts/bench_covariance.py); False leaves it None ("not computed").
     """
     if not len(object_points) == len(left_points) == len(right_points):
         raise ValueError("object, left and right point lists must have one entry per view")
@@ -182,21 +219,24 @@ def calibrate_stereo(
                          f"got {len(object_points)}")
     rejected: list[RejectedView] = []
     if intrinsics is None:
-        left = calibrate_mono(object_points, left_points, image_size, flags=flags, min_views=min_views)
-        right = calibrate_mono(object_points, right_points, image_size, flags=flags, min_views=min_views)
+        left = calibrate_mono(object_points, left_points, image_size, flags=flags, min_views=min_views,
+                              covariance=False)
+        right = calibrate_mono(object_points, right_points, image_size, flags=flags, min_views=min_views,
+                               covariance=False)
         K1, D1, K2, D2 = left.K, left.dist, right.K, right.dist
         bad = {r.index: f"left {r.reason}" for r in left.views_rejected}
         bad.update({r.index: f"right {r.reason}" for r in right.views_rejected if r.index not in bad})
         rejected.extend(RejectedView(i, reason) for i, reason in sorted(bad.items()))
         used = [i for i in range(len(object_points)) if i not in bad]
     else:
+        left = right = None
         K1, D1, K2, D2 = (np.asarray(a, float) for a in intrinsics)
         used = list(range(len(object_points)))
 
     stereo_flags = flags | (cv2.CALIB_FIX_INTRINSIC if mode == "fixed" else cv2.CALIB_USE_INTRINSIC_GUESS)
     for _ in range(max_rounds + 1):
         with _deterministic():
-            rms, K1n, D1n, K2n, D2n, R, T, E, F, _, _, per_view = cv2.stereoCalibrateExtended(
+            rms, K1n, D1n, K2n, D2n, R, T, E, F, rvecs, tvecs, per_view = cv2.stereoCalibrateExtended(
                 [np.asarray(object_points[i], np.float32).reshape(-1, 1, 3) for i in used],
                 [np.asarray(left_points[i], np.float32).reshape(-1, 1, 2) for i in used],
                 [np.asarray(right_points[i], np.float32).reshape(-1, 1, 2) for i in used],
@@ -213,9 +253,30 @@ def calibrate_stereo(
             rejected.append(RejectedView(used[position], f"stereo reprojection RMS {worst[position]:.3f} px > "
                                                          f"{threshold:.3f} px"))
         used = [index for position, index in enumerate(used) if position not in set(drop)]
+    D1n, D2n, T = np.asarray(D1n).reshape(1, -1), np.asarray(D2n).reshape(1, -1), np.asarray(T, float).reshape(3)
+    cov, note = None, ""
+    try:
+        if not covariance:
+            raise CovarianceUnavailable("not computed")
+        intrinsics_from = None
+        if mode == "fixed" and left is not None and left.views_used == right.views_used == used:
+            intrinsics_from = "these views"  # the usual case: the linearisations come from the stereo fit's rows
+        elif mode == "fixed" and left is not None:
+            intrinsics_from = tuple(
+                mono_linearisation([object_points[i] for i in mono.views_used], [points[i] for i in mono.views_used],
+                                   mono.K, mono.dist, mono.rvecs, mono.tvecs, flags=flags,
+                                   view_indices=mono.views_used, side=side)
+                for mono, points, side in ((left, left_points, "left"), (right, right_points, "right"))
+            )
+        cov = stereo_covariance(
+            [object_points[i] for i in used], [left_points[i] for i in used], [right_points[i] for i in used],
+            K1n, D1n, K2n, D2n, R, T, rvecs, tvecs, flags=stereo_flags, view_indices=used,
+            intrinsics_covariance=intrinsics_covariance, intrinsics_from=intrinsics_from,
+        )
+    except CovarianceUnavailable as error:
+        note = str(error)
     return StereoCalibration(
-        K1=K1n, D1=np.asarray(D1n).reshape(1, -1), K2=K2n, D2=np.asarray(D2n).reshape(1, -1),
-        R=R, T=np.asarray(T, float).reshape(3), image_size=tuple(image_size), rms_px=float(rms),
+        K1=K1n, D1=D1n, K2=K2n, D2=D2n, R=R, T=T, image_size=tuple(image_size), rms_px=float(rms),
         per_view_rms_px=per_view, views_used=used, views_rejected=sorted(rejected, key=lambda r: r.index),
-        mode=mode, E=E, F=F,
+        mode=mode, E=E, F=F, covariance=cov, covariance_note=note,
     )

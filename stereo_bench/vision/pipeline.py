@@ -9,6 +9,7 @@ import numpy as np
 
 from stereo_bench.targets import Target
 from stereo_bench.vision.calibrate import MIN_VIEWS, RejectedView, StereoCalibration, StereoMode, calibrate_stereo
+from stereo_bench.vision.covariance import CalibrationCovariance
 from stereo_bench.vision.detect import Detection, common_corners, common_sigmas, detect
 from stereo_bench.vision.measure import SquareMeasurement, measure_square, planar_fit_rms_px
 from stereo_bench.vision.rectify import Rectification, epipolar_errors_px, rectify, rms
@@ -52,12 +53,14 @@ class PairMeasurement:
 def calibrate_from_images(
     left_images: Sequence[np.ndarray], right_images: Sequence[np.ndarray], target: Target, *,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: StereoMode = "joint",
-    thorough: bool = True,
+    thorough: bool = True, intrinsics_covariance: CalibrationCovariance | None = None,
 ) -> CalibrationResult:
     """Stereo calibration from image pairs of a calibration target (pairs in matching order).
 
     ``thorough`` retries a missed board with the slower detectors (right for stored images; a live
-    campaign, whose views are known to hold the board, passes False).
+    campaign, whose views are known to hold the board, passes False). ``intrinsics_covariance``: of
+    the given ``intrinsics`` (see :func:`~stereo_bench.vision.calibio.read_intrinsics_covariance`);
+    fixed intrinsics without it leave the calibration's covariance unknown.
 
     Raises:
         ValueError: fewer than ``MIN_VIEWS`` pairs show the board in both images, or the solver fails.
@@ -85,7 +88,8 @@ def calibrate_from_images(
     if len(objects) < MIN_VIEWS:
         raise ValueError(f"calibration board found in only {len(objects)} of {len(left_images)} view pairs "
                          f"(need {MIN_VIEWS})")
-    calib = calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode)
+    calib = calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode,
+                             intrinsics_covariance=intrinsics_covariance)
     rejected += [RejectedView(pair_index[r.index], r.reason) for r in calib.views_rejected]
     used = [pair_index[i] for i in calib.views_used]
     rect = rectify(calib)

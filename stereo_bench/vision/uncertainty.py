@@ -1,0 +1,468 @@
+"""Uncertainty budget of the measured square, in the GUM's terms (JCGM 100:2008).
+
+The measurand is the square size a configuration reports: the mean over its frames of each frame's
+mean adjacent-corner length (mm). Its standard-uncertainty components:
+
+- ``noise``: random corner noise of the measurement frames, propagated through the triangulation
+  (each frame's ``sigma_mean_mm``); independent from frame to frame, so n frames divide it:
+  sqrt(sum sigma_i^2) / n. The same noise also biases every length upward (a length is the norm of
+  a noisy difference: E|d| = |d| + (tr S_d - u^T S_d u) / (2 |d|), S_d its covariance, u = d/|d|):
+  at a small B/Z the depth noise makes this bias as large as the random part (B 100, Z 500 mm,
+  0.1 px: 0.003 mm), and averaging frames does not shrink it. It is not corrected (the measured
+  value stays what the pipeline reports); as GUM F.2.4.5 allows for an uncorrected known bias, it is
+  added in quadrature. A third part is the corner detector's systematic error: its residual pixel
+  locking: the saddle-point estimate is pulled by an amount periodic in each coordinate's sub-pixel
+  phase (on the simulator e = A sin(2 pi frac(p)), A 0.021-0.034 px, R^2 0.9, 2.5 times the random
+  noise). For a static target it repeats in every frame, and on a regular grid seen nearly
+  square-on the phases are alike, so the errors add up instead of averaging (rendered 1080p, B 100
+  mm, Z 500 mm, parallel: the left image 0.014 px left, the right 0.014 px right, a square 0.0023 mm
+  long with the TRUE calibration, 9 random sigmas; the model below predicts 0.0021 mm). The
+  calibration's residuals measure the locking (``covariance.pixel_locking_px``: its first harmonic,
+  fitted over every corner of every view); on the measured corners it predicts a bias of the square
+  b = Im(a C) (:func:`phase_sum`), reported as ``detector_bias_mm`` and, uncorrected, counted like
+  the noise bias. The amplitude carries over from the calibration views to the target only
+  approximately (it depends on the edges' angle to the pixel grid, contrast and blur: on the
+  simulator the target's corners lock 1.0-1.4 times as strongly as the calibration views'), so b
+  gets a relative standard uncertainty of :data:`LOCKING_TRANSFER_U_REL`. Corner error the fit
+  shows beyond the random noise and the locking (:func:`corner_systematic_px`, when significant)
+  has no known pattern; part of it is smooth across the board (edges curved by the lens), which no
+  averaging over corners removes, so it is propagated as an unknown shift and magnification of each
+  image (:func:`coherent_displacement_mm`). The detector part, sqrt(b^2 (1 + 0.5^2) + rest^2), is
+  not divided by the number of frames; noise = sqrt(sum sigma_i^2 / n^2 + bias^2 + detector^2),
+  every part in ``details()``.
+- ``calibration``: the calibration's covariance C (:mod:`stereo_bench.vision.covariance`) pushed
+  through the square's sensitivity to each calibrated parameter, g = d(square)/d(parameters)
+  evaluated at the measured corners: sqrt(g^T C g). One calibration serves every frame of a
+  configuration, so its error is shared: n frames do not divide it.
+- ``structure``: the stereo extrinsics' uncertainty beyond what the calibration says, from another
+  source. With extrinsics calibrated at the configuration (``extrinsics_from_calibration``), the
+  calibration component carries R, T and the structure covariance is how far the rig may have moved
+  since (its repeatability; zero when it has not moved). With kinematic or nominal extrinsics the
+  R, T come from the rig model or the rig's stated tolerances: their covariance is the structure
+  component and the calibration component covers the intrinsics only. None (unknown) when no source
+  is given: not included in ``combined``, listed in ``unknown``; zero only when the source says zero.
+- ``target``: the boards' certified scale. Triangulated lengths are in units of the calibration
+  board's square (R, T are scaled by it), and the measured board's true square differs from its
+  nominal by its own scale error: u = nominal x sqrt(u_rel,target^2 + u_rel,calibration board^2);
+  zero when the same board is calibrated on and measured (the scale cancels).
+
+``combined`` u_c is the root sum of squares of the known components (they are independent: the
+calibration views, the measurement frames, the rig model and the boards' certificates are separate
+sources), ``expanded`` U = k u_c with k = 2 (about 95 % for a near-normal error).
+
+Not in the budget: anything the calibration's residuals cannot see (a bent board, a lens model that
+fits the calibration views but not the measured region), and second-order effects of the
+calibration's error.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+
+from stereo_bench.targets import Target
+from stereo_bench.vision.calibrate import StereoCalibration
+from stereo_bench.vision.covariance import EXTRINSIC_NAMES, CalibrationCovariance
+from stereo_bench.vision.detect import common_corners
+from stereo_bench.vision.pipeline import PairMeasurement
+from stereo_bench.vision.triangulate import triangulate, triangulation_jacobian
+
+K_COVERAGE = 2.0
+#: Default relative standard uncertainty of a board's square (scale). 1e-4 is 2.7 um on the 27 mm
+#: square: the conservative end of what inspection reports of precision (glass, ceramic,
+#: photolithographic) targets state, feature positions within +-2 um (e.g. calibvision.com's
+#: reports; dot-vision's show a few um over 30 mm). A UV print on aluminium composite or a paper
+#: print is not certified at that level (an office print is easily 1e-3 off in scale): give its own
+#: value (``BoardScale``, ``--board-scale-u``), ideally measured.
+DEFAULT_BOARD_SCALE_U_REL = 1e-4
+COMPONENTS = ("noise", "calibration", "structure", "target")
+#: Relative standard uncertainty of the detector bias predicted from the calibration's fitted pixel
+#: locking (the amplitude transfers from the calibration views to the target only approximately).
+LOCKING_TRANSFER_U_REL = 0.5
+
+#: Central-difference step per parameter kind: small against its uncertainty, large against the
+#: 1e-10 convergence of the iterative undistortion (the square is linear in each over this range).
+_STEP = {"fx": 0.05, "fy": 0.05, "cx": 0.05, "cy": 0.05, "k1": 1e-4, "k2": 1e-4, "k3": 1e-4, "k4": 1e-4, "k5": 1e-4,
+         "k6": 1e-4, "p1": 1e-5, "p2": 1e-5, "s1": 1e-5, "s2": 1e-5, "s3": 1e-5, "s4": 1e-5, "tx": 1e-5, "ty": 1e-5,
+         "rvec": 1e-5, "T": 0.01}
+_DIST_INDEX = {name: i for i, name in enumerate(("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3",
+                                                  "s4", "tx", "ty"))}
+
+
+@dataclass(frozen=True)
+class BoardScale:
+    """Relative standard uncertainties of the boards' scale (certificate or stated tolerance).
+
+    ``target_u_rel``: the measured board's square; ``calibration_board_u_rel``: the calibration
+    board's; ``same_board``: the calibration used the very board that is measured (scale cancels).
+    """
+
+    target_u_rel: float = DEFAULT_BOARD_SCALE_U_REL
+    calibration_board_u_rel: float = DEFAULT_BOARD_SCALE_U_REL
+    same_board: bool = False
+
+    def __post_init__(self):
+        for name in ("target_u_rel", "calibration_board_u_rel"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, not {value}")
+
+    def u_mm(self, nominal_mm: float) -> float:
+        if self.same_board:
+            return 0.0
+        return float(nominal_mm * math.hypot(self.target_u_rel, self.calibration_board_u_rel))
+
+
+@dataclass(frozen=True, eq=False)
+class FrameCorners:
+    """One measurement frame: corner ids (N,), raw pixels (N, 2) left and right, the noise sigma of its
+    square mean (mm) and the corner noise per coordinate (left, right; px) it was propagated from."""
+
+    ids: np.ndarray
+    left_px: np.ndarray
+    right_px: np.ndarray
+    sigma_mean_mm: float
+    pixel_sigma_px: tuple[float, float]
+
+    @classmethod
+    def from_pair(cls, pair: PairMeasurement) -> FrameCorners:
+        ids, left_px, right_px = common_corners(pair.left, pair.right)
+        return cls(ids=ids, left_px=left_px, right_px=right_px, sigma_mean_mm=pair.square.sigma_mean_mm,
+                   pixel_sigma_px=tuple(pair.square.pixel_sigma_px))
+
+
+def _frames(frames: Sequence[PairMeasurement | FrameCorners]) -> list[FrameCorners]:
+    return [f if isinstance(f, FrameCorners) else FrameCorners.from_pair(f) for f in frames]
+
+
+def perturbed(calib: StereoCalibration, name: str, delta: float) -> StereoCalibration:
+    """``calib`` with one parameter (a covariance name: ``left.fx``, ``right.k1``, ``rvec.y``, ``T.x`` ...) moved."""
+    side, _, what = name.partition(".")
+    if side == "rvec":
+        rvec = cv2.Rodrigues(np.asarray(calib.R, np.float64))[0].reshape(3)
+        rvec["xyz".index(what)] += delta
+        return replace(calib, R=cv2.Rodrigues(rvec)[0])
+    if side == "T":
+        T = np.array(calib.T, float).reshape(3)
+        T["xyz".index(what)] += delta
+        return replace(calib, T=T)
+    if side not in ("left", "right"):
+        raise KeyError(f"unknown calibration parameter {name!r}")
+    K = np.array(calib.K1 if side == "left" else calib.K2, float)
+    D = np.array(calib.D1 if side == "left" else calib.D2, float).reshape(1, -1)
+    if what in ("fx", "fy", "cx", "cy"):
+        K[{"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}[what]] += delta
+    elif what in _DIST_INDEX and _DIST_INDEX[what] < D.size:
+        D[0, _DIST_INDEX[what]] += delta
+    else:
+        raise KeyError(f"unknown calibration parameter {name!r}")
+    return replace(calib, **({"K1": K, "D1": D} if side == "left" else {"K2": K, "D2": D}))
+
+
+def parameter_step(name: str) -> float:
+    """Central-difference step for a calibration parameter (a covariance name), in its unit."""
+    return _STEP[name.partition(".")[0] if name.startswith(("rvec.", "T.")) else name.partition(".")[2]]
+
+
+def _square_function(frames: list[FrameCorners], target: Target):
+    """f(calib, left=None, right=None) -> the configuration's square (mm): mean over frames of each
+    frame's mean adjacent length; ``left``/``right`` replace the frames' stacked pixels (sum N_i, 2)."""
+    left = np.vstack([f.left_px for f in frames])
+    right = np.vstack([f.right_px for f in frames])
+    offsets = np.cumsum([0] + [len(f.ids) for f in frames])
+    adjacent = target.adjacent_pairs()
+    a_idx, b_idx, weights = [], [], []
+    for frame, offset in zip(frames, offsets[:-1], strict=True):
+        position = {int(c): i for i, c in enumerate(frame.ids)}
+        pairs = [(position[a], position[b]) for a, b in adjacent if a in position and b in position]
+        if not pairs:
+            raise ValueError("a frame has no adjacent corner pair seen in both views")
+        a_idx += [offset + p[0] for p in pairs]
+        b_idx += [offset + p[1] for p in pairs]
+        weights += [1.0 / (len(pairs) * len(frames))] * len(pairs)
+    a_idx, b_idx, weights = np.array(a_idx), np.array(b_idx), np.array(weights)
+
+    def square(calib: StereoCalibration, left_px: np.ndarray | None = None,
+               right_px: np.ndarray | None = None) -> float:
+        points = triangulate(calib, left if left_px is None else left_px, right if right_px is None else right_px)
+        return float(weights @ np.linalg.norm(points[a_idx] - points[b_idx], axis=1))
+    return square
+
+
+def pixel_gradients(calib: StereoCalibration, frames: Sequence[PairMeasurement | FrameCorners],
+                    target: Target) -> list[np.ndarray]:
+    """Per frame (N_i, 4): d(configuration square)/d(u_left, v_left, u_right, v_right) of each corner (mm/px).
+
+    First order through the triangulation's Jacobian, as :func:`~stereo_bench.vision.measure.measure_square`
+    propagates the noise; the configuration square weighs each frame 1/n.
+    """
+    frames = _frames(frames)
+    out = []
+    for frame in frames:
+        position = {int(c): i for i, c in enumerate(frame.ids)}
+        pairs = np.array([(position[a], position[b]) for a, b in target.adjacent_pairs()
+                          if a in position and b in position], int).reshape(-1, 2)
+        points = triangulate(calib, frame.left_px, frame.right_px)
+        jac = triangulation_jacobian(calib, frame.left_px, frame.right_px)  # (N, 3, 4)
+        d = points[pairs[:, 0]] - points[pairs[:, 1]]
+        u = d / np.linalg.norm(d, axis=1)[:, None] / (len(pairs) * len(frames))
+        gradient = np.zeros((len(frame.ids), 4))
+        np.add.at(gradient, pairs[:, 0], np.einsum("kj,kjc->kc", u, jac[pairs[:, 0]]))
+        np.add.at(gradient, pairs[:, 1], -np.einsum("kj,kjc->kc", u, jac[pairs[:, 1]]))
+        out.append(gradient)
+    return out
+
+
+def phase_sum(calib: StereoCalibration, frames: Sequence[PairMeasurement | FrameCorners], target: Target) -> complex:
+    """C = sum_k g_k exp(2 pi i frac(p_k)) over every corner coordinate p_k of every frame (g: :func:`pixel_gradients`).
+
+    A corner error e(p) = Im(a exp(2 pi i frac(p))) (a = a_sin + i a_cos, px) moves the square by
+    Im(a C): corners of alike phase (a regular grid seen square-on) add up, spread phases cancel.
+    """
+    frames = _frames(frames)
+    total = 0j
+    for frame, gradient in zip(frames, pixel_gradients(calib, frames, target), strict=True):
+        pixels = np.column_stack([frame.left_px, frame.right_px])  # (N, 4) like the gradient's columns
+        total += np.sum(gradient * np.exp(2j * np.pi * np.mod(pixels, 1.0)))
+    return complex(total)
+
+
+#: Steps (px, and relative) of the coherent image shift and magnification differentiated for the detector term.
+_SHIFT_STEP_PX, _MAGNIFICATION_STEP = 0.01, 1e-5
+
+
+def coherent_displacement_mm(calib: StereoCalibration, frames: Sequence[PairMeasurement | FrameCorners],
+                             target: Target, sigma_px: float) -> float:
+    """Standard uncertainty (mm) of the square from a corner error of ``sigma_px`` per coordinate that is smooth
+    across the board: in each image an unknown shift (sigma_px per axis) and magnification about the corners'
+    centroid (sigma_px at their RMS radius), independent between the images, shared by the frames."""
+    frames = _frames(frames)
+    square = _square_function(frames, target)
+    left, right = np.vstack([f.left_px for f in frames]), np.vstack([f.right_px for f in frames])
+    offsets = np.cumsum([0] + [len(f.ids) for f in frames])
+    variance = 0.0
+    for side, pixels in (("left", left), ("right", right)):
+        centroid = np.vstack([np.broadcast_to(pixels[a:b].mean(axis=0), (b - a, 2))
+                              for a, b in zip(offsets[:-1], offsets[1:], strict=True)])
+        radial = pixels - centroid
+        radius = float(np.sqrt(np.mean(np.sum(radial**2, axis=1))))
+
+        def slope(delta: np.ndarray, step: float, side: str = side) -> float:
+            plus = (left + delta, right) if side == "left" else (left, right + delta)
+            minus = (left - delta, right) if side == "left" else (left, right - delta)
+            return (square(calib, *plus) - square(calib, *minus)) / (2 * step)
+        for axis in (0, 1):
+            delta = np.zeros_like(pixels)
+            delta[:, axis] = _SHIFT_STEP_PX
+            variance += (slope(delta, _SHIFT_STEP_PX) * sigma_px) ** 2
+        variance += (slope(_MAGNIFICATION_STEP * radial, _MAGNIFICATION_STEP) * sigma_px / radius) ** 2
+    return float(math.sqrt(variance))
+
+
+def corner_systematic_px(covariance: CalibrationCovariance | None, random_px: float) -> float:
+    """Systematic corner error per coordinate (px) the calibration's residuals show and the fitted locking does not.
+
+    sqrt(sigma_fit^2 - random^2 - (a_sin^2 + a_cos^2) / 2) when sigma_fit^2 exceeds the rest by more
+    than three standard errors of a residual variance (sqrt(2 / dof) relative), else 0; 0 without
+    a covariance (nothing to compare with).
+    """
+    if covariance is None or not covariance.dof > 0 or not math.isfinite(covariance.sigma_px) or not random_px > 0:
+        return 0.0
+    locking = covariance.pixel_locking_px or (0.0, 0.0)
+    explained = random_px**2 + 0.5 * (locking[0] ** 2 + locking[1] ** 2)
+    if covariance.sigma_px**2 <= explained * (1.0 + 3.0 * math.sqrt(2.0 / covariance.dof)):
+        return 0.0
+    return float(math.sqrt(covariance.sigma_px**2 - explained))
+
+
+def noise_bias_mm(calib: StereoCalibration, frame: FrameCorners, target: Target) -> float:
+    """Expected lengthening (mm) of the frame's mean adjacent length by its corner noise (second order).
+
+    Independent corners of per-coordinate noise ``frame.pixel_sigma_px``: S_d = S_a + S_b, each
+    point's S = J diag(noise^2) J^T through the triangulation; bias = mean over pairs of
+    (tr S_d - u^T S_d u) / (2 |d|).
+    """
+    position = {int(c): i for i, c in enumerate(frame.ids)}
+    pairs = np.array([(position[a], position[b]) for a, b in target.adjacent_pairs()
+                      if a in position and b in position], int).reshape(-1, 2)
+    if not len(pairs):
+        return float("nan")
+    points = triangulate(calib, frame.left_px, frame.right_px)
+    jac = triangulation_jacobian(calib, frame.left_px, frame.right_px)  # (N, 3, 4)
+    s_left, s_right = frame.pixel_sigma_px
+    cov = np.einsum("nik,k,njk->nij", jac, np.array([s_left**2, s_left**2, s_right**2, s_right**2]), jac)
+    d = points[pairs[:, 0]] - points[pairs[:, 1]]
+    length = np.linalg.norm(d, axis=1)
+    u = d / length[:, None]
+    cov_d = cov[pairs[:, 0]] + cov[pairs[:, 1]]
+    transverse = np.trace(cov_d, axis1=1, axis2=2) - np.einsum("ki,kij,kj->k", u, cov_d, u)
+    return float(np.mean(transverse / (2.0 * length)))
+
+
+def square_sensitivities(
+    calib: StereoCalibration, frames: Sequence[PairMeasurement | FrameCorners], target: Target, names: Sequence[str],
+) -> np.ndarray:
+    """(P,) d(square)/d(parameter) for ``names`` (mm per px, per unit, per rad, per mm), at the measured corners.
+
+    The square is the configuration's (mean over ``frames`` of each frame's mean adjacent length);
+    central differences over the triangulation the pipeline itself uses.
+    """
+    square = _square_function(_frames(frames), target)
+    gradient = np.empty(len(names))
+    for i, name in enumerate(names):
+        step = parameter_step(name)
+        gradient[i] = (square(perturbed(calib, name, step)) - square(perturbed(calib, name, -step))) / (2 * step)
+    return gradient
+
+
+@dataclass(frozen=True)
+class UncertaintyBudget:
+    """Standard uncertainties (mm) of the measured square; None = unknown (not in ``combined``)."""
+
+    measured_mm: float
+    nominal_mm: float
+    n_frames: int
+    noise: float  # sqrt(noise_random^2 + noise_bias^2)
+    calibration: float | None
+    structure: float | None
+    target: float
+    k: float = K_COVERAGE
+    structure_source: str = ""
+    calibration_note: str = ""
+    sensitivities: dict[str, float] = field(default_factory=dict)  # d(square)/d(parameter), parameter units
+    noise_random_mm: float = float("nan")  # sqrt(sum sigma_i^2) / n: the campaign's sigma_mm
+    noise_bias_mm: float = float("nan")  # expected lengthening by the noise (uncorrected)
+    noise_systematic_mm: float = float("nan")  # the detector's systematic error, shared by the frames
+    detector_bias_mm: float = float("nan")  # its predictable part: the fitted pixel locking on these corners
+    corner_systematic_px: float = float("nan")  # systematic corner error the locking fit leaves (per coordinate)
+    pixel_locking_px: tuple[float, float] | None = None  # (a_sin, a_cos) from the calibration's residuals
+
+    @property
+    def components(self) -> dict[str, float | None]:
+        return {name: getattr(self, name) for name in COMPONENTS}
+
+    @property
+    def unknown(self) -> list[str]:
+        return [name for name, value in self.components.items() if value is None]
+
+    @property
+    def combined(self) -> float:
+        return float(math.sqrt(sum(v * v for v in self.components.values() if v is not None)))
+
+    @property
+    def expanded(self) -> float:
+        return self.k * self.combined
+
+    @property
+    def error_mm(self) -> float:
+        return self.measured_mm - self.nominal_mm
+
+    @property
+    def dominant(self) -> str:
+        known = {name: value for name, value in self.components.items() if value is not None}
+        return max(known, key=known.get)
+
+    def as_dict(self) -> dict:
+        """The ``uncertainty_mm`` record: noise, calibration, structure, target, combined, expanded, k."""
+        return {**self.components, "combined": self.combined, "expanded": self.expanded, "k": self.k}
+
+    def details(self) -> dict:
+        """What the components rest on (JSON-ready)."""
+        return {
+            "n_frames": self.n_frames, "unknown": self.unknown, "dominant": self.dominant,
+            "noise_random_mm": self.noise_random_mm, "noise_bias_mm": self.noise_bias_mm,
+            "noise_systematic_mm": self.noise_systematic_mm, "detector_bias_mm": self.detector_bias_mm,
+            "corner_systematic_px": self.corner_systematic_px,
+            "pixel_locking_px": None if self.pixel_locking_px is None else list(self.pixel_locking_px),
+            "complete": not self.unknown, "structure_source": self.structure_source or None,
+            "calibration_note": self.calibration_note or None,
+            "normalised_error": self.error_mm / self.combined if self.combined > 0 else None,
+            # The measured square less the two predictable biases, for a caller that corrects them.
+            "corrected_mm": self.measured_mm - self.noise_bias_mm - self.detector_bias_mm,
+            "sensitivities": self.sensitivities,
+        }
+
+
+def configuration_budget(
+    frames: Sequence[PairMeasurement | FrameCorners], calib: StereoCalibration, target: Target, *,
+    covariance: CalibrationCovariance | None | str = "calib", structure_covariance: np.ndarray | None = None,
+    extrinsics_from_calibration: bool = True, structure_source: str = "", board_scale: BoardScale | None = None,
+    k: float = K_COVERAGE,
+    corner_systematic: float | None = None,
+) -> UncertaintyBudget:
+    """The uncertainty budget of one configuration's measured square.
+
+    Args:
+        frames: the configuration's measurement frames (pipeline ``PairMeasurement``s or
+            :class:`FrameCorners`), all measured with ``calib``.
+        calib: the calibration the frames were triangulated with.
+        target: the measured board (its adjacent pairs and nominal square).
+        covariance: of the calibration's parameters; default ``calib.covariance`` (None: unknown).
+        structure_covariance: (6, 6) covariance over (rvec x y z in rad, T x y z in mm) of the
+            stereo extrinsics (X_right = R X_left + T, R = Rodrigues(rvec)) beyond the
+            calibration: with ``extrinsics_from_calibration`` the rig's possible change since the
+            calibration (repeatability; zeros: it has not moved), else the uncertainty of the
+            source R, T came from (the kinematic rig model's covariance plus the rig's
+            repeatability, or the rig's stated tolerances). None: the structure component is unknown.
+        extrinsics_from_calibration: the R, T of ``calib`` are the calibration's (default). False:
+            they come from the rig model or its nominal geometry; the calibration component then
+            covers the intrinsics only.
+        structure_source: a short description of that source, reported with the budget.
+        board_scale: the boards' scale uncertainties (default :class:`BoardScale`()).
+        k: coverage factor of the expanded uncertainty.
+        corner_systematic: the detector's systematic corner error per coordinate (px) beyond the
+            pixel locking the calibration fitted, when known from elsewhere (a detector
+            characterisation); None: :func:`corner_systematic_px` of the calibration's residuals.
+
+    Returns: :class:`UncertaintyBudget` (``as_dict()`` for the ``uncertainty_mm`` record).
+    """
+    frames = _frames(frames)
+    if not frames:
+        raise ValueError("no measurement frames: nothing to budget")
+    board_scale = board_scale or BoardScale()
+    covariance = calib.covariance if isinstance(covariance, str) else covariance
+    note = "" if covariance is not None else (calib.covariance_note or "the calibration has no covariance")
+    names: list[str] = []
+    if covariance is not None:
+        names = [n for n in covariance.names if extrinsics_from_calibration or n.startswith(("left.", "right."))]
+    if structure_covariance is not None:
+        structure_covariance = np.asarray(structure_covariance, float)
+        if structure_covariance.shape != (6, 6) or not np.all(np.isfinite(structure_covariance)):
+            raise ValueError("structure_covariance must be a finite (6, 6) matrix over (rvec, T)")
+    wanted = names + [n for n in EXTRINSIC_NAMES if structure_covariance is not None and n not in names]
+    gradient = dict(zip(wanted, square_sensitivities(calib, frames, target, wanted), strict=True)) if wanted else {}
+
+    u_calibration = None
+    if covariance is not None:
+        g = np.array([gradient[n] for n in names])
+        u_calibration = float(np.sqrt(max(g @ covariance.subset(names).matrix @ g, 0.0)))
+    u_structure = None
+    if structure_covariance is not None:
+        g = np.array([gradient[n] for n in EXTRINSIC_NAMES])
+        u_structure = float(np.sqrt(max(g @ structure_covariance @ g, 0.0)))
+    sigmas = np.array([f.sigma_mean_mm for f in frames], float)
+    random = float(np.sqrt(np.sum(sigmas**2)) / len(sigmas))
+    bias = float(np.mean([noise_bias_mm(calib, f, target) for f in frames]))
+    if corner_systematic is None:
+        random_px = float(np.sqrt(np.mean([np.mean(np.square(f.pixel_sigma_px)) for f in frames])))
+        corner_systematic = corner_systematic_px(covariance, random_px)
+    locking = None if covariance is None else covariance.pixel_locking_px
+    detector_bias = rest = 0.0
+    if locking is not None:
+        detector_bias = float((complex(*locking) * phase_sum(calib, frames, target)).imag)
+    if corner_systematic > 0:
+        rest = coherent_displacement_mm(calib, frames, target, corner_systematic)
+    systematic = float(math.sqrt(detector_bias**2 * (1.0 + LOCKING_TRANSFER_U_REL**2) + rest**2))
+    measured = _square_function(frames, target)(calib)
+    return UncertaintyBudget(
+        measured_mm=measured, nominal_mm=float(target.square_mm), n_frames=len(frames),
+        noise=float(math.sqrt(random**2 + bias**2 + systematic**2)), calibration=u_calibration,
+        structure=u_structure, target=board_scale.u_mm(target.square_mm), k=float(k),
+        structure_source=structure_source, calibration_note=note, sensitivities=gradient, noise_random_mm=random,
+        noise_bias_mm=bias, noise_systematic_mm=systematic, corner_systematic_px=float(corner_systematic),
+        detector_bias_mm=detector_bias, pixel_locking_px=locking,
+    )

@@ -1,0 +1,199 @@
+"""The measured square's uncertainty budget: each component against the scatter it claims, then coverage."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from functools import cache
+
+import cv2
+import numpy as np
+import pytest
+
+from stereo_bench.errormodel.rigorous import calibration_of
+from stereo_bench.vision.covariance import EXTRINSIC_NAMES, CalibrationCovariance
+from stereo_bench.vision.measure import measure_square
+from stereo_bench.vision.uncertainty import (
+    DEFAULT_BOARD_SCALE_U_REL,
+    BoardScale,
+    FrameCorners,
+    configuration_budget,
+    square_sensitivities,
+)
+from tests.synthetic_rig import TARGET, Configuration, calibrate, measurement_frames
+from tests.test_covariance import locked
+
+NOISE_PX = 0.1
+#: Five configurations spanning B (50-300 mm), Z (300-800 mm) and alpha (75-90 deg).
+CONFIGURATIONS = (Configuration(100, 500, 90), Configuration(200, 500, 80), Configuration(50, 300, 90),
+                  Configuration(300, 800, 80), Configuration(150, 400, 75))
+
+
+def _true_calibration(config: Configuration):
+    return calibration_of(config.setup)
+
+
+def test_budget_record_has_the_issue_keys_and_combines_in_quadrature():
+    config = CONFIGURATIONS[1]
+    calib = _true_calibration(config)
+    frames = measurement_frames(config, calib, np.random.default_rng(1), noise_px=NOISE_PX, n_frames=3)
+    budget = configuration_budget(frames, calib, TARGET)  # a calibration without covariance
+    record = budget.as_dict()
+    assert list(record) == ["noise", "calibration", "structure", "target", "combined", "expanded", "k"]
+    assert record["calibration"] is None and record["structure"] is None  # unknown, not zero
+    assert budget.unknown == ["calibration", "structure"] and not budget.details()["complete"]
+    assert record["target"] == pytest.approx(27.0 * math.sqrt(2) * DEFAULT_BOARD_SCALE_U_REL)
+    assert record["combined"] == pytest.approx(math.hypot(record["noise"], record["target"]))
+    assert record["expanded"] == pytest.approx(2 * record["combined"]) and record["k"] == 2.0
+    # Three independent frames: the random part is the root sum of squares over n.
+    random = math.sqrt(sum(f.sigma_mean_mm**2 for f in frames)) / 3
+    assert budget.noise_random_mm == pytest.approx(random)
+    assert budget.noise == pytest.approx(math.hypot(random, budget.noise_bias_mm))
+
+
+def test_board_scale_cancels_on_the_same_board_and_is_validated():
+    assert BoardScale(same_board=True).u_mm(27.0) == 0.0
+    assert BoardScale(1e-3, 0.0).u_mm(27.0) == pytest.approx(0.027)
+    with pytest.raises(ValueError, match="target_u_rel"):
+        BoardScale(target_u_rel=-1e-4)
+
+
+def test_square_sensitivity_to_the_baseline_is_the_square_over_the_baseline():
+    # Parallel rig, T = (-B, 0, 0): every triangulated length scales with abs(T).
+    config = CONFIGURATIONS[0]
+    calib = _true_calibration(config)
+    frames = measurement_frames(config, calib, np.random.default_rng(2), noise_px=0.0, n_frames=1)
+    g = square_sensitivities(calib, frames, TARGET, ["T.x", "right.k1", "rvec.y"])
+    assert g[0] == pytest.approx(-27.0 / 100.0, rel=1e-6)
+    # The others against a plain finite difference through the pipeline's own measure_square.
+    f = frames[0]
+
+    def square(**changes):
+        return measure_square(replace(calib, **changes), TARGET, f.ids, f.left_px, f.right_px).mean_mm
+    D2 = np.array(calib.D2, float).reshape(1, -1)
+    D2_plus, D2_minus = D2.copy(), D2.copy()
+    D2_plus[0, 0] += 1e-3
+    D2_minus[0, 0] -= 1e-3
+    assert g[1] == pytest.approx((square(D2=D2_plus) - square(D2=D2_minus)) / 2e-3, rel=1e-3)
+    turn = [cv2.Rodrigues(np.array([0.0, s, 0.0]))[0] @ calib.R for s in (1e-4, -1e-4)]  # R = I here
+    assert g[2] == pytest.approx((square(R=turn[0]) - square(R=turn[1])) / 2e-4, rel=1e-3)
+
+
+def test_structure_covariance_with_calibrated_or_rig_model_extrinsics():
+    config = CONFIGURATIONS[0]
+    calib = _true_calibration(config)
+    names = ("left.fx", "right.fx") + EXTRINSIC_NAMES
+    cov = CalibrationCovariance(names, np.diag([0.25, 0.25] + [1e-8] * 3 + [0.01] * 3), sigma_px=NOISE_PX)
+    calib = replace(calib, covariance=cov)
+    frames = measurement_frames(config, calib, np.random.default_rng(3), noise_px=0.0, n_frames=1)
+    g = configuration_budget(frames, calib, TARGET).sensitivities
+    variances = dict(zip(names, np.diag(cov.matrix), strict=True))
+    everything = math.sqrt(sum(variances[n] * g[n] ** 2 for n in names))
+    intrinsics_only = math.sqrt(0.25 * (g["left.fx"] ** 2 + g["right.fx"] ** 2))
+    tolerance = np.diag([0.0] * 3 + [0.3**2, 0.0, 0.0])  # a 0.3 mm baseline tolerance, nothing else
+    # Kinematic/nominal extrinsics: the rig model's R, T replace the calibration's.
+    model = configuration_budget(frames, calib, TARGET, structure_covariance=tolerance,
+                                 extrinsics_from_calibration=False, structure_source="rig tolerance")
+    assert model.structure == pytest.approx(27.0 / 100.0 * 0.3, rel=1e-5)
+    assert model.calibration == pytest.approx(intrinsics_only)
+    # Calibrated in place: the calibration carries R, T; a rig that has not moved adds nothing.
+    unmoved = configuration_budget(frames, calib, TARGET, structure_covariance=np.zeros((6, 6)))
+    assert unmoved.calibration == pytest.approx(everything) and everything > 1.5 * intrinsics_only
+    assert unmoved.structure == 0.0 and "structure" not in unmoved.unknown
+    # Nothing said about the structure: unknown, not zero.
+    assert configuration_budget(frames, calib, TARGET).unknown == ["structure"]
+    unknown_model = configuration_budget(frames, calib, TARGET, extrinsics_from_calibration=False)
+    assert unknown_model.structure is None and unknown_model.calibration == pytest.approx(intrinsics_only)
+    with pytest.raises(ValueError, match="structure_covariance"):
+        configuration_budget(frames, calib, TARGET, structure_covariance=np.eye(3))
+
+
+def test_noise_component_matches_the_scatter_of_frames_with_an_exact_calibration():
+    # B 100 mm at Z 500 mm, parallel: depth noise lengthens every pair as much as the random part.
+    config = CONFIGURATIONS[0]
+    calib = _true_calibration(config)
+    frames = measurement_frames(config, calib, np.random.default_rng(4), noise_px=NOISE_PX, n_frames=600)
+    errors = np.array([configuration_budget([f], calib, TARGET).error_mm for f in frames[:300]])
+    budget = configuration_budget(frames[300:301], calib, TARGET)
+    assert budget.noise_bias_mm == pytest.approx(errors.mean(), rel=0.15)  # standard error 5 %
+    assert budget.noise_random_mm == pytest.approx(errors.std(ddof=1), rel=0.12)  # standard error 4 %
+    assert budget.noise == pytest.approx(np.sqrt(np.mean(errors**2)), rel=0.12)
+
+
+def test_detector_bias_predicts_the_square_error_of_a_locking_detector():
+    # A detector whose corners lock to the pixel grid (0.03 px, as the simulator's): with an exact
+    # calibration the square's error is that locking's alone, the same in every frame.
+    config = CONFIGURATIONS[0]
+    names = ("left.fx",) + EXTRINSIC_NAMES
+    covariance = CalibrationCovariance(names, np.diag([1e-6] * 7), sigma_px=math.sqrt(1e-6 + 0.03**2 / 2), dof=5000,
+                                       pixel_locking_px=(0.03, 0.0))
+    calib = replace(_true_calibration(config), covariance=covariance)
+    frames = measurement_frames(config, calib, np.random.default_rng(5), noise_px=0.0, n_frames=1)
+    f = frames[0]
+    lock = [FrameCorners(f.ids, locked(f.left_px, 0.03), locked(f.right_px, 0.03), 0.0, (1e-3, 1e-3))]
+    budget = configuration_budget(lock, calib, TARGET, board_scale=BoardScale(0.0, 0.0))
+    assert abs(budget.error_mm) > 5e-4  # the locking matters here: 0.02 px on a 270 px disparity
+    assert budget.detector_bias_mm == pytest.approx(budget.error_mm, rel=0.05)
+    assert budget.details()["corrected_mm"] == pytest.approx(27.0, abs=0.05 * abs(budget.error_mm))
+    assert budget.noise >= abs(budget.error_mm) and budget.corner_systematic_px == 0.0  # locking explains it
+
+
+@cache
+def _coverage(mode: str) -> dict[str, np.ndarray]:
+    """Normalised errors over 20 seeds x 5 configurations (a fresh calibration each, 12 views as the campaign).
+
+    ``z``: error / u_c of 5 noisy frames; ``over_U``: abs(error) / U; ``old``: error / the random
+    noise sigma alone (the campaign's sigma_mm before the budget); ``z_calibration``: error of a
+    noise-free frame measured with the same calibration / the calibration component (what is left
+    of the error there is the calibration's alone); ``error_calibration``: that error (mm),
+    configuration-major.
+    """
+    out: dict[str, list[float]] = {"z": [], "over_U": [], "old": [], "z_calibration": [], "error_calibration": []}
+    for config in CONFIGURATIONS:
+        for seed in range(20):
+            rng = np.random.default_rng([41, seed, int(config.baseline_mm), int(config.distance_mm)])
+            calib = calibrate(config, rng, noise_px=NOISE_PX, mode=mode)
+            frames = measurement_frames(config, calib, rng, noise_px=NOISE_PX, n_frames=5)
+            # The simulated boards are exact: the target component is zero by its source.
+            budget = configuration_budget(frames, calib, TARGET, board_scale=BoardScale(0.0, 0.0))
+            out["z"].append(budget.error_mm / budget.combined)
+            out["over_U"].append(abs(budget.error_mm) / budget.expanded)
+            out["old"].append(budget.error_mm / budget.noise_random_mm)
+            exact = measurement_frames(config, calib, rng, noise_px=0.0, n_frames=1)
+            alone = configuration_budget(exact, calib, TARGET, board_scale=BoardScale(0.0, 0.0))
+            assert alone.noise == 0.0 and alone.unknown == ["structure"]
+            out["z_calibration"].append(alone.error_mm / alone.calibration)
+            out["error_calibration"].append(alone.error_mm)
+    return {name: np.array(values) for name, values in out.items()}
+
+
+@pytest.mark.slow
+def test_calibration_component_matches_the_scatter_of_recalibrations():
+    z = _coverage("joint")["z_calibration"]
+    rms = float(np.sqrt(np.mean(z**2)))
+    assert 0.8 <= rms <= 1.2, rms  # 100 samples: standard error of the RMS 7 %
+
+
+@pytest.mark.slow
+def test_coverage_on_the_ideal_synthetic_bench():
+    result = _coverage("joint")
+    z = result["z"]
+    assert 0.7 <= np.sqrt(np.mean(z**2)) <= 1.4, np.sqrt(np.mean(z**2))
+    assert np.mean(result["over_U"] <= 1.0) >= 0.90, np.mean(result["over_U"] <= 1.0)
+    # The old sigma (image noise, random part only) does not hold on the same errors.
+    assert np.sqrt(np.mean(result["old"] ** 2)) > 1.4
+
+
+@pytest.mark.slow
+def test_predicted_calibration_component_matches_the_recalibrations():
+    # model predict / the advisor predict the calibration's error from the planned views alone
+    # (noise-free, their own deterministic placement); the campaign's placement, drawn afresh per seed,
+    # must scatter as predicted.
+    from stereo_bench.errormodel.rigorous import CalibrationPlan, calibration_sigmas
+
+    errors = _coverage("joint")["error_calibration"].reshape(len(CONFIGURATIONS), -1)
+    predicted = np.array([calibration_sigmas(c.setup, CalibrationPlan(), NOISE_PX)[0] for c in CONFIGURATIONS])
+    ratios = np.sqrt(np.mean(errors**2, axis=1)) / predicted
+    assert np.all((0.6 < ratios) & (ratios < 1.6)), ratios  # 20 seeds each: standard error 16 %
+    pooled = np.sqrt(np.mean((errors / predicted[:, None]) ** 2))
+    assert 0.8 < pooled < 1.25, pooled  # 100 samples: standard error 7 %
