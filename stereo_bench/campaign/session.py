@@ -46,7 +46,6 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-import cv2
 import numpy as np
 
 from stereo_bench import atomic
@@ -59,6 +58,7 @@ from stereo_bench.campaign.store import (
     normalise_row,
     order_rows,
 )
+from stereo_bench.frames import FRAME_EXTENSION, FrameError, decode_frame, encode_frame
 from stereo_bench.vision import calibio
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.rectify import Rectification
@@ -73,7 +73,6 @@ SESSION_LEVEL = "_session"  # the directory of side files of events that belong 
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
 _ATTEMPT_DIR = re.compile(r"a(\d+)(?:-\d+)?")
 _ATTEMPT_IN_NAME = re.compile(r"-a(\d+)(?:\.|$)")
-_PNG_END = b"IEND\xaeB`\x82"
 
 
 class SessionError(ValueError):
@@ -351,13 +350,10 @@ class SessionReader:
 
     def frame(self, relative: str) -> np.ndarray:
         """A recorded frame, exactly as written (grey (H, W) or BGR (H, W, 3))."""
-        data = self.read_bytes(relative)
-        image = None
-        if data.startswith(b"\x89PNG") and data.rstrip(b"\x00").endswith(_PNG_END):
-            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise SessionError(f"{self.path(relative)}: not a complete PNG frame (corrupt or truncated)")
-        return image
+        try:
+            return decode_frame(self.read_bytes(relative), str(self.path(relative)))
+        except FrameError as error:
+            raise SessionError(str(error)) from None
 
     def calibration(self, config_id: str) -> StereoCalibration:
         """The calibration of ``config_id`` recorded last (its 'calibration' event)."""
@@ -720,10 +716,10 @@ class SessionWriter:
             directory, relative = self._side_dir("frames", config_id)
             self._mkdir(directory)
             for name, image in frames.items():
-                filename = f"{seq:06d}_{name}.png"
+                filename = f"{seq:06d}_{name}{FRAME_EXTENSION}"
                 try:
-                    atomic.write_png(directory / filename, image, overwrite=False)
-                except ValueError as error:
+                    atomic.write_bytes(directory / filename, encode_frame(image), overwrite=False)
+                except FrameError as error:
                     raise SessionError(f"frame {name!r} of event {kind!r}: {error}") from None
                 doc["frames"][name] = f"{relative}/{filename}"
         if files:
