@@ -48,6 +48,12 @@ def views():
     return _views()
 
 
+@pytest.fixture(scope="module")
+def detections(views):
+    """{name: (view, the default detector's (ids, corners), ours)}: the default detector is slow, run it once."""
+    return {name: (view, default_detection(view.image), detect(view.image, BOARD)) for name, view in views.items()}
+
+
 def default_detection(image: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """(ids (N,), corners (N, 2)) of OpenCV's default ChArUco detector, in id order; None if nothing."""
     corners, ids, _, _ = cv2.aruco.CharucoDetector(BOARD.cv_board).detectBoard(image)
@@ -74,28 +80,23 @@ def test_legacy_pattern_survives_the_cut():
     assert board_markers_only(CharucoTarget(5, 7, 20.0, 15.0, legacy_pattern=True).cv_board).getLegacyPattern()
 
 
-def test_same_ids_and_corners_as_the_default_detector(views):
-    for name, view in views.items():
-        expected = default_detection(view.image)
-        found = detect(view.image, BOARD)
+def test_same_ids_and_corners_as_the_default_detector(detections):
+    for name, (view, expected, found) in detections.items():
         assert expected is not None and found is not None, name
         np.testing.assert_array_equal(found.ids, expected[0], err_msg=name)
         np.testing.assert_allclose(found.corners_px, expected[1], atol=SAME_CORNER_TOLERANCE_PX, rtol=0, err_msg=name)
         assert set(found.ids) <= set(np.flatnonzero(view.visible)), name
 
 
-def test_partial_views_at_strong_toe_in_are_found(views):
+def test_partial_views_at_strong_toe_in_are_found(detections):
     for name in ("toe-in 45 Z=500", "toe-in 55 Z=300"):
-        view = views[name]
-        found = detect(view.image, BOARD)
+        _, _, found = detections[name]
         assert 4 <= found.n < 0.5 * BOARD.n_corners, name  # partial, and still measured
 
 
-def test_accuracy_against_truth_within_5_percent_of_the_default(views):
+def test_accuracy_against_truth_within_5_percent_of_the_default(detections):
     ours, theirs = [], []
-    for view in views.values():
-        expected_ids, expected_corners = default_detection(view.image)
-        found = detect(view.image, BOARD)
+    for view, (expected_ids, expected_corners), found in detections.values():
         ours.append(rms_px(found.corners_px, view.corners_px[found.ids]))
         theirs.append(rms_px(expected_corners, view.corners_px[expected_ids]))
     ours_rms, theirs_rms = np.sqrt(np.mean(np.square(ours))), np.sqrt(np.mean(np.square(theirs)))
