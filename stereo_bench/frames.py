@@ -3,7 +3,8 @@
 Format, chosen by measurement (scripts/bench_frame_format.py, rendered 1080p frames, 2 cores): PNG,
 zlib level 1, Huffman coding only, every row with the "up" filter. Against the setting used until
 now (level 1, run-length strategy, filters chosen per row) a grey frame encodes in 16 ms instead of
-34, decodes in 8.8 ms instead of 13.4, and is 5 % larger (0.97 MB instead of 0.93).
+34, decodes in 8.8 ms instead of 13.4, and is 5 % larger (0.97 MB instead of 0.93) (one thread, load
+average 3-6 from other jobs; scripts/results/bench_frame_format.json holds the latest run).
 
 Why not smaller: a camera frame is mostly sensor noise, which no lossless coder can compress (2 DN
 of white noise alone carries ~3 bits per pixel, 0.79 MB per 1080p frame). The best lossless coders
