@@ -18,8 +18,9 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-import cv2
 import numpy as np
+
+from stereo_bench import frames
 
 TEMP_SUFFIX = ".tmp"
 
@@ -109,25 +110,11 @@ def write_text(path: str | Path, text: str, *, encoding: str = "utf-8", overwrit
     return write_bytes(path, text.encode(encoding), overwrite=overwrite)
 
 
-def encode_png(image: np.ndarray) -> bytes:
-    """Lossless PNG bytes of a grey (H, W) or colour (H, W, 3|4, BGR[A]) uint8/uint16 image."""
-    image = np.asarray(image)
-    if image.dtype not in (np.uint8, np.uint16):
-        raise ValueError(f"PNG frames must be uint8 or uint16, got {image.dtype}")
-    if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] in (1, 3, 4))):
-        raise ValueError(f"PNG frames must be (H, W) or (H, W, 1|3|4), got shape {image.shape}")
-    if image.size == 0:
-        raise ValueError("cannot write an empty frame")
-    # Camera frames are mostly sensor noise, which deflate's string matching cannot shorten: the RLE
-    # strategy (filters + run lengths + Huffman) encodes a noisy 1080p frame in ~34 ms to 0.94 MB
-    # where the default strategy takes ~46 ms for 1.11 MB (measured here, level 1 both).
-    params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
-    ok, buffer = cv2.imencode(".png", np.ascontiguousarray(image), params)
-    if not ok:
-        raise ValueError(f"cv2.imencode failed for a frame of shape {image.shape} {image.dtype}")
-    return buffer.tobytes()
-
-
 def write_png(path: str | Path, image: np.ndarray, *, overwrite: bool = True) -> Path:
-    """Write ``image`` as a lossless PNG atomically (encoded in memory, then :func:`write_bytes`)."""
-    return write_bytes(path, encode_png(image), overwrite=overwrite)
+    """Write ``image`` as a lossless PNG atomically (:func:`stereo_bench.frames.encode_frame`, then
+    :func:`write_bytes`).
+
+    Raises:
+        ValueError: the image cannot be stored losslessly (:class:`stereo_bench.frames.FrameError`).
+    """
+    return write_bytes(path, frames.encode_frame(image), overwrite=overwrite)

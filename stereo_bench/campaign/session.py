@@ -46,7 +46,6 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-import cv2
 import numpy as np
 
 from stereo_bench import atomic
@@ -80,6 +79,7 @@ from stereo_bench.campaign.store import (
     normalise_row,
     order_rows,
 )
+from stereo_bench.frames import FRAME_EXTENSION, FrameError, decode_frame, encode_frame
 from stereo_bench.vision import calibio
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.rectify import Rectification
@@ -91,7 +91,6 @@ SESSION_LEVEL = "_session"  # the directory of side files of events that belong 
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
 _ATTEMPT_DIR = re.compile(r"a(\d+)(?:-\d+)?")
 _ATTEMPT_IN_NAME = re.compile(r"-a(\d+)(?:\.|$)")
-_PNG_END = b"IEND\xaeB`\x82"
 
 
 class SessionError(ValueError):
@@ -392,13 +391,10 @@ class SessionReader:
 
     def frame(self, relative: str) -> np.ndarray:
         """A recorded frame, exactly as written (grey (H, W) or BGR (H, W, 3))."""
-        data = self.read_bytes(relative)
-        image = None
-        if data.startswith(b"\x89PNG") and data.rstrip(b"\x00").endswith(_PNG_END):
-            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise SessionError(f"{self.path(relative)}: not a complete PNG frame (corrupt or truncated)")
-        return image
+        try:
+            return decode_frame(self.read_bytes(relative), str(self.path(relative)))
+        except FrameError as error:
+            raise SessionError(str(error)) from None
 
     def calibration(self, config_id: str) -> StereoCalibration:
         """The calibration of ``config_id`` recorded last (its 'calibration' event)."""
@@ -804,7 +800,7 @@ class SessionWriter:
         frame_paths, file_paths = {}, {}
         if frames:
             _, relative = self._side_dir("frames", config_id)
-            frame_paths = {name: f"{relative}/{seq:06d}_{name}.png" for name in frames}
+            frame_paths = {name: f"{relative}/{seq:06d}_{name}{FRAME_EXTENSION}" for name in frames}
         if files:
             _, relative = self._side_dir("files", config_id)
             file_paths = {name: f"{relative}/{seq:06d}_{name}" for name in files}
@@ -817,8 +813,8 @@ class SessionWriter:
             self._mkdir(directory)
             for name, image in frames.items():
                 try:
-                    atomic.write_png(self.directory / frame_paths[name], image, overwrite=False)
-                except ValueError as error:
+                    atomic.write_bytes(self.directory / frame_paths[name], encode_frame(image), overwrite=False)
+                except FrameError as error:
                     raise SessionError(f"frame {name!r} of event {kind!r}: {error}") from None
         if files:
             directory, _ = self._side_dir("files", config_id)

@@ -1,0 +1,94 @@
+"""The frame codec: lossless round trips, the measured PNG setting, refusal of damaged files, old sessions."""
+
+from __future__ import annotations
+
+import zlib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from stereo_bench.campaign.session import SessionReader
+from stereo_bench.frames import FRAME_EXTENSION, PNG_MAGIC, FrameError, decode_frame, encode_frame
+
+SAMPLE_SESSION = Path(__file__).resolve().parents[1] / "calib_data" / "sample_session"
+
+
+def noisy_frame(shape, dtype=np.uint8, seed=0) -> np.ndarray:
+    """A camera-like frame: a smooth gradient, a dark square, and sensor noise (seeded)."""
+    rng = np.random.default_rng(seed)
+    top = np.iinfo(dtype).max
+    rows, cols = shape[:2]
+    base = np.linspace(0.2, 0.8, cols)[None, :] * np.ones((rows, 1))
+    base[rows // 4: rows // 2, cols // 4: cols // 2] = 0.1
+    if len(shape) == 3:
+        base = base[..., None] * np.linspace(0.8, 1.0, shape[2])
+    return np.clip(base * top + rng.normal(0, 0.01 * top, shape), 0, top).astype(dtype)
+
+
+def png_chunks(data: bytes) -> list[tuple[bytes, bytes]]:
+    chunks, position = [], len(PNG_MAGIC)
+    while position < len(data):
+        length = int.from_bytes(data[position: position + 4], "big")
+        chunks.append((data[position + 4: position + 8], data[position + 8: position + 8 + length]))
+        position += 12 + length
+    return chunks
+
+
+@pytest.mark.parametrize("shape", [(1080, 1920), (1080, 1920, 3), (37, 53, 4), (37, 53, 1)])
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_round_trip_is_bit_identical(shape, dtype):
+    image = noisy_frame(shape, dtype)
+    back = decode_frame(encode_frame(image), "f.png")
+    expected = image[..., 0] if shape[-1:] == (1,) else image  # OpenCV stores one channel as grey
+    assert back.dtype == image.dtype and back.shape == expected.shape
+    np.testing.assert_array_equal(back, expected)
+
+
+def test_frames_are_png_written_with_the_measured_setting():
+    """Huffman-only deflate and the 'up' filter on every row (scripts/bench_frame_format.py chose them):
+    the per-row filter byte of the decompressed image data is 2 throughout."""
+    image = noisy_frame((120, 160))
+    data = encode_frame(image)
+    assert FRAME_EXTENSION == ".png" and data.startswith(PNG_MAGIC)
+    raw = zlib.decompress(b"".join(body for kind, body in png_chunks(data) if kind == b"IDAT"))
+    rows = np.frombuffer(raw, np.uint8).reshape(image.shape[0], image.shape[1] + 1)
+    if hasattr(cv2, "IMWRITE_PNG_FILTER"):
+        assert set(rows[:, 0]) == {2}  # PNG filter type 2 = up
+    # Huffman only: no run lengths or back-references, so even a blank frame costs >= 1 bit per byte
+    # (run-length or default deflate would store it in ~1 kB).
+    blank = np.zeros((400, 500), np.uint8)
+    assert len(encode_frame(blank)) >= blank.size / 8
+
+
+def test_refuses_what_it_cannot_store_losslessly():
+    with pytest.raises(FrameError, match="uint8 or uint16"):
+        encode_frame(np.zeros((4, 4), np.float32))
+    with pytest.raises(FrameError, match="shape"):
+        encode_frame(np.zeros((4, 4, 2), np.uint8))
+    with pytest.raises(FrameError, match="empty"):
+        encode_frame(np.zeros((0, 4), np.uint8))
+
+
+def test_truncated_corrupt_or_foreign_bytes_are_refused_by_name():
+    data = encode_frame(noisy_frame((200, 300)))
+    flipped = bytearray(data)
+    flipped[len(data) // 2] ^= 0x10  # inside the image data: caught by the chunk CRC
+    for damaged in (data[: len(data) // 2], data[:-1], bytes(flipped), b"", b"\x00" * 64, b"GIF89a..."):
+        with pytest.raises(FrameError, match=r"000007_left\.png: not a complete PNG frame"):
+            decode_frame(damaged, "frames/c0/a1/000007_left.png")
+    # Zero bytes after a complete file (a filesystem's leftovers after a crash) are tolerated.
+    np.testing.assert_array_equal(decode_frame(data + b"\x00" * 16, "f.png"), decode_frame(data, "f.png"))
+
+
+def test_old_sessions_frames_read_exactly_as_written():
+    """The sample session was recorded with the previous PNG setting: every frame reads back as
+    OpenCV's own PNG reader sees it."""
+    reader = SessionReader(SAMPLE_SESSION)
+    events = [event for event in reader.events() if event.get("frames")]
+    assert len(events) >= 10
+    for event in events:
+        for relative in event["frames"].values():
+            expected = cv2.imread(str(SAMPLE_SESSION / relative), cv2.IMREAD_UNCHANGED)
+            np.testing.assert_array_equal(reader.frame(relative), expected)
