@@ -1,4 +1,4 @@
-"""Campaign overhead on the simulated rig, and replay throughput.
+"""Campaign overhead on the simulated rig, and replay throughput, with where the time goes per stereo pair.
 
 Runs a campaign in real time (realistic motion speeds: the GRBL emulator's default axis rates and
 accelerations, time scale 1) and divides its wall time by the unavoidable hardware time: motion +
@@ -7,17 +7,24 @@ exactly as the emulator does), plus the homing as it happened. Processing (rende
 inside the exposure; PNG encoding, detection, calibration, measurement) is overhead unless it
 overlaps the hardware time. Then replays the recorded session and reports pairs per second.
 
-    python scripts/bench_campaign.py [--out bench_campaign.json] [--keep DIR]
+Where the time goes is measured by timing the real functions in place (wrapped by this script, not
+changed): for each activity, the CPU time it took on every thread (``time.thread_time``), and how
+much of the runner's own thread (the critical path: what the wall time is made of) it held.
+
+    python scripts/bench_campaign.py [--profiles ideal lab] [--out FILE] [--keep DIR]
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import shutil
 import tempfile
+import threading
 import time
+from collections import defaultdict
 from pathlib import Path
 
 from stereo_bench.campaign.config import campaign_from_dict
@@ -34,52 +41,211 @@ CAMPAIGN = {
 }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="bench_campaign.json")
-    parser.add_argument("--keep", metavar="DIR", help="keep the recorded session here")
-    args = parser.parse_args()
-    config = campaign_from_dict(CAMPAIGN)
+class Spans:
+    """Times named functions in place: per activity, wall and thread-CPU seconds, and the exclusive share
+    of each thread (nested activities are subtracted from the one that called them)."""
+
+    def __init__(self):
+        self._undo: list[tuple[object, str, object]] = []
+        self._local = threading.local()
+        self._lock = threading.Lock()
+        # (thread name, label) -> [calls, wall_s, exclusive wall_s, cpu_s, exclusive cpu_s]
+        self.totals: dict[tuple[str, str], list[float]] = defaultdict(lambda: [0, 0.0, 0.0, 0.0, 0.0])
+
+    def wrap(self, owner: object, name: str, label: str) -> None:
+        original = owner.__dict__[name] if isinstance(owner, type) else getattr(owner, name)
+        if isinstance(original, staticmethod):
+            raise TypeError(f"{owner}.{name}: static methods are not wrapped")
+        spans = self
+
+        @functools.wraps(original)
+        def timed(*args, **kwargs):
+            stack = spans._stack()
+            child = [0.0, 0.0]  # time of nested timed calls
+            stack.append(child)
+            wall0, cpu0 = time.monotonic(), time.thread_time()
+            try:
+                return original(*args, **kwargs)
+            finally:
+                wall, cpu = time.monotonic() - wall0, time.thread_time() - cpu0
+                stack.pop()
+                if stack:
+                    stack[-1][0] += wall
+                    stack[-1][1] += cpu
+                with spans._lock:
+                    entry = spans.totals[(threading.current_thread().name, label)]
+                    entry[0] += 1
+                    entry[1] += wall
+                    entry[2] += wall - child[0]
+                    entry[3] += cpu
+                    entry[4] += cpu - child[1]
+
+        self._undo.append((owner, name, original))
+        setattr(owner, name, timed)
+
+    def _stack(self) -> list:
+        if not hasattr(self._local, "stack"):
+            self._local.stack = []
+        return self._local.stack
+
+    def restore(self) -> None:
+        for owner, name, original in reversed(self._undo):
+            setattr(owner, name, original)
+        self._undo.clear()
+
+    def by_label(self, *, main: str = "MainThread") -> dict[str, dict[str, float]]:
+        """Per label: calls, CPU on all threads (exclusive), and exclusive wall time on the main thread."""
+        out: dict[str, dict[str, float]] = {}
+        for (thread, label), (calls, _wall, excl_wall, _cpu, excl_cpu) in self.totals.items():
+            entry = out.setdefault(label, {"calls": 0, "cpu_s": 0.0, "main_thread_s": 0.0})
+            entry["calls"] += calls
+            entry["cpu_s"] += excl_cpu
+            if thread == main:
+                entry["main_thread_s"] += excl_wall
+        return out
+
+
+def instrument_campaign(spans: Spans) -> None:
+    """The activities of a live campaign (see the module docstring)."""
+    from drivers.camera.synthetic import SyntheticCamera
+    from drivers.rig.rig import GrblRig
+    from drivers.sim.bench import SimulatedBench
+    from drivers.sim.render import StereoRenderer
+    from stereo_bench.campaign import runner, session
+    from stereo_bench.campaign.bench import Clock
+
+    spans.wrap(GrblRig, "home", "homing (hardware)")
+    spans.wrap(GrblRig, "move_to", "motion (hardware)")
+    spans.wrap(Clock, "wait", "settle (hardware)")
+    spans.wrap(SyntheticCamera, "grab", "exposure wait (hardware)")  # what is left of a grab once the render is out
+    spans.wrap(StereoRenderer, "render_view", "render")
+    spans.wrap(SimulatedBench, "render", "render (snapshot, other camera's)")
+    spans.wrap(StereoRenderer, "__init__", "renderer setup")
+    spans.wrap(session, "encode_frame", "encode")
+    spans.wrap(session.SessionWriter, "record", "record/fsync")  # minus the encoding inside it
+    spans.wrap(runner, "detect", "detect during capture")
+    spans.wrap(runner.CampaignRunner, "_analyse", "analysis")
+    spans.wrap(runner.CampaignRunner, "_sync_recording", "waiting for the recorder")
+    spans.wrap(runner.CampaignRunner, "_collect", "waiting for analyses")
+    spans.wrap(runner.CampaignRunner, "_execute", "runner (other)")
+    spans.wrap(runner.CampaignRunner, "run", "runner (other)")
+
+
+def instrument_replay(spans: Spans) -> None:
+    from stereo_bench.campaign import runner, session
+
+    spans.wrap(session, "decode_frame", "decode")
+    spans.wrap(session.SessionReader, "read_bytes", "read")
+    spans.wrap(runner, "detect", "detect during capture")
+    spans.wrap(runner.CampaignRunner, "_analyse", "analysis")
+    spans.wrap(runner.CampaignRunner, "_sync_recording", "waiting for the recorder")
+    spans.wrap(runner.CampaignRunner, "_collect", "waiting for analyses")
+    spans.wrap(runner.CampaignRunner, "_execute", "runner (other)")
+    spans.wrap(runner.CampaignRunner, "run", "runner (other)")
+
+
+def per_pair(table: dict[str, dict[str, float]], pairs: int) -> dict[str, dict[str, float]]:
+    return {label: {"calls": entry["calls"], "cpu_ms_per_pair": 1e3 * entry["cpu_s"] / pairs,
+                    "main_thread_ms_per_pair": 1e3 * entry["main_thread_s"] / pairs}
+            for label, entry in sorted(table.items(), key=lambda item: -item[1]["cpu_s"])}
+
+
+def print_breakdown(title: str, table: dict[str, dict[str, float]], wall_s: float, pairs: int) -> None:
+    print(f"  {title}: per stereo pair, ms   {'CPU (all threads)':>18s} {'runner thread':>14s}")
+    accounted = 0.0
+    for label, entry in table.items():
+        accounted += entry["main_thread_ms_per_pair"]
+        print(f"    {label:36s} {entry['cpu_ms_per_pair']:18.1f} {entry['main_thread_ms_per_pair']:14.1f}")
+    rest = 1e3 * wall_s / pairs - accounted
+    print(f"    {'outside the runner (open, close)':36s} {'':18s} {rest:14.1f}")
+    print(f"    {'wall time':36s} {'':18s} {1e3 * wall_s / pairs:14.1f}")
+
+
+def bench_profile(profile: str, keep: Path | None) -> dict:
+    config = campaign_from_dict({**CAMPAIGN, "sim": {"profile": profile}})
     plan = CampaignPlan.of(config)
-    configurations = plan.configurations
-    estimate = estimate_duration(config, configurations, plan.steps)
+    estimate = estimate_duration(config, plan.configurations, plan.steps)
     workdir = Path(tempfile.mkdtemp(prefix="bench-campaign-"))
-    session = Path(args.keep) if args.keep else workdir / "session"
+    session = keep / profile if keep else workdir / "session"
+    load_before = list(os.getloadavg())
     try:
-        started = time.monotonic()
-        summary = run_campaign(config, session, yes=True, plan=plan)
-        wall_s = time.monotonic() - started
+        spans = Spans()
+        instrument_campaign(spans)
+        try:
+            cpu0 = time.process_time()
+            started = time.monotonic()
+            summary = run_campaign(config, session, yes=True, plan=plan)
+            wall_s = time.monotonic() - started
+            cpu_s = time.process_time() - cpu0
+        finally:
+            spans.restore()
         reader = SessionReader(session)
         pairs = sum(1 for e in reader.events() if e["kind"] in ("calibration_view", "measurement_frame"))
         # Homing as it happened (the estimate assumes a full travel; the emulator starts near home): from
         # the transcript event (the rig is open) to the home event.
         homing_s = reader.events(kind="home")[0]["monotonic"] - reader.events(kind="transcript")[0]["monotonic"]
-        started = time.monotonic()
-        replay = replay_session(session)
-        replay_s = time.monotonic() - started
+        session_mb = sum(p.stat().st_size for p in session.rglob("*") if p.is_file()) / 1e6
+        campaign_table = spans.by_label()
+        # The render runs inside the grab: the grab's exclusive time is the exposure the renderer did not fill.
+        replay_spans = Spans()
+        instrument_replay(replay_spans)
+        try:
+            replay_cpu0 = time.process_time()
+            started = time.monotonic()
+            replay = replay_session(session)
+            replay_s = time.monotonic() - started
+            replay_cpu_s = time.process_time() - replay_cpu0
+        finally:
+            replay_spans.restore()
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
     hardware_s = homing_s + estimate.motion_s + estimate.settle_s + estimate.capture_s
-    result = {
-        "configurations": len(configurations), "measured": summary.counts().get("measured", 0),
-        "stereo_pairs": pairs, "wall_s": wall_s, "hardware_s": hardware_s,
+    return {
+        "profile": profile, "configurations": len(plan.configurations),
+        "measured": summary.counts().get("measured", 0), "stereo_pairs": pairs,
+        "wall_s": wall_s, "process_cpu_s": cpu_s, "hardware_s": hardware_s,
         "hardware_breakdown_s": {"homing_measured": homing_s, "motion": estimate.motion_s,
                                  "settle": estimate.settle_s, "exposures": estimate.capture_s},
-        "wall_over_hardware": wall_s / hardware_s, "target": 1.10,
-        "replay_s": replay_s, "replay_pairs_per_s": pairs / replay_s,
+        "wall_over_hardware": wall_s / hardware_s, "target": 1.10, "session_mb": session_mb,
+        "campaign_per_pair": per_pair(campaign_table, pairs),
+        "replay_s": replay_s, "replay_process_cpu_s": replay_cpu_s, "replay_pairs_per_s": pairs / replay_s,
         "replay_identical": f"{replay.identical}/{replay.compared}",
-        "loadavg_1_5_15": list(os.getloadavg()),  # others share the machine: read the figures with this
+        "replay_per_pair": per_pair(replay_spans.by_label(), pairs),
+        "loadavg_before_1_5_15": load_before,
+        "loadavg_after_1_5_15": list(os.getloadavg()),  # others share the machine: read the figures with this
     }
-    print(f"{'configurations':32s} {len(configurations)} ({result['measured']} measured), {pairs} stereo pairs")
-    print(f"{'hardware time':32s} {hardware_s:7.1f} s  (homing {homing_s:.1f} measured; predicted: motion "
-          f"{estimate.motion_s:.1f}, settle {estimate.settle_s:.1f}, exposures {estimate.capture_s:.1f})")
-    print(f"{'wall time':32s} {wall_s:7.1f} s")
-    print(f"{'wall / hardware':32s} {result['wall_over_hardware']:7.2f}   (target <= 1.10)")
-    print(f"{'replay':32s} {replay_s:7.1f} s, {result['replay_pairs_per_s']:.1f} pairs/s, "
-          f"{result['replay_identical']} configurations identical")
-    print(f"{'load average (1, 5, 15 min)':32s} {' '.join(f'{v:.2f}' for v in result['loadavg_1_5_15'])}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--profiles", nargs="+", default=["ideal", "lab"], choices=["ideal", "lab"])
+    parser.add_argument("--out", default="scripts/results/bench_campaign.json")
+    parser.add_argument("--keep", metavar="DIR", type=Path, help="keep the recorded sessions here (DIR/<profile>)")
+    args = parser.parse_args()
+    results = {"cpu_count": os.cpu_count(), "profiles": {}}
+    for profile in args.profiles:
+        result = bench_profile(profile, args.keep)
+        results["profiles"][profile] = result
+        pairs = result["stereo_pairs"]
+        breakdown = result["hardware_breakdown_s"]
+        print(f"[{profile}]")
+        print(f"{'configurations':32s} {result['configurations']} ({result['measured']} measured), "
+              f"{pairs} stereo pairs, session {result['session_mb']:.0f} MB")
+        print(f"{'hardware time':32s} {result['hardware_s']:7.1f} s  (homing {breakdown['homing_measured']:.1f} "
+              f"measured; predicted: motion {breakdown['motion']:.1f}, settle {breakdown['settle']:.1f}, "
+              f"exposures {breakdown['exposures']:.1f})")
+        print(f"{'wall time':32s} {result['wall_s']:7.1f} s  (process CPU {result['process_cpu_s']:.1f} s)")
+        print(f"{'wall / hardware':32s} {result['wall_over_hardware']:7.2f}   (target <= 1.10)")
+        print_breakdown("campaign", result["campaign_per_pair"], result["wall_s"], pairs)
+        print(f"{'replay':32s} {result['replay_s']:7.2f} s, {result['replay_pairs_per_s']:.1f} pairs/s "
+              f"(process CPU {result['replay_process_cpu_s']:.1f} s), {result['replay_identical']} "
+              "configurations identical")
+        print_breakdown("replay", result["replay_per_pair"], result["replay_s"], pairs)
+        before, after = (" ".join(f"{v:.2f}" for v in result[key])
+                         for key in ("loadavg_before_1_5_15", "loadavg_after_1_5_15"))
+        print(f"{'load average (1, 5, 15 min)':32s} before {before}, after {after}")
     with open(args.out, "w") as handle:
-        json.dump(result, handle, indent=1)
+        json.dump(results, handle, indent=1)
 
 
 if __name__ == "__main__":
