@@ -132,8 +132,8 @@ class CampaignRunner:
         self._running.set()
         self.stop_reason: str | None = None
         self._analysis = ThreadPoolExecutor(max_workers=1, thread_name_prefix="analysis")
-        # Every document goes through one recorder thread, in submission order: PNG encoding and fsync
-        # then overlap the next capture instead of delaying it.
+        # Every document goes through one recorder thread, in submission order: PNG encoding (on the
+        # recorder's encoder pool) and fsync then overlap the next capture instead of delaying it.
         self._recorder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="recorder")
         self._recording: list[Future] = []
         self._pending: list[tuple[Captured, Future]] = []
@@ -172,7 +172,9 @@ class CampaignRunner:
 
     def _publish(self, draft: Draft) -> None:
         """Queue a document; failures surface at the next sync."""
-        self._recording.append(self._recorder.submit(self.bus.publish, draft))
+        # The recorder starts on it at once (frames are encoded on its pool, in parallel); the recorder
+        # thread then writes each document in turn, a frame file before the line that references it.
+        self._recording.append(self._recorder.submit(self.bus.publish, self.bus.prepare(draft)))
         if len(self._recording) > 64:
             self._sync_recording(keep=32)
 
