@@ -518,7 +518,7 @@ class SimulatedBench:
         return new
 
     def frame_clock(self) -> float:
-        """Timestamp (monotonic s) of the current capture: trigger time + exposure."""
+        """Timestamp (monotonic s) of the current capture: trigger time + exposure (when both frames are read out)."""
         return self._trigger_time + self.exposure_s / self.time_scale
 
     def cameras(self, settings: CameraSettings | None = None) -> tuple[SyntheticCamera, SyntheticCamera]:
@@ -527,8 +527,10 @@ class SimulatedBench:
         settings = settings or CameraSettings(width_px=width, height_px=height)
         # SyntheticCamera scales its exposure delay by its own factor, the inverse of a speed-up.
         scale = 1.0 / self.time_scale
+        # Both cameras expose on one trigger: a pair takes one exposure, not one per camera.
         return tuple(
             SyntheticCamera(lambda side=side: self.render(side), name=f"sim-{side}", settings=settings,
-                            exposure_s=self.exposure_s, time_scale=scale, clock=self.frame_clock)
+                            exposure_s=self.exposure_s, time_scale=scale, clock=self.frame_clock,
+                            ready_at=self.frame_clock)
             for side in SIDES
         )
