@@ -51,6 +51,7 @@ class Spans:
         self._lock = threading.Lock()
         # (thread name, label) -> [calls, wall_s, exclusive wall_s, cpu_s, exclusive cpu_s]
         self.totals: dict[tuple[str, str], list[float]] = defaultdict(lambda: [0, 0.0, 0.0, 0.0, 0.0])
+        self.counts: dict[str, int] = {}
 
     def wrap(self, owner: object, name: str, label: str) -> None:
         original = owner.__dict__[name] if isinstance(owner, type) else getattr(owner, name)
@@ -82,6 +83,22 @@ class Spans:
 
         self._undo.append((owner, name, original))
         setattr(owner, name, timed)
+
+    def count(self, owner: type, name: str, label: str) -> None:
+        """Count the calls of ``owner.name`` that return something (not None) under ``label``."""
+        original = owner.__dict__[name]
+        spans = self
+
+        @functools.wraps(original)
+        def counted(*args, **kwargs):
+            result = original(*args, **kwargs)
+            if result is not None:
+                with spans._lock:
+                    spans.counts[label] = spans.counts.get(label, 0) + 1
+            return result
+
+        self._undo.append((owner, name, original))
+        setattr(owner, name, counted)
 
     def _stack(self) -> list:
         if not hasattr(self._local, "stack"):
@@ -120,6 +137,8 @@ def instrument_campaign(spans: Spans) -> None:
     spans.wrap(SyntheticCamera, "grab", "exposure wait (hardware)")  # what is left of a grab once the render is out
     spans.wrap(StereoRenderer, "render_view", "render")
     spans.wrap(SimulatedBench, "render", "render (snapshot, other camera's)")
+    if hasattr(SimulatedBench, "_prerendered"):  # pairs served from a render ahead (SimulatedBench.stage)
+        spans.count(SimulatedBench, "_prerendered", "pairs rendered ahead")
     spans.wrap(StereoRenderer, "__init__", "renderer setup")
     spans.wrap(session, "encode_frame", "encode")
     spans.wrap(session.SessionWriter, "record", "record/fsync")  # minus the encoding inside it
@@ -207,7 +226,7 @@ def bench_profile(profile: str, keep: Path | None) -> dict:
         "hardware_breakdown_s": {"homing_measured": homing_s, "motion": estimate.motion_s,
                                  "settle": estimate.settle_s, "exposures": estimate.capture_s},
         "wall_over_hardware": wall_s / hardware_s, "target": 1.10, "session_mb": session_mb,
-        "campaign_per_pair": per_pair(campaign_table, pairs),
+        "campaign_per_pair": per_pair(campaign_table, pairs), "campaign_counts": spans.counts,
         "replay_s": replay_s, "replay_process_cpu_s": replay_cpu_s, "replay_pairs_per_s": pairs / replay_s,
         "replay_identical": f"{replay.identical}/{replay.compared}",
         "replay_per_pair": per_pair(replay_spans.by_label(), pairs),
@@ -237,6 +256,8 @@ def main() -> None:
         print(f"{'wall time':32s} {result['wall_s']:7.1f} s  (process CPU {result['process_cpu_s']:.1f} s)")
         print(f"{'wall / hardware':32s} {result['wall_over_hardware']:7.2f}   (target <= 1.10)")
         print_breakdown("campaign", result["campaign_per_pair"], result["wall_s"], pairs)
+        for label, count in result["campaign_counts"].items():
+            print(f"    {label:36s} {count}")
         print(f"{'replay':32s} {result['replay_s']:7.2f} s, {result['replay_pairs_per_s']:.1f} pairs/s "
               f"(process CPU {result['replay_process_cpu_s']:.1f} s), {result['replay_identical']} "
               "configurations identical")

@@ -33,6 +33,14 @@ imperfections of *motion* (backlash, landing errors, ringing) do not: they need 
 which only a watcher of an emulator sees (a real controller is read once per grab, not every
 millisecond).
 
+Rendering ahead (:meth:`SimulatedBench.stage`): whoever places the boards may say which scenes come
+next and where the rig will stand for them; once the rig rests there (the emulator idle, the
+ringing stopped dead by friction), the bench renders their first frames in the background, so the
+render (~30 ms a view, longer than an exposure) overlaps the settle and the previous captures
+instead of delaying the next one. A prerendered frame is used only if the scene shown and the
+pair's state at the trigger are exactly those it was rendered for, so it is bit for bit the frame
+a render at the trigger would give; otherwise it is dropped and the frame rendered at the trigger.
+
 The bench knows the truth at every frame: the true camera poses, R and T of the pair
 (X_right = R X_left + T), the board's true pose, scale and bow. ``truth()`` returns it for the
 current state; every frame carries it in its metadata (``meta["truth"]``).
@@ -45,7 +53,7 @@ import math
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -74,6 +82,11 @@ SIDES = ("left", "right")
 
 # How often (real seconds) the watcher samples the emulator's axes while the bench runs.
 WATCH_PERIOD_S = 0.001
+# How often (real seconds) the renderer ahead looks whether the rig rests where a staged scene needs it.
+REST_POLL_S = 0.005
+# How close (mm, deg) the reported axes must be to a staged scene's rig pose to render it ahead (whole
+# motor steps put them a few thousandths off the commanded values; the trigger then checks exactly).
+REST_TOLERANCE = 0.01
 
 
 @dataclass
@@ -102,6 +115,36 @@ class _Snapshot:
     state: PairState | None = None  # None on a mechanically ideal bench
     smear_px: dict[str, tuple[float, float] | None] = field(default_factory=lambda: {"left": None, "right": None})
     sim_time_s: float = math.nan
+
+
+def _same_view(a: _Snapshot, b: _Snapshot) -> bool:
+    """Whether two triggers see the pair in the same state (everything a frame and its truth are made of)."""
+    if a.pose != b.pose or a.smear_px != b.smear_px:
+        return False
+    if any(not np.array_equal(a.T_rig_cam[side], b.T_rig_cam[side]) for side in SIDES):
+        return False
+    if (a.state is None) != (b.state is None):
+        return False
+    return a.state is None or (a.state.ringing_deg == b.state.ringing_deg and a.state.rock_deg == b.state.rock_deg)
+
+
+def _same_scene(a: Scene, b: Scene) -> bool:
+    if a.target != b.target or a.seed != b.seed or a.shape != b.shape or a.measured_target != b.measured_target:
+        return False
+    if a.placement != b.placement or (a.T_rig_board is None) != (b.T_rig_board is None):
+        return False
+    return a.T_rig_board is None or np.array_equal(a.T_rig_board, b.T_rig_board)
+
+
+@dataclass(eq=False)  # compared by identity: scenes hold arrays
+class _Staged:
+    """A scene announced ahead (:meth:`SimulatedBench.stage`) and, once rendered, its first frame pair."""
+
+    scene: Scene
+    at: RigPose  # where the rig will stand when the scene is captured
+    snapshot: _Snapshot | None = None  # the pair's state the frames were rendered for
+    frames: dict[str, Future] | None = None
+    dropped: bool = False
 
 
 def true_lens(camera: CameraModel, high_order: float, prism: tuple[float, float, float, float]) -> CameraModel:
@@ -184,6 +227,14 @@ class SimulatedBench:
         self._trigger_used: set[str] = set(SIDES)  # the first grab starts a trigger
         self._prefetched: dict[str, Future] = {}
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-render")
+        # Rendering ahead (stage()): scenes announced, in order; the one the current scene matched.
+        self._staged: list[_Staged] = []
+        self._staged_now: _Staged | None = None
+        self._stage_changed = threading.Condition(self._lock)
+        self._ahead_pool: ThreadPoolExecutor | None = None
+        self._ahead_thread: threading.Thread | None = None
+        self._ahead = 16  # frame pairs rendered ahead at most (stage())
+        self.prerendered_used = 0  # frame pairs served from a render ahead (for tests and benchmarks)
         # What the operator would set by hand (the target distance unless it is motorised).
         self.manual_values: dict[str, float] = {}
         # The axes' history (backlash, landing errors, ringing), when the profile needs one and an emulator
@@ -211,9 +262,19 @@ class SimulatedBench:
 
     def stop(self) -> None:
         self._watch_stop.set()
+        with self._lock:
+            self._drop_staged(self._staged)
+            self._staged = []
+            self._stage_changed.notify_all()
         if self._watcher is not None:
             self._watcher.join()
             self._watcher = None
+        if self._ahead_thread is not None:
+            self._ahead_thread.join()
+            self._ahead_thread = None
+        if self._ahead_pool is not None:
+            self._ahead_pool.shutdown(wait=True, cancel_futures=True)
+            self._ahead_pool = None
         self._pool.shutdown(wait=True)
         if self.emulator is not None:
             self.emulator.stop()
@@ -246,6 +307,14 @@ class SimulatedBench:
             self._scene = scene
             self._prefetched.clear()  # frames of the old scene
             self._trigger_used = set(SIDES)
+            # A scene staged ahead: the ones announced before it were skipped and will not be shown.
+            match = next((i for i, staged in enumerate(self._staged) if _same_scene(staged.scene, scene)), None)
+            self._staged_now = None
+            if match is not None:
+                self._drop_staged(self._staged[:match])
+                self._staged_now = self._staged[match]
+                del self._staged[: match + 1]
+                self._stage_changed.notify_all()
 
     def place_target(self, target: Target, *, distance_mm: float, seed: int = 0) -> np.ndarray:
         """The operator places the measured ``target`` facing the rig at ``distance_mm``; returns T_rig_board.
@@ -256,30 +325,130 @@ class SimulatedBench:
         distance (the next frame, a retry) keeps the target where it stands. The target is shown
         with its print scale and bow. ``seed`` is the scene's noise seed, as for :meth:`show`.
         """
-        nominal = board_pose_facing_rig(distance_mm=distance_mm, board_size_mm=target.grid_size_mm)
+        key, placement, where = self._placement_for(target, distance_mm)
+        if key != self._placed:
+            self._placed, self._placement = key, placement
+            if where is not None:
+                self._placements[where] += 1
+        scene = self._target_scene(target, distance_mm, self._placement, seed)
+        self._set_scene(scene)
+        return scene.T_rig_board
+
+    def _placement_for(self, target: Target, distance_mm: float) -> tuple[tuple, dict, int | None]:
+        """(key, placement, where) of placing ``target`` at ``distance_mm`` now, without placing it.
+
+        ``where`` is the placement counter a new placement draws from (None: no draw).
+        """
         errors = self.profile.target
         manual = self.rig_config.quantities["target_distance_mm"].axis == "manual"
         key = (target, float(distance_mm))
-        if key != self._placed:
-            self._placed = key
-            placement = {"distance_error_mm": 0.0, "yaw_error_deg": 0.0}
-            if manual and (errors.placement_distance_sigma_mm > 0 or errors.placement_yaw_sigma_deg > 0):
-                where = int(round(distance_mm * 1000)) & 0xFFFFFFFF
-                rng = np.random.default_rng([self.seed & 0xFFFFFFFF, 0x91ACE, where, self._placements[where]])
-                self._placements[where] += 1
-                placement = {"distance_error_mm": float(rng.normal(0.0, errors.placement_distance_sigma_mm)),
-                             "yaw_error_deg": float(rng.normal(0.0, errors.placement_yaw_sigma_deg))}
-            self._placement = placement
-        placement = self._placement
+        if key == self._placed:
+            return key, self._placement, None
+        placement, where = {"distance_error_mm": 0.0, "yaw_error_deg": 0.0}, None
+        if manual and (errors.placement_distance_sigma_mm > 0 or errors.placement_yaw_sigma_deg > 0):
+            where = int(round(distance_mm * 1000)) & 0xFFFFFFFF
+            rng = np.random.default_rng([self.seed & 0xFFFFFFFF, 0x91ACE, where, self._placements[where]])
+            placement = {"distance_error_mm": float(rng.normal(0.0, errors.placement_distance_sigma_mm)),
+                         "yaw_error_deg": float(rng.normal(0.0, errors.placement_yaw_sigma_deg))}
+        return key, placement, where
+
+    def _target_scene(self, target: Target, distance_mm: float, placement: dict, seed: int) -> Scene:
         if placement["distance_error_mm"] or placement["yaw_error_deg"]:
             T_rig_board = board_pose_facing_rig(distance_mm=distance_mm + placement["distance_error_mm"],
                                                 board_size_mm=target.grid_size_mm,
                                                 yaw_deg=placement["yaw_error_deg"])
         else:
-            T_rig_board = nominal
-        self._set_scene(Scene(target=target, T_rig_board=T_rig_board, seed=int(seed), shape=board_shape(errors),
-                              measured_target=True, placement=dict(placement, distance_mm=float(distance_mm))))
-        return T_rig_board
+            T_rig_board = board_pose_facing_rig(distance_mm=distance_mm, board_size_mm=target.grid_size_mm)
+        return Scene(target=target, T_rig_board=T_rig_board, seed=int(seed), shape=board_shape(self.profile.target),
+                     measured_target=True, placement=dict(placement, distance_mm=float(distance_mm)))
+
+    # -- rendering ahead ---------------------------------------------------------------------------------------
+
+    def stage(self, scenes: Sequence[tuple], *, at: RigPose, ahead: int = 16) -> None:
+        """Announce the scenes that will be shown next, in order, all captured with the rig at ``at``.
+
+        Each scene is ``("board", target, T_rig_board, seed)`` (as :meth:`show` will be called) or
+        ``("target", target, distance_mm, seed)`` (as :meth:`place_target` will be called; the
+        placement the operator will make is drawn as that call will draw it). Replaces what was
+        staged before. Once the rig rests at ``at``, the first frame pair of up to ``ahead`` scenes
+        not yet shown is rendered in the background (see the module docstring). Does nothing in
+        bring-up, where the rig's rest is not observed.
+        """
+        if self.emulator is None:
+            return
+        placed, placement = self._placed, self._placement
+        staged = []
+        for kind, target, where, seed in scenes:
+            if kind == "board":
+                scene = Scene(target=target, T_rig_board=np.array(where, dtype=np.float64), seed=int(seed),
+                              shape=board_shape(self.profile.calibration_board))
+            elif kind == "target":
+                key, new_placement, _ = self._placement_for(target, where)
+                if key != placed:  # later frames at the same distance keep this placement
+                    placed, placement = key, new_placement
+                scene = self._target_scene(target, where, placement, seed)
+            else:
+                raise ValueError(f"staged scene kind must be 'board' or 'target', not {kind!r}")
+            staged.append(_Staged(scene=scene, at=at))
+        with self._lock:
+            self._drop_staged(self._staged)
+            self._staged = staged
+            self._ahead = max(1, int(ahead))
+            self._stage_changed.notify_all()
+            if self._ahead_thread is None:
+                self._ahead_pool = ThreadPoolExecutor(max_workers=len(SIDES), thread_name_prefix="sim-render-ahead")
+                self._ahead_thread = threading.Thread(target=self._render_ahead, name="sim-render-ahead", daemon=True)
+                self._ahead_thread.start()
+
+    def staged_rendered(self) -> int:
+        """How many staged scenes, not shown yet, have their frames rendered (or being rendered)."""
+        with self._lock:
+            return sum(1 for entry in self._staged if entry.frames is not None)
+
+    @staticmethod
+    def _drop_staged(staged: Sequence[_Staged]) -> None:
+        for entry in staged:
+            entry.dropped = True
+            for future in (entry.frames or {}).values():
+                future.cancel()
+
+    def _at_rest(self, snapshot: _Snapshot, at: RigPose) -> bool:
+        """The rig stands still at ``at`` and rings no more: a frame taken now or later looks the same."""
+        pose = snapshot.pose
+        if any(abs(getattr(pose, name) - getattr(at, name)) > REST_TOLERANCE for name in
+               ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "tilt_left_deg", "tilt_right_deg")):
+            return False
+        if snapshot.state is not None and (any(snapshot.state.ringing_deg.values())
+                                           or any(snapshot.state.rock_deg.values())):
+            return False
+        return self.emulator.state == "Idle"
+
+    def _render_ahead(self) -> None:
+        """The thread that renders staged scenes once the rig rests where they will be captured."""
+        while not self._watch_stop.is_set():
+            with self._lock:
+                waiting = [e for e in self._staged if e.frames is None and not e.dropped]
+                rendered = sum(1 for e in self._staged if e.frames is not None)
+                if not waiting or rendered >= self._ahead:
+                    self._stage_changed.wait(0.1)
+                    continue
+                entry = waiting[0]
+            try:
+                snapshot = self._snapshot()
+                at_rest = self._at_rest(snapshot, entry.at)
+            except Exception:  # noqa: BLE001 - the emulator stopping under the thread ends it
+                if self.emulator is None or not self.emulator.running:
+                    return
+                raise
+            with self._lock:
+                if entry.dropped or entry not in self._staged:
+                    continue
+                if not at_rest:
+                    self._stage_changed.wait(REST_POLL_S)
+                    continue
+                entry.snapshot = snapshot
+                entry.frames = {side: self._ahead_pool.submit(self._render_job, side, snapshot, entry.scene, 0)
+                                for side in SIDES}
 
     def operator_prompt(self, message: str) -> None:
         """Stands in for the operator at a manual step: records the values the rig asked for."""
@@ -461,14 +630,32 @@ class SimulatedBench:
                 job = prefetched
             else:
                 snapshot = self._snapshot()
-                job = self._claim(side, snapshot)
-                if new_trigger:
-                    other = "right" if side == "left" else "left"
-                    other_job = self._claim(other, snapshot)
-                    self._prefetched[other] = self._pool.submit(self._render_job, *other_job)
+                other = "right" if side == "left" else "left"
+                ahead = self._prerendered(snapshot) if new_trigger else None
+                if ahead is not None:  # rendered ahead for exactly this scene and state: claim both frames
+                    job, self._prefetched[other] = ahead[side], ahead[other]
+                    self._claim(side, snapshot)
+                    self._claim(other, snapshot)
+                    self.prerendered_used += 1
+                else:
+                    job = self._claim(side, snapshot)
+                    if new_trigger:
+                        other_job = self._claim(other, snapshot)
+                        self._prefetched[other] = self._pool.submit(self._render_job, *other_job)
         if isinstance(job, Future):
             return job.result()
         return self._render_job(*job)
+
+    def _prerendered(self, snapshot: _Snapshot) -> dict[str, Future] | None:
+        """The frames rendered ahead for the current scene's first trigger, if this trigger sees what they show."""
+        staged, self._staged_now = self._staged_now, None  # one use: a second trigger renders anew
+        if staged is None or staged.dropped:
+            return None
+        if (staged.frames is None or any(self._scene.frames_rendered[side] for side in SIDES)
+                or not _same_view(staged.snapshot, snapshot)):
+            self._drop_staged([staged])
+            return None
+        return staged.frames
 
     def _claim(self, side: str, snapshot: _Snapshot) -> tuple:
         """Reserve the next frame index of ``side`` in the current scene (call with the lock held)."""

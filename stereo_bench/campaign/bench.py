@@ -21,6 +21,7 @@ import math
 import threading
 from collections import Counter
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -101,8 +102,12 @@ def pose_from_reading(reading) -> RigPose:
 
 
 def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
-                    transcript: Path | None = None) -> Bench:
-    """Simulated cameras and scene; the rig is the emulator on a pty, or (bring-up) the real controller."""
+                    transcript: Path | None = None, render_ahead: bool = True) -> Bench:
+    """Simulated cameras and scene; the rig is the emulator on a pty, or (bring-up) the real controller.
+
+    ``render_ahead``: the presenter stages each configuration's scenes so that the simulator renders
+    them while the rig settles (the frames are the same either way; see drivers/sim/bench.py).
+    """
     from drivers.camera.stereo import StereoCamera
     from drivers.rig.rig import GrblRig
     from drivers.sim.bench import SimulatedBench
@@ -127,7 +132,12 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
         rig = _open_rig(stack, GrblRig(port, rig_config, spy_log=transcript))
         rig_holder.append(rig)
         cameras = stack.enter_context(StereoCamera(*sim.cameras(), max_skew_s=config.cameras.max_skew_s))
-        presenter = SimulatedPresenter(sim, config.calibration_board.build(), config.target.build(), seed=config.seed)
+        # What each configuration will capture (as plan_steps asks for it), so the presenter can stage the
+        # scenes and the bench render them ahead while the rig settles.
+        views = config.capture.calibration_views if config.extrinsics.mode == "per-config" else 0
+        presenter = SimulatedPresenter(sim, config.calibration_board.build(), config.target.build(), seed=config.seed,
+                                       stage_ahead=(views, config.capture.frames_per_config) if render_ahead else None)
+        stack.callback(presenter.close)
     except BaseException:
         stack.close()
         raise
@@ -137,33 +147,63 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
 
 
 class SimulatedPresenter:
-    """Places boards in a :class:`drivers.sim.bench.SimulatedBench` scene."""
+    """Places boards in a :class:`drivers.sim.bench.SimulatedBench` scene.
+
+    ``stage_ahead``: (calibration views, measurement frames) each configuration will capture. At the
+    start of a configuration (before the rig moves) the presenter then draws the calibration board's
+    poses on a background thread and stages every scene it will show with the bench
+    (:meth:`~drivers.sim.bench.SimulatedBench.stage`), which renders them ahead once the rig rests
+    there; the frames are exactly those a render at the trigger gives. None: nothing ahead.
+    """
 
     wants_detections = False
 
     def __init__(self, bench, calibration_board: Target, target: Target, *, seed: int = 0,
-                 calibration_distance_mm: Callable[[float], tuple[float, float]] | None = None):
+                 calibration_distance_mm: Callable[[float], tuple[float, float]] | None = None,
+                 stage_ahead: tuple[int, int] | None = None):
         self.bench = bench
         self.calibration_board = calibration_board
         self.target = target
         self.seed = seed
         # Where an operator would hold the calibration board, around the target distance.
         self.calibration_distance_mm = calibration_distance_mm or (lambda z: (max(250.0, 0.6 * z), 1.3 * z))
+        self.stage_ahead = stage_ahead
         self._poses: list[np.ndarray] = []
         self._configuration: Configuration | None = None
         self._target_requests: Counter = Counter()
+        self._planned: Future | None = None  # (n_views, poses or the error) of the current configuration
+        self._planner = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-presenter") if stage_ahead else None
         bench.warm_up(calibration_board, target)
+
+    def close(self) -> None:
+        if self._planner is not None:
+            self._planner.shutdown(wait=True, cancel_futures=True)
 
     def begin_configuration(self, configuration: Configuration) -> None:
         self._configuration = configuration
         self._target_requests = Counter()
         self._poses = []
+        self._planned = None
+        if self._planner is not None:
+            self._planned = self._planner.submit(self._stage, configuration, *self.stage_ahead)
 
-    def prepare_calibration(self, n_views: int) -> None:
+    def _stage(self, configuration: Configuration, n_views: int, n_frames: int) -> tuple[int, list | Exception]:
+        """Draws the calibration poses and stages the configuration's scenes (on the presenter's thread)."""
+        try:
+            poses: list | Exception = self._calibration_poses(configuration, n_views) if n_views else []
+        except CalibrationPlacementError as error:
+            poses = error
+        scenes = [] if isinstance(poses, Exception) else [
+            ("board", self.calibration_board, pose,
+             scene_seed(self.seed, configuration.config_id, "calibration", index)) for index, pose in enumerate(poses)]
+        scenes += [("target", self.target, configuration.distance_mm,
+                    scene_seed(self.seed, configuration.config_id, "target", index)) for index in range(n_frames)]
+        self.bench.stage(scenes, at=configuration.rig_pose(), ahead=len(scenes))
+        return n_views, poses
+
+    def _calibration_poses(self, configuration: Configuration, n_views: int) -> list[np.ndarray]:
         from drivers.sim.render import calibration_board_poses
 
-        configuration = self._configuration
-        assert configuration is not None, "begin_configuration() first"
         near, far = self.calibration_distance_mm(configuration.distance_mm)
         fits = configuration.calibration_range_mm
         if fits:  # where the plan found the board fits both views
@@ -173,12 +213,23 @@ class SimulatedPresenter:
         rng = np.random.default_rng(scene_seed(self.seed, configuration.config_id, "calibration-poses", 0))
         try:
             # Usable views by the rule the plan predicted with (geometry.calibration_view_fits).
-            self._poses = calibration_board_poses(
+            return calibration_board_poses(
                 configuration.rig_pose(), self.calibration_board, n_views=n_views, rng=rng, distance_mm=(near, far),
                 left=self.bench.left_model, right=self.bench.right_model,
             )
         except ValueError as error:
             raise CalibrationPlacementError(f"calibration board cannot be shown to both cameras: {error}") from None
+
+    def prepare_calibration(self, n_views: int) -> None:
+        configuration = self._configuration
+        assert configuration is not None, "begin_configuration() first"
+        planned = self._planned.result() if self._planned is not None else None
+        if planned is not None and planned[0] == n_views:  # drawn ahead (the same seeded draw)
+            if isinstance(planned[1], Exception):
+                raise planned[1]
+            self._poses = planned[1]
+        else:
+            self._poses = self._calibration_poses(configuration, n_views)
         return None
 
     def present_calibration_view(self, index: int) -> None:
