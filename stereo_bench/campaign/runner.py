@@ -171,16 +171,23 @@ class CampaignRunner:
     # -- recording ----------------------------------------------------------------------------------------------
 
     def _publish(self, draft: Draft) -> None:
-        """Queue a document; failures surface at the next sync."""
+        """Queue a document; a failure to record an earlier one surfaces here (or at the next sync)."""
         # The recorder starts on it at once (frames are encoded on its pool, in parallel); the recorder
         # thread then writes each document in turn, a frame file before the line that references it.
         self._recording.append(self._recorder.submit(self.bus.publish, self.bus.prepare(draft)))
-        if len(self._recording) > 64:
+        if len(self._recording) > 64:  # at most a few configurations' frames wait in memory
             self._sync_recording(keep=32)
+        else:
+            self._reap_recording()
 
     def _sync_recording(self, keep: int = 0) -> None:
         """Wait until all but ``keep`` queued documents are recorded; re-raise the first failure."""
         while len(self._recording) > keep:
+            self._recording.pop(0).result()
+
+    def _reap_recording(self) -> None:
+        """Forget the documents already recorded, re-raising the first failure; never waits."""
+        while self._recording and self._recording[0].done():
             self._recording.pop(0).result()
 
     # -- execution -----------------------------------------------------------------------------------------------
@@ -395,9 +402,10 @@ class CampaignRunner:
                     self._publish(Draft(CalibrationEvent, config_id=config_id, calibration=CalibrationFiles(
                         analysis.calib, analysis.rect, board=self.options.calibration_board)))
                 self._publish(Draft(AnalysisEvent, config_id=config_id, data=analysis.details()))
-            # A result is the checkpoint: everything of its configuration must be on disk first.
+            # A result is the checkpoint: everything of its configuration is on disk before it, since the
+            # recorder writes in order. The capture goes on meanwhile (a crash before the line is written
+            # runs the configuration again on resume); the run ends only once everything is recorded.
             self._publish(Draft(ResultDocument, config_id=config_id, row=row))
-            self._sync_recording()
 
 
 _AMBIGUOUS = object()  # a partial view whose corner ids cannot be proven
