@@ -82,12 +82,17 @@ class ConfigurationAnalysis:
 def calibrate_configuration(
     calibration_pairs: Sequence[tuple[np.ndarray, np.ndarray]], board: Target, *,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: str = "joint",
+    detections: Sequence[tuple[Detection | None, Detection | None]] | None = None,
 ) -> ConfigurationAnalysis:
-    """Stereo calibration of one (B, alpha) from its calibration views; raises AnalysisError if it can't."""
+    """Stereo calibration of one (B, alpha) from its calibration views; raises AnalysisError if it can't.
+
+    ``detections``: per view, the (left, right) detections already made while capturing (None: detect here).
+    """
     try:
         result = calibrate_from_images([left for left, _ in calibration_pairs],
                                        [right for _, right in calibration_pairs], board, intrinsics=intrinsics,
-                                       mode="fixed" if mode == "fixed" else "joint", thorough=False)
+                                       mode="fixed" if mode == "fixed" else "joint", thorough=False,
+                                       detections=detections)
     except (ValueError, np.linalg.LinAlgError) as error:
         raise AnalysisError(str(error)) from None
     return ConfigurationAnalysis(

@@ -65,6 +65,7 @@ from stereo_bench.campaign.plan import (
     Settle,
 )
 from stereo_bench.campaign.presenters import CalibrationPlacementError
+from stereo_bench.executors import background_threads
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.detect import AmbiguousViewError, detect
 from stereo_bench.vision.rectify import rectify
@@ -82,6 +83,7 @@ class Captured:
 
     configuration: Configuration
     calibration_pairs: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    calibration_detections: list[tuple[Future, Future]] = field(default_factory=list)  # detect(), made ahead
     measurement_pairs: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     measurement_detections: list[tuple] = field(default_factory=list)  # (left, right) Detection | None
 
@@ -132,6 +134,10 @@ class CampaignRunner:
         self._running.set()
         self.stop_reason: str | None = None
         self._analysis = ThreadPoolExecutor(max_workers=1, thread_name_prefix="analysis")
+        # Calibration views are detected as they come (in the background: the analysis needs them later,
+        # the capture must not wait), a measurement frame's two views side by side (the capture waits).
+        self._detector = background_threads(2, "detect")
+        self._side_detector = ThreadPoolExecutor(max_workers=1, thread_name_prefix="detect-side")
         # Every document goes through one recorder thread, in submission order: PNG encoding (on the
         # recorder's encoder pool) and fsync then overlap the next capture instead of delaying it.
         self._recorder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="recorder")
@@ -224,6 +230,8 @@ class CampaignRunner:
             return "interrupted"
         finally:
             self._analysis.shutdown(wait=not abandon, cancel_futures=abandon)
+            self._side_detector.shutdown(wait=True)
+            self._detector.shutdown(wait=not abandon, cancel_futures=True)  # no analysis is left to need them
             try:
                 self._sync_recording()
             finally:
@@ -320,10 +328,13 @@ class CampaignRunner:
             if prompt is not None:
                 self._ask(prompt)
             left, right = self._capture(CalibrationViewEvent, index, captured.configuration)
+            # Detected once, while the next views are captured; the analysis calibrates from these.
+            found = (self._detector.submit(detect, left, self.calibration_board),
+                     self._detector.submit(detect, right, self.calibration_board))
             if presenter.wants_detections:  # coverage feedback for an operator
-                presenter.calibration_view_captured(
-                    index, detect(left, self.calibration_board), detect(right, self.calibration_board))
+                presenter.calibration_view_captured(index, found[0].result(), found[1].result())
             captured.calibration_pairs.append((left, right))
+            captured.calibration_detections.append(found)
 
     def _capture_measurement(self, n_frames: int, captured: Captured) -> None:
         """Capture ``n_frames`` frames of the target; a frame without the target is captured again.
@@ -342,7 +353,9 @@ class CampaignRunner:
                 if prompt is not None:
                     self._ask(prompt)
                 left, right = self._capture(MeasurementFrameEvent, index, configuration, retry=retry)
-                found = tuple(_detect_or_none(image, self.target, partial) for image in (left, right))
+                left_found = self._side_detector.submit(_detect_or_none, left, self.target, partial)
+                right_found = _detect_or_none(right, self.target, partial)
+                found = (left_found.result(), right_found)
                 if all(d is not None for d in found):
                     break
                 ambiguous = any(d is _AMBIGUOUS for d in found)
@@ -376,8 +389,13 @@ class CampaignRunner:
                 analysis = ConfigurationAnalysis(calib=options.fixed_calibration,
                                                  rect=rectify(options.fixed_calibration))
             else:
+                try:  # a detection that failed fails the calibration, as it would have inside it
+                    detections = [(left.result(), right.result()) for left, right in captured.calibration_detections]
+                except (ValueError, np.linalg.LinAlgError) as error:
+                    raise AnalysisError(str(error)) from None
                 analysis = calibrate_configuration(captured.calibration_pairs, self.calibration_board,
-                                                   intrinsics=options.intrinsics, mode=options.intrinsics_mode)
+                                                   intrinsics=options.intrinsics, mode=options.intrinsics_mode,
+                                                   detections=detections)
             measure_configuration(analysis, captured.measurement_pairs, self.target,
                                   partial=configuration.fraction_in_both < 1.0,
                                   detections=captured.measurement_detections)

@@ -42,7 +42,6 @@ import re
 import shutil
 import socket
 import tempfile
-import threading
 import time
 import uuid
 from collections.abc import Iterable, Mapping
@@ -84,6 +83,7 @@ from stereo_bench.campaign.store import (
     normalise_row,
     order_rows,
 )
+from stereo_bench.executors import background_threads
 from stereo_bench.frames import FRAME_EXTENSION, FrameError, decode_frame, encode_frame
 from stereo_bench.vision import calibio
 from stereo_bench.vision.calibrate import StereoCalibration
@@ -468,14 +468,6 @@ def _attempts_on_disk(root: Path) -> int:
 # ~16 ms of one core to encode and a stereo pair comes every ~20 ms at the bench, so one encoder
 # falls behind while two keep up with the capture on a 2-core machine (scripts/bench_campaign.py).
 DEFAULT_ENCODERS = 2
-# Encoder threads run this much nicer than the rest (Linux: a per-thread nice value): a recording can
-# wait, the capture it would slow down cannot; encoding catches up while the rig moves on.
-ENCODER_NICE = 10
-
-
-def _encoder_thread_start() -> None:
-    with contextlib.suppress(AttributeError, OSError):  # not Linux, or not allowed: the default priority
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), ENCODER_NICE)
 
 
 class SessionWriter:
@@ -527,8 +519,9 @@ class SessionWriter:
             self.close()
             raise
         if self.encoders:
-            self._encoder_pool = ThreadPoolExecutor(max_workers=self.encoders, thread_name_prefix="frame-encoder",
-                                                    initializer=_encoder_thread_start)
+            # At a lower priority: a recording can wait, the capture it would slow down cannot; the
+            # encoders catch up while the rig moves on.
+            self._encoder_pool = background_threads(self.encoders, "frame-encoder")
         return self
 
     def _lock(self, fd: int) -> None:
