@@ -327,7 +327,7 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     """The recorded rig telemetry and frames of ``config_ids`` (a ``SessionReader``'s session), opened."""
     from drivers.replay import ReplayRig, ReplayStereoCamera
 
-    frames: dict[str, dict] = {}
+    frames: dict[str, dict] = {}  # key -> event, in recorded order (the order the replay will ask for them)
     readings = []
     for event in reader.events():
         config_id = event.get("config_id")
@@ -349,7 +349,8 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
 
     stack = contextlib.ExitStack()
     rig = stack.enter_context(ReplayRig(readings))
-    cameras = stack.enter_context(ReplayStereoCamera(load_pair))
+    # Read and decode ~8 pairs ahead on two threads: a pair is ~2 MB and ~20 ms of decoding.
+    cameras = stack.enter_context(ReplayStereoCamera(load_pair, order=list(frames), ahead=8, workers=2))
     return Bench(kind="replay", rig=rig, cameras=cameras, presenter=ReplayPresenter(cameras),
                  operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack)
 

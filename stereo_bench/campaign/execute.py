@@ -273,9 +273,13 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
                               software=software_versions(), bench="replay",
                               extra={"replay_of": str(Path(session_dir).resolve()),
                                      **({"plan_drift": drift} if drift else {})}))
+        options = runner_options(config, reader=reader)
+        # Nothing waits for hardware here: analyse two configurations at once (OpenCV's solvers run
+        # single-threaded either way, so the numbers are those of one at a time).
+        options.analysis_workers = 2
+        options.background_nice = False  # the detections are the critical path here, not something that can wait
         with replay_bench(reader, measured) as bench:
-            runner = CampaignRunner(config, configurations, steps, bench=bench, bus=bus,
-                                    options=runner_options(config, reader=reader))
+            runner = CampaignRunner(config, configurations, steps, bench=bench, bus=bus, options=options)
             status = runner.run()
         if out_dir is not None:
             for cid, row in recorded_rows.items():

@@ -95,6 +95,12 @@ class RunnerOptions:
     intrinsics: tuple | None = None  # (K1, D1, K2, D2) to start from / keep fixed
     fixed_calibration: StereoCalibration | None = None  # extrinsics mode "fixed"
     calibration_board: str = ""  # how calibrations name their board, e.g. 'checkerboard 11x8 square 25 mm'
+    # Configurations analysed at once (threads; results are still published in plan order). A live run
+    # analyses one while the rig moves on; a replay, which waits for nothing, uses more.
+    analysis_workers: int = 1
+    # Work that can wait (detecting calibration views ahead of their analysis) runs at a lower priority,
+    # so that the capture comes first; a replay, where that work is the critical path, sets False.
+    background_nice: bool = True
 
 
 def result_fields(configuration: Configuration, *, status: str, reason: str | None = None,
@@ -133,10 +139,11 @@ class CampaignRunner:
         self._running = threading.Event()  # cleared while paused
         self._running.set()
         self.stop_reason: str | None = None
-        self._analysis = ThreadPoolExecutor(max_workers=1, thread_name_prefix="analysis")
+        self._analysis = ThreadPoolExecutor(max_workers=max(1, options.analysis_workers), thread_name_prefix="analysis")
         # Calibration views are detected as they come (in the background: the analysis needs them later,
         # the capture must not wait), a measurement frame's two views side by side (the capture waits).
-        self._detector = background_threads(2, "detect")
+        self._detector = (background_threads(2, "detect") if options.background_nice
+                          else ThreadPoolExecutor(max_workers=2, thread_name_prefix="detect"))
         self._side_detector = ThreadPoolExecutor(max_workers=1, thread_name_prefix="detect-side")
         # Every document goes through one recorder thread, in submission order: PNG encoding (on the
         # recorder's encoder pool) and fsync then overlap the next capture instead of delaying it.
