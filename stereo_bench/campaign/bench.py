@@ -283,14 +283,23 @@ def hardware_bench(config: CampaignConfig, *, operators: Sequence[Operator], tra
 
 
 class ReplayPresenter:
-    """Queues the recorded pair the runner is about to capture."""
+    """Queues the recorded pair the runner is about to capture.
+
+    ``detections``: per ``config_id/index``, the (left, right) detections recorded for calibration
+    views whose frames were not kept (``[capture] keep_frames``): the runner uses them instead of
+    detecting the placeholder images it is served.
+    """
 
     wants_detections = False
 
-    def __init__(self, cameras):
+    def __init__(self, cameras, detections: dict[str, tuple] | None = None):
         self.cameras = cameras
         self.config_id = ""
         self.retries: Counter = Counter()
+        self.detections = detections or {}
+
+    def recorded_detections(self, index: int) -> tuple | None:
+        return self.detections.get(f"{self.config_id}/{index}")
 
     def begin_configuration(self, configuration: Configuration) -> None:
         self.config_id = configuration.config_id
@@ -324,8 +333,13 @@ class ReplayOperator:
 
 
 def replay_bench(reader, config_ids: set[str]) -> Bench:
-    """The recorded rig telemetry and frames of ``config_ids`` (a ``SessionReader``'s session), opened."""
+    """The recorded rig telemetry and frames of ``config_ids`` (a ``SessionReader``'s session), opened.
+
+    A calibration view whose frames were not kept is served as black frames of the recorded size, and
+    its recorded detections stand in for what the runner would detect in them.
+    """
     from drivers.replay import ReplayRig, ReplayStereoCamera
+    from stereo_bench.campaign.documents import CalibrationDetectionsEvent
 
     frames: dict[str, dict] = {}  # key -> event, in recorded order (the order the replay will ask for them)
     readings = []
@@ -340,19 +354,34 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
             frames[f"{config_id}/calibration_view/{data['index']}"] = event
         elif event["kind"] == "measurement_frame":
             frames[f"{config_id}/measurement_frame/{data['index']}/{data.get('retry', 0)}"] = event
+    detections = {}
+    for event in reader.parsed(CalibrationDetectionsEvent):
+        if event.config_id in config_ids:
+            detections[f"{event.config_id}/{event.data.index}"] = tuple(
+                None if side is None else side.detection() for side in (event.data.left, event.data.right))
 
     def load_pair(key: str):
         event = frames.get(key)
         if event is None:
             raise KeyError(f"{reader.directory}: recording holds no {key}")
-        return reader.frame(event["frames"]["left"]), reader.frame(event["frames"]["right"]), event["data"]
+        kept = event.get("frames") or {}
+        if "left" in kept and "right" in kept:
+            return reader.frame(kept["left"]), reader.frame(kept["right"]), event["data"]
+        if key.split("/")[1] == "calibration_view" and key.replace("/calibration_view", "", 1) in detections:
+            return _not_kept(event["data"]["left"]), _not_kept(event["data"]["right"]), event["data"]
+        raise KeyError(f"{reader.directory}: the frames of {key} were not kept")
 
     stack = contextlib.ExitStack()
     rig = stack.enter_context(ReplayRig(readings))
     # Read and decode ~8 pairs ahead on two threads: a pair is ~2 MB and ~20 ms of decoding.
     cameras = stack.enter_context(ReplayStereoCamera(load_pair, order=list(frames), ahead=8, workers=2))
-    return Bench(kind="replay", rig=rig, cameras=cameras, presenter=ReplayPresenter(cameras),
+    return Bench(kind="replay", rig=rig, cameras=cameras, presenter=ReplayPresenter(cameras, detections),
                  operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack)
+
+
+def _not_kept(description: dict) -> np.ndarray:
+    """A black frame of the recorded shape and type: stands in for a frame that was not kept."""
+    return np.zeros(tuple(description.get("shape") or (0, 0)), dtype=np.dtype(description.get("dtype") or "uint8"))
 
 
 __all__ = [

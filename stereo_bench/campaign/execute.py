@@ -41,7 +41,7 @@ from stereo_bench.campaign.stream import Collector, DocumentBus, MemoryRecorder,
 
 __all__ = [
     "CampaignPlan", "OperatorAbsent", "ReplaySummary", "RunControl", "RunSummary", "plan_drift", "replay_job",
-    "replay_session", "run_campaign", "runner_options", "software_versions",
+    "replay_session", "reproducibility", "run_campaign", "runner_options", "software_versions",
 ]
 
 
@@ -231,6 +231,36 @@ class ReplaySummary:
     out: Path | None
     measured: int = 0  # replayed configurations measured again
     plan_drift: str | None = None
+    # Measured configurations the session kept too little of to replay ([capture] keep_frames), with why.
+    not_reproducible: dict[str, str] = field(default_factory=dict)
+    from_detections: list[str] = field(default_factory=list)  # calibrated from recorded detections, not frames
+
+
+def reproducibility(reader: SessionReader, config_ids: Iterable[str]) -> tuple[dict[str, str], list[str]]:
+    """({config_id: why it cannot be replayed}, [config_ids calibrated from recorded detections]).
+
+    A configuration replays from its measurement frames and, for its calibration, from each
+    calibration view's frames or, where those were not kept, its recorded detections.
+    """
+    config_ids = set(config_ids)
+    keep = (reader.start().get("config") or {}).get("capture", {}).get("keep_frames", "all")
+    detected = {(e["config_id"], e["data"].get("index")) for e in reader.events(kind="calibration_detections")}
+    reasons: dict[str, str] = {}
+    from_detections: set[str] = set()
+    for event in reader.events():
+        config_id, kind = event.get("config_id"), event.get("kind")
+        if config_id not in config_ids or config_id in reasons:
+            continue
+        kept = event.get("frames") or {}
+        if kind not in ("measurement_frame", "calibration_view") or ("left" in kept and "right" in kept):
+            continue
+        if kind == "measurement_frame":
+            reasons[config_id] = f"its measurement frames were not kept ([capture] keep_frames = \"{keep}\")"
+        elif (config_id, event["data"].get("index")) in detected:
+            from_detections.add(config_id)
+        else:
+            reasons[config_id] = "a calibration view was kept neither as frames nor as detections"
+    return reasons, sorted(from_detections - set(reasons))
 
 
 def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *,
@@ -242,6 +272,11 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     compared with the recorded ones; with it, a new session is recorded there (frames copied, so it
     stands alone). ``pipeline`` overrides pipeline settings (e.g. ``{"extrinsics": {"intrinsics":
     "fixed"}}``) for a re-analysis.
+
+    A session recorded with ``[capture] keep_frames`` other than "all" replays what it kept: a
+    configuration whose calibration views were kept as detections is calibrated from those (listed
+    in ``from_detections``); one whose measurement frames were not kept cannot be replayed (listed in
+    ``not_reproducible`` with the reason; a new session under ``out_dir`` leaves it out).
     """
     reader = SessionReader(session_dir)
     start = reader.start()
@@ -258,7 +293,9 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     configurations = [Configuration.from_dict(entry) for entry in start["plan"]]
     drift = plan_drift(config, start["plan"])
     recorded_rows = {row["config_id"]: row for row in reader.results()}
-    measured = {cid for cid, row in recorded_rows.items() if row.get("status") == "measured"}
+    all_measured = {cid for cid, row in recorded_rows.items() if row.get("status") == "measured"}
+    not_reproducible, from_detections = reproducibility(reader, all_measured)
+    measured = all_measured - set(not_reproducible)  # what is replayed
     steps = [s for cid, group in group_steps(plan_steps(config, configurations)) if cid in measured for s in group]
 
     recorder = SessionWriter(out_dir) if out_dir is not None else contextlib.nullcontext(MemoryRecorder())
@@ -282,8 +319,8 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
             runner = CampaignRunner(config, configurations, steps, bench=bench, bus=bus, options=options)
             status = runner.run()
         if out_dir is not None:
-            for cid, row in recorded_rows.items():
-                if cid not in measured:
+            for cid, row in recorded_rows.items():  # failed and infeasible configurations: as recorded
+                if cid not in all_measured:
                     bus.publish(Draft(ResultDocument, config_id=cid,
                                       row={k: v for k, v in row.items() if not k.startswith("_")}))
             bus.publish(Draft(StopDocument, exit_status=status))
@@ -301,10 +338,10 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
         else:
             identical += 1
     return ReplaySummary(compared=len(measured), identical=identical, differences=differences,
-                         rows=list(new_rows.values()), carried_over=len(recorded_rows) - len(measured),
+                         rows=list(new_rows.values()), carried_over=len(recorded_rows) - len(all_measured),
                          out=None if out_dir is None else Path(out_dir),
                          measured=sum(new_rows.get(cid, {}).get("status") == "measured" for cid in measured),
-                         plan_drift=drift)
+                         plan_drift=drift, not_reproducible=not_reproducible, from_detections=from_detections)
 
 
 def _same(a, b) -> bool:
@@ -325,4 +362,5 @@ def replay_job(job: tuple[str, str | None, dict]) -> dict:
         return {"session": session, "out": out, "error": str(error).strip("'\"")}
     return {"session": session, "out": out, "compared": summary.compared, "identical": summary.identical,
             "measured": summary.measured, "differences": summary.differences,
-            "carried_over": summary.carried_over, "pipeline": pipeline, "plan_drift": summary.plan_drift}
+            "carried_over": summary.carried_over, "pipeline": pipeline, "plan_drift": summary.plan_drift,
+            "not_reproducible": summary.not_reproducible, "from_detections": summary.from_detections}

@@ -39,9 +39,11 @@ from stereo_bench.campaign.analysis import (
 )
 from stereo_bench.campaign.documents import (
     AnalysisEvent,
+    CalibrationDetectionsEvent,
     CalibrationEvent,
     CalibrationFiles,
     CalibrationViewEvent,
+    DetectionRecord,
     Draft,
     HomeEvent,
     MeasurementFrameEvent,
@@ -309,15 +311,31 @@ class CampaignRunner:
             self.request_stop(f"rig unrecoverable: {error}")
             raise StopRequested() from error
 
+    def _keeps_frames(self, model) -> bool:
+        """Whether captures of this kind write their frames to the session (``[capture] keep_frames``)."""
+        keep = self.config.capture.keep_frames
+        return keep == "all" or (keep == "measurement" and model is MeasurementFrameEvent)
+
     def _capture(self, model, index: int, configuration: Configuration, **extra) -> tuple[np.ndarray, np.ndarray]:
         pair = self.bench.cameras.capture_pair()
         self._publish(Draft(
             model, config_id=configuration.config_id,
             data={"index": index, "dt_s": pair.dt_s, "left": pair.left.describe(), "right": pair.right.describe(),
                   **extra},
-            frames={"left": pair.left.image, "right": pair.right.image},
+            frames={"left": pair.left.image, "right": pair.right.image} if self._keeps_frames(model) else None,
         ))
         return pair.left.image, pair.right.image
+
+    def _publish_detections(self, config_id: str, index: int, found: tuple[Future, Future]) -> None:
+        """Record a calibration view's detections (kept instead of its frames) once made, next in the stream."""
+        def publish() -> list:
+            sides = [None if future.exception() is not None else DetectionRecord.of(future.result())
+                     for future in found]  # a detection that failed is the analysis' to report
+            return self.bus.publish(Draft(CalibrationDetectionsEvent, config_id=config_id, data={
+                "index": index, **{side: None if record is None else record.model_dump()
+                                   for side, record in zip(("left", "right"), sides, strict=True)}}))
+
+        self._recording.append(self._recorder.submit(publish))
 
     def _capture_calibration(self, n_views: int, captured: Captured) -> None:
         if self.options.fixed_calibration is not None:
@@ -335,9 +353,16 @@ class CampaignRunner:
             if prompt is not None:
                 self._ask(prompt)
             left, right = self._capture(CalibrationViewEvent, index, captured.configuration)
-            # Detected once, while the next views are captured; the analysis calibrates from these.
-            found = (self._detector.submit(detect, left, self.calibration_board),
-                     self._detector.submit(detect, right, self.calibration_board))
+            # Detected once, while the next views are captured; the analysis calibrates from these. A replay
+            # of a session that kept the detections instead of the frames serves the recorded ones.
+            recorded = getattr(presenter, "recorded_detections", lambda index: None)(index)
+            if recorded is not None:
+                found = (_done(recorded[0]), _done(recorded[1]))
+            else:
+                found = (self._detector.submit(detect, left, self.calibration_board),
+                         self._detector.submit(detect, right, self.calibration_board))
+            if not self._keeps_frames(CalibrationViewEvent):
+                self._publish_detections(captured.configuration.config_id, index, found)
             if presenter.wants_detections:  # coverage feedback for an operator
                 presenter.calibration_view_captured(index, found[0].result(), found[1].result())
             captured.calibration_pairs.append((left, right))
@@ -444,9 +469,9 @@ def _detect_or_none(image: np.ndarray, target, partial: bool):
         return _AMBIGUOUS
 
 
-def _done(row: dict) -> Future:
+def _done(value) -> Future:
     future: Future = Future()
-    future.set_result(row)
+    future.set_result(value)
     return future
 
 
