@@ -8,8 +8,10 @@ inside the exposure; PNG encoding, detection, calibration, measurement) is overh
 overlaps the hardware time. Then replays the recorded session and reports pairs per second.
 
 Where the time goes is measured by timing the real functions in place (wrapped by this script, not
-changed): for each activity, the CPU time it took on every thread (``time.thread_time``), and how
-much of the runner's own thread (the critical path: what the wall time is made of) it held.
+changed): for each activity, the CPU time it took on every thread (``time.thread_time`` of the
+thread that called it: work OpenCV spreads over its own worker threads is not in it; the process
+CPU time is), and how much of the runner's own thread (the critical path: what the wall time is
+made of) it held.
 
     python scripts/bench_campaign.py [--profiles ideal lab] [--out FILE] [--keep DIR]
 """
@@ -128,7 +130,7 @@ def instrument_campaign(spans: Spans) -> None:
     from drivers.rig.rig import GrblRig
     from drivers.sim.bench import SimulatedBench
     from drivers.sim.render import StereoRenderer
-    from stereo_bench.campaign import runner, session
+    from stereo_bench.campaign import session
     from stereo_bench.campaign.bench import Clock
 
     spans.wrap(GrblRig, "home", "homing (hardware)")
@@ -142,20 +144,22 @@ def instrument_campaign(spans: Spans) -> None:
     spans.wrap(StereoRenderer, "__init__", "renderer setup")
     spans.wrap(session, "encode_frame", "encode")
     spans.wrap(session.SessionWriter, "record", "record/fsync")  # minus the encoding inside it
-    spans.wrap(runner, "detect", "detect during capture")
-    spans.wrap(runner.CampaignRunner, "_analyse", "analysis")
-    spans.wrap(runner.CampaignRunner, "_sync_recording", "waiting for the recorder")
-    spans.wrap(runner.CampaignRunner, "_collect", "waiting for analyses")
-    spans.wrap(runner.CampaignRunner, "_execute", "runner (other)")
-    spans.wrap(runner.CampaignRunner, "run", "runner (other)")
+    instrument_runner(spans)
 
 
 def instrument_replay(spans: Spans) -> None:
-    from stereo_bench.campaign import runner, session
+    from stereo_bench.campaign import session
 
     spans.wrap(session, "decode_frame", "decode")
     spans.wrap(session.SessionReader, "read_bytes", "read")
-    spans.wrap(runner, "detect", "detect during capture")
+    instrument_runner(spans)
+
+
+def instrument_runner(spans: Spans) -> None:
+    """What the runner does in a campaign and in a replay alike."""
+    from stereo_bench.campaign import runner
+
+    spans.wrap(runner, "detect", "detect (calibration views ahead, measurement frames)")
     spans.wrap(runner.CampaignRunner, "_analyse", "analysis")
     spans.wrap(runner.CampaignRunner, "_sync_recording", "waiting for the recorder")
     spans.wrap(runner.CampaignRunner, "_collect", "waiting for analyses")
@@ -170,14 +174,14 @@ def per_pair(table: dict[str, dict[str, float]], pairs: int) -> dict[str, dict[s
 
 
 def print_breakdown(title: str, table: dict[str, dict[str, float]], wall_s: float, pairs: int) -> None:
-    print(f"  {title}: per stereo pair, ms   {'CPU (all threads)':>18s} {'runner thread':>14s}")
+    print(f"  {title + ': per stereo pair, ms':46s} {'CPU (all threads)':>18s} {'runner thread':>14s}")
     accounted = 0.0
     for label, entry in table.items():
         accounted += entry["main_thread_ms_per_pair"]
-        print(f"    {label:36s} {entry['cpu_ms_per_pair']:18.1f} {entry['main_thread_ms_per_pair']:14.1f}")
+        print(f"    {label:44s} {entry['cpu_ms_per_pair']:18.1f} {entry['main_thread_ms_per_pair']:14.1f}")
     rest = 1e3 * wall_s / pairs - accounted
-    print(f"    {'outside the runner (open, close)':36s} {'':18s} {rest:14.1f}")
-    print(f"    {'wall time':36s} {'':18s} {1e3 * wall_s / pairs:14.1f}")
+    print(f"    {'outside the runner (open, close)':44s} {'':18s} {rest:14.1f}")
+    print(f"    {'wall time':44s} {'':18s} {1e3 * wall_s / pairs:14.1f}")
 
 
 def bench_profile(profile: str, keep: Path | None) -> dict:
@@ -257,7 +261,7 @@ def main() -> None:
         print(f"{'wall / hardware':32s} {result['wall_over_hardware']:7.2f}   (target <= 1.10)")
         print_breakdown("campaign", result["campaign_per_pair"], result["wall_s"], pairs)
         for label, count in result["campaign_counts"].items():
-            print(f"    {label:36s} {count}")
+            print(f"    {label:44s} {count}")
         print(f"{'replay':32s} {result['replay_s']:7.2f} s, {result['replay_pairs_per_s']:.1f} pairs/s "
               f"(process CPU {result['replay_process_cpu_s']:.1f} s), {result['replay_identical']} "
               "configurations identical")
