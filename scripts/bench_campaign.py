@@ -124,6 +124,50 @@ class Spans:
         return out
 
 
+class ThreadCpu:
+    """CPU seconds of every thread of this process by Python thread name (Linux /proc), sampled while it runs:
+    threads that are not Python's (OpenCV's workers) are summed as one; pools' ``_N`` suffixes are dropped."""
+
+    def __init__(self, period_s: float = 0.1):
+        self.period_s = period_s
+        self._cpu: dict[int, float] = {}
+        self._names: dict[int, str] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="bench-thread-cpu", daemon=True)
+        self._tick = os.sysconf("SC_CLK_TCK")
+
+    def __enter__(self) -> ThreadCpu:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+        self._sample()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            self._sample()
+
+    def _sample(self) -> None:
+        for thread in threading.enumerate():
+            if thread.native_id is not None:
+                self._names[thread.native_id] = thread.name.rsplit("_", 1)[0] if thread.name[-1:].isdigit() \
+                    else thread.name
+        for task in Path("/proc/self/task").iterdir():
+            try:
+                fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:  # the thread ended
+                continue
+            self._cpu[int(task.name)] = (int(fields[11]) + int(fields[12])) / self._tick
+
+    def by_name(self) -> dict[str, float]:
+        out: dict[str, float] = defaultdict(float)
+        for tid, cpu in self._cpu.items():
+            out[self._names.get(tid, "other (OpenCV workers, ...)")] += cpu
+        return dict(sorted(out.items(), key=lambda item: -item[1]))
+
+
 def instrument_campaign(spans: Spans) -> None:
     """The activities of a live campaign (see the module docstring)."""
     from drivers.camera.synthetic import SyntheticCamera
@@ -184,6 +228,11 @@ def print_breakdown(title: str, table: dict[str, dict[str, float]], wall_s: floa
     print(f"    {'wall time':44s} {'':18s} {1e3 * wall_s / pairs:14.1f}")
 
 
+def print_threads(cpu_s: dict[str, float], pairs: int) -> None:
+    print("  CPU by thread, ms per pair: " + ", ".join(f"{name} {1e3 * value / pairs:.1f}"
+                                                       for name, value in cpu_s.items() if value > 0))
+
+
 def bench_profile(profile: str, keep: Path | None) -> dict:
     config = campaign_from_dict({**CAMPAIGN, "sim": {"profile": profile}})
     plan = CampaignPlan.of(config)
@@ -197,7 +246,8 @@ def bench_profile(profile: str, keep: Path | None) -> dict:
         try:
             cpu0 = time.process_time()
             started = time.monotonic()
-            summary = run_campaign(config, session, yes=True, plan=plan)
+            with ThreadCpu() as threads:
+                summary = run_campaign(config, session, yes=True, plan=plan)
             wall_s = time.monotonic() - started
             cpu_s = time.process_time() - cpu0
         finally:
@@ -215,7 +265,8 @@ def bench_profile(profile: str, keep: Path | None) -> dict:
         try:
             replay_cpu0 = time.process_time()
             started = time.monotonic()
-            replay = replay_session(session)
+            with ThreadCpu() as replay_threads:
+                replay = replay_session(session)
             replay_s = time.monotonic() - started
             replay_cpu_s = time.process_time() - replay_cpu0
         finally:
@@ -231,6 +282,7 @@ def bench_profile(profile: str, keep: Path | None) -> dict:
                                  "settle": estimate.settle_s, "exposures": estimate.capture_s},
         "wall_over_hardware": wall_s / hardware_s, "target": 1.10, "session_mb": session_mb,
         "campaign_per_pair": per_pair(campaign_table, pairs), "campaign_counts": spans.counts,
+        "campaign_thread_cpu_s": threads.by_name(), "replay_thread_cpu_s": replay_threads.by_name(),
         "replay_s": replay_s, "replay_process_cpu_s": replay_cpu_s, "replay_pairs_per_s": pairs / replay_s,
         "replay_identical": f"{replay.identical}/{replay.compared}",
         "replay_per_pair": per_pair(replay_spans.by_label(), pairs),
@@ -262,10 +314,12 @@ def main() -> None:
         print_breakdown("campaign", result["campaign_per_pair"], result["wall_s"], pairs)
         for label, count in result["campaign_counts"].items():
             print(f"    {label:44s} {count}")
+        print_threads(result["campaign_thread_cpu_s"], pairs)
         print(f"{'replay':32s} {result['replay_s']:7.2f} s, {result['replay_pairs_per_s']:.1f} pairs/s "
               f"(process CPU {result['replay_process_cpu_s']:.1f} s), {result['replay_identical']} "
               "configurations identical")
         print_breakdown("replay", result["replay_per_pair"], result["replay_s"], pairs)
+        print_threads(result["replay_thread_cpu_s"], pairs)
         before, after = (" ".join(f"{v:.2f}" for v in result[key])
                          for key in ("loadavg_before_1_5_15", "loadavg_after_1_5_15"))
         print(f"{'load average (1, 5, 15 min)':32s} before {before}, after {after}")

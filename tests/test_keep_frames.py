@@ -93,3 +93,41 @@ def test_a_replay_reproduces_what_was_kept_and_succeeds(small_reference, tmp_pat
     out = capsys.readouterr().out
     assert "replayed 1 measured configurations" in out and "1 reproduced exactly" in out
     assert f"cannot reproduce {MEASURED[1]}" in out
+
+
+@pytest.mark.slow
+def test_a_stop_at_once_while_detections_are_pending_still_leaves_a_session_that_resumes(tmp_path, small_reference):
+    """keep_frames = "measurement": a view's detections are recorded once made; a second Ctrl-C mid-views
+    drops the ones still queued, and the session resumes to the same numbers."""
+    from stereo_bench.campaign.bench import simulated_bench
+    from stereo_bench.campaign.execute import RunControl
+
+    config = small_config(capture={"keep_frames": "measurement"})
+    out = tmp_path / "at-once"
+    control = RunControl()
+
+    def bench_interrupted(config, **options):
+        bench = simulated_bench(config, **options)
+        presenter, calls = bench.presenter, []
+
+        def present_calibration_view(index):
+            calls.append(index)
+            if len(calls) == 6 + 4:  # the second configuration's fifth view
+                control.request_stop("stopped by SIGINT")
+                raise KeyboardInterrupt
+            presenter.__class__.present_calibration_view(presenter, index)
+
+        presenter.present_calibration_view = present_calibration_view
+        return bench
+
+    summary = run_campaign(config, out, yes=True, control=control, bench_factory=bench_interrupted)
+    assert summary.exit_status == "interrupted"
+    reader = SessionReader(out)
+    assert reader.stops()[-1]["exit_status"] == "interrupted"
+    detected = {(d["config_id"], d["data"]["index"]) for d in reader.events(kind="calibration_detections",
+                                                                          attempt=None)}
+    views = {(v["config_id"], v["data"]["index"]) for v in reader.events(kind="calibration_view", attempt=None)}
+    assert detected <= views
+    assert run_campaign(config, out, resume=True, yes=True).exit_status == "success"
+    assert numbers(out) == numbers(small_reference)
+    assert replay_session(out).identical == 2

@@ -189,7 +189,11 @@ class CampaignRunner:
         """Queue a document; a failure to record an earlier one surfaces here (or at the next sync)."""
         # The recorder starts on it at once (frames are encoded on its pool, in parallel); the recorder
         # thread then writes each document in turn, a frame file before the line that references it.
-        self._recording.append(self._recorder.submit(self.bus.publish, self.bus.prepare(draft)))
+        self._enqueue(self.bus.publish, self.bus.prepare(draft))
+
+    def _enqueue(self, job, *args) -> None:
+        """Run ``job(*args)`` on the recorder thread after everything queued before it."""
+        self._recording.append(self._recorder.submit(job, *args))
         if len(self._recording) > 64:  # at most a few configurations' frames wait in memory
             self._sync_recording(keep=32)
         else:
@@ -240,7 +244,9 @@ class CampaignRunner:
         finally:
             self._analysis.shutdown(wait=not abandon, cancel_futures=abandon)
             self._side_detector.shutdown(wait=True)
-            self._detector.shutdown(wait=not abandon, cancel_futures=True)  # no analysis is left to need them
+            # Detections still queued are of configurations that will not be analysed; their documents
+            # (keep_frames) still wait for them, unless the run stops at once.
+            self._detector.shutdown(wait=not abandon, cancel_futures=abandon)
             try:
                 self._sync_recording()
             finally:
@@ -329,13 +335,14 @@ class CampaignRunner:
     def _publish_detections(self, config_id: str, index: int, found: tuple[Future, Future]) -> None:
         """Record a calibration view's detections (kept instead of its frames) once made, next in the stream."""
         def publish() -> list:
-            sides = [None if future.exception() is not None else DetectionRecord.of(future.result())
-                     for future in found]  # a detection that failed is the analysis' to report
+            # A detection that failed is the analysis' to report (one dropped by a stop at once: nobody's).
+            sides = [None if future.cancelled() or future.exception() is not None else DetectionRecord.of(
+                future.result()) for future in found]
             return self.bus.publish(Draft(CalibrationDetectionsEvent, config_id=config_id, data={
                 "index": index, **{side: None if record is None else record.model_dump()
                                    for side, record in zip(("left", "right"), sides, strict=True)}}))
 
-        self._recording.append(self._recorder.submit(publish))
+        self._enqueue(publish)
 
     def _capture_calibration(self, n_views: int, captured: Captured) -> None:
         if self.options.fixed_calibration is not None:
