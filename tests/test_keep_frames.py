@@ -70,7 +70,8 @@ def test_none_keeps_no_frame_and_its_replay_reproduces_nothing_and_fails(kept, s
     assert all('keep_frames = "none"' in why for why in summary.not_reproducible.values())
     assert main(["replay", str(session)]) == 1
     out = capsys.readouterr().out
-    assert f"cannot reproduce {MEASURED[0]}: its measurement frames were not kept" in out
+    assert ('cannot reproduce, measurement frames not kept ([capture] keep_frames = "none"): all 2 ('
+            + ", ".join(MEASURED) + ")") in out
     assert main(["replay", str(session), "--json"]) == 1
     report = json.loads(capsys.readouterr().out)
     assert report["compared"] == 0 and sorted(report["not_reproducible"]) == MEASURED
@@ -92,7 +93,7 @@ def test_a_replay_reproduces_what_was_kept_and_succeeds(small_reference, tmp_pat
     assert main(["replay", str(session)]) == 0
     out = capsys.readouterr().out
     assert "replayed 1 measured configurations" in out and "1 reproduced exactly" in out
-    assert f"cannot reproduce {MEASURED[1]}" in out
+    assert f"cannot reproduce, measurement frames not kept ([capture] keep_frames = \"all\"): {MEASURED[1]}" in out
 
 
 @pytest.mark.slow

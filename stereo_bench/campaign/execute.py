@@ -255,11 +255,11 @@ def reproducibility(reader: SessionReader, config_ids: Iterable[str]) -> tuple[d
         if kind not in ("measurement_frame", "calibration_view") or ("left" in kept and "right" in kept):
             continue
         if kind == "measurement_frame":
-            reasons[config_id] = f"its measurement frames were not kept ([capture] keep_frames = \"{keep}\")"
+            reasons[config_id] = f"measurement frames not kept ([capture] keep_frames = \"{keep}\")"
         elif (config_id, event["data"].get("index")) in detected:
             from_detections.add(config_id)
         else:
-            reasons[config_id] = "a calibration view was kept neither as frames nor as detections"
+            reasons[config_id] = "a calibration view kept neither as frames nor as detections"
     return reasons, sorted(from_detections - set(reasons))
 
 

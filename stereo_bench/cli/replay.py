@@ -49,10 +49,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
                 print(f"replayed {report['compared']} measured configurations of {report['session']}: "
                       f"{report['identical']} reproduced exactly{carried}")
             if report.get("from_detections"):
-                print(f"  calibrated from the recorded detections (calibration views not kept): "
-                      f"{', '.join(report['from_detections'])}")
+                print(f"  calibrated from the recorded detections of their calibration views (frames not kept): "
+                      f"{_listing(report['from_detections'], report['compared'])}")
+            by_reason: dict[str, list[str]] = {}
             for config_id, reason in report.get("not_reproducible", {}).items():
-                print(f"  cannot reproduce {config_id}: {reason}")
+                by_reason.setdefault(reason, []).append(config_id)
+            for reason, config_ids in by_reason.items():
+                print(f"  cannot reproduce, {reason}: {_listing(config_ids, len(report['not_reproducible']))}")
             if report.get("plan_drift"):
                 print(f"  note: the recorded plan was replayed; {report['plan_drift']}")
             for line in report["differences"]:
@@ -68,6 +71,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if pipeline:  # a re-analysis may change numbers, but one that measures nothing has failed
         return 0 if all(r["measured"] or not r["compared"] for r in reports) else 1
     return 0 if all(not r["differences"] for r in reports) else 1
+
+
+def _listing(config_ids: list[str], of: int) -> str:
+    listed = ", ".join(config_ids)
+    return f"all {of} ({listed})" if len(config_ids) == of and of > 1 else listed
 
 
 def register(subparsers) -> None:
