@@ -14,6 +14,7 @@ import contextlib
 import math
 import platform
 from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -291,7 +292,11 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
         raise SessionError(f"{reader.documents_path} line 1: the recorded campaign config does not validate "
                            f"({where}: {first.get('msg')})") from None
     configurations = [Configuration.from_dict(entry) for entry in start["plan"]]
-    drift = plan_drift(config, start["plan"])
+    # Re-planning takes ~20 ms a configuration: while the frames replay, unless the new session's start needs it.
+    drifting = ThreadPoolExecutor(max_workers=1, thread_name_prefix="plan-drift")
+    drift_future = drifting.submit(plan_drift, config, start["plan"])
+    drifting.shutdown(wait=False)
+    drift = drift_future.result() if out_dir is not None else None
     recorded_rows = {row["config_id"]: row for row in reader.results()}
     all_measured = {cid for cid, row in recorded_rows.items() if row.get("status") == "measured"}
     not_reproducible, from_detections = reproducibility(reader, all_measured)
@@ -324,6 +329,7 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
                     bus.publish(Draft(ResultDocument, config_id=cid,
                                       row={k: v for k, v in row.items() if not k.startswith("_")}))
             bus.publish(Draft(StopDocument, exit_status=status))
+    drift = drift_future.result()
     new_rows = {row["config_id"]: row for row in collector.rows}
     differences, identical = [], 0
     for cid in sorted(measured):
