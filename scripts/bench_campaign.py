@@ -131,12 +131,15 @@ class ThreadCpu:
     def __init__(self, period_s: float = 0.1):
         self.period_s = period_s
         self._cpu: dict[int, float] = {}
+        self._before: dict[int, float] = {}
         self._names: dict[int, str] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="bench-thread-cpu", daemon=True)
         self._tick = os.sysconf("SC_CLK_TCK")
 
     def __enter__(self) -> ThreadCpu:
+        self._sample()
+        self._before = dict(self._cpu)  # threads that already ran (the main thread, OpenCV's workers)
         self._thread.start()
         return self
 
@@ -164,7 +167,7 @@ class ThreadCpu:
     def by_name(self) -> dict[str, float]:
         out: dict[str, float] = defaultdict(float)
         for tid, cpu in self._cpu.items():
-            out[self._names.get(tid, "other (OpenCV workers, ...)")] += cpu
+            out[self._names.get(tid, "other (OpenCV workers, ...)")] += cpu - self._before.get(tid, 0.0)
         return dict(sorted(out.items(), key=lambda item: -item[1]))
 
 

@@ -28,7 +28,6 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
-import threading
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, Literal, Protocol, TypeVar, runtime_checkable
@@ -213,14 +212,14 @@ def group(items: list[T], n_groups: int) -> list[list[T]]:
     return [items[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True) if b > a]
 
 
-# How much nicer than the rest of the process background threads run (Linux: a per-thread nice value;
-# a thread may lower its own priority without privileges, never raise it back).
+# How much nicer than the thread that starts them background threads run (on Linux nice() applies to
+# the calling thread only; a thread may lower its own priority without privileges, never raise it back).
 BACKGROUND_NICE = 10
 
 
 def _lower_thread_priority() -> None:
-    with contextlib.suppress(AttributeError, OSError):  # not Linux, or not allowed: the default priority
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), BACKGROUND_NICE)
+    with contextlib.suppress(AttributeError, OSError):  # not available, or not allowed: the same priority
+        os.nice(BACKGROUND_NICE)
 
 
 def background_threads(max_workers: int, name: str) -> ThreadPoolExecutor:

@@ -3,6 +3,7 @@ ever references a frame that is not complete on disk (the crash-safety rule of d
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -89,3 +90,26 @@ def test_without_encoders_frames_are_encoded_when_recorded(tmp_path):
         writer.stop(exit_status="success")
     reader = SessionReader(tmp_path / "session")
     assert np.array_equal(reader.frame(reader.events(kind="capture")[0]["frames"]["left"]), image)
+
+
+@pytest.mark.skipif(not hasattr(os, "getpriority") or not os.path.isdir("/proc/self/task"), reason="Linux only")
+def test_frames_are_encoded_on_threads_nicer_than_the_one_that_records(tmp_path, monkeypatch):
+    """A recording can wait, the capture it would slow down cannot (executors.background_threads)."""
+    from stereo_bench.executors import BACKGROUND_NICE
+
+    priorities = []
+    real_encode = session_module.encode_frame
+
+    def encode(image):
+        priorities.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id()))
+        return real_encode(image)
+
+    monkeypatch.setattr(session_module, "encode_frame", encode)
+    mine = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    with SessionWriter(tmp_path / "session") as writer:
+        writer.start(config={"n": 1}, plan=PLAN, software={"test": 1})
+        draft = event_draft("capture", config_id="c0", frames={"left": np.zeros((8, 8), np.uint8)})
+        writer.record(writer.prepare(draft))
+        writer.stop(exit_status="success")
+    assert priorities == [min(mine + BACKGROUND_NICE, 19)]
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == mine
