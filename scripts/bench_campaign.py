@@ -300,8 +300,8 @@ def main() -> None:
     parser.add_argument("--out", default="scripts/results/bench_campaign.json")
     parser.add_argument("--keep", metavar="DIR", type=Path, help="keep the recorded sessions here (DIR/<profile>)")
     args = parser.parse_args()
-    # Run at a higher priority (nice -n -15 python scripts/bench_campaign.py) on a machine others load, it
-    # approximates a quiet one: the process's threads keep their order among themselves.
+    # Recorded because a run at a higher priority (nice -n -15 python scripts/bench_campaign.py) keeps other
+    # processes of the machine from preempting it (not other machines sharing its host).
     results = {"cpu_count": os.cpu_count(), "process_nice": os.getpriority(os.PRIO_PROCESS, 0), "profiles": {}}
     for profile in args.profiles:
         result = bench_profile(profile, args.keep)
