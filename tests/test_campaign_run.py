@@ -88,6 +88,15 @@ def test_manual_steps_without_an_operator_are_a_clear_error(plan_file, tmp_path)
     assert "standard input is closed" in result.stderr and "--yes" in result.stderr
 
 
+@pytest.fixture
+def long_settle_plan_file(tmp_path) -> Path:
+    """The small plan with a settle of 0.4 s (real): time to signal a run at its last configuration before its
+    captures, which take a few ms once the simulator has rendered them ahead (the numbers do not depend on it)."""
+    path = tmp_path / "small-long-settle.toml"
+    path.write_text(SMALL.replace("settle_s = 0.1", "settle_s = 20"))
+    return path
+
+
 def _launch(plan_file: Path, out: Path, *more: str) -> subprocess.Popen:
     command = [sys.executable, "-m", "stereo_bench", "campaign", "run", str(plan_file), "--out", str(out), "--yes",
                "--quiet", *more]
@@ -134,7 +143,8 @@ def test_sigkill_mid_campaign_then_resume_gives_every_configuration_once_with_th
 
 
 @pytest.mark.slow
-def test_sigterm_stops_like_ctrl_c_and_the_session_resumes(plan_file, tmp_path, small_reference):
+def test_sigterm_stops_like_ctrl_c_and_the_session_resumes(long_settle_plan_file, tmp_path, small_reference):
+    plan_file = long_settle_plan_file
     out = tmp_path / "terminated"
     process = _launch(plan_file, out)
     _wait_for_the_last_move(process, out)
@@ -152,9 +162,9 @@ def test_sigterm_stops_like_ctrl_c_and_the_session_resumes(plan_file, tmp_path, 
 
 
 @pytest.mark.slow
-def test_ctrl_c_twice_records_interrupted_with_the_resume_command(plan_file, tmp_path):
+def test_ctrl_c_twice_records_interrupted_with_the_resume_command(long_settle_plan_file, tmp_path):
     out = tmp_path / "aborted"
-    process = _launch(plan_file, out)
+    process = _launch(long_settle_plan_file, out)
     _wait_for_the_last_move(process, out)
     process.send_signal(signal.SIGINT)
     time.sleep(0.02)  # two separate signals (the kernel merges two pending ones)

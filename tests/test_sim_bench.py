@@ -59,7 +59,7 @@ def test_a_stereo_pair_takes_one_exposure_for_both_cameras(bench):
     bench.show(BOARD, board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm), seed=4)
     bench.render("left")  # builds the renderer (~1 s) before the timed exposure
     exposure_s = bench.exposure_s
-    bench.exposure_s = 0.3 * bench.time_scale  # 0.3 s of real time: longer than a render
+    bench.exposure_s = 1.0 * bench.time_scale  # 1 s of real time: longer than a render, even on a busy machine
     try:
         left, right = bench.cameras()
         slept = {"left": [], "right": []}
@@ -73,7 +73,7 @@ def test_a_stereo_pair_takes_one_exposure_for_both_cameras(bench):
         bench.exposure_s = exposure_s
     assert pair.dt_s == 0.0
     assert len(slept["left"]) == 1 and slept["right"] == []  # the right frame was read out with the left one
-    assert took_s >= 0.3
+    assert took_s >= 1.0
 
 
 def test_frames_of_a_scene_are_reproducible(bench):

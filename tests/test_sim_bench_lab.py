@@ -363,7 +363,7 @@ def test_a_frame_rendered_ahead_is_dropped_when_the_rig_stands_elsewhere_at_the_
     np.testing.assert_array_equal(pair.left.image, image)
 
 
-def test_nothing_is_rendered_ahead_before_the_rig_rests_where_the_scenes_need_it(lab_bench):
+def test_nothing_is_rendered_ahead_before_the_move_to_where_the_scenes_need_the_rig_is_queued(lab_bench):
     bench, rig = lab_bench
     rig.move_to(baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=85.0, target_distance_mm=450.0)
     pose = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm)
@@ -373,3 +373,85 @@ def test_nothing_is_rendered_ahead_before_the_rig_rests_where_the_scenes_need_it
     rig.move_to(baseline_mm=200.0, alpha_left_deg=85.0, alpha_right_deg=85.0, target_distance_mm=450.0)
     _wait_rendered_ahead(bench, 1)
     bench.stage([], at=RigPose.symmetric(200.0, 85.0))  # nothing left staged
+
+
+@pytest.mark.slow
+def test_scenes_are_rendered_during_the_move_for_where_it_will_rest_and_served_bit_for_bit():
+    """The move's end is planned (whole steps) and its landing drawn as the mechanics will draw it: the
+    frames rendered while the rig still moves are those a render at the trigger gives after it."""
+    import threading
+
+    from drivers.camera.stereo import StereoCamera
+
+    with SimulatedBench(time_scale=5.0, profile=LAB, seed=5, **cameras()) as bench:
+        with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+            rig.home()
+            rig.move_to(baseline_mm=60.0, alpha_left_deg=88.0, alpha_right_deg=88.0, target_distance_mm=450.0)
+            bench.warm_up(BOARD)
+            pose = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm, yaw_deg=4.0)
+            bench.stage([("board", BOARD, pose, 80)], at=RigPose.symmetric(220.0, 84.0))
+            moving = threading.Thread(target=rig.move_to, kwargs={
+                "baseline_mm": 220.0, "alpha_left_deg": 84.0, "alpha_right_deg": 84.0, "target_distance_mm": 450.0})
+            moving.start()
+            rendered_while_moving = False
+            while moving.is_alive():
+                rendered_while_moving |= bench.staged_rendered() > 0 and bench.emulator.state == "Run"
+                time.sleep(0.005)
+            moving.join()
+        assert rendered_while_moving
+        time.sleep(0.5 / 5)  # the settle: the ringing has stopped
+        with StereoCamera(*bench.cameras()) as cameras_:
+            bench.show(BOARD, pose, seed=80)
+            pair = cameras_.capture_pair()
+        assert bench.prerendered_used == 1
+        snapshot = bench._snapshot()
+        for side, frame in (("left", pair.left), ("right", pair.right)):
+            image, meta = bench._render_job(side, snapshot, bench._scene, 0)
+            np.testing.assert_array_equal(frame.image, image)
+            assert frame.meta == meta
+
+
+def test_frames_rendered_for_a_wrong_prediction_are_rendered_again_once_the_rig_rests(lab_bench, monkeypatch):
+    import dataclasses
+
+    from drivers.camera.stereo import StereoCamera
+
+    bench, rig = lab_bench
+    real_predict = bench._predicted_snapshot
+    wrong = []
+
+    def predict_wrongly():  # the right pose, a camera 0.1 mm off
+        snapshot = real_predict()
+        if snapshot is None:
+            return None
+        T = {side: matrix.copy() for side, matrix in snapshot.T_rig_cam.items()}
+        T["left"][0, 3] += 0.1
+        wrong.append(True)
+        return dataclasses.replace(snapshot, T_rig_cam=T)
+
+    real_render = bench._render_job
+    renders = []
+
+    def render_job(side, snapshot, scene, index):
+        renders.append((side, scene.seed))
+        return real_render(side, snapshot, scene, index)
+
+    monkeypatch.setattr(bench, "_predicted_snapshot", predict_wrongly)
+    monkeypatch.setattr(bench, "_render_job", render_job)
+    rig.move_to(baseline_mm=40.0, alpha_left_deg=87.0, alpha_right_deg=87.0, target_distance_mm=450.0)
+    pose = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm)
+    bench.stage([("board", BOARD, pose, 90)], at=RigPose.symmetric(300.0, 87.0))
+    rig.move_to(baseline_mm=300.0, alpha_left_deg=87.0, alpha_right_deg=87.0, target_distance_mm=450.0)
+    time.sleep(0.5 / 50)
+    deadline = time.monotonic() + 30
+    while not all(entry.checked for entry in bench._staged):
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    used = bench.prerendered_used
+    with StereoCamera(*bench.cameras()) as cameras_:
+        bench.show(BOARD, pose, seed=90)
+        pair = cameras_.capture_pair()
+    assert bench.prerendered_used == used + 1
+    assert wrong and renders.count(("left", 90)) == 2  # for the prediction, then again for the real state
+    image, _ = real_render("left", bench._snapshot(), bench._scene, 0)
+    np.testing.assert_array_equal(pair.left.image, image)

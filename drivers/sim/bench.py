@@ -34,12 +34,15 @@ which only a watcher of an emulator sees (a real controller is read once per gra
 millisecond).
 
 Rendering ahead (:meth:`SimulatedBench.stage`): whoever places the boards may say which scenes come
-next and where the rig will stand for them; once the rig rests there (the emulator idle, the
-ringing stopped dead by friction), the bench renders their first frames in the background, so the
-render (~30 ms a view, longer than an exposure) overlaps the settle and the previous captures
-instead of delaying the next one. A prerendered frame is used only if the scene shown and the
-pair's state at the trigger are exactly those it was rendered for, so it is bit for bit the frame
-a render at the trigger would give; otherwise it is dropped and the frame rendered at the trigger.
+next and where the rig will stand for them. As soon as the emulator has the move there queued, the
+bench predicts the pair's state at rest there (the end of the planned move in whole steps; on a
+bench with motion errors, the history fed that move: its backlash and landing draws, no ringing)
+and renders the scenes' first frames in the background, so the render (~30 ms a view, longer than
+an exposure) overlaps the motion and the settle instead of delaying the captures. Once the rig
+rests there (idle, ringing stopped dead by friction), the prediction is checked against the real
+state and frames rendered for a wrong one are rendered again. A prerendered frame is used only if
+the scene shown and the pair's state at the trigger are exactly those it was rendered for, so it is
+bit for bit the frame a render at the trigger would give; otherwise the frame is rendered there.
 
 The bench knows the truth at every frame: the true camera poses, R and T of the pair
 (X_right = R X_left + T), the board's true pose, scale and bow. ``truth()`` returns it for the
@@ -145,6 +148,7 @@ class _Staged:
     snapshot: _Snapshot | None = None  # the pair's state the frames were rendered for
     frames: dict[str, Future] | None = None
     dropped: bool = False
+    checked: bool = False  # rendered for the state the rig was seen to rest in (not only predicted)
 
 
 def true_lens(camera: CameraModel, high_order: float, prism: tuple[float, float, float, float]) -> CameraModel:
@@ -412,43 +416,80 @@ class SimulatedBench:
             for future in (entry.frames or {}).values():
                 future.cancel()
 
+    @staticmethod
+    def _at_pose(pose: RigPose, at: RigPose) -> bool:
+        return all(abs(getattr(pose, name) - getattr(at, name)) <= REST_TOLERANCE for name in
+                   ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "tilt_left_deg", "tilt_right_deg"))
+
     def _at_rest(self, snapshot: _Snapshot, at: RigPose) -> bool:
         """The rig stands still at ``at`` and rings no more: a frame taken now or later looks the same."""
-        pose = snapshot.pose
-        if any(abs(getattr(pose, name) - getattr(at, name)) > REST_TOLERANCE for name in
-               ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "tilt_left_deg", "tilt_right_deg")):
+        if not self._at_pose(snapshot.pose, at):
             return False
         if snapshot.state is not None and (any(snapshot.state.ringing_deg.values())
                                            or any(snapshot.state.rock_deg.values())):
             return False
         return self.emulator.state == "Idle"
 
+    def _predicted_snapshot(self) -> _Snapshot | None:
+        """The pair at rest where the queued moves end: what a trigger will see there once the ringing stopped."""
+        planned = self.emulator.planned_physical_position()
+        if planned is None:
+            return None
+        values = to_physical(self.rig_config, planned)
+        for quantity, mapping in self.rig_config.quantities.items():
+            if mapping.axis == "fixed":
+                values.setdefault(quantity, float(mapping.value))
+        pose = self._pose_of(values)
+        if self.profile.mechanically_ideal and self.history is None:
+            return _Snapshot(pose=pose, T_rig_cam={"left": pose.T_rig_left, "right": pose.T_rig_right})
+        with self._history_lock:
+            history = copy.deepcopy(self.history)
+        if history is not None:  # the watcher will see the axes arrive there, then stand still
+            history.observe(values, math.inf, idle=False)
+            history.observe(values, math.inf, idle=True)
+        state = pair_state(self.profile, values, history=history, now_s=math.inf)
+        return _Snapshot(pose=pose, T_rig_cam={"left": state.T_bench_left, "right": state.T_bench_right},
+                         state=state)
+
     def _render_ahead(self) -> None:
-        """The thread that renders staged scenes once the rig rests where they will be captured."""
+        """The thread that renders staged scenes for the state the rig will rest in, and checks it once it does."""
         while not self._watch_stop.is_set():
             with self._lock:
-                waiting = [e for e in self._staged if e.frames is None and not e.dropped]
-                rendered = sum(1 for e in self._staged if e.frames is not None)
-                if not waiting or rendered >= self._ahead:
+                entries = [e for e in self._staged if not e.dropped]
+                unchecked = [e for e in entries if e.frames is not None and not e.checked]
+                waiting = [e for e in entries if e.frames is None]
+                render = bool(waiting) and len(entries) - len(waiting) < self._ahead
+                if not unchecked and not render:
                     self._stage_changed.wait(0.1)
                     continue
-                entry = waiting[0]
+                at = (unchecked or waiting)[0].at
             try:
                 snapshot = self._snapshot()
-                at_rest = self._at_rest(snapshot, entry.at)
+                at_rest = self._at_rest(snapshot, at)
+                predicted = self._predicted_snapshot() if render and not at_rest else None
             except Exception:  # noqa: BLE001 - the emulator stopping under the thread ends it
                 if self.emulator is None or not self.emulator.running:
                     return
                 raise
             with self._lock:
-                if entry.dropped or entry not in self._staged:
-                    continue
-                if not at_rest:
+                if at_rest:  # the real state: keep what was rendered for it, render again what was not
+                    for entry in unchecked:
+                        if any(e is entry for e in self._staged) and not _same_view(entry.snapshot, snapshot):
+                            self._drop_staged([entry])
+                            entry.dropped, entry.frames = False, None
+                        entry.checked = True
+                elif predicted is not None and self._at_pose(predicted.pose, at):
+                    snapshot = predicted  # the move there is queued: render for where it will rest
+                else:
                     self._stage_changed.wait(REST_POLL_S)
                     continue
-                entry.snapshot = snapshot
-                entry.frames = {side: self._ahead_pool.submit(self._render_job, side, snapshot, entry.scene, 0)
-                                for side in SIDES}
+                budget = self._ahead - sum(1 for e in self._staged if e.frames is not None and not e.dropped)
+                for entry in [e for e in self._staged if e.frames is None and not e.dropped][:max(0, budget)]:
+                    entry.snapshot, entry.checked = snapshot, at_rest
+                    entry.frames = {side: self._ahead_pool.submit(self._render_job, side, snapshot, entry.scene, 0)
+                                    for side in SIDES}
+                if not at_rest:
+                    self._stage_changed.wait(REST_POLL_S)  # until the rig rests, to check the prediction
 
     def operator_prompt(self, message: str) -> None:
         """Stands in for the operator at a manual step: records the values the rig asked for."""
