@@ -51,6 +51,7 @@ current state; every frame carries it in its metadata (``meta["truth"]``).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 import threading
@@ -225,7 +226,7 @@ class SimulatedBench:
         self._t0 = time.monotonic()  # bring-up's clock (real time) for the truth's time stamps
         self._scene = Scene()
         self._lock = threading.Lock()
-        self._renderers: dict[Target, StereoRenderer] = {}
+        self._renderers: dict[Target, Future] = {}  # a StereoRenderer per target, built once
         self._renderers_lock = threading.Lock()
         self._trigger_time = time.monotonic()
         self._trigger_used: set[str] = set(SIDES)  # the first grab starts a trigger
@@ -647,16 +648,32 @@ class SimulatedBench:
                 "square_true_mm": float(scene.target.square_mm * shape.scale), "placement": scene.placement}
 
     def _renderer(self, target: Target) -> StereoRenderer:
+        # Built outside the lock (~1-2 s): a render of a target whose renderer exists never waits for another's.
         with self._renderers_lock:
-            if target not in self._renderers:
-                self._renderers[target] = StereoRenderer(target, self.left_model, self.right_model,
-                                                         optics=self.optics)
-            return self._renderers[target]
+            built = self._renderers.get(target)
+            if built is None:
+                built = self._renderers[target] = Future()
+                built.set_running_or_notify_cancel()
+                build = True
+            else:
+                build = False
+        if build:
+            try:
+                built.set_result(StereoRenderer(target, self.left_model, self.right_model, optics=self.optics))
+            except BaseException as error:
+                built.set_exception(error)
+                raise
+        return built.result()
 
     def warm_up(self, *targets: Target) -> None:
-        """Build the renderers of ``targets`` in the background (~1-2 s each), e.g. while the rig homes."""
+        """Build the renderers of ``targets`` in the background (~1-2 s each, side by side), e.g. while the rig
+        homes; a failure is raised by the first render that needs the renderer."""
+        def build(target: Target) -> None:
+            with contextlib.suppress(Exception):
+                self._renderer(target)
+
         for target in targets:
-            self._pool.submit(self._renderer, target)
+            threading.Thread(target=build, args=(target,), name="sim-warm-up", daemon=True).start()
 
     def render(self, side: str) -> tuple[np.ndarray, dict]:
         """One frame of the ``side`` camera now, with its ground truth as metadata.
