@@ -236,6 +236,18 @@ def print_threads(cpu_s: dict[str, float], pairs: int) -> None:
                                                        for name, value in cpu_s.items() if value > 0))
 
 
+def timed(spans: Spans, instrument, run):
+    """(run(), wall s, process CPU s, CPU by thread) with ``spans`` instrumented by ``instrument`` meanwhile."""
+    instrument(spans)
+    try:
+        cpu0, started = time.process_time(), time.monotonic()
+        with ThreadCpu() as threads:
+            result = run()
+        return result, time.monotonic() - started, time.process_time() - cpu0, threads
+    finally:
+        spans.restore()
+
+
 def bench_profile(profile: str, keep: Path | None) -> dict:
     config = campaign_from_dict({**CAMPAIGN, "sim": {"profile": profile}})
     plan = CampaignPlan.of(config)
@@ -245,16 +257,8 @@ def bench_profile(profile: str, keep: Path | None) -> dict:
     load_before = list(os.getloadavg())
     try:
         spans = Spans()
-        instrument_campaign(spans)
-        try:
-            cpu0 = time.process_time()
-            started = time.monotonic()
-            with ThreadCpu() as threads:
-                summary = run_campaign(config, session, yes=True, plan=plan)
-            wall_s = time.monotonic() - started
-            cpu_s = time.process_time() - cpu0
-        finally:
-            spans.restore()
+        summary, wall_s, cpu_s, threads = timed(spans, instrument_campaign,
+                                                lambda: run_campaign(config, session, yes=True, plan=plan))
         reader = SessionReader(session)
         pairs = sum(1 for e in reader.events() if e["kind"] in ("calibration_view", "measurement_frame"))
         # Homing as it happened (the estimate assumes a full travel; the emulator starts near home): from
@@ -262,18 +266,9 @@ def bench_profile(profile: str, keep: Path | None) -> dict:
         homing_s = reader.events(kind="home")[0]["monotonic"] - reader.events(kind="transcript")[0]["monotonic"]
         session_mb = sum(p.stat().st_size for p in session.rglob("*") if p.is_file()) / 1e6
         campaign_table = spans.by_label()
-        # The render runs inside the grab: the grab's exclusive time is the exposure the renderer did not fill.
         replay_spans = Spans()
-        instrument_replay(replay_spans)
-        try:
-            replay_cpu0 = time.process_time()
-            started = time.monotonic()
-            with ThreadCpu() as replay_threads:
-                replay = replay_session(session)
-            replay_s = time.monotonic() - started
-            replay_cpu_s = time.process_time() - replay_cpu0
-        finally:
-            replay_spans.restore()
+        replay, replay_s, replay_cpu_s, replay_threads = timed(replay_spans, instrument_replay,
+                                                               lambda: replay_session(session))
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
     hardware_s = homing_s + estimate.motion_s + estimate.settle_s + estimate.capture_s
