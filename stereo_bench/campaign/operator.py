@@ -25,7 +25,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import IO, Protocol, runtime_checkable
 
@@ -128,8 +128,9 @@ class OperatorDesk:
     def __init__(self, operators: Sequence[Operator]):
         self.operators = list(operators)
 
-    def ask(self, prompt: Prompt, *, stop: threading.Event, poll_s: float = 0.05) -> Answer:
-        """Block until an operator answers ``prompt``.
+    def ask(self, prompt: Prompt, *, stop: threading.Event, poll_s: float = 0.05,
+            while_waiting: Callable[[], None] | None = None) -> Answer:
+        """Block until an operator answers ``prompt``; ``while_waiting()`` is called every ``poll_s`` meanwhile.
 
         Raises StopRequested when ``stop`` is set first, OperatorAbsent when no operator can answer.
         """
@@ -144,6 +145,8 @@ class OperatorDesk:
             while not ticket.wait(poll_s):
                 if stop.is_set():
                     raise StopRequested()
+                if while_waiting is not None:
+                    while_waiting()
         finally:
             for operator in self.operators:
                 if operator.name != ticket.answered_by:

@@ -273,10 +273,12 @@ class CampaignRunner:
     def _ask(self, prompt: Prompt) -> Answer:
         """Put an operator step to the operators (first answer wins) and record who did it, and how.
 
-        The cameras are lent to a preview meanwhile: nothing is captured while the operator works.
+        The cameras are lent to a preview meanwhile: nothing is captured while the operator works. Results
+        finished meanwhile are published (the operator sees the last configuration's result while setting
+        up the next).
         """
         with self.bench.camera_gate.lent():
-            answer = self.desk.ask(prompt, stop=self._stop)
+            answer = self.desk.ask(prompt, stop=self._stop, while_waiting=lambda: self._collect(block=False))
         self._publish(Draft(PromptEvent, config_id=prompt.config_id, data={
             "prompt": prompt.kind, "message": prompt.message, "quantity": prompt.quantity, "value": prompt.value,
             "index": prompt.index, "answered_by": answer.operator, "waited_s": answer.waited_s,
