@@ -86,7 +86,7 @@ def draw_detection(image: np.ndarray, detection: Detection | None, other: Detect
     if outline is not None:
         cv2.polylines(image, [np.round(outline * 16).astype(np.int32)], True, CYAN, 2, cv2.LINE_AA, shift=4)
     for (u, v), both in zip(corners, shared, strict=True):
-        cv2.circle(image, (int(round(u * 16)), int(round(v * 16))), 4 * 16, GREEN if both else ORANGE, 2,
+        cv2.circle(image, (int(round(u * 16)), int(round(v * 16))), 5 * 16, GREEN if both else ORANGE, 2,
                    cv2.LINE_AA, shift=4)
 
 

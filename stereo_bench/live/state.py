@@ -184,6 +184,9 @@ class LiveState:
         self._rig_reading(doc, "move")
 
     def _running(self, config_id: str) -> None:
+        previous = self.current
+        if previous is not None and previous != config_id and self.status.get(previous) == "running":
+            self.status[previous] = "analysing"  # captured; its result follows when the analysis is done
         self.current = config_id
         if self.status.get(config_id) == "pending":
             self.status[config_id] = "running"

@@ -122,7 +122,7 @@ function renderCalibration(calibration) {
     };
     const bars = views.map((v, i) => rect(v, i, "left", "#2463eb") + rect(v, i, "right", "#d97706") +
       `<text x="${(i * step + step / 2).toFixed(1)}" y="${height - 1}" text-anchor="middle">${v.index + 1}</text>`).join("");
-    $("per-view").innerHTML = `<div class="per-view"><svg viewBox="0 0 ${width} ${height}" preserveAspectRatio="none">${bars}` +
+    $("per-view").innerHTML = `<div class="per-view"><svg viewBox="0 0 ${width} ${height}">${bars}` +
       `<text x="2" y="9">max ${max.toFixed(3)} px</text><text x="${width - 2}" y="9" text-anchor="end">` +
       `<tspan style="fill:#2463eb">■ left</tspan> <tspan style="fill:#d97706">■ right</tspan></text></svg></div>`;
   }
@@ -159,7 +159,7 @@ function renderPlan(plan) {
   $("eta").textContent = duration(plan.eta_s);
   $("eta-basis").textContent = plan.basis ? `ETA: ${plan.basis}` : "";
   $("step").textContent = plan.step || "";
-  $("configs").innerHTML = plan.configs.map((cfg) => `<span class="cfg ${esc(cfg.status)} ${cfg.config_id === plan.current && cfg.status === "running" ? "running" : ""}" ` +
+  $("configs").innerHTML = plan.configs.map((cfg) => `<span class="cfg ${esc(cfg.status)}" ` +
     `title="${esc(cfg.config_id)}: ${esc(cfg.status)}${cfg.reason ? ` (${esc(cfg.reason)})` : ""}">${esc(cfg.config_id)}</span>`).join("");
 }
 
@@ -202,10 +202,11 @@ function renderPlot(rows, varying) {
   if (y0 === y1) { y0 -= 0.01; y1 += 0.01; }
   const ypad = (y1 - y0) * 0.08; y0 -= ypad; y1 += ypad;
   const sx = (x) => L + (x - x0) / (x1 - x0) * (W - L - R), sy = (y) => T + (y1 - y) / (y1 - y0) * (H - T - B);
-  const ticks = (a, b, n) => { const step = niceStep((b - a) / n); const out = []; for (let v = Math.ceil(a / step) * step; v <= b + 1e-12; v += step) out.push(v); return out; };
+  const ticks = (a, b, n) => { const step = niceStep((b - a) / n); const out = []; for (let v = Math.ceil(a / step) * step; v <= b + 1e-12; v += step) out.push(v); out.step = step; return out; };
+  const yTicks = ticks(y0, y1, 5), xTicks = ticks(x0, x1, 6);
   let svg = `<svg viewBox="0 0 ${W} ${H}" role="img" aria-label="error against ${esc(QUANTITY[xKey][0])}">`;
-  for (const v of ticks(y0, y1, 5)) svg += `<line x1="${L}" x2="${W - R}" y1="${sy(v).toFixed(1)}" y2="${sy(v).toFixed(1)}" stroke="#eceff4"/><text x="${L - 4}" y="${(sy(v) + 4).toFixed(1)}" text-anchor="end">${fmtTick(v)}</text>`;
-  for (const v of ticks(x0, x1, 6)) svg += `<text x="${sx(v).toFixed(1)}" y="${H - B + 14}" text-anchor="middle">${fmtTick(v)}</text>`;
+  for (const v of yTicks) svg += `<line x1="${L}" x2="${W - R}" y1="${sy(v).toFixed(1)}" y2="${sy(v).toFixed(1)}" stroke="#eceff4"/><text x="${L - 4}" y="${(sy(v) + 4).toFixed(1)}" text-anchor="end">${fmtTick(v, yTicks.step)}</text>`;
+  for (const v of xTicks) svg += `<text x="${sx(v).toFixed(1)}" y="${H - B + 14}" text-anchor="middle">${fmtTick(v, xTicks.step)}</text>`;
   svg += `<line x1="${L}" x2="${W - R}" y1="${sy(0).toFixed(1)}" y2="${sy(0).toFixed(1)}" stroke="#6b7385" stroke-dasharray="4 3"/>`;
   svg += `<text x="${(L + W - R) / 2}" y="${H - 6}" text-anchor="middle">${QUANTITY[xKey][0]} (${QUANTITY[xKey][1]})</text>`;
   svg += `<text transform="translate(12 ${(T + H - B) / 2}) rotate(-90)" text-anchor="middle">error (mm) ± ${rows.some((r) => r.U_expanded_mm !== undefined) ? "U" : "2σ"}</text>`;
@@ -220,12 +221,16 @@ function renderPlot(rows, varying) {
       svg += `<line x1="${x}" x2="${x}" y1="${sy(r.error_mm - u).toFixed(1)}" y2="${sy(r.error_mm + u).toFixed(1)}" stroke="${colour}"/>` +
         `<circle cx="${x}" cy="${sy(r.error_mm).toFixed(1)}" r="3.5" fill="${colour}"><title>${esc(r.config_id)}: ${r.error_mm.toFixed(4)} mm</title></circle>`;
     }
-    if (seriesKey) svg += `<text x="${W - R - 4}" y="${T + 12 + 13 * i}" text-anchor="end" fill="${colour}" style="fill:${colour}">${QUANTITY[seriesKey][0]} = ${fmtTick(key)} ${QUANTITY[seriesKey][1]}</text>`;
+    if (seriesKey) svg += `<text x="${W - R - 4}" y="${T + 12 + 13 * i}" text-anchor="end" fill="${colour}" style="fill:${colour}">${QUANTITY[seriesKey][0]} = ${fmtTick(key, 1)} ${QUANTITY[seriesKey][1]}</text>`;
   });
   box.innerHTML = svg + "</svg>";
 }
 function niceStep(raw) { const p = Math.pow(10, Math.floor(Math.log10(raw || 1))); const f = raw / p; return (f < 1.5 ? 1 : f < 3 ? 2 : f < 7 ? 5 : 10) * p; }
-function fmtTick(v) { const a = Math.abs(v); return a >= 100 ? v.toFixed(0) : a >= 1 ? v.toFixed(1) : a === 0 ? "0" : v.toPrecision(2); }
+function fmtTick(v, step) {
+  if (Math.abs(v) < 1e-12) return "0";
+  const decimals = step ? Math.max(0, -Math.floor(Math.log10(step) + 1e-9)) : (Math.abs(v) >= 10 ? 0 : 2);
+  return v.toFixed(Math.min(decimals, 6));
+}
 
 function renderLog(log) {
   $("log").innerHTML = log.map((e) => `<li class="${esc(e.level)}">${new Date(e.time * 1000).toLocaleTimeString()} ${esc(e.text)}</li>`).join("");
