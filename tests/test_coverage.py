@@ -82,3 +82,23 @@ def test_no_views_no_progress_and_occupancy_clips_to_the_image():
     assert all(bar.progress == 0.0 for bar in coverage_bars([]))
     grid = occupancy([np.array([[-5.0, -5.0], [1919.9, 1079.9], [5000.0, 10.0]])], SIZE, cells=4)
     assert grid[0, 0] == 1 and grid[3, 3] == 1 and grid[0, 3] == 1 and grid.sum() == 3
+
+
+def test_the_bench_presenter_offers_capture_and_discard_and_its_coverage_forgets_a_discarded_view():
+    from stereo_bench.campaign.operator import CAPTURE_NOW, CONTINUE, DISCARD_LAST_VIEW
+    from stereo_bench.campaign.presenters import OperatorPresenter
+
+    presenter = OperatorPresenter(image_size=SIZE, target_description="9x6 board", calibration_board=BOARD)
+    presenter.prepare_calibration(3)
+    assert presenter.present_calibration_view(0).actions == (CONTINUE, CAPTURE_NOW)  # nothing to discard yet
+    detection = SimpleNamespace(corners_px=project([0, 0, 0], centred_tvec(600)), ids=np.arange(54))
+    presenter.calibration_view_captured(0, detection, detection)
+    second = presenter.present_calibration_view(1)
+    assert DISCARD_LAST_VIEW in second.actions and "d + Enter" in second.message
+    size = view_parameters(detection.corners_px, detection.ids, BOARD, SIZE).size
+    # One square-on view in the middle: no X/Y span, no skew, size counted from 0 (ROS range 0.4).
+    assert f"left X 0% Y 0% size {min(size / 0.4, 1):.0%} skew 0%" in second.message
+    presenter.calibration_view_discarded(0)
+    assert presenter.coverage.occupancy("left").sum() == 0
+    review = presenter.review_calibration()
+    assert review.kind == "calibration_review" and review.actions == (CONTINUE, DISCARD_LAST_VIEW)

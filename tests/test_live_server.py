@@ -210,3 +210,25 @@ def test_server_sent_events_and_a_second_tab_see_the_same_state_and_leaving_chan
         assert page.url.startswith(f"http://127.0.0.1:{page.server.port}/?token=")
     finally:
         page.stop()
+
+
+def test_a_resumed_campaign_shows_the_plan_and_the_results_recorded_before(tmp_path):
+    from stereo_bench.campaign.documents import MoveEvent
+    from stereo_bench.campaign.execute import run_campaign
+    from stereo_bench.live.state import LiveState
+
+    out, control = tmp_path / "resumed", RunControl()
+
+    def stop_at_second_move(document):
+        if isinstance(document, MoveEvent) and document.config_id != "B100_Z450_A90":
+            control.request_stop()
+
+    assert run_campaign(small_config(), out, yes=True, control=control,
+                        subscribers=[stop_at_second_move]).exit_status == "interrupted"
+    before = {row["config_id"] for row in SessionReader(out).results()}
+    state = LiveState(session_dir=out)
+    assert run_campaign(small_config(), out, resume=True, yes=True, subscribers=[state]).exit_status == "success"
+    snapshot = state.snapshot()
+    assert snapshot["run"]["attempt"] == 2 and snapshot["plan"]["counts"]["remaining"] == 0
+    assert before <= {row["config_id"] for row in snapshot["results"]} and len(snapshot["results"]) == 4
+    assert any("resumed (attempt 2)" in entry["text"] for entry in snapshot["log"])

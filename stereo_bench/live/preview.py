@@ -12,8 +12,9 @@ Two sources, never the capture path:
 One worker thread does everything slow (detection, drawing, JPEG), and only while a browser is
 connected; a frame that arrives while it is busy replaces the one waiting (dropped, never queued),
 and the browser fetches the newest JPEG when it is ready for one, so a slow browser only sees fewer
-frames. Coverage detections (full resolution, the same ``detect`` the analysis uses) run on the
-same thread whether or not a browser watches, so the coverage is complete when one connects.
+frames. Coverage detections (the same ``detect`` the analysis uses, on the preview-sized image)
+run on the same thread whether or not a browser watches, so the coverage is complete when one
+connects; a view's preview reuses them.
 
 Drawn: every detected corner (green where the same corner is also found in the other view, orange
 where only this camera sees it) and the board's outline (the quadrilateral of its outer corners, or
@@ -64,13 +65,23 @@ class Encoded:
     meta: dict
 
 
-def _small(image: np.ndarray, width: int = PREVIEW_WIDTH_PX) -> tuple[np.ndarray, float]:
+def _small(image: np.ndarray, width: int = PREVIEW_WIDTH_PX, *, gray: bool = False) -> tuple[np.ndarray, float]:
+    """``image`` downscaled to ``width`` (BGR for drawing, or as given with ``gray``) and the scale applied."""
     scale = min(1.0, width / image.shape[1])
     if scale < 1.0:
         image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    if image.ndim == 2:
+    if image.ndim == 2 and not gray:
         image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
     return image, scale
+
+
+def _full_resolution(detection: Detection | None, scale: float, image: np.ndarray | None = None) -> Detection | None:
+    """A detection made on an image downscaled by ``scale``, in the full-resolution image's pixels."""
+    if detection is None or scale == 1.0:
+        return detection
+    size = detection.image_size if image is None else (image.shape[1], image.shape[0])
+    return Detection(ids=detection.ids, corners_px=(detection.corners_px + 0.5) / scale - 0.5, image_size=size,
+                     order=detection.order)
 
 
 def draw_detection(image: np.ndarray, detection: Detection | None, other: Detection | None, board: Target | None,
@@ -216,9 +227,13 @@ class Previews:
         return Pair(left=left, right=right, dt_s=dt_s, source="live", label="live", board=None)
 
     def _coverage(self, config_id: str, index: int, pair: Pair) -> None:
+        # Detected at preview resolution (corners ~0.2 px at full resolution: plenty for a 20 x 20 map and
+        # ROS's parameters) and shared with the pair's preview: one detection per view and camera.
         board = self.boards["calibration"]
-        detections = {side: _detect_or_none(image, board) for side, image in (("left", pair.left),
-                                                                               ("right", pair.right))}
+        detections = {}
+        for side, image in (("left", pair.left), ("right", pair.right)):
+            small, scale = _small(_grey(image), gray=True)
+            detections[side] = _full_resolution(_detect_or_none(small, board), scale, image)
         pair.detections = detections
         self.stats["coverage_views"] += 1
         if self.on_views is not None:  # the pair's preview, if still waiting, reuses these detections
@@ -235,13 +250,8 @@ class Previews:
             board = self.boards.get(name)
             if board is None:
                 continue
-            found = {}
-            for side in ("left", "right"):
-                detection = _detect_or_none(smalls[side], board)
-                if detection is not None:  # back to full-resolution pixels, as a full-resolution detection
-                    detection = Detection(ids=detection.ids, corners_px=(detection.corners_px + 0.5) / scales[side]
-                                          - 0.5, image_size=detection.image_size, order=detection.order)
-                found[side] = detection
+            found = {side: _full_resolution(_detect_or_none(smalls[side], board), scales[side])
+                     for side in ("left", "right")}
             if any(d is not None for d in found.values()):
                 if pair.board is None:
                     self.expect_board = name
