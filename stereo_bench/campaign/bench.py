@@ -148,8 +148,21 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
         raise
     return Bench(kind="bring-up" if bring_up else "simulated", rig=rig, cameras=cameras, presenter=presenter,
                  operators=list(operators), clock=Clock(1.0 if bring_up else config.rig.time_scale),
-                 homes=config.rig.homing, preview=lambda: (sim.preview("left"), sim.preview("right"), 0.0),
-                 _stack=stack)
+                 homes=config.rig.homing, preview=_simulated_preview(sim, stack), _stack=stack)
+
+
+def _simulated_preview(sim, stack: contextlib.ExitStack) -> Callable[[], tuple[np.ndarray, np.ndarray, float]]:
+    """Both simulated views of the scene now, rendered side by side (a pair in the time of one view)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-preview")
+    stack.callback(pool.shutdown)
+
+    def preview() -> tuple[np.ndarray, np.ndarray, float]:
+        right = pool.submit(sim.preview, "right")
+        return sim.preview("left"), right.result(), 0.0  # one trigger: no skew
+
+    return preview
 
 
 class SimulatedPresenter:

@@ -6,7 +6,7 @@ Routes (everything the page needs ships in the package: no CDN, works offline):
 ``GET /``                 the page (``static/index.html``)
 ``GET /static/NAME``      its script and style (a fixed list, read from the package at start)
 ``GET /api/state``        the state as JSON (:meth:`LiveState.snapshot`)
-``GET /api/events``       Server-Sent Events: the state, each time it changes (at most 10 a second)
+``GET /api/events``       Server-Sent Events: the state, each time it changes (at most 5 a second)
 ``GET /preview/SIDE.jpg`` the newest preview of ``left`` or ``right``
 ``GET /session/PATH``     a file of the session directory (refused outside it, symlinks included)
 ``POST /api/control/ACT`` continue, capture_now, discard_last_view, pause, resume, stop: needs the token
@@ -30,7 +30,7 @@ from pathlib import Path
 STATIC_FILES = {"index.html": "text/html; charset=utf-8", "live.js": "text/javascript; charset=utf-8",
                 "live.css": "text/css; charset=utf-8"}
 CONTROL_ACTIONS = ("continue", "capture_now", "discard_last_view", "pause", "resume", "stop")
-MAX_UPDATES_PER_S = 10.0
+MAX_UPDATES_PER_S = 5.0
 KEEPALIVE_S = 15.0
 
 
