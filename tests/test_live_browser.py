@@ -17,6 +17,7 @@ import shutil
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -24,7 +25,7 @@ import pytest
 from stereo_bench.campaign.config import campaign_from_dict
 from stereo_bench.campaign.execute import run_campaign
 from stereo_bench.campaign.session import SessionReader
-from tests.campaigns import numbers
+from tests.campaigns import SMALL, numbers
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 playwright = pytest.importorskip("playwright.sync_api", reason="Playwright is not installed")
@@ -35,29 +36,8 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-backg
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
 SCREENSHOT = os.environ.get("STEREO_BENCH_LIVE_SCREENSHOT")  # a path: keep a screenshot of the page mid-campaign
 
-# Two target distances, so the operator is asked twice; half-resolution cameras, a fast simulated rig.
-PLAN = """
-name = "live-page"
-seed = 5
-[rig]
-time_scale = 50
-[cameras.optics]
-width_px = 960
-height_px = 540
-pixel_um = 6.0
-[calibration_board]
-cols = 9
-rows = 6
-square_mm = 25
-[capture]
-calibration_views = 6
-frames_per_config = 2
-settle_s = 0.1
-[plan]
-baseline_mm = [100, 150]
-distance_mm = [400, 450]
-alpha_deg = [90]
-"""
+# The small campaign at two target distances, so that the operator is asked twice.
+PLAN = SMALL.split("[plan]")[0] + "[plan]\nbaseline_mm = [100, 150]\ndistance_mm = [400, 450]\nalpha_deg = [90]\n"
 
 
 def launch(plan: Path, out: Path) -> tuple[subprocess.Popen, str]:
@@ -159,7 +139,7 @@ def test_a_campaign_followed_and_steered_from_the_live_page(tmp_path):
     assert "B100_Z400_A90" in done and len(done) < 4
 
     # Resume it (no page) to the end; a run that never had a page records the same numbers.
-    config = campaign_from_dict(__import__("tomllib").loads(PLAN))
+    config = campaign_from_dict(tomllib.loads(PLAN))
     assert run_campaign(config, out, resume=True, yes=True).exit_status == "success"
     reference = tmp_path / "reference"
     assert run_campaign(config, reference, yes=True).exit_status == "success"
