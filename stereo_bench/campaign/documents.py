@@ -272,7 +272,8 @@ class TranscriptData(BaseModel):
     name: str
 
 
-PromptKind = Literal["target", "manual", "calibration_board", "calibration_view", "measured_target"]
+PromptKind = Literal["target", "manual", "calibration_board", "calibration_view", "calibration_review",
+                     "measured_target"]
 
 
 class PromptData(BaseModel):
@@ -286,6 +287,24 @@ class PromptData(BaseModel):
     index: int | None = Field(None, description="calibration views and measured frames: which one")
     answered_by: str = Field(description="the operator that answered: terminal, simulator, web, ...")
     waited_s: float = Field(ge=0, description="seconds between the question and the answer")
+    action: str | None = Field(None, description="how it was answered when not plainly (Enter / Continue): "
+                                                 "capture_now, discard_last_view")
+
+
+class ViewDiscardedData(BaseModel):
+    """The operator dropped a kept calibration view; the next view of the same ``index`` replaces it."""
+
+    model_config = _STRICT
+    index: int = Field(ge=0, description="the calibration view dropped (its frames stay recorded)")
+    answered_by: str = Field(description="the operator that asked for it")
+
+
+class RunControlData(BaseModel):
+    """The run was paused or resumed from outside (a live page, a test)."""
+
+    model_config = _STRICT
+    action: Literal["pause", "resume"]
+    feed_hold: bool = Field(False, description="pause: a move in progress was feed-held (and resumed after)")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -404,6 +423,16 @@ class PromptEvent(EventDocument):
     data: PromptData
 
 
+class CalibrationViewDiscardedEvent(EventDocument):
+    kind: Literal["calibration_view_discarded"] = "calibration_view_discarded"
+    data: ViewDiscardedData
+
+
+class RunControlEvent(EventDocument):
+    kind: Literal["run_control"] = "run_control"
+    data: RunControlData
+
+
 class ResultDocument(Document):
     type: Literal["result"] = "result"
     config_id: str
@@ -424,7 +453,7 @@ EVENT_MODELS: dict[str, type[EventDocument]] = {
     model.model_fields["kind"].default: model
     for model in (HomeEvent, MoveEvent, RigRecoveredEvent, RigUnrecoverableEvent, CalibrationViewEvent,
                   MeasurementFrameEvent, TargetNotFoundEvent, CalibrationEvent, AnalysisEvent, TranscriptEvent,
-                  PromptEvent)
+                  PromptEvent, CalibrationViewDiscardedEvent, RunControlEvent)
 }
 DOCUMENT_MODELS: dict[str, type[Document]] = {
     "start": StartDocument, "resume": ResumeDocument, "event": EventDocument, "result": ResultDocument,
@@ -452,7 +481,9 @@ AnyDocument = Annotated[
     | Annotated[MeasurementFrameEvent, Tag("event:measurement_frame")]
     | Annotated[TargetNotFoundEvent, Tag("event:target_not_found")]
     | Annotated[CalibrationEvent, Tag("event:calibration")] | Annotated[AnalysisEvent, Tag("event:analysis")]
-    | Annotated[TranscriptEvent, Tag("event:transcript")] | Annotated[PromptEvent, Tag("event:prompt")],
+    | Annotated[TranscriptEvent, Tag("event:transcript")] | Annotated[PromptEvent, Tag("event:prompt")]
+    | Annotated[CalibrationViewDiscardedEvent, Tag("event:calibration_view_discarded")]
+    | Annotated[RunControlEvent, Tag("event:run_control")],
     Discriminator(_tag),
 ]
 _ADAPTER: TypeAdapter = TypeAdapter(AnyDocument)
@@ -578,9 +609,9 @@ def event_draft(kind: str, *, config_id: str | None = None, data: Any = None, **
 __all__ = [
     "COMPARED_COLUMNS", "DOCUMENT_MODELS", "DOCUMENT_TYPES", "EVENT_MODELS", "EXIT_STATUSES",
     "READABLE_SCHEMA_VERSIONS", "REPORT_COLUMNS", "RESULT_COLUMNS", "SCHEMA_VERSION", "AnalysisEvent",
-    "CalibrationEvent", "CalibrationFiles", "CalibrationViewEvent", "Document", "DocumentError", "Draft",
-    "EventDocument", "HomeEvent", "MeasurementFrameEvent", "MoveEvent", "PromptEvent", "ResultDocument", "ResultRow",
-    "ResumeDocument", "StartDocument", "StopDocument", "TargetNotFoundEvent", "TranscriptEvent", "document_json",
-    "columns_of", "column", "document_json_schema", "event_draft", "json_safe", "nested", "parse_document",
-    "result_row",
+    "CalibrationEvent", "CalibrationFiles", "CalibrationViewDiscardedEvent", "CalibrationViewEvent", "Document",
+    "DocumentError", "Draft", "EventDocument", "HomeEvent", "MeasurementFrameEvent", "MoveEvent", "PromptEvent",
+    "ResultDocument", "ResultRow", "ResumeDocument", "RunControlEvent", "StartDocument", "StopDocument",
+    "TargetNotFoundEvent", "TranscriptEvent", "document_json", "columns_of", "column", "document_json_schema",
+    "event_draft", "json_safe", "nested", "parse_document", "result_row",
 ]

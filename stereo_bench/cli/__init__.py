@@ -22,6 +22,7 @@ COMMAND_MODULES = (
     "stereo_bench.cli.replay",
     "stereo_bench.cli.session",
     "stereo_bench.cli.report",
+    "stereo_bench.cli.live",
 )
 
 EXIT_USAGE = 2

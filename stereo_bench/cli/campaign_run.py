@@ -3,6 +3,8 @@
 Stopping: Ctrl-C or SIGTERM (what systemd and ``docker stop`` send) feed-holds the rig and stops at
 the next safe point, recording a 'stop' document and leaving the session resumable; a second one
 stops at once, still recording "interrupted" and printing the command that resumes.
+
+``--ui`` serves the live page (``stereo_bench/live``) for the run's duration and prints its URL.
 """
 
 from __future__ import annotations
@@ -91,6 +93,37 @@ class Progress:
         self.bar.close()
 
 
+def start_live_page(config, *, session_dir: Path | None, host: str, port: int, control=None, write=None):
+    """Start the live page (``--ui``); print its URL (and a warning when it is exposed beyond this machine)."""
+    from stereo_bench.live.page import LivePage
+    from stereo_bench.live.server import LiveServerError
+
+    write = write or (lambda text: print(text, file=sys.stderr, flush=True))
+    page = LivePage.for_campaign(config, session_dir=session_dir, host=host, port=port, control=control)
+    try:
+        page.start()
+    except LiveServerError as error:
+        page.previews.stop()
+        raise CliError(str(error)) from None
+    if page.exposed:
+        write(f"warning: the live page listens on {host}, beyond this machine: anyone on that network can watch; "
+              "only the URL's token can control the run")
+    write(f"live page: {page.url}")
+    return page
+
+
+def add_ui_options(parser: argparse.ArgumentParser, *, required: bool = False) -> None:
+    if not required:
+        parser.add_argument("--ui", action="store_true",
+                            help="serve the live page (cameras, coverage, rig, plan, results, prompts and controls) "
+                                 "while the campaign runs; prints its URL")
+    parser.add_argument("--ui-host", default="127.0.0.1", metavar="HOST",
+                        help="address the live page listens on (default 127.0.0.1: this machine only; 0.0.0.0 "
+                             "exposes it on the lab network, with a warning)")
+    parser.add_argument("--ui-port", type=int, default=8765, metavar="PORT",
+                        help="port of the live page (default 8765; 0 picks a free one)")
+
+
 def _resume_command(args: argparse.Namespace, out: Path) -> str:
     source = args.plan if args.plan else f"--preset {args.preset}"
     # The rest must render on the bench the first part did.
@@ -101,7 +134,13 @@ def _resume_command(args: argparse.Namespace, out: Path) -> str:
 def cmd_run(args: argparse.Namespace) -> int:
     from drivers.camera.base import CameraError
     from drivers.rig.config import RigError
-    from stereo_bench.campaign.execute import CampaignPlan, OperatorAbsent, RunControl, run_campaign
+    from stereo_bench.campaign.execute import (
+        CampaignPlan,
+        OperatorAbsent,
+        RunControl,
+        default_operators,
+        run_campaign,
+    )
     from stereo_bench.campaign.session import SessionError
     from stereo_bench.campaign.stream import JsonLines
 
@@ -116,6 +155,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     progress = Progress(len(plan.configurations), config.name, quiet=args.quiet)
     subscribers = [progress] + ([JsonLines(sys.stdout)] if args.json else [])
     control = RunControl()
+    operators, frame_subscribers, page = None, [], None
+    if args.ui:
+        page = start_live_page(config, session_dir=out, host=args.ui_host, port=args.ui_port, control=control,
+                               write=progress.write)
+        operators = default_operators(config, yes=args.yes) + [page.operator]  # the first answer wins
+        subscribers.append(page.state)
+        frame_subscribers.append(page.previews.captured)
     signals = {"count": 0}
 
     def on_signal(signum, frame) -> None:
@@ -132,7 +178,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     started = time.monotonic()
     try:
         summary = run_campaign(config, out, resume=args.resume, yes=args.yes, subscribers=subscribers,
-                               control=control, plan=plan, resume_command=resume_command)
+                               control=control, plan=plan, resume_command=resume_command, operators=operators,
+                               frame_subscribers=frame_subscribers)
         signals["finished"] = True
         progress.close()
         return _summarise(args, summary, out, resume_command, time.monotonic() - started)
@@ -144,6 +191,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         progress.close()
+        if page is not None:
+            if page.previews.watched:
+                time.sleep(0.5)  # let the browsers get the final state before the page goes away
+            page.stop()
 
 
 def _summarise(args: argparse.Namespace, summary, out: Path, resume_command: str, elapsed: float) -> int:
@@ -188,4 +239,5 @@ def register_run(subparsers) -> None:
                      help="print every document (start, events, results, stop) as one JSON line on stdout, as it "
                           "is recorded; the summary goes to stderr")
     run.add_argument("--quiet", action="store_true", help="no progress bar or per-configuration lines")
+    add_ui_options(run)
     run.set_defaults(func=cmd_run)
