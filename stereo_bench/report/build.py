@@ -272,7 +272,8 @@ def _error_figures(writer: _Writer, session: SessionReport) -> list[ImageRef]:
     refs = []
     for figure, tag, text, group, x_key, series_keys in _layouts(session.rows):
         title = f"{_FIGURE_TITLES[figure]}: {session.name}" + (f", {text}" if text else "")
-        rows = [row for row in session.rows if _in_group(row, group)]
+        keep = _in_group if figure != "fig11" else _in_alpha_sweep(session.rows)
+        rows = [row for row in session.rows if keep(row, group)]
         refs.append(writer.figure(
             f"figures/{session.key}_{_figure_name(figure, tag)}.png",
             figures.error_figure(rows, predictions, x_key=x_key, series_keys=series_keys, title=title,

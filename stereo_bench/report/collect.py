@@ -360,6 +360,10 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
             put("calibrated", stereo_structure(calib.R, calib.T), "calibration file")
     if out.mode == "per-config":
         put("used", out.extrinsics["calibrated"], out.origin.get("calibrated", ""))
+    # What the measurement used is, by its mode, that source's extrinsics (and the other way round).
+    source_of_mode = {"per-config": "calibrated", "kinematic": "kinematic"}.get(out.mode or "")
+    if source_of_mode:
+        put(source_of_mode, out.extrinsics["used"], out.origin.get("used", ""))
     baseline, alpha = _finite(row.get("baseline_mm")), _finite(row.get("alpha_deg"))
     if baseline is not None and baseline > 0 and alpha is not None:
         tilt = _finite(row.get("tilt_deg")) or 0.0

@@ -30,6 +30,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from matplotlib.ticker import FuncFormatter, NullLocator
 
 from stereo_bench.report.tables import NOT_RUN, format_value, is_partial
 from stereo_bench.report.tables import finite_number as _finite
@@ -279,8 +280,14 @@ def coverage(values: Sequence[float | None], k: float = 2.0) -> tuple[int, float
 
 
 def normalised_figure(points: Sequence[NormalisedPoint], *, title: str, k: float = 2.0) -> Figure:
-    """error / u_c per configuration with the ±k band: inside it, |error| <= U."""
-    figure = _new_figure(max(8.0, 0.32 * len(points) + 3.5), 4.4)
+    """error / u_c per configuration with the ±k band: inside it, |error| <= U.
+
+    Filled circles: against the nominal square; hollow diamonds: against the true square (simulated
+    benches). A configuration whose budget has unknown components is marked ``*`` on the x axis: its
+    u_c leaves them out, so its |error| / u_c is an upper bound. Beyond ±(k + 1) the axis is
+    logarithmic (nominal extrinsics can miss by hundreds of u_c), linear inside.
+    """
+    figure = _new_figure(max(9.5, 0.3 * len(points) + 3.0), 5.2)
     ax = figure.add_subplot()
     x = np.arange(len(points))
     ax.axhspan(-k, k, color="#2e7d32", alpha=0.10, linewidth=0)
@@ -289,37 +296,45 @@ def normalised_figure(points: Sequence[NormalisedPoint], *, title: str, k: float
     for level in (-1.0, 1.0):
         ax.axhline(level, color="#2e7d32", linewidth=0.6, linestyle=":")
     ax.axhline(0.0, color="black", linewidth=0.6)
-    nominal = np.array([np.nan if p.nominal is None else p.nominal for p in points], float)
-    true = np.array([np.nan if p.true is None else p.true for p in points], float)
-    complete = np.array([p.complete for p in points], bool)
     handles = [Line2D([], [], color="#2e7d32", linewidth=6, alpha=0.25, label=f"±{k:g}: |error| ≤ U")]
-    for values, marker, face, what in ((nominal, "o", "C0", "against the nominal square"),
-                                       (true, "D", "white", "against the true square (simulator)")):
+    finite: list[float] = []
+    for attribute, marker, face, size, what in (("nominal", "o", "C0", 6, "against the nominal square"),
+                                                ("true", "D", "none", 9, "against the true square (simulated)")):
+        values = np.array([np.nan if (v := getattr(p, attribute)) is None else v for p in points], float)
         if not np.isfinite(values).any():
             continue
+        finite += list(np.abs(values[np.isfinite(values)]))
         n, rms, share = coverage(list(values[np.isfinite(values)]), k)
-        label = f"(measured − square) / u_c {what}: RMS {rms:.2f}, {share:.0%} within ±{k:g} (n {n})"
-        ax.plot(x[complete], values[complete], marker, color="C0", markerfacecolor=face, linestyle="none")
-        if (~complete).any():
-            ax.plot(x[~complete], values[~complete], marker, color="C1", markerfacecolor=face, linestyle="none")
-        handles.append(Line2D([], [], color="C0", marker=marker, markerfacecolor=face, linestyle="none", label=label))
-    if (~complete).any():
-        handles.append(Line2D([], [], color="C1", marker="o", linestyle="none",
-                              label="u_c leaves out unknown components"))
-    finite = np.abs(np.concatenate([nominal[np.isfinite(nominal)], true[np.isfinite(true)]]))
-    if len(finite) and finite.max() > 3 * k:
-        ax.set_yscale("symlog", linthresh=k + 1)  # linear inside the band, logarithmic beyond
-    ax.set_ylim(*(lambda m: (-m, m))(max(k + 1.0, 1.15 * float(finite.max()) if len(finite) else 0.0)))
-    if not len(finite):
+        ax.plot(x, values, marker, color="C0" if attribute == "nominal" else "black", markerfacecolor=face,
+                markersize=size, linestyle="none")
+        handles.append(Line2D([], [], color="C0" if attribute == "nominal" else "black", marker=marker,
+                              markerfacecolor=face, linestyle="none",
+                              label=f"{what}: RMS {rms:.2f}, {share:.0%} within ±{k:g} (n {n})"))
+    incomplete = any(not p.complete for p in points)
+    if incomplete:
+        handles.append(Line2D([], [], linestyle="none", label="*: u_c leaves out unknown components"))
+    largest = max(finite) if finite else 0.0
+    if largest > k + 1.0:
+        ax.set_yscale("symlog", linthresh=k + 1.0, linscale=2.0)  # linear inside the band, logarithmic beyond
+        limit = 10 ** math.ceil(math.log10(largest * 1.2))
+        ticks = [0.0, 1.0, k] + [10.0**e for e in range(1, int(round(math.log10(limit))) + 1)]
+        ax.set_yticks(sorted({*ticks, *(-v for v in ticks)}))
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.yaxis.set_minor_locator(NullLocator())
+        ax.set_ylim(-limit, limit)
+    else:
+        ax.set_ylim(-(k + 1.0), k + 1.0)
+    if not finite:
         ax.text(0.5, 0.5, "no configuration with a measurement and an uncertainty budget", transform=ax.transAxes,
                 ha="center", va="center", color="#c62828")
     ax.set_xticks(x)
-    ax.set_xticklabels([p.label for p in points], rotation=70, fontsize=7, ha="right")
+    ax.set_xticklabels([p.label + ("*" if not p.complete else "") for p in points], rotation=70,
+                       fontsize=7 if len(points) > 12 else 8, ha="right")
     ax.set_xlim(-0.6, len(points) - 0.4)
-    ax.set_ylabel("error / u_c")
+    ax.set_ylabel("(measured − square) / u_c")
     ax.set_title(title, fontsize=11)
     ax.grid(True, alpha=0.3, axis="y")
-    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    figure.legend(handles=handles, fontsize=8, loc="outside lower center", ncols=2)
     return figure
 
 

@@ -159,7 +159,8 @@ def _table_html(table: Table, csv_path: str, session_key: str, error_csv: str = 
     if noise_only:
         below.append("“(σ noise)”: no uncertainty budget recorded, ± the σ propagated from image noise only")
     links = f'<a class="csv" href="{_e(csv_path)}">CSV</a>' + (
-        f' · <a class="csv" href="{_e(error_csv)}">CSV of error ± U</a>' if error_csv else "")
+        f' · <a class="csv" href="{_e(error_csv)}">CSV of error ± {"U" if table.has_uncertainty() else "σ"}</a>'
+        if error_csv else "")
     return (f"<h4>{_e(table.title)}</h4><table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody>"
             f'</table><p class="small muted">{_e(counts)} · cell: measured square (mm), below it '
             f'{_e("; ".join(below) or "the error (mm)")}; {_e(PARTIAL_MARK)} measured on a partial view · {links}</p>')
