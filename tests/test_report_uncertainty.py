@@ -18,6 +18,7 @@ from report_sessions import (
     SQUARE_TRUE_MM,
     SQUARES_RECORDED,
     SWEEP,
+    TARGET_PRINT_U_MM,
     expected,
     write_structured_session,
 )
@@ -67,25 +68,34 @@ def test_the_structure_is_read_from_its_event_then_the_row_then_the_truth():
     row_ = {"config_id": e.config_id, "baseline_mm": 100.0, "alpha_deg": 80.0, "tilt_deg": 0.0, "status": "measured",
             "square_mean_mm": 27.01, "extrinsics_mode": "kinematic", "baseline_used_mm": 96.2,
             "alpha_left_used_deg": 79.5, "alpha_right_used_deg": 80.2, "square_true_mm": 27.02}
-    truth = {"kind": "truth", "data": {"structure": e.truth, "target": {"square_true_mm": 99.0}}}
+    truth = {"kind": "truth", "data": {"structure": e.truth, "target": {"kind": "target", "square_true_mm": 99.0}}}
     out = structure_of(row_, [truth])
     assert out.mode == "kinematic" and out.mode_origin == "result row"
     assert out.extrinsics["used"] == {"baseline_mm": 96.2, "alpha_left_deg": 79.5, "alpha_right_deg": 80.2,
                                       "rotation_deg": None}
+    assert out.extrinsics["kinematic"] == out.extrinsics["used"]  # the kinematic mode used the kinematic prediction
     assert out.extrinsics["truth"] == e.truth and out.origin["truth"] == "truth event"
     assert out.square_true_mm == 27.02  # the row's column comes before the truth event's
     # the nominal structure of the commanded B and alpha: B, alpha and a rotation of twice the toe-in
     assert out.extrinsics["nominal"] == pytest.approx({"baseline_mm": 100.0, "alpha_left_deg": 80.0,
                                                        "alpha_right_deg": 80.0, "rotation_deg": 20.0})
-    assert out.squares_mm == {"kinematic": 27.01}
-    assert out.extrinsics["calibrated"] is None
-    assert out.extrinsics["kinematic"] == out.extrinsics["used"]  # the kinematic mode used the kinematic prediction
-    # the structure event wins over the row, and brings the square per source
-    event = {"kind": "structure", "data": {"extrinsics": {"used": {"baseline_mm": 96.0}, "kinematic": e.truth},
-                                           "square_mm": {"per_config": 27.03, "nominal": 28.1}}}
+    assert out.squares_mm == {"kinematic": 27.01} and out.extrinsics["calibrated"] is None
+    # the structure event wins over the row and the truth event, and brings each source's square and budget
+    event = {"kind": "structure", "data": {
+        "mode": "kinematic", "used": "kinematic", "truth": {"structure": e.structures["calibrated"]},
+        "sources": {"kinematic": {"structure": e.structures["kinematic"], "square_mean_mm": 27.0123,
+                                  "structure_sigma": {"baseline_mm": 0.02}, "uncertainty": {"combined": 0.002}},
+                    "nominal": {"structure": e.nominal, "square_mean_mm": 28.1, "note": "tolerances only",
+                                "uncertainty": {"noise": 0.001, "calibration": None, "structure": 0.3,
+                                                "target": 0.001, "combined": 0.3, "k": 2.0}}}}}
     out = structure_of(row_, [truth, event])
-    assert out.extrinsics["used"]["baseline_mm"] == 96.0 and out.extrinsics["kinematic"] == e.truth
-    assert out.squares_mm == {"per-config": 27.03, "nominal": 28.1, "kinematic": 27.01}
+    assert out.extrinsics["used"] == e.structures["kinematic"] == out.extrinsics["kinematic"]
+    assert out.extrinsics["truth"] == e.structures["calibrated"] and out.origin["truth"] == "structure event"
+    assert out.sigma["used"] == out.sigma["kinematic"] == {"baseline_mm": 0.02}
+    assert out.squares_mm == {"kinematic": 27.01, "nominal": 28.1}  # the row's own square wins for its mode
+    assert out.budgets["nominal"].unknown == ["calibration"] and out.budgets["nominal"].expanded == pytest.approx(0.6)
+    assert out.budgets["kinematic"].combined == 0.002  # the row has no budget: the event's for the same source
+    assert out.notes == {"nominal": "tolerances only"}
     # a simulated frame's metadata (sessions before the truth event): mean over the measurement frames
     frames = [{"kind": "measurement_frame", "data": {"left": {"meta": {"truth": {
         "structure": {**e.truth, "baseline_mm": baseline}, "board": {"print_scale": scale}}}}}}
@@ -179,14 +189,15 @@ def test_report_budget_table_marks_the_dominant_component_and_unknown_ones(built
                          float(r["config_id"].split("_")[2][1:]), mode)
             assert float(r["u_combined_mm"]) == pytest.approx(e.combined)
             assert float(r["U_expanded_mm"]) == pytest.approx(2 * e.combined) and float(r["k"]) == 2.0
-            known = {name: v for name, v in e.budget.items() if v is not None}
+            known = {name: v for name, v in BUDGETS[mode].items() if v is not None}
             assert r["dominant"] == max(known, key=known.get)
-            assert r["unknown"] == " ".join(n for n, v in e.budget.items() if v is None)
-            assert (r["u_calibration_mm"] == "") == (e.budget["calibration"] is None)  # unknown: empty, not 0
+            assert r["unknown"] == " ".join(n for n, v in BUDGETS[mode].items() if v is None)
+            assert (r["u_calibration_mm"] == "") == (BUDGETS[mode]["calibration"] is None)  # unknown: empty, not 0
             error = e.squares_mm[mode] - NOMINAL_SQUARE_MM
             assert float(r["normalised_error"]) == pytest.approx(error / e.combined)
-            assert float(r["normalised_error_true"]) == pytest.approx((e.squares_mm[mode] - SQUARE_TRUE_MM)
-                                                                      / e.combined)
+            # against the true printed square, u_c without the board's own print uncertainty (combined_vs_true)
+            vs_true = np.sqrt(e.combined**2 - TARGET_PRINT_U_MM**2)
+            assert float(r["normalised_error_true"]) == pytest.approx((e.squares_mm[mode] - SQUARE_TRUE_MM) / vs_true)
     text = (report / "index.html").read_text(encoding="utf-8")
     assert text.count("class='unknown'") == len(GRID + SWEEP)  # the nominal session's calibration component
     assert "<td class='dominant'>0.35000</td>" in text  # nominal: the structure dominates

@@ -148,8 +148,8 @@ class ResultRow(BaseModel):
     square_true_mm: float | None = column("simulated benches: the printed square as the simulated board really is, mm")
     u_combined_mm: float | None = column("combined standard uncertainty u_c of square_mean_mm, mm")
     U_expanded_mm: float | None = column("expanded uncertainty U = k u_c of square_mean_mm, mm")
-    uncertainty_mm: dict[str, float | None] | None = nested(
-        "the uncertainty budget, mm: noise, calibration, structure, target (None: unknown), combined, expanded, k")
+    uncertainty: dict | None = nested("the uncertainty budget of square_mean_mm: noise, calibration, structure, "
+                                      "target (None: unknown), combined, expanded, k (mm) and what they rest on")
 
     def stored(self) -> dict[str, Any]:
         """The row as recorded (stream, store): strict JSON values, null known columns left out."""

@@ -51,6 +51,8 @@ from stereo_bench.report.collect import (
     BUDGET_COMPONENTS,
     EXTRINSICS_MODES,
     EXTRINSICS_SOURCES,
+    MODE_SOURCE,
+    SOURCE_MODE,
     STRUCTURE_KEYS,
     ConfigReport,
     SessionReport,
@@ -313,14 +315,20 @@ def budget_rows(session: SessionReport) -> list[list[object]]:
 
 
 def _normalised(session: SessionReport, config: ConfigReport) -> tuple[float | None, float | None, float | None]:
-    """(error against the nominal square, error / u_c, (measured - true square) / u_c) of a measured configuration."""
+    """(error against the nominal square, error / u_c, (measured - true square) / u_c) of a measured configuration.
+
+    Against the true square u_c is the budget's ``combined_vs_true`` when recorded (without the measured
+    board's own print-scale uncertainty), else u_c."""
     row = config.row
     error = _finite(row.get("error_mm"))
     combined = config.budget.combined if config.budget else None
     z = error / combined if error is not None and combined else None
     square = _finite(row.get("square_mean_mm"))
     true = config.structure.square_true_mm if config.structure else None
-    z_true = (square - true) / combined if square is not None and true is not None and combined else None
+    # Against the board's true printed square the board's own print uncertainty is no longer an error source:
+    # the budget's combined_vs_true leaves it out (when recorded).
+    vs_true = (config.budget.combined_vs_true or combined) if config.budget else None
+    z_true = (square - true) / vs_true if square is not None and true is not None and vs_true else None
     return error, z, z_true
 
 
@@ -335,12 +343,17 @@ def normalised_points(session: SessionReport) -> list[figures.NormalisedPoint]:
     return points
 
 
+def _source_mode(structure, source: str) -> str | None:
+    """The extrinsics mode whose square a source's row shows ('used': the measurement's; truth: none)."""
+    return structure.mode if source == "used" else SOURCE_MODE.get(source)
+
+
 def structure_rows(session: SessionReport) -> list[list[object]]:
-    """Long format: one CSV row per configuration and extrinsics source that is known there."""
+    """Long format: one CSV row per configuration and extrinsics source known there (structure, its σ where
+    recorded, where it was read, the square measured with it, its error and U)."""
     out: list[list[object]] = [["config_id", "status", "commanded_baseline_mm", "distance_mm", "commanded_alpha_deg",
-                                "extrinsics_mode",
-                                "source", *(f"{k}" for k in STRUCTURE_KEYS), "origin", "square_mm", "error_mm",
-                                "square_true_mm"]]
+                                "extrinsics_mode", "source", *STRUCTURE_KEYS, *(f"{k}_sigma" for k in STRUCTURE_KEYS),
+                                "origin", "square_mm", "error_mm", "U_expanded_mm", "square_true_mm", "note"]]
     for config in session.configs:
         structure = config.structure
         if structure is None:
@@ -350,19 +363,19 @@ def structure_rows(session: SessionReport) -> list[list[object]]:
         head = [config.config_id, config.status, row.get("baseline_mm"), row.get("distance_mm"), row.get("alpha_deg"),
                 structure.mode]
         for source in EXTRINSICS_SOURCES:
-            described = structure.extrinsics.get(source)
-            if described is None:
-                continue
-            mode = structure.mode if source == "used" else {"calibrated": "per-config"}.get(source, source)
+            described = structure.extrinsics.get(source) or {}
+            mode = _source_mode(structure, source)
             square = structure.squares_mm.get(mode) if mode else None
-            out.append([*head, source, *(described.get(k) for k in STRUCTURE_KEYS), structure.origin.get(source),
-                        square, square - nominal if square is not None and nominal is not None else None,
-                        structure.square_true_mm if source == "truth" else None])
-        for mode, square in structure.squares_mm.items():  # a square measured with a source not described
-            if mode not in EXTRINSICS_SOURCES and not (mode == "per-config" and structure.extrinsics["calibrated"]) \
-                    and mode != structure.mode:
-                out.append([*head, mode, *(None for _ in STRUCTURE_KEYS), structure.squares_origin.get(mode), square,
-                            square - nominal if nominal is not None else None, None])
+            if not described and square is None:
+                continue
+            budget = structure.budgets.get(mode) if mode else None
+            sigma = structure.sigma.get(source) or {}
+            out.append([*head, source, *(described.get(k) for k in STRUCTURE_KEYS),
+                        *(sigma.get(k) for k in STRUCTURE_KEYS),
+                        structure.origin.get(source) or structure.squares_origin.get(mode or ""), square,
+                        square - nominal if square is not None and nominal is not None else None,
+                        budget.expanded if budget else None,
+                        structure.square_true_mm if source == "truth" else None, structure.notes.get(source)])
     return out
 
 
@@ -371,11 +384,10 @@ def _deviation(writer: _Writer, session: SessionReport, page: SessionPage) -> No
     measured = [c for c in session.configs if c.status == "measured" and c.structure is not None]
     reference = "truth" if any(c.structure.extrinsics["truth"] for c in measured) else "nominal"
     configs = [(c.config_id, c.structure.extrinsics) for c in measured if c.structure.extrinsics[reference]]
-    others = [s for s in ("calibrated", "kinematic", "nominal") if s != reference]
+    others = [s for s in ("calibrated", "kinematic", "nominal", "fixed") if s != reference]
     if not any(structures.get(s) for _, structures in configs for s in others):
         return
-    used = {c.config_id: {"per-config": "calibrated"}.get(c.structure.mode or "", c.structure.mode or "")
-            for c in measured}
+    used = {c.config_id: MODE_SOURCE.get(c.structure.mode or "", "") for c in measured}
     title = f"Extrinsics minus the {reference}: {session.name}"
     page.deviation = writer.figure(f"figures/{session.key}_structure.png",
                                    figures.deviation_figure(configs, reference=reference, title=title, used=used),
@@ -514,11 +526,11 @@ def structural_points(sessions: Sequence[SessionReport]) -> tuple[dict[str, list
     """Rows for the structural-error figures: per extrinsics mode, one row per configuration geometry.
 
     Each row is the configuration's geometry with ``error_mm`` = its square measured with that mode
-    minus the nominal square; its ``config_id`` is ``<session key>/<config id>`` (ids repeat across
-    sessions). A configuration measured with the same mode in several sessions is drawn once: from the
-    session whose measurement used that mode (it has U), else the first given. Configurations without
-    a measurement are in every panel (the strip at the bottom). Returns (rows per mode, U per row id,
-    how many duplicates were left out).
+    minus the nominal square; its ``config_id`` is ``<session key>/<config id>/<mode>`` (ids repeat
+    across sessions). A configuration measured with the same mode in several sessions is drawn once:
+    from the session whose measurement used that mode, else the first given. Configurations without a
+    measurement are in every panel (the strip at the bottom). Returns (rows per mode, (U, budget
+    complete) per row id where that source's square has a budget, how many duplicates were left out).
     """
     panels: dict[str, dict[tuple, dict]] = {}
     unmeasured: dict[tuple, dict] = {}
@@ -540,7 +552,7 @@ def structural_points(sessions: Sequence[SessionReport]) -> tuple[dict[str, list
                 if nominal is None:
                     continue
                 used = mode == config.structure.mode
-                point = {**base, "config_id": uid, "error_mm": square - nominal,
+                point = {**base, "config_id": f"{uid}/{mode}", "error_mm": square - nominal,
                          "sigma_mm": row.get("sigma_mm") if used else None, "_used": used}
                 panel = panels.setdefault(mode, {})
                 if geometry in panel:
@@ -548,8 +560,8 @@ def structural_points(sessions: Sequence[SessionReport]) -> tuple[dict[str, list
                     if not (used and not panel[geometry]["_used"]):
                         continue
                 panel[geometry] = point
-                if used and config.budget is not None:
-                    expanded[uid] = (config.budget.expanded, config.budget.complete)
+                if (budget := config.structure.budgets.get(mode)) is not None:
+                    expanded[point["config_id"]] = (budget.expanded, budget.complete)
     order = {mode: i for i, mode in enumerate(EXTRINSICS_MODES)}
     rows = {mode: [*panel.values(), *(u for g, u in unmeasured.items() if g not in panel)]
             for mode, panel in sorted(panels.items(), key=lambda item: (order.get(item[0], len(order)), item[0]))}

@@ -12,16 +12,19 @@ campaign config and a pixel noise: the corner noise measured in the configuratio
 Two readers hold every assumption about the shape of the newer records (issues 11 and 12), so that a
 change of the recorded shape is a change of one function:
 
-- :func:`budget_of`: the uncertainty budget of a result row (``uncertainty_mm`` nested dict,
-  ``u_combined_mm``, ``U_expanded_mm``) as a :class:`Budget`; a component recorded as None is unknown,
-  never zero.
+- :func:`budget_of`: the uncertainty budget of a result row (the nested ``uncertainty`` record:
+  ``uncertainty_mm``'s keys noise, calibration, structure, target, combined, expanded, k, and what
+  they rest on; the columns ``u_combined_mm`` and ``U_expanded_mm``) as a :class:`Budget`; a
+  component recorded as None is unknown, never zero.
 - :func:`structure_of`: per configuration, the extrinsics actually used, the calibrated ones, the
   kinematic prediction, the nominal geometry and (simulated benches) the truth, each as optical
-  baseline, alphas and stereo rotation angle, and the square measured with each extrinsics source, as
-  a :class:`Structure`. It reads the ``structure`` and ``truth`` events (:data:`STRUCTURE_EVENT`,
-  :data:`TRUTH_EVENT`) and the result row's columns, and falls back on what older sessions hold (the
-  calibration files, the truth in simulated frames' metadata, the commanded geometry); every value
-  says where it came from.
+  baseline, alphas and stereo rotation angle, and the square measured with each extrinsics source
+  (with its own budget), as a :class:`Structure`. It reads the ``structure`` event (data: ``mode``,
+  ``used``, ``sources``: calibrated | kinematic | nominal | fixed -> {``structure``,
+  ``structure_sigma``, ``square_mean_mm``, ``uncertainty``, ``note``}, ``truth``: {``structure``,
+  ``square_true_mm``}), the ``truth`` event (``SimulatedBench.truth()``) and the result row's columns,
+  and falls back on what older sessions hold (the calibration files, the truth in simulated frames'
+  metadata, the commanded geometry); every value says where it came from.
 """
 
 from __future__ import annotations
@@ -46,14 +49,18 @@ DEFAULT_PIXEL_SIGMA_PX = 0.1
 #: The budget's standard-uncertainty components, in the order the report shows them.
 BUDGET_COMPONENTS = ("noise", "calibration", "structure", "target")
 #: The extrinsics a configuration is described by, side by side (issue 11 item 3).
-EXTRINSICS_SOURCES = ("used", "calibrated", "kinematic", "nominal", "truth")
+EXTRINSICS_SOURCES = ("used", "calibrated", "kinematic", "nominal", "fixed", "truth")
 #: What each describes, for the page.
 EXTRINSICS_SOURCE_NAMES = {
     "used": "used by the measurement", "calibrated": "calibrated (board views here)",
-    "kinematic": "kinematic model's prediction", "nominal": "nominal (commanded B, α)", "truth": "truth (simulator)",
+    "kinematic": "kinematic model's prediction", "nominal": "nominal (commanded B, α)", "fixed": "fixed (a file)",
+    "truth": "truth (simulator)",
 }
 #: The extrinsics modes a square can be measured with ([extrinsics] mode), in the report's order.
 EXTRINSICS_MODES = ("per-config", "kinematic", "nominal", "fixed")
+#: The source of extrinsics each mode measures with, and back.
+MODE_SOURCE = {"per-config": "calibrated", "kinematic": "kinematic", "nominal": "nominal", "fixed": "fixed"}
+SOURCE_MODE = {source: mode for mode, source in MODE_SOURCE.items()}
 #: A structure description: optical baseline |T|, each camera's alpha, the angle of R.
 STRUCTURE_KEYS = ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "rotation_deg")
 #: Per-configuration events the structure reader takes (written by the campaign on newer sessions).
@@ -75,6 +82,9 @@ class Budget:
     expanded: float | None
     k: float | None
     components_recorded: bool = True
+    #: u_c for a comparison with the board's true printed square: without the measured board's own print
+    #: scale part of ``target`` (recorded as ``combined_vs_true``); None: not recorded, use ``combined``.
+    combined_vs_true: float | None = None
 
     @property
     def unknown(self) -> list[str]:
@@ -105,17 +115,21 @@ class Structure:
     """The rig's structure at one configuration, per extrinsics source, and the square measured with each.
 
     ``extrinsics``: source (:data:`EXTRINSICS_SOURCES`) -> {baseline_mm, alpha_left_deg, alpha_right_deg,
-    rotation_deg} (a value may be None) or None when that source is not known here; ``origin``: source
-    -> where it was read. ``squares_mm``: extrinsics mode (:data:`EXTRINSICS_MODES`) -> the square
-    measured with it. ``mode``: the extrinsics the measurement used.
+    rotation_deg} (a value may be None) or None when that source is not known here; ``sigma``: source ->
+    their standard uncertainties where recorded; ``origin``: source -> where it was read.
+    ``squares_mm``: extrinsics mode (:data:`EXTRINSICS_MODES`) -> the square measured with it, and
+    ``budgets`` its uncertainty budget where recorded. ``mode``: the extrinsics the measurement used.
     """
 
     mode: str | None = None
     mode_origin: str = ""
     extrinsics: dict[str, dict | None] = field(default_factory=lambda: dict.fromkeys(EXTRINSICS_SOURCES))
+    sigma: dict[str, dict] = field(default_factory=dict)
     origin: dict[str, str] = field(default_factory=dict)
+    notes: dict[str, str] = field(default_factory=dict)
     squares_mm: dict[str, float] = field(default_factory=dict)
     squares_origin: dict[str, str] = field(default_factory=dict)
+    budgets: dict[str, Budget] = field(default_factory=dict)
     square_true_mm: float | None = None
     square_true_origin: str = ""
 
@@ -256,29 +270,42 @@ def _calibration_loader(reader: SessionReader, report: ConfigReport, warnings: l
 def budget_of(row: dict) -> Budget | None:
     """The uncertainty budget of a result row, or None when the row records none (sessions before issue 12).
 
-    Reads the nested ``uncertainty_mm`` dict ({noise, calibration, structure, target, combined,
-    expanded, k}, as :meth:`stereo_bench.vision.uncertainty.UncertaintyBudget.as_dict` writes it) and
-    the columns ``u_combined_mm`` and ``U_expanded_mm`` (which win where both are given). A component
-    that is absent or null is unknown. k: the recorded one, else U / u_c.
+    Reads the nested ``uncertainty`` record (``uncertainty_mm``'s keys, as
+    :meth:`stereo_bench.vision.uncertainty.UncertaintyBudget.as_dict` writes them, with what they rest
+    on; an ``uncertainty_mm`` dict is read the same) and the columns ``u_combined_mm`` and
+    ``U_expanded_mm``, which win where both are given.
     """
-    nested = row.get("uncertainty_mm")
-    nested = nested if isinstance(nested, dict) else {}
-    combined = _finite(row.get("u_combined_mm"))
-    combined = combined if combined is not None else _finite(nested.get("combined"))
-    expanded = _finite(row.get("U_expanded_mm"))
-    expanded = expanded if expanded is not None else _finite(nested.get("expanded"))
-    k = _finite(nested.get("k"))
-    if combined is None and expanded is None:
+    record = row.get("uncertainty")
+    if not isinstance(record, dict):
+        record = row.get("uncertainty_mm")
+    return budget_from(record if isinstance(record, dict) else {}, combined=row.get("u_combined_mm"),
+                       expanded=row.get("U_expanded_mm"))
+
+
+def budget_from(record: dict, *, combined: object = None, expanded: object = None) -> Budget | None:
+    """A :class:`Budget` of an ``uncertainty`` record (None when it holds neither u_c nor U).
+
+    A component that is absent or null is unknown. k: the recorded one, else U / u_c.
+    """
+    if isinstance(record.get("uncertainty_mm"), dict):
+        record = {**record, **record["uncertainty_mm"]}
+    u_c = _finite(combined)
+    u_c = u_c if u_c is not None else _finite(record.get("combined"))
+    U = _finite(expanded)
+    U = U if U is not None else _finite(record.get("expanded"))
+    k = _finite(record.get("k"))
+    if u_c is None and U is None:
         return None
-    if k is None and combined and expanded is not None:
-        k = expanded / combined
-    if combined is None and expanded is not None and k:
-        combined = expanded / k
-    if expanded is None and combined is not None and k is not None:
-        expanded = k * combined
-    recorded = any(name in nested for name in BUDGET_COMPONENTS)
-    components = {name: _finite(nested.get(name)) for name in BUDGET_COMPONENTS}
-    return Budget(components=components, combined=combined, expanded=expanded, k=k, components_recorded=recorded)
+    if k is None and u_c and U is not None:
+        k = U / u_c
+    if u_c is None and U is not None and k:
+        u_c = U / k
+    if U is None and u_c is not None and k is not None:
+        U = k * u_c
+    recorded = any(name in record for name in BUDGET_COMPONENTS)
+    components = {name: _finite(record.get(name)) for name in BUDGET_COMPONENTS}
+    return Budget(components=components, combined=u_c, expanded=U, k=k, components_recorded=recorded,
+                  combined_vs_true=_finite(record.get("combined_vs_true")))
 
 
 def _described(value: Any) -> dict | None:
@@ -290,8 +317,15 @@ def _described(value: Any) -> dict | None:
 
 
 def _mode_name(name: object) -> str:
+    """An extrinsics mode from a mode or a source name ('calibrated', 'per_config' -> 'per-config')."""
     text = str(name).replace("_", "-")
-    return "per-config" if text in ("calibrated", "per-config") else text
+    return SOURCE_MODE.get(text, text)
+
+
+def _source_name(name: object) -> str:
+    """An extrinsics source from a source or a mode name ('per-config' -> 'calibrated')."""
+    text = str(name).replace("_", "-")
+    return MODE_SOURCE.get(text, text)
 
 
 def _mean_structure(structures: list[dict]) -> dict | None:
@@ -299,6 +333,10 @@ def _mean_structure(structures: list[dict]) -> dict | None:
         return None
     return {key: (sum(v) / len(v) if (v := [s[key] for s in structures if s.get(key) is not None]) else None)
             for key in STRUCTURE_KEYS}
+
+
+def _dict(value: Any) -> dict:
+    return value if isinstance(value, dict) else {}
 
 
 def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None = None,
@@ -313,23 +351,21 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
         calibration: a callable returning the configuration's recorded ``StereoCalibration`` (or None):
             read only when the structure event does not give the calibrated extrinsics.
 
-    Preference, per value: the ``structure`` event (data: ``extrinsics_mode``; ``extrinsics``: source
-    -> {baseline_mm, alpha_left_deg, alpha_right_deg, rotation_deg} for used, calibrated, kinematic,
-    nominal, truth; ``square_mm``: extrinsics mode -> square), then the row's columns
-    (``extrinsics_mode``, ``*_used_*``, ``*_true_*``, ``square_true_mm``), then the ``truth`` event
-    (``SimulatedBench.truth()``: ``structure``, ``target.square_true_mm``), then what older sessions
-    hold: the calibration files (per-config sessions: calibrated = used), the truth in simulated
-    frames' metadata (mean over the measurement frames), the commanded B and α (nominal).
+    Preference, per value: the ``structure`` event, then the row's columns (``extrinsics_mode``,
+    ``*_used_*``, ``*_true_*``, ``square_true_mm``), then the ``truth`` event, then what older
+    sessions hold: the calibration files (per-config sessions: calibrated = used), the truth in
+    simulated frames' metadata (mean over the measurement frames), the commanded B and α (nominal).
     """
     out = Structure()
-    documents = [e.get("data") for e in events if e.get("kind") == STRUCTURE_EVENT and isinstance(e.get("data"), dict)]
+    documents = [_dict(e.get("data")) for e in events if e.get("kind") == STRUCTURE_EVENT]
     document = documents[-1] if documents else {}
-    truths = [e.get("data") for e in events if e.get("kind") == TRUTH_EVENT and isinstance(e.get("data"), dict)]
+    truths = [_dict(e.get("data")) for e in events if e.get("kind") == TRUTH_EVENT]
     truth_event = truths[-1] if truths else {}
+    sources = _dict(document.get("sources"))
+    recorded_truth = _dict(document.get("truth"))
 
     # The mode: the row's column, the structure event, the campaign config (sessions before issue 11).
-    for value, origin in ((row.get("extrinsics_mode"), "result row"), (document.get("extrinsics_mode"),
-                                                                         "structure event")):
+    for value, origin in ((row.get("extrinsics_mode"), "result row"), (document.get("mode"), "structure event")):
         if isinstance(value, str) and value:
             out.mode, out.mode_origin = _mode_name(value), origin
             break
@@ -341,16 +377,33 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
         if out.extrinsics.get(source) is None and described is not None:
             out.extrinsics[source], out.origin[source] = described, origin
 
-    recorded = document.get("extrinsics") if isinstance(document.get("extrinsics"), dict) else {}
-    for source in EXTRINSICS_SOURCES:
-        put(source, _described(recorded.get(source)), "structure event")
+    # Every source the structure event recorded: its structure (and sigma), its square and budget.
+    for name, record in sources.items():
+        record = _dict(record)
+        source, mode = _source_name(name), _mode_name(name)
+        put(source, _described(record.get("structure")), "structure event")
+        if isinstance(record.get("structure_sigma"), dict):
+            out.sigma[source] = {k: _finite(v) for k, v in record["structure_sigma"].items()}
+        if isinstance(record.get("note"), str) and record["note"]:
+            out.notes[source] = record["note"]
+        if (square := _finite(record.get("square_mean_mm"))) is not None:
+            out.squares_mm[mode], out.squares_origin[mode] = square, "structure event"
+        if (budget := budget_from(_dict(record.get("uncertainty")))) is not None:
+            out.budgets[mode] = budget
+    used_name = document.get("used")
+    if isinstance(used_name, str) and used_name in sources:
+        put("used", _described(_dict(sources[used_name]).get("structure")), "structure event")
+        if (sigma := out.sigma.get(_source_name(used_name))) is not None:
+            out.sigma["used"] = sigma
+    put("truth", _described(recorded_truth.get("structure")), "structure event")
+
     put("used", _described({"baseline_mm": row.get("baseline_used_mm"), "alpha_left_deg": row.get(
         "alpha_left_used_deg"), "alpha_right_deg": row.get("alpha_right_used_deg")}), "result row")
     put("truth", _described({"baseline_mm": row.get("baseline_true_mm"), "alpha_left_deg": row.get(
         "alpha_left_true_deg"), "alpha_right_deg": row.get("alpha_right_true_deg")}), "result row")
     put("truth", _described(truth_event.get("structure")), "truth event")
     metas = [meta for e in events if e.get("kind") == "measurement_frame"
-             and isinstance(meta := ((e.get("data") or {}).get("left") or {}).get("meta"), dict)
+             and isinstance(meta := _dict(_dict(e.get("data")).get("left")).get("meta"), dict)
              and isinstance(meta.get("truth"), dict)]
     put("truth", _mean_structure([d for m in metas if (d := _described(m["truth"].get("structure")))]),
         "simulated frames' metadata")
@@ -358,34 +411,32 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
         calib = calibration()
         if calib is not None:
             put("calibrated", stereo_structure(calib.R, calib.T), "calibration file")
-    if out.mode == "per-config":
-        put("used", out.extrinsics["calibrated"], out.origin.get("calibrated", ""))
-    # What the measurement used is, by its mode, that source's extrinsics (and the other way round).
-    source_of_mode = {"per-config": "calibrated", "kinematic": "kinematic"}.get(out.mode or "")
-    if source_of_mode:
-        put(source_of_mode, out.extrinsics["used"], out.origin.get("used", ""))
     baseline, alpha = _finite(row.get("baseline_mm")), _finite(row.get("alpha_deg"))
     if baseline is not None and baseline > 0 and alpha is not None:
         tilt = _finite(row.get("tilt_deg")) or 0.0
         put("nominal", stereo_structure(*RigPose.symmetric(baseline, alpha, tilt).stereo_extrinsics()),
             "commanded B and α")
-    if out.mode == "nominal":
-        put("used", out.extrinsics["nominal"], out.origin.get("nominal", ""))
+    # What the measurement used is, by its mode, that source's extrinsics (and the other way round).
+    own = MODE_SOURCE.get(out.mode or "")
+    if own:
+        put("used", out.extrinsics[own], out.origin.get(own, ""))
+        put(own, out.extrinsics["used"], out.origin.get("used", ""))
 
-    # The square per extrinsics mode: the structure event's, and the row's with the mode it used.
-    squares = document.get("square_mm") if isinstance(document.get("square_mm"), dict) else {}
-    for name, value in squares.items():
-        if (number := _finite(value)) is not None:
-            out.squares_mm[_mode_name(name)], out.squares_origin[_mode_name(name)] = number, "structure event"
+    # The square of the mode the measurement used is the row's (and its budget the row's).
     square = _finite(row.get("square_mean_mm")) if row.get("status") == "measured" else None
     if square is not None and out.mode:
         out.squares_mm[out.mode], out.squares_origin[out.mode] = square, "result row"
+        if (budget := budget_of(row)) is not None:
+            out.budgets[out.mode] = budget
 
-    # The true square: the row's, the truth event's, the frames' print scale times the nominal square.
-    target = truth_event.get("target") if isinstance(truth_event.get("target"), dict) else {}
-    scales = [s for m in metas if (s := _finite((m["truth"].get("board") or {}).get("print_scale"))) is not None]
+    # The true square: the row's, the structure and truth events', the frames' print scale x the nominal square.
+    target = _dict(truth_event.get("target"))
+    scales = [s for m in metas if (s := _finite(_dict(m["truth"].get("board")).get("print_scale"))) is not None]
     nominal = config.target.square_mm if config is not None else None
-    for value, origin in ((row.get("square_true_mm"), "result row"), (target.get("square_true_mm"), "truth event"),
+    for value, origin in ((row.get("square_true_mm"), "result row"),
+                          (recorded_truth.get("square_true_mm"), "structure event"),
+                          (target.get("square_true_mm") if target.get("kind") in (None, "target") else None,
+                           "truth event"),
                           (nominal * sum(scales) / len(scales) if scales and nominal else None,
                            "simulated frames' metadata (print scale × nominal square)")):
         if (number := _finite(value)) is not None:
@@ -481,7 +532,7 @@ def read_sessions(directories: list[str | Path]) -> list[SessionReport]:
 
 __all__ = [
     "BUDGET_COMPONENTS", "DEFAULT_PIXEL_SIGMA_PX", "EXTRINSICS_MODES", "EXTRINSICS_SOURCES", "EXTRINSICS_SOURCE_NAMES",
-    "STRUCTURE_EVENT", "STRUCTURE_KEYS", "TRUTH_EVENT", "Budget", "ConfigReport", "SessionReport", "Structure",
-    "add_predictions", "budget_of", "measured_pixel_sigma_px", "predict_configuration", "read_session",
-    "read_sessions", "safe_key", "structure_of",
+    "MODE_SOURCE", "SOURCE_MODE", "STRUCTURE_EVENT", "STRUCTURE_KEYS", "TRUTH_EVENT", "Budget", "ConfigReport",
+    "SessionReport", "Structure", "add_predictions", "budget_from", "budget_of", "measured_pixel_sigma_px",
+    "predict_configuration", "read_session", "read_sessions", "safe_key", "structure_of",
 ]

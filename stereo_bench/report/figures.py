@@ -353,7 +353,7 @@ def deviation_figure(
     source, each panel on its own linear scale: nominal extrinsics miss by millimetres where calibrated
     ones miss by hundredths, and a shared or logarithmic scale would hide one or the other.
     """
-    sources = [s for s in ("calibrated", "kinematic", "nominal") if s != reference
+    sources = [s for s in ("calibrated", "kinematic", "nominal", "fixed") if s != reference
                and any(structures.get(s) for _, structures in configs)]
     columns = max(len(sources), 1)
     figure = Figure(figsize=(max(8.0, min(14.0, 0.16 * len(configs) * columns + 3.0 * columns)), 8.6), dpi=DPI,

@@ -16,6 +16,7 @@ from stereo_bench.report.collect import (
     BUDGET_COMPONENTS,
     EXTRINSICS_SOURCE_NAMES,
     EXTRINSICS_SOURCES,
+    SOURCE_MODE,
     ConfigReport,
     SessionReport,
 )
@@ -71,7 +72,7 @@ a.csv { font-size: 12px; }
 td.unknown { color: #9e9e9e; font-style: italic; }
 td.dominant { font-weight: 700; background: #fff3cd !important; }
 td.outside { color: #b71c1c; font-weight: 600; }
-table.structure td.used { font-weight: 600; }
+table.structure td.used, table.structure tr.used td { font-weight: 600; }
 .missing { background: #f5f5f5; border-left: 4px solid #9e9e9e; padding: 6px 10px; margin: 8px 0; color: #424242; }
 """.strip()
 
@@ -381,9 +382,11 @@ def _structure_section(page: SessionPage) -> str:
     keys = (("baseline_mm", "optical baseline (mm)", 3), ("alpha_left_deg", "α left (deg)", 3),
             ("alpha_right_deg", "α right (deg)", 3), ("rotation_deg", "rotation (deg)", 3))
     sub = ("used", "truth") if has_truth else ("used", "nominal")
+    with_u = any(c.structure.budgets for c in measured)
     head1 = ("<tr><th class='label' rowspan='2'>configuration</th><th class='label' rowspan='2'>extrinsics</th>"
              + "".join(f"<th colspan='2'>{_e(name)}</th>" for _, name, _ in keys)
-             + (f"<th colspan='{len(modes)}'>error of the square (mm) with</th>" if modes else "")
+             + (f"<th colspan='{len(modes)}'>error of the square{' ± U' if with_u else ''} (mm) with</th>"
+                if modes else "")
              + ("<th rowspan='2'>true square (mm)</th>" if has_truth else "") + "</tr>")
     head2 = "<tr>" + "".join(f"<th>{s}</th>" for _ in keys for s in sub) + "".join(
         f"<th>{_e(m)}</th>" for m in modes) + "</tr>"
@@ -403,7 +406,7 @@ def _structure_section(page: SessionPage) -> str:
             square = structure.squares_mm.get(mode)
             error = square - nominal if square is not None and nominal is not None else None
             css = " class='used'" if mode == structure.mode else ""
-            cells.append(f"<td{css}>{_num(error, 4, signed=True)}</td>")
+            cells.append(f"<td{css}>{_e(_error_with_u(error, structure.budgets.get(mode)))}</td>")
         if has_truth:
             cells.append(f"<td>{_num(structure.square_true_mm, 4)}</td>")
         body.append(f"<tr>{''.join(cells)}</tr>")
@@ -433,8 +436,20 @@ def _structure_section(page: SessionPage) -> str:
     return "".join(parts)
 
 
+def _with_sigma(value: object, sigma: object, digits: int = 3) -> str:
+    return _num(value, digits) + (f" ± {_num(sigma, digits)}" if _finite(sigma) is not None else "")
+
+
+def _error_with_u(error: float | None, budget) -> str:
+    if error is None:
+        return "–"
+    if budget is None or budget.expanded is None:
+        return f"{error:+.4f}"
+    return f"{error:+.4f} ± {budget.expanded:.4f}" + ("" if budget.complete else INCOMPLETE_MARK)
+
+
 def _structure_block(config: ConfigReport) -> str:
-    """The five extrinsics sources of one configuration side by side, with the square measured with each."""
+    """The extrinsics sources of one configuration side by side, with the square measured with each (± U)."""
     structure = config.structure
     if structure is None:
         return ""
@@ -443,31 +458,36 @@ def _structure_block(config: ConfigReport) -> str:
     nominal = square - error if square is not None and error is not None else None
     lines = []
     for source in EXTRINSICS_SOURCES:
-        described = structure.extrinsics.get(source)
-        mode = structure.mode if source == "used" else {"calibrated": "per-config"}.get(source, source)
+        described = structure.extrinsics.get(source) or {}
+        mode = structure.mode if source == "used" else SOURCE_MODE.get(source)
         measured_square = structure.squares_mm.get(mode) if mode else None
-        if source == "truth":
-            measured_square = None
-        if described is None and measured_square is None:
+        if not described and measured_square is None:
             continue
-        values = "".join(f"<td>{_num((described or {}).get(k), 3)}</td>"
+        sigma = structure.sigma.get(source) or {}
+        values = "".join(f"<td>{_with_sigma(described.get(k), sigma.get(k))}</td>"
                          for k in ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "rotation_deg"))
         if source == "truth":
             square_text = (f"{_num(structure.square_true_mm)} (true)" if structure.square_true_mm is not None else "–")
         elif measured_square is not None:
-            square_text = (f"{_num(measured_square)} ({_num(measured_square - nominal, signed=True)})"
-                           if nominal is not None else _num(measured_square))
+            square_text = _num(measured_square) + (
+                f" ({_error_with_u(measured_square - nominal, structure.budgets.get(mode or ''))})"
+                if nominal is not None else "")
         else:
             square_text = "not measured with it"
         name = EXTRINSICS_SOURCE_NAMES[source] + (f": {structure.mode}" if source == "used" and structure.mode else "")
-        origin = structure.origin.get(source, structure.squares_origin.get(mode or "", ""))
-        lines.append(f"<tr><td class='label'>{_e(name)}</td>{values}<td>{_e(square_text)}</td>"
+        origin = structure.origin.get(source) or structure.squares_origin.get(mode or "", "")
+        note = structure.notes.get(source)
+        origin += f"; {note}" if note else ""
+        css = " class='used'" if source == "used" else ""
+        lines.append(f"<tr{css}><td class='label'>{_e(name)}</td>{values}<td>{_e(square_text)}</td>"
                      f"<td class='label small muted'>{_e(origin)}</td></tr>")
     if not lines:
         return ""
-    absent = [EXTRINSICS_SOURCE_NAMES[s] for s in EXTRINSICS_SOURCES if structure.extrinsics.get(s) is None]
+    absent = [EXTRINSICS_SOURCE_NAMES[s] for s in EXTRINSICS_SOURCES
+              if s != "fixed" and not structure.extrinsics.get(s)]
+    u = " ± U" if structure.budgets else ""
     return ("<table class='structure'><thead><tr><th class='label'>extrinsics</th><th>optical baseline (mm)</th>"
-            "<th>α left (deg)</th><th>α right (deg)</th><th>rotation (deg)</th><th>square (error) (mm)</th>"
+            f"<th>α left (deg)</th><th>α right (deg)</th><th>rotation (deg)</th><th>square (error{u}) (mm)</th>"
             f"<th class='label'>read from</th></tr></thead><tbody>{''.join(lines)}</tbody></table>"
             + (f'<p class="small muted">Not recorded: {_e(", ".join(absent))}.</p>' if absent else ""))
 
