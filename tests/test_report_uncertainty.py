@@ -28,7 +28,7 @@ from stereo_bench.cli import main
 from stereo_bench.report import figures
 from stereo_bench.report.build import build_report, structural_points
 from stereo_bench.report.collect import budget_of, read_session, structure_of
-from stereo_bench.report.tables import distance_baseline_tables
+from stereo_bench.report.tables import distance_baseline_tables, uncertainty_decimals
 
 MODES = ("per-config", "kinematic", "nominal")
 
@@ -113,11 +113,18 @@ def test_table_cells_show_error_plus_minus_U_and_say_when_U_is_missing():
     cells = {c.config_id: c for line in table.cells for c in line if c.measured}
     assert cells["B50_Z300_A90"].error_text() == "+0.0125 ± 0.0050"
     assert cells["B50_Z400_A90"].error_text() == "-0.0100 ± 0.0123*"  # U without an unknown component
-    assert cells["B100_Z300_A90"].error_text() == "+0.0000 ± 0.0002 (σ noise)"  # no budget: the noise σ, said so
+    # no budget: the noise σ, said so; two significant digits of the uncertainty, the error to the same place
+    assert cells["B100_Z300_A90"].error_text() == "+0.00000 ± 0.00020 (σ noise)"
     lines = table.error_csv().splitlines()
     assert lines[1] == "50,+0.0125 +- 0.0050,-0.0100 +- 0.0123*"
-    assert lines[2] == "100,+0.0000 +- 0.0002 (sigma noise),"
+    assert lines[2] == "100,+0.00000 +- 0.00020 (sigma noise),"
     assert table.has_uncertainty()
+
+
+def test_an_uncertainty_is_stated_to_two_significant_digits():
+    assert uncertainty_decimals(0.0025) == 4 and uncertainty_decimals(0.0123) == 4  # at least 4
+    assert uncertainty_decimals(0.000043) == 6 and uncertainty_decimals(0.35, None, 0.0011) == 4
+    assert uncertainty_decimals(1e-12) == 7 and uncertainty_decimals(None, 0.0) == 4  # at most 7; none known
 
 
 def _bars(figure) -> list[tuple[float, str]]:
@@ -281,7 +288,7 @@ def test_an_old_session_reports_and_says_what_is_missing(tmp_path):
     assert "No uncertainty budget is recorded in this session" in text
     assert "(σ noise)" in text and "CSV of error ± σ" in text and "± U" not in text
     lines = (report / "tables" / "s1-sample-session_table1_A90_error.csv").read_text().splitlines()
-    assert lines[1].endswith("+0.0050 +- 0.0004 (sigma noise)")  # B 100, Z 450: the recorded error and sigma
+    assert lines[1].endswith("+0.00496 +- 0.00039 (sigma noise)")  # B 100, Z 450: the recorded error and sigma
     assert "Not in these sessions: kinematic model, nominal (commanded B, α)" in text
     assert not (report / "figures" / "s1-sample-session_normalised.png").exists()
     assert not (report / "tables" / "s1-sample-session_budget.csv").exists()

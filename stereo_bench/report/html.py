@@ -22,7 +22,15 @@ from stereo_bench.report.collect import (
 )
 from stereo_bench.report.figures import SOURCE_LABELS, coverage
 from stereo_bench.report.page import ImageRef, SessionPage, StructuralSection
-from stereo_bench.report.tables import INCOMPLETE_MARK, PARTIAL_MARK, Table, format_value, status_counts
+from stereo_bench.report.tables import (
+    INCOMPLETE_MARK,
+    PARTIAL_MARK,
+    Cell,
+    Table,
+    format_value,
+    status_counts,
+    uncertainty_decimals,
+)
 from stereo_bench.report.tables import finite_number as _finite
 
 CSS = """
@@ -73,6 +81,7 @@ td.unknown { color: #9e9e9e; font-style: italic; }
 td.dominant { font-weight: 700; background: #fff3cd !important; }
 td.outside { color: #b71c1c; font-weight: 600; }
 table.structure td.used, table.structure tr.used td { font-weight: 600; }
+table.structure td:not(.label) { white-space: nowrap; }
 .missing { background: #f5f5f5; border-left: 4px solid #9e9e9e; padding: 6px 10px; margin: 8px 0; color: #424242; }
 """.strip()
 
@@ -294,6 +303,9 @@ def _budget_section(page: SessionPage) -> str:
             + "<th>u_c</th><th>U</th><th>k</th><th class='label'>dominant (share of u_c²)</th><th>error / u_c</th>"
             + ("<th>(measured − true) / u_c</th>" if has_true else "") + "</tr>")
     body = []
+    # One number of decimals for the table: two significant digits for its smallest uncertainty.
+    places = uncertainty_decimals(*(v for c in with_budget for v in (*c.budget.components.values(), c.budget.combined)),
+                                  minimum=4)
     for config in measured:
         budget, row = config.budget, config.row
         mode = config.structure.mode if config.structure and config.structure.mode else "–"
@@ -311,7 +323,7 @@ def _budget_section(page: SessionPage) -> str:
                 cells.append(f"<td class='unknown' title='{_e(name)}: {text}, not in u_c'>{text}</td>")
             else:
                 css = " class='dominant'" if name == budget.dominant else ""
-                cells.append(f"<td{css}>{_num(value, 5)}</td>")
+                cells.append(f"<td{css}>{_num(value, places)}</td>")
         share = budget.share(budget.dominant) if budget.dominant else None
         dominant = f"{budget.dominant} ({share:.0%})" if budget.dominant and share is not None else "–"
         error = _finite(row.get("error_mm"))
@@ -328,8 +340,8 @@ def _budget_section(page: SessionPage) -> str:
             css = ' class="outside"' if abs(value) > k else ""
             return f"<td{css}>{value:+.2f}</td>"
         incomplete = "" if budget.complete else INCOMPLETE_MARK
-        body.append(f"<tr>{first}{''.join(cells)}<td>{_mm(budget.combined, 5)}{incomplete}</td>"
-                    f"<td>{_mm(budget.expanded, 5)}{incomplete}</td><td>{_num(budget.k, 2)}</td>"
+        body.append(f"<tr>{first}{''.join(cells)}<td>{_mm(budget.combined, places)}{incomplete}</td>"
+                    f"<td>{_mm(budget.expanded, places)}{incomplete}</td><td>{_num(budget.k, 2)}</td>"
                     f"<td class='label'>{_e(dominant)}</td>{zcell(z)}" + (zcell(z_true) if has_true else "") + "</tr>")
     z_values = [z for c in with_budget if (z := _z(c)) is not None]
     n, rms, share = coverage(z_values)
@@ -445,7 +457,8 @@ def _error_with_u(error: float | None, budget) -> str:
         return "–"
     if budget is None or budget.expanded is None:
         return f"{error:+.4f}"
-    return f"{error:+.4f} ± {budget.expanded:.4f}" + ("" if budget.complete else INCOMPLETE_MARK)
+    places = uncertainty_decimals(budget.expanded)
+    return f"{error:+.{places}f} ± {budget.expanded:.{places}f}" + ("" if budget.complete else INCOMPLETE_MARK)
 
 
 def _structure_block(config: ConfigReport) -> str:
@@ -498,13 +511,14 @@ def _budget_items(config: ConfigReport) -> list[tuple[str, object]]:
         return []
     if budget is None:
         return [("uncertainty", "no budget recorded (± σ of image noise only)")]
-    components = ", ".join(f"{name} {_mm(budget.components[name], 5)}" if budget.components_recorded or
+    places = uncertainty_decimals(*budget.components.values(), budget.combined, minimum=4)
+    components = ", ".join(f"{name} {_mm(budget.components[name], places)}" if budget.components_recorded or
                            budget.components[name] is not None else f"{name} not recorded"
                            for name in BUDGET_COMPONENTS)
     items: list[tuple[str, object]] = [
-        ("U", f"{_mm(budget.expanded, 5)} mm (k = {_num(budget.k, 2)})" + ("" if budget.complete else
+        ("U", f"{_mm(budget.expanded, places)} mm (k = {_num(budget.k, 2)})" + ("" if budget.complete else
                                                                            f"{INCOMPLETE_MARK} lower bound")),
-        ("u_c", f"{_mm(budget.combined, 5)} mm: {components}")]
+        ("u_c", f"{_mm(budget.combined, places)} mm: {components}")]
     if budget.dominant:
         items.append(("dominant", budget.dominant))
     return items
@@ -532,11 +546,12 @@ def _config_block(config: ConfigReport, page: SessionPage) -> str:
                                                  f"corners ({fraction:.0%})"))
     if status == "measured":
         expanded = config.budget.expanded if config.budget else None
+        cell = Cell.from_row(row, expanded_mm=expanded, budget_complete=config.budget.complete if config.budget
+                             else True)
         items += [("square", f"{_num(row.get('square_mean_mm'))} mm"),
-                  ("error", f"{_num(row.get('error_mm'), signed=True)} ± {_num(expanded)} mm (U)" if expanded
-                   is not None else f"{_num(row.get('error_mm'), signed=True)} ± {_num(row.get('sigma_mm'))} mm "
-                                    "(σ, image noise only)"),
-                  ("noise σ", f"{_num(row.get('sigma_mm'), 5)} mm"),
+                  ("error", cell.error_text().replace(" (σ noise)", " mm (σ, image noise only)") if expanded is None
+                   else f"{cell.error_text()} mm (U)"),
+                  ("noise σ", f"{_num(row.get('sigma_mm'), uncertainty_decimals(_finite(row.get('sigma_mm'))))} mm"),
                   ("std of squares", f"{_num(row.get('square_std_mm'))} mm"),
                   ("squares", row.get("n_squares")), ("frames", row.get("n_frames", "?"))]
         measured_fraction = _finite(row.get("fraction_in_both_measured"))

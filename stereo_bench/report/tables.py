@@ -41,6 +41,18 @@ def finite_number(value: object) -> float | None:
     return number if math.isfinite(number) else None
 
 
+def uncertainty_decimals(*values: float | None, minimum: int = 4, maximum: int = 7) -> int:
+    """Decimals that give the smallest positive of ``values`` two significant digits (within [minimum, maximum]).
+
+    An uncertainty is stated to two significant digits and the value to the same decimal place (GUM 7.2.6):
+    0.0025 -> 4, 0.000043 -> 6.
+    """
+    positive = [abs(v) for v in values if v is not None and math.isfinite(v) and v != 0]
+    if not positive:
+        return minimum
+    return int(min(maximum, max(minimum, 1 - math.floor(math.log10(min(positive))))))
+
+
 def format_value(value: float) -> str:
     """'26.9195'-style: axis values without needless zeros (100.0 -> '100', 87.5 -> '87.5')."""
     return f"{value:g}"
@@ -92,9 +104,12 @@ class Cell:
 
     def error_text(self, digits: int = 4, *, pm: str = "±") -> str:
         """The error and its uncertainty: '+0.0013 ± 0.0050' (± U); '+0.0013 ± 0.0050*' when the budget has
-        unknown components; '+0.0013 ± 0.0002 (σ noise)' without a budget; '' when not measured."""
+        unknown components; '+0.0013 ± 0.0002 (σ noise)' without a budget; '' when not measured. At least
+        ``digits`` decimals, more when the uncertainty needs them for two significant digits."""
         if not self.measured or self.error_mm is None:
             return ""
+        u = self.expanded_mm if self.expanded_mm is not None else self.sigma_mm
+        digits = uncertainty_decimals(u, minimum=digits)
         error = f"{self.error_mm:+.{digits}f}"
         if self.expanded_mm is not None:
             return f"{error} {pm} {self.expanded_mm:.{digits}f}" + ("" if self.budget_complete else INCOMPLETE_MARK)
@@ -321,5 +336,5 @@ def status_counts(rows: Iterable[Mapping[str, object]]) -> dict[str, int]:
 __all__ = [
     "EMPTY", "INCOMPLETE_MARK", "NOT_RUN", "PARTIAL_MARK", "STATUSES", "Cell", "Table", "UncertaintyOf",
     "alpha_tables", "distance_baseline_tables", "format_value", "is_partial", "rows_to_csv", "status_counts",
-    "with_plan",
+    "uncertainty_decimals", "with_plan",
 ]
