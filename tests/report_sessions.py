@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from stereo_bench.campaign.config import recorded_campaign
 from stereo_bench.campaign.documents import ResultRow
 from stereo_bench.campaign.session import SessionWriter
 from stereo_bench.geometry import RigPose, stereo_structure
@@ -128,11 +129,13 @@ def write_structured_session(
     used); ``infeasible``: geometries planned but not measurable.
     """
     plan = [{"config_id": f"B{b:g}_Z{z:g}_A{a:g}", "baseline_mm": float(b), "distance_mm": float(z),
-             "alpha_deg": float(a), "toe_in_deg": 90.0 - a, "tilt_deg": 0.0, "fraction_in_both": 1.0}
+             "alpha_deg": float(a), "toe_in_deg": 90.0 - a, "tilt_deg": 0.0, "fraction_in_both": 1.0,
+             "corners_in_both": 54, "n_corners": 54}
             for b, z, a in [*geometries, *infeasible]]
-    config = {"name": name, "description": f"built for the report tests: {mode} extrinsics",
-              "plan": {"baseline_mm": sorted({float(b) for b, _, _ in geometries}),
-                       "distance_mm": sorted({float(z) for _, z, _ in geometries})}}
+    config = recorded_campaign({
+        "name": name, "description": f"built for the report tests (constructed numbers): {mode} extrinsics",
+        "plan": {"baseline_mm": sorted({float(b) for b, _, _ in geometries}),
+                 "distance_mm": sorted({float(z) for _, z, _ in geometries})}}).model_dump(mode="json")
     with SessionWriter(directory).open() as writer:
         writer.start(config=config, plan=plan, software={"stereo_bench": "test"})
         for b, z, a in geometries:

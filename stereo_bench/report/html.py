@@ -288,13 +288,13 @@ def _budget_section(page: SessionPage) -> str:
     session = page.session
     measured = [c for c in session.configs if c.status == "measured"]
     with_budget = [c for c in measured if c.budget is not None]
-    parts = ["<h3>Uncertainty budget (standard uncertainties, mm)</h3>"]
+    parts = [f'<h3 id="{_e(session.key)}-budget">Uncertainty budget (standard uncertainties, mm)</h3>']
     if not with_budget:
         parts.append('<p class="missing">No uncertainty budget is recorded in this session (its result rows have no '
-                     "<code>u_combined_mm</code>, <code>U_expanded_mm</code> or <code>uncertainty_mm</code>: recorded "
-                     "before the campaign computed one). The tables and figures show ± the σ propagated from image "
-                     "noise only, which leaves out the calibration, the structure and the target; no normalised-error "
-                     "plot can be drawn.</p>" if measured else
+                     "<code>u_combined_mm</code>, <code>U_expanded_mm</code> or <code>uncertainty</code> budget: "
+                     "recorded before the campaign computed one). The tables and figures show ± the σ propagated "
+                     "from image noise only, which leaves out the calibration, the structure and the target; no "
+                     "normalised-error plot can be drawn.</p>" if measured else
                      '<p class="missing">No configuration was measured: no uncertainty budget.</p>')
         return "".join(parts)
     has_true = any(c.structure and c.structure.square_true_mm is not None for c in with_budget)
@@ -383,7 +383,8 @@ def _structure_section(page: SessionPage) -> str:
     """Per measured configuration: the extrinsics used beside the truth, and the error with each source."""
     session = page.session
     measured = [c for c in session.configs if c.status == "measured" and c.structure is not None]
-    parts = ["<h3>Structure: the extrinsics each configuration was measured with</h3>"]
+    parts = [f'<h3 id="{_e(session.key)}-structure">Structure: the extrinsics each configuration was measured '
+             "with</h3>"]
     if not measured:
         parts.append('<p class="missing">No configuration was measured: no structure to show.</p>')
         return "".join(parts)
