@@ -136,6 +136,20 @@ class ResultRow(BaseModel):
     calibration_epipolar_rms_px: float | None = column("epipolar error of the calibration views, px", report=False)
     fraction_in_both_measured: float | None = column("measured share of the target's corners in both views")
     baseline_estimated_mm: float | None = column("|T| of the stereo calibration, mm", report=False)
+    # Issue 11 (structure) and issue 12 (uncertainty): which extrinsics measured the square, the structure they
+    # describe, the simulator's truth, and the uncertainty budget.
+    extrinsics_mode: str | None = column("extrinsics the measurement used: per-config | kinematic | nominal | fixed")
+    baseline_used_mm: float | None = column("optical baseline |T| of the extrinsics the measurement used, mm")
+    alpha_left_used_deg: float | None = column("left camera's alpha in the extrinsics the measurement used, deg")
+    alpha_right_used_deg: float | None = column("right camera's alpha in the extrinsics the measurement used, deg")
+    baseline_true_mm: float | None = column("simulated benches: the true optical baseline, mm")
+    alpha_left_true_deg: float | None = column("simulated benches: the left camera's true alpha, deg")
+    alpha_right_true_deg: float | None = column("simulated benches: the right camera's true alpha, deg")
+    square_true_mm: float | None = column("simulated benches: the printed square as the simulated board really is, mm")
+    u_combined_mm: float | None = column("combined standard uncertainty u_c of square_mean_mm, mm")
+    U_expanded_mm: float | None = column("expanded uncertainty U = k u_c of square_mean_mm, mm")
+    uncertainty: dict | None = nested("the uncertainty budget of square_mean_mm: noise, calibration, structure, "
+                                      "target (None: unknown), combined, expanded, k (mm) and what they rest on")
 
     def stored(self) -> dict[str, Any]:
         """The row as recorded (stream, store): strict JSON values, null known columns left out."""

@@ -44,10 +44,15 @@ def register(subparsers) -> None:
     report = subparsers.add_parser(
         "report", help="write an HTML report with tables and figures from recorded sessions",
         description="Read one or more recorded sessions and write a self-contained report directory: "
-                    "index.html (opens in a browser with no network), PNG figures (error against Z, B and alpha, "
-                    "as the paper's Figures 8, 9, 11; measured error beside the rigorous prediction; calibration "
-                    "quality), CSV tables (the paper's Table 1 and Table 2 layouts, all results) and annotated "
-                    "images per configuration. A previous report in the same place is replaced atomically.",
+                    "index.html (opens in a browser with no network), PNG figures (error +- U against Z, B and "
+                    "alpha, as the paper's Figures 8, 9, 11; the normalised error error/u_c with the +-2 band; "
+                    "each extrinsics source minus the truth; the structural error per extrinsics source across "
+                    "all sessions given; measured error beside the rigorous prediction; calibration quality), CSV "
+                    "tables (the paper's Table 1 and Table 2 layouts with error +- U, the uncertainty budget per "
+                    "configuration, the extrinsics side by side, all results) and annotated images per "
+                    "configuration. Sessions recorded before the budget and structure records still report and "
+                    "say what they lack. A previous report in the same place is replaced atomically. "
+                    "See docs/REPORTS.md.",
     )
     report.add_argument("sessions", nargs="+", metavar="SESSION", help="recorded session directory (one or more)")
     report.add_argument("--out", metavar="DIR",
