@@ -131,8 +131,8 @@ def failure(error: BaseException) -> CliError | None:
     """The one line and exit status of an exception a user or the bench can cause; None for a bug.
 
     The one mapping of the exception types of ``drivers/`` and ``stereo_bench/`` to exit statuses: what the
-    user can fix is 2, a fault of the controller or a camera during work is 1, a recording that cannot be
-    replayed is 1 (``replay``: did not reproduce). Imports are lazy: ``--help`` stays fast.
+    user can fix is 2 (a damaged recording included), a fault of the controller or a camera during work is 1.
+    Imports are lazy: ``--help`` stays fast.
     """
     if isinstance(error, CliError):
         return error
@@ -171,8 +171,8 @@ def failure(error: BaseException) -> CliError | None:
         # stops delivering during work: 1. A shared USB bus without bandwidth for both streams: 2 (move one).
         fault = isinstance(error, CameraGone | CaptureFailed | StereoSkewError)
         return CliError(text, EXIT_FAILED if fault and not isinstance(error, CameraBandwidthError) else EXIT_USAGE)
-    if isinstance(error, ReplayMismatch):
-        return CliError(f"the recording cannot be replayed: {text}", EXIT_FAILED)
+    if isinstance(error, ReplayMismatch):  # a recording that does not hold what its plan asks: damaged input
+        return CliError(f"the recording cannot be replayed: {text}")
     if isinstance(error, ConfigError | SessionError | DocumentError | StoreError | ReportError | FrameError
                   | CalibrationFileError | KinematicFileError | OperatorAbsent | ExecutorUnavailable
                   | BoardNotFoundError | AmbiguousViewError | ImplausibleMeasurement):

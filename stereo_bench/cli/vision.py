@@ -17,28 +17,31 @@ import cv2
 import numpy as np
 
 from stereo_bench.cli import CliError, print_json
-from stereo_bench.cli.args import board_pattern, finite_float, int_in
+from stereo_bench.cli.args import (
+    ALPHA_DEG,
+    BASELINE_MM,
+    DISTANCE_MM,
+    FOCAL_MM,
+    PIXEL_SIGMA_PX,
+    PIXEL_UM,
+    SEED,
+    SQUARE_MM,
+    TILT_DEG,
+    TOE_IN_DEG,
+    board_pattern,
+    finite_float,
+    output_dir,
+)
 from stereo_bench.targets import ARUCO_DICTIONARIES, CharucoTarget, Checkerboard, Target, parse_pattern
 
 IMAGE_HELP = "image file (PNG, JPEG, ...); colour images are converted to grey"
 
-# Ranges of the numeric options (each checked where it enters, stereo_bench/cli/args.py).
-SQUARE_MM = finite_float(min=0, max=1000, inclusive=(False, True), unit="mm")  # a 1 m square is a wall, not a board
-# Corner noise per coordinate: a detected corner scatters by well under a pixel; 10 px is no detection at all.
-PIXEL_SIGMA_PX = finite_float(min=0, max=10, unit="px")
+# Ranges of the numeric options only these commands take (the shared ones: stereo_bench/cli/args.py).
 BOARD_SCALE_U = finite_float(min=0, max=0.1, inclusive=(True, False))  # a relative standard uncertainty
-BASELINE_MM = finite_float(min=0, max=10_000, inclusive=(False, True), unit="mm")  # a 10 m rig is no bench
-DISTANCE_MM = finite_float(min=0, max=100_000, inclusive=(False, True), unit="mm")  # at 100 m a square is < 1 px
-ALPHA_DEG = finite_float(min=0, max=180, inclusive=(False, False), unit="deg")
-TOE_IN_DEG = finite_float(min=-90, max=90, inclusive=(False, False), unit="deg")  # alpha = 90 - toe-in in (0, 180)
-TILT_DEG = finite_float(min=-90, max=90, inclusive=(False, False), unit="deg")  # +-90: looking straight down or up
-FOCAL_MM = finite_float(min=0, max=1000, inclusive=(False, True), unit="mm")  # a 1 m lens is a telescope
-PIXEL_UM = finite_float(min=0, max=100, inclusive=(False, True), unit="um")  # sensor pixels are 1-30 um
 NOISE_DN = finite_float(min=0, max=255, unit="DN")  # 8-bit frames
 # The renderer's cost grows with the blur (kernel ~ 6 sigma): 50 px took 3 s, 200 px 16 s, 1000 px minutes; a
 # 9x6 board at 500 mm is no longer detected at 50 px.
 BLUR_PX = finite_float(min=0, max=50, unit="px")
-SEED = int_in(min=0)  # numpy's generators take non-negative seeds
 
 
 def add_target_options(parser: argparse.ArgumentParser, *, default_square_mm: float | None) -> None:
@@ -381,7 +384,8 @@ def register(subparsers) -> None:
     add_target_options(calibrate, default_square_mm=None)
     calibrate.add_argument("--left", required=True, metavar="GLOB", help="left images, e.g. 'DIR/left*.jpg' (quote it)")
     calibrate.add_argument("--right", required=True, metavar="GLOB", help="right images, e.g. 'DIR/right*.jpg'")
-    calibrate.add_argument("--out", required=True, metavar="CALIB_DIR", help="directory for the two YAML files")
+    calibrate.add_argument("--out", required=True, type=output_dir, metavar="CALIB_DIR",
+                           help="directory for the two YAML files")
     calibrate.add_argument("--intrinsics", metavar="CALIB_DIR_OR_FILE",
                            help="start from these intrinsics (intrinsics.yml); implies --mode fixed unless given")
     calibrate.add_argument("--mode", choices=("joint", "fixed"),
@@ -438,7 +442,7 @@ def register(subparsers) -> None:
                                                                          "-90-90 (toe-in = 90 - alpha)")
     render.add_argument("--tilt", type=TILT_DEG, default=0.0, metavar="DEG", help="heads' tilt, positive down "
                                                                                   "(-90-90)")
-    render.add_argument("--out", required=True, metavar="DIR")
+    render.add_argument("--out", required=True, type=output_dir, metavar="DIR")
     render.add_argument("--board", default="9x6", type=board_pattern, metavar="COLSxROWS",
                         help="inner corners (default 9x6)")
     render.add_argument("--square", type=SQUARE_MM, default=27.0, metavar="MM", help="square size (default 27)")
