@@ -322,7 +322,9 @@ def replay_job(job: tuple[str, str | None, dict]) -> dict:
         summary = replay_session(session, out, pipeline=pipeline)
     except (SessionError, KeyError, OSError, ReplayMismatch, CalibrationFileError, UnicodeDecodeError) as error:
         text = " ".join(str(error).strip("'\"").split())
-        if isinstance(error, ReplayMismatch):
+        if isinstance(error, OSError) and error.filename is not None and error.strerror:
+            text = f"{error.filename}: {error.strerror}"
+        elif isinstance(error, ReplayMismatch):
             text = f"the recording cannot be replayed: {text}"
         return {"session": session, "out": out, "error": text}
     return {"session": session, "out": out, "compared": summary.compared, "identical": summary.identical,

@@ -153,6 +153,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     except (RigError, CameraError) as error:  # recorded as 'failed' in the session; one line here
         mapped = failure(error)  # a port or camera that is not there: 2; a fault during the run: 1
         raise CliError(f"{mapped} (session {out}: stopped as failed)", exit_code=mapped.exit_code) from None
+    except OSError as error:  # a full or read-only disk: what is recorded stays, and the session resumes
+        mapped = failure(error)
+        resumable = (out / "documents.jsonl").is_file()
+        raise CliError(f"{mapped}" + (f" (session {out} stopped; once fixed: {resume_command})" if resumable
+                                      else "")) from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

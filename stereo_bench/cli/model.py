@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import json
 import math
 import sys
@@ -17,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stereo_bench.cli import CliError, print_json
+from stereo_bench import atomic
+from stereo_bench.cli import CliError, json_ready, print_json
 from stereo_bench.cli.args import (
     ALPHA_DEG,
     BASELINE_MM,
@@ -408,14 +410,16 @@ def cmd_surface(args: argparse.Namespace) -> int:
             meta = {"over": "alpha", "baseline_mm": args.baseline, "distance_mm": args.distance,
                     "one_camera": args.one_camera}
     records = [r.model_dump() for r in rows]
-    out.parent.mkdir(parents=True, exist_ok=True)
     if out.suffix.lower() == ".json":
-        out.write_text(json.dumps({**meta, "pixel_sigma_px": sigma, "rows": records}, indent=1, allow_nan=False) + "\n")
+        clean, reasons = json_ready({**meta, "pixel_sigma_px": sigma, "rows": records})
+        text = json.dumps({**clean, **({"null_reasons": reasons} if reasons else {})}, indent=1, allow_nan=False)
     else:
-        with out.open("w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=list(records[0]))
-            writer.writeheader()
-            writer.writerows({k: ("" if v is None else v) for k, v in rec.items()} for rec in records)
+        buffer = io.StringIO(newline="")
+        writer = csv.DictWriter(buffer, fieldnames=list(records[0]))
+        writer.writeheader()
+        writer.writerows({k: ("" if v is None else v) for k, v in rec.items()} for rec in records)
+        text = buffer.getvalue()
+    atomic.write_text(out, text.rstrip("\n") + "\n")  # names the file if the disk is full
     n_feasible = sum(r.feasible for r in rows)
     print(f"wrote {len(rows)} configurations ({n_feasible} with the whole board in both views) to {out}",
           file=sys.stderr if args.quiet else sys.stdout)

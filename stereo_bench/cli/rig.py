@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import logging
 import os
 import shlex
@@ -52,7 +51,7 @@ from drivers.sim.grbl_emulator import (
     axis_specs_for_travel,
     parse_fault,
 )
-from stereo_bench.cli import CliError, failure
+from stereo_bench.cli import CliError, failure, print_json
 from stereo_bench.cli.args import TIME_SCALE, finite_float
 
 # A bound on homing or one move: positive, and at most a day (a longer wait is no bound at all).
@@ -377,7 +376,7 @@ def _status(rig: GrblRig, args, *, as_json: bool) -> None:
         data["firmware"] = None if controller.banner is None else controller.banner.text
         data["position_unknown"] = controller.position_unknown
         data["controller"] = rig.controller_info()
-        print(json.dumps(data), flush=True)
+        print_json(data)
         return
     print(_describe(reading), flush=True)
     if controller.position_unknown:

@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from stereo_bench import atomic
 from stereo_bench.cli import CliError, print_json
 from stereo_bench.cli.args import (
     ALPHA_DEG,
@@ -344,8 +345,11 @@ def cmd_render(args: argparse.Namespace) -> int:
     T_rig_board = board_pose_facing_rig(distance_mm=args.distance, board_size_mm=target.grid_size_mm)
     pair = renderer.render_pair(rig, T_rig_board, np.random.default_rng(args.seed))
     for name, view in (("left.png", pair.left), ("right.png", pair.right)):
-        if not cv2.imwrite(str(out / name), view.image):
-            raise CliError(f"{out / name}: cannot write image")
+        # Encoded here, written by Python: cv2.imwrite reports a full disk only as 'libpng error' on stderr.
+        encoded, data = cv2.imencode(".png", view.image)
+        if not encoded:
+            raise CliError(f"{out / name}: cannot encode the image as PNG")
+        atomic.write_bytes(out / name, data.tobytes())
     truth_calib = StereoCalibration(
         K1=camera.K, D1=camera.dist.reshape(1, -1), K2=camera.K, D2=camera.dist.reshape(1, -1),
         R=pair.R, T=pair.T, image_size=camera.image_size, rms_px=0.0, mode="truth",
@@ -362,7 +366,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         "right": {"corners_px": pair.right.corners_px.tolist(), "visible": pair.right.visible.tolist()},
         "fraction_in_both": float((pair.left.visible & pair.right.visible).mean()),
     }
-    (out / "truth.json").write_text(json.dumps(truth, indent=1))
+    atomic.write_text(out / "truth.json", json.dumps(truth, indent=1))
     print(f"rendered B = {args.baseline:g} mm, Z = {args.distance:g} mm, alpha = {alpha:g} deg: "
           f"{truth['fraction_in_both']:.0%} of the board's corners in both views")
     print(f"wrote {out / 'left.png'}, {out / 'right.png'}, ground-truth calibration and {out / 'truth.json'}")

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from stereo_bench import __version__
-from stereo_bench.atomic import atomic_path
+from stereo_bench.atomic import write_text
 from stereo_bench.vision.calibrate import StereoCalibration, calibration_problems
 from stereo_bench.vision.covariance import CalibrationCovariance
 from stereo_bench.vision.rectify import Rectification
@@ -38,22 +38,24 @@ class CalibrationFileError(ValueError):
 
 
 def _write_storage(path: Path, items: dict[str, object]) -> None:
-    """Write one FileStorage YAML atomically (temporary file beside it, fsync, rename, directory fsync)."""
-    with atomic_path(path) as tmp:
-        # The temporary name does not end in .yml: name the format explicitly.
-        storage = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
-        for key, value in items.items():
-            if value is None:
-                continue
-            if isinstance(value, np.ndarray):
-                storage.write(key, np.asarray(value, np.float64))
-            elif isinstance(value, bool):
-                storage.write(key, int(value))
-            elif isinstance(value, int | float | str):
-                storage.write(key, value)
-            else:
-                raise TypeError(f"cannot write {key}={value!r} to {path}")
-        storage.release()
+    """Write one FileStorage YAML atomically (temporary file beside it, fsync, rename, directory fsync).
+
+    OpenCV composes the text in memory and Python writes it: OpenCV's own file writer ignores write errors,
+    so on a full disk it left empty calibration files and reported success.
+    """
+    storage = cv2.FileStorage(".yml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
+    for key, value in items.items():
+        if value is None:
+            continue
+        if isinstance(value, np.ndarray):
+            storage.write(key, np.asarray(value, np.float64))
+        elif isinstance(value, bool):
+            storage.write(key, int(value))
+        elif isinstance(value, int | float | str):
+            storage.write(key, value)
+        else:
+            raise TypeError(f"cannot write {key}={value!r} to {path}")
+    write_text(path, storage.releaseAndGetString())
 
 
 def _covariance_items(covariance: CalibrationCovariance | None, note: str) -> dict[str, object]:
