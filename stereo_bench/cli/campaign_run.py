@@ -178,7 +178,10 @@ def _summarise(args: argparse.Namespace, summary, out: Path, resume_command: str
     if summary.exit_status == "interrupted":
         print(f"resume:   {resume_command}", file=report)
         return EXIT_INTERRUPTED
-    return 0 if counts.get("measured", 0) or not counts else 1
+    if counts and not counts.get("measured", 0):
+        print("nothing was measured: exit status 1", file=report)  # a 'success' with nothing to show
+        return 1
+    return 0
 
 
 def register_run(subparsers) -> None:
