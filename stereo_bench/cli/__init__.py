@@ -202,9 +202,14 @@ def _stdout_is_closed(error: BaseException) -> bool:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, unknown = parser.parse_known_args(argv)
     except SystemExit as done:  # --help, --version, or a usage error already printed in one line
         return EXIT_OK if done.code is None else done.code if isinstance(done.code, int) else EXIT_USAGE
+    if unknown:  # said by the command that got them (argparse would name only 'stereo-bench')
+        where = " ".join(["stereo-bench"] + [str(getattr(args, name)) for name in ("command", *sorted(
+            name for name in vars(args) if name.endswith("_action"))) if getattr(args, name, None)])
+        print(f"{where}: error: unrecognized arguments: {' '.join(unknown)} (see {where} --help)", file=sys.stderr)
+        return EXIT_USAGE
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_USAGE
