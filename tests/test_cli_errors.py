@@ -238,6 +238,8 @@ CASES: list[tuple[str, Callable[[dict], list[str]], int, str]] = [
      "rig_nonutf8.toml: not UTF-8"),
     ("sim-controller-time-scale-nan", lambda c: ["sim-controller", "--link", c["root"] + "/grbl", "--time-scale",
                                                  "nan"], 2, "--time-scale"),
+    ("sim-controller-fault-nan", lambda c: ["sim-controller", "--link", c["root"] + "/grbl", "--fault",
+                                            "alarm:1:nan"], 2, "--fault: bad fault 'alarm:1:nan': FRACTION"),
     # --- campaigns ---
     ("plan-not-utf8", lambda c: ["campaign", "plan", c["root"] + "/nonutf8.toml"], 2, "nonutf8.toml: not UTF-8"),
     ("run-not-utf8", lambda c: ["campaign", "run", c["root"] + "/nonutf8.toml", "--out", c["root"] + "/n", "--yes"],
