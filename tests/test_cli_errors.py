@@ -112,6 +112,10 @@ def ctx(tmp_path_factory, small_reference) -> dict[str, str]:
     bring_up = SMALL.replace("[rig]\ntime_scale = 50", '[rig]\nkind = "grbl"\nport = "/dev/ttyNOPE9"')
     (root / "port_missing.toml").write_text(bring_up)
     (root / "a_file").write_text("not a directory")
+    corrupt = root / "corrupt_calib"
+    shutil.copytree(next((small_reference / "calib").glob("*/a1")), corrupt)
+    (corrupt / "extrinsics.yml").write_text("%YAML:1.0\nR: [this is not\n")
+    (root / "corrupt_calib.toml").write_text(SMALL + f'\n[extrinsics]\nmode = "fixed"\ncalib_dir = "{corrupt}"\n')
 
     # Damaged sessions: a move missing, a move that does not match, a recorded config that no longer validates.
     paths["missing_move"] = str(_damage_session(small_reference, root / "missing_move",
@@ -253,6 +257,9 @@ CASES: list[tuple[str, Callable[[dict], list[str]], int, str]] = [
                                         "--yes"], 2, "a_file"),
     ("run-port-missing", lambda c: ["campaign", "run", c["root"] + "/port_missing.toml", "--out",
                                     c["root"] + "/pm", "--yes", "--quiet"], 2, "/dev/ttyNOPE9"),
+    ("run-corrupt-calibration", lambda c: ["campaign", "run", c["root"] + "/corrupt_calib.toml", "--out",
+                                           c["root"] + "/cc", "--yes", "--quiet"], 2,
+     "corrupt_calib/extrinsics.yml: not a readable OpenCV YAML"),
     ("session-schema-unknown-option", lambda c: ["session", "schema", "--rows"], 2, "--rows"),
     # --- replay ---
     ("replay-missing-move", lambda c: ["replay", c["missing_move"], "--out", c["root"] + "/rmm"], 2,
