@@ -425,6 +425,63 @@ def test_a_bug_prints_its_traceback_and_exits_70(capfd, monkeypatch):
     assert "Traceback" in err and err.strip().splitlines()[-1].startswith("stereo-bench session: internal error")
 
 
+def _failures():
+    import cv2
+    from pydantic import BaseModel, ValidationError
+
+    from drivers.camera.base import CameraBandwidthError, CameraGone, CameraNotFound, CaptureFailed
+    from drivers.camera.stereo import StereoSkewError
+    from drivers.camera.usb_identity import UnstableCameraName
+    from drivers.replay import ReplayMismatch
+    from drivers.rig.config import LimitError, RigConfigError
+    from drivers.rig.grbl import GrblAlarm, GrblConnectionError, GrblConnectionLost, GrblLocked, GrblTimeout
+    from stereo_bench.campaign.session import SessionError
+    from stereo_bench.vision.calibio import CalibrationFileError
+
+    class Model(BaseModel):
+        x: int
+
+    try:
+        Model.model_validate({"x": "one", "y": 2})
+    except ValidationError as error:
+        invalid = error
+    try:
+        cv2.resize(np.zeros((0, 0), np.uint8), (0, 0))
+    except cv2.error as error:
+        refused = error
+    return [
+        (GrblAlarm(2, "during a move"), 1, "ALARM:2"), (GrblTimeout("no answer from /dev/ttyUSB0"), 1, "ttyUSB0"),
+        (GrblConnectionLost("/dev/ttyUSB0 went away"), 1, "ttyUSB0"), (GrblLocked("in Alarm"), 1, "Alarm"),
+        (GrblConnectionError("cannot open serial port /dev/ttyUSB9"), 2, "ttyUSB9"),
+        (LimitError(["baseline_mm = 400 outside [0, 350]"]), 2, "baseline_mm = 400"),
+        (RigConfigError("rig.toml: x"), 2, "rig.toml"),
+        (CameraNotFound("usb-port:1-2: no such camera"), 2, "usb-port:1-2"),
+        (UnstableCameraName("/dev/video0: use by-id:"), 2, "/dev/video0"),
+        (CameraBandwidthError("/dev/video2: No space left on device (USB bandwidth)"), 2, "/dev/video2"),
+        (CameraGone("/dev/video0 disappeared"), 1, "/dev/video0"), (CaptureFailed("left: grab failed"), 1, "left"),
+        (StereoSkewError("left-right 40 ms apart"), 1, "40 ms"),
+        (ReplayMismatch("move asks baseline_mm = 150"), 2, "cannot be replayed: move asks baseline_mm"),
+        (SessionError("s/documents.jsonl line 3: not JSON"), 2, "documents.jsonl line 3"),
+        (CalibrationFileError("c/extrinsics.yml: missing key 'T'"), 2, "extrinsics.yml"),
+        (invalid, 2, "Model: x: Input should be a valid integer"),
+        (OSError(errno.ENOSPC, "No space left on device", "out/x.png"), 2, "out/x.png: No space left on device"),
+        (OSError(errno.EROFS, "Read-only file system", "out"), 2, "out: Read-only file system"),
+        (UnicodeDecodeError("utf-8", b"ab\xff", 2, 3, "invalid start byte"), 2, "not UTF-8"),
+        (refused, 2, "OpenCV refused the input"),
+    ]
+
+
+def test_the_one_mapping_of_exception_types():
+    from stereo_bench.cli import failure
+
+    for error, status, text in _failures():
+        mapped = failure(error)
+        assert mapped is not None, error
+        assert (mapped.exit_code, "\n" in str(mapped)) == (status, False), (error, mapped)
+        assert text in str(mapped), (text, str(mapped))
+    assert failure(ValueError("a bug")) is None and failure(KeyError("x")) is None  # bugs keep their traceback
+
+
 def test_usage_errors_are_one_line(capfd):
     for argv in (["campaign"], ["model", "predict"], ["render", "--bogus"], ["measure"]):
         assert main(argv) == 2

@@ -139,7 +139,7 @@ def failure(error: BaseException) -> CliError | None:
     import cv2
     from pydantic import ValidationError
 
-    from drivers.camera.base import CameraBandwidthError, CameraError, CameraGone, CaptureFailed
+    from drivers.camera.base import CameraError, CameraGone, CaptureFailed
     from drivers.camera.stereo import StereoSkewError
     from drivers.replay import ReplayMismatch
     from drivers.rig.config import RigConfigError, RigError
@@ -167,10 +167,10 @@ def failure(error: BaseException) -> CliError | None:
         fault = isinstance(error, GrblConnectionLost) or not isinstance(error, user)
         return CliError(text, EXIT_FAILED if fault else EXIT_USAGE)
     if isinstance(error, CameraError):
-        # A camera that is not there, not allowed, busy, ambiguously named or refusing a setting: 2. One that
-        # stops delivering during work: 1. A shared USB bus without bandwidth for both streams: 2 (move one).
+        # A camera that is not there, not allowed, busy, ambiguously named, refusing a setting, or sharing a USB
+        # bus without bandwidth for both streams: 2. One that stops delivering during work: 1.
         fault = isinstance(error, CameraGone | CaptureFailed | StereoSkewError)
-        return CliError(text, EXIT_FAILED if fault and not isinstance(error, CameraBandwidthError) else EXIT_USAGE)
+        return CliError(text, EXIT_FAILED if fault else EXIT_USAGE)
     if isinstance(error, ReplayMismatch):  # a recording that does not hold what its plan asks: damaged input
         return CliError(f"the recording cannot be replayed: {text}")
     if isinstance(error, ConfigError | SessionError | DocumentError | StoreError | ReportError | FrameError
