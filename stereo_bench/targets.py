@@ -21,8 +21,9 @@ import numpy as np
 ARUCO_DICTIONARIES = {name: getattr(cv2.aruco, name) for name in dir(cv2.aruco) if name.startswith("DICT_")}
 
 #: Most inner corners a board may have. The largest calibration targets sold have ~2,000; everything that
-#: draws or searches a board scales with it: rendering a 120x119 board took 2.3 s and 0.6 GB, a 240x239 one
-#: 9.5 s and 2.2 GB, and a 1000x999 one ran for minutes (its printable texture alone is 4 GB).
+#: draws or searches a board scales with it: rendering a 100x99 board took 2 s and 113 MB more memory, a
+#: 240x239 one 21 s and 1.7 GB (scripts/bench_input_bounds.py, load 16), and a 1000x999 one ran for minutes
+#: (its printable texture alone is 4 GB).
 MAX_BOARD_CORNERS = 10_000
 
 

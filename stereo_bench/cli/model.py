@@ -52,16 +52,16 @@ TARGET_ERROR_MM = finite_float(min=0, max=1000, inclusive=(False, True), unit="m
 STRUCTURE_ERROR_MM = finite_float(min=0, max=1000, unit="mm")
 STRUCTURE_ERROR_DEG = finite_float(min=0, max=90, unit="deg")
 GRID_VALUE = finite_float()  # START STOP STEP of a grid; _range checks their order and the grid's size
-# Monte Carlo samples: ~50 us each on one core plus 32 bytes kept per sample. A million gives the sigmas to
-# 1/sqrt(2N) = 0.07 % in under a minute; 1e9 would need 30 GB and hours.
+# Monte Carlo samples: 50-190 us each on one core (load 6-16, scripts/bench_input_bounds.py) plus 32 bytes kept
+# per sample. A million gives the sigmas to 1/sqrt(2N) = 0.07 % in minutes; 1e9 would need 30 GB and days.
 MAX_MONTE_CARLO = 1_000_000
 MONTE_CARLO = int_in(min=2, max=MAX_MONTE_CARLO)
-# Planned calibration views: the predicted calibration error costs ~1 ms per view per configuration (2000
-# views: 6 s for one); a bench collects 10-50.
+# Planned calibration views: the predicted calibration error costs 3-5 ms per view per configuration (500
+# views: 1.5 s for one, scripts/bench_input_bounds.py); a bench collects 10-50.
 MAX_CALIBRATION_VIEWS = 500
 CALIBRATION_VIEWS = int_in(min=0, max=MAX_CALIBRATION_VIEWS)
-# Configurations of one surface or advice grid: ~10 ms each on one core (a 40x40 surface took 17 s), so
-# 100,000 is a quarter of an hour; a bigger grid is a typo in STEP.
+# Configurations of one surface or advice grid: 10-20 ms each on one core (load 6-16,
+# scripts/bench_input_bounds.py), so 100,000 is half an hour at most; a bigger grid is a typo in STEP.
 MAX_GRID_CONFIGURATIONS = 100_000
 
 
@@ -213,7 +213,7 @@ def _check_grid(*axes: np.ndarray, options: str) -> None:
     total = math.prod(len(a) for a in axes)
     if total > MAX_GRID_CONFIGURATIONS:
         raise CliError(f"{options}: {' x '.join(str(len(a)) for a in axes)} = {total} configurations is too many "
-                       f"(at most {MAX_GRID_CONFIGURATIONS}, ~10 ms each): use coarser steps")
+                       f"(at most {MAX_GRID_CONFIGURATIONS}, 10-20 ms each): use coarser steps")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -40,8 +40,8 @@ IMAGE_HELP = "image file (PNG, JPEG, ...); colour images are converted to grey"
 # Ranges of the numeric options only these commands take (the shared ones: stereo_bench/cli/args.py).
 BOARD_SCALE_U = finite_float(min=0, max=0.1, inclusive=(True, False))  # a relative standard uncertainty
 NOISE_DN = finite_float(min=0, max=255, unit="DN")  # 8-bit frames
-# The renderer's cost grows with the blur (kernel ~ 6 sigma): 50 px took 3 s, 200 px 16 s, 1000 px minutes; a
-# 9x6 board at 500 mm is no longer detected at 50 px.
+# The renderer's cost grows with the blur (kernel ~ 6 sigma): 50 px took 3.6 s, 200 px 48 s at load 16
+# (scripts/bench_input_bounds.py), 1000 px ran for minutes; at 50 px a 9x6 board at 500 mm is no longer detected.
 BLUR_PX = finite_float(min=0, max=50, unit="px")
 
 
