@@ -310,6 +310,7 @@ def test_campaign_run_json_keeps_stdout_json_on_failure(ctx, capfd):
     assert documents[0]["type"] == "start" and documents[-1]["type"] == "stop"
 
 
+@pytest.mark.slow  # a render or campaign runs first (3-5 s)
 def test_a_batch_replay_survives_a_session_that_cannot_be_replayed(ctx, capfd):
     code = main(["replay", ctx["session"], ctx["mismatch_move"], "--executor", "serial", "--json"])
     out, err = capfd.readouterr()
@@ -368,6 +369,7 @@ def test_calibrate_on_a_full_disk_names_the_file_and_writes_nothing(capfd, monke
     assert not (tmp_path / "c" / "intrinsics.yml").exists()  # was: two empty YAML files and exit 0
 
 
+@pytest.mark.slow  # a render or campaign runs first (3-5 s)
 def test_render_on_a_full_disk_names_the_file(capfd, monkeypatch, tmp_path):
     _full_disk(monkeypatch)
     code = main(["render", "--baseline", "100", "--distance", "500", "--out", str(tmp_path / "r")])
@@ -375,6 +377,7 @@ def test_render_on_a_full_disk_names_the_file(capfd, monkeypatch, tmp_path):
     assert code == 2 and "left.png: No space left on device" in line
 
 
+@pytest.mark.slow  # a render or campaign runs first (3-5 s)
 def test_campaign_on_a_full_disk_stops_resumable_and_says_how(capfd, monkeypatch, tmp_path):
     from tests.campaigns import SMALL as text
 
