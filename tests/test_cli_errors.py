@@ -502,3 +502,17 @@ def test_json_output_has_no_nan(capsys):
     print_json(value)
     printed = json.loads(capsys.readouterr().out, parse_constant=lambda name: pytest.fail(f"{name} in JSON"))
     assert printed["square_mm"]["std"] is None and set(printed["null_reasons"]) == set(reasons)
+
+
+def test_a_closed_output_pipe_ends_quietly_with_141():
+    """``stereo-bench ... --json | head -c 100``: the reader goes away; no traceback, no error line."""
+    import subprocess
+    import sys
+
+    k_values = [f"{k:.3f}" for k in np.arange(0.01, 3.0, 0.001)]  # ~200 kB of JSON: more than a pipe holds
+    process = subprocess.Popen([sys.executable, "-m", "stereo_bench", "model", "paper", "--json", "--k", *k_values],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert process.stdout.read(100).startswith(b"{")
+    process.stdout.close()
+    err = process.stderr.read().decode()
+    assert process.wait(timeout=60) == 141 and err == ""

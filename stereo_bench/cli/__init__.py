@@ -190,13 +190,9 @@ def failure(error: BaseException) -> CliError | None:
 
 
 def _stdout_is_closed(error: BaseException) -> bool:
-    if not isinstance(error, BrokenPipeError):
-        return False
-    try:
-        sys.stdout.flush()
-    except (BrokenPipeError, ValueError):
-        return True
-    return False
+    """A broken pipe naming no file: the reader of our output went away (files, the serial link and sockets
+    fail otherwise, or name their file)."""
+    return isinstance(error, BrokenPipeError) and error.filename is None
 
 
 def main(argv: list[str] | None = None) -> int:
