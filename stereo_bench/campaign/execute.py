@@ -331,11 +331,19 @@ def replay_job(job: tuple[str, str | None, dict]) -> dict:
 
     Errors come back as data (``error``) so one bad session does not sink a batch.
     """
+    from drivers.replay import ReplayMismatch
+    from stereo_bench.vision.calibio import CalibrationFileError
+
     session, out, pipeline = job
     try:
         summary = replay_session(session, out, pipeline=pipeline)
-    except (SessionError, KeyError, OSError) as error:
-        return {"session": session, "out": out, "error": str(error).strip("'\"")}
+    except (SessionError, KeyError, OSError, ReplayMismatch, CalibrationFileError, UnicodeDecodeError) as error:
+        text = " ".join(str(error).strip("'\"").split())
+        if isinstance(error, OSError) and error.filename is not None and error.strerror:
+            text = f"{error.filename}: {error.strerror}"
+        elif isinstance(error, ReplayMismatch):
+            text = f"the recording cannot be replayed: {text}"
+        return {"session": session, "out": out, "error": text}
     return {"session": session, "out": out, "compared": summary.compared, "identical": summary.identical,
             "measured": summary.measured, "differences": summary.differences,
             "carried_over": summary.carried_over, "pipeline": pipeline, "plan_drift": summary.plan_drift}

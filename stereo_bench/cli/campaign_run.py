@@ -15,7 +15,8 @@ import sys
 import time
 from pathlib import Path
 
-from stereo_bench.cli import CliError
+from stereo_bench.cli import CliError, failure
+from stereo_bench.cli.args import TIME_SCALE, output_dir
 
 EXIT_INTERRUPTED = 130
 
@@ -40,14 +41,25 @@ def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: 
     if time_scale is not None:
         if config.rig.kind != "simulated":
             raise CliError("--time-scale applies to the simulated rig only")
-        if not time_scale > 0:
-            raise CliError(f"--time-scale must be > 0, not {time_scale:g}")
-        config = config.model_copy(update={"rig": config.rig.model_copy(update={"time_scale": time_scale})})
+        config = _override(config, "rig", "time_scale", time_scale, "--time-scale")
     if sim is not None:
         if config.cameras.kind != "simulated":
             raise CliError("--sim applies to simulated cameras only (the simulated bench or bring-up)")
-        config = config.model_copy(update={"sim": config.sim.model_copy(update={"profile": sim})})
+        config = _override(config, "sim", "profile", sim, "--sim")
     return config
+
+
+def _override(config, section: str, field: str, value, option: str):
+    """``config`` with ``section.field = value``, validated as if the file said so (``model_copy`` would not)."""
+    from pydantic import ValidationError
+
+    current = getattr(config, section)
+    try:
+        replaced = type(current).model_validate({**current.model_dump(exclude_unset=True), field: value})
+    except ValidationError as error:
+        message = error.errors()[0].get("msg", "invalid").removeprefix("Value error, ")
+        raise CliError(f"{option} {value}: {message}") from None
+    return config.model_copy(update={section: replaced})
 
 
 
@@ -186,7 +198,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     except (SessionError, OperatorAbsent) as error:
         raise CliError(str(error)) from None
     except (RigError, CameraError) as error:  # recorded as 'failed' in the session; one line here
-        raise CliError(f"{error} (session {out}: stopped as failed)", exit_code=1) from None
+        mapped = failure(error)  # a port or camera that is not there: 2; a fault during the run: 1
+        raise CliError(f"{mapped} (session {out}: stopped as failed)", exit_code=mapped.exit_code) from None
+    except OSError as error:  # a full or read-only disk: what is recorded stays, and the session resumes
+        mapped = failure(error)
+        resumable = (out / "documents.jsonl").is_file()
+        raise CliError(f"{mapped}" + (f" (session {out} stopped; once fixed: {resume_command})" if resumable
+                                      else "")) from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -211,7 +229,10 @@ def _summarise(args: argparse.Namespace, summary, out: Path, resume_command: str
     if summary.exit_status == "interrupted":
         print(f"resume:   {resume_command}", file=report)
         return EXIT_INTERRUPTED
-    return 0 if counts.get("measured", 0) or not counts else 1
+    if counts and not counts.get("measured", 0):
+        print("nothing was measured: exit status 1", file=report)  # a 'success' with nothing to show
+        return 1
+    return 0
 
 
 def register_run(subparsers) -> None:
@@ -225,12 +246,13 @@ def register_run(subparsers) -> None:
     )
     run.add_argument("plan", nargs="?", metavar="PLAN.toml", help="campaign file")
     run.add_argument("--preset", metavar="NAME", help="a built-in campaign (see: stereo-bench campaign presets)")
-    run.add_argument("--out", required=True, metavar="DIR", help="session directory (never overwritten)")
+    run.add_argument("--out", required=True, type=output_dir, metavar="DIR",
+                     help="session directory (never overwritten)")
     run.add_argument("--resume", action="store_true", help="continue the interrupted session in --out")
     run.add_argument("--yes", action="store_true",
                      help="simulated cameras: let the simulator do the manual steps (moving the target in the "
                           "simulated scene) instead of asking")
-    run.add_argument("--time-scale", type=float, metavar="X",
+    run.add_argument("--time-scale", type=TIME_SCALE, metavar="X",
                      help="simulated rig: run motion and exposures X times faster than real time")
     run.add_argument("--sim", choices=("lab", "ideal"),
                      help="simulated cameras: the simulated bench's profile, 'lab' (a bench as built: the default) or "

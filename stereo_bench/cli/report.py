@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
-from stereo_bench.cli import CliError
+from stereo_bench.cli import CliError, print_json
+from stereo_bench.cli.args import output_dir
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -25,10 +25,9 @@ def cmd_report(args: argparse.Namespace) -> int:
         print(f"stereo-bench report: warning: {warning}", file=sys.stderr)
     counts = summary.counts()
     if args.json:
-        json.dump({"out": str(summary.out), "index": str(summary.index), "counts": counts,
-                   "sessions": [str(s.directory) for s in summary.sessions], "files": summary.files,
-                   "warnings": summary.warnings}, sys.stdout)
-        print()
+        print_json({"out": str(summary.out), "index": str(summary.index), "counts": counts,
+                    "sessions": [str(s.directory) for s in summary.sessions], "files": summary.files,
+                    "warnings": summary.warnings})
     else:
         figures = sum(1 for f in summary.files if f.startswith("figures/"))
         tables = sum(1 for f in summary.files if f.startswith("tables/"))
@@ -55,7 +54,7 @@ def register(subparsers) -> None:
                     "See docs/REPORTS.md.",
     )
     report.add_argument("sessions", nargs="+", metavar="SESSION", help="recorded session directory (one or more)")
-    report.add_argument("--out", metavar="DIR",
+    report.add_argument("--out", type=output_dir, metavar="DIR",
                         help="report directory (default: SESSION/report; required for several sessions)")
     report.add_argument("--no-images", action="store_true",
                         help="leave out the annotated images per configuration (faster)")
