@@ -13,7 +13,11 @@ thread that called it: work OpenCV spreads over its own worker threads is not in
 CPU time is), and how much of the runner's own thread (the critical path: what the wall time is
 made of) it held.
 
-    python scripts/bench_campaign.py [--profiles ideal lab] [--out FILE] [--keep DIR]
+    python scripts/bench_campaign.py [--profiles ideal lab] [--out FILE] [--keep DIR] [--ui [--repeat N]]
+
+--ui also measures the live page's cost: runs of the default campaign without and with the page
+served and a headless client attached (wall and process CPU medians), and the live preview rate
+while the cameras are lent.
 """
 
 from __future__ import annotations
@@ -23,14 +27,18 @@ import functools
 import json
 import os
 import shutil
+import statistics
 import tempfile
 import threading
 import time
 from collections import defaultdict
 from pathlib import Path
 
+import httpx
+
 from stereo_bench.campaign.config import campaign_from_dict
-from stereo_bench.campaign.execute import CampaignPlan, replay_session, run_campaign
+from stereo_bench.campaign.execute import CampaignPlan, RunControl, replay_session, run_campaign
+from stereo_bench.campaign.operator import SimulatedOperator
 from stereo_bench.campaign.plan import estimate_duration
 from stereo_bench.campaign.session import SessionReader
 
@@ -289,11 +297,124 @@ def bench_profile(profile: str, keep: Path | None) -> dict:
     }
 
 
+class HeadlessClient:
+    """What the page's script does, without a browser: read the state stream, fetch each new preview pair."""
+
+    def __init__(self, base_url: str):
+        self.base_url = base_url
+        self.events = self.previews = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def start(self) -> HeadlessClient:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=10)
+
+    def _run(self) -> None:
+        shown = 0
+        with httpx.Client(base_url=self.base_url, timeout=10) as fetch, \
+                httpx.Client(base_url=self.base_url, timeout=None) as stream_client, \
+                stream_client.stream("GET", "/api/events") as stream:
+            for line in stream.iter_lines():
+                if self._stop.is_set():
+                    return
+                if not line.startswith("data: "):
+                    continue
+                self.events += 1
+                preview = json.loads(line[6:]).get("preview") or {}
+                if preview.get("version", 0) > shown:
+                    shown = preview["version"]
+                    for side in ("left", "right"):
+                        fetch.get(f"/preview/{side}.jpg?v={shown}")
+                    self.previews += 1
+
+
+def run_with_page(config, session: Path, plan) -> tuple:
+    """The campaign with the live page served and a headless client attached; (summary, client, page stats)."""
+    from stereo_bench.live.page import LivePage
+
+    control = RunControl()
+    page = LivePage.for_campaign(config, session_dir=session, control=control).start()
+    client = HeadlessClient(f"http://127.0.0.1:{page.server.port}").start()
+    try:
+        while not page.previews.watched:
+            time.sleep(0.01)
+        summary = run_campaign(config, session, plan=plan, control=control, subscribers=[page.state],
+                               frame_subscribers=[page.previews.captured],
+                               operators=[SimulatedOperator(), page.operator])
+    finally:
+        client.stop()
+        page.stop()
+    return summary, client, dict(page.previews.stats)
+
+
+def live_preview_rate(config, seconds: float = 5.0) -> dict:
+    """Live previews per second while the cameras are lent (as while the runner waits for the operator)."""
+    from stereo_bench.campaign.bench import open_bench
+    from stereo_bench.live.page import LivePage
+
+    plan = CampaignPlan.of(config)
+    configuration = plan.configurations[0]
+    page = LivePage.for_campaign(config, session_dir=None).start()
+    try:
+        with open_bench(config, operators=[]) as bench:
+            bench.rig.home()
+            bench.rig.move_to(**{q: v for q, v in configuration.move_request().items() if q != "target_distance_mm"})
+            bench.presenter.begin_configuration(configuration)
+            bench.presenter.prepare_calibration(config.capture.calibration_views)
+            bench.presenter.present_calibration_view(0)
+            page.use_bench(bench)
+            client = HeadlessClient(f"http://127.0.0.1:{page.server.port}").start()
+            with bench.camera_gate.lent():
+                time.sleep(1.0)  # renderers warm, client connected
+                first, started = page.previews.stats["live"], time.monotonic()
+                fetched = client.previews
+                time.sleep(seconds)
+                grabbed = page.previews.stats["live"] - first
+                elapsed = time.monotonic() - started
+                fetched = client.previews - fetched
+            client.stop()
+    finally:
+        page.stop()
+    return {"live_previews_per_s": grabbed / elapsed, "fetched_by_client_per_s": fetched / elapsed,
+            "image_size": list(config.cameras.optics.camera_model("left").image_size), "target": 5.0}
+
+
+def ui_overhead(config, plan, workdir: Path, repeat: int) -> dict:
+    walls: dict[str, list[float]] = {"without": [], "with": []}
+    cpus: dict[str, list[float]] = {"without": [], "with": []}  # this process, all threads: the load-proof part
+    clients = []
+    for i in range(repeat):
+        for mode in ("without", "with"):
+            session = workdir / f"{mode}-{i}"
+            started, cpu_started = time.monotonic(), time.process_time()
+            if mode == "with":
+                summary, client, stats = run_with_page(config, session, plan)
+                clients.append({"events": client.events, "previews_fetched": client.previews, **stats})
+            else:
+                summary = run_campaign(config, session, yes=True, plan=plan)
+            walls[mode].append(time.monotonic() - started)
+            cpus[mode].append(time.process_time() - cpu_started)
+            assert summary.exit_status == "success", summary
+            shutil.rmtree(session, ignore_errors=True)
+    ratio = statistics.median(walls["with"]) / statistics.median(walls["without"])
+    cpu_ratio = statistics.median(cpus["with"]) / statistics.median(cpus["without"])
+    return {"wall_s_without_page": walls["without"], "wall_s_with_page": walls["with"], "median_ratio": ratio,
+            "cpu_s_without_page": cpus["without"], "cpu_s_with_page": cpus["with"], "cpu_median_ratio": cpu_ratio,
+            "target": 1.05, "client": clients}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profiles", nargs="+", default=["ideal", "lab"], choices=["ideal", "lab"])
     parser.add_argument("--out", default="scripts/results/bench_campaign.json")
     parser.add_argument("--keep", metavar="DIR", type=Path, help="keep the recorded sessions here (DIR/<profile>)")
+    parser.add_argument("--ui", action="store_true", help="also measure the live page's cost (see the docstring)")
+    parser.add_argument("--repeat", type=int, default=3, help="--ui: pairs of runs without and with the page")
     args = parser.parse_args()
     # Recorded because a run at a higher priority (nice -n -15 python scripts/bench_campaign.py) keeps other
     # processes of the machine from preempting it (not other machines sharing its host).
@@ -323,6 +444,25 @@ def main() -> None:
         before, after = (" ".join(f"{v:.2f}" for v in result[key])
                          for key in ("loadavg_before_1_5_15", "loadavg_after_1_5_15"))
         print(f"{'load average (1, 5, 15 min)':32s} before {before}, after {after}")
+    if args.ui:
+        config = campaign_from_dict(CAMPAIGN)
+        workdir = Path(tempfile.mkdtemp(prefix="bench-campaign-ui-"))
+        try:
+            ui = ui_overhead(config, CampaignPlan.of(config), workdir, args.repeat)
+            ui_rate = live_preview_rate(config)
+        finally:
+            shutil.rmtree(workdir, ignore_errors=True)
+        results["ui"] = {**ui, "idle_previews": ui_rate}
+        print(f"{'wall without the page':32s} {' '.join(f'{w:.1f}' for w in ui['wall_s_without_page'])} s")
+        last = ui["client"][-1]
+        print(f"{'wall with page + client':32s} {' '.join(f'{w:.1f}' for w in ui['wall_s_with_page'])} s  "
+              f"({last['previews_fetched']} preview pairs fetched, {last['events']} events)")
+        print(f"{'with / without (medians)':32s} {ui['median_ratio']:7.3f}   (target <= 1.05)")
+        print(f"{'CPU s without / with the page':32s} {statistics.median(ui['cpu_s_without_page']):.1f} / "
+              f"{statistics.median(ui['cpu_s_with_page']):.1f} s  (ratio {ui['cpu_median_ratio']:.3f})")
+        print(f"{'live previews while idle':32s} {ui_rate['live_previews_per_s']:7.1f} /s at "
+              f"{ui_rate['image_size'][0]}x{ui_rate['image_size'][1]} (client fetched "
+              f"{ui_rate['fetched_by_client_per_s']:.1f}/s; target >= 5)")
     with open(args.out, "w") as handle:
         json.dump(results, handle, indent=1)
 

@@ -97,6 +97,10 @@ def write_bytes(path: str | Path, data: bytes, *, overwrite: bool = True) -> Pat
         os.close(fd)
         fd = -1
         _commit(tmp, path, overwrite=overwrite)
+    except OSError as error:  # os.write names no file: a full disk must say which file it could not write
+        if error.filename is None:
+            error.filename = str(path)
+        raise
     finally:
         if fd >= 0:
             os.close(fd)

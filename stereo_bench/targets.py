@@ -20,6 +20,17 @@ import numpy as np
 
 ARUCO_DICTIONARIES = {name: getattr(cv2.aruco, name) for name in dir(cv2.aruco) if name.startswith("DICT_")}
 
+#: Most inner corners a board may have. The largest calibration targets sold have ~2,000; everything that
+#: draws or searches a board scales with it: rendering a 100x99 board took 2 s and 113 MB more memory, a
+#: 240x239 one 21 s and 1.7 GB (scripts/bench_input_bounds.py, load 16), and a 1000x999 one ran for minutes
+#: (its printable texture alone is 4 GB).
+MAX_BOARD_CORNERS = 10_000
+
+
+def aruco_dictionary_size(name: str) -> int:
+    """How many distinct markers the OpenCV ArUco dictionary ``name`` holds."""
+    return int(cv2.aruco.getPredefinedDictionary(ARUCO_DICTIONARIES[name]).bytesList.shape[0])
+
 
 @dataclass(frozen=True)
 class Texture:
@@ -41,6 +52,8 @@ def parse_pattern(text: str) -> tuple[int, int]:
     cols, rows = int(match.group(1)), int(match.group(2))
     if cols < 2 or rows < 2:
         raise ValueError(f"board pattern {text!r} needs at least 2x2 inner corners")
+    if cols * rows > MAX_BOARD_CORNERS:
+        raise ValueError(f"board pattern {text!r} has {cols * rows} corners; at most {MAX_BOARD_CORNERS}")
     return cols, rows
 
 
@@ -67,6 +80,9 @@ class Checkerboard:
     def __post_init__(self):
         if self.cols < 2 or self.rows < 2:
             raise ValueError(f"a checkerboard needs at least 2x2 inner corners, not {self.cols}x{self.rows}")
+        if self.n_corners > MAX_BOARD_CORNERS:
+            raise ValueError(f"a {self.cols}x{self.rows} checkerboard has {self.n_corners} inner corners; "
+                             f"at most {MAX_BOARD_CORNERS}")
         if self.cols == self.rows:
             # A square grid can be detected in four rotations; corner order would be unprovable.
             raise ValueError(
@@ -144,6 +160,17 @@ class CharucoTarget:
             raise ValueError(f"unknown ArUco dictionary {self.dictionary!r}")
         if not 0 < self.marker_mm < self.square_mm:
             raise ValueError("marker_mm must be positive and smaller than square_mm")
+        if self.squares_x < 2 or self.squares_y < 2:
+            raise ValueError(f"a ChArUco board needs at least 2x2 squares, not {self.squares_x}x{self.squares_y}")
+        if self.n_corners > MAX_BOARD_CORNERS:
+            raise ValueError(f"a {self.squares_x}x{self.squares_y} ChArUco board has {self.n_corners} inner corners; "
+                             f"at most {MAX_BOARD_CORNERS}")
+        # Markers sit on every other square, each with an id of its own: a board needing more ids than the
+        # dictionary holds would repeat markers (OpenCV builds it, then fails drawing it).
+        markers, available = self.squares_x * self.squares_y // 2, aruco_dictionary_size(self.dictionary)
+        if markers > available:
+            raise ValueError(f"a {self.squares_x}x{self.squares_y} ChArUco board has {markers} markers but "
+                             f"{self.dictionary} holds only {available}: use fewer squares or a larger dictionary")
 
     @property
     def cols(self) -> int:

@@ -70,7 +70,8 @@ def test_bring_up_mode_renders_from_the_positions_the_controller_reports(tmp_pat
 def test_bring_up_without_the_controller_is_one_line_and_a_failed_session(tmp_path, capsys):
     plan = tmp_path / "bring-up.toml"
     plan.write_text(SMALL.replace("[rig]\ntime_scale = 50\n", f'[rig]\nkind = "grbl"\nport = "{tmp_path}/no-tty"\n'))
-    assert main(["campaign", "run", str(plan), "--out", str(tmp_path / "s"), "--yes", "--quiet"]) == 1
+    # A port that is not there is the user's to fix: exit 2, as `rig --port` says (docs/EXIT_STATUS.md).
+    assert main(["campaign", "run", str(plan), "--out", str(tmp_path / "s"), "--yes", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no-tty" in err[0] and "stopped as failed" in err[0]
     assert SessionReader(tmp_path / "s").stops()[-1]["exit_status"] == "failed"
@@ -197,7 +198,11 @@ def test_nothing_moves_when_nothing_is_left_to_run(tmp_path, small_copy):
 
 
 def test_pause_holds_the_run_at_a_step_boundary_until_resumed(tmp_path):
-    config = small_config(plan={"baseline_mm": [100], "distance_mm": [450], "alpha_deg": [90]})
+    # The subscriber pauses from the recorder thread, after the move is written; a settle of 0.1 s (real)
+    # lets that land before the next step boundary: the captures after it take a few ms once the simulator
+    # has rendered them ahead.
+    config = small_config(plan={"baseline_mm": [100], "distance_mm": [450], "alpha_deg": [90]},
+                          capture={"settle_s": 5.0})
     control = RunControl()
     paused_at: list[float] = []
 

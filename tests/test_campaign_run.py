@@ -90,10 +90,10 @@ def test_manual_steps_without_an_operator_are_a_clear_error(plan_file, tmp_path)
 
 @pytest.fixture
 def long_settle_plan_file(tmp_path) -> Path:
-    """The small plan with a settle of 0.4 s (real): time to signal a run at its last configuration before its
+    """The small plan with a settle of 1 s (real): time to signal or kill a run at a configuration before its
     captures, which take a few ms once the simulator has rendered them ahead (the numbers do not depend on it)."""
     path = tmp_path / "small-long-settle.toml"
-    path.write_text(SMALL.replace("settle_s = 0.1", "settle_s = 20"))
+    path.write_text(SMALL.replace("settle_s = 0.1", "settle_s = 50"))
     return path
 
 
@@ -126,9 +126,9 @@ def _wait_for_the_last_move(process: subprocess.Popen, out: Path) -> None:
 
 @pytest.mark.slow
 def test_sigkill_mid_campaign_then_resume_gives_every_configuration_once_with_the_same_numbers(
-        plan_file, tmp_path, small_reference):
+        long_settle_plan_file, tmp_path, small_reference):
     out = tmp_path / "killed"
-    process = _launch(plan_file, out)
+    process = _launch(long_settle_plan_file, out)
     _wait_for_first_result(process, out)
     os.kill(process.pid, signal.SIGKILL)
     process.wait(timeout=30)

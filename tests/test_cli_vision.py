@@ -129,7 +129,7 @@ def test_measure_reports_the_uncertainty_budget(capsys, calib_dir):
     code, out, _ = run(capsys, *args)
     assert code == 0 and f"+- {u['expanded']:.4f} mm (k=2)" in out and "structure unknown" in out
     code, _, err = run(capsys, *args, "--board-scale-u=-1")
-    assert code == 2 and "--board-scale-u must be" in err and len(err.strip().splitlines()) == 1
+    assert code == 2 and "--board-scale-u: must be" in err and len(err.strip().splitlines()) == 1
 
 
 def test_measure_with_a_calibration_without_covariance_says_unknown(capsys, calib_dir, tmp_path):

@@ -23,6 +23,7 @@ LAYERS = [
     ("vision", {"stereo_bench.vision"}),
     ("models", {"stereo_bench.campaign", "stereo_bench.errormodel"}),
     ("report", {"stereo_bench.report"}),
+    ("live", {"stereo_bench.live"}),  # the live page: a subscriber and operator of campaigns, served by the CLI
     ("cli", {"stereo_bench.cli", "stereo_bench.__main__"}),
 ]
 # The one library module that may import the simulators (the simulated-bench factory); the CLI, which

@@ -90,17 +90,17 @@ def test_model_predict_takes_the_renderers_intrinsics(capsys, tmp_path):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["model", "predict", "--baseline", "-1", "--distance", "500"], "--baseline and --distance must be positive"),
-        (["model", "predict", "--baseline", "100", "--distance", "500", "--alpha", "190"], "--alpha must lie"),
+        (["model", "predict", "--baseline", "-1", "--distance", "500"], "--baseline: must be a finite number > 0"),
+        (["model", "predict", "--baseline", "100", "--distance", "500", "--alpha", "190"], "--alpha: must be"),
         (["model", "predict", "--baseline", "100", "--distance", "500", "--pixel-sigma", "nan"], "--pixel-sigma"),
-        (["model", "predict", "--baseline", "100", "--distance", "500", "--monte-carlo", "1"], "at least 2"),
+        (["model", "predict", "--baseline", "100", "--distance", "500", "--monte-carlo", "1"], "--monte-carlo:"),
         (["model", "predict", "--baseline", "100", "--distance", "500", "--board", "9x9"], "--board/--square"),
         (["model", "predict", "--baseline", "100", "--distance", "500", "--intrinsics", "/nonexistent/x"],
          "/nonexistent/x"),
         (["model", "predict", "--baseline", "100", "--distance", "500", "--monte-carlo", "10", "--scheduler",
           "tcp://127.0.0.1:9"], "--executor dask"),
-        (["model", "paper", "--k", "0"], "--k values must be positive"),
-        (["advise", "--distance", "500", "--target-error-mm", "0"], "must be positive"),
+        (["model", "paper", "--k", "0"], "argument --k: must be a finite number > 0"),
+        (["advise", "--distance", "500", "--target-error-mm", "0"], "--target-error-mm: must be"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(capsys, argv, message):

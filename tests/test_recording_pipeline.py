@@ -113,3 +113,18 @@ def test_frames_are_encoded_on_threads_nicer_than_the_one_that_records(tmp_path,
         writer.stop(exit_status="success")
     assert priorities == [min(mine + BACKGROUND_NICE, 19)]
     assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == mine
+
+
+def test_a_prepared_draft_keeps_its_images_for_frame_subscribers(tmp_path):
+    """The live page's previews subscribe to the recorded frames' pixels: encoding ahead must not replace them."""
+    image = np.arange(48 * 64, dtype=np.uint8).reshape(48, 64)
+    seen = []
+    with SessionWriter(tmp_path / "session") as writer:
+        writer.start(config={"n": 1}, plan=PLAN, software={"test": 1})
+        bus = DocumentBus(writer)
+        bus.subscribe_frames(lambda document, frames: seen.append(frames["left"]))
+        bus.publish(bus.prepare(event_draft("capture", config_id="c0", frames={"left": image})))
+        writer.stop(exit_status="success")
+    assert len(seen) == 1 and seen[0] is image
+    reader = SessionReader(tmp_path / "session")
+    assert np.array_equal(reader.frame(reader.events(kind="capture")[0]["frames"]["left"]), image)

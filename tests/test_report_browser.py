@@ -1,5 +1,6 @@
 """The report of two recorded sessions (an experiment-1-like grid and an experiment-2-like alpha sweep on the
-simulated rig) opened in headless Chromium with no network: every image loads and the page renders.
+simulated rig) and of a session with the structure and uncertainty records (built with the typed models), opened in
+headless Chromium with no network: every image loads and the page renders.
 
 Chromium is the Debian package ``chromium`` (.ci/run installs it); without it the test is skipped.
 """
@@ -15,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from report_sessions import GRID, SWEEP, write_structured_session
 
 from stereo_bench.campaign.config import campaign_from_dict
 from stereo_bench.campaign.execute import run_campaign
@@ -80,22 +82,30 @@ def test_report_renders_in_headless_chromium(tmp_path):
         summary = run_campaign(campaign_from_dict(config), tmp_path / config["name"], yes=True)
         assert summary.exit_status == "success"
         sessions.append(tmp_path / config["name"])
+    sessions.append(write_structured_session(tmp_path / "nominal", "built-nominal", "nominal", GRID + SWEEP))
     report = tmp_path / "report"
     summary = build_report(sessions, report)
-    assert summary.counts() == {"measured": 6, "infeasible": 1}
+    assert summary.counts() == {"measured": 6 + len(GRID + SWEEP), "infeasible": 1}
     srcs = [f for f in summary.files if f.endswith((".png", ".jpg"))]
     for expected in ("figures/s1-tiny-exp1_fig8_A90.png", "figures/s1-tiny-exp1_fig9_A90.png",
                      "figures/s2-tiny-exp2_fig11.png", "figures/s1-tiny-exp1_comparison.png",
-                     "figures/s2-tiny-exp2_calibration.png", "images/s2-tiny-exp2/B100_Z500_A80_rectified.jpg"):
+                     "figures/s2-tiny-exp2_calibration.png", "images/s2-tiny-exp2/B100_Z500_A80_rectified.jpg",
+                     "figures/s1-tiny-exp1_structure.png", "figures/s3-built-nominal_normalised.png",
+                     "figures/structural_fig8_A90.png", "figures/structural_fig11.png"):
         assert expected in srcs
+    # the simulated sessions predate the truth event: their truth is read from the frames' metadata
+    tiny = summary.sessions[0].configs[0].structure
+    assert tiny.origin["truth"] == "simulated frames' metadata" and tiny.square_true_mm is not None
 
     profile = tmp_path / "chromium-profile"
     checked = image_check(report, profile)
     assert checked["bad"] == []
     assert checked["total"] == len(srcs)  # every figure and image file is on the page, and loaded
     assert all(width > 0 and height > 0 for _, width, height in checked["sizes"])
-    # Table 1 of each session's grid, Table 2, comparison and calibration tables of each session
-    assert checked["tables"] == 1 + 1 + 2 * 2
+    # Tables 1 and 2, per session the comparison, calibration and structure tables, one budget table (the built
+    # session), and the extrinsics side by side in each measured configuration's block
+    page = (report / "index.html").read_text(encoding="utf-8")
+    assert checked["tables"] == page.count("<table") == (1 + 1) + (1 + 1) + 3 * 3 + 1 + 6 + len(GRID + SWEEP)
 
     # the check does catch an image that does not load
     broken = image_check(report, profile, extra='<img src="figures/missing.png" alt="missing">')

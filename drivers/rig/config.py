@@ -252,6 +252,9 @@ def load_rig_config(path: str | Path) -> RigConfig:
         raise RigConfigError(f"{path}: cannot read: {error.strerror or error}") from None
     except tomllib.TOMLDecodeError as error:
         raise RigConfigError(f"{path}: invalid TOML: {error}") from None
+    except UnicodeDecodeError as error:
+        raise RigConfigError(f"{path}: not UTF-8 text (byte 0x{error.object[error.start]:02x} at offset "
+                             f"{error.start}): TOML files are UTF-8") from None
     return rig_config_from_dict(data, source=str(path))
 
 

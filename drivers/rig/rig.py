@@ -32,6 +32,7 @@ from drivers.rig.config import (
     MachineSpaceError,
     MoveRequestError,
     RigConfig,
+    RigConfigError,
     RigError,
     alpha_from_toe_in,
     plan_move,
@@ -157,7 +158,7 @@ class GrblRig:
         missing = [a for a in self.config.axes if a not in axes]
         if missing:
             self.controller.close()
-            raise RigError(
+            raise RigConfigError(  # a setup the user fixes (the config or the firmware), not a fault
                 f"the rig config drives axis {', '.join(missing)} but the controller on {self.controller.port_name} "
                 f"reports only {', '.join(axes) or 'no axes'}")
         for message in config_warnings(self.config, self.controller.info, port=self.controller.port_name):

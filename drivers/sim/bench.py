@@ -82,6 +82,7 @@ from stereo_bench.targets import CharucoTarget, Checkerboard
 
 Target = Checkerboard | CharucoTarget
 SIDES = ("left", "right")
+PREVIEW_FRAME_BASE = 1 << 40  # preview frames' noise streams start here, far from any captured frame's index
 
 
 # How often (real seconds) the watcher samples the emulator's axes while the bench runs.
@@ -231,6 +232,7 @@ class SimulatedBench:
         self._trigger_time = time.monotonic()
         self._trigger_used: set[str] = set(SIDES)  # the first grab starts a trigger
         self._prefetched: dict[str, Future] = {}
+        self._previews = 0
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-render")
         # Rendering ahead (stage()): scenes announced, in order; the one the current scene matched.
         self._staged: list[_Staged] = []
@@ -714,6 +716,18 @@ class SimulatedBench:
             self._drop_staged([staged])
             return None
         return staged.frames
+
+    def preview(self, side: str) -> np.ndarray:
+        """The ``side`` camera's view of the scene now, for a live preview (aiming, watching).
+
+        Not counted among the scene's frames and with noise of its own, so however many previews are
+        taken, the frames a capture renders (and so a recording) stay the same.
+        """
+        with self._lock:
+            scene, snapshot = self._scene, self._snapshot()
+            self._previews += 1
+            index = PREVIEW_FRAME_BASE + self._previews
+        return self._render_job(side, snapshot, scene, index)[0]
 
     def _claim(self, side: str, snapshot: _Snapshot) -> tuple:
         """Reserve the next frame index of ``side`` in the current scene (call with the lock held)."""

@@ -236,11 +236,25 @@ FAULT_HELP = (
 )
 
 
+def _fraction(text: str) -> float:
+    """Where in a move a fault strikes: a finite number in [0, 1]."""
+    value = float(text)
+    if not 0.0 <= value <= 1.0:  # also refuses NaN
+        raise ValueError(f"FRACTION must be in [0, 1], not {text!r}")
+    return value
+
+
 def parse_fault(spec: str) -> Fault:
     """A fault from its command-line spelling (see ``FAULT_HELP``). Raises ValueError with the reason."""
     name, _, rest = spec.strip().partition(":")
     args = [a for a in rest.split(":")] if rest else []
     try:
+        if name == "delay" and args and not 0.0 <= float(args[0]) <= 3600.0:  # NaN too; an hour is no delay
+            raise ValueError(f"SECONDS must be in [0, 3600], not {args[0]!r}")
+        if name == "delay" and len(args) > 1 and not int(args[1]) >= 1:
+            raise ValueError(f"COUNT must be at least 1, not {args[1]!r}")
+        if name in ("alarm", "reset", "vanish") and len(args) > (1 if name == "alarm" else 0):
+            _fraction(args[1 if name == "alarm" else 0])
         if name == "lost-ok":
             return LostOk(match=rest or None)
         if name == "garble":

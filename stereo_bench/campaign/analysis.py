@@ -14,7 +14,13 @@ import numpy as np
 from stereo_bench.targets import Target
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.detect import AmbiguousViewError, Detection
-from stereo_bench.vision.pipeline import BoardNotFoundError, PairMeasurement, calibrate_from_images, measure_pair
+from stereo_bench.vision.pipeline import (
+    BoardNotFoundError,
+    ImplausibleMeasurement,
+    PairMeasurement,
+    calibrate_from_images,
+    measure_pair,
+)
 from stereo_bench.vision.rectify import Rectification
 
 
@@ -115,7 +121,7 @@ def measure_configuration(
             analysis.frames.append(measure_pair(left_image, right_image, analysis.calib, target,
                                                 rect=analysis.rect, partial=partial,
                                                 detections=None if detections is None else detections[i]))
-        except (BoardNotFoundError, AmbiguousViewError) as error:
+        except (BoardNotFoundError, AmbiguousViewError, ImplausibleMeasurement) as error:
             analysis.frames_failed.append({"index": i, "reason": str(error)})
     if not analysis.frames:
         reasons = sorted({f["reason"] for f in analysis.frames_failed})

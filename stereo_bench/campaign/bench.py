@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from stereo_bench.campaign.camera_gate import CameraGate
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.operator import Operator, Prompt
 from stereo_bench.campaign.plan import Configuration
@@ -54,7 +55,8 @@ class Bench:
     """What a campaign runs on; :meth:`close` (or the context manager) closes everything the factory opened.
 
     ``rig`` implements ``drivers.rig.rig.Rig``; ``cameras`` a stereo camera (``capture_pair()``,
-    ``flush()``); ``presenter`` a :class:`Presenter`; ``operators`` answer the operator steps.
+    ``flush()``); ``presenter`` a :class:`Presenter`; ``operators`` answer the operator steps;
+    ``camera_gate`` lends the cameras to a preview while the runner waits (see camera_gate.py).
     """
 
     kind: str  # "simulated", "bring-up", "hardware" or "replay"
@@ -64,7 +66,20 @@ class Bench:
     operators: list[Operator]
     clock: Clock
     homes: bool = True  # run the homing cycle before the first move
+    camera_gate: CameraGate = field(default_factory=CameraGate)
+    preview: Callable[[], tuple[np.ndarray, np.ndarray, float]] | None = None  # see grab_preview()
     _stack: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
+
+    def grab_preview(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """(left, right, dt_s) for a live preview; only with the cameras borrowed (``camera_gate.borrowed()``).
+
+        Real cameras grab a pair (the runner flushes before it captures); the simulated bench renders the
+        scene without counting the frames, so previews never change what a capture renders.
+        """
+        if self.preview is not None:
+            return self.preview()
+        pair = self.cameras.capture_pair()
+        return pair.left.image, pair.right.image, pair.dt_s
 
     def close(self) -> None:
         self._stack.close()
@@ -143,7 +158,21 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
         raise
     return Bench(kind="bring-up" if bring_up else "simulated", rig=rig, cameras=cameras, presenter=presenter,
                  operators=list(operators), clock=Clock(1.0 if bring_up else config.rig.time_scale),
-                 homes=config.rig.homing, _stack=stack)
+                 homes=config.rig.homing, preview=_simulated_preview(sim, stack), _stack=stack)
+
+
+def _simulated_preview(sim, stack: contextlib.ExitStack) -> Callable[[], tuple[np.ndarray, np.ndarray, float]]:
+    """Both simulated views of the scene now, rendered side by side (a pair in the time of one view)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-preview")
+    stack.callback(pool.shutdown)
+
+    def preview() -> tuple[np.ndarray, np.ndarray, float]:
+        right = pool.submit(sim.preview, "right")
+        return sim.preview("left"), right.result(), 0.0  # one trigger: no skew
+
+    return preview
 
 
 class SimulatedPresenter:
@@ -240,6 +269,12 @@ class SimulatedPresenter:
     def calibration_view_captured(self, index: int, left: Detection | None, right: Detection | None) -> None:
         return None
 
+    def calibration_view_discarded(self, index: int) -> None:
+        return None  # the view is shown again at the same pose: the scene has nothing to undo
+
+    def review_calibration(self) -> None:
+        return None
+
     def present_target(self, frame_index: int) -> None:
         configuration = self._configuration
         assert configuration is not None, "begin_configuration() first"
@@ -274,7 +309,8 @@ def hardware_bench(config: CampaignConfig, *, operators: Sequence[Operator], tra
         stack.close()
         raise
     presenter = OperatorPresenter(image_size=(optics.width_px, optics.height_px),
-                                  target_description=config.target.describe())
+                                  target_description=config.target.describe(),
+                                  calibration_board=config.calibration_board.build())
     return Bench(kind="hardware", rig=rig, cameras=cameras, presenter=presenter, operators=list(operators),
                  clock=Clock(1.0), homes=config.rig.homing, _stack=stack)
 
@@ -311,6 +347,12 @@ class ReplayPresenter:
         self.cameras.expect(f"{self.config_id}/calibration_view/{index}")
 
     def calibration_view_captured(self, index, left, right) -> None:
+        return None
+
+    def calibration_view_discarded(self, index: int) -> None:
+        return None  # a replay runs no operator actions: the recorded view that was kept is served
+
+    def review_calibration(self) -> None:
         return None
 
     def present_target(self, frame_index: int) -> None:

@@ -105,6 +105,11 @@ UNSUPPORTED_BENCHES = {
 }
 
 
+# rig.time_scale: below 0.1 a simulated campaign runs over ten times slower than the real rig would (1e-300 never
+# ends); at 10,000 a 350 mm move already lasts under a millisecond.
+TIME_SCALE_MIN, TIME_SCALE_MAX = 0.1, 10_000.0
+
+
 class ConfigError(ValueError):
     """A campaign configuration that cannot be used: one line, ``FILE: dotted.field: what is wrong``."""
 
@@ -225,7 +230,7 @@ class RigSection(BaseModel):
     controller: ControllerSettings | None = Field(None, description="inline rig config: controller settings")
     quantities: dict[str, QuantityMapping] | None = Field(
         None, description="inline rig config: quantity -> axis mapping (missing quantities keep the default)")
-    time_scale: float = Field(1.0, gt=0, allow_inf_nan=False,
+    time_scale: float = Field(1.0, ge=TIME_SCALE_MIN, le=TIME_SCALE_MAX, allow_inf_nan=False,
                               description="simulated rig only: simulated seconds per real second")
     homing: bool = Field(True, description="run the homing cycle ($H) before the first move")
 
@@ -552,6 +557,9 @@ def load_campaign(path: str | Path) -> CampaignConfig:
         raise ConfigError(f"{path}: cannot read: {error.strerror or error}") from None
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"{path}: invalid TOML: {error}") from None
+    except UnicodeDecodeError as error:
+        raise ConfigError(f"{path}: not UTF-8 text (byte 0x{error.object[error.start]:02x} at offset "
+                          f"{error.start}): TOML files are UTF-8") from None
     config = campaign_from_dict(data, source=str(path), base_dir=path.parent)
     _check_files(config, str(path))
     return config

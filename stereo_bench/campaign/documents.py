@@ -136,6 +136,20 @@ class ResultRow(BaseModel):
     calibration_epipolar_rms_px: float | None = column("epipolar error of the calibration views, px", report=False)
     fraction_in_both_measured: float | None = column("measured share of the target's corners in both views")
     baseline_estimated_mm: float | None = column("|T| of the stereo calibration, mm", report=False)
+    # Issue 11 (structure) and issue 12 (uncertainty): which extrinsics measured the square, the structure they
+    # describe, the simulator's truth, and the uncertainty budget.
+    extrinsics_mode: str | None = column("extrinsics the measurement used: per-config | kinematic | nominal | fixed")
+    baseline_used_mm: float | None = column("optical baseline |T| of the extrinsics the measurement used, mm")
+    alpha_left_used_deg: float | None = column("left camera's alpha in the extrinsics the measurement used, deg")
+    alpha_right_used_deg: float | None = column("right camera's alpha in the extrinsics the measurement used, deg")
+    baseline_true_mm: float | None = column("simulated benches: the true optical baseline, mm")
+    alpha_left_true_deg: float | None = column("simulated benches: the left camera's true alpha, deg")
+    alpha_right_true_deg: float | None = column("simulated benches: the right camera's true alpha, deg")
+    square_true_mm: float | None = column("simulated benches: the printed square as the simulated board really is, mm")
+    u_combined_mm: float | None = column("combined standard uncertainty u_c of square_mean_mm, mm")
+    U_expanded_mm: float | None = column("expanded uncertainty U = k u_c of square_mean_mm, mm")
+    uncertainty: dict | None = nested("the uncertainty budget of square_mean_mm: noise, calibration, structure, "
+                                      "target (None: unknown), combined, expanded, k (mm) and what they rest on")
 
     def stored(self) -> dict[str, Any]:
         """The row as recorded (stream, store): strict JSON values, null known columns left out."""
@@ -314,7 +328,8 @@ class TranscriptData(BaseModel):
     name: str
 
 
-PromptKind = Literal["target", "manual", "calibration_board", "calibration_view", "measured_target"]
+PromptKind = Literal["target", "manual", "calibration_board", "calibration_view", "calibration_review",
+                     "measured_target"]
 
 
 class PromptData(BaseModel):
@@ -328,6 +343,24 @@ class PromptData(BaseModel):
     index: int | None = Field(None, description="calibration views and measured frames: which one")
     answered_by: str = Field(description="the operator that answered: terminal, simulator, web, ...")
     waited_s: float = Field(ge=0, description="seconds between the question and the answer")
+    action: str | None = Field(None, description="how it was answered when not plainly (Enter / Continue): "
+                                                 "capture_now, discard_last_view")
+
+
+class ViewDiscardedData(BaseModel):
+    """The operator dropped a kept calibration view; the next view of the same ``index`` replaces it."""
+
+    model_config = _STRICT
+    index: int = Field(ge=0, description="the calibration view dropped (its frames stay recorded)")
+    answered_by: str = Field(description="the operator that asked for it")
+
+
+class RunControlData(BaseModel):
+    """The run was paused or resumed from outside (a live page, a test)."""
+
+    model_config = _STRICT
+    action: Literal["pause", "resume"]
+    feed_hold: bool = Field(False, description="pause: a move in progress was feed-held (and resumed after)")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -451,6 +484,16 @@ class PromptEvent(EventDocument):
     data: PromptData
 
 
+class CalibrationViewDiscardedEvent(EventDocument):
+    kind: Literal["calibration_view_discarded"] = "calibration_view_discarded"
+    data: ViewDiscardedData
+
+
+class RunControlEvent(EventDocument):
+    kind: Literal["run_control"] = "run_control"
+    data: RunControlData
+
+
 class ResultDocument(Document):
     type: Literal["result"] = "result"
     config_id: str
@@ -471,7 +514,7 @@ EVENT_MODELS: dict[str, type[EventDocument]] = {
     model.model_fields["kind"].default: model
     for model in (HomeEvent, MoveEvent, RigRecoveredEvent, RigUnrecoverableEvent, CalibrationViewEvent,
                   MeasurementFrameEvent, TargetNotFoundEvent, CalibrationEvent, AnalysisEvent, TranscriptEvent,
-                  PromptEvent, CalibrationDetectionsEvent)
+                  PromptEvent, CalibrationViewDiscardedEvent, RunControlEvent, CalibrationDetectionsEvent)
 }
 DOCUMENT_MODELS: dict[str, type[Document]] = {
     "start": StartDocument, "resume": ResumeDocument, "event": EventDocument, "result": ResultDocument,
@@ -500,6 +543,8 @@ AnyDocument = Annotated[
     | Annotated[TargetNotFoundEvent, Tag("event:target_not_found")]
     | Annotated[CalibrationEvent, Tag("event:calibration")] | Annotated[AnalysisEvent, Tag("event:analysis")]
     | Annotated[TranscriptEvent, Tag("event:transcript")] | Annotated[PromptEvent, Tag("event:prompt")]
+    | Annotated[CalibrationViewDiscardedEvent, Tag("event:calibration_view_discarded")]
+    | Annotated[RunControlEvent, Tag("event:run_control")]
     | Annotated[CalibrationDetectionsEvent, Tag("event:calibration_detections")],
     Discriminator(_tag),
 ]
@@ -626,10 +671,10 @@ def event_draft(kind: str, *, config_id: str | None = None, data: Any = None, **
 __all__ = [
     "COMPARED_COLUMNS", "DOCUMENT_MODELS", "DOCUMENT_TYPES", "EVENT_MODELS", "EXIT_STATUSES",
     "READABLE_SCHEMA_VERSIONS", "REPORT_COLUMNS", "RESULT_COLUMNS", "SCHEMA_VERSION", "AnalysisEvent",
-    "CalibrationDetectionsEvent", "CalibrationEvent", "CalibrationFiles", "CalibrationViewEvent", "DetectionRecord",
-    "Document", "DocumentError", "Draft",
-    "EventDocument", "HomeEvent", "MeasurementFrameEvent", "MoveEvent", "PromptEvent", "ResultDocument", "ResultRow",
-    "ResumeDocument", "StartDocument", "StopDocument", "TargetNotFoundEvent", "TranscriptEvent", "document_json",
+    "CalibrationDetectionsEvent", "CalibrationEvent", "CalibrationFiles", "CalibrationViewDiscardedEvent",
+    "CalibrationViewEvent", "DetectionRecord", "Document", "DocumentError", "Draft", "EventDocument", "HomeEvent",
+    "MeasurementFrameEvent", "MoveEvent", "PromptEvent", "ResultDocument", "ResultRow", "ResumeDocument",
+    "RunControlEvent", "StartDocument", "StopDocument", "TargetNotFoundEvent", "TranscriptEvent", "document_json",
     "columns_of", "column", "document_json_schema", "event_draft", "json_safe", "nested", "parse_document",
     "result_row",
 ]

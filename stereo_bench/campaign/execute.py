@@ -38,7 +38,7 @@ from stereo_bench.campaign.operator import Operator, OperatorAbsent, SimulatedOp
 from stereo_bench.campaign.plan import Configuration, Step, expand_plan, plan_steps
 from stereo_bench.campaign.runner import CampaignRunner, RunnerOptions, group_steps
 from stereo_bench.campaign.session import SessionError, SessionReader, SessionWriter, first_difference
-from stereo_bench.campaign.stream import Collector, DocumentBus, MemoryRecorder, Subscriber
+from stereo_bench.campaign.stream import Collector, DocumentBus, FrameSubscriber, MemoryRecorder, Subscriber
 
 __all__ = [
     "CampaignPlan", "OperatorAbsent", "ReplaySummary", "RunControl", "RunSummary", "plan_drift", "replay_job",
@@ -84,9 +84,17 @@ class RunControl:
         self._runner: CampaignRunner | None = None
         self.stop_reason: str | None = None
         self._paused = False
+        self._watchers: list[Callable[[CampaignRunner | None], None]] = []
+
+    def watch(self, callback: Callable[[CampaignRunner | None], None]) -> None:
+        """``callback(runner)`` when a run attaches, ``callback(None)`` when it detaches (a live page takes
+        the bench's cameras for its previews from it)."""
+        self._watchers.append(callback)
 
     def attach(self, runner: CampaignRunner) -> None:
         self._runner = runner
+        for callback in self._watchers:
+            callback(runner)
         if self._paused:
             runner.request_pause()
         if self.stop_reason is not None:
@@ -94,6 +102,12 @@ class RunControl:
 
     def detach(self) -> None:
         self._runner = None
+        for callback in self._watchers:
+            callback(None)
+
+    @property
+    def paused(self) -> bool:
+        return self._paused
 
     def request_stop(self, reason: str = "stopped by the operator") -> None:
         if self.stop_reason is None:
@@ -161,12 +175,13 @@ def run_campaign(
     config: CampaignConfig, out_dir: str | Path, *, resume: bool = False, yes: bool = False,
     operators: Sequence[Operator] | None = None, subscribers: Iterable[Subscriber] = (),
     control: RunControl | None = None, plan: CampaignPlan | None = None, resume_command: str | None = None,
-    bench_factory: Callable[..., Bench] = open_bench,
+    bench_factory: Callable[..., Bench] = open_bench, frame_subscribers: Iterable[FrameSubscriber] = (),
 ) -> RunSummary:
     """Run (or resume) ``config`` into the session directory ``out_dir``.
 
     A resume runs the *recorded* plan and records where today's planner differs (``plan_drift``).
-    ``subscribers`` get every document as recorded; ``control`` stops or pauses the run from outside.
+    ``subscribers`` get every document as recorded (``frame_subscribers`` also the recorded frames' pixels:
+    a live page's previews); ``control`` stops or pauses the run from outside.
     ``bench_factory(config, operators=..., transcript=...)`` opens the bench (default: the config's).
     """
     control = control or RunControl()
@@ -184,6 +199,8 @@ def run_campaign(
         bus.subscribe(collector)
         for subscriber in subscribers:
             bus.subscribe(subscriber)
+        for frame_subscriber in frame_subscribers:
+            bus.subscribe_frames(frame_subscriber)
         transcript = writer.transcript_path()  # registered first, so its event follows the start
         bus.publish(Draft(StartDocument, config=config.model_dump(mode="json"),
                           plan=[c.as_dict() for c in campaign.configurations], software=software_versions(),
@@ -361,11 +378,19 @@ def replay_job(job: tuple[str, str | None, dict]) -> dict:
 
     Errors come back as data (``error``) so one bad session does not sink a batch.
     """
+    from drivers.replay import ReplayMismatch
+    from stereo_bench.vision.calibio import CalibrationFileError
+
     session, out, pipeline = job
     try:
         summary = replay_session(session, out, pipeline=pipeline)
-    except (SessionError, KeyError, OSError) as error:
-        return {"session": session, "out": out, "error": str(error).strip("'\"")}
+    except (SessionError, KeyError, OSError, ReplayMismatch, CalibrationFileError, UnicodeDecodeError) as error:
+        text = " ".join(str(error).strip("'\"").split())
+        if isinstance(error, OSError) and error.filename is not None and error.strerror:
+            text = f"{error.filename}: {error.strerror}"
+        elif isinstance(error, ReplayMismatch):
+            text = f"the recording cannot be replayed: {text}"
+        return {"session": session, "out": out, "error": text}
     return {"session": session, "out": out, "compared": summary.compared, "identical": summary.identical,
             "measured": summary.measured, "differences": summary.differences,
             "carried_over": summary.carried_over, "pipeline": pipeline, "plan_drift": summary.plan_drift,

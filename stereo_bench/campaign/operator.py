@@ -10,6 +10,11 @@ second operator next to the terminal::
     desk = OperatorDesk([TerminalOperator(), web_page])
     answer = desk.ask(Prompt("target", "move the target to Z = 400 mm, then press Enter"), stop=stop_event)
     answer.operator, answer.waited_s      # who answered, after how long (recorded as a 'prompt' event)
+    answer.action                         # 'continue' (Enter), or one of the prompt's other actions
+
+A prompt lists the answers it accepts (``Prompt.actions``): every prompt accepts ``continue``; a
+calibration view at the bench also ``capture_now`` (take this view now) and ``discard_last_view``
+(drop the view kept last and take it again), which a live page offers as buttons.
 
 An operator's :meth:`Operator.offer` must not block: it shows the prompt and later calls
 ``ticket.answer(name)`` (or ``ticket.give_up(name, why)`` when it cannot answer, e.g. stdin closed).
@@ -20,11 +25,17 @@ from __future__ import annotations
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import IO, Protocol, runtime_checkable
 
 from stereo_bench.campaign.documents import PromptKind
+
+CONTINUE = "continue"
+CAPTURE_NOW = "capture_now"
+DISCARD_LAST_VIEW = "discard_last_view"
+#: Every answer an operator can give; a prompt accepts a subset (always ``continue``).
+ACTIONS = (CONTINUE, CAPTURE_NOW, DISCARD_LAST_VIEW)
 
 
 class OperatorAbsent(RuntimeError):
@@ -45,6 +56,7 @@ class Prompt:
     quantity: str | None = None
     value: float | None = None
     index: int | None = None
+    actions: tuple[str, ...] = (CONTINUE,)  # the answers this prompt accepts (see ACTIONS)
 
 
 class Ticket:
@@ -55,17 +67,23 @@ class Ticket:
         self.asked_at = time.monotonic()
         self.answered_by: str | None = None
         self.answered_at: float | None = None
+        self.action: str = CONTINUE
         self.gave_up: dict[str, str] = {}
         self._n_operators = n_operators
         self._lock = threading.Lock()
         self._done = threading.Event()
 
-    def answer(self, operator: str) -> bool:
-        """``operator`` has done the step; True if it was the first to answer."""
+    def answer(self, operator: str, action: str = CONTINUE) -> bool:
+        """``operator`` has done the step (``action``: one of the prompt's actions); True if it was the first.
+
+        Raises ValueError for an action the prompt does not accept.
+        """
+        if action not in self.prompt.actions:
+            raise ValueError(f"this prompt accepts {', '.join(self.prompt.actions)}, not {action!r}")
         with self._lock:
             if self._done.is_set():
                 return False
-            self.answered_by, self.answered_at = operator, time.monotonic()
+            self.answered_by, self.answered_at, self.action = operator, time.monotonic(), action
             self._done.set()
             return True
 
@@ -101,6 +119,7 @@ class Operator(Protocol):
 class Answer:
     operator: str
     waited_s: float
+    action: str = CONTINUE
 
 
 class OperatorDesk:
@@ -109,8 +128,9 @@ class OperatorDesk:
     def __init__(self, operators: Sequence[Operator]):
         self.operators = list(operators)
 
-    def ask(self, prompt: Prompt, *, stop: threading.Event, poll_s: float = 0.05) -> Answer:
-        """Block until an operator answers ``prompt``.
+    def ask(self, prompt: Prompt, *, stop: threading.Event, poll_s: float = 0.05,
+            while_waiting: Callable[[], None] | None = None) -> Answer:
+        """Block until an operator answers ``prompt``; ``while_waiting()`` is called every ``poll_s`` meanwhile.
 
         Raises StopRequested when ``stop`` is set first, OperatorAbsent when no operator can answer.
         """
@@ -125,6 +145,8 @@ class OperatorDesk:
             while not ticket.wait(poll_s):
                 if stop.is_set():
                     raise StopRequested()
+                if while_waiting is not None:
+                    while_waiting()
         finally:
             for operator in self.operators:
                 if operator.name != ticket.answered_by:
@@ -134,7 +156,7 @@ class OperatorDesk:
             raise OperatorAbsent(f"the campaign needs the operator here ({prompt.message!r}) but nobody can "
                                  f"answer ({reasons})")
         assert ticket.answered_at is not None
-        return Answer(operator=ticket.answered_by, waited_s=ticket.answered_at - ticket.asked_at)
+        return Answer(operator=ticket.answered_by, waited_s=ticket.answered_at - ticket.asked_at, action=ticket.action)
 
 
 class SimulatedOperator:
@@ -154,6 +176,8 @@ class SimulatedOperator:
 
 class TerminalOperator:
     """The operator at the terminal: the prompt is printed, Enter on standard input answers it.
+
+    ``d`` + Enter discards the last calibration view where the prompt accepts that; any other line is Enter.
 
     One reader thread owns standard input for the whole run, so a prompt answered elsewhere (a live
     page) leaves no blocked ``input()`` behind; a line typed while no prompt is shown is ignored.
@@ -208,7 +232,10 @@ class TerminalOperator:
                 if ticket is not None:
                     ticket.give_up(self.name, f"standard input is closed: {self.absent_advice}")
                 return
-            if ticket is not None and ticket.answer(self.name):
+            action = DISCARD_LAST_VIEW if line.strip().lower() in ("d", "discard") else CONTINUE
+            if ticket is not None and action not in ticket.prompt.actions:
+                action = CONTINUE
+            if ticket is not None and ticket.answer(self.name, action):
                 with self._lock:
                     if self._ticket is ticket:
                         self._ticket = None

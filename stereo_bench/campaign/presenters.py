@@ -14,8 +14,10 @@ from typing import Protocol
 
 import numpy as np
 
-from stereo_bench.campaign.operator import Prompt
+from stereo_bench.campaign.coverage import Coverage
+from stereo_bench.campaign.operator import CAPTURE_NOW, CONTINUE, DISCARD_LAST_VIEW, Prompt
 from stereo_bench.campaign.plan import Configuration
+from stereo_bench.targets import Target
 from stereo_bench.vision.detect import Detection
 
 
@@ -38,6 +40,12 @@ class Presenter(Protocol):
 
     def calibration_view_captured(self, index: int, left: Detection | None, right: Detection | None) -> None: ...
 
+    def calibration_view_discarded(self, index: int) -> None:
+        """The operator dropped kept view ``index``; it is presented again next."""
+
+    def review_calibration(self) -> Prompt | None:
+        """After the last view: a prompt to check the views (and discard the last one) before calibrating."""
+
     def present_target(self, frame_index: int) -> Prompt | None:
         """Show the measured target (asked again for the same frame when the target was not found)."""
 
@@ -48,40 +56,16 @@ def scene_seed(seed: int, config_id: str, kind: str, index: int) -> int:
     return int(np.random.SeedSequence(words).generate_state(1)[0])
 
 
-class Coverage:
-    """Where the kept calibration views put the board, as ROS camera_calibration shows it.
-
-    Fractions (0..1) of a 3x3 grid of each image that held a detected corner, and the spread of the
-    board's apparent size; a calibration wants both high.
-    """
-
-    def __init__(self, image_size: tuple[int, int]):
-        self.width, self.height = image_size
-        self.cells = {"left": np.zeros((3, 3), bool), "right": np.zeros((3, 3), bool)}
-        self.sizes: list[float] = []
-
-    def add(self, side: str, detection: Detection) -> None:
-        u = np.clip((detection.corners_px[:, 0] / self.width * 3).astype(int), 0, 2)
-        v = np.clip((detection.corners_px[:, 1] / self.height * 3).astype(int), 0, 2)
-        self.cells[side][v, u] = True
-        extent = np.ptp(detection.corners_px, axis=0)
-        self.sizes.append(float(np.hypot(*extent) / np.hypot(self.width, self.height)))
-
-    def summary(self) -> str:
-        spread = (max(self.sizes) - min(self.sizes)) if self.sizes else 0.0
-        return (f"coverage left {self.cells['left'].mean():.0%}, right {self.cells['right'].mean():.0%} of the image; "
-                f"board size spread {spread:.0%}")
-
-
 class OperatorPresenter:
     """At the real bench: a prompt for each board placement, with coverage feedback."""
 
     wants_detections = True
 
-    def __init__(self, *, image_size: tuple[int, int], target_description: str):
+    def __init__(self, *, image_size: tuple[int, int], target_description: str, calibration_board: Target):
         self.image_size = image_size
         self.target_description = target_description
-        self.coverage = Coverage(image_size)
+        self.calibration_board = calibration_board
+        self.coverage = Coverage(image_size, calibration_board)
         self._n_views = 0
         self._config_id: str | None = None
 
@@ -89,21 +73,31 @@ class OperatorPresenter:
         self._config_id = configuration.config_id
 
     def prepare_calibration(self, n_views: int) -> Prompt:
-        self.coverage = Coverage(self.image_size)
+        self.coverage = Coverage(self.image_size, self.calibration_board)
         self._n_views = n_views
         return Prompt("calibration_board", f"[{self._config_id}] calibration: present the calibration board "
                       f"{n_views} times, each time at a new position and tilt (up to ~40 deg), near and far, "
                       "filling the corners of both views; press Enter to begin", config_id=self._config_id)
 
     def present_calibration_view(self, index: int) -> Prompt:
+        actions = (CONTINUE, CAPTURE_NOW, DISCARD_LAST_VIEW) if index > 0 else (CONTINUE, CAPTURE_NOW)
+        discard = "; d + Enter: discard the previous view" if index > 0 else ""
         return Prompt("calibration_view", f"calibration view {index + 1}/{self._n_views}: hold the board still in "
-                      f"both views, then press Enter ({self.coverage.summary()})", config_id=self._config_id,
-                      index=index)
+                      f"both views, then press Enter ({self.coverage.summary()}{discard})",
+                      config_id=self._config_id, index=index, actions=actions)
 
     def calibration_view_captured(self, index: int, left: Detection | None, right: Detection | None) -> None:
         for side, detection in (("left", left), ("right", right)):
             if detection is not None:
-                self.coverage.add(side, detection)
+                self.coverage.add(side, index, detection)
+
+    def calibration_view_discarded(self, index: int) -> None:
+        self.coverage.discard(index)
+
+    def review_calibration(self) -> Prompt:
+        return Prompt("calibration_review", f"{self._n_views} calibration views taken ({self.coverage.summary()}); "
+                      "press Enter to calibrate, or d + Enter to discard the last view and take it again",
+                      config_id=self._config_id, actions=(CONTINUE, DISCARD_LAST_VIEW))
 
     def present_target(self, frame_index: int) -> Prompt | None:
         if frame_index == 0:

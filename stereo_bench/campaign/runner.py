@@ -20,7 +20,11 @@ homing again first. :meth:`CampaignRunner.request_stop` (Ctrl-C, SIGTERM, a live
 feeds-hold the rig, cuts a settle or an operator prompt short, finishes nothing new, records what
 is complete and leaves the session resumable. A KeyboardInterrupt (a second Ctrl-C) stops at once:
 analyses still running are dropped (their configurations run again on resume).
-:meth:`request_pause` holds the run at the next step boundary until :meth:`request_resume`.
+:meth:`request_pause` holds the run at the next step boundary until :meth:`request_resume`; a move in
+progress is feed-held and continues on resume (both recorded as ``run_control`` events). While the
+runner waits for the operator or is paused it lends the cameras to a preview (``bench.camera_gate``).
+At the bench the operator can discard the last calibration view and take it again (an answer to the
+view's prompt, recorded as ``calibration_view_discarded``; its frames stay in the session).
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ from stereo_bench.campaign.documents import (
     CalibrationDetectionsEvent,
     CalibrationEvent,
     CalibrationFiles,
+    CalibrationViewDiscardedEvent,
     CalibrationViewEvent,
     DetectionRecord,
     Draft,
@@ -52,9 +57,10 @@ from stereo_bench.campaign.documents import (
     ResultDocument,
     RigRecoveredEvent,
     RigUnrecoverableEvent,
+    RunControlEvent,
     TargetNotFoundEvent,
 )
-from stereo_bench.campaign.operator import OperatorDesk, Prompt, StopRequested
+from stereo_bench.campaign.operator import CONTINUE, DISCARD_LAST_VIEW, Answer, OperatorDesk, Prompt, StopRequested
 from stereo_bench.campaign.plan import (
     CaptureCalibration,
     CaptureMeasurement,
@@ -140,6 +146,9 @@ class CampaignRunner:
         self._stop = threading.Event()
         self._running = threading.Event()  # cleared while paused
         self._running.set()
+        self._control_lock = threading.Lock()  # request_pause vs. the start and end of a move
+        self._moving = False
+        self._feed_held = False  # a pause feed-held the rig: resume it before anything else moves
         self.stop_reason: str | None = None
         self._analysis = ThreadPoolExecutor(max_workers=max(1, options.analysis_workers), thread_name_prefix="analysis")
         # Calibration views are detected as they come (in the background: the analysis needs them later,
@@ -167,8 +176,15 @@ class CampaignRunner:
             pass
 
     def request_pause(self) -> None:
-        """Hold the run at the next step boundary (the current step finishes; nothing is feed-held)."""
-        self._running.clear()
+        """Hold the run at the next step boundary; a move in progress is feed-held (and continued on resume)."""
+        with self._control_lock:
+            self._running.clear()
+            if self._moving and not self._feed_held:
+                self._feed_held = True
+                try:
+                    self.bench.rig.stop()
+                except Exception:  # noqa: BLE001 - as in request_stop: the move's own error says what happened
+                    pass
 
     def request_resume(self) -> None:
         self._running.set()
@@ -178,10 +194,25 @@ class CampaignRunner:
         return not self._running.is_set()
 
     def _between_steps(self) -> None:
-        while not self._running.wait(0.1):
-            pass
+        if not self._running.is_set():
+            self._hold_until_resumed()
         if self._stop.is_set():
             raise StopRequested()
+
+    def _hold_until_resumed(self) -> None:
+        """Paused: wait (cameras lent to a preview) until resumed or stopped; a feed hold is released after."""
+        self._publish(Draft(RunControlEvent, data={"action": "pause", "feed_hold": self._feed_held}))
+        with self.bench.camera_gate.lent():
+            while not self._running.wait(0.1):
+                pass
+        if self._stop.is_set():
+            raise StopRequested()
+        if self._feed_held:
+            resume = getattr(self.bench.rig, "resume", None)  # GrblRig: '~' once the hold is complete
+            if resume is not None:
+                resume()
+            self._feed_held = False
+        self._publish(Draft(RunControlEvent, data={"action": "resume"}))
 
     # -- recording ----------------------------------------------------------------------------------------------
 
@@ -271,12 +302,20 @@ class CampaignRunner:
         else:
             raise TypeError(f"unknown step {step!r}")
 
-    def _ask(self, prompt: Prompt) -> None:
-        """Put an operator step to the operators (first answer wins) and record who did it."""
-        answer = self.desk.ask(prompt, stop=self._stop)
+    def _ask(self, prompt: Prompt) -> Answer:
+        """Put an operator step to the operators (first answer wins) and record who did it, and how.
+
+        The cameras are lent to a preview meanwhile: nothing is captured while the operator works. Results
+        finished meanwhile are published (the operator sees the last configuration's result while setting
+        up the next).
+        """
+        with self.bench.camera_gate.lent():
+            answer = self.desk.ask(prompt, stop=self._stop, while_waiting=lambda: self._collect(block=False))
         self._publish(Draft(PromptEvent, config_id=prompt.config_id, data={
             "prompt": prompt.kind, "message": prompt.message, "quantity": prompt.quantity, "value": prompt.value,
-            "index": prompt.index, "answered_by": answer.operator, "waited_s": answer.waited_s}))
+            "index": prompt.index, "answered_by": answer.operator, "waited_s": answer.waited_s,
+            **({"action": answer.action} if answer.action != CONTINUE else {})}))
+        return answer
 
     def _set_by_hand(self, configuration: Configuration, quantity: str, value: float) -> None:
         from drivers.rig.rig import manual_instruction
@@ -296,16 +335,31 @@ class CampaignRunner:
         # The motors only: the operator sets the manual quantities in the prompt steps that follow.
         request = {quantity: None if quantity in self._manual_quantities else value
                    for quantity, value in configuration.move_request().items()}
-        try:
-            if not self._homed:  # the first move homes first, so nothing moves when nothing is left to run
-                self._home()
-            reading = self.bench.rig.move_to(**request)
-        except RigError as error:
-            if self._stop.is_set():  # a feed hold for Ctrl-C surfaces here as a move error
-                raise StopRequested() from None
-            self._recover_rig()
-            raise ConfigurationFailed(f"rig: {error}") from None
+        while True:
+            try:
+                if not self._homed:  # the first move homes first, so nothing moves when nothing is left to run
+                    self._home()
+                reading = self._move_once(request)
+                break
+            except RigError as error:
+                if self._stop.is_set():  # a feed hold for Ctrl-C surfaces here as a move error
+                    raise StopRequested() from None
+                if self._feed_held:  # paused mid-move: hold, release the hold, and finish the move
+                    self._hold_until_resumed()
+                    continue
+                self._recover_rig()
+                raise ConfigurationFailed(f"rig: {error}") from None
         self._publish(Draft(MoveEvent, config_id=configuration.config_id, data={"rig": reading.to_dict()}))
+
+    def _move_once(self, request: dict):
+        """One move; a pause requested meanwhile feed-holds it (see :meth:`request_pause`)."""
+        with self._control_lock:
+            self._moving = True
+        try:
+            return self.bench.rig.move_to(**request)
+        finally:
+            with self._control_lock:
+                self._moving = False
 
     def _recover_rig(self) -> None:
         """After an alarm or a failed move, home again so the next configuration starts from a known state."""
@@ -354,11 +408,19 @@ class CampaignRunner:
             raise ConfigurationFailed(str(error)) from None
         if prompt is not None:
             self._ask(prompt)
-        for index in range(n_views):
+        index = 0
+        while True:
             self._between_steps()
-            prompt = presenter.present_calibration_view(index)
+            reviewing = index >= n_views  # at the bench: one look at the views before calibrating
+            prompt = presenter.review_calibration() if reviewing else presenter.present_calibration_view(index)
             if prompt is not None:
-                self._ask(prompt)
+                answer = self._ask(prompt)
+                if answer.action == DISCARD_LAST_VIEW and captured.calibration_pairs:
+                    index -= 1
+                    self._discard_calibration_view(index, captured, answer)
+                    continue
+            if reviewing:
+                return
             left, right = self._capture(CalibrationViewEvent, index, captured.configuration)
             # Detected once, while the next views are captured; the analysis calibrates from these. A replay
             # of a session that kept the detections instead of the frames serves the recorded ones.
@@ -374,6 +436,15 @@ class CampaignRunner:
                 presenter.calibration_view_captured(index, found[0].result(), found[1].result())
             captured.calibration_pairs.append((left, right))
             captured.calibration_detections.append(found)
+            index += 1
+
+    def _discard_calibration_view(self, index: int, captured: Captured, answer: Answer) -> None:
+        """Drop kept view ``index`` (the last one) so that it is taken again; its frames stay recorded."""
+        captured.calibration_pairs.pop()
+        captured.calibration_detections.pop()
+        self.bench.presenter.calibration_view_discarded(index)
+        self._publish(Draft(CalibrationViewDiscardedEvent, config_id=captured.configuration.config_id,
+                            data={"index": index, "answered_by": answer.operator}))
 
     def _capture_measurement(self, n_frames: int, captured: Captured) -> None:
         """Capture ``n_frames`` frames of the target; a frame without the target is captured again.

@@ -42,6 +42,7 @@ import re
 import shutil
 import socket
 import tempfile
+import threading
 import time
 import uuid
 from collections.abc import Iterable, Mapping
@@ -489,6 +490,8 @@ class SessionWriter:
         self.resume = resume
         self.encoders = encoders
         self._encoder_pool: ThreadPoolExecutor | None = None
+        self._encoding: dict[int, tuple[Draft, dict[str, Future]]] = {}  # prepared drafts' frames being encoded
+        self._encoding_lock = threading.Lock()
         self.documents_path = self.directory / DOCUMENTS_FILE
         self.attempt = 0
         self.recovery: dict[str, Any] = {}  # what open() repaired when resuming
@@ -643,6 +646,7 @@ class SessionWriter:
         if self._encoder_pool is not None:  # frames encoded for documents that were never recorded are dropped
             self._encoder_pool.shutdown(wait=True, cancel_futures=True)
             self._encoder_pool = None
+            self._encoding.clear()
         if self._store is not None:
             self._store.close()
             self._store = None
@@ -762,9 +766,10 @@ class SessionWriter:
         """
         if not draft.frames or self._encoder_pool is None:
             return draft
-        frames = {name: image if isinstance(image, Future) else self._encoder_pool.submit(encode_frame, image)
-                  for name, image in draft.frames.items()}
-        return Draft(draft.model, frames=frames, files=draft.files, calibration=draft.calibration, **draft.fields)
+        encoding = {name: self._encoder_pool.submit(encode_frame, image) for name, image in draft.frames.items()}
+        with self._encoding_lock:  # the draft itself keeps its images (frame subscribers show them)
+            self._encoding[id(draft)] = (draft, encoding)  # holding the draft keeps its id unique meanwhile
+        return draft
 
     def start(self, *, config: dict, plan: list[dict], software: dict, extra: dict | None = None,
               **more: Any) -> Document:
@@ -850,9 +855,11 @@ class SessionWriter:
         if frames:
             directory, _ = self._side_dir("frames", config_id)
             self._mkdir(directory)
+            with self._encoding_lock:
+                _, encoding = self._encoding.pop(id(draft), (None, {}))
             for name, image in frames.items():
                 try:  # encoded ahead by prepare(), or now
-                    data = image.result() if isinstance(image, Future) else encode_frame(image)
+                    data = encoding[name].result() if name in encoding else encode_frame(image)
                 except FrameError as error:
                     raise SessionError(f"frame {name!r} of event {kind!r}: {error}") from None
                 atomic.write_bytes(self.directory / frame_paths[name], data, overwrite=False)

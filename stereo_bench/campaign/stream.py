@@ -7,15 +7,19 @@
 
 The recorder (:class:`~stereo_bench.campaign.session.SessionWriter` or :class:`MemoryRecorder`) gives
 each document its header (seq, time, attempt) and its side files; subscribers then get the typed
-document as recorded, in stream order, on the thread that published it.
+document as recorded, in stream order, on the thread that published it. A frame subscriber
+(``bus.subscribe_frames(watch)``, e.g. the live page's previews) also gets the pixels of the frames
+a document recorded, ``watch(document, {"left": image, "right": image})``, without reading them back.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import IO, Protocol
+
+import numpy as np
 
 from stereo_bench.campaign.documents import (
     CalibrationEvent,
@@ -30,6 +34,7 @@ from stereo_bench.campaign.documents import (
 from stereo_bench.campaign.session import encode_document, utc_now
 
 Subscriber = Callable[[Document], None]
+FrameSubscriber = Callable[[Document, Mapping[str, np.ndarray]], None]
 
 
 class Recorder(Protocol):
@@ -87,6 +92,7 @@ class DocumentBus:
     def __init__(self, recorder: Recorder):
         self.recorder = recorder
         self._subscribers: list[Subscriber] = []
+        self._frame_subscribers: list[FrameSubscriber] = []
         self._lock = threading.Lock()
 
     @property
@@ -99,10 +105,18 @@ class DocumentBus:
             self._subscribers.append(subscriber)
         return lambda: self._unsubscribe(subscriber)
 
-    def _unsubscribe(self, subscriber: Subscriber) -> None:
+    def subscribe_frames(self, subscriber: FrameSubscriber) -> Callable[[], None]:
+        """Call ``subscriber(document, frames)`` for every document that recorded frames (name -> the image
+        written), after the plain subscribers; it must return quickly (keep a reference, work elsewhere)."""
         with self._lock:
-            if subscriber in self._subscribers:
-                self._subscribers.remove(subscriber)
+            self._frame_subscribers.append(subscriber)
+        return lambda: self._unsubscribe(subscriber)
+
+    def _unsubscribe(self, subscriber) -> None:
+        with self._lock:
+            for subscribers in (self._subscribers, self._frame_subscribers):
+                if subscriber in subscribers:
+                    subscribers.remove(subscriber)
 
     def prepare(self, draft: Draft) -> Draft:
         """Let the recorder start on ``draft`` now (e.g. encode its frames), before :meth:`publish` records it.
@@ -116,10 +130,13 @@ class DocumentBus:
         """Record ``draft`` and hand every document written to the subscribers, in order."""
         documents = self.recorder.record(draft)
         with self._lock:
-            subscribers = list(self._subscribers)
+            subscribers, frame_subscribers = list(self._subscribers), list(self._frame_subscribers)
         for document in documents:
             for subscriber in subscribers:
                 subscriber(document)
+        if draft.frames and documents and frame_subscribers:
+            for frame_subscriber in frame_subscribers:  # the draft's own document is the last one written
+                frame_subscriber(documents[-1], draft.frames)
         return documents
 
 

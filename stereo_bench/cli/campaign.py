@@ -22,7 +22,7 @@ from stereo_bench.campaign.config import (
     campaign_json_schema_text,
 )
 from stereo_bench.campaign.plan import plan_summary
-from stereo_bench.cli import campaign_run
+from stereo_bench.cli import campaign_run, print_json
 from stereo_bench.cli.campaign_run import config_from_args
 
 
@@ -70,7 +70,7 @@ def _cmd_plan(args) -> int:
     if args.json:
         if not args.steps:
             summary.pop("steps")
-        print(json.dumps({"source": source, **summary}, indent=2))
+        print_json({"source": source, **summary}, indent=2)
         return 0
     print(_plan_text(config, summary, source=source, with_steps=args.steps))
     return 0

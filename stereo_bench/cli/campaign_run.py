@@ -3,6 +3,8 @@
 Stopping: Ctrl-C or SIGTERM (what systemd and ``docker stop`` send) feed-holds the rig and stops at
 the next safe point, recording a 'stop' document and leaving the session resumable; a second one
 stops at once, still recording "interrupted" and printing the command that resumes.
+
+``--ui`` serves the live page (``stereo_bench/live``) for the run's duration and prints its URL.
 """
 
 from __future__ import annotations
@@ -13,7 +15,8 @@ import sys
 import time
 from pathlib import Path
 
-from stereo_bench.cli import CliError
+from stereo_bench.cli import CliError, failure
+from stereo_bench.cli.args import TIME_SCALE, output_dir
 
 EXIT_INTERRUPTED = 130
 
@@ -38,14 +41,25 @@ def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: 
     if time_scale is not None:
         if config.rig.kind != "simulated":
             raise CliError("--time-scale applies to the simulated rig only")
-        if not time_scale > 0:
-            raise CliError(f"--time-scale must be > 0, not {time_scale:g}")
-        config = config.model_copy(update={"rig": config.rig.model_copy(update={"time_scale": time_scale})})
+        config = _override(config, "rig", "time_scale", time_scale, "--time-scale")
     if sim is not None:
         if config.cameras.kind != "simulated":
             raise CliError("--sim applies to simulated cameras only (the simulated bench or bring-up)")
-        config = config.model_copy(update={"sim": config.sim.model_copy(update={"profile": sim})})
+        config = _override(config, "sim", "profile", sim, "--sim")
     return config
+
+
+def _override(config, section: str, field: str, value, option: str):
+    """``config`` with ``section.field = value``, validated as if the file said so (``model_copy`` would not)."""
+    from pydantic import ValidationError
+
+    current = getattr(config, section)
+    try:
+        replaced = type(current).model_validate({**current.model_dump(exclude_unset=True), field: value})
+    except ValidationError as error:
+        message = error.errors()[0].get("msg", "invalid").removeprefix("Value error, ")
+        raise CliError(f"{option} {value}: {message}") from None
+    return config.model_copy(update={section: replaced})
 
 
 
@@ -91,6 +105,37 @@ class Progress:
         self.bar.close()
 
 
+def start_live_page(config, *, session_dir: Path | None, host: str, port: int, control=None, write=None):
+    """Start the live page (``--ui``); print its URL (and a warning when it is exposed beyond this machine)."""
+    from stereo_bench.live.page import LivePage
+    from stereo_bench.live.server import LiveServerError
+
+    write = write or (lambda text: print(text, file=sys.stderr, flush=True))
+    page = LivePage.for_campaign(config, session_dir=session_dir, host=host, port=port, control=control)
+    try:
+        page.start()
+    except LiveServerError as error:
+        page.previews.stop()
+        raise CliError(str(error)) from None
+    if page.exposed:
+        write(f"warning: the live page listens on {host}, beyond this machine: anyone on that network can watch; "
+              "only the URL's token can control the run")
+    write(f"live page: {page.url}")
+    return page
+
+
+def add_ui_options(parser: argparse.ArgumentParser, *, required: bool = False) -> None:
+    if not required:
+        parser.add_argument("--ui", action="store_true",
+                            help="serve the live page (cameras, coverage, rig, plan, results, prompts and controls) "
+                                 "while the campaign runs; prints its URL")
+    parser.add_argument("--ui-host", default="127.0.0.1", metavar="HOST",
+                        help="address the live page listens on (default 127.0.0.1: this machine only; 0.0.0.0 "
+                             "exposes it on the lab network, with a warning)")
+    parser.add_argument("--ui-port", type=int, default=8765, metavar="PORT",
+                        help="port of the live page (default 8765; 0 picks a free one)")
+
+
 def _resume_command(args: argparse.Namespace, out: Path) -> str:
     source = args.plan if args.plan else f"--preset {args.preset}"
     # The rest must render on the bench the first part did.
@@ -101,7 +146,13 @@ def _resume_command(args: argparse.Namespace, out: Path) -> str:
 def cmd_run(args: argparse.Namespace) -> int:
     from drivers.camera.base import CameraError
     from drivers.rig.config import RigError
-    from stereo_bench.campaign.execute import CampaignPlan, OperatorAbsent, RunControl, run_campaign
+    from stereo_bench.campaign.execute import (
+        CampaignPlan,
+        OperatorAbsent,
+        RunControl,
+        default_operators,
+        run_campaign,
+    )
     from stereo_bench.campaign.session import SessionError
     from stereo_bench.campaign.stream import JsonLines
 
@@ -116,6 +167,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     progress = Progress(len(plan.configurations), config.name, quiet=args.quiet)
     subscribers = [progress] + ([JsonLines(sys.stdout)] if args.json else [])
     control = RunControl()
+    operators, frame_subscribers, page = None, [], None
+    if args.ui:
+        page = start_live_page(config, session_dir=out, host=args.ui_host, port=args.ui_port, control=control,
+                               write=progress.write)
+        operators = default_operators(config, yes=args.yes) + [page.operator]  # the first answer wins
+        subscribers.append(page.state)
+        frame_subscribers.append(page.previews.captured)
     signals = {"count": 0}
 
     def on_signal(signum, frame) -> None:
@@ -132,18 +190,29 @@ def cmd_run(args: argparse.Namespace) -> int:
     started = time.monotonic()
     try:
         summary = run_campaign(config, out, resume=args.resume, yes=args.yes, subscribers=subscribers,
-                               control=control, plan=plan, resume_command=resume_command)
+                               control=control, plan=plan, resume_command=resume_command, operators=operators,
+                               frame_subscribers=frame_subscribers)
         signals["finished"] = True
         progress.close()
         return _summarise(args, summary, out, resume_command, time.monotonic() - started)
     except (SessionError, OperatorAbsent) as error:
         raise CliError(str(error)) from None
     except (RigError, CameraError) as error:  # recorded as 'failed' in the session; one line here
-        raise CliError(f"{error} (session {out}: stopped as failed)", exit_code=1) from None
+        mapped = failure(error)  # a port or camera that is not there: 2; a fault during the run: 1
+        raise CliError(f"{mapped} (session {out}: stopped as failed)", exit_code=mapped.exit_code) from None
+    except OSError as error:  # a full or read-only disk: what is recorded stays, and the session resumes
+        mapped = failure(error)
+        resumable = (out / "documents.jsonl").is_file()
+        raise CliError(f"{mapped}" + (f" (session {out} stopped; once fixed: {resume_command})" if resumable
+                                      else "")) from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         progress.close()
+        if page is not None:
+            if page.previews.watched:
+                time.sleep(0.5)  # let the browsers get the final state before the page goes away
+            page.stop()
 
 
 def _summarise(args: argparse.Namespace, summary, out: Path, resume_command: str, elapsed: float) -> int:
@@ -160,7 +229,10 @@ def _summarise(args: argparse.Namespace, summary, out: Path, resume_command: str
     if summary.exit_status == "interrupted":
         print(f"resume:   {resume_command}", file=report)
         return EXIT_INTERRUPTED
-    return 0 if counts.get("measured", 0) or not counts else 1
+    if counts and not counts.get("measured", 0):
+        print("nothing was measured: exit status 1", file=report)  # a 'success' with nothing to show
+        return 1
+    return 0
 
 
 def register_run(subparsers) -> None:
@@ -174,12 +246,13 @@ def register_run(subparsers) -> None:
     )
     run.add_argument("plan", nargs="?", metavar="PLAN.toml", help="campaign file")
     run.add_argument("--preset", metavar="NAME", help="a built-in campaign (see: stereo-bench campaign presets)")
-    run.add_argument("--out", required=True, metavar="DIR", help="session directory (never overwritten)")
+    run.add_argument("--out", required=True, type=output_dir, metavar="DIR",
+                     help="session directory (never overwritten)")
     run.add_argument("--resume", action="store_true", help="continue the interrupted session in --out")
     run.add_argument("--yes", action="store_true",
                      help="simulated cameras: let the simulator do the manual steps (moving the target in the "
                           "simulated scene) instead of asking")
-    run.add_argument("--time-scale", type=float, metavar="X",
+    run.add_argument("--time-scale", type=TIME_SCALE, metavar="X",
                      help="simulated rig: run motion and exposures X times faster than real time")
     run.add_argument("--sim", choices=("lab", "ideal"),
                      help="simulated cameras: the simulated bench's profile, 'lab' (a bench as built: the default) or "
@@ -188,4 +261,5 @@ def register_run(subparsers) -> None:
                      help="print every document (start, events, results, stop) as one JSON line on stdout, as it "
                           "is recorded; the summary goes to stderr")
     run.add_argument("--quiet", action="store_true", help="no progress bar or per-configuration lines")
+    add_ui_options(run)
     run.set_defaults(func=cmd_run)

@@ -12,7 +12,6 @@ For tests the camera roots can be moved with the hidden ``--sys-root``/``--dev-r
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from typing import Any
 
@@ -20,7 +19,7 @@ import serial.tools.list_ports
 
 from drivers.camera.base import CameraError
 from drivers.camera.usb_identity import CameraDevice, CameraRegistry, DeviceScan
-from stereo_bench.cli import CliError
+from stereo_bench.cli import CliError, print_json
 
 
 def serial_ports(include_all: bool) -> tuple[list[dict[str, Any]], int]:
@@ -76,13 +75,13 @@ def cmd_devices(args: argparse.Namespace) -> int:
     ports, hidden = serial_ports(args.all)
 
     if args.json:
-        print(json.dumps({
+        print_json({
             "cameras": [{**camera.to_dict(), "bind_as": camera.stable_specs(scan)} for camera in scan.cameras],
             "serial_ports": ports,
             "hidden_serial_ports": hidden,
             "usb_available": scan.usb_available,
             "notes": scan.notes,
-        }, indent=2))
+        }, indent=2)
         return 0
 
     lines: list[str] = []

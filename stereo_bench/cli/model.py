@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import json
 import math
 import sys
@@ -17,14 +18,55 @@ from pathlib import Path
 
 import numpy as np
 
-from stereo_bench.cli import CliError
+from stereo_bench import atomic
+from stereo_bench.cli import CliError, json_ready, print_json
+from stereo_bench.cli.args import (
+    ALPHA_DEG,
+    BASELINE_MM,
+    DISTANCE_MM,
+    FOCAL_MM,
+    PIXEL_SIGMA_PX,
+    PIXEL_UM,
+    SEED,
+    SQUARE_MM,
+    TILT_DEG,
+    TOE_IN_DEG,
+    WORKERS,
+    board_pattern,
+    finite_float,
+    image_size,
+    int_in,
+)
 from stereo_bench.targets import Checkerboard, parse_pattern
 
 DEFAULT_K = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
 
+# Ranges of the options only these commands take (the shared ones: stereo_bench/cli/args.py), with the
+# bounds on the inputs that scale the work.
+K_RATIO = finite_float(min=0, max=100, inclusive=(False, True))  # K = B / Z; the paper's curves end at 3
+FOCAL_PX = finite_float(min=0, max=1e6, inclusive=(False, True), unit="px")
+MARGIN_PX = finite_float(min=0, max=1000, unit="px")
+BOARD_ANGLE_DEG = finite_float(min=-90, max=90, inclusive=(False, False), unit="deg")  # +-90: seen edge-on
+OFFSET_MM = finite_float(min=-100_000, max=100_000, unit="mm")
+TARGET_ERROR_MM = finite_float(min=0, max=1000, inclusive=(False, True), unit="mm")
+STRUCTURE_ERROR_MM = finite_float(min=0, max=1000, unit="mm")
+STRUCTURE_ERROR_DEG = finite_float(min=0, max=90, unit="deg")
+GRID_VALUE = finite_float()  # START STOP STEP of a grid; _range checks their order and the grid's size
+# Monte Carlo samples: 50-190 us each on one core (load 6-16, scripts/bench_input_bounds.py) plus 32 bytes kept
+# per sample. A million gives the sigmas to 1/sqrt(2N) = 0.07 % in minutes; 1e9 would need 30 GB and days.
+MAX_MONTE_CARLO = 1_000_000
+MONTE_CARLO = int_in(min=2, max=MAX_MONTE_CARLO)
+# Planned calibration views: the predicted calibration error costs 3-5 ms per view per configuration (500
+# views: 1.5 s for one, scripts/bench_input_bounds.py); a bench collects 10-50.
+MAX_CALIBRATION_VIEWS = 500
+CALIBRATION_VIEWS = int_in(min=0, max=MAX_CALIBRATION_VIEWS)
+# Configurations of one surface or advice grid: 10-20 ms each on one core (load 6-16,
+# scripts/bench_input_bounds.py), so 100,000 is half an hour at most; a bigger grid is a typo in STEP.
+MAX_GRID_CONFIGURATIONS = 100_000
+
 
 def _print_json(obj) -> None:
-    print(json.dumps(obj, indent=2, allow_nan=False))
+    print_json(obj, indent=2)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -34,31 +76,33 @@ def _print_json(obj) -> None:
 def _add_scene_options(parser: argparse.ArgumentParser) -> None:
     """The simulated rig's camera and board options (same names and defaults as ``stereo-bench render``)."""
     group = parser.add_argument_group("scene (defaults: the simulated rig's camera and board)")
-    group.add_argument("--board", default="9x6", metavar="COLSxROWS", help="checkerboard inner corners (default 9x6)")
-    group.add_argument("--square", type=float, default=27.0, metavar="MM", help="square size (default 27)")
-    group.add_argument("--focal", type=float, default=4.0, metavar="MM", help="lens focal length (default 4)")
-    group.add_argument("--pixel", type=float, default=3.0, metavar="UM", help="pixel pitch (default 3)")
-    group.add_argument("--image-size", default="1920x1080", metavar="WxH", help="image size in px (default 1920x1080)")
+    group.add_argument("--board", default="9x6", type=board_pattern, metavar="COLSxROWS",
+                       help="checkerboard inner corners (default 9x6)")
+    group.add_argument("--square", type=SQUARE_MM, default=27.0, metavar="MM", help="square size (default 27)")
+    group.add_argument("--focal", type=FOCAL_MM, default=4.0, metavar="MM", help="lens focal length (default 4)")
+    group.add_argument("--pixel", type=PIXEL_UM, default=3.0, metavar="UM", help="pixel pitch (default 3)")
+    group.add_argument("--image-size", default="1920x1080", type=image_size, metavar="WxH",
+                       help="image size in px (default 1920x1080)")
     group.add_argument("--no-distortion", action="store_true", help="ideal pinhole cameras (default: the "
                                                                     "simulator's mild barrel distortion)")
     group.add_argument("--intrinsics", metavar="CALIB_DIR_OR_FILE",
                        help="take both cameras (K, distortion, image size) from an intrinsics.yml instead, e.g. "
                             "the ground truth 'stereo-bench render' writes")
-    group.add_argument("--margin", type=float, default=10.0, metavar="PX",
+    group.add_argument("--margin", type=MARGIN_PX, default=10.0, metavar="PX",
                        help="a corner closer than this to an image border counts as not seen (default 10)")
 
 
 def _add_calibration_options(parser: argparse.ArgumentParser) -> None:
     """The planned stereo calibration whose own error is predicted (same names as the campaign's)."""
     group = parser.add_argument_group("calibration (its predicted error is included; defaults: the campaign's)")
-    group.add_argument("--calibration-views", type=int, default=12, metavar="N",
-                       help="calibration views planned per configuration (default 12; 0 leaves the calibration's "
-                            "error out: image noise only)")
-    group.add_argument("--calibration-board", default="11x8", metavar="COLSxROWS",
+    group.add_argument("--calibration-views", type=CALIBRATION_VIEWS, default=12, metavar="N",
+                       help=f"calibration views planned per configuration, 5-{MAX_CALIBRATION_VIEWS} (default 12; 0 "
+                            "leaves the calibration's error out: image noise only)")
+    group.add_argument("--calibration-board", default="11x8", type=board_pattern, metavar="COLSxROWS",
                        help="calibration checkerboard inner corners (default 11x8)")
-    group.add_argument("--calibration-square", type=float, default=25.0, metavar="MM",
+    group.add_argument("--calibration-square", type=SQUARE_MM, default=25.0, metavar="MM",
                        help="its square size (default 25)")
-    group.add_argument("--calibration-distance", type=float, nargs=2, metavar=("NEAR", "FAR"),
+    group.add_argument("--calibration-distance", type=DISTANCE_MM, nargs=2, metavar=("NEAR", "FAR"),
                        help="board distances of the views, mm (default: max(250, 0.6 Z) to 1.3 Z)")
     group.add_argument("--calibration-mode", choices=("joint", "fixed"), default="joint",
                        help="joint: intrinsics refined with R, T (default); fixed: from mono calibrations")
@@ -89,7 +133,8 @@ def _add_executor_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--scheduler", metavar="ADDRESS",
                        help="Dask scheduler address, e.g. tcp://10.0.0.5:8786 (with --executor dask; without it "
                             "a LocalCluster starts on this machine)")
-    group.add_argument("--workers", type=int, metavar="N", help="local processes (default: the CPU count)")
+    group.add_argument("--workers", type=WORKERS, metavar="N",
+                       help="local processes, at most 4 per CPU (default: the CPU count)")
 
 
 def _board(args) -> Checkerboard:
@@ -111,33 +156,19 @@ def _cameras(args):
         except (CalibrationFileError, OSError) as error:
             raise CliError(str(error)) from None
         if size is None:
-            size = _image_size(args.image_size)
+            size = args.image_size
         if args.no_distortion:
             D1, D2 = np.zeros_like(D1), np.zeros_like(D2)
         return (CameraModel(K=K1, dist=D1.ravel(), image_size=tuple(size), name="left"),
                 CameraModel(K=K2, dist=D2.ravel(), image_size=tuple(size), name="right"))
-    if not (args.focal > 0 and args.pixel > 0):
-        raise CliError("--focal and --pixel must be positive")
     dist = (0.0,) * 5 if args.no_distortion else (-0.05, 0.02, 0.0, 0.0, 0.0)
-    size = _image_size(args.image_size)
+    size = args.image_size
     return tuple(CameraModel.from_sensor(focal_mm=args.focal, pixel_um=args.pixel, image_size=size, dist=dist,
                                          name=name) for name in ("left", "right"))
 
 
-def _image_size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise CliError(f"--image-size must look like 1920x1080, not {text!r}") from None
-    if w < 2 or h < 2:
-        raise CliError(f"--image-size {text!r}: both sides must be at least 2 px")
-    return w, h
-
-
 def _scene(args) -> dict:
     left, right = _cameras(args)
-    if not args.margin >= 0:
-        raise CliError("--margin must be >= 0")
     return {"board": _board(args), "left": left, "right": right, "margin_px": args.margin}
 
 
@@ -147,8 +178,6 @@ def _executor(args):
 
     if args.scheduler and args.executor != "dask":
         raise CliError("--scheduler is for the dask executor: add --executor dask")
-    if args.workers is not None and args.workers < 1:
-        raise CliError("--workers must be at least 1")
     try:
         executor = make_executor(args.executor, scheduler=args.scheduler, max_workers=args.workers)
     except (ExecutorUnavailable, ValueError) as error:
@@ -166,16 +195,25 @@ def _check_sigma(value: float) -> float:
 
 
 def _range(values: list[float], option: str, *, positive: bool = True) -> np.ndarray:
-    """START STOP STEP -> inclusive grid."""
+    """START STOP STEP -> inclusive grid (at most MAX_GRID_CONFIGURATIONS values)."""
     start, stop, step = values
     if not step > 0 or stop < start:
         raise CliError(f"{option} START STOP STEP needs STEP > 0 and STOP >= START")
     if positive and not start > 0:
         raise CliError(f"{option}: START must be positive")
+    count = math.floor((stop - start) / step * (1 + 1e-12)) + 1  # before allocating anything
+    if count > MAX_GRID_CONFIGURATIONS:
+        raise CliError(f"{option}: {count} grid values is too many (at most {MAX_GRID_CONFIGURATIONS}): check STEP")
     grid = np.arange(start, stop + step * 1e-9, step)
-    if len(grid) > 100_000:
-        raise CliError(f"{option}: {len(grid)} grid values is too many (at most 100000)")
     return np.round(grid, 9)
+
+
+def _check_grid(*axes: np.ndarray, options: str) -> None:
+    """A grid over several axes is bounded in its number of configurations (MAX_GRID_CONFIGURATIONS)."""
+    total = math.prod(len(a) for a in axes)
+    if total > MAX_GRID_CONFIGURATIONS:
+        raise CliError(f"{options}: {' x '.join(str(len(a)) for a in axes)} = {total} configurations is too many "
+                       f"(at most {MAX_GRID_CONFIGURATIONS}, 10-20 ms each): use coarser steps")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -355,8 +393,9 @@ def cmd_surface(args: argparse.Namespace) -> int:
                     raise CliError(f"--alpha must be converge, parallel or degrees, not {args.alpha!r}") from None
                 if not 0 < policy < 180:
                     raise CliError("--alpha must lie strictly between 0 and 180 degrees")
-            rows = surface_bz(_range(args.baselines, "--baselines"), _range(args.distances, "--distances"),
-                              alpha=policy, executor=executor, **common)
+            baselines, distances = _range(args.baselines, "--baselines"), _range(args.distances, "--distances")
+            _check_grid(baselines, distances, options="--baselines x --distances")
+            rows = surface_bz(baselines, distances, alpha=policy, executor=executor, **common)
             meta = {"over": "bz", "alpha": args.alpha}
         else:
             if args.alphas is None or args.baseline is None or args.distance is None:
@@ -371,14 +410,16 @@ def cmd_surface(args: argparse.Namespace) -> int:
             meta = {"over": "alpha", "baseline_mm": args.baseline, "distance_mm": args.distance,
                     "one_camera": args.one_camera}
     records = [r.model_dump() for r in rows]
-    out.parent.mkdir(parents=True, exist_ok=True)
     if out.suffix.lower() == ".json":
-        out.write_text(json.dumps({**meta, "pixel_sigma_px": sigma, "rows": records}, indent=1, allow_nan=False) + "\n")
+        clean, reasons = json_ready({**meta, "pixel_sigma_px": sigma, "rows": records})
+        text = json.dumps({**clean, **({"null_reasons": reasons} if reasons else {})}, indent=1, allow_nan=False)
     else:
-        with out.open("w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=list(records[0]))
-            writer.writeheader()
-            writer.writerows({k: ("" if v is None else v) for k, v in rec.items()} for rec in records)
+        buffer = io.StringIO(newline="")
+        writer = csv.DictWriter(buffer, fieldnames=list(records[0]))
+        writer.writeheader()
+        writer.writerows({k: ("" if v is None else v) for k, v in rec.items()} for rec in records)
+        text = buffer.getvalue()
+    atomic.write_text(out, text.rstrip("\n") + "\n")  # names the file if the disk is full
     n_feasible = sum(r.feasible for r in rows)
     print(f"wrote {len(rows)} configurations ({n_feasible} with the whole board in both views) to {out}",
           file=sys.stderr if args.quiet else sys.stdout)
@@ -444,6 +485,7 @@ def cmd_advise(args: argparse.Namespace) -> int:
         raise CliError("--baseline-error-mm and --alpha-error-deg must be >= 0")
     baselines = _range(args.baselines, "--baselines")
     alphas = _range(args.alphas, "--alphas")
+    _check_grid(baselines, alphas, options="--baselines x --alphas")
     if alphas[-1] >= 180:
         raise CliError("--alphas must stay below 180 degrees")
     scene = _scene(args)
@@ -476,31 +518,36 @@ def register(subparsers) -> None:
     actions = model.add_subparsers(dest="model_action", metavar="ACTION", required=True)
 
     paper = actions.add_parser("paper", help="the paper's e1, e2 and gamma over K, and the optimum K (Figure 3)")
-    paper.add_argument("--k", type=float, nargs="+", metavar="K", help=f"K = B/Z values (default {DEFAULT_K})")
-    paper.add_argument("--distance", type=float, metavar="MM", help="Z: also give gamma in mm at this distance")
-    paper.add_argument("--focal-px", type=float, default=4000.0 / 3.0, metavar="PX",
+    paper.add_argument("--k", type=K_RATIO, nargs="+", metavar="K", help=f"K = B/Z values (default {DEFAULT_K})")
+    paper.add_argument("--distance", type=DISTANCE_MM, metavar="MM", help="Z: also give gamma in mm at this distance")
+    paper.add_argument("--focal-px", type=FOCAL_PX, default=4000.0 / 3.0, metavar="PX",
                        help="focal length for gamma in mm (default 1333.3: 4 mm lens, 3 um pixels)")
-    paper.add_argument("--pixel-sigma", type=float, default=0.1, metavar="PX", help="image-point error delta "
+    paper.add_argument("--pixel-sigma", type=PIXEL_SIGMA_PX, default=0.1, metavar="PX", help="image-point error delta "
                                                                                     "(default 0.1)")
     paper.add_argument("--json", action="store_true", help="print one JSON object")
     paper.set_defaults(func=cmd_paper)
 
     predict = actions.add_parser("predict", help="first-order errors of one configuration (+ Monte Carlo check)")
-    predict.add_argument("--baseline", type=float, required=True, metavar="MM", help="B: optical-centre distance")
-    predict.add_argument("--distance", type=float, required=True, metavar="MM", help="Z: rig origin to board plane")
-    predict.add_argument("--alpha", type=float, metavar="DEG", help="angle between baseline and optical axes "
+    predict.add_argument("--baseline", type=BASELINE_MM, required=True, metavar="MM",
+                         help="B: optical-centre distance")
+    predict.add_argument("--distance", type=DISTANCE_MM, required=True, metavar="MM",
+                         help="Z: rig origin to board plane")
+    predict.add_argument("--alpha", type=ALPHA_DEG, metavar="DEG", help="angle between baseline and optical axes "
                                                                     "(default 90 = parallel)")
-    predict.add_argument("--alpha-right", type=float, metavar="DEG", help="right camera's alpha (default: --alpha)")
-    predict.add_argument("--toe-in", type=float, metavar="DEG", help="pan from parallel instead of --alpha")
-    predict.add_argument("--tilt", type=float, default=0.0, metavar="DEG", help="heads' tilt, positive down")
-    predict.add_argument("--board-yaw", type=float, default=0.0, metavar="DEG", help="board yaw about rig y")
-    predict.add_argument("--board-pitch", type=float, default=0.0, metavar="DEG", help="board pitch about its x")
-    predict.add_argument("--board-offset", type=float, nargs=2, default=(0.0, 0.0), metavar=("X", "Y"),
+    predict.add_argument("--alpha-right", type=ALPHA_DEG, metavar="DEG", help="right camera's alpha (default: --alpha)")
+    predict.add_argument("--toe-in", type=TOE_IN_DEG, metavar="DEG", help="pan from parallel instead of --alpha")
+    predict.add_argument("--tilt", type=TILT_DEG, default=0.0, metavar="DEG", help="heads' tilt, positive down")
+    predict.add_argument("--board-yaw", type=BOARD_ANGLE_DEG, default=0.0, metavar="DEG",
+                         help="board yaw about rig y")
+    predict.add_argument("--board-pitch", type=BOARD_ANGLE_DEG, default=0.0, metavar="DEG",
+                         help="board pitch about its x")
+    predict.add_argument("--board-offset", type=OFFSET_MM, nargs=2, default=(0.0, 0.0), metavar=("X", "Y"),
                          help="board centre's rig x, y (mm)")
-    predict.add_argument("--pixel-sigma", type=float, default=0.1, metavar="PX",
+    predict.add_argument("--pixel-sigma", type=PIXEL_SIGMA_PX, default=0.1, metavar="PX",
                          help="image noise per coordinate, both cameras (default 0.1)")
-    predict.add_argument("--monte-carlo", type=int, metavar="N", help="also estimate the sigmas from N samples")
-    predict.add_argument("--seed", type=int, default=0, help="Monte Carlo seed (default 0)")
+    predict.add_argument("--monte-carlo", type=MONTE_CARLO, metavar="N",
+                         help=f"also estimate the sigmas from N samples, 2-{MAX_MONTE_CARLO}")
+    predict.add_argument("--seed", type=SEED, default=0, help="Monte Carlo seed (default 0)")
     predict.add_argument("--no-sensitivities", action="store_true", help="skip the structural sensitivities")
     predict.add_argument("--json", action="store_true", help="print one JSON object")
     _add_scene_options(predict)
@@ -510,15 +557,16 @@ def register(subparsers) -> None:
 
     surface = actions.add_parser("surface", help="error surfaces over (B, Z) or over alpha, as CSV or JSON")
     surface.add_argument("--over", choices=("bz", "alpha"), required=True)
-    surface.add_argument("--baselines", type=float, nargs=3, metavar=("START", "STOP", "STEP"), help="B grid, mm")
-    surface.add_argument("--distances", type=float, nargs=3, metavar=("START", "STOP", "STEP"), help="Z grid, mm")
+    surface.add_argument("--baselines", type=GRID_VALUE, nargs=3, metavar=("START", "STOP", "STEP"), help="B grid, mm")
+    surface.add_argument("--distances", type=GRID_VALUE, nargs=3, metavar=("START", "STOP", "STEP"), help="Z grid, mm")
     surface.add_argument("--alpha", default="converge", metavar="POLICY",
                          help="with --over bz: converge (axes meet at the board, default), parallel, or degrees")
-    surface.add_argument("--alphas", type=float, nargs=3, metavar=("START", "STOP", "STEP"), help="alpha grid, deg")
-    surface.add_argument("--baseline", type=float, metavar="MM", help="with --over alpha")
-    surface.add_argument("--distance", type=float, metavar="MM", help="with --over alpha")
+    surface.add_argument("--alphas", type=GRID_VALUE, nargs=3, metavar=("START", "STOP", "STEP"),
+                         help="alpha grid, deg")
+    surface.add_argument("--baseline", type=BASELINE_MM, metavar="MM", help="with --over alpha")
+    surface.add_argument("--distance", type=DISTANCE_MM, metavar="MM", help="with --over alpha")
     surface.add_argument("--one-camera", action="store_true", help="with --over alpha: turn only the right camera")
-    surface.add_argument("--pixel-sigma", type=float, default=0.1, metavar="PX")
+    surface.add_argument("--pixel-sigma", type=PIXEL_SIGMA_PX, default=0.1, metavar="PX")
     surface.add_argument("--no-sensitivities", action="store_true", help="skip the structural sensitivities")
     surface.add_argument("--out", required=True, metavar="FILE", help="output .csv or .json")
     surface.add_argument("--force", action="store_true", help="replace --out if it exists")
@@ -528,8 +576,8 @@ def register(subparsers) -> None:
     surface.set_defaults(func=cmd_surface)
 
     compare = actions.add_parser("compare", help="where the rigorous optima lie against the paper's claims")
-    compare.add_argument("--distance", type=float, default=500.0, metavar="MM", help="Z (default 500)")
-    compare.add_argument("--pixel-sigma", type=float, default=0.1, metavar="PX")
+    compare.add_argument("--distance", type=DISTANCE_MM, default=500.0, metavar="MM", help="Z (default 500)")
+    compare.add_argument("--pixel-sigma", type=PIXEL_SIGMA_PX, default=0.1, metavar="PX")
     compare.add_argument("--coarse", action="store_true", help="coarser grids (K step 0.2, alpha step 5 deg): "
                                                                "~10x faster, optima still refined")
     compare.add_argument("--json", action="store_true", help="print one JSON object")
@@ -542,20 +590,21 @@ def register(subparsers) -> None:
         description="Recommend B and alpha ranges (symmetric rig) that meet an error target with the whole board "
                     "in both views. Exit status 1 when no configuration meets the target.",
     )
-    adv.add_argument("--distance", type=float, required=True, metavar="MM", help="Z: rig origin to board plane")
-    adv.add_argument("--target-error-mm", type=float, required=True, metavar="MM", help="largest acceptable 1-sigma "
-                                                                                        "error")
-    adv.add_argument("--pixel-sigma", type=float, default=0.1, metavar="PX", help="image noise (default 0.1)")
+    adv.add_argument("--distance", type=DISTANCE_MM, required=True, metavar="MM", help="Z: rig origin to board plane")
+    adv.add_argument("--target-error-mm", type=TARGET_ERROR_MM, required=True, metavar="MM",
+                     help="largest acceptable 1-sigma error")
+    adv.add_argument("--pixel-sigma", type=PIXEL_SIGMA_PX, default=0.1, metavar="PX", help="image noise (default 0.1)")
     adv.add_argument("--metric", choices=("square", "length", "depth"), default="square",
                      help="square: the measured square, mean of all pairs (default); length: one pair; depth: "
                           "board-centre depth")
-    adv.add_argument("--baseline-error-mm", type=float, default=0.0, metavar="MM",
+    adv.add_argument("--baseline-error-mm", type=STRUCTURE_ERROR_MM, default=0.0, metavar="MM",
                      help="1-sigma error of the calibrated baseline (default 0)")
-    adv.add_argument("--alpha-error-deg", type=float, default=0.0, metavar="DEG",
+    adv.add_argument("--alpha-error-deg", type=STRUCTURE_ERROR_DEG, default=0.0, metavar="DEG",
                      help="1-sigma error of each camera's calibrated angle (default 0)")
-    adv.add_argument("--baselines", type=float, nargs=3, default=(20.0, 350.0, 10.0), metavar=("START", "STOP", "STEP"),
+    adv.add_argument("--baselines", type=GRID_VALUE, nargs=3, default=(20.0, 350.0, 10.0),
+                     metavar=("START", "STOP", "STEP"),
                      help="B grid, mm (default 20 350 10: the bench's slide)")
-    adv.add_argument("--alphas", type=float, nargs=3, default=(30.0, 90.0, 2.0), metavar=("START", "STOP", "STEP"),
+    adv.add_argument("--alphas", type=GRID_VALUE, nargs=3, default=(30.0, 90.0, 2.0), metavar=("START", "STOP", "STEP"),
                      help="alpha grid, deg (default 30 90 2)")
     adv.add_argument("--json", action="store_true", help="print one JSON object")
     _add_scene_options(adv)

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 from pathlib import Path
 
-from stereo_bench.cli import CliError
+from stereo_bench.cli import CliError, print_json
+from stereo_bench.cli.args import output_dir
 from stereo_bench.cli.model import _add_executor_options, _executor
 
 
@@ -34,8 +33,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if len(sessions) == 1 and errors:
         raise CliError(errors[0]["error"])
     if args.json:
-        json.dump(reports[0] if len(reports) == 1 else {"sessions": reports}, sys.stdout)
-        print()
+        print_json(reports[0] if len(reports) == 1 else {"sessions": reports})
     else:
         for report in reports:
             if "error" in report:
@@ -92,7 +90,7 @@ def register(subparsers) -> None:
                     "(a local process pool, or Dask).",
     )
     replay.add_argument("session", nargs="+", metavar="SESSION", help="recorded session directory")
-    replay.add_argument("--out", metavar="DIR",
+    replay.add_argument("--out", type=output_dir, metavar="DIR",
                         help="record the replay as a new session here (several sessions: one subdirectory each)")
     replay.add_argument("--intrinsics", choices=("joint", "fixed"), help="re-analyse with this stereo calibration mode")
     replay.add_argument("--json", action="store_true", help="print one JSON object")

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
-from stereo_bench.cli import CliError
+from stereo_bench.cli import CliError, print_json
+from stereo_bench.cli.args import output_dir
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -25,10 +25,9 @@ def cmd_report(args: argparse.Namespace) -> int:
         print(f"stereo-bench report: warning: {warning}", file=sys.stderr)
     counts = summary.counts()
     if args.json:
-        json.dump({"out": str(summary.out), "index": str(summary.index), "counts": counts,
-                   "sessions": [str(s.directory) for s in summary.sessions], "files": summary.files,
-                   "warnings": summary.warnings}, sys.stdout)
-        print()
+        print_json({"out": str(summary.out), "index": str(summary.index), "counts": counts,
+                    "sessions": [str(s.directory) for s in summary.sessions], "files": summary.files,
+                    "warnings": summary.warnings})
     else:
         figures = sum(1 for f in summary.files if f.startswith("figures/"))
         tables = sum(1 for f in summary.files if f.startswith("tables/"))
@@ -44,13 +43,18 @@ def register(subparsers) -> None:
     report = subparsers.add_parser(
         "report", help="write an HTML report with tables and figures from recorded sessions",
         description="Read one or more recorded sessions and write a self-contained report directory: "
-                    "index.html (opens in a browser with no network), PNG figures (error against Z, B and alpha, "
-                    "as the paper's Figures 8, 9, 11; measured error beside the rigorous prediction; calibration "
-                    "quality), CSV tables (the paper's Table 1 and Table 2 layouts, all results) and annotated "
-                    "images per configuration. A previous report in the same place is replaced atomically.",
+                    "index.html (opens in a browser with no network), PNG figures (error +- U against Z, B and "
+                    "alpha, as the paper's Figures 8, 9, 11; the normalised error error/u_c with the +-2 band; "
+                    "each extrinsics source minus the truth; the structural error per extrinsics source across "
+                    "all sessions given; measured error beside the rigorous prediction; calibration quality), CSV "
+                    "tables (the paper's Table 1 and Table 2 layouts with error +- U, the uncertainty budget per "
+                    "configuration, the extrinsics side by side, all results) and annotated images per "
+                    "configuration. Sessions recorded before the budget and structure records still report and "
+                    "say what they lack. A previous report in the same place is replaced atomically. "
+                    "See docs/REPORTS.md.",
     )
     report.add_argument("sessions", nargs="+", metavar="SESSION", help="recorded session directory (one or more)")
-    report.add_argument("--out", metavar="DIR",
+    report.add_argument("--out", type=output_dir, metavar="DIR",
                         help="report directory (default: SESSION/report; required for several sessions)")
     report.add_argument("--no-images", action="store_true",
                         help="leave out the annotated images per configuration (faster)")

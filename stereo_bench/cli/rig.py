@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import logging
 import os
 import shlex
@@ -32,13 +31,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivers.rig import (
-    GrblConnectionError,
     GrblConnectionLost,
     GrblLocked,
     GrblRig,
-    GrblSettingsError,
-    LimitError,
-    MoveRequestError,
     RigConfig,
     RigConfigError,
     RigError,
@@ -56,7 +51,14 @@ from drivers.sim.grbl_emulator import (
     axis_specs_for_travel,
     parse_fault,
 )
-from stereo_bench.cli import CliError
+from stereo_bench.cli import CliError, failure, print_json
+from stereo_bench.cli.args import TIME_SCALE, finite_float
+
+# A bound on homing or one move: positive, and at most a day (a longer wait is no bound at all).
+TIMEOUT_S = finite_float(min=0, max=86_400, inclusive=(False, True), unit="s")
+# Move targets are checked against the rig config's soft limits before anything is sent; here only that they
+# are numbers.
+MOVE_VALUE = finite_float()
 
 EXIT_FAULT = 1
 ACTIONS = ("home", "unlock", "move", "status", "resume", "reset", "shell")
@@ -88,7 +90,7 @@ def register(subparsers) -> None:
     rig.add_argument("--rig-config", type=Path, metavar="FILE",
                      help="rig configuration TOML (axis mapping, limits); default: stock Grbl machine space, "
                           "X = baseline 0-350 mm at X -350..0, Y/Z = left/right toe-in 0-90 deg at -0..-90")
-    rig.add_argument("--timeout", type=float, metavar="S", help="bound on homing or a move, seconds")
+    rig.add_argument("--timeout", type=TIMEOUT_S, metavar="S", help="bound on homing or a move, seconds (> 0)")
     rig.add_argument("--spy-log", type=Path, metavar="FILE", help="record every byte on the link as JSON lines")
     rig.add_argument("actions", nargs=argparse.REMAINDER, metavar="ACTION [OPTIONS] ...",
                      help="home | unlock | move ... | status [--json] | resume | reset | shell")
@@ -103,8 +105,8 @@ def register(subparsers) -> None:
     sim.add_argument("--rig-config", type=Path, metavar="FILE",
                      help="size the axes' travel ($13x) from a rig config's machine targets")
     sim.add_argument("--axes", default=None, help="GRBL axis letters (default XYZ, or what the rig config drives)")
-    sim.add_argument("--time-scale", type=float, default=1.0, metavar="X",
-                     help="simulated seconds per real second (default 1: real time)")
+    sim.add_argument("--time-scale", type=TIME_SCALE, default=1.0, metavar="X",
+                     help="simulated seconds per real second, 0.1-10000 (default 1: real time)")
     sim.add_argument("--no-homing", action="store_true", help="homing disabled ($22=0): boot Idle, no soft limits")
     sim.add_argument("--reboot-on-open", action="store_true",
                      help="reboot whenever the port is opened, like an Arduino with DTR auto-reset")
@@ -146,16 +148,16 @@ def _action_parsers() -> dict[str, _ActionParser]:
                        ("shell", "an interactive prompt: home, unlock, move ..., status, resume, reset, quit")):
         parsers[name] = _ActionParser(prog=f"stereo-bench rig {name}", description=text)
     move = parsers["move"]
-    move.add_argument("--baseline", type=float, metavar="MM", help="baseline B, mm")
-    move.add_argument("--alpha", type=float, metavar="DEG",
+    move.add_argument("--baseline", type=MOVE_VALUE, metavar="MM", help="baseline B, mm")
+    move.add_argument("--alpha", type=MOVE_VALUE, metavar="DEG",
                       help="angle between baseline and both optical axes, deg (90 = parallel)")
-    move.add_argument("--alpha-left", type=float, metavar="DEG", help="left camera's alpha, deg")
-    move.add_argument("--alpha-right", type=float, metavar="DEG", help="right camera's alpha, deg")
-    move.add_argument("--toe-in", type=float, metavar="DEG", help="toe-in of both cameras, deg (90 - alpha)")
-    move.add_argument("--toe-in-left", type=float, metavar="DEG", help="left camera's toe-in, deg")
-    move.add_argument("--toe-in-right", type=float, metavar="DEG", help="right camera's toe-in, deg")
-    move.add_argument("--tilt", type=float, metavar="DEG", help="tilt of both cameras, deg (> 0 looks down)")
-    move.add_argument("--target", type=float, metavar="MM", help="target distance Z from the baseline, mm")
+    move.add_argument("--alpha-left", type=MOVE_VALUE, metavar="DEG", help="left camera's alpha, deg")
+    move.add_argument("--alpha-right", type=MOVE_VALUE, metavar="DEG", help="right camera's alpha, deg")
+    move.add_argument("--toe-in", type=MOVE_VALUE, metavar="DEG", help="toe-in of both cameras, deg (90 - alpha)")
+    move.add_argument("--toe-in-left", type=MOVE_VALUE, metavar="DEG", help="left camera's toe-in, deg")
+    move.add_argument("--toe-in-right", type=MOVE_VALUE, metavar="DEG", help="right camera's toe-in, deg")
+    move.add_argument("--tilt", type=MOVE_VALUE, metavar="DEG", help="tilt of both cameras, deg (> 0 looks down)")
+    move.add_argument("--target", type=MOVE_VALUE, metavar="MM", help="target distance Z from the baseline, mm")
     parsers["status"].add_argument("--json", action="store_true", help="print one JSON object")
     return parsers
 
@@ -234,15 +236,26 @@ def _config(args) -> RigConfig:
 
 
 def _fail(error: RigError, rig: GrblRig | None = None) -> CliError:
-    text = " ".join(str(error).split())
+    """The one-line error and exit status of a rig failure (stereo_bench.cli.failure), with the auto-reset hint."""
+    mapped = failure(error) or CliError(" ".join(str(error).split()), exit_code=EXIT_FAULT)
     if isinstance(error, GrblLocked) and rig is not None and rig.controller.info.boot_detected:
-        text += (" (opening the port rebooted the controller: chain actions in one call, e.g. `rig --port P home "
-                 "move ...`, or use `rig --port P shell`; docs/RIG.md says how to disable the auto-reset)")
-    if isinstance(error, GrblConnectionLost):
-        return CliError(text, exit_code=EXIT_FAULT)
-    if isinstance(error, (LimitError, MoveRequestError, RigConfigError, GrblConnectionError, GrblSettingsError)):
-        return CliError(text)
-    return CliError(text, exit_code=EXIT_FAULT)
+        return CliError(f"{mapped} (opening the port rebooted the controller: chain actions in one call, e.g. `rig "
+                        "--port P home move ...`, or use `rig --port P shell`; docs/RIG.md says how to disable the "
+                        "auto-reset)", exit_code=mapped.exit_code)
+    return mapped
+
+
+def _check_spy_log(path: Path | None) -> None:
+    """A spy log that cannot be created fails before the port is opened (opening may reboot the controller)."""
+    if path is None:
+        return
+    if path.is_dir():
+        raise CliError(f"--spy-log {path}: is a directory; give a file name")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise CliError(f"--spy-log {path}: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise CliError(f"--spy-log {path}: directory {parent} is not writable")
 
 
 class _StderrWarnings(logging.Handler):
@@ -269,6 +282,7 @@ def _cmd_rig(args) -> int:
         actions = _parse_actions(list(args.actions), config)
     except _HelpShown:
         return 0
+    _check_spy_log(args.spy_log)
     first = actions[0].name
     # One soft reset at connect flushes half-received lines; not when looking, resuming a hold or in the shell.
     options = {"reset_on_open": first == "reset" or (first not in _LOOKING and config.controller.reset_on_open)}
@@ -362,7 +376,7 @@ def _status(rig: GrblRig, args, *, as_json: bool) -> None:
         data["firmware"] = None if controller.banner is None else controller.banner.text
         data["position_unknown"] = controller.position_unknown
         data["controller"] = rig.controller_info()
-        print(json.dumps(data), flush=True)
+        print_json(data)
         return
     print(_describe(reading), flush=True)
     if controller.position_unknown:
@@ -466,8 +480,6 @@ def _emulator_from_args(args) -> GrblEmulator:
             faults.append(parse_fault(spec))
         except ValueError as error:
             raise CliError(f"--fault: {error}") from None
-    if args.time_scale <= 0:
-        raise CliError("--time-scale must be > 0")
     try:
         return GrblEmulator(axes=axes, axis_specs=specs, time_scale=args.time_scale,
                             homing_enabled=not args.no_homing, firmware=args.firmware, faults=faults,

@@ -3,29 +3,58 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import glob
 import json
+import os
+import re
 import sys
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from stereo_bench.cli import CliError
+from stereo_bench import atomic
+from stereo_bench.cli import CliError, print_json
+from stereo_bench.cli.args import (
+    ALPHA_DEG,
+    BASELINE_MM,
+    DISTANCE_MM,
+    FOCAL_MM,
+    PIXEL_SIGMA_PX,
+    PIXEL_UM,
+    SEED,
+    SQUARE_MM,
+    TILT_DEG,
+    TOE_IN_DEG,
+    board_pattern,
+    finite_float,
+    output_dir,
+)
 from stereo_bench.targets import ARUCO_DICTIONARIES, CharucoTarget, Checkerboard, Target, parse_pattern
 
 IMAGE_HELP = "image file (PNG, JPEG, ...); colour images are converted to grey"
 
+# Ranges of the numeric options only these commands take (the shared ones: stereo_bench/cli/args.py).
+BOARD_SCALE_U = finite_float(min=0, max=0.1, inclusive=(True, False))  # a relative standard uncertainty
+NOISE_DN = finite_float(min=0, max=255, unit="DN")  # 8-bit frames
+# The renderer's cost grows with the blur (kernel ~ 6 sigma): 50 px took 3.6 s, 200 px 48 s at load 16
+# (scripts/bench_input_bounds.py), 1000 px ran for minutes; at 50 px a 9x6 board at 500 mm is no longer detected.
+BLUR_PX = finite_float(min=0, max=50, unit="px")
+
 
 def add_target_options(parser: argparse.ArgumentParser, *, default_square_mm: float | None) -> None:
-    parser.add_argument("--board", required=True, metavar="COLSxROWS",
+    parser.add_argument("--board", required=True, metavar="COLSxROWS", type=board_pattern,
                         help="checkerboard inner corners per row x per column, e.g. 9x6 "
                              "(with --charuco: squares per row x per column)")
-    parser.add_argument("--square", type=float, required=default_square_mm is None, default=default_square_mm,
+    parser.add_argument("--square", type=SQUARE_MM, required=default_square_mm is None, default=default_square_mm,
                         metavar="MM", help="square size in mm" + (f" (default {default_square_mm})"
                                                                      if default_square_mm else ""))
     parser.add_argument("--charuco", action="store_true", help="the board is a ChArUco board (partial views count)")
-    parser.add_argument("--marker", type=float, metavar="MM", help="ChArUco marker size in mm (default 0.75 x square)")
+    parser.add_argument("--marker", type=SQUARE_MM, metavar="MM",
+                        help="ChArUco marker size in mm (default 0.75 x square)")
     parser.add_argument("--dictionary", default="DICT_5X5_1000", choices=sorted(ARUCO_DICTIONARIES),
                         metavar="DICT", help="ChArUco ArUco dictionary (default DICT_5X5_1000)")
 
@@ -41,14 +70,66 @@ def target_from_args(args: argparse.Namespace) -> Target:
         raise CliError(f"--board/--square: {error}") from None
 
 
+# What libjpeg and libpng print about a damaged file (their other messages are harmless, e.g. libpng's
+# "iCCP: known incorrect sRGB profile").
+_CORRUPT_DECODE = re.compile(r"corrupt|premature|truncat|invalid|error|bad |crc|extraneous", re.IGNORECASE)
+
+
+@contextlib.contextmanager
+def _decoder_messages() -> Iterator[list[str]]:
+    """Collect what C libraries write to file descriptor 2 meanwhile (the list is filled on exit).
+
+    libjpeg reports a truncated or damaged JPEG only as warnings on stderr and still returns an image; they
+    are caught here to name the file, and kept off the terminal.
+    """
+    messages: list[str] = []
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no stderr at all: nothing to keep clean
+        yield messages
+        return
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield messages
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            messages.extend(line.strip() for line in sink.read().decode(errors="replace").splitlines()
+                            if line.strip())
+
+
 def read_gray(path: str | Path) -> np.ndarray:
+    """A grey image from a file; CliError naming the file when it is missing, not an image, or corrupt."""
     path = Path(path)
     if not path.is_file():
-        raise CliError(f"{path}: image not found")
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        raise CliError(f"{path}: image not found" if not path.exists() else f"{path}: not a file")
+    if not os.access(path, os.R_OK):
+        raise CliError(f"{path}: cannot read the image (permission denied)")
+    with _decoder_messages() as messages:
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    damage = [m for m in messages if _CORRUPT_DECODE.search(m)]
+    if damage:
+        raise CliError(f"{path}: corrupt image ({damage[0]})")
     if image is None:
         raise CliError(f"{path}: cannot read image (not an image file, or corrupt)")
     return image
+
+
+def same_pixels(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and bool(np.array_equal(a, b))
+
+
+def make_out_dir(out: Path, option: str = "--out") -> None:
+    """Create an output directory, or say in one line why it cannot be (a file in the way, no permission, ...)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise CliError(f"{option} {out}: a file is in the way (not a directory)") from None
+    except OSError as error:
+        raise CliError(f"{option} {out}: cannot create the directory: {error.strerror or error}") from None
 
 
 def expand_glob(pattern: str, option: str) -> list[str]:
@@ -61,13 +142,6 @@ def expand_glob(pattern: str, option: str) -> list[str]:
 def camera_summary(K: np.ndarray, D: np.ndarray) -> dict:
     return {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
             "dist": [float(x) for x in np.ravel(D)]}
-
-
-def check_board_scale_u(value: float | None, option: str) -> float | None:
-    """A relative standard uncertainty of a board's scale: finite, >= 0 and < 0.1 (None passes)."""
-    if value is not None and not (np.isfinite(value) and 0.0 <= value < 0.1):
-        raise CliError(f"{option} must be a relative standard uncertainty in [0, 0.1), e.g. 1e-4, not {value:g}")
-    return value
 
 
 def calibration_uncertainty(calib) -> dict | None:
@@ -97,7 +171,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from stereo_bench.vision.pipeline import calibrate_from_images
 
     target = target_from_args(args)
-    check_board_scale_u(args.board_scale_u, "--board-scale-u")
     left_paths, right_paths = expand_glob(args.left, "--left"), expand_glob(args.right, "--right")
     if len(left_paths) != len(right_paths):
         raise CliError(f"--left matches {len(left_paths)} files but --right matches {len(right_paths)}: "
@@ -106,10 +179,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     existing = [p for p in (out / "intrinsics.yml", out / "extrinsics.yml") if p.exists()]
     if existing and not args.force:
         raise CliError(f"{existing[0]} exists: choose another --out or pass --force to replace it")
-    intrinsics = intrinsics_covariance = None
+    intrinsics = intrinsics_covariance = intrinsics_size = None
     if args.intrinsics:
         try:
-            intrinsics = read_intrinsics(args.intrinsics)[:4]
+            *intrinsics, intrinsics_size = read_intrinsics(args.intrinsics)
             intrinsics_covariance = read_intrinsics_covariance(args.intrinsics)
         except CalibrationFileError as error:
             raise CliError(str(error)) from None
@@ -119,12 +192,22 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     sizes = {im.shape for im in left_images + right_images}
     if len(sizes) != 1:
         raise CliError(f"all images must have the same size, found {sorted(sizes)}")
+    height, width = left_images[0].shape
+    if intrinsics_size is not None and tuple(intrinsics_size) != (width, height):
+        raise CliError(f"--intrinsics {args.intrinsics} is for {intrinsics_size[0]}x{intrinsics_size[1]} images, "
+                       f"the --left/--right images are {width}x{height}")
+    same = [i for i, (a, b) in enumerate(zip(left_images, right_images, strict=True)) if same_pixels(a, b)]
+    if same:
+        raise CliError(f"{left_paths[same[0]]} and {right_paths[same[0]]} are the same image"
+                       + (f" ({len(same)} of {len(left_paths)} pairs are)" if len(same) > 1 else "")
+                       + ": a stereo calibration needs the left and the right camera's views")
     try:
         result = calibrate_from_images(left_images, right_images, target, intrinsics=intrinsics, mode=mode,
                                        intrinsics_covariance=intrinsics_covariance)
     except (ValueError, cv2.error) as error:
-        raise CliError(f"calibration failed: {error}") from None
+        raise CliError(f"calibration failed: {' '.join(str(error).split())}") from None
     calib = result.calib
+    make_out_dir(out)
     write_calibration(out, calib, result.rect, board=f"{target.kind} {args.board} square {target.square_mm} mm",
                       extra={"epipolar_rms_px": result.epipolar_rms_px, "views_used": len(result.views_used),
                              "board_scale_u_rel": args.board_scale_u})
@@ -143,8 +226,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         "board_scale_u_rel": args.board_scale_u,
     }
     if args.json:
-        json.dump(report, sys.stdout)
-        print()
+        print_json(report)
     else:
         print(f"calibrated {len(result.views_used)} of {len(left_paths)} pairs ({mode} intrinsics), "
               f"RMS {calib.rms_px:.3f} px, epipolar RMS {result.epipolar_rms_px:.3f} px")
@@ -167,24 +249,31 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_measure(args: argparse.Namespace) -> int:
-    from stereo_bench.vision.calibio import CalibrationFileError, calibration_board_scale_u, read_calibration
+    from stereo_bench.vision.calibio import (
+        CalibrationFileError,
+        calibration_board_scale_u,
+        read_calibration,
+        recorded_epipolar_rms_px,
+    )
     from stereo_bench.vision.detect import AmbiguousViewError
-    from stereo_bench.vision.pipeline import BoardNotFoundError, measure_pair
+    from stereo_bench.vision.pipeline import BoardNotFoundError, ImplausibleMeasurement, check_epipolar, measure_pair
     from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL, BoardScale, configuration_budget
 
     target = target_from_args(args)
-    check_board_scale_u(args.board_scale_u, "--board-scale-u")
-    check_board_scale_u(args.calib_board_scale_u, "--calib-board-scale-u")
     left, right = read_gray(args.left), read_gray(args.right)
     if left.shape != right.shape:
         raise CliError(f"{args.left} is {left.shape[1]}x{left.shape[0]} but {args.right} is "
                        f"{right.shape[1]}x{right.shape[0]}")
+    if same_pixels(left, right):
+        raise CliError(f"{args.left} and {args.right} are the same image: a stereo measurement needs the left "
+                       "and the right camera's views")
     image_size = (left.shape[1], left.shape[0])
     try:
         calib = read_calibration(args.calib, image_size=image_size)
         calib_board_u = args.calib_board_scale_u
         if calib_board_u is None:
             calib_board_u = calibration_board_scale_u(args.calib)
+        calibration_epipolar = recorded_epipolar_rms_px(args.calib)
     except CalibrationFileError as error:
         raise CliError(str(error)) from None
     board_scale = BoardScale(target_u_rel=args.board_scale_u, same_board=args.same_board,
@@ -196,8 +285,11 @@ def cmd_measure(args: argparse.Namespace) -> int:
     try:
         result = measure_pair(left, right, calib, target, pixel_sigma_px=args.pixel_sigma, thorough=True,
                               partial=args.partial)
+        check_epipolar(result.epipolar_rms_px, calibration_epipolar)
     except (BoardNotFoundError, AmbiguousViewError) as error:
         raise CliError(f"{args.left}, {args.right}: {error}") from None
+    except ImplausibleMeasurement as error:
+        raise CliError(f"{args.left}, {args.right} with {args.calib}: measurement refused: {error}") from None
     budget = configuration_budget([result], calib, target, board_scale=board_scale)
     report = {**result.as_dict(), "left": str(args.left), "right": str(args.right), "calib": str(args.calib),
               "uncertainty_mm": budget.as_dict(), "uncertainty": {
@@ -208,8 +300,7 @@ def cmd_measure(args: argparse.Namespace) -> int:
         report["squares"] = [{"ids": [int(a), int(b)], "length_mm": float(length)}
                              for (a, b), length in zip(result.square.pairs, result.square.lengths_mm, strict=True)]
     if args.json:
-        json.dump(report, sys.stdout)
-        print()
+        print_json(report)
     else:
         sq = result.square
         print(f"square: {sq.mean_mm:.4f} mm  (nominal {sq.nominal_mm:g}, error {sq.error_mm:+.4f} +- "
@@ -243,21 +334,22 @@ def cmd_render(args: argparse.Namespace) -> int:
     if args.alpha is not None and (args.toe_in is not None):
         raise CliError("give --alpha or --toe-in, not both")
     alpha = args.alpha if args.alpha is not None else 90.0 - (args.toe_in or 0.0)
-    if not 0.0 < alpha <= 180.0 or args.baseline <= 0 or args.distance <= 0:
-        raise CliError("--baseline and --distance must be positive and --alpha in (0, 180] degrees")
     camera = CameraModel.from_sensor(focal_mm=args.focal, pixel_um=args.pixel)
     rig = RigPose.symmetric(args.baseline, alpha, args.tilt)
     try:
         optics = Optics(noise_sigma_dn=args.noise, blur_sigma_px=args.blur)
     except ValueError as error:
         raise CliError(str(error)) from None
+    make_out_dir(out)  # before the seconds of rendering: a --out that cannot be written fails at once
     renderer = StereoRenderer(target, camera, camera, optics=optics)
     T_rig_board = board_pose_facing_rig(distance_mm=args.distance, board_size_mm=target.grid_size_mm)
     pair = renderer.render_pair(rig, T_rig_board, np.random.default_rng(args.seed))
-    out.mkdir(parents=True, exist_ok=True)
     for name, view in (("left.png", pair.left), ("right.png", pair.right)):
-        if not cv2.imwrite(str(out / name), view.image):
-            raise CliError(f"{out / name}: cannot write image")
+        # Encoded here, written by Python: cv2.imwrite reports a full disk only as 'libpng error' on stderr.
+        encoded, data = cv2.imencode(".png", view.image)
+        if not encoded:
+            raise CliError(f"{out / name}: cannot encode the image as PNG")
+        atomic.write_bytes(out / name, data.tobytes())
     truth_calib = StereoCalibration(
         K1=camera.K, D1=camera.dist.reshape(1, -1), K2=camera.K, D2=camera.dist.reshape(1, -1),
         R=pair.R, T=pair.T, image_size=camera.image_size, rms_px=0.0, mode="truth",
@@ -274,11 +366,14 @@ def cmd_render(args: argparse.Namespace) -> int:
         "right": {"corners_px": pair.right.corners_px.tolist(), "visible": pair.right.visible.tolist()},
         "fraction_in_both": float((pair.left.visible & pair.right.visible).mean()),
     }
-    (out / "truth.json").write_text(json.dumps(truth, indent=1))
+    atomic.write_text(out / "truth.json", json.dumps(truth, indent=1))
     print(f"rendered B = {args.baseline:g} mm, Z = {args.distance:g} mm, alpha = {alpha:g} deg: "
           f"{truth['fraction_in_both']:.0%} of the board's corners in both views")
     print(f"wrote {out / 'left.png'}, {out / 'right.png'}, ground-truth calibration and {out / 'truth.json'}")
-    print(f"next: stereo-bench measure --calib {out} --board {args.board} --square {target.square_mm:g} "
+    charuco = "" if target.kind == "checkerboard" else (
+        f" --charuco --marker {target.marker_mm:g}" + ("" if args.dictionary == "DICT_5X5_1000"
+                                                      else f" --dictionary {args.dictionary}"))
+    print(f"next: stereo-bench measure --calib {out} --board {args.board} --square {target.square_mm:g}{charuco} "
           f"{out / 'left.png'} {out / 'right.png'}")
     return 0
 
@@ -293,14 +388,15 @@ def register(subparsers) -> None:
     add_target_options(calibrate, default_square_mm=None)
     calibrate.add_argument("--left", required=True, metavar="GLOB", help="left images, e.g. 'DIR/left*.jpg' (quote it)")
     calibrate.add_argument("--right", required=True, metavar="GLOB", help="right images, e.g. 'DIR/right*.jpg'")
-    calibrate.add_argument("--out", required=True, metavar="CALIB_DIR", help="directory for the two YAML files")
+    calibrate.add_argument("--out", required=True, type=output_dir, metavar="CALIB_DIR",
+                           help="directory for the two YAML files")
     calibrate.add_argument("--intrinsics", metavar="CALIB_DIR_OR_FILE",
                            help="start from these intrinsics (intrinsics.yml); implies --mode fixed unless given")
     calibrate.add_argument("--mode", choices=("joint", "fixed"),
                            help="joint: refine intrinsics with R, T (default, measured more accurate); "
                                 "fixed: keep the intrinsics")
     calibrate.add_argument("--force", action="store_true", help="replace calibration files already in --out")
-    calibrate.add_argument("--board-scale-u", type=float, default=1e-4, metavar="REL",
+    calibrate.add_argument("--board-scale-u", type=BOARD_SCALE_U, default=1e-4, metavar="REL",
                            help="relative standard uncertainty of the calibration board's square, recorded for "
                                 "'measure' (default 1e-4)")
     calibrate.add_argument("--json", action="store_true", help="print one JSON object instead of text")
@@ -316,18 +412,18 @@ def register(subparsers) -> None:
     add_target_options(measure, default_square_mm=27.0)
     measure.add_argument("left", metavar="LEFT", help=IMAGE_HELP)
     measure.add_argument("right", metavar="RIGHT", help=IMAGE_HELP)
-    measure.add_argument("--pixel-sigma", type=float, metavar="PX",
-                         help="corner noise per coordinate for the propagated sigma (default: estimated from "
-                              "the images)")
+    measure.add_argument("--pixel-sigma", type=PIXEL_SIGMA_PX, metavar="PX",
+                         help="corner noise per coordinate for the propagated sigma, 0-10 px (default: estimated "
+                              "from the images)")
     measure.add_argument("--per-square", action="store_true", help="include every measured length in the JSON")
     measure.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     measure.add_argument("--partial", action="store_true",
                          help="accept a checkerboard cut by the image border (ids proven from the board's edges)")
-    measure.add_argument("--board-scale-u", type=float, default=1e-4, metavar="REL",
+    measure.add_argument("--board-scale-u", type=BOARD_SCALE_U, default=1e-4, metavar="REL",
                          help="relative standard uncertainty of the measured board's square (certificate or "
                               "stated tolerance; default 1e-4, a rigid printed target; an office print is 1e-3 "
                               "or worse)")
-    measure.add_argument("--calib-board-scale-u", type=float, metavar="REL",
+    measure.add_argument("--calib-board-scale-u", type=BOARD_SCALE_U, metavar="REL",
                          help="the same for the board the calibration used (default: as recorded by "
                               "'stereo-bench calibrate', else 1e-4)")
     measure.add_argument("--same-board", action="store_true",
@@ -340,23 +436,29 @@ def register(subparsers) -> None:
                     "distortion, blur and sensor noise, and write left.png, right.png, the true calibration "
                     "(intrinsics.yml, extrinsics.yml) and truth.json (corner pixels, poses, R, T).",
     )
-    render.add_argument("--baseline", type=float, required=True, metavar="MM", help="B: optical-centre distance")
-    render.add_argument("--distance", type=float, required=True, metavar="MM", help="Z: rig origin to board plane")
-    render.add_argument("--alpha", type=float, metavar="DEG", help="angle between baseline and optical axes "
-                                                                     "(90 = parallel, default)")
-    render.add_argument("--toe-in", type=float, metavar="DEG", help="pan from parallel instead of --alpha "
-                                                                      "(toe-in = 90 - alpha)")
-    render.add_argument("--tilt", type=float, default=0.0, metavar="DEG", help="heads' tilt, positive down")
-    render.add_argument("--out", required=True, metavar="DIR")
-    render.add_argument("--board", default="9x6", metavar="COLSxROWS", help="inner corners (default 9x6)")
-    render.add_argument("--square", type=float, default=27.0, metavar="MM", help="square size (default 27)")
+    render.add_argument("--baseline", type=BASELINE_MM, required=True, metavar="MM",
+                        help="B: optical-centre distance (0-10000)")
+    render.add_argument("--distance", type=DISTANCE_MM, required=True, metavar="MM",
+                        help="Z: rig origin to board plane (0-100000)")
+    render.add_argument("--alpha", type=ALPHA_DEG, metavar="DEG", help="angle between baseline and optical axes, "
+                                                                       "0-180 (90 = parallel, default)")
+    render.add_argument("--toe-in", type=TOE_IN_DEG, metavar="DEG", help="pan from parallel instead of --alpha, "
+                                                                         "-90-90 (toe-in = 90 - alpha)")
+    render.add_argument("--tilt", type=TILT_DEG, default=0.0, metavar="DEG", help="heads' tilt, positive down "
+                                                                                  "(-90-90)")
+    render.add_argument("--out", required=True, type=output_dir, metavar="DIR")
+    render.add_argument("--board", default="9x6", type=board_pattern, metavar="COLSxROWS",
+                        help="inner corners (default 9x6)")
+    render.add_argument("--square", type=SQUARE_MM, default=27.0, metavar="MM", help="square size (default 27)")
     render.add_argument("--charuco", action="store_true", help="render a ChArUco board (--board gives squares)")
-    render.add_argument("--marker", type=float, metavar="MM", help="ChArUco marker size (default 0.75 x square)")
+    render.add_argument("--marker", type=SQUARE_MM, metavar="MM", help="ChArUco marker size (default 0.75 x square)")
     render.add_argument("--dictionary", default="DICT_5X5_1000", choices=sorted(ARUCO_DICTIONARIES), metavar="DICT")
-    render.add_argument("--focal", type=float, default=4.0, metavar="MM", help="lens focal length (default 4)")
-    render.add_argument("--pixel", type=float, default=3.0, metavar="UM", help="pixel pitch (default 3)")
-    render.add_argument("--noise", type=float, default=2.0, metavar="DN", help="sensor noise std (default 2)")
-    render.add_argument("--blur", type=float, default=0.7, metavar="PX", help="optical blur sigma (default 0.7)")
-    render.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    render.add_argument("--focal", type=FOCAL_MM, default=4.0, metavar="MM", help="lens focal length (default 4)")
+    render.add_argument("--pixel", type=PIXEL_UM, default=3.0, metavar="UM", help="pixel pitch (default 3)")
+    render.add_argument("--noise", type=NOISE_DN, default=2.0, metavar="DN", help="sensor noise std, 0-255 "
+                                                                                  "(default 2)")
+    render.add_argument("--blur", type=BLUR_PX, default=0.7, metavar="PX", help="optical blur sigma, 0-50 "
+                                                                                "(default 0.7)")
+    render.add_argument("--seed", type=SEED, default=0, help="noise seed, >= 0 (default 0)")
     render.add_argument("--force", action="store_true", help="replace a pair already rendered in --out")
     render.set_defaults(func=cmd_render)

@@ -6,13 +6,21 @@ Layout of a report directory::
     report.json                         what was reported: sessions, files, counts (marks the directory as a report)
     tables/results.csv                  every configuration of every session, with the rigorous prediction
     tables/<session>_table1_A<α>.csv     the paper's Table 1 layout (square per B and Z), per α
-    tables/<session>_table2.csv          the paper's Table 2 layout (square per α), per (B, Z)
+    tables/<session>_table1_A<α>_error.csv   the same grid with 'error +- U'
+    tables/<session>_table2.csv          the paper's Table 2 layout (square per α), per (B, Z) (+ _error.csv)
     tables/<session>_calibration.csv     calibration quality per configuration
+    tables/<session>_budget.csv          the uncertainty budget per configuration (sessions that record one)
+    tables/<session>_structure.csv       per configuration and extrinsics source: B, alphas, rotation, square
+    tables/structural.csv                the structural-error figures' points (every session)
     figures/<session>_fig8_A<α>.png      error against Z for each B (the paper's Figure 8)
     figures/<session>_fig9_A<α>.png      error against B for each Z (Figure 9)
     figures/<session>_fig11.png          error against α (Figure 11)
-    figures/<session>_comparison.png     |error|, measured σ and predicted σ per configuration
+    figures/<session>_comparison.png     |error|, measured σ, predicted σ and U per configuration
     figures/<session>_calibration.png    per-view reprojection RMS per configuration
+    figures/<session>_normalised.png     error / u_c per configuration with the ±2 band (sessions with a budget)
+    figures/<session>_structure.png      each extrinsics source minus the truth (or the nominal geometry)
+    figures/structural_fig8_A<α>.png     Figures 8, 9, 11 with one panel per extrinsics source (all sessions)
+    figures/structural_fig9_A<α>.png, figures/structural_fig11.png
     images/<session>/<config>_{corners,rectified}.jpg
 
 The directory is written under a temporary name beside its destination and renamed into place, so a
@@ -39,8 +47,18 @@ from stereo_bench import __version__, atomic
 from stereo_bench.campaign.documents import REPORT_COLUMNS
 from stereo_bench.campaign.session import DOCUMENTS_FILE, SessionError
 from stereo_bench.report import annotate, figures, html
-from stereo_bench.report.collect import ConfigReport, SessionReport, read_sessions
-from stereo_bench.report.page import ImageRef, SessionPage
+from stereo_bench.report.collect import (
+    BUDGET_COMPONENTS,
+    EXTRINSICS_MODES,
+    EXTRINSICS_SOURCES,
+    MODE_SOURCE,
+    SOURCE_MODE,
+    STRUCTURE_KEYS,
+    ConfigReport,
+    SessionReport,
+    read_sessions,
+)
+from stereo_bench.report.page import ImageRef, SessionPage, StructuralSection
 from stereo_bench.report.tables import (
     alpha_tables,
     distance_baseline_tables,
@@ -191,37 +209,190 @@ def _group_tag(alpha: float | None, tilt: float) -> tuple[str, str]:
     return tag.replace(".", "p").replace("-", "m"), text
 
 
-def _error_figures(writer: _Writer, session: SessionReport) -> list[ImageRef]:
-    rows = session.rows
-    predictions = {c.config_id: c.prediction or {} for c in session.configs}
-    refs = []
+def _layouts(rows: list[dict]) -> list[tuple[str, str, str, tuple | None, str, tuple[str, ...]]]:
+    """The paper's figures these rows make: (figure, tag, text, (α, tilt) of its rows or None: all, x key,
+    series keys).
+
+    Figure 8 (against Z for each B) and Figure 9 (against B for each Z) per α (and tilt), when some
+    series has more than one point; Figure 11 (against α for each (B, Z)) when some (B, Z) has
+    more than one α.
+    """
+    out = []
     for (alpha, tilt), group in _angle_groups(rows).items():
         tag, text = _group_tag(alpha, tilt)
         by_b = {_finite(r.get("baseline_mm")) for r in group}
         by_z = {_finite(r.get("distance_mm")) for r in group}
         if any(_distinct([r for r in group if _finite(r.get("baseline_mm")) == b], "distance_mm") > 1 for b in by_b):
-            title = f"Error against Z for each B (paper Fig. 8): {session.name}, {text}"
-            refs.append(writer.figure(
-                f"figures/{session.key}_fig8_{tag}.png",
-                figures.error_figure(group, predictions, x_key="distance_mm", series_keys=("baseline_mm",),
-                                     title=title), alt=title))
+            out.append(("fig8", tag, text, (alpha, tilt), "distance_mm", ("baseline_mm",)))
         if any(_distinct([r for r in group if _finite(r.get("distance_mm")) == z], "baseline_mm") > 1 for z in by_z):
-            title = f"Error against B for each Z (paper Fig. 9): {session.name}, {text}"
-            refs.append(writer.figure(
-                f"figures/{session.key}_fig9_{tag}.png",
-                figures.error_figure(group, predictions, x_key="baseline_mm", series_keys=("distance_mm",),
-                                     title=title), alt=title))
+            out.append(("fig9", tag, text, (alpha, tilt), "baseline_mm", ("distance_mm",)))
     bz: dict[tuple, set] = {}
     for row in rows:
         key = (_finite(row.get("baseline_mm")), _finite(row.get("distance_mm")), _finite(row.get("tilt_deg")) or 0.0)
         bz.setdefault(key, set()).add(_finite(row.get("alpha_deg")))
     if any(len(alphas - {None}) > 1 for alphas in bz.values()):
-        title = f"Error against α (paper Fig. 11): {session.name}"
+        out.append(("fig11", "", "", None, "alpha_deg", ("baseline_mm", "distance_mm")))
+    return out
+
+
+_FIGURE_TITLES = {"fig8": "Error against Z for each B (paper Fig. 8)",
+                  "fig9": "Error against B for each Z (paper Fig. 9)", "fig11": "Error against α (paper Fig. 11)"}
+
+
+def _in_group(row: dict, group: tuple | None) -> bool:
+    return group is None or (_finite(row.get("alpha_deg")), _finite(row.get("tilt_deg")) or 0.0) == group
+
+
+def _bzt(row: dict) -> tuple:
+    return _finite(row.get("baseline_mm")), _finite(row.get("distance_mm")), _finite(row.get("tilt_deg")) or 0.0
+
+
+def _in_alpha_sweep(rows: list[dict]):
+    """Keeps the rows of a (B, Z, tilt) that has more than one α (Figure 11's series across sessions)."""
+    alphas: dict[tuple, set] = {}
+    for row in rows:
+        alphas.setdefault(_bzt(row), set()).add(_finite(row.get("alpha_deg")))
+
+    def keep(row: dict, group: tuple | None = None) -> bool:
+        return len(alphas.get(_bzt(row), set()) - {None}) > 1
+    return keep
+
+
+def _figure_name(figure: str, tag: str) -> str:
+    return f"{figure}_{tag}" if tag else figure
+
+
+def uncertainties(session: SessionReport) -> dict[str, tuple[float | None, bool]]:
+    """config_id -> (U in mm or None, budget complete): the error bars and the tables' ± U."""
+    return {c.config_id: (c.budget.expanded, c.budget.complete) if c.budget else (None, True)
+            for c in session.configs}
+
+
+def _error_figures(writer: _Writer, session: SessionReport) -> list[ImageRef]:
+    predictions = {c.config_id: c.prediction or {} for c in session.configs}
+    expanded = uncertainties(session)
+    refs = []
+    for figure, tag, text, group, x_key, series_keys in _layouts(session.rows):
+        title = f"{_FIGURE_TITLES[figure]}: {session.name}" + (f", {text}" if text else "")
+        keep = _in_group if figure != "fig11" else _in_alpha_sweep(session.rows)
+        rows = [row for row in session.rows if keep(row, group)]
         refs.append(writer.figure(
-            f"figures/{session.key}_fig11.png",
-            figures.error_figure(rows, predictions, x_key="alpha_deg", series_keys=("baseline_mm", "distance_mm"),
-                                 title=title), alt=title))
+            f"figures/{session.key}_{_figure_name(figure, tag)}.png",
+            figures.error_figure(rows, predictions, x_key=x_key, series_keys=series_keys, title=title,
+                                 uncertainties=expanded), alt=title))
     return refs
+
+
+def nominal_square_mm(session: SessionReport, row: dict) -> float | None:
+    """The target's nominal square: the campaign config's, else the row's square minus its error."""
+    if session.config is not None:
+        return float(session.config.target.square_mm)
+    square, error = _finite(row.get("square_mean_mm")), _finite(row.get("error_mm"))
+    return square - error if square is not None and error is not None else None
+
+
+def budget_rows(session: SessionReport) -> list[list[object]]:
+    """One CSV row per measured configuration: the budget's components (empty: unknown), u_c, U, k, dominant,
+    the error and the normalised errors."""
+    out: list[list[object]] = [["config_id", "extrinsics_mode", "error_mm", *(f"u_{n}_mm" for n in BUDGET_COMPONENTS),
+                                "u_combined_mm", "U_expanded_mm", "k", "unknown", "dominant", "dominant_share",
+                                "normalised_error", "square_true_mm", "normalised_error_true"]]
+    for config in session.configs:
+        if config.status != "measured":
+            continue
+        budget, structure = config.budget, config.structure
+        error, z, z_true = _normalised(session, config)
+        out.append([
+            config.config_id, structure.mode if structure else None, error,
+            *((budget.components[n] if budget else None) for n in BUDGET_COMPONENTS),
+            budget.combined if budget else None, budget.expanded if budget else None, budget.k if budget else None,
+            (" ".join(budget.unknown) if budget.components_recorded else "components not recorded") if budget
+            else "no budget recorded",
+            budget.dominant if budget else None,
+            budget.share(budget.dominant) if budget and budget.dominant else None, z,
+            structure.square_true_mm if structure else None, z_true])
+    return out
+
+
+def _normalised(session: SessionReport, config: ConfigReport) -> tuple[float | None, float | None, float | None]:
+    """(error against the nominal square, error / u_c, (measured - true square) / u_c) of a measured configuration.
+
+    Against the true square u_c is the budget's ``combined_vs_true`` when recorded (without the measured
+    board's own print-scale uncertainty), else u_c."""
+    row = config.row
+    error = _finite(row.get("error_mm"))
+    combined = config.budget.combined if config.budget else None
+    z = error / combined if error is not None and combined else None
+    square = _finite(row.get("square_mean_mm"))
+    true = config.structure.square_true_mm if config.structure else None
+    # Against the board's true printed square the board's own print uncertainty is no longer an error source:
+    # the budget's combined_vs_true leaves it out (when recorded).
+    vs_true = (config.budget.combined_vs_true or combined) if config.budget else None
+    z_true = (square - true) / vs_true if square is not None and true is not None and vs_true else None
+    return error, z, z_true
+
+
+def normalised_points(session: SessionReport) -> list[figures.NormalisedPoint]:
+    """The normalised-error plot's points: every measured configuration with a budget."""
+    points = []
+    for config in session.configs:
+        if config.status != "measured" or config.budget is None or not config.budget.combined:
+            continue
+        _, z, z_true = _normalised(session, config)
+        points.append(figures.NormalisedPoint(config.config_id, z, z_true, config.budget.complete))
+    return points
+
+
+def _source_mode(structure, source: str) -> str | None:
+    """The extrinsics mode whose square a source's row shows ('used': the measurement's; truth: none)."""
+    return structure.mode if source == "used" else SOURCE_MODE.get(source)
+
+
+def structure_rows(session: SessionReport) -> list[list[object]]:
+    """Long format: one CSV row per configuration and extrinsics source known there (structure, its σ where
+    recorded, where it was read, the square measured with it, its error and U)."""
+    out: list[list[object]] = [["config_id", "status", "commanded_baseline_mm", "distance_mm", "commanded_alpha_deg",
+                                "extrinsics_mode", "source", *STRUCTURE_KEYS, *(f"{k}_sigma" for k in STRUCTURE_KEYS),
+                                "origin", "square_mm", "error_mm", "U_expanded_mm", "square_true_mm", "note"]]
+    for config in session.configs:
+        structure = config.structure
+        if structure is None:
+            continue
+        row = config.row
+        nominal = nominal_square_mm(session, row)
+        head = [config.config_id, config.status, row.get("baseline_mm"), row.get("distance_mm"), row.get("alpha_deg"),
+                structure.mode]
+        for source in EXTRINSICS_SOURCES:
+            described = structure.extrinsics.get(source) or {}
+            mode = _source_mode(structure, source)
+            square = structure.squares_mm.get(mode) if mode else None
+            if not described and square is None:
+                continue
+            budget = structure.budgets.get(mode) if mode else None
+            sigma = structure.sigma.get(source) or {}
+            out.append([*head, source, *(described.get(k) for k in STRUCTURE_KEYS),
+                        *(sigma.get(k) for k in STRUCTURE_KEYS),
+                        structure.origin.get(source) or structure.squares_origin.get(mode or ""), square,
+                        square - nominal if square is not None and nominal is not None else None,
+                        budget.expanded if budget else None,
+                        structure.square_true_mm if source == "truth" else None, structure.notes.get(source)])
+    return out
+
+
+def _deviation(writer: _Writer, session: SessionReport, page: SessionPage) -> None:
+    """The figure of each source's structure minus the truth (simulated) or the nominal geometry."""
+    measured = [c for c in session.configs if c.status == "measured" and c.structure is not None]
+    reference = "truth" if any(c.structure.extrinsics["truth"] for c in measured) else "nominal"
+    configs = [(c.config_id, c.structure.extrinsics) for c in measured if c.structure.extrinsics[reference]]
+    others = [s for s in ("calibrated", "kinematic", "nominal", "fixed") if s != reference]
+    if not any(structures.get(s) for _, structures in configs for s in others):
+        return
+    used = {c.config_id: MODE_SOURCE.get(c.structure.mode or "", "") for c in measured}
+    title = f"Extrinsics minus the {reference}: {session.name}"
+    page.deviation = writer.figure(f"figures/{session.key}_structure.png",
+                                   figures.deviation_figure(configs, reference=reference, title=title, used=used),
+                                   alt=title)
+    page.deviation_reference = reference
 
 
 def _result_rows(sessions: Sequence[SessionReport]) -> list[list[object]]:
@@ -311,15 +482,33 @@ def _annotations(writer: _Writer, session: SessionReport, config: ConfigReport, 
 def _session_page(writer: _Writer, session: SessionReport, *, images: bool, warnings: list[str]) -> SessionPage:
     page = SessionPage(session=session)
     rows = session.rows
-    for table in distance_baseline_tables(rows, prefix=f"{session.key}_"):
+    expanded = uncertainties(session)
+
+    def uncertainty(row: dict) -> tuple[float | None, bool]:
+        return expanded.get(str(row.get("config_id")), (None, True))
+
+    for table in distance_baseline_tables(rows, prefix=f"{session.key}_", uncertainty=uncertainty):
         page.tables1.append((table, writer.write(f"tables/{table.key}.csv", table.to_csv())))
-    for table in alpha_tables(rows, prefix=f"{session.key}_"):
+        page.error_csvs[table.key] = writer.write(f"tables/{table.key}_error.csv", table.error_csv())
+    for table in alpha_tables(rows, prefix=f"{session.key}_", uncertainty=uncertainty):
         page.tables2.append((table, writer.write(f"tables/{table.key}.csv", table.to_csv())))
+        page.error_csvs[table.key] = writer.write(f"tables/{table.key}_error.csv", table.error_csv())
     page.error_figures = _error_figures(writer, session)
     predictions = {c.config_id: c.prediction or {} for c in session.configs}
     title = f"Measured error beside the rigorous prediction: {session.name}"
     page.comparison = writer.figure(f"figures/{session.key}_comparison.png",
-                                    figures.comparison_figure(rows, predictions, title=title), alt=title)
+                                    figures.comparison_figure(rows, predictions, title=title, uncertainties=expanded),
+                                    alt=title)
+    if any(c.budget is not None for c in session.configs):
+        page.budget_csv = writer.write(f"tables/{session.key}_budget.csv", rows_to_csv(budget_rows(session)))
+        ks = sorted({c.budget.k for c in session.configs if c.budget and c.budget.k is not None})
+        k = ks[0] if len(ks) == 1 else 2.0
+        title = f"Normalised error (error / u_c) per configuration: {session.name}"
+        page.normalised = writer.figure(f"figures/{session.key}_normalised.png",
+                                        figures.normalised_figure(normalised_points(session), title=title, k=k),
+                                        alt=title)
+    page.structure_csv = writer.write(f"tables/{session.key}_structure.csv", rows_to_csv(structure_rows(session)))
+    _deviation(writer, session, page)
     title = f"Calibration quality (per-view reprojection RMS): {session.name}"
     page.calibration = writer.figure(
         f"figures/{session.key}_calibration.png",
@@ -331,6 +520,82 @@ def _session_page(writer: _Writer, session: SessionReport, *, images: bool, warn
         if images:
             _annotations(writer, session, config, page, warnings)
     return page
+
+
+def structural_points(sessions: Sequence[SessionReport]) -> tuple[dict[str, list[dict]], dict, int]:
+    """Rows for the structural-error figures: per extrinsics mode, one row per configuration geometry.
+
+    Each row is the configuration's geometry with ``error_mm`` = its square measured with that mode
+    minus the nominal square; its ``config_id`` is ``<session key>/<config id>/<mode>`` (ids repeat
+    across sessions). A configuration measured with the same mode in several sessions is drawn once:
+    from the session whose measurement used that mode, else the first given. Configurations without a
+    measurement are in every panel (the strip at the bottom). Returns (rows per mode, (U, budget
+    complete) per row id where that source's square has a budget, how many duplicates were left out).
+    """
+    panels: dict[str, dict[tuple, dict]] = {}
+    unmeasured: dict[tuple, dict] = {}
+    expanded: dict[str, tuple[float | None, bool]] = {}
+    duplicates = 0
+    for session in sessions:
+        for config in session.configs:
+            row = config.row
+            geometry = tuple(_finite(row.get(k)) for k in ("baseline_mm", "distance_mm", "alpha_deg")) + (
+                _finite(row.get("tilt_deg")) or 0.0,)
+            base = {key: row.get(key) for key in ("baseline_mm", "distance_mm", "alpha_deg", "tilt_deg",
+                                                  "fraction_in_both", "fraction_in_both_measured", "status", "reason")}
+            uid = f"{session.key}/{config.config_id}"
+            if config.status != "measured" or config.structure is None:
+                unmeasured.setdefault(geometry, {**base, "config_id": uid})
+                continue
+            nominal = nominal_square_mm(session, row)
+            for mode, square in config.structure.squares_mm.items():
+                if nominal is None:
+                    continue
+                used = mode == config.structure.mode
+                point = {**base, "config_id": f"{uid}/{mode}", "error_mm": square - nominal,
+                         "sigma_mm": row.get("sigma_mm") if used else None, "_used": used}
+                panel = panels.setdefault(mode, {})
+                if geometry in panel:
+                    duplicates += 1
+                    if not (used and not panel[geometry]["_used"]):
+                        continue
+                panel[geometry] = point
+                if (budget := config.structure.budgets.get(mode)) is not None:
+                    expanded[point["config_id"]] = (budget.expanded, budget.complete)
+    order = {mode: i for i, mode in enumerate(EXTRINSICS_MODES)}
+    rows = {mode: [*panel.values(), *(u for g, u in unmeasured.items() if g not in panel)]
+            for mode, panel in sorted(panels.items(), key=lambda item: (order.get(item[0], len(order)), item[0]))}
+    return rows, expanded, duplicates
+
+
+def _structural_section(writer: _Writer, sessions: Sequence[SessionReport]) -> StructuralSection:
+    rows, expanded, duplicates = structural_points(sessions)
+    section = StructuralSection(sources=list(rows), duplicates=duplicates,
+                                missing=[m for m in ("per-config", "kinematic", "nominal") if m not in rows])
+    table = [["source", "config", "baseline_mm", "distance_mm", "alpha_deg", "tilt_deg", "error_mm", "U_expanded_mm",
+              "used_by_the_measurement"]]
+    for mode, points in rows.items():
+        for point in points:
+            if point.get("status") == "measured":
+                table.append([mode, point["config_id"], point["baseline_mm"], point["distance_mm"],
+                              point["alpha_deg"], point.get("tilt_deg"), point["error_mm"],
+                              expanded.get(point["config_id"], (None, True))[0], point["_used"]])
+    section.csv = writer.write("tables/structural.csv", rows_to_csv(table))
+    if not rows:
+        return section
+    union = {id(p): p for points in rows.values() for p in points}
+    geometry_rows = list({tuple(_finite(p.get(k)) for k in ("baseline_mm", "distance_mm", "alpha_deg", "tilt_deg")): p
+                          for p in union.values()}.values())
+    for figure, tag, text, group, x_key, series_keys in _layouts(geometry_rows):
+        keep = _in_group if figure != "fig11" else _in_alpha_sweep(geometry_rows)
+        panels = [(mode, [p for p in points if keep(p, group)]) for mode, points in rows.items()]
+        name = _FIGURE_TITLES[figure]
+        title = f"Structural error: {name[0].lower()}{name[1:]}" + (f", {text}" if text else "")
+        section.figures.append(writer.figure(
+            f"figures/structural_{_figure_name(figure, tag)}.png",
+            figures.structural_figure(panels, x_key=x_key, series_keys=series_keys, title=title,
+                                      uncertainties=expanded), alt=title))
+    return section
 
 
 def build_report(
@@ -362,10 +627,11 @@ def build_report(
             if progress:
                 progress(f"{session.name}: {len(session.configs)} configurations")
             pages.append(_session_page(writer, session, images=images, warnings=warnings))
+        structural = _structural_section(writer, sessions)
         writer.write("tables/results.csv", rows_to_csv(_result_rows(sessions)))
         generated = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
         writer.write("index.html", html.render_page(pages, generated=generated, version=__version__,
-                                                    warnings=warnings))
+                                                    warnings=warnings, structural=structural))
         manifest = {
             "kind": REPORT_KIND, "stereo_bench": __version__, "generated": generated,
             "sessions": [{"directory": str(s.directory), "name": s.name, "key": s.key, "uid": s.start.get("uid"),
@@ -385,5 +651,6 @@ def build_report(
                          files=sorted(writer.files), warnings=warnings)
 
 
-__all__ = ["MANIFEST", "ImageRef", "ReportError", "ReportSummary", "SessionPage", "build_report", "check_out",
-           "default_out"]
+__all__ = ["MANIFEST", "ImageRef", "ReportError", "ReportSummary", "SessionPage", "StructuralSection", "budget_rows",
+           "build_report", "check_out", "default_out", "nominal_square_mm", "normalised_points", "structural_points",
+           "structure_rows", "uncertainties"]

@@ -1,4 +1,5 @@
-"""Read recorded sessions into what a report shows: result rows, calibration quality, frames, predictions.
+"""Read recorded sessions into what a report shows: result rows, calibration quality, frames, predictions,
+uncertainty budgets and the rig's structure.
 
 Everything comes from the session directory through :class:`~stereo_bench.campaign.session.SessionReader`
 (no path outside it is followed). A configuration without a result (the session stopped first) is
@@ -7,6 +8,23 @@ predicts the σ of each configuration's measured square from its geometry, the n
 campaign config and a pixel noise: the corner noise measured in the configuration's frames
 (``pixel_sigma_px`` of the analysis), else the mean measured in the session, else
 :data:`DEFAULT_PIXEL_SIGMA_PX` — each prediction says which.
+
+Two readers hold every assumption about the shape of the newer records (issues 11 and 12), so that a
+change of the recorded shape is a change of one function:
+
+- :func:`budget_of`: the uncertainty budget of a result row (the nested ``uncertainty`` record:
+  ``uncertainty_mm``'s keys noise, calibration, structure, target, combined, expanded, k, and what
+  they rest on; the columns ``u_combined_mm`` and ``U_expanded_mm``) as a :class:`Budget`; a
+  component recorded as None is unknown, never zero.
+- :func:`structure_of`: per configuration, the extrinsics actually used, the calibrated ones, the
+  kinematic prediction, the nominal geometry and (simulated benches) the truth, each as optical
+  baseline, alphas and stereo rotation angle, and the square measured with each extrinsics source
+  (with its own budget), as a :class:`Structure`. It reads the ``structure`` event (data: ``mode``,
+  ``used``, ``sources``: calibrated | kinematic | nominal | fixed -> {``structure``,
+  ``structure_sigma``, ``square_mean_mm``, ``uncertainty``, ``note``}, ``truth``: {``structure``,
+  ``square_true_mm``}), the ``truth`` event (``SimulatedBench.truth()``) and the result row's columns,
+  and falls back on what older sessions hold (the calibration files, the truth in simulated frames'
+  metadata, the commanded geometry); every value says where it came from.
 """
 
 from __future__ import annotations
@@ -21,11 +39,103 @@ from pydantic import ValidationError
 
 from stereo_bench.campaign.config import CampaignConfig, recorded_campaign
 from stereo_bench.campaign.session import SessionError, SessionReader
+from stereo_bench.geometry import RigPose, stereo_structure
 from stereo_bench.report.tables import NOT_RUN, with_plan
 from stereo_bench.report.tables import finite_number as _finite
 from stereo_bench.targets import Checkerboard
 
 DEFAULT_PIXEL_SIGMA_PX = 0.1
+
+#: The budget's standard-uncertainty components, in the order the report shows them.
+BUDGET_COMPONENTS = ("noise", "calibration", "structure", "target")
+#: The extrinsics a configuration is described by, side by side (issue 11 item 3).
+EXTRINSICS_SOURCES = ("used", "calibrated", "kinematic", "nominal", "fixed", "truth")
+#: What each describes, for the page.
+EXTRINSICS_SOURCE_NAMES = {
+    "used": "used by the measurement", "calibrated": "calibrated (board views here)",
+    "kinematic": "kinematic model's prediction", "nominal": "nominal (commanded B, α)", "fixed": "fixed (a file)",
+    "truth": "truth (simulator)",
+}
+#: The extrinsics modes a square can be measured with ([extrinsics] mode), in the report's order.
+EXTRINSICS_MODES = ("per-config", "kinematic", "nominal", "fixed")
+#: The source of extrinsics each mode measures with, and back.
+MODE_SOURCE = {"per-config": "calibrated", "kinematic": "kinematic", "nominal": "nominal", "fixed": "fixed"}
+SOURCE_MODE = {source: mode for mode, source in MODE_SOURCE.items()}
+#: A structure description: optical baseline |T|, each camera's alpha, the angle of R.
+STRUCTURE_KEYS = ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "rotation_deg")
+#: Per-configuration events the structure reader takes (written by the campaign on newer sessions).
+STRUCTURE_EVENT = "structure"
+TRUTH_EVENT = "truth"
+
+
+@dataclass
+class Budget:
+    """A configuration's uncertainty budget as recorded (standard uncertainties, mm).
+
+    ``components`` has every name of :data:`BUDGET_COMPONENTS`; None means unknown (not in
+    ``combined``, so U is then a lower bound), never zero. ``components_recorded`` is False when the
+    row holds only ``u_combined_mm`` / ``U_expanded_mm`` and no component at all.
+    """
+
+    components: dict[str, float | None]
+    combined: float | None
+    expanded: float | None
+    k: float | None
+    components_recorded: bool = True
+    #: u_c for a comparison with the board's true printed square: without the measured board's own print
+    #: scale part of ``target`` (recorded as ``combined_vs_true``); None: not recorded, use ``combined``.
+    combined_vs_true: float | None = None
+
+    @property
+    def unknown(self) -> list[str]:
+        return [name for name, value in self.components.items() if value is None]
+
+    @property
+    def complete(self) -> bool:
+        return self.components_recorded and not self.unknown
+
+    @property
+    def dominant(self) -> str | None:
+        known = {name: value for name, value in self.components.items() if value is not None}
+        return max(known, key=known.__getitem__) if known else None
+
+    def share(self, name: str) -> float | None:
+        """The component's share of u_c² (0-1), None when it or u_c is unknown."""
+        value = self.components.get(name)
+        if value is None or not self.combined:
+            return None
+        return value * value / (self.combined * self.combined)
+
+    def as_dict(self) -> dict:
+        return {**self.components, "combined": self.combined, "expanded": self.expanded, "k": self.k}
+
+
+@dataclass
+class Structure:
+    """The rig's structure at one configuration, per extrinsics source, and the square measured with each.
+
+    ``extrinsics``: source (:data:`EXTRINSICS_SOURCES`) -> {baseline_mm, alpha_left_deg, alpha_right_deg,
+    rotation_deg} (a value may be None) or None when that source is not known here; ``sigma``: source ->
+    their standard uncertainties where recorded; ``origin``: source -> where it was read.
+    ``squares_mm``: extrinsics mode (:data:`EXTRINSICS_MODES`) -> the square measured with it, and
+    ``budgets`` its uncertainty budget where recorded. ``mode``: the extrinsics the measurement used.
+    """
+
+    mode: str | None = None
+    mode_origin: str = ""
+    extrinsics: dict[str, dict | None] = field(default_factory=lambda: dict.fromkeys(EXTRINSICS_SOURCES))
+    sigma: dict[str, dict] = field(default_factory=dict)
+    origin: dict[str, str] = field(default_factory=dict)
+    notes: dict[str, str] = field(default_factory=dict)
+    squares_mm: dict[str, float] = field(default_factory=dict)
+    squares_origin: dict[str, str] = field(default_factory=dict)
+    budgets: dict[str, Budget] = field(default_factory=dict)
+    square_true_mm: float | None = None
+    square_true_origin: str = ""
+
+    def value(self, source: str, key: str) -> float | None:
+        described = self.extrinsics.get(source)
+        return _finite(described.get(key)) if described else None
 
 
 @dataclass
@@ -40,6 +150,8 @@ class ConfigReport:
     measurement_frames: list[dict] = field(default_factory=list)  # {'index', 'left', 'right'} relative paths
     has_calibration_files: bool = False
     prediction: dict | None = None  # see predict_configuration()
+    budget: Budget | None = None  # see budget_of(); None: no budget recorded
+    structure: Structure | None = None  # see structure_of()
 
     @property
     def config_id(self) -> str:
@@ -114,7 +226,7 @@ def read_session(directory: str | Path, key: str) -> SessionReport:
             events.setdefault(str(event["config_id"]), []).append(event)
     configs = []
     for row in rows:
-        report = ConfigReport(row=row, plan=plan_by_id.get(str(row.get("config_id"))))
+        report = ConfigReport(row=row, plan=plan_by_id.get(str(row.get("config_id"))), budget=budget_of(row))
         for event in events.get(report.config_id, []):
             kind = event.get("kind")
             data = event.get("data") if isinstance(event.get("data"), dict) else {}
@@ -131,11 +243,206 @@ def read_session(directory: str | Path, key: str) -> SessionReport:
                                                       "right": frames["right"]})
             elif kind == "calibration":
                 report.has_calibration_files = True
+        report.structure = structure_of(row, events.get(report.config_id, []), config=config,
+                                        calibration=_calibration_loader(reader, report, warnings))
         configs.append(report)
     session = SessionReport(key=key, directory=Path(directory), reader=reader, start=start, config=config,
                             status=reader.status(), configs=configs, warnings=warnings)
     add_predictions(session)
     return session
+
+
+def _calibration_loader(reader: SessionReader, report: ConfigReport, warnings: list[str]):
+    """Reads the configuration's recorded calibration when asked (None when it has none)."""
+    if not report.has_calibration_files:
+        return None
+
+    def load():
+        try:
+            return reader.calibration(report.config_id)
+        except SessionError as error:
+            warnings.append(str(error))
+            return None
+    return load
+
+
+# -- the uncertainty budget and the structure (the one place that knows how they are recorded) ---------
+def budget_of(row: dict) -> Budget | None:
+    """The uncertainty budget of a result row, or None when the row records none (sessions before issue 12).
+
+    Reads the nested ``uncertainty`` record (``uncertainty_mm``'s keys, as
+    :meth:`stereo_bench.vision.uncertainty.UncertaintyBudget.as_dict` writes them, with what they rest
+    on; an ``uncertainty_mm`` dict is read the same) and the columns ``u_combined_mm`` and
+    ``U_expanded_mm``, which win where both are given.
+    """
+    record = row.get("uncertainty")
+    if not isinstance(record, dict):
+        record = row.get("uncertainty_mm")
+    return budget_from(record if isinstance(record, dict) else {}, combined=row.get("u_combined_mm"),
+                       expanded=row.get("U_expanded_mm"))
+
+
+def budget_from(record: dict, *, combined: object = None, expanded: object = None) -> Budget | None:
+    """A :class:`Budget` of an ``uncertainty`` record (None when it holds neither u_c nor U).
+
+    A component that is absent or null is unknown. k: the recorded one, else U / u_c.
+    """
+    if isinstance(record.get("uncertainty_mm"), dict):
+        record = {**record, **record["uncertainty_mm"]}
+    u_c = _finite(combined)
+    u_c = u_c if u_c is not None else _finite(record.get("combined"))
+    U = _finite(expanded)
+    U = U if U is not None else _finite(record.get("expanded"))
+    k = _finite(record.get("k"))
+    if u_c is None and U is None:
+        return None
+    if k is None and u_c and U is not None:
+        k = U / u_c
+    if u_c is None and U is not None and k:
+        u_c = U / k
+    if U is None and u_c is not None and k is not None:
+        U = k * u_c
+    recorded = any(name in record for name in BUDGET_COMPONENTS)
+    components = {name: _finite(record.get(name)) for name in BUDGET_COMPONENTS}
+    return Budget(components=components, combined=u_c, expanded=U, k=k, components_recorded=recorded,
+                  combined_vs_true=_finite(record.get("combined_vs_true")))
+
+
+def _described(value: Any) -> dict | None:
+    """{baseline_mm, alpha_left_deg, alpha_right_deg, rotation_deg} of a recorded structure, or None."""
+    if not isinstance(value, dict):
+        return None
+    out = {key: _finite(value.get(key)) for key in STRUCTURE_KEYS}
+    return out if out["baseline_mm"] is not None else None
+
+
+def _mode_name(name: object) -> str:
+    """An extrinsics mode from a mode or a source name ('calibrated', 'per_config' -> 'per-config')."""
+    text = str(name).replace("_", "-")
+    return SOURCE_MODE.get(text, text)
+
+
+def _source_name(name: object) -> str:
+    """An extrinsics source from a source or a mode name ('per-config' -> 'calibrated')."""
+    text = str(name).replace("_", "-")
+    return MODE_SOURCE.get(text, text)
+
+
+def _mean_structure(structures: list[dict]) -> dict | None:
+    if not structures:
+        return None
+    return {key: (sum(v) / len(v) if (v := [s[key] for s in structures if s.get(key) is not None]) else None)
+            for key in STRUCTURE_KEYS}
+
+
+def _dict(value: Any) -> dict:
+    return value if isinstance(value, dict) else {}
+
+
+def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None = None,
+                 calibration: Any = None) -> Structure:
+    """The structure of one configuration from its result row and events (see :class:`Structure`).
+
+    Args:
+        row: the configuration's result row.
+        events: its event documents (dicts, the attempt that wrote the result).
+        config: the session's campaign config (the target's nominal square, the extrinsics mode of a
+            session that predates the ``extrinsics_mode`` column), or None.
+        calibration: a callable returning the configuration's recorded ``StereoCalibration`` (or None):
+            read only when the structure event does not give the calibrated extrinsics.
+
+    Preference, per value: the ``structure`` event, then the row's columns (``extrinsics_mode``,
+    ``*_used_*``, ``*_true_*``, ``square_true_mm``), then the ``truth`` event, then what older
+    sessions hold: the calibration files (per-config sessions: calibrated = used), the truth in
+    simulated frames' metadata (mean over the measurement frames), the commanded B and α (nominal).
+    """
+    out = Structure()
+    documents = [_dict(e.get("data")) for e in events if e.get("kind") == STRUCTURE_EVENT]
+    document = documents[-1] if documents else {}
+    truths = [_dict(e.get("data")) for e in events if e.get("kind") == TRUTH_EVENT]
+    truth_event = truths[-1] if truths else {}
+    sources = _dict(document.get("sources"))
+    recorded_truth = _dict(document.get("truth"))
+
+    # The mode: the row's column, the structure event, the campaign config (sessions before issue 11).
+    for value, origin in ((row.get("extrinsics_mode"), "result row"), (document.get("mode"), "structure event")):
+        if isinstance(value, str) and value:
+            out.mode, out.mode_origin = _mode_name(value), origin
+            break
+    else:
+        if config is not None:
+            out.mode, out.mode_origin = config.extrinsics.mode, "campaign config"
+
+    def put(source: str, described: dict | None, origin: str) -> None:
+        if out.extrinsics.get(source) is None and described is not None:
+            out.extrinsics[source], out.origin[source] = described, origin
+
+    # Every source the structure event recorded: its structure (and sigma), its square and budget.
+    for name, record in sources.items():
+        record = _dict(record)
+        source, mode = _source_name(name), _mode_name(name)
+        put(source, _described(record.get("structure")), "structure event")
+        if isinstance(record.get("structure_sigma"), dict):
+            out.sigma[source] = {k: _finite(v) for k, v in record["structure_sigma"].items()}
+        if isinstance(record.get("note"), str) and record["note"]:
+            out.notes[source] = record["note"]
+        if (square := _finite(record.get("square_mean_mm"))) is not None:
+            out.squares_mm[mode], out.squares_origin[mode] = square, "structure event"
+        if (budget := budget_from(_dict(record.get("uncertainty")))) is not None:
+            out.budgets[mode] = budget
+    used_name = document.get("used")
+    if isinstance(used_name, str) and used_name in sources:
+        put("used", _described(_dict(sources[used_name]).get("structure")), "structure event")
+        if (sigma := out.sigma.get(_source_name(used_name))) is not None:
+            out.sigma["used"] = sigma
+    put("truth", _described(recorded_truth.get("structure")), "structure event")
+
+    put("used", _described({"baseline_mm": row.get("baseline_used_mm"), "alpha_left_deg": row.get(
+        "alpha_left_used_deg"), "alpha_right_deg": row.get("alpha_right_used_deg")}), "result row")
+    put("truth", _described({"baseline_mm": row.get("baseline_true_mm"), "alpha_left_deg": row.get(
+        "alpha_left_true_deg"), "alpha_right_deg": row.get("alpha_right_true_deg")}), "result row")
+    put("truth", _described(truth_event.get("structure")), "truth event")
+    metas = [meta for e in events if e.get("kind") == "measurement_frame"
+             and isinstance(meta := _dict(_dict(e.get("data")).get("left")).get("meta"), dict)
+             and isinstance(meta.get("truth"), dict)]
+    put("truth", _mean_structure([d for m in metas if (d := _described(m["truth"].get("structure")))]),
+        "simulated frames' metadata")
+    if out.extrinsics["calibrated"] is None and out.mode == "per-config" and calibration is not None:
+        calib = calibration()
+        if calib is not None:
+            put("calibrated", stereo_structure(calib.R, calib.T), "calibration file")
+    baseline, alpha = _finite(row.get("baseline_mm")), _finite(row.get("alpha_deg"))
+    if baseline is not None and baseline > 0 and alpha is not None:
+        tilt = _finite(row.get("tilt_deg")) or 0.0
+        put("nominal", stereo_structure(*RigPose.symmetric(baseline, alpha, tilt).stereo_extrinsics()),
+            "commanded B and α")
+    # What the measurement used is, by its mode, that source's extrinsics (and the other way round).
+    own = MODE_SOURCE.get(out.mode or "")
+    if own:
+        put("used", out.extrinsics[own], out.origin.get(own, ""))
+        put(own, out.extrinsics["used"], out.origin.get("used", ""))
+
+    # The square of the mode the measurement used is the row's (and its budget the row's).
+    square = _finite(row.get("square_mean_mm")) if row.get("status") == "measured" else None
+    if square is not None and out.mode:
+        out.squares_mm[out.mode], out.squares_origin[out.mode] = square, "result row"
+        if (budget := budget_of(row)) is not None:
+            out.budgets[out.mode] = budget
+
+    # The true square: the row's, the structure and truth events', the frames' print scale x the nominal square.
+    target = _dict(truth_event.get("target"))
+    scales = [s for m in metas if (s := _finite(_dict(m["truth"].get("board")).get("print_scale"))) is not None]
+    nominal = config.target.square_mm if config is not None else None
+    for value, origin in ((row.get("square_true_mm"), "result row"),
+                          (recorded_truth.get("square_true_mm"), "structure event"),
+                          (target.get("square_true_mm") if target.get("kind") in (None, "target") else None,
+                           "truth event"),
+                          (nominal * sum(scales) / len(scales) if scales and nominal else None,
+                           "simulated frames' metadata (print scale × nominal square)")):
+        if (number := _finite(value)) is not None:
+            out.square_true_mm, out.square_true_origin = number, origin
+            break
+    return out
 
 
 # -- the rigorous prediction -------------------------------------------------------------------------
@@ -224,6 +531,8 @@ def read_sessions(directories: list[str | Path]) -> list[SessionReport]:
 
 
 __all__ = [
-    "DEFAULT_PIXEL_SIGMA_PX", "ConfigReport", "SessionReport", "add_predictions", "measured_pixel_sigma_px",
-    "predict_configuration", "read_session", "read_sessions", "safe_key",
+    "BUDGET_COMPONENTS", "DEFAULT_PIXEL_SIGMA_PX", "EXTRINSICS_MODES", "EXTRINSICS_SOURCES", "EXTRINSICS_SOURCE_NAMES",
+    "MODE_SOURCE", "SOURCE_MODE", "STRUCTURE_EVENT", "STRUCTURE_KEYS", "TRUTH_EVENT", "Budget", "ConfigReport",
+    "SessionReport", "Structure", "add_predictions", "budget_from", "budget_of", "measured_pixel_sigma_px",
+    "predict_configuration", "read_session", "read_sessions", "safe_key", "structure_of",
 ]

@@ -2,13 +2,19 @@
 
 - :func:`error_figure`: the error of the measured square against one axis, one series per value of
   another — the paper's Figure 8 (against Z for each B), Figure 9 (against B for each Z) and
-  Figure 11 (against α). Measured points carry error bars of their propagated σ (from the corner
-  noise measured in their frames); the band around each series is the rigorous model's expected
-  error ± its σ (image noise only). Hollow markers: measured on a partial view. Configurations with
-  no measurement sit on a strip at the bottom: × infeasible, ■ failed, ▲ outside the rig's limits,
-  ○ not run.
+  Figure 11 (against α). Measured points carry error bars of their expanded uncertainty U (the
+  row's budget; dashed when the budget has unknown components, so U is a lower bound), or, for a
+  row without a budget, of the σ propagated from the corner noise (thin, labelled image noise only);
+  the band around each series is the rigorous model's expected error ± its σ (image noise only).
+  Hollow markers: measured on a partial view. Configurations with no measurement sit on a strip at
+  the bottom: × infeasible, ■ failed, ▲ outside the rig's limits, ○ not run.
+- :func:`structural_figure`: the same layout with one panel per extrinsics source (per-config,
+  kinematic, nominal): the structural error of issue 11.
+- :func:`normalised_figure`: error / u_c per configuration with the ±2 band: does the uncertainty hold?
+- :func:`deviation_figure`: per configuration, each extrinsics source's optical baseline and alphas
+  minus the truth (or, without a truth, minus the nominal geometry).
 - :func:`comparison_figure`: per configuration, |measured error| beside the measured and predicted σ
-  (log scale): how much of the error image noise explains.
+  and U (log scale): how much of the error image noise explains.
 - :func:`calibration_figure`: per configuration, the per-view reprojection RMS of the calibration
   (left and right), the overall RMS, and how many views were rejected.
 """
@@ -18,11 +24,13 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from matplotlib.ticker import FuncFormatter, NullLocator
 
 from stereo_bench.report.tables import NOT_RUN, format_value, is_partial
 from stereo_bench.report.tables import finite_number as _finite
@@ -42,6 +50,18 @@ AXIS_LABELS = {
 }
 SERIES_NAMES = {"distance_mm": "Z", "baseline_mm": "B", "alpha_deg": "α"}
 SERIES_UNITS = {"distance_mm": "mm", "baseline_mm": "mm", "alpha_deg": "deg"}
+#: Marker and colour of each extrinsics source, the same in every figure.
+SOURCE_STYLE = {
+    "per-config": ("o", "C0"), "calibrated": ("o", "C0"), "kinematic": ("s", "C2"), "nominal": ("^", "C3"),
+    "fixed": ("D", "C4"), "used": ("o", "black"), "truth": ("*", "black"),
+}
+SOURCE_LABELS = {
+    "per-config": "per-config extrinsics (calibrated here)", "calibrated": "calibrated here (per-config)",
+    "kinematic": "kinematic model", "nominal": "nominal (commanded B, α)", "fixed": "fixed (from a file)",
+    "used": "used by the measurement", "truth": "truth",
+}
+#: (U in mm or None, budget complete) per config_id: the error bars of the error figures.
+Uncertainties = Mapping[str, tuple[float | None, bool]]
 
 
 def png_bytes(figure: Figure) -> bytes:
@@ -60,8 +80,16 @@ def _series_label(key: str, value: float) -> str:
     return f"{SERIES_NAMES.get(key, key)} = {format_value(value)} {SERIES_UNITS.get(key, '')}".rstrip()
 
 
-def _status_legend(statuses: set[str], partial: bool, prediction: bool) -> list[Line2D]:
-    handles = [Line2D([], [], color="black", marker="o", linestyle="-", label="measured ± propagated σ")]
+def _status_legend(statuses: set[str], partial: bool, prediction: bool, bars: set[str]) -> list[Line2D]:
+    handles = []
+    if "U" in bars or not bars:
+        handles.append(Line2D([], [], color="black", marker="o", linestyle="-", label="measured ± U (expanded)"))
+    if "U*" in bars:
+        handles.append(Line2D([], [], color="black", marker="o", linestyle="--",
+                              label="± U without unknown components (lower bound)"))
+    if "sigma" in bars:
+        handles.append(Line2D([], [], color="black", marker="o", linestyle=":", linewidth=0.8,
+                              label="± σ, image noise only (no budget)"))
     if partial:
         handles.append(Line2D([], [], color="black", marker="o", markerfacecolor="white", linestyle="none",
                               label="measured, partial view"))
@@ -79,21 +107,33 @@ def _series_of(row: Mapping[str, object], keys: Sequence[str]) -> tuple:
     return tuple(_finite(row.get(key)) for key in keys)
 
 
-def error_figure(
-    rows: Sequence[Mapping[str, object]], predictions: Mapping[str, Mapping[str, object]], *, x_key: str,
-    series_keys: Sequence[str] = (), title: str,
-) -> Figure:
-    """Error of the measured square (mm) against ``x_key``, one series per value of ``series_keys``.
+def _error_bar(row: Mapping[str, object], uncertainties: Uncertainties | None) -> tuple[float | None, str]:
+    """(half height, kind): U ('U', or 'U*' for an incomplete budget), else the noise σ ('sigma'), else None."""
+    expanded, complete = (uncertainties or {}).get(str(row.get("config_id")), (None, True))
+    if expanded is not None:
+        return expanded, "U" if complete else "U*"
+    sigma = _finite(row.get("sigma_mm"))
+    return (sigma, "sigma") if sigma is not None else (None, "")
 
-    ``predictions`` maps config_id to :func:`stereo_bench.report.collect.predict_configuration` output.
-    """
-    figure = _new_figure(9.5, 4.8)
-    ax = figure.add_subplot()
+
+@dataclass
+class _Drawn:
+    unmeasured: set[str] = field(default_factory=set)
+    bars: set[str] = field(default_factory=set)
+    partial: bool = False
+    prediction: bool = False
+    measured: bool = False
+
+
+def _draw_errors(
+    ax, rows: Sequence[Mapping[str, object]], predictions: Mapping[str, Mapping[str, object]], *, x_key: str,
+    series_keys: Sequence[str], uncertainties: Uncertainties | None, label_series: bool = True,
+) -> _Drawn:
+    """The error of each row against ``x_key`` on ``ax``, one coloured series per value of ``series_keys``."""
+    drawn = _Drawn()
     colours = [f"C{i}" for i in range(10)]
     series_values = sorted({_series_of(row, series_keys) for row in rows},
                            key=lambda values: tuple(-math.inf if v is None else v for v in values))
-    unmeasured: set[str] = set()
-    any_partial = any_prediction = False
     xs_all = sorted({v for row in rows if (v := _finite(row.get(x_key))) is not None})
     span = (xs_all[-1] - xs_all[0]) if len(xs_all) > 1 else 1.0
     offset_step = 0.006 * span  # a small horizontal shift per series, so that error bars do not overlap
@@ -104,24 +144,34 @@ def error_figure(
         shift = (index - (len(series_values) - 1) / 2) * offset_step
         label = ", ".join(_series_label(key, v) for key, v in zip(series_keys, value, strict=True)
                           if v is not None) or "measured"
+        label = label if label_series else None
         measured = [row for row in members
                     if row.get("status") == "measured" and _finite(row.get("error_mm")) is not None]
         if measured:
+            drawn.measured = True
             x = np.array([_finite(row.get(x_key)) for row in measured], float) + shift
             y = np.array([_finite(row.get("error_mm")) for row in measured], float)
-            sigma = np.array([_finite(row.get("sigma_mm")) or 0.0 for row in measured], float)
             ax.plot(x, y, color=colour, linewidth=1.2, label=label)
-            for xi, yi, si, row in zip(x, y, sigma, measured, strict=True):
+            for xi, yi, row in zip(x, y, measured, strict=True):
                 partial = is_partial(row)
-                any_partial |= partial
-                ax.errorbar([xi], [yi], yerr=[si], color=colour, marker="o", markersize=6, capsize=3,
-                            markerfacecolor="white" if partial else colour, linestyle="none")
-        else:
+                drawn.partial |= partial
+                half, kind = _error_bar(row, uncertainties)
+                face = "white" if partial else colour
+                if half is None:  # nothing known: no bar, never a bar of zero
+                    ax.plot([xi], [yi], color=colour, marker="o", markersize=6, markerfacecolor=face)
+                    continue
+                drawn.bars.add(kind)
+                bar = ax.errorbar([xi], [yi], yerr=[half], color=colour, marker="o", markersize=6, capsize=3,
+                                  markerfacecolor=face, linestyle="none",
+                                  elinewidth=0.8 if kind == "sigma" else 1.2)
+                if kind != "U":
+                    bar.lines[2][0].set_linestyle("--" if kind == "U*" else ":")
+        elif label is not None:
             ax.plot([], [], color=colour, marker="o", label=f"{label} (nothing measured)")
         predicted = [(x, p) for row in members if (p := predictions.get(str(row.get("config_id"))))
                      and p.get("available") and (x := _finite(row.get(x_key))) is not None]
         if predicted:
-            any_prediction = True
+            drawn.prediction = True
             px = np.array([x for x, _ in predicted]) + shift
             centre = np.array([float(p["expected_error_mm"]) for _, p in predicted])
             width = np.array([float(p["sigma_mm"]) for _, p in predicted])
@@ -136,38 +186,224 @@ def error_figure(
             x_value = _finite(row.get(x_key))
             if x_value is None:
                 continue
-            unmeasured.add(status)
+            drawn.unmeasured.add(status)
             marker, strip_colour = UNMEASURED_STYLE.get(status, ("d", "#000000"))
             ax.plot([x_value + shift], [0.04], transform=ax.get_xaxis_transform(), marker=marker, color=strip_colour,
                     markeredgecolor=colour if status != "infeasible" else strip_colour, markersize=8,
                     linestyle="none", clip_on=False)
     ax.axhline(0.0, color="black", linewidth=0.6)
     ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
-    ax.set_ylabel("error of the measured square (mm)")
-    ax.set_title(title, fontsize=11)
     if xs_all:
         ax.set_xticks(xs_all)
         ax.set_xticklabels([format_value(v) for v in xs_all])
         margin = 0.06 * span
         ax.set_xlim(xs_all[0] - margin, xs_all[-1] + margin)
-    if not any(row.get("status") == "measured" for row in rows):
+    if not drawn.measured:
         ax.text(0.5, 0.5, "no configuration measured", transform=ax.transAxes, ha="center", va="center",
                 color="#c62828")
         ax.set_ylim(-1, 1)
     ax.grid(True, alpha=0.3)
+    return drawn
+
+
+def error_figure(
+    rows: Sequence[Mapping[str, object]], predictions: Mapping[str, Mapping[str, object]], *, x_key: str,
+    series_keys: Sequence[str] = (), title: str, uncertainties: Uncertainties | None = None,
+) -> Figure:
+    """Error of the measured square (mm) against ``x_key``, one series per value of ``series_keys``.
+
+    ``predictions`` maps config_id to :func:`stereo_bench.report.collect.predict_configuration` output;
+    ``uncertainties`` config_id to (U mm or None, budget complete): the error bars (rows without U: σ).
+    """
+    figure = _new_figure(9.5, 4.8)
+    ax = figure.add_subplot()
+    drawn = _draw_errors(ax, rows, predictions, x_key=x_key, series_keys=series_keys, uncertainties=uncertainties)
+    ax.set_ylabel("error of the measured square (mm)")
+    ax.set_title(title, fontsize=11)
     # Legends outside the axes (right), so that they never hide a point.
     if series_keys:
         first = ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
         ax.add_artist(first)
-    ax.legend(handles=_status_legend(unmeasured, any_partial, any_prediction), loc="lower left",
-              bbox_to_anchor=(1.01, 0.0), fontsize=8)
+    ax.legend(handles=_status_legend(drawn.unmeasured, drawn.partial, drawn.prediction, drawn.bars),
+              loc="lower left", bbox_to_anchor=(1.01, 0.0), fontsize=8)
+    return figure
+
+
+def structural_figure(
+    panels: Sequence[tuple[str, Sequence[Mapping[str, object]]]], *, x_key: str, series_keys: Sequence[str],
+    title: str, uncertainties: Uncertainties | None = None,
+) -> Figure:
+    """The error of the square against ``x_key`` (series per ``series_keys``), one panel per extrinsics source.
+
+    ``panels``: (source, rows) with each row's ``error_mm`` the square measured with that source minus
+    the nominal square. Each panel has its own y scale (nominal extrinsics err by tenths of a mm where
+    calibrated ones err by thousandths); error bars as in :func:`error_figure` (U where the source is
+    the one the row's budget is for).
+    """
+    figure = Figure(figsize=(max(9.5, 4.4 * len(panels) + 2.2), 4.6), dpi=DPI, layout="constrained")
+    axes = figure.subplots(1, len(panels), squeeze=False)[0]
+    drawn = _Drawn()
+    for i, (ax, (source, rows)) in enumerate(zip(axes, panels, strict=True)):
+        part = _draw_errors(ax, rows, {}, x_key=x_key, series_keys=series_keys, uncertainties=uncertainties,
+                            label_series=i == 0)
+        drawn.unmeasured |= part.unmeasured
+        drawn.bars |= part.bars
+        drawn.partial |= part.partial
+        marker, colour = SOURCE_STYLE.get(source, ("o", "black"))
+        ax.set_title(SOURCE_LABELS.get(source, source), fontsize=10, color=colour)
+        if i == 0:
+            ax.set_ylabel("error of the measured square (mm)")
+    figure.suptitle(title, fontsize=11)
+    handles, labels = axes[0].get_legend_handles_labels()
+    status = _status_legend(drawn.unmeasured, drawn.partial, False, drawn.bars)
+    axes[-1].legend(handles=[*handles, *status], labels=[*labels, *(h.get_label() for h in status)],
+                    loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8)
+    return figure
+
+
+@dataclass(frozen=True)
+class NormalisedPoint:
+    """One configuration of the normalised-error plot: error / u_c against the nominal and the true square."""
+
+    label: str
+    nominal: float | None  # (measured - nominal square) / u_c
+    true: float | None  # (measured - true square) / u_c, simulated benches
+    complete: bool = True  # the budget has every component
+
+
+def coverage(values: Sequence[float | None], k: float = 2.0) -> tuple[int, float | None, float | None]:
+    """(n, RMS, share with |value| <= k) of the normalised errors that are known."""
+    known = np.array([v for v in values if v is not None and math.isfinite(v)], float)
+    if not len(known):
+        return 0, None, None
+    return len(known), float(np.sqrt(np.mean(known**2))), float(np.mean(np.abs(known) <= k))
+
+
+def normalised_figure(points: Sequence[NormalisedPoint], *, title: str, k: float = 2.0) -> Figure:
+    """error / u_c per configuration with the ±k band: inside it, |error| <= U.
+
+    Filled circles: against the nominal square; hollow diamonds: against the true square (simulated
+    benches). A configuration whose budget has unknown components is marked ``*`` on the x axis: its
+    u_c leaves them out, so its |error| / u_c is an upper bound. Beyond ±(k + 1) the axis is
+    logarithmic (nominal extrinsics can miss by hundreds of u_c), linear inside.
+    """
+    figure = _new_figure(max(9.5, 0.3 * len(points) + 3.0), 5.2)
+    ax = figure.add_subplot()
+    x = np.arange(len(points))
+    ax.axhspan(-k, k, color="#2e7d32", alpha=0.10, linewidth=0)
+    for level in (-k, k):
+        ax.axhline(level, color="#2e7d32", linewidth=1.0)
+    for level in (-1.0, 1.0):
+        ax.axhline(level, color="#2e7d32", linewidth=0.6, linestyle=":")
+    ax.axhline(0.0, color="black", linewidth=0.6)
+    handles = [Line2D([], [], color="#2e7d32", linewidth=6, alpha=0.25, label=f"±{k:g}: |error| ≤ U")]
+    finite: list[float] = []
+    for attribute, marker, face, size, what in (("nominal", "o", "C0", 6, "against the nominal square"),
+                                                ("true", "D", "none", 9, "against the true square (simulated)")):
+        values = np.array([np.nan if (v := getattr(p, attribute)) is None else v for p in points], float)
+        if not np.isfinite(values).any():
+            continue
+        finite += list(np.abs(values[np.isfinite(values)]))
+        n, rms, share = coverage(list(values[np.isfinite(values)]), k)
+        ax.plot(x, values, marker, color="C0" if attribute == "nominal" else "black", markerfacecolor=face,
+                markersize=size, linestyle="none")
+        handles.append(Line2D([], [], color="C0" if attribute == "nominal" else "black", marker=marker,
+                              markerfacecolor=face, linestyle="none",
+                              label=f"{what}: RMS {rms:.2f}, {share:.0%} within ±{k:g} (n {n})"))
+    incomplete = any(not p.complete for p in points)
+    if incomplete:
+        handles.append(Line2D([], [], linestyle="none", label="*: u_c leaves out unknown components"))
+    largest = max(finite) if finite else 0.0
+    if largest > k + 1.0:
+        ax.set_yscale("symlog", linthresh=k + 1.0, linscale=2.0)  # linear inside the band, logarithmic beyond
+        limit = 10 ** math.ceil(math.log10(largest * 1.2))
+        ticks = [0.0, 1.0, k] + [10.0**e for e in range(1, int(round(math.log10(limit))) + 1)]
+        ax.set_yticks(sorted({*ticks, *(-v for v in ticks)}))
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.yaxis.set_minor_locator(NullLocator())
+        ax.set_ylim(-limit, limit)
+    else:
+        ax.set_ylim(-(k + 1.0), k + 1.0)
+    if not finite:
+        ax.text(0.5, 0.5, "no configuration with a measurement and an uncertainty budget", transform=ax.transAxes,
+                ha="center", va="center", color="#c62828")
+    ax.set_xticks(x)
+    ax.set_xticklabels([p.label + ("*" if not p.complete else "") for p in points], rotation=70,
+                       fontsize=7 if len(points) > 12 else 8, ha="right")
+    ax.set_xlim(-0.6, len(points) - 0.4)
+    ax.set_ylabel("(measured − square) / u_c")
+    ax.set_title(title, fontsize=11)
+    ax.grid(True, alpha=0.3, axis="y")
+    figure.legend(handles=handles, fontsize=8, loc="outside lower center", ncols=2)
+    return figure
+
+
+DEVIATION_KEYS = (("baseline_mm", "optical baseline (mm)"), ("alpha_left_deg", "α left (deg)"),
+                  ("alpha_right_deg", "α right (deg)"), ("rotation_deg", "rotation angle (deg)"))
+
+
+def deviation_figure(
+    configs: Sequence[tuple[str, Mapping[str, Mapping[str, float | None] | None]]], *, reference: str, title: str,
+    used: Mapping[str, str] | None = None,
+) -> Figure:
+    """Per configuration, each extrinsics source's structure minus the ``reference`` source's (truth or nominal).
+
+    ``configs``: (label, {source: {baseline_mm, alpha_left_deg, alpha_right_deg, rotation_deg}}); ``used``:
+    label -> the source the measurement used (ringed). One row of panels per quantity, one column per
+    source, each panel on its own linear scale: nominal extrinsics miss by millimetres where calibrated
+    ones miss by hundredths, and a shared or logarithmic scale would hide one or the other.
+    """
+    sources = [s for s in ("calibrated", "kinematic", "nominal", "fixed") if s != reference
+               and any(structures.get(s) for _, structures in configs)]
+    columns = max(len(sources), 1)
+    width, height = max(8.0, min(14.0, 0.16 * len(configs) * columns + 3.0 * columns)), 8.6
+    figure = Figure(figsize=(width, height), dpi=DPI)
+    # Fixed margins (inches) rather than a layout engine: a grid of panels laid out by constrained layout costs
+    # a second draw, half of this figure's time.
+    axes = figure.subplots(len(DEVIATION_KEYS), columns, sharex=True, squeeze=False, gridspec_kw={
+        "left": 0.95 / width, "right": 1 - 0.15 / width, "top": 1 - 0.62 / height, "bottom": 1.25 / height,
+        "hspace": 0.12, "wspace": 0.22 if columns > 1 else 0.0})
+    x = np.arange(len(configs))
+    for column, source in enumerate(sources):
+        marker, colour = SOURCE_STYLE[source]
+        axes[0][column].set_title(SOURCE_LABELS[source], fontsize=10, color=colour)
+        for row, (key, name) in enumerate(DEVIATION_KEYS):
+            ax = axes[row][column]
+            values = []
+            for _, structures in configs:
+                ref, own = structures.get(reference) or {}, structures.get(source) or {}
+                a, b = _finite(own.get(key)), _finite(ref.get(key))
+                values.append(np.nan if a is None or b is None else a - b)
+            values = np.array(values, float)
+            ax.axhline(0.0, color="black", linewidth=0.6)
+            ax.plot(x, values, marker, color=colour, linestyle="none", markersize=5)
+            ringed = [i for i, (label, _) in enumerate(configs) if (used or {}).get(label) == source]
+            if ringed:
+                ax.plot(x[ringed], values[ringed], "o", markersize=11, markerfacecolor="none",
+                        markeredgecolor="black", linestyle="none")
+            if not np.isfinite(values).any():
+                ax.text(0.5, 0.5, "not recorded", transform=ax.transAxes, ha="center", va="center",
+                        color="#9e9e9e", fontsize=9)
+            ax.grid(True, alpha=0.3)
+            ax.tick_params(labelsize=8)
+            if column == 0:
+                ax.set_ylabel(f"Δ {name}", fontsize=9)
+    if not sources:
+        axes[0][0].text(0.5, 0.5, "no extrinsics besides the reference", transform=axes[0][0].transAxes,
+                        ha="center", va="center", color="#9e9e9e")
+    for ax in axes[-1]:
+        ax.set_xticks(x)
+        ax.set_xticklabels([label for label, _ in configs], rotation=70, fontsize=6 if len(configs) > 12 else 7,
+                           ha="right")
+    figure.suptitle(title + (" (ringed: the extrinsics the measurement used)" if used else ""), fontsize=11)
     return figure
 
 
 def comparison_figure(
     rows: Sequence[Mapping[str, object]], predictions: Mapping[str, Mapping[str, object]], *, title: str,
+    uncertainties: Uncertainties | None = None,
 ) -> Figure:
-    """|measured error|, measured (propagated) σ and predicted σ per configuration, log scale (mm)."""
+    """|measured error|, measured (propagated) σ, predicted σ and U (when recorded) per configuration, log scale."""
     labels = [str(row.get("config_id")) for row in rows]
     figure = _new_figure(max(8.0, 0.32 * len(rows) + 2.5), 4.2)
     ax = figure.add_subplot()
@@ -182,12 +418,18 @@ def comparison_figure(
             label="measured σ (propagated from the frames' corner noise)")
     ax.plot(x, [np.nan if v is None else v for v in predicted_sigma], "_", color="black", markersize=14,
             markeredgewidth=2, label="predicted σ (rigorous model)")
+    expanded = [(uncertainties or {}).get(label, (None, True))[0] if row.get("status") == "measured" else None
+                for label, row in zip(labels, rows, strict=True)]
+    if any(v is not None for v in expanded):
+        ax.plot(x, [np.nan if v is None else v for v in expanded], "^", color="C2", markerfacecolor="none",
+                label="U, expanded uncertainty (budget)")
     for xi, row in zip(x, rows, strict=True):
         status = str(row.get("status") or NOT_RUN)
         if status != "measured":
             marker, colour = UNMEASURED_STYLE.get(status, ("d", "#000000"))
             ax.plot([xi], [0.04], transform=ax.get_xaxis_transform(), marker=marker, color=colour, linestyle="none")
-    values = [v for v in error + measured_sigma + predicted_sigma if v is not None and np.isfinite(v) and v > 0]
+    values = [v for v in error + measured_sigma + predicted_sigma + expanded
+              if v is not None and np.isfinite(v) and v > 0]
     if values:
         ax.set_yscale("log")
     else:
@@ -250,4 +492,8 @@ def calibration_figure(configs: Sequence[tuple[str, str, Mapping[str, object] | 
     return figure
 
 
-__all__ = ["AXIS_LABELS", "UNMEASURED_STYLE", "calibration_figure", "comparison_figure", "error_figure", "png_bytes"]
+__all__ = [
+    "AXIS_LABELS", "SOURCE_LABELS", "SOURCE_STYLE", "UNMEASURED_STYLE", "NormalisedPoint", "calibration_figure",
+    "comparison_figure", "coverage", "deviation_figure", "error_figure", "normalised_figure", "png_bytes",
+    "structural_figure",
+]

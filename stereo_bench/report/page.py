@@ -34,3 +34,20 @@ class SessionPage:
     calibration_csv: str = ""
     images: dict[str, list[ImageRef]] = field(default_factory=dict)
     image_notes: dict[str, list[str]] = field(default_factory=dict)
+    error_csvs: dict[str, str] = field(default_factory=dict)  # table key -> its 'error +- U' CSV
+    budget_csv: str = ""  # "" when the session records no budget
+    normalised: ImageRef | None = None
+    structure_csv: str = ""
+    deviation: ImageRef | None = None
+    deviation_reference: str = ""  # 'truth' or 'nominal'
+
+
+@dataclass
+class StructuralSection:
+    """The structural-error section over all sessions: the paper's Figures 8, 9, 11 per extrinsics source."""
+
+    figures: list[ImageRef] = field(default_factory=list)
+    sources: list[str] = field(default_factory=list)  # extrinsics modes with a measured square
+    missing: list[str] = field(default_factory=list)  # per-config, kinematic, nominal: not in any session
+    csv: str = ""
+    duplicates: int = 0  # same configuration and source in several sessions: the first given is drawn

@@ -9,7 +9,9 @@ A cell is a :class:`Cell`: a measured value, or the status that explains why the
 (``infeasible``, ``failed``, ``limit``: outside the rig's soft limits, ``not run``: planned but the
 session stopped before it). A grid position that no configuration has is left empty. Values are the
 mean measured square in mm; a measurement made on a partial view (part of the target outside one
-view) is marked with :data:`PARTIAL_MARK`.
+view) is marked with :data:`PARTIAL_MARK`. Below each value the page shows the error ± U (the expanded
+uncertainty of the row's budget); a row without a budget (sessions before issue 12) shows ± its
+propagated σ instead, marked as image noise only (:meth:`Cell.error_text`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 PARTIAL_MARK = "†"
+#: After U when the budget has unknown components (U leaves them out: a lower bound).
+INCOMPLETE_MARK = "*"
 #: Statuses a result row can have, plus "not run" (in the plan, no result recorded).
 STATUSES = ("measured", "failed", "infeasible", "limit", "not run")
 NOT_RUN = "not run"
@@ -35,6 +39,18 @@ def finite_number(value: object) -> float | None:
     except (TypeError, ValueError):
         return None
     return number if math.isfinite(number) else None
+
+
+def uncertainty_decimals(*values: float | None, minimum: int = 4, maximum: int = 7) -> int:
+    """Decimals that give the smallest positive of ``values`` two significant digits (within [minimum, maximum]).
+
+    An uncertainty is stated to two significant digits and the value to the same decimal place (GUM 7.2.6):
+    0.0025 -> 4, 0.000043 -> 6.
+    """
+    positive = [abs(v) for v in values if v is not None and math.isfinite(v) and v != 0]
+    if not positive:
+        return minimum
+    return int(min(maximum, max(minimum, 1 - math.floor(math.log10(min(positive))))))
 
 
 def format_value(value: float) -> str:
@@ -53,17 +69,24 @@ class Cell:
     sigma_mm: float | None = None
     partial: bool = False
     reason: str | None = None
+    expanded_mm: float | None = None  # U of the row's uncertainty budget; None: no budget recorded
+    budget_complete: bool = True  # False: some component unknown, U leaves it out
 
     @classmethod
-    def from_row(cls, row: Mapping[str, object]) -> Cell:
+    def from_row(cls, row: Mapping[str, object], *, expanded_mm: float | None = None,
+                 budget_complete: bool = True) -> Cell:
+        """The cell of a result row; ``expanded_mm`` (U) and ``budget_complete`` from its budget (collect.budget_of)."""
         status = str(row.get("status") or NOT_RUN)
+        measured = status == "measured"
         return cls(
             status=status, config_id=str(row.get("config_id")) if row.get("config_id") is not None else None,
-            square_mm=finite_number(row.get("square_mean_mm")) if status == "measured" else None,
-            error_mm=finite_number(row.get("error_mm")) if status == "measured" else None,
-            sigma_mm=finite_number(row.get("sigma_mm")) if status == "measured" else None,
-            partial=status == "measured" and is_partial(row),
+            square_mm=finite_number(row.get("square_mean_mm")) if measured else None,
+            error_mm=finite_number(row.get("error_mm")) if measured else None,
+            sigma_mm=finite_number(row.get("sigma_mm")) if measured else None,
+            partial=measured and is_partial(row),
             reason=str(row["reason"]) if row.get("reason") else None,
+            expanded_mm=finite_number(expanded_mm) if measured else None,
+            budget_complete=budget_complete,
         )
 
     @property
@@ -78,6 +101,21 @@ class Cell:
             assert self.square_mm is not None
             return f"{self.square_mm:.{digits}f}" + (PARTIAL_MARK if self.partial else "")
         return self.status
+
+    def error_text(self, digits: int = 4, *, pm: str = "±") -> str:
+        """The error and its uncertainty: '+0.0013 ± 0.0050' (± U); '+0.0013 ± 0.0050*' when the budget has
+        unknown components; '+0.0013 ± 0.0002 (σ noise)' without a budget; '' when not measured. At least
+        ``digits`` decimals, more when the uncertainty needs them for two significant digits."""
+        if not self.measured or self.error_mm is None:
+            return ""
+        u = self.expanded_mm if self.expanded_mm is not None else self.sigma_mm
+        digits = uncertainty_decimals(u, minimum=digits)
+        error = f"{self.error_mm:+.{digits}f}"
+        if self.expanded_mm is not None:
+            return f"{error} {pm} {self.expanded_mm:.{digits}f}" + ("" if self.budget_complete else INCOMPLETE_MARK)
+        if self.sigma_mm is not None:
+            return f"{error} {pm} {self.sigma_mm:.{digits}f} ({'σ' if pm == '±' else 'sigma'} noise)"
+        return error
 
     def csv_value(self) -> str:
         """Machine-readable: the full-precision value when measured, else the status word."""
@@ -129,6 +167,17 @@ class Table:
 
     def to_csv(self) -> str:
         return rows_to_csv(self.csv_rows())
+
+    def error_csv(self) -> str:
+        """The same grid with 'error +- U' in each measured cell (ASCII '+-': spreadsheets read it in any
+        encoding); without a budget 'error +- sigma (sigma noise)'."""
+        rows = [self.header()] + [[self.row_name(i)] + [c.error_text(pm="+-") if c.measured else c.csv_value()
+                                                        for c in row] for i, row in enumerate(self.cells)]
+        return rows_to_csv(rows)
+
+    def has_uncertainty(self) -> bool:
+        """Does any measured cell carry U?"""
+        return any(c.expanded_mm is not None for row in self.cells for c in row if c.measured)
 
     def statuses(self) -> dict[str, int]:
         """How many cells have each status (empty cells not counted)."""
@@ -183,14 +232,28 @@ def _group(rows: Iterable[Mapping[str, object]], key: Callable[[Mapping[str, obj
     return dict(sorted(groups.items(), key=lambda item: tuple(-math.inf if v is None else v for v in item[0])))
 
 
-def _grid(rows: Sequence[Mapping[str, object]], row_key: str, column_key: str) -> tuple[list, list, list]:
+#: (expanded U in mm or None, budget complete) of a result row; the default: no budget.
+UncertaintyOf = Callable[[Mapping[str, object]], tuple[float | None, bool]]
+
+
+def _no_uncertainty(row: Mapping[str, object]) -> tuple[float | None, bool]:
+    return None, True
+
+
+def _cell(row: Mapping[str, object], uncertainty: UncertaintyOf) -> Cell:
+    expanded, complete = uncertainty(row)
+    return Cell.from_row(row, expanded_mm=expanded, budget_complete=complete)
+
+
+def _grid(rows: Sequence[Mapping[str, object]], row_key: str, column_key: str,
+          uncertainty: UncertaintyOf) -> tuple[list, list, list]:
     row_values, column_values = _axis(rows, row_key), _axis(rows, column_key)
     cells = [[EMPTY for _ in column_values] for _ in row_values]
     for row in rows:
         r, c = finite_number(row.get(row_key)), finite_number(row.get(column_key))
         if r is None or c is None:
             continue
-        cells[row_values.index(r)][column_values.index(c)] = Cell.from_row(row)
+        cells[row_values.index(r)][column_values.index(c)] = _cell(row, uncertainty)
     return row_values, column_values, cells
 
 
@@ -204,15 +267,17 @@ def _angle_tag(alpha: float | None, tilt: float | None) -> tuple[str, str]:
     return key.replace(".", "p").replace("-", "m"), text
 
 
-def distance_baseline_tables(rows: Sequence[Mapping[str, object]], *, prefix: str = "") -> list[Table]:
+def distance_baseline_tables(rows: Sequence[Mapping[str, object]], *, prefix: str = "",
+                             uncertainty: UncertaintyOf = _no_uncertainty) -> list[Table]:
     """The paper's Table 1 layout: measured square (mm) per B (rows) and Z (columns), one table per α (and tilt).
 
     Only made for groups with more than one B or more than one Z (a single cell is no table).
+    ``uncertainty``: (U, complete) of a row, for the cells' error ± U.
     """
     tables = []
     groups = _group(rows, lambda row: (finite_number(row.get("alpha_deg")), finite_number(row.get("tilt_deg")) or 0.0))
     for (alpha, tilt), group in groups.items():
-        row_values, column_values, cells = _grid(group, "baseline_mm", "distance_mm")
+        row_values, column_values, cells = _grid(group, "baseline_mm", "distance_mm", uncertainty)
         if len(row_values) < 2 and len(column_values) < 2:
             continue
         tag, text = _angle_tag(alpha, tilt)
@@ -224,10 +289,11 @@ def distance_baseline_tables(rows: Sequence[Mapping[str, object]], *, prefix: st
     return tables
 
 
-def alpha_tables(rows: Sequence[Mapping[str, object]], *, prefix: str = "") -> list[Table]:
+def alpha_tables(rows: Sequence[Mapping[str, object]], *, prefix: str = "",
+                 uncertainty: UncertaintyOf = _no_uncertainty) -> list[Table]:
     """The paper's Table 2 layout: measured square (mm) per α (columns), one row per (B, Z), one table per tilt.
 
-    Only made when some (B, Z) has more than one α.
+    Only made when some (B, Z) has more than one α. ``uncertainty``: as for :func:`distance_baseline_tables`.
     """
     tables = []
     for (tilt,), group in _group(rows, lambda row: (finite_number(row.get("tilt_deg")) or 0.0,)).items():
@@ -242,7 +308,7 @@ def alpha_tables(rows: Sequence[Mapping[str, object]], *, prefix: str = "") -> l
             for row in members:
                 alpha = finite_number(row.get("alpha_deg"))
                 if alpha is not None:
-                    line[column_values.index(alpha)] = Cell.from_row(row)
+                    line[column_values.index(alpha)] = _cell(row, uncertainty)
             cells.append(line)
             names.append(f"B = {format_value(baseline or 0)} mm, Z = {format_value(distance or 0)} mm")
             keys.append(float(len(keys)))
@@ -268,6 +334,7 @@ def status_counts(rows: Iterable[Mapping[str, object]]) -> dict[str, int]:
 
 
 __all__ = [
-    "EMPTY", "NOT_RUN", "PARTIAL_MARK", "STATUSES", "Cell", "Table", "alpha_tables", "distance_baseline_tables",
-    "format_value", "is_partial", "rows_to_csv", "status_counts", "with_plan",
+    "EMPTY", "INCOMPLETE_MARK", "NOT_RUN", "PARTIAL_MARK", "STATUSES", "Cell", "Table", "UncertaintyOf",
+    "alpha_tables", "distance_baseline_tables", "format_value", "is_partial", "rows_to_csv", "status_counts",
+    "uncertainty_decimals", "with_plan",
 ]

@@ -23,8 +23,8 @@ import cv2
 import numpy as np
 
 from stereo_bench import __version__
-from stereo_bench.atomic import atomic_path
-from stereo_bench.vision.calibrate import StereoCalibration
+from stereo_bench.atomic import write_text
+from stereo_bench.vision.calibrate import StereoCalibration, calibration_problems
 from stereo_bench.vision.covariance import CalibrationCovariance
 from stereo_bench.vision.rectify import Rectification
 
@@ -38,22 +38,24 @@ class CalibrationFileError(ValueError):
 
 
 def _write_storage(path: Path, items: dict[str, object]) -> None:
-    """Write one FileStorage YAML atomically (temporary file beside it, fsync, rename, directory fsync)."""
-    with atomic_path(path) as tmp:
-        # The temporary name does not end in .yml: name the format explicitly.
-        storage = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
-        for key, value in items.items():
-            if value is None:
-                continue
-            if isinstance(value, np.ndarray):
-                storage.write(key, np.asarray(value, np.float64))
-            elif isinstance(value, bool):
-                storage.write(key, int(value))
-            elif isinstance(value, int | float | str):
-                storage.write(key, value)
-            else:
-                raise TypeError(f"cannot write {key}={value!r} to {path}")
-        storage.release()
+    """Write one FileStorage YAML atomically (temporary file beside it, fsync, rename, directory fsync).
+
+    OpenCV composes the text in memory and Python writes it: OpenCV's own file writer ignores write errors,
+    so on a full disk it left empty calibration files and reported success.
+    """
+    storage = cv2.FileStorage(".yml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
+    for key, value in items.items():
+        if value is None:
+            continue
+        if isinstance(value, np.ndarray):
+            storage.write(key, np.asarray(value, np.float64))
+        elif isinstance(value, bool):
+            storage.write(key, int(value))
+        elif isinstance(value, int | float | str):
+            storage.write(key, value)
+        else:
+            raise TypeError(f"cannot write {key}={value!r} to {path}")
+    write_text(path, storage.releaseAndGetString())
 
 
 def _covariance_items(covariance: CalibrationCovariance | None, note: str) -> dict[str, object]:
@@ -112,6 +114,8 @@ def _matrix(storage: cv2.FileStorage, path: Path, key: str, shape: tuple[int, ..
     value = np.asarray(value, np.float64)
     if shape is not None and value.size != int(np.prod(shape)):
         raise CalibrationFileError(f"{path}: key {key!r} has shape {value.shape}, expected {shape}")
+    if not np.all(np.isfinite(value)):
+        raise CalibrationFileError(f"{path}: key {key!r} has non-finite entries (.nan or .inf)")
     return value.reshape(shape) if shape is not None else value
 
 
@@ -216,5 +220,27 @@ def read_calibration(calib_dir: str | Path, *, image_size: tuple[int, int] | Non
     size = stored_size or image_size
     if size is None:
         raise CalibrationFileError(f"{calib_dir}: files do not record the image size (image_width, image_height)")
-    return StereoCalibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=size, rms_px=rms_px, mode=mode,
-                             covariance=covariance, covariance_note=note)
+    calib = StereoCalibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=size, rms_px=rms_px, mode=mode,
+                              covariance=covariance, covariance_note=note)
+    problems = calibration_problems(calib)
+    if problems:
+        raise CalibrationFileError(f"{calib_dir}: not a usable stereo calibration: {problems[0]}")
+    return calib
+
+
+def recorded_epipolar_rms_px(calib_dir: str | Path) -> float | None:
+    """The rectified epipolar RMS (px) the calibration recorded of its own views, else its reprojection RMS.
+
+    The reference a measurement's epipolar error is compared with (:func:`~stereo_bench.vision.pipeline.
+    check_epipolar`); None when the files record neither (OpenCV's sample, a ground truth).
+    """
+    path = _resolve(calib_dir, EXTRINSICS_FILE)
+    storage = _open(path)
+    try:
+        for key in ("epipolar_rms_px", "rms_px"):
+            node = storage.getNode(key)
+            if not node.empty() and node.isReal() and np.isfinite(node.real()) and node.real() > 0:
+                return float(node.real())
+        return None
+    finally:
+        storage.release()

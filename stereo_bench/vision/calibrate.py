@@ -53,6 +53,17 @@ CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-9)
 
 StereoMode = Literal["joint", "fixed"]
 
+# Physical sanity of a stereo calibration (calibration_problems). Two cameras' optical centres cannot be closer
+# than their housings allow (even board cameras are ~8 mm wide): |T| under 1 mm means both images were taken
+# from one viewpoint (the same images given as left and right), and every depth measured with it is noise.
+MIN_BASELINE_MM = 1.0
+# R is stored to 16 digits by OpenCV's YAML writer; 1e-4 also admits files typed in by hand from a paper.
+ROTATION_TOLERANCE = 1e-4
+
+
+class ImplausibleCalibration(ValueError):
+    """A calibration no real stereo pair can have (the message says what and the likely cause)."""
+
 
 @dataclass(frozen=True)
 class RejectedView:
@@ -130,6 +141,46 @@ def _deterministic():
             yield
         finally:
             cv2.setNumThreads(previous)
+
+
+def camera_problems(K: np.ndarray, D: np.ndarray, image_size: tuple[int, int] | None, name: str) -> list[str]:
+    """What makes one camera's intrinsics physically impossible for images of ``image_size`` (empty when none).
+
+    The principal point is where the optical axis meets the sensor, so it lies inside the image: intrinsics
+    of a 1920x1080 camera (cx ~ 960) used for 640x480 images put it outside.
+    """
+    K, D = np.asarray(K, float), np.asarray(D, float)
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D))):
+        return [f"{name}: intrinsics have non-finite entries (NaN or infinity)"]
+    problems = []
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        problems.append(f"{name}: focal lengths fx = {K[0, 0]:g}, fy = {K[1, 1]:g} px must be positive")
+    if image_size is not None:
+        width, height = image_size
+        if not (0 <= K[0, 2] <= width and 0 <= K[1, 2] <= height):
+            problems.append(f"{name}: principal point ({K[0, 2]:.1f}, {K[1, 2]:.1f}) px lies outside the "
+                            f"{width}x{height} image: intrinsics of another camera or image size")
+    return problems
+
+
+def calibration_problems(calib: StereoCalibration) -> list[str]:
+    """What makes a stereo calibration physically impossible (empty when nothing does).
+
+    Non-finite entries, non-positive focal lengths, a principal point outside the image, an R that is not
+    a rotation, and a degenerate baseline (|T| < :data:`MIN_BASELINE_MM`).
+    """
+    problems = camera_problems(calib.K1, calib.D1, calib.image_size, "left camera")
+    problems += camera_problems(calib.K2, calib.D2, calib.image_size, "right camera")
+    R, T = np.asarray(calib.R, float), np.asarray(calib.T, float).reshape(-1)
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(T))):
+        return problems + ["R, T have non-finite entries (NaN or infinity)"]
+    if np.max(np.abs(R.T @ R - np.eye(3))) > ROTATION_TOLERANCE or np.linalg.det(R) <= 0:
+        problems.append("R is not a rotation matrix (R^T R != I or det(R) <= 0)")
+    baseline = float(np.linalg.norm(T))
+    if baseline < MIN_BASELINE_MM:
+        problems.append(f"baseline |T| = {baseline:.4f} mm is below {MIN_BASELINE_MM:g} mm: both views come from one "
+                        "viewpoint (the same images as left and right?)")
+    return problems
 
 
 def _rejection_threshold(per_view_rms_px: np.ndarray) -> float:

@@ -8,17 +8,81 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereo_bench.targets import Target
-from stereo_bench.vision.calibrate import MIN_VIEWS, RejectedView, StereoCalibration, StereoMode, calibrate_stereo
+from stereo_bench.vision.calibrate import (
+    MIN_VIEWS,
+    ImplausibleCalibration,
+    RejectedView,
+    StereoCalibration,
+    StereoMode,
+    calibrate_stereo,
+    calibration_problems,
+    camera_problems,
+)
 from stereo_bench.vision.covariance import CalibrationCovariance
 from stereo_bench.vision.detect import Detection, common_corners, common_sigmas, detect
 from stereo_bench.vision.measure import SquareMeasurement, measure_square, planar_fit_rms_px
 from stereo_bench.vision.rectify import Rectification, epipolar_errors_px, rectify, rms
+from stereo_bench.vision.triangulate import camera_depths_mm, parallax_px
 
 MIN_COMMON_CORNERS = 6
+
+# Physical sanity of a measurement (check_measurement, check_epipolar).
+# Under one pixel of parallax a corner cannot be told from one at infinity (triangulate.parallax_px).
+MIN_PARALLAX_PX = 1.0
+# "Far beyond the calibration's" epipolar error: the calibration's own views leave an epipolar RMS of about
+# sqrt(2) x the corner noise; a pair of the same rig leaves about the same. The factor is the calibration's
+# outlier rule's (calibrate.OUTLIER_FACTOR, 3x the median view), and the floor covers the corner noise of real
+# images (0.1-0.3 px, so 0.15-0.45 px epipolar) with room to spare. Beyond both, the cameras moved since the
+# calibration or the files belong to another rig, and the square is biased by an unknown amount.
+EPIPOLAR_FACTOR = 3.0
+EPIPOLAR_FLOOR_PX = 1.0
 
 
 class BoardNotFoundError(ValueError):
     """The target is not (or not enough of it is) visible; the message says in which image."""
+
+
+class ImplausibleMeasurement(ValueError):
+    """A result no real stereo pair can produce: the message says what and the likely cause."""
+
+
+def check_measurement(calib: StereoCalibration, points_mm: np.ndarray) -> None:
+    """Raise :class:`ImplausibleMeasurement` unless every triangulated corner is finite, in front of both
+    cameras and seen with at least :data:`MIN_PARALLAX_PX` of parallax."""
+    points = np.asarray(points_mm, float).reshape(-1, 3)
+    if not np.all(np.isfinite(points)):
+        raise ImplausibleMeasurement("triangulation gave non-finite corners: the calibration does not fit these "
+                                     "images")
+    depth_left, depth_right = camera_depths_mm(calib, points)
+    behind = (depth_left <= 0) | (depth_right <= 0)
+    if np.any(behind):
+        raise ImplausibleMeasurement(
+            f"{int(behind.sum())} of {len(points)} triangulated corners lie behind the cameras (median depth "
+            f"{np.median(depth_left):.1f} mm): are the left and right images swapped?")
+    parallax = parallax_px(calib, points)
+    if np.median(parallax) < MIN_PARALLAX_PX:
+        raise ImplausibleMeasurement(
+            f"the two views see the board with {np.median(parallax):.3g} px of parallax (need "
+            f"{MIN_PARALLAX_PX:g}): the same image as left and right, or a board too far for this baseline")
+
+
+def epipolar_limit_px(calibration_epipolar_rms_px: float | None) -> float:
+    """The largest epipolar RMS a measurement may show with a calibration that left this much on its own views."""
+    reference = calibration_epipolar_rms_px if calibration_epipolar_rms_px and calibration_epipolar_rms_px > 0 else 0
+    return max(EPIPOLAR_FACTOR * reference, EPIPOLAR_FLOOR_PX)
+
+
+def check_epipolar(measured_rms_px: float, calibration_epipolar_rms_px: float | None) -> None:
+    """Raise :class:`ImplausibleMeasurement` when a pair's epipolar RMS is far beyond the calibration's
+    (:data:`EPIPOLAR_FACTOR` times it, and over :data:`EPIPOLAR_FLOOR_PX`)."""
+    limit = epipolar_limit_px(calibration_epipolar_rms_px)
+    if not measured_rms_px <= limit:
+        reference = ("" if not calibration_epipolar_rms_px else
+                     f"{measured_rms_px / calibration_epipolar_rms_px:.0f}x the calibration's "
+                     f"{calibration_epipolar_rms_px:.3f} px, ")
+        raise ImplausibleMeasurement(
+            f"epipolar RMS {measured_rms_px:.3f} px is {reference}over the {limit:.3f} px limit: the cameras moved "
+            "since the calibration, or it is another rig's")
 
 
 @dataclass(frozen=True)
@@ -67,12 +131,19 @@ def calibrate_from_images(
 
     Raises:
         ValueError: fewer than ``MIN_VIEWS`` pairs show the board in both images, or the solver fails.
+        ImplausibleCalibration (a ValueError): given intrinsics that do not fit the images, or a result no
+            stereo pair can have (:func:`~stereo_bench.vision.calibrate.calibration_problems`).
     """
     if len(left_images) != len(right_images):
         raise ValueError(f"{len(left_images)} left images but {len(right_images)} right images")
     if detections is not None and len(detections) != len(left_images):
         raise ValueError(f"{len(detections)} detections for {len(left_images)} image pairs")
     image_size = left_images[0].shape[1::-1]
+    if intrinsics is not None:
+        given = camera_problems(intrinsics[0], intrinsics[1], image_size, "left camera")
+        given += camera_problems(intrinsics[2], intrinsics[3], image_size, "right camera")
+        if given:
+            raise ImplausibleCalibration(f"the given intrinsics do not fit these images: {given[0]}")
     rejected: list[RejectedView] = []
     pair_index, objects, lefts, rights = [], [], [], []
     for index, (left_image, right_image) in enumerate(zip(left_images, right_images, strict=True)):
@@ -98,6 +169,9 @@ def calibrate_from_images(
                          f"(need {MIN_VIEWS})")
     calib = calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode,
                              intrinsics_covariance=intrinsics_covariance)
+    problems = calibration_problems(calib)
+    if problems:
+        raise ImplausibleCalibration(f"the calibration is not physically possible: {problems[0]}")
     rejected += [RejectedView(pair_index[r.index], r.reason) for r in calib.views_rejected]
     used = [pair_index[i] for i in calib.views_used]
     rect = rectify(calib)
@@ -119,6 +193,10 @@ def measure_pair(
 
     ``thorough``: retry a missed board with the slower detector (stored images, not live capture).
     ``detections``: the (left, right) detections of these images, when the caller already has them.
+
+    Raises:
+        BoardNotFoundError: the target is not in both images.
+        ImplausibleMeasurement: corners behind the cameras or without parallax (:func:`check_measurement`).
     """
     if detections is None:
         detections = (detect(left_image, target, thorough=thorough, partial=partial),
@@ -130,9 +208,12 @@ def measure_pair(
     ids, left_px, right_px = common_corners(left, right)
     if len(ids) < MIN_COMMON_CORNERS:
         raise BoardNotFoundError(f"only {len(ids)} corners are seen in both images (need {MIN_COMMON_CORNERS})")
+    if pixel_sigma_px is not None and not (np.isfinite(pixel_sigma_px) and pixel_sigma_px >= 0):
+        raise ValueError(f"pixel_sigma_px must be a finite number >= 0, not {pixel_sigma_px}")
     rect = rect or rectify(calib)
     sigma = pixel_sigma_px if pixel_sigma_px is not None else common_sigmas(left, right)
     square = measure_square(calib, target, ids, left_px, right_px, pixel_sigma_px=sigma)
+    check_measurement(calib, square.points_mm)
     fit = (planar_fit_rms_px(target.object_points[ids], left_px, calib.K1, calib.D1),
            planar_fit_rms_px(target.object_points[ids], right_px, calib.K2, calib.D2))
     return PairMeasurement(

@@ -39,3 +39,30 @@ def triangulation_jacobian(
         minus = triangulate(calib, left_px - delta[:, :2], right_px - delta[:, 2:])
         jac[:, :, k] = (plus - minus) / (2 * step_px)
     return jac
+
+
+def camera_depths_mm(calib: StereoCalibration, points_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((N,), (N,)) depth of each left-frame point along the left and the right optical axis (mm).
+
+    A corner both cameras see lies in front of both: a depth <= 0 means the points are behind a camera,
+    which happens when the left and right images are swapped.
+    """
+    points = np.asarray(points_mm, float).reshape(-1, 3)
+    right = points @ np.asarray(calib.R, float).T + np.asarray(calib.T, float).reshape(1, 3)
+    return points[:, 2], right[:, 2]
+
+
+def parallax_px(calib: StereoCalibration, points_mm: np.ndarray) -> np.ndarray:
+    """(N,) angle between the two cameras' rays to each left-frame point, in pixels of the mean focal length.
+
+    Triangulation needs the rays to differ: under one pixel of parallax the point cannot be told from
+    one at infinity, and its depth is noise (the same image given as left and right has none).
+    """
+    points = np.asarray(points_mm, float).reshape(-1, 3)
+    R, T = np.asarray(calib.R, float), np.asarray(calib.T, float).reshape(3)
+    right_centre = -R.T @ T  # the right camera's optical centre in the left frame
+    to_left, to_right = points, points - right_centre
+    cos = np.sum(to_left * to_right, axis=1) / np.maximum(
+        np.linalg.norm(to_left, axis=1) * np.linalg.norm(to_right, axis=1), 1e-300)
+    focal_px = 0.25 * (calib.K1[0, 0] + calib.K1[1, 1] + calib.K2[0, 0] + calib.K2[1, 1])
+    return np.arccos(np.clip(cos, -1.0, 1.0)) * focal_px

@@ -1,0 +1,321 @@
+"""Camera previews for the live page: the latest frames, downscaled, with the detected boards drawn, as JPEG.
+
+Two sources, never the capture path:
+
+- **captured**: every stereo pair the campaign records reaches :meth:`Previews.captured` from the
+  document bus (a frame subscriber, on the recorder thread, after the PNGs are written): it keeps a
+  reference and returns. Calibration views also go to the coverage queue.
+- **live**: while the runner lends the cameras (it waits for the operator, or is paused; see
+  ``campaign/camera_gate.py``) and a browser watches, the worker grabs pairs itself at
+  :data:`LIVE_FPS` (``Bench.grab_preview``: the simulated bench renders without counting frames).
+
+One worker thread does everything slow (detection, drawing, JPEG), and only while a browser is
+connected, at most :data:`CAPTURED_FPS` captured pairs a second; a frame that arrives while it is
+busy or before its turn replaces the one waiting (dropped, never queued),
+and the browser fetches the newest JPEG when it is ready for one, so a slow browser only sees fewer
+frames. Coverage detections (the same ``detect`` the analysis uses, on a 480-pixel copy) run on
+the same thread whether or not a browser watches, so the coverage is complete when one connects;
+a view's preview reuses them. The thread runs at a lower priority (nice 10): when the campaign's
+threads want the CPU, they get it first.
+
+Drawn: every detected corner (green where the same corner is also found in the other view, orange
+where only this camera sees it) and the board's outline (the quadrilateral of its outer corners, or
+the corners' convex hull for a partial view). Beside the images the page shows the left-right skew.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from stereo_bench.campaign.coverage import outer_corners
+from stereo_bench.targets import Target
+from stereo_bench.vision.detect import Detection, detect
+
+PREVIEW_WIDTH_PX = 640
+LIVE_FPS = 6.0  # live previews while idle (the issue asks for at least 5)
+CAPTURED_FPS = 3.0  # at most this many captured pairs a second are shown (the newest; the others are dropped)
+JPEG_QUALITY = 80
+COVERAGE_WIDTH_PX = 480  # the coverage's detections: ~4 ms a view and camera, corners ~0.3 px at full resolution
+WORKER_NICE = 10  # the worker yields the CPU to the campaign's threads when they need it
+GREEN, ORANGE, CYAN = (60, 200, 60), (0, 150, 255), (255, 200, 0)
+
+
+@dataclass
+class Pair:
+    """A stereo pair to show: images, skew, where it came from, and detections made already (full resolution)."""
+
+    left: np.ndarray
+    right: np.ndarray
+    dt_s: float | None
+    source: str  # "captured" or "live"
+    label: str  # e.g. "calibration view 3 of B100_Z450_A90"
+    board: str | None = None  # "calibration" or "target": which board to look for
+    detections: dict[str, Detection | None] | None = None
+    stamp: float = field(default_factory=time.time)
+
+
+@dataclass
+class Encoded:
+    """What the page gets: one JPEG per side and what was found."""
+
+    version: int
+    jpeg: dict[str, bytes]
+    meta: dict
+
+
+def _small(image: np.ndarray, width: int = PREVIEW_WIDTH_PX, *, gray: bool = False) -> tuple[np.ndarray, float]:
+    """``image`` downscaled to ``width`` (BGR for drawing, or as given with ``gray``) and the scale applied."""
+    scale = min(1.0, width / image.shape[1])
+    if scale < 1.0:
+        image = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    if image.ndim == 2 and not gray:
+        image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    return image, scale
+
+
+def _full_resolution(detection: Detection | None, scale: float, image: np.ndarray | None = None) -> Detection | None:
+    """A detection made on an image downscaled by ``scale``, in the full-resolution image's pixels."""
+    if detection is None or scale == 1.0:
+        return detection
+    size = detection.image_size if image is None else (image.shape[1], image.shape[0])
+    return Detection(ids=detection.ids, corners_px=(detection.corners_px + 0.5) / scale - 0.5, image_size=size,
+                     order=detection.order)
+
+
+def draw_detection(image: np.ndarray, detection: Detection | None, other: Detection | None, board: Target | None,
+                   scale: float) -> None:
+    """Draw ``detection`` (full-resolution pixels, times ``scale``) into ``image``: corners, shared ones, outline."""
+    if detection is None or detection.n == 0:
+        return
+    corners = (np.asarray(detection.corners_px, np.float64) + 0.5) * scale - 0.5
+    shared = np.isin(detection.ids, other.ids) if other is not None else np.zeros(detection.n, bool)
+    outline = outer_corners(corners, detection.ids, board.cols) if board is not None else None
+    if outline is None and len(corners) >= 3:
+        outline = cv2.convexHull(corners.astype(np.float32)).reshape(-1, 2)
+    if outline is not None:
+        cv2.polylines(image, [np.round(outline * 16).astype(np.int32)], True, CYAN, 2, cv2.LINE_AA, shift=4)
+    for (u, v), both in zip(corners, shared, strict=True):
+        cv2.circle(image, (int(round(u * 16)), int(round(v * 16))), 5 * 16, GREEN if both else ORANGE, 2,
+                   cv2.LINE_AA, shift=4)
+
+
+class Previews:
+    """The preview and coverage worker (see the module docstring).
+
+    ``boards``: {"calibration": Target, "target": Target}. ``on_encoded(encoded)`` is called from the
+    worker with every new preview; ``on_views(config_id, index, {"left": Detection|None, ...})`` with the
+    full-resolution detections of every captured calibration view (coverage).
+    """
+
+    def __init__(self, boards: Mapping[str, Target], *, on_encoded: Callable[[Encoded], None],
+                 on_views: Callable[[str, int, dict], None] | None = None, live_fps: float = LIVE_FPS):
+        self.boards = dict(boards)
+        self.on_encoded = on_encoded
+        self.on_views = on_views
+        self.live_period_s = 1.0 / live_fps
+        self.captured_period_s = 1.0 / CAPTURED_FPS
+        self.bench = None  # set while a campaign (or `stereo-bench live`) has a bench open
+        self.expect_board: str | None = "calibration"  # what the live previews look for first
+        self._waiting: Pair | None = None  # the newest captured pair not yet encoded
+        self._views: queue.Queue = queue.Queue()
+        self._watchers = 0
+        self._wake = threading.Condition()
+        self._stopping = False
+        self._version = 0
+        self._thread: threading.Thread | None = None
+        self._last_other_try = 0.0
+        self.encoded: Encoded | None = None
+        self.stats = {"encoded": 0, "live": 0, "dropped": 0, "coverage_views": 0}
+
+    # -- lifecycle ------------------------------------------------------------------------------------------
+
+    def start(self) -> Previews:
+        self._thread = threading.Thread(target=self._run, name="live-previews", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        with self._wake:
+            self._stopping = True
+            self._wake.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+
+    def watchers(self, delta: int) -> None:
+        """A browser connected (+1) or left (-1): previews are made only while one watches."""
+        with self._wake:
+            self._watchers = max(0, self._watchers + delta)
+            self._wake.notify_all()
+
+    @property
+    def watched(self) -> bool:
+        return self._watchers > 0
+
+    # -- inputs (must not block) -----------------------------------------------------------------------------
+
+    def captured(self, document, frames: Mapping[str, np.ndarray]) -> None:
+        """A document bus frame subscriber: a recorded pair. Keeps references, returns at once."""
+        left, right = frames.get("left"), frames.get("right")
+        if left is None or right is None:
+            return
+        kind = getattr(document, "kind", "")
+        data = getattr(document, "data", None)
+        index = getattr(data, "index", None)
+        board = "calibration" if kind == "calibration_view" else "target" if kind == "measurement_frame" else None
+        label = f"{kind.replace('_', ' ')} {'' if index is None else index + 1} of {document.config_id}".strip()
+        pair = Pair(left=left, right=right, dt_s=getattr(data, "dt_s", None), source="captured", label=label,
+                    board=board)
+        if kind == "calibration_view" and index is not None:
+            self._views.put((document.config_id, index, pair))
+        with self._wake:
+            if self._waiting is not None:
+                self.stats["dropped"] += 1
+            self._waiting = pair
+            self.expect_board = board or self.expect_board
+            self._wake.notify_all()
+
+    # -- the worker -----------------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        lower_priority(WORKER_NICE)
+        next_live = next_captured = 0.0
+        while True:
+            with self._wake:
+                while True:
+                    if self._stopping:
+                        return
+                    if not self._views.empty():
+                        job = ("views", None)
+                        break
+                    if self._watchers and self._waiting is not None:
+                        delay = next_captured - time.monotonic()
+                        if delay <= 0:
+                            job, self._waiting = ("pair", self._waiting), None
+                            next_captured = time.monotonic() + self.captured_period_s
+                            break
+                        self._wake.wait(delay)
+                        continue
+                    if self._watchers and self._can_go_live():
+                        delay = next_live - time.monotonic()
+                        if delay <= 0:
+                            job = ("live", None)
+                            break
+                        self._wake.wait(delay)
+                        continue
+                    self._wake.wait(0.2)
+            started = time.thread_time()
+            try:
+                if job[0] == "views":
+                    self._coverage(*self._views.get())
+                elif job[0] == "pair":
+                    self._encode(job[1])
+                else:
+                    next_live = time.monotonic() + self.live_period_s
+                    pair = self._grab_live()
+                    if pair is not None:
+                        self._encode(pair)
+            except Exception as error:  # noqa: BLE001 - a preview must never take the campaign down
+                self.last_error = f"{type(error).__name__}: {error}"
+            self.stats[f"{job[0]}_cpu_s"] = self.stats.get(f"{job[0]}_cpu_s", 0.0) + time.thread_time() - started
+
+    def _can_go_live(self) -> bool:
+        bench = self.bench
+        return bench is not None and bench.camera_gate.lent_out
+
+    def _grab_live(self) -> Pair | None:
+        bench = self.bench
+        if bench is None:
+            return None
+        with bench.camera_gate.borrowed() as allowed:
+            if not allowed:
+                return None
+            left, right, dt_s = bench.grab_preview()
+        self.stats["live"] += 1
+        return Pair(left=left, right=right, dt_s=dt_s, source="live", label="live", board=None)
+
+    def _coverage(self, config_id: str, index: int, pair: Pair) -> None:
+        # Detected at preview resolution (corners ~0.2 px at full resolution: plenty for a 20 x 20 map and
+        # ROS's parameters) and shared with the pair's preview: one detection per view and camera.
+        board = self.boards["calibration"]
+        detections = {}
+        for side, image in (("left", pair.left), ("right", pair.right)):
+            small, scale = _small(_grey(image), COVERAGE_WIDTH_PX, gray=True)
+            detections[side] = _full_resolution(_detect_or_none(small, board), scale, image)
+        pair.detections = detections
+        self.stats["coverage_views"] += 1
+        if self.on_views is not None:  # the pair's preview, if still waiting, reuses these detections
+            self.on_views(config_id, index, detections)
+
+    def _detect_small(self, pair: Pair, smalls: dict, scales: dict) -> tuple[dict, str | None]:
+        """Detections in the downscaled images (in full-resolution pixels), trying the expected board first."""
+        order = [pair.board] if pair.board else [self.expect_board or "calibration"]
+        now = time.monotonic()
+        if pair.board is None and now - self._last_other_try > 1.0:  # the other board, at most once a second
+            order += [name for name in ("calibration", "target") if name not in order]
+            self._last_other_try = now
+        for name in order:
+            board = self.boards.get(name)
+            if board is None:
+                continue
+            found = {side: _full_resolution(_detect_or_none(smalls[side], board), scales[side])
+                     for side in ("left", "right")}
+            if any(d is not None for d in found.values()):
+                if pair.board is None:
+                    self.expect_board = name
+                return found, name
+        return {"left": None, "right": None}, None
+
+    def _encode(self, pair: Pair) -> None:
+        smalls, scales = {}, {}
+        for side, image in (("left", pair.left), ("right", pair.right)):
+            smalls[side], scales[side] = _small(image)
+        board_name = pair.board
+        detections = pair.detections
+        if detections is None:
+            detections, found_name = self._detect_small(pair, {s: _grey(i) for s, i in smalls.items()}, scales)
+            board_name = board_name or found_name
+        board = self.boards.get(board_name) if board_name else None
+        jpeg, corners = {}, {}
+        for side, other in (("left", "right"), ("right", "left")):
+            draw_detection(smalls[side], detections.get(side), detections.get(other), board, scales[side])
+            ok, buffer = cv2.imencode(".jpg", smalls[side], [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+            jpeg[side] = buffer.tobytes() if ok else b""
+            detection = detections.get(side)
+            corners[side] = 0 if detection is None else detection.n
+        left, right = detections.get("left"), detections.get("right")
+        in_both = int(np.isin(left.ids, right.ids).sum()) if left is not None and right is not None else 0
+        self._version += 1
+        self.stats["encoded"] += 1
+        meta = {"version": self._version, "source": pair.source, "label": pair.label,
+                "board": board_name, "corners": corners, "in_both": in_both,
+                "skew_ms": None if pair.dt_s is None else pair.dt_s * 1e3, "time": pair.stamp,
+                "size": [int(smalls["left"].shape[1]), int(smalls["left"].shape[0])]}
+        self.encoded = Encoded(version=self._version, jpeg=jpeg, meta=meta)
+        self.on_encoded(self.encoded)
+
+
+def lower_priority(nice: int) -> None:
+    """Lower the calling thread's CPU priority (Linux: the nice value is per thread); elsewhere nothing."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)
+    except (AttributeError, OSError):
+        pass
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+
+
+def _detect_or_none(image: np.ndarray, board: Target) -> Detection | None:
+    try:
+        return detect(image, board)
+    except ValueError:  # an ambiguous partial view: nothing to draw
+        return None

@@ -1,0 +1,238 @@
+"""The live page's HTTP server: Starlette on uvicorn, in the campaign's process, on a thread with its own loop.
+
+Routes (everything the page needs ships in the package: no CDN, works offline):
+
+========================  ===================================================================
+``GET /``                 the page (``static/index.html``)
+``GET /static/NAME``      its script and style (a fixed list, read from the package at start)
+``GET /api/state``        the state as JSON (:meth:`LiveState.snapshot`)
+``GET /api/events``       Server-Sent Events: the state, each time it changes (at most 5 a second)
+``GET /preview/SIDE.jpg`` the newest preview of ``left`` or ``right``
+``GET /session/PATH``     a file of the session directory (refused outside it, symlinks included)
+``POST /api/control/ACT`` continue, capture_now, discard_last_view, pause, resume, stop: needs the token
+========================  ===================================================================
+
+Every control needs the run's random token (``X-Token`` header, or ``?token=``), which is part of
+the URL printed at start; without it the answer is 403 and nothing happens. Reading needs no token.
+A browser that connects makes previews start; one that leaves changes nothing else.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import secrets
+import threading
+import time
+from importlib import resources
+from pathlib import Path
+
+STATIC_FILES = {"index.html": "text/html; charset=utf-8", "live.js": "text/javascript; charset=utf-8",
+                "live.css": "text/css; charset=utf-8"}
+CONTROL_ACTIONS = ("continue", "capture_now", "discard_last_view", "pause", "resume", "stop")
+MAX_UPDATES_PER_S = 5.0
+KEEPALIVE_S = 15.0
+
+
+class LiveServerError(RuntimeError):
+    """The server could not start (e.g. the port is taken); the message names host and port."""
+
+
+def static_files() -> dict[str, bytes]:
+    """The page's files, read from the installed package (package-data)."""
+    root = resources.files("stereo_bench.live") / "static"
+    return {name: (root / name).read_bytes() for name in STATIC_FILES}
+
+
+class LiveApp:
+    """The Starlette application around a page (a :class:`~stereo_bench.live.page.LivePage`-like object).
+
+    ``page`` gives ``state`` (snapshot(), version), ``previews`` (encoded, watchers()), ``control(action)``
+    -> (status code, message) and ``token``; ``session_dir`` the directory files may be served from.
+    """
+
+    def __init__(self, page, *, session_dir: Path | None):
+        from starlette.applications import Starlette
+        from starlette.routing import Route
+
+        self.page = page
+        self.session_dir = session_dir
+        self.files = static_files()
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self._changed: asyncio.Event | None = None
+        self.closing = False
+        self.app = Starlette(routes=[
+            Route("/", self.index), Route("/static/{name}", self.static), Route("/api/state", self.state),
+            Route("/api/events", self.events), Route("/preview/{side}.jpg", self.preview),
+            Route("/session/{path:path}", self.session_file), Route("/api/control/{action}", self.control,
+                                                                   methods=["POST"]),
+        ])
+
+    # -- change notification (from any thread) ------------------------------------------------------------------
+
+    def notify(self) -> None:
+        loop = self.loop
+        if loop is not None and not loop.is_closed():
+            try:
+                loop.call_soon_threadsafe(self._wake)
+            except RuntimeError:  # the loop closed meanwhile
+                pass
+
+    def _wake(self) -> None:
+        if self._changed is not None:
+            self._changed.set()
+            self._changed = asyncio.Event()
+
+    def _bind_loop(self) -> None:
+        if self.loop is None:
+            self.loop = asyncio.get_running_loop()
+            self._changed = asyncio.Event()
+
+    # -- routes -------------------------------------------------------------------------------------------------
+
+    async def index(self, request):
+        from starlette.responses import Response
+
+        self._bind_loop()
+        return Response(self.files["index.html"], media_type=STATIC_FILES["index.html"],
+                        headers={"Cache-Control": "no-store"})
+
+    async def static(self, request):
+        from starlette.responses import Response
+
+        name = request.path_params["name"]
+        if name not in STATIC_FILES or name == "index.html":
+            return Response("not found", status_code=404)
+        return Response(self.files[name], media_type=STATIC_FILES[name], headers={"Cache-Control": "no-cache"})
+
+    async def state(self, request):
+        from starlette.responses import JSONResponse
+
+        self._bind_loop()
+        return JSONResponse(self.page.state.snapshot(), headers={"Cache-Control": "no-store"})
+
+    async def events(self, request):
+        from starlette.responses import StreamingResponse
+
+        self._bind_loop()
+        return StreamingResponse(self._stream(request), media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+
+    async def _stream(self, request):
+        """The state as an SSE stream: one event per change, coalesced, at most MAX_UPDATES_PER_S."""
+        self.page.previews.watchers(+1)
+        try:
+            sent = -1
+            last_write = time.monotonic()
+            while not self.closing:
+                changed = self._changed
+                version = self.page.state.version
+                if version != sent:
+                    snapshot = await asyncio.to_thread(self.page.state.snapshot)
+                    sent = version
+                    yield f"event: state\ndata: {json.dumps(snapshot, separators=(',', ':'))}\n\n"
+                    last_write = time.monotonic()
+                    await asyncio.sleep(1.0 / MAX_UPDATES_PER_S)
+                    continue
+                try:
+                    await asyncio.wait_for(changed.wait(), timeout=0.5)
+                except TimeoutError:
+                    if await request.is_disconnected():
+                        return
+                    if time.monotonic() - last_write > KEEPALIVE_S:
+                        yield ": keepalive\n\n"
+                        last_write = time.monotonic()
+        finally:
+            self.page.previews.watchers(-1)
+
+    async def preview(self, request):
+        from starlette.responses import Response
+
+        side = request.path_params["side"]
+        encoded = self.page.previews.encoded
+        if side not in ("left", "right") or encoded is None or not encoded.jpeg.get(side):
+            return Response("no preview yet", status_code=404, headers={"Cache-Control": "no-store"})
+        return Response(encoded.jpeg[side], media_type="image/jpeg",
+                        headers={"Cache-Control": "no-store", "X-Preview-Version": str(encoded.version)})
+
+    async def session_file(self, request):
+        from starlette.responses import FileResponse, Response
+
+        from stereo_bench.campaign.session import SessionError, SessionReader
+
+        if self.session_dir is None:
+            return Response("no session: this page is a preview without a campaign", status_code=404)
+        relative = request.path_params["path"]
+        try:
+            path = SessionReader(self.session_dir).path(relative)
+        except SessionError as error:
+            return Response(str(error).split(": ", 1)[-1], status_code=403)
+        if not path.is_file():
+            return Response("not found in the session", status_code=404)
+        return FileResponse(path, headers={"Cache-Control": "no-store"})
+
+    async def control(self, request):
+        from starlette.responses import JSONResponse
+
+        given = request.headers.get("x-token") or request.query_params.get("token") or ""
+        if not secrets.compare_digest(given.encode(), self.page.token.encode()):
+            return JSONResponse({"ok": False, "message": "refused: this action needs the token of the URL the "
+                                                         "campaign printed"}, status_code=403)
+        action = request.path_params["action"]
+        if action not in CONTROL_ACTIONS:
+            return JSONResponse({"ok": False, "message": f"unknown action {action!r}; known: "
+                                                         f"{', '.join(CONTROL_ACTIONS)}"}, status_code=404)
+        status, message = await asyncio.to_thread(self.page.control, action)
+        return JSONResponse({"ok": status == 200, "message": message}, status_code=status)
+
+
+class LiveServer:
+    """uvicorn serving ``app`` on ``host:port`` (0: any free port) from a daemon thread; :meth:`stop` ends it."""
+
+    def __init__(self, live_app: LiveApp, host: str = "127.0.0.1", port: int = 0):
+        self.live_app = live_app
+        self.host = host
+        self.requested_port = port
+        self.port: int | None = None
+        self._server = None
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+
+    def start(self, timeout_s: float = 10.0) -> LiveServer:
+        import uvicorn
+
+        config = uvicorn.Config(self.live_app.app, host=self.host, port=self.requested_port, log_level="warning",
+                                access_log=False, lifespan="off", timeout_graceful_shutdown=2)
+        self._server = uvicorn.Server(config)
+        self._thread = threading.Thread(target=self._serve, name="live-server", daemon=True)
+        self._thread.start()
+        deadline = time.monotonic() + timeout_s
+        while not self._server.started:
+            if not self._thread.is_alive() or time.monotonic() > deadline:
+                why = self._error or "it did not start in time"
+                raise LiveServerError(f"live page: cannot serve on {self.host}:{self.requested_port} ({why})")
+            time.sleep(0.01)
+        self.port = self._server.servers[0].sockets[0].getsockname()[1]
+        return self
+
+    def _serve(self) -> None:
+        try:
+            self._server.run()
+        except BaseException as error:  # noqa: BLE001 - reported by start()
+            self._error = error
+        if not self._server.started and self._error is None:
+            self._error = "the address is in use or not available"
+
+    def stop(self) -> None:
+        self.live_app.closing = True
+        self.live_app.notify()
+        if self._server is not None:
+            self._server.should_exit = True
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+
+
+def url_for(host: str, port: int, token: str) -> str:
+    shown = "127.0.0.1" if host in ("0.0.0.0", "") else f"[{host}]" if ":" in host else host
+    return f"http://{shown}:{port}/?token={token}"
+

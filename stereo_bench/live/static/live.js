@@ -1,0 +1,278 @@
+// stereo-bench live page: renders the campaign state pushed by the server (Server-Sent Events).
+// Shipped with the package; no external scripts. Controls carry the run's token from the page's URL.
+"use strict";
+
+const TOKEN = new URLSearchParams(location.search).get("token") || "";
+const $ = (id) => document.getElementById(id);
+const QUANTITY = {
+  baseline_mm: ["B", "mm"], distance_mm: ["Z", "mm"], alpha_deg: ["α", "°"], tilt_deg: ["tilt", "°"],
+};
+let state = null;
+
+function esc(text) {
+  return String(text ?? "").replace(/[&<>"']/g, (c) => ({"&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;"}[c]));
+}
+function num(value, digits = 3) {
+  return value === null || value === undefined || Number.isNaN(value) ? "–" : Number(value).toFixed(digits);
+}
+function duration(seconds) {
+  if (seconds === null || seconds === undefined) return "–";
+  const s = Math.max(0, Math.round(seconds));
+  const h = Math.floor(s / 3600), m = Math.floor((s % 3600) / 60), r = s % 60;
+  return h ? `${h} h ${String(m).padStart(2, "0")} min` : m ? `${m} min ${String(r).padStart(2, "0")} s` : `${r} s`;
+}
+
+// -- controls ------------------------------------------------------------------------------------------------
+
+async function act(action) {
+  const box = $("message");
+  try {
+    const response = await fetch(`/api/control/${action}`, {method: "POST", headers: {"X-Token": TOKEN}});
+    const body = await response.json();
+    box.textContent = body.message;
+    box.className = response.ok ? "message" : "message error";
+  } catch (error) {
+    box.textContent = `${action}: ${error}`;
+    box.className = "message error";
+  }
+  box.hidden = false;
+  clearTimeout(act.timer);
+  act.timer = setTimeout(() => { box.hidden = true; }, 6000);
+}
+document.querySelectorAll("button[data-action]").forEach((button) => {
+  button.addEventListener("click", () => act(button.dataset.action === "pause" && state && state.run.paused ? "resume" : button.dataset.action));
+});
+if (!TOKEN) $("readonly").hidden = false;
+
+// -- previews: fetch the newest JPEG when the last one has loaded (a slow browser just sees fewer frames) -----
+
+const previews = {left: {loading: false, shown: 0, wanted: 0}, right: {loading: false, shown: 0, wanted: 0}};
+function loadPreview(side) {
+  const p = previews[side];
+  if (p.loading || p.wanted <= p.shown) return;
+  p.loading = true;
+  const version = p.wanted;
+  const img = $(`img-${side}`);
+  img.onload = img.onerror = () => { p.loading = false; p.shown = version; img.dataset.version = String(version); loadPreview(side); };
+  img.src = `/preview/${side}.jpg?v=${version}`;
+}
+
+function renderPreview(meta) {
+  if (!meta) return;
+  for (const side of ["left", "right"]) {
+    previews[side].wanted = Math.max(previews[side].wanted, meta.version);
+    loadPreview(side);
+    const n = meta.corners ? meta.corners[side] : 0;
+    $(`cap-${side}`).textContent = meta.board ? `· ${n} corners of the ${meta.board === "calibration" ? "calibration board" : "target"}` : "· no board found";
+  }
+  const when = meta.source === "live" ? "live" : meta.label;
+  $("preview-label").textContent = `${when} · ${meta.in_both} corners in both views`;
+  $("skew").textContent = meta.skew_ms === null || meta.skew_ms === undefined ? "left–right skew –" : `left–right skew ${meta.skew_ms.toFixed(1)} ms`;
+}
+
+// -- coverage ------------------------------------------------------------------------------------------------
+
+function renderCoverage(coverage) {
+  const box = $("coverage");
+  if (!coverage) { $("coverage-config").textContent = ""; return; }
+  $("coverage-config").textContent = `${coverage.config_id} · ${coverage.views_taken}/${coverage.views_expected} views`;
+  box.innerHTML = ["left", "right"].map((side) => {
+    const c = coverage[side];
+    const bars = c.bars.map((b) => `<div class="bar"><span>${esc(b.name)}</span><span class="track">` +
+      `<span class="span" style="left:${(b.low * 100).toFixed(1)}%;width:${(Math.max(0.01, b.high - b.low) * 100).toFixed(1)}%"></span>` +
+      `<span class="fill ${b.progress >= 1 ? "done" : ""}" style="width:${(b.progress * 100).toFixed(0)}%"></span></span>` +
+      `<span class="pct">${(b.progress * 100).toFixed(0)}%</span></div>`).join("");
+    return `<div class="cov"><h3>${side} · ${c.views.length} kept · ${(c.covered * 100).toFixed(0)}% of the image</h3>${bars}` +
+      `<canvas class="occupancy" id="occ-${side}" width="320" height="180"></canvas></div>`;
+  }).join("");
+  for (const side of ["left", "right"]) drawOccupancy($(`occ-${side}`), coverage[side].occupancy);
+}
+
+function drawOccupancy(canvas, grid) {
+  const ctx = canvas.getContext("2d");
+  const rows = grid.length, cols = grid[0].length;
+  const w = canvas.width / cols, h = canvas.height / rows;
+  const max = Math.max(1, ...grid.flat());
+  ctx.fillStyle = "#20242c";
+  ctx.fillRect(0, 0, canvas.width, canvas.height);
+  for (let r = 0; r < rows; r++) {
+    for (let c = 0; c < cols; c++) {
+      if (!grid[r][c]) continue;
+      const t = 0.25 + 0.75 * grid[r][c] / max;
+      ctx.fillStyle = `rgba(80, 200, 120, ${t.toFixed(2)})`;
+      ctx.fillRect(c * w + 0.5, r * h + 0.5, w - 1, h - 1);
+    }
+  }
+}
+
+function renderCalibration(calibration) {
+  if (!calibration) return;
+  $("calib-config").textContent = `${calibration.config_id} · RMS ${num(calibration.rms_px, 3)} px`;
+  const views = calibration.per_view || [];
+  if (views.length) {
+    const values = views.flatMap((v) => [v.left_px, v.right_px]).filter((e) => e !== null && e !== undefined);
+    const max = Math.max(...values, 0.05);
+    const width = 300, height = 76, step = width / views.length, bar = Math.max(1.5, step / 2 - 2);
+    const rect = (v, i, which, colour) => {
+      const e = v[`${which}_px`];
+      if (e === null || e === undefined) return "";
+      const h = (e / max) * (height - 24);
+      const x = i * step + 1 + (which === "right" ? bar + 1 : 0);
+      return `<rect x="${x.toFixed(1)}" y="${(height - 12 - h).toFixed(1)}" width="${bar.toFixed(1)}" height="${h.toFixed(1)}" fill="${colour}"><title>view ${v.index + 1} ${which}: ${e.toFixed(3)} px</title></rect>`;
+    };
+    const bars = views.map((v, i) => rect(v, i, "left", "#2463eb") + rect(v, i, "right", "#d97706") +
+      `<text x="${(i * step + step / 2).toFixed(1)}" y="${height - 1}" text-anchor="middle">${v.index + 1}</text>`).join("");
+    $("per-view").innerHTML = `<div class="per-view"><svg viewBox="0 0 ${width} ${height}">${bars}` +
+      `<text x="2" y="9">max ${max.toFixed(3)} px</text><text x="${width - 2}" y="9" text-anchor="end">` +
+      `<tspan style="fill:#2463eb">■ left</tspan> <tspan style="fill:#d97706">■ right</tspan></text></svg></div>`;
+  }
+  const rejected = calibration.rejected || [];
+  $("rejected").innerHTML = rejected.length ? `<h3>Rejected views</h3><ul class="rejected">` +
+    rejected.map((r) => `<li>view ${r.index + 1}: ${esc(r.reason)}</li>`).join("") + "</ul>" : "";
+}
+
+// -- rig, plan, results, log -----------------------------------------------------------------------------------
+
+function renderRig(rig) {
+  const state = rig.state || "–";
+  $("rig-state").textContent = state;
+  $("rig-state").className = `pill ${esc(state.split(":")[0])}`;
+  const p = rig.position || {};
+  const rows = [["baseline B", p.baseline_mm, "mm"], ["toe-in left", p.toe_in_left_deg, "°"], ["toe-in right", p.toe_in_right_deg, "°"],
+    ["tilt left", p.tilt_left_deg, "°"], ["tilt right", p.tilt_right_deg, "°"], ["target distance Z", p.target_distance_mm, "mm"]];
+  $("rig-position").innerHTML = rows.map(([name, value, unit]) =>
+    `<tr><td>${name}</td><td class="num">${value === null || value === undefined ? "–" : `${Number(value).toFixed(2)} ${unit}`}</td></tr>`).join("") +
+    `<tr><td>from</td><td>${esc(rig.source || "–")}${(rig.manual || []).length ? "; Z as the operator set it" : ""}</td></tr>`;
+  $("alarms").innerHTML = (rig.alarms || []).map((a) => `<div class="alarm">${esc(a)}</div>`).join("");
+  const pre = $("transcript");
+  const atBottom = pre.scrollTop + pre.clientHeight >= pre.scrollHeight - 4;
+  pre.textContent = (rig.transcript || []).join("\n");
+  if (atBottom) pre.scrollTop = pre.scrollHeight;
+}
+
+function renderPlan(plan) {
+  const c = plan.counts;
+  const done = c.measured + c.failed + c.infeasible;
+  $("counts").innerHTML = `<span><b>${c.measured}</b> measured</span><span><b>${c.failed}</b> failed</span>` +
+    `<span><b>${c.infeasible}</b> infeasible</span><span><b>${c.remaining}</b> remaining</span><span class="muted">of ${c.total}</span>`;
+  $("progress-bar").style.width = `${c.total ? (100 * done / c.total).toFixed(1) : 0}%`;
+  $("eta").textContent = duration(plan.eta_s);
+  $("eta-basis").textContent = plan.basis ? `ETA: ${plan.basis}` : "";
+  $("step").textContent = plan.step || "";
+  $("configs").innerHTML = plan.configs.map((cfg) => `<span class="cfg ${esc(cfg.status)}" ` +
+    `title="${esc(cfg.config_id)}: ${esc(cfg.status)}${cfg.reason ? ` (${esc(cfg.reason)})` : ""}">${esc(cfg.config_id)}</span>`).join("");
+}
+
+function uncertainty(row) {
+  if (row.U_expanded_mm !== undefined) return row.U_expanded_mm;
+  return row.sigma_mm !== undefined ? 2 * row.sigma_mm : null;
+}
+
+function renderResults(results, plan) {
+  const hasU = results.some((r) => r.U_expanded_mm !== undefined || r.u_combined_mm !== undefined);
+  const head = ["configuration", "B mm", "Z mm", "α °", "square mm", "error mm", "σ mm"].concat(hasU ? ["u_c mm", "U mm"] : []).concat(["RMS px"]);
+  const body = results.map((r) => {
+    const cells = [esc(r.config_id), num(r.baseline_mm, 0), num(r.distance_mm, 0), num(r.alpha_deg, 1)];
+    if (r.status !== "measured") {
+      return `<tr data-config="${esc(r.config_id)}" data-status="${esc(r.status)}"><td>${cells.join("</td><td>")}</td>` +
+        `<td class="${esc(r.status)}" colspan="${head.length - 4}">${esc(r.status)}${r.reason ? `: ${esc(r.reason)}` : ""}</td></tr>`;
+    }
+    cells.push(num(r.square_mean_mm, 4), (r.error_mm >= 0 ? "+" : "") + num(r.error_mm, 4), num(r.sigma_mm, 4));
+    if (hasU) cells.push(num(r.u_combined_mm, 4), num(r.U_expanded_mm, 4));
+    cells.push(num(r.rms_px, 3));
+    return `<tr data-config="${esc(r.config_id)}" data-status="measured"><td>${cells.join("</td><td>")}</td></tr>`;
+  }).join("");
+  $("results-table").innerHTML = `<thead><tr>${head.map((h) => `<th>${h}</th>`).join("")}</tr></thead><tbody>${body}</tbody>`;
+  renderPlot(results.filter((r) => r.status === "measured" && r.error_mm !== undefined), plan.varying || []);
+}
+
+const SERIES_COLOURS = ["#2463eb", "#d97706", "#1f9d55", "#c81e1e", "#7c3aed", "#0891b2", "#be185d", "#4b5565"];
+
+function renderPlot(rows, varying) {
+  const box = $("plot");
+  const xKey = varying[0] || "distance_mm", seriesKey = varying[1];
+  if (!rows.length) { box.innerHTML = `<p class="muted">Error against ${QUANTITY[xKey][0]} appears with the first measured configuration.</p>`; return; }
+  const W = 420, H = 280, L = 58, R = 10, T = 14, B = 40;
+  const xs = rows.map((r) => r[xKey]);
+  const lows = rows.map((r) => r.error_mm - (uncertainty(r) || 0)), highs = rows.map((r) => r.error_mm + (uncertainty(r) || 0));
+  let x0 = Math.min(...xs), x1 = Math.max(...xs);
+  if (x0 === x1) { x0 -= 1; x1 += 1; }
+  const pad = (x1 - x0) * 0.06; x0 -= pad; x1 += pad;
+  let y0 = Math.min(0, ...lows), y1 = Math.max(0, ...highs);
+  if (y0 === y1) { y0 -= 0.01; y1 += 0.01; }
+  const ypad = (y1 - y0) * 0.08; y0 -= ypad; y1 += ypad;
+  const sx = (x) => L + (x - x0) / (x1 - x0) * (W - L - R), sy = (y) => T + (y1 - y) / (y1 - y0) * (H - T - B);
+  const ticks = (a, b, n) => { const step = niceStep((b - a) / n); const out = []; for (let v = Math.ceil(a / step) * step; v <= b + 1e-12; v += step) out.push(v); out.step = step; return out; };
+  const yTicks = ticks(y0, y1, 5), xTicks = ticks(x0, x1, 6);
+  let svg = `<svg viewBox="0 0 ${W} ${H}" role="img" aria-label="error against ${esc(QUANTITY[xKey][0])}">`;
+  for (const v of yTicks) svg += `<line x1="${L}" x2="${W - R}" y1="${sy(v).toFixed(1)}" y2="${sy(v).toFixed(1)}" stroke="#eceff4"/><text x="${L - 4}" y="${(sy(v) + 4).toFixed(1)}" text-anchor="end">${fmtTick(v, yTicks.step)}</text>`;
+  for (const v of xTicks) svg += `<text x="${sx(v).toFixed(1)}" y="${H - B + 14}" text-anchor="middle">${fmtTick(v, xTicks.step)}</text>`;
+  svg += `<line x1="${L}" x2="${W - R}" y1="${sy(0).toFixed(1)}" y2="${sy(0).toFixed(1)}" stroke="#6b7385" stroke-dasharray="4 3"/>`;
+  svg += `<text x="${(L + W - R) / 2}" y="${H - 6}" text-anchor="middle">${QUANTITY[xKey][0]} (${QUANTITY[xKey][1]})</text>`;
+  svg += `<text transform="translate(12 ${(T + H - B) / 2}) rotate(-90)" text-anchor="middle">error (mm) ± ${rows.some((r) => r.U_expanded_mm !== undefined) ? "U" : "2σ"}</text>`;
+  const groups = new Map();
+  for (const r of rows) { const key = seriesKey ? r[seriesKey] : ""; if (!groups.has(key)) groups.set(key, []); groups.get(key).push(r); }
+  [...groups.keys()].sort((a, b) => a - b).forEach((key, i) => {
+    const colour = SERIES_COLOURS[i % SERIES_COLOURS.length];
+    const points = groups.get(key).sort((a, b) => a[xKey] - b[xKey]);
+    if (points.length > 1) svg += `<polyline fill="none" stroke="${colour}" stroke-width="1.5" points="${points.map((r) => `${sx(r[xKey]).toFixed(1)},${sy(r.error_mm).toFixed(1)}`).join(" ")}"/>`;
+    for (const r of points) {
+      const u = uncertainty(r) || 0, x = sx(r[xKey]).toFixed(1);
+      svg += `<line x1="${x}" x2="${x}" y1="${sy(r.error_mm - u).toFixed(1)}" y2="${sy(r.error_mm + u).toFixed(1)}" stroke="${colour}"/>` +
+        `<circle cx="${x}" cy="${sy(r.error_mm).toFixed(1)}" r="3.5" fill="${colour}"><title>${esc(r.config_id)}: ${r.error_mm.toFixed(4)} mm</title></circle>`;
+    }
+    if (seriesKey) svg += `<text x="${W - R - 4}" y="${T + 12 + 13 * i}" text-anchor="end" fill="${colour}" style="fill:${colour}">${QUANTITY[seriesKey][0]} = ${fmtTick(key, 1)} ${QUANTITY[seriesKey][1]}</text>`;
+  });
+  box.innerHTML = svg + "</svg>";
+}
+function niceStep(raw) { const p = Math.pow(10, Math.floor(Math.log10(raw || 1))); const f = raw / p; return (f < 1.5 ? 1 : f < 3 ? 2 : f < 7 ? 5 : 10) * p; }
+function fmtTick(v, step) {
+  if (Math.abs(v) < 1e-12) return "0";
+  const decimals = step ? Math.max(0, -Math.floor(Math.log10(step) + 1e-9)) : (Math.abs(v) >= 10 ? 0 : 2);
+  return v.toFixed(Math.min(decimals, 6));
+}
+
+function renderLog(log) {
+  $("log").innerHTML = log.map((e) => `<li class="${esc(e.level)}">${new Date(e.time * 1000).toLocaleTimeString()} ${esc(e.text)}</li>`).join("");
+}
+
+function renderPrompt(prompt, run) {
+  const banner = $("prompt");
+  banner.hidden = !prompt;
+  const accepts = prompt ? prompt.actions : [];
+  for (const action of ["continue", "capture_now", "discard_last_view"]) $(action).disabled = !TOKEN || !accepts.includes(action);
+  if (prompt) $("prompt-message").textContent = prompt.message;
+  const live = ["running", "paused", "starting"].includes(run.status);
+  $("pause").textContent = run.paused ? "Resume" : "Pause";
+  $("pause").disabled = !TOKEN || !live;
+  $("stop").disabled = !TOKEN || !live;
+}
+
+function render(next) {
+  state = next;
+  const run = state.run;
+  $("name").textContent = run.name ? `· ${run.name}` : "";
+  const status = state.prompt ? "waiting" : run.status;
+  $("status").textContent = state.prompt ? "waiting for the operator" : run.status;
+  $("status").className = `pill ${esc(status)}`;
+  $("elapsed").textContent = duration(run.elapsed_s);
+  document.title = `stereo-bench live · ${run.name || ""} · ${status}`;
+  renderPrompt(state.prompt, run);
+  renderPreview(state.preview);
+  renderCoverage(state.coverage);
+  renderCalibration(state.calibration);
+  renderRig(state.rig);
+  renderPlan(state.plan);
+  renderResults(state.results, state.plan);
+  renderLog(state.log);
+  if (run.resume_command && run.status === "interrupted") $("step").textContent = `stopped; resume with: ${run.resume_command}`;
+  $("csv").hidden = !run.session;
+  document.body.dataset.version = String(state.version);
+}
+
+function connect() {
+  const source = new EventSource("/api/events");
+  source.addEventListener("state", (event) => { $("connection").hidden = true; render(JSON.parse(event.data)); });
+  source.onerror = () => { $("connection").hidden = state === null || ["success", "failed", "interrupted", "aborted"].includes(state.run.status); };
+}
+connect();

@@ -1,0 +1,71 @@
+"""`stereo-bench live` (previews with no campaign) on the simulated bench, and the --ui options' errors."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import httpx
+import pytest
+
+from stereo_bench.cli import CliError, main
+from stereo_bench.cli.campaign_run import start_live_page
+from tests.campaigns import small_config
+
+
+def test_live_previews_the_simulated_bench_and_ends_on_ctrl_c():
+    process = subprocess.Popen(
+        [sys.executable, "-m", "stereo_bench", "live", "--ui-host", "127.0.0.2", "--ui-port", "0",
+         "--time-scale", "50", "--distance", "450"],
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        lines, url = [], None
+        deadline = time.monotonic() + 60
+        while url is None and time.monotonic() < deadline:
+            lines.append(process.stderr.readline())
+            match = re.search(r"live page: (http://\S+)", lines[-1])
+            url = match.group(1) if match else None
+        assert url is not None, "".join(lines)
+        # 127.0.0.2 is not this machine's usual local name: the page says it may be seen from elsewhere.
+        assert any(line.startswith("warning: the live page listens on 127.0.0.2") for line in lines)
+        base = url.split("/?")[0]
+        with httpx.stream("GET", f"{base}/api/events", timeout=30) as stream:  # somebody watches: previews
+            state = None
+            for line in stream.iter_lines():
+                if line.startswith("data: "):
+                    state = json.loads(line[6:])
+                    if state["preview"] and state["preview"]["corners"]["left"]:
+                        break
+        assert state["run"]["status"] == "live preview"
+        assert state["preview"]["source"] == "live" and state["preview"]["board"] == "target"
+        assert state["preview"]["in_both"] == 54  # the simulated target at 450 mm, whole in both views
+        assert state["rig"]["position"]["baseline_mm"] == pytest.approx(100.0, abs=0.01)  # homed and moved
+        assert httpx.get(f"{base}/preview/right.jpg").headers["content-type"] == "image/jpeg"
+        control = httpx.post(url.replace("/?token=", "/api/control/stop?token="))
+        assert control.status_code == 409 and "no campaign" in control.json()["message"]
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=30) == 0
+    finally:
+        if process.poll() is None:
+            process.kill()
+        process.communicate()
+
+
+def test_a_taken_port_is_one_line_naming_it():
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(CliError, match=f"cannot serve on 127.0.0.1:{port}"):
+            start_live_page(small_config(), session_dir=None, host="127.0.0.1", port=port, write=lambda _: None)
+
+
+def test_live_refuses_a_simulated_rig_with_real_cameras(capsys):
+    assert main(["live", "--cameras", "usb-port:1-2", "usb-port:1-3", "--ui-port", "0"]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "cameras" in error[0] and "rig" in error[0]
