@@ -90,7 +90,7 @@ def test_angle_defaults_to_parallel_and_toe_in_converts():
     (MINIMAL + "[capture]\ncalibration_views = 3\n", "capture.calibration_views: per-config extrinsics need"),
     (MINIMAL + "[capture]\nframes_per_config = 0\n", "capture.frames_per_config: Input should be greater"),
     (MINIMAL + "[extrinsics]\nmode = 'fixed'\n", "extrinsics: mode = \"fixed\" needs calib_dir"),
-    (MINIMAL + "[extrinsics]\nmode = 'fixd'\n", "extrinsics.mode: Input should be 'per-config' or 'fixed'"),
+    (MINIMAL + "[extrinsics]\nmode = 'fixd'\n", "extrinsics.mode: Input should be 'per-config', 'kinematic', 'nominal' or 'fixed'"),
     (MINIMAL + "[target]\ncols = 7\nrows = 7\n", "target: a 7x7 board is square"),
     (MINIMAL + "[target]\nmarker_mm = 20\n", "target: marker_mm is only for kind = \"charuco\""),
     (MINIMAL + "[cameras.optics]\ndist = [0.1, 0.2, 0.3]\n", "cameras.optics.dist: OpenCV takes 4, 5, 8"),
