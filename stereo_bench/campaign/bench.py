@@ -54,6 +54,10 @@ class Bench:
 
     ``rig`` implements ``drivers.rig.rig.Rig``; ``cameras`` a stereo camera (``capture_pair()``,
     ``flush()``); ``presenter`` a :class:`Presenter`; ``operators`` answer the operator steps.
+    ``truth(config_id)``: a simulated bench's ground truth now (JSON-ready; a replay serves the recorded one),
+    recorded beside the measurement and never used by it; None on real hardware.
+    ``recorded_approach(config_id)``: a replay serves the directions the recorded moves came from (the
+    runner infers them from the positions reported since homing, which a replay does not see).
     """
 
     kind: str  # "simulated", "bring-up", "hardware" or "replay"
@@ -64,6 +68,8 @@ class Bench:
     clock: Clock
     homes: bool = True  # run the homing cycle before the first move
     _stack: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
+    truth: Callable[[str], dict | None] | None = None
+    recorded_approach: Callable[[str], dict] | None = None
 
     def close(self) -> None:
         self._stack.close()
@@ -133,7 +139,7 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
         raise
     return Bench(kind="bring-up" if bring_up else "simulated", rig=rig, cameras=cameras, presenter=presenter,
                  operators=list(operators), clock=Clock(1.0 if bring_up else config.rig.time_scale),
-                 homes=config.rig.homing, _stack=stack)
+                 homes=config.rig.homing, _stack=stack, truth=lambda config_id: sim.truth())
 
 
 class SimulatedPresenter:
@@ -278,6 +284,8 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
 
     frames: dict[str, dict] = {}
     readings = []
+    approaches: dict[str, dict] = {}
+    truths: dict[str, dict] = {}
     for event in reader.events():
         config_id = event.get("config_id")
         if config_id not in config_ids:
@@ -285,6 +293,9 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
         data = event["data"]
         if event["kind"] == "move":
             readings.append(data["rig"])
+            approaches[config_id] = dict(data.get("approach") or {})
+        elif event["kind"] == "truth":
+            truths[config_id] = data
         elif event["kind"] == "calibration_view":
             frames[f"{config_id}/calibration_view/{data['index']}"] = event
         elif event["kind"] == "measurement_frame":
@@ -300,7 +311,9 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     rig = stack.enter_context(ReplayRig(readings))
     cameras = stack.enter_context(ReplayStereoCamera(load_pair))
     return Bench(kind="replay", rig=rig, cameras=cameras, presenter=ReplayPresenter(cameras),
-                 operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack)
+                 operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack,
+                 truth=truths.get if truths else None,
+                 recorded_approach=lambda config_id: approaches.get(config_id, {}))
 
 
 __all__ = [
