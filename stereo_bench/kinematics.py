@@ -225,14 +225,15 @@ def nominal_extrinsics(baseline_mm: float, alpha_left_deg: float = 90.0, alpha_r
 
 
 #: The as-built deviations from the ideal geometry that :func:`nominal_covariance` propagates: shared by
-#: both cameras, the slide's zero and scale and the optical centres' offset ahead of the pan axes (the same
+#: both cameras, the slide's zero, scale and direction (two angles) and the optical centres' offset ahead of
+#: the pan axes (the same
 #: lens and head on both sides); per camera, the centre's own offset about that (forward, sideways, height),
 #: the camera's yaw (pan zero and mount), pitch and roll, the pan axis' tilt (two directions), the pan scale
 #: and its per-move landing (backlash and repeatability). Units mm, deg and 1 as named.
-TOLERANCE_NAMES = ("baseline_zero_mm", "baseline_scale", "centre_forward_mm", "centre_forward_each_mm",
-                   "centre_sideways_mm", "centre_height_mm", "yaw_deg", "pitch_deg", "roll_deg", "axis_tilt_deg",
-                   "pan_scale", "pan_repeat_deg")
-_SHARED_TOLERANCES = ("baseline_zero_mm", "baseline_scale", "centre_forward_mm")
+TOLERANCE_NAMES = ("baseline_zero_mm", "baseline_scale", "slide_direction_deg", "centre_forward_mm",
+                   "centre_forward_each_mm", "centre_sideways_mm", "centre_height_mm", "yaw_deg", "pitch_deg",
+                   "roll_deg", "axis_tilt_deg", "pan_scale", "pan_repeat_deg")
+_SHARED_TOLERANCES = ("baseline_zero_mm", "baseline_scale", "slide_yaw_deg", "slide_pitch_deg", "centre_forward_mm")
 _PER_CAMERA_DEVIATIONS = ("centre_forward_each_mm", "centre_sideways_mm", "centre_height_mm", "yaw_deg",
                           "pitch_deg", "roll_deg", "axis_tilt_x_deg", "axis_tilt_z_deg", "pan_scale", "pan_repeat_deg")
 
@@ -247,6 +248,8 @@ def _as_built_camera(side: str, baseline_mm: float, toe_in_deg: float, tilt_deg:
     """
     sign = 1.0 if side == "left" else -1.0
     separation = baseline_mm * (1.0 + d["baseline_scale"]) + d["baseline_zero_mm"]
+    slide = (_rot("y", math.radians(d["slide_yaw_deg"])) @ _rot("z", math.radians(d["slide_pitch_deg"]))
+             @ np.array([1.0, 0.0, 0.0]))
     axis = (_rot("x", math.radians(d["axis_tilt_x_deg"])) @ _rot("z", math.radians(d["axis_tilt_z_deg"]))
             @ np.array([0.0, 1.0, 0.0]))
     pan = sign * math.radians(toe_in_deg * (1.0 + d["pan_scale"]) + d["yaw_deg"] + d["pan_repeat_deg"])
@@ -256,7 +259,7 @@ def _as_built_camera(side: str, baseline_mm: float, toe_in_deg: float, tilt_deg:
     T[:3, :3] = R_pan @ R_mount @ _rot("x", -math.radians(tilt_deg))
     offset = np.array([d["centre_sideways_mm"], -d["centre_height_mm"],
                        d["centre_forward_mm"] + d["centre_forward_each_mm"]])
-    T[:3, 3] = np.array([-sign * separation / 2.0, 0.0, 0.0]) + R_pan @ offset
+    T[:3, 3] = -sign * separation / 2.0 * slide + R_pan @ offset
     return T
 
 
@@ -266,7 +269,8 @@ def nominal_covariance(baseline_mm: float, alpha_left_deg: float = 90.0, alpha_r
     """(6, 6) covariance over (rvec [rad], T [mm]) of :func:`nominal_extrinsics` from the rig's stated tolerances.
 
     ``tolerances``: standard uncertainty of each of :data:`TOLERANCE_NAMES` (per camera where it applies:
-    each camera's deviation is independent of the other's; ``axis_tilt_deg`` in each of two directions;
+    each camera's deviation is independent of the other's; ``axis_tilt_deg`` and ``slide_direction_deg`` in
+    each of two directions;
     ``centre_forward_mm`` is one offset shared by both cameras, ``centre_forward_each_mm`` each camera's own).
     First-order propagation through the as-built chain (central differences); the nominal geometry is the
     chain at zero deviations, so a deviation the rig really has is an error the covariance must cover:
@@ -278,8 +282,12 @@ def nominal_covariance(baseline_mm: float, alpha_left_deg: float = 90.0, alpha_r
     toe_left, toe_right = 90.0 - alpha_left_deg, 90.0 - alpha_right_deg
     keys = [(name, "both") for name in _SHARED_TOLERANCES] + [
         (name, side) for side in ("left", "right") for name in _PER_CAMERA_DEVIATIONS]
-    sigma = np.array([float(tolerances["axis_tilt_deg" if name.startswith("axis_tilt") else name])
-                      for name, _ in keys])
+    def tolerance(name: str) -> float:
+        shared = {"axis_tilt_x_deg": "axis_tilt_deg", "axis_tilt_z_deg": "axis_tilt_deg",
+                  "slide_yaw_deg": "slide_direction_deg", "slide_pitch_deg": "slide_direction_deg"}
+        return float(tolerances[shared.get(name, name)])
+
+    sigma = np.array([tolerance(name) for name, _ in keys])
 
     def pair(values: np.ndarray) -> np.ndarray:
         by_side = {side: dict.fromkeys(_PER_CAMERA_DEVIATIONS, 0.0) for side in ("left", "right")}
@@ -442,6 +450,9 @@ class KinematicModel(BaseModel):
     # component rests on. Empty: not estimated (fixed intrinsics, or a file written before it was saved).
     intrinsics_covariance_names: list[str] = Field(default_factory=list)
     intrinsics_covariance: list[list[float]] = Field(default_factory=list)
+    # Cov(intrinsics, kinematic parameters): rows intrinsics_covariance_names, columns covariance_names. One fit
+    # estimates both, and their errors are correlated (a focal length against the right camera's position).
+    cross_covariance: list[list[float]] = Field(default_factory=list)
     # (a_sin, a_cos) px: the corner detector's pixel locking fitted to the fit's residuals
     # (stereo_bench.vision.covariance.pixel_locking); None: not significant or not estimated.
     pixel_locking_px: list[float] | None = None
@@ -463,6 +474,9 @@ class KinematicModel(BaseModel):
         if len(self.intrinsics_covariance) != m or any(len(row) != m for row in self.intrinsics_covariance):
             raise ValueError(f"intrinsics_covariance must be {m}x{m} (one row and column per "
                              "intrinsics_covariance_names entry)")
+        if self.cross_covariance and (len(self.cross_covariance) != m or any(len(row) != n
+                                                                            for row in self.cross_covariance)):
+            raise ValueError(f"cross_covariance must be {m}x{n} (intrinsics_covariance_names x covariance_names)")
         if self.pixel_locking_px is not None and len(self.pixel_locking_px) != 2:
             raise ValueError("pixel_locking_px must be [a_sin, a_cos]")
         if self.schema_id != FILE_SCHEMA:
@@ -483,6 +497,13 @@ class KinematicModel(BaseModel):
     def intrinsics(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return (np.asarray(self.K1, float), np.asarray(self.D1, float).reshape(1, -1),
                 np.asarray(self.K2, float), np.asarray(self.D2, float).reshape(1, -1))
+
+    def cross_covariance_matrix(self) -> np.ndarray | None:
+        """(P, K) Cov(intrinsics, kinematic parameters); None when the file has none."""
+        if not self.cross_covariance:
+            return None
+        return np.asarray(self.cross_covariance, dtype=float).reshape(len(self.intrinsics_covariance_names),
+                                                                      len(self.covariance_names))
 
     def intrinsics_covariance_matrix(self) -> np.ndarray | None:
         """(P, P) covariance of ``intrinsics_covariance_names``; None when the file has none."""
@@ -529,6 +550,11 @@ def model_toml(model: KinematicModel) -> str:
         lines.append(f"intrinsics_covariance_names = {_toml_value(data['intrinsics_covariance_names'])}")
         lines.append("intrinsics_covariance = [")
         lines.extend(f"  {_toml_value(row)}," for row in data["intrinsics_covariance"])
+        lines.append("]")
+    if data["cross_covariance"]:
+        lines.append("# Cov(intrinsics, parameters): rows intrinsics_covariance_names, columns covariance_names")
+        lines.append("cross_covariance = [")
+        lines.extend(f"  {_toml_value(row)}," for row in data["cross_covariance"])
         lines.append("]")
     lines += ["", "[span]"]
     lines.extend(f"{axis} = {_toml_value(values)}" for axis, values in data["span"].items())
@@ -613,6 +639,11 @@ class Prediction:
     structure: dict[str, float]
     structure_sigma: dict[str, float]
     extrapolated: list[str] = field(default_factory=list)
+    # The parts of ``covariance``: d(rvec, T)/d(free parameters) (6, K) in the order of the model's
+    # covariance_names, and the rig's own part (landing repeatability; the backlash when the approach is
+    # unknown), so covariance = J C J^T + rig_covariance.
+    parameter_jacobian: np.ndarray | None = None
+    rig_covariance: np.ndarray | None = None
 
 
 def _rvec_t(T_right_left: np.ndarray) -> np.ndarray:
@@ -655,7 +686,7 @@ def predict(model: KinematicModel, axes: Mapping[str, float], approach: Mapping[
         up[i] += h
         down[i] -= h
         J[:, k] = (at(up, _effective(axes, approach, up)) - at(down, _effective(axes, approach, down))) / (2 * h)
-    covariance = J @ model.covariance_matrix() @ J.T if free else np.zeros((6, 6))
+    parameter_part = J @ model.covariance_matrix() @ J.T if free else np.zeros((6, 6))
     # Landing repeatability and unknown backlash, through the axes.
     J_axes = np.zeros((6, 3))
     for k in range(3):
@@ -666,7 +697,8 @@ def predict(model: KinematicModel, axes: Mapping[str, float], approach: Mapping[
     backlash = p[[_INDEX["slide_backlash_mm"], _INDEX["left_backlash_deg"], _INDEX["right_backlash_deg"]]]
     unknown = np.array([approach.get(axis, 0) == 0 for axis in AXES])
     variances = variances + np.where(unknown, (backlash / 2.0) ** 2, 0.0)
-    covariance = covariance + J_axes @ np.diag(variances) @ J_axes.T
+    rig_part = J_axes @ np.diag(variances) @ J_axes.T
+    covariance = parameter_part + rig_part
     # The structure's sigma, by the same propagation.
     J_s = np.zeros((4, 6))
     for k in range(6):
@@ -683,7 +715,7 @@ def predict(model: KinematicModel, axes: Mapping[str, float], approach: Mapping[
                       structure=stereo_structure(R, x[3:]),
                       structure_sigma={k: float(math.sqrt(max(v, 0.0))) for k, v in zip(keys, np.diag(structure_cov),
                                                                                            strict=True)},
-                      extrapolated=extrapolated)
+                      extrapolated=extrapolated, parameter_jacobian=J, rig_covariance=rig_part)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -1159,12 +1191,13 @@ def fit_kinematics(
     p, landing, intr_l, intr_r, poses = bundle.unpack(x)
     cov_k = covariance[: bundle.nk, : bundle.nk]
     intrinsic_names: list[str] = []
-    cov_i = np.zeros((0, 0))
+    cov_i = cross = np.zeros((0, 0))
     if refine_intrinsics:
         o = bundle.nk + bundle.ne
         intrinsic_names = [f"{side}.{name}" for side in ("left", "right")
                            for name in ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")]
         cov_i = covariance[o : o + 16, o : o + 16]
+        cross = covariance[o : o + 16, : bundle.nk]
     locking = bundle.pixel_locking(x)
     sig = np.sqrt(np.clip(np.diag(cov_k), 0.0, None))
     parameters = {}
@@ -1200,6 +1233,7 @@ def fit_kinematics(
             per_configuration_rms_px=per_config_rms, dof=int(dof),
         ),
         intrinsics_covariance_names=intrinsic_names, intrinsics_covariance=cov_i.tolist(),
+        cross_covariance=cross.tolist(),
         pixel_locking_px=None if locking is None else [float(locking[0]), float(locking[1])],
     )
     return KinematicFit(model=model, T_left_board=[_pose_matrix(pose) for pose in poses], view_rms_px=per_view,

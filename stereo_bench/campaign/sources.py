@@ -44,7 +44,7 @@ from stereo_bench.kinematics import (
 )
 from stereo_bench.targets import Target
 from stereo_bench.vision.calibrate import StereoCalibration
-from stereo_bench.vision.covariance import CalibrationCovariance
+from stereo_bench.vision.covariance import EXTRINSIC_NAMES, CalibrationCovariance
 from stereo_bench.vision.detect import Detection
 from stereo_bench.vision.pipeline import PairMeasurement, measure_pair
 from stereo_bench.vision.rectify import rectify
@@ -142,10 +142,28 @@ def model_intrinsics_covariance(model: KinematicModel) -> CalibrationCovariance 
 
 def kinematic_source(model: KinematicModel, axes: Mapping[str, float], approach: Mapping[str, int],
                      board_scale: BoardScale) -> Source:
-    """The kinematic model's R, T at reported ``axes`` approached from ``approach``, with the model's intrinsics."""
+    """The kinematic model's R, T at reported ``axes`` approached from ``approach``, with the model's intrinsics.
+
+    The design's one fit estimated the intrinsics and the kinematic parameters together, and their errors
+    are correlated (a focal length against the right camera's position): the calibration component covers
+    both, jointly (the intrinsics and the R, T the parameters predict here, with their cross-covariance), as
+    a per-config calibration's covers its intrinsics and R, T. The structure component is what the rig
+    adds at this move: its landing repeatability, and the backlash when the approach is unknown. A model
+    file without the cross-covariance (older) keeps them apart: the parameters' part in the structure
+    component, the intrinsics alone in the calibration component (their correlation then unaccounted).
+    """
     prediction = predict(model, axes, approach)
     K1, D1, K2, D2 = model.intrinsics()
     covariance = model_intrinsics_covariance(model)
+    cross = model.cross_covariance_matrix()
+    joint = covariance is not None and cross is not None and prediction.parameter_jacobian is not None
+    if joint:
+        J = prediction.parameter_jacobian
+        C_x = J @ model.covariance_matrix() @ J.T
+        C_ix = cross @ J.T
+        covariance = CalibrationCovariance(covariance.names + EXTRINSIC_NAMES,
+                                           np.block([[covariance.matrix, C_ix], [C_ix.T, C_x]]),
+                                           covariance.sigma_px, covariance.dof, covariance.pixel_locking_px)
     calib = StereoCalibration(
         K1=K1, D1=D1, K2=K2, D2=D2, R=prediction.R, T=prediction.T,
         image_size=(int(model.image_size[0]), int(model.image_size[1])),
@@ -154,9 +172,13 @@ def kinematic_source(model: KinematicModel, axes: Mapping[str, float], approach:
         covariance_note="" if covariance is not None else "the kinematic model file has no intrinsics covariance")
     note = (f"extrapolated beyond the design's span in {', '.join(prediction.extrapolated)}"
             if prediction.extrapolated else None)
+    backlash = "" if all(approach.get(a, 0) for a in AXES) else " and the backlash (approach unknown)"
+    if joint:
+        return Source("kinematic", calib, prediction.rig_covariance, True,
+                      "kinematic rig model: the rig's repeatability since the design" + backlash,
+                      board_scale, structure_sigma=dict(prediction.structure_sigma), note=note)
     return Source("kinematic", calib, prediction.covariance, False,
-                  "kinematic rig model: the parameters' covariance, the rig's repeatability"
-                  + ("" if all(approach.get(a, 0) for a in AXES) else " and the backlash (approach unknown)"),
+                  "kinematic rig model: the parameters' covariance, the rig's repeatability" + backlash,
                   board_scale, structure_sigma=dict(prediction.structure_sigma), note=note)
 
 
