@@ -56,42 +56,56 @@ def parser() -> argparse.ArgumentParser:
 
 
 def _config(args, port: str | None, rig_config: Path | None):
-    from stereo_bench.campaign.config import ConfigError, campaign_from_dict, load_campaign, load_preset
+    """The campaign config of the design: the file's or preset's, extrinsics kinematic, the ranges applied."""
+    import tomllib
+
+    from stereo_bench.campaign.config import ConfigError, campaign_from_dict, preset_text
 
     if args.config is not None and args.preset is not None:
         raise CliError("rig calibrate-kinematics: give --config FILE or --preset NAME, not both")
     try:
-        base = (load_campaign(args.config) if args.config is not None
-                else load_preset(args.preset) if args.preset is not None else None)
+        if args.config is not None:
+            data = tomllib.loads(args.config.read_text(encoding="utf-8"))
+        elif args.preset is not None:
+            data = tomllib.loads(preset_text(args.preset))
+        else:
+            data = {}
     except ConfigError as error:
         raise CliError(str(error)) from None
-    data = base.model_dump(mode="json", exclude_none=True) if base is not None else {}
-    plan = data.get("plan") or {"baseline_mm": [50.0, 250.0], "toe_in_deg": [0.0, 20.0], "distance_mm": [500.0]}
-    if base is None or args.baseline_range:
+    except OSError as error:
+        raise CliError(f"--config {args.config}: cannot read: {error.strerror or error}") from None
+    except tomllib.TOMLDecodeError as error:
+        raise CliError(f"--config {args.config}: invalid TOML: {error}") from None
+    base = bool(data)
+    plan = dict(data.get("plan") or {"distance_mm": [500.0]})
+    if not base or args.baseline_range:
         plan["baseline_mm"] = sorted(set(args.baseline_range or (50.0, 250.0)))
-    if base is None or args.toe_in_range:
+    if not base or args.toe_in_range:
         plan.pop("alpha_deg", None)
         plan["toe_in_deg"] = sorted(set(args.toe_in_range or (0.0, 20.0)))
     if args.distance is not None:
         plan["distance_mm"] = [args.distance]
     data["plan"] = plan
-    data["extrinsics"] = {**data.get("extrinsics", {}), "mode": "kinematic"}
-    data["extrinsics"].pop("kinematic_file", None)
+    extrinsics = {key: value for key, value in (data.get("extrinsics") or {}).items() if key != "kinematic_file"}
+    data["extrinsics"] = {**extrinsics, "mode": "kinematic"}
     data.setdefault("name", "calibrate-kinematics")
+    rig = dict(data.get("rig") or {})
     if port is not None:
-        data["rig"] = {**data.get("rig", {}), "kind": "grbl", "port": port}
-        data["rig"].pop("time_scale", None)
+        rig.update(kind="grbl", port=port)
+        rig.pop("time_scale", None)
     if rig_config is not None:
-        data["rig"] = {**data.get("rig", {}), "config_file": str(rig_config)}
-        data["rig"].pop("controller", None)
-        data["rig"].pop("quantities", None)
+        rig["config_file"] = str(rig_config)
+        rig.pop("controller", None)
+        rig.pop("quantities", None)
     if args.time_scale is not None:
-        data.setdefault("rig", {})["time_scale"] = args.time_scale
+        rig["time_scale"] = args.time_scale
+    data["rig"] = rig
     if args.sim is not None:
-        data["sim"] = {**data.get("sim", {}), "profile": args.sim}
+        data["sim"] = {**(data.get("sim") or {}), "profile": args.sim}
+    source = str(args.config) if args.config is not None else f"preset {args.preset}" if args.preset else \
+        "rig calibrate-kinematics"
     try:
-        return campaign_from_dict(data, source="rig calibrate-kinematics",
-                                  base_dir=args.config.parent if args.config is not None else None)
+        return campaign_from_dict(data, source=source, base_dir=args.config.parent if args.config is not None else None)
     except ConfigError as error:
         raise CliError(str(error)) from None
 
