@@ -222,3 +222,19 @@ def test_the_model_file_keeps_the_intrinsics_covariance_and_reads_files_without_
     source = kinematic_source(older, {"baseline_mm": 150.0, "toe_in_left_deg": 5.0, "toe_in_right_deg": 5.0},
                               {}, EXACT_BOARDS)
     assert source.calib.covariance is None and "no intrinsics covariance" in source.calib.covariance_note
+
+
+def test_board_scale_uncertainty_defaults_by_role_and_states_the_lab_print():
+    """The measured target is a print (+-0.1 %), the calibration board a certified reference: the budget's target
+    component takes each board's own default unless the config states it; the lab bench's print (0.08 % large)
+    lies within two of its stated standard uncertainties."""
+    from stereo_bench.campaign.config import load_preset
+    from stereo_bench.campaign.execute import runner_options
+
+    config = load_preset("paper-exp1")
+    scale = runner_options(config).board_scale
+    assert scale.target_u_rel == pytest.approx(0.001 / math.sqrt(3.0))
+    assert scale.calibration_board_u_rel == pytest.approx(1e-4)
+    assert LAB.target.print_scale_error <= 2.0 * scale.target_u_rel
+    stated = config.model_copy(update={"target": config.target.model_copy(update={"scale_u_rel": 2e-5})})
+    assert runner_options(stated).board_scale.target_u_rel == 2e-5

@@ -81,6 +81,10 @@ from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision.calibrate import MIN_VIEWS
 from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL
 
+#: Relative standard uncertainty of a printed measured target's square when the config does not state it:
+#: an office laser/inkjet print is +-0.1 % in scale from the paper feed (rectangular: 0.1 % / sqrt(3)).
+PRINTED_TARGET_SCALE_U_REL = 0.001 / math.sqrt(3.0)
+
 # cv2.stereoCalibrate through stereo_bench.vision.calibrate.calibrate_stereo needs at least this many views.
 MIN_CALIBRATION_VIEWS = MIN_VIEWS  # what calibrate_stereo accepts
 
@@ -139,11 +143,13 @@ class TargetConfig(BaseModel):
     marker_mm: float | None = Field(None, gt=0, allow_inf_nan=False,
                                     description="charuco only: ArUco marker side, mm (default 0.75 * square_mm)")
     dictionary: str = Field("DICT_5X5_1000", description="charuco only: OpenCV ArUco dictionary name")
-    scale_u_rel: float = Field(
-        DEFAULT_BOARD_SCALE_U_REL, ge=0, le=0.1, allow_inf_nan=False,
-        description="relative standard uncertainty of the board's square (its certificate); the uncertainty "
-                    "budget's target component. Default 1e-4: what inspection reports of precision (glass, "
-                    "ceramic, photolithographic) boards state; an office print is ~6e-4 (+-0.1 % scale)")
+    scale_u_rel: float | None = Field(
+        None, ge=0, le=0.1, allow_inf_nan=False,
+        description="relative standard uncertainty of the board's square (its certificate or the printer's "
+                    "tolerance): the uncertainty budget's target component. Default by role: the measured "
+                    "[target] 5.8e-4 (an office laser/inkjet print is +-0.1 % in scale from the paper feed: "
+                    "0.1 %/sqrt(3)); the [calibration_board] 1e-4 (the bench's length reference, a rigid "
+                    "certified board: what inspection reports of precision boards state)")
 
     @model_validator(mode="after")
     def _check(self) -> TargetConfig:
@@ -168,6 +174,13 @@ class TargetConfig(BaseModel):
             return Checkerboard(self.cols, self.rows, self.square_mm)
         marker = self.marker_mm if self.marker_mm is not None else 0.75 * self.square_mm
         return CharucoTarget(self.cols, self.rows, self.square_mm, marker, dictionary=self.dictionary)
+
+    def scale_u(self, role: str) -> float:
+        """The board's relative scale uncertainty: stated, or the default of its ``role`` ("target": a print,
+        "calibration_board": a certified board)."""
+        if self.scale_u_rel is not None:
+            return self.scale_u_rel
+        return PRINTED_TARGET_SCALE_U_REL if role == "target" else DEFAULT_BOARD_SCALE_U_REL
 
     def describe(self) -> str:
         """E.g. 'checkerboard 9x6 inner corners, 27 mm squares'."""
@@ -355,6 +368,9 @@ class RigTolerances(BaseModel):
     baseline_scale: float = _tolerance(
         0.001, "lead screw of accuracy class C10 (0.07 %) plus the rounding of steps/mm: separation error per mm "
                "of commanded B", "1")
+    slide_direction_deg: float = _tolerance(
+        0.3, "rail squared to the camera plate by eye and a try-square on an extrusion frame (+-0.3 deg), each of "
+             "two directions", "deg")
     centre_forward_mm: float = _tolerance(
         23.0, "the ideal geometry turns each camera about its optical centre; an M12 lens's entrance pupil "
               "stands 15-30 mm ahead of the pan axis (the same lens and head on both sides: one offset shared "

@@ -168,8 +168,8 @@ def runner_options(config: CampaignConfig, *, reader: SessionReader | None = Non
     options = RunnerOptions(board_retries=config.capture.board_retries, intrinsics_mode=extrinsics.intrinsics,
                             calibration_board=f"{board.kind} {board.cols}x{board.rows} square {board.square_mm:g} mm",
                             extrinsics_mode=extrinsics.mode, visits=list(visits),
-                            board_scale=BoardScale(target_u_rel=config.target.scale_u_rel,
-                                                   calibration_board_u_rel=board.scale_u_rel),
+                            board_scale=BoardScale(target_u_rel=config.target.scale_u("target"),
+                                                   calibration_board_u_rel=board.scale_u("calibration_board")),
                             tolerances=extrinsics.tolerances.sigmas(),
                             repeatability=(extrinsics.repeatability_mm, extrinsics.repeatability_deg))
     try:
