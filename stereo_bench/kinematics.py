@@ -655,6 +655,24 @@ def _structure_vector(x: np.ndarray) -> np.ndarray:
     return np.array([s["baseline_mm"], s["alpha_left_deg"], s["alpha_right_deg"], s["rotation_deg"]])
 
 
+STRUCTURE_KEYS = ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "rotation_deg")
+
+
+def structure_sigma(R: np.ndarray, T: np.ndarray, covariance: np.ndarray) -> dict[str, float]:
+    """Standard uncertainties of :func:`stereo_bench.geometry.stereo_structure`'s optical baseline, alphas and
+    rotation angle, from the (6, 6) covariance of (rvec [rad], T [mm]) (first order, central differences)."""
+    x = np.concatenate([_rvec(R), np.asarray(T, dtype=float).reshape(3)])
+    J = np.zeros((4, 6))
+    for k in range(6):
+        h = 1e-7 if k < 3 else 1e-5
+        up, down = x.copy(), x.copy()
+        up[k] += h
+        down[k] -= h
+        J[:, k] = (_structure_vector(up) - _structure_vector(down)) / (2 * h)
+    variances = np.diag(J @ np.asarray(covariance, dtype=float) @ J.T)
+    return {key: float(math.sqrt(max(v, 0.0))) for key, v in zip(STRUCTURE_KEYS, variances, strict=True)}
+
+
 def predict(model: KinematicModel, axes: Mapping[str, float], approach: Mapping[str, int] | None = None,
             ) -> Prediction:
     """R, T of the pair at axis positions ``axes`` (``baseline_mm``, ``toe_in_left_deg``, ``toe_in_right_deg``).
@@ -699,22 +717,11 @@ def predict(model: KinematicModel, axes: Mapping[str, float], approach: Mapping[
     variances = variances + np.where(unknown, (backlash / 2.0) ** 2, 0.0)
     rig_part = J_axes @ np.diag(variances) @ J_axes.T
     covariance = parameter_part + rig_part
-    # The structure's sigma, by the same propagation.
-    J_s = np.zeros((4, 6))
-    for k in range(6):
-        h = 1e-7 if k < 3 else 1e-5
-        up, down = x.copy(), x.copy()
-        up[k] += h
-        down[k] -= h
-        J_s[:, k] = (_structure_vector(up) - _structure_vector(down)) / (2 * h)
-    structure_cov = J_s @ covariance @ J_s.T
-    keys = ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "rotation_deg")
     R = cv2.Rodrigues(x[:3])[0]
     extrapolated = [a for a in AXES if not (model.span[a][0] - 1e-6 <= float(axes[a]) <= model.span[a][1] + 1e-6)]
     return Prediction(R=R, T=x[3:].copy(), rvec=x[:3].copy(), covariance=covariance,
                       structure=stereo_structure(R, x[3:]),
-                      structure_sigma={k: float(math.sqrt(max(v, 0.0))) for k, v in zip(keys, np.diag(structure_cov),
-                                                                                           strict=True)},
+                      structure_sigma=structure_sigma(R, x[3:], covariance),
                       extrapolated=extrapolated, parameter_jacobian=J, rig_covariance=rig_part)
 
 

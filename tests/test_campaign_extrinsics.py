@@ -14,47 +14,32 @@ import dataclasses
 import json
 import math
 import shutil
-import tomllib
 
 import numpy as np
 import pytest
 
 from stereo_bench.campaign.config import campaign_from_dict, load_preset
-from stereo_bench.campaign.documents import MoveEvent
 from stereo_bench.campaign.execute import CampaignPlan, RunControl, replay_session, run_campaign
+from stereo_bench.campaign.operator import SimulatedOperator
 from stereo_bench.campaign.plan import PREPARE_ID, plan_summary
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.cli import main
 from stereo_bench.kinematics import load_model, model_from_toml
-from tests.campaigns import results_csv
+from tests.campaigns import SMALL, results_csv, small_config
 
 pytestmark = pytest.mark.slow
 
-LAB_SMALL = """
-name = "lab-small"
-seed = 3
-[rig]
-time_scale = 50
-[cameras.optics]
-width_px = 960
-height_px = 540
-pixel_um = 6.0
-[capture]
-calibration_views = 4
-frames_per_config = 2
-settle_s = 0.3   # the lab heads stop ringing 0.24 s after a move
-[plan]
-baseline_mm = [80, 200]
-distance_mm = [500]
-toe_in_deg = [0, 10]
-"""
+#: The campaign tests' small half-resolution campaign, on the lab bench, over B x toe-in.
+LAB_SMALL = {"name": "lab-small", "seed": 3, "sim": {"profile": "lab"},
+             "calibration_board": {"cols": 11, "rows": 8, "square_mm": 25},
+             "capture": {"calibration_views": 4, "settle_s": 0.3},  # the lab heads stop ringing 0.24 s after a move
+             "plan": {"baseline_mm": [80, 200], "distance_mm": [500], "toe_in_deg": [0, 10], "alpha_deg": None}}
 
 
 def lab_config(**sections):
-    data = tomllib.loads(LAB_SMALL)
-    for name, values in sections.items():
-        data[name] = {**data.get(name, {}), **values} if isinstance(values, dict) else values
-    return campaign_from_dict(data)
+    merged = {name: {**values, **sections.get(name, {})} if isinstance(values, dict) else values
+              for name, values in LAB_SMALL.items()}
+    return small_config(**{**sections, **merged})
 
 
 def _two_configurations(config):
@@ -167,12 +152,15 @@ def test_a_resume_after_the_fit_does_not_visit_the_design_again(tmp_path):
     plan = _two_configurations(config)
     control = RunControl()
 
-    def stop_after_the_fit(document) -> None:  # at the first measured configuration, the fit done or underway
-        if isinstance(document, MoveEvent) and not document.config_id.startswith("design-"):
-            control.request_stop("test: stop after the design")
+    class StopAtTheTarget(SimulatedOperator):
+        """Asked to place the target (the first measured configuration: the design's visits ask nothing): stop."""
 
-    first = run_campaign(config, tmp_path / "s", yes=True, plan=plan, control=control,
-                         subscribers=[stop_after_the_fit])
+        def offer(self, ticket) -> None:
+            if ticket.prompt.kind == "target":
+                control.request_stop("test: stop after the design")
+            super().offer(ticket)
+
+    first = run_campaign(config, tmp_path / "s", plan=plan, control=control, operators=[StopAtTheTarget()])
     assert first.exit_status == "interrupted" and not first.rows
     assert SessionReader(tmp_path / "s").events(kind="kinematic_model", attempt=1)  # what was complete is kept
     second = run_campaign(config, tmp_path / "s", yes=True, resume=True)
@@ -249,13 +237,18 @@ def test_board_presentations_per_mode_and_adding_configurations_adds_none_to_kin
     assert load_preset("paper-exp2-toe-in").sim.profile == "lab"
 
 
+#: The campaign tests' small campaign (ideal bench, B 100/150 at alpha 90, alpha 35 infeasible) in kinematic mode.
+KINEMATIC_TOML = SMALL + '[extrinsics]\nmode = "kinematic"\n'
+
+
 def test_campaign_plan_shows_the_design_and_the_presentations(capsys, tmp_path):
     path = tmp_path / "kin.toml"
-    path.write_text(LAB_SMALL + "[extrinsics]\nmode = \"kinematic\"\n")
+    path.write_text(KINEMATIC_TOML)
     assert main(["campaign", "plan", str(path)]) == 0
     text = capsys.readouterr().out
-    assert "kinematic design: 9 of 9 visits" in text and "design-1_B80_L0_R0" in text
-    assert "calibration board presentations: 36: 36 at visits (adding configurations adds none)" in text
+    assert "kinematic design: 9 of 9 visits to run over B 100-150 mm, toe-in 0-0 deg" in text
+    assert "design-1_B100_L0_R0" in text
+    assert "calibration board presentations: 54: 54 at visits (adding configurations adds none)" in text
     assert main(["campaign", "plan", str(path), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert len(summary["design"]) == 9 and summary["extrinsics_mode"] == "kinematic"
@@ -264,12 +257,14 @@ def test_campaign_plan_shows_the_design_and_the_presentations(capsys, tmp_path):
 
 def test_rig_calibrate_kinematics_runs_only_the_design_and_writes_the_model(tmp_path, capsys):
     config = tmp_path / "bench.toml"
-    config.write_text(LAB_SMALL.replace("calibration_views = 4", "calibration_views = 3"))
-    argv = ["rig", "calibrate-kinematics", "--config", str(config), "--out", str(tmp_path / "s"), "--yes"]
+    config.write_text(SMALL.replace("calibration_views = 6", "calibration_views = 3"))  # per-config there: 3 < 5
+    argv = ["rig", "calibrate-kinematics", "--config", str(config), "--baseline-range", "80", "200",
+            "--toe-in-range", "0", "10", "--out", str(tmp_path / "s"), "--yes"]
     assert main(argv) == 0
     out = capsys.readouterr().out
     model = load_model(tmp_path / "s" / "kinematic_model.toml")
     assert model.fit.n_views == 27 and model.span["baseline_mm"] == [80.0, 200.0]
+    assert model.span["toe_in_left_deg"] == [0.0, 10.0]
     assert "slide_scale" in out and "kinematic_file" in out
     reader = SessionReader(tmp_path / "s")
     assert reader.results() == [] and len(reader.events(kind="calibration_view")) == 27

@@ -171,8 +171,23 @@ def format_id_value(value: float) -> str:
     return text.replace("-", "m").replace("+", "").replace(".", "p")
 
 
+class _Runnable:
+    """What a planned configuration or visit says about whether it runs (``feasible``, ``reason``,
+    ``limit_violation``)."""
+
+    @property
+    def runnable(self) -> bool:
+        return self.feasible and self.limit_violation is None
+
+    @property
+    def skip_reason(self) -> str | None:
+        """Why it is not run (None if it is)."""
+        reasons = [r for r in (self.reason, self.limit_violation) if r]
+        return "; ".join(reasons) if reasons else None
+
+
 @dataclass(frozen=True)
-class Configuration:
+class Configuration(_Runnable):
     """One (B, Z, alpha, tilt) of the campaign and its predicted feasibility.
 
     ``feasible`` is geometric (target and, per-config, calibration board in both views; ``reason`` says
@@ -202,16 +217,6 @@ class Configuration:
         if not self.feasible:
             return "infeasible"
         return "partial" if self.corners_in_both < self.n_corners else "feasible"
-
-    @property
-    def runnable(self) -> bool:
-        return self.feasible and self.limit_violation is None
-
-    @property
-    def skip_reason(self) -> str | None:
-        """Why the configuration is not run (None if it is)."""
-        reasons = [r for r in (self.reason, self.limit_violation) if r]
-        return "; ".join(reasons) if reasons else None
 
     def rig_pose(self) -> RigPose:
         return RigPose.symmetric(self.baseline_mm, self.alpha_deg, self.tilt_deg)
@@ -322,7 +327,7 @@ VISIT_PURPOSES = ("kinematic", "intrinsics")
 
 
 @dataclass(frozen=True)
-class Visit:
+class Visit(_Runnable):
     """A visit before the measured configurations: calibration views at commanded axes, no measurement.
 
     ``purpose``: ``kinematic`` (a visit of the kinematic rig model's design) or ``intrinsics`` (the
@@ -344,15 +349,6 @@ class Visit:
     reason: str | None = None
     limit_violation: str | None = None
     fraction_in_both: ClassVar[float] = 1.0
-
-    @property
-    def runnable(self) -> bool:
-        return self.feasible and self.limit_violation is None
-
-    @property
-    def skip_reason(self) -> str | None:
-        reasons = [r for r in (self.reason, self.limit_violation) if r]
-        return "; ".join(reasons) if reasons else None
 
     def axes(self) -> dict[str, float]:
         return {"baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_left_deg,

@@ -41,6 +41,7 @@ from stereo_bench.kinematics import (
     nominal_covariance,
     nominal_extrinsics,
     predict,
+    structure_sigma,
 )
 from stereo_bench.targets import Target
 from stereo_bench.vision.calibrate import StereoCalibration
@@ -53,7 +54,6 @@ from stereo_bench.vision.uncertainty import BoardScale, UncertaintyBudget, confi
 #: The extrinsics source each ``[extrinsics] mode`` measures with.
 MODE_SOURCE = {"per-config": "calibrated", "kinematic": "kinematic", "nominal": "nominal", "fixed": "fixed"}
 SOURCE_NAMES = ("calibrated", "kinematic", "nominal", "fixed")
-STRUCTURE_KEYS = ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "rotation_deg")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -205,28 +205,7 @@ def nominal_source(intrinsics: StereoCalibration, *, baseline_mm: float, alpha_l
     return Source("nominal", calib, structure_covariance, False,
                   "nominal geometry: the rig's stated tolerances",
                   replace(board_scale, calibration_board_u_rel=0.0),
-                  structure_sigma=_structure_sigma(R, T, structure_covariance))
-
-
-def _structure_sigma(R: np.ndarray, T: np.ndarray, covariance: np.ndarray) -> dict[str, float]:
-    """Standard uncertainties of the optical baseline, alphas and rotation angle, from (rvec, T)'s covariance."""
-    import cv2
-
-    x = np.concatenate([cv2.Rodrigues(np.asarray(R, float))[0].reshape(3), np.asarray(T, float).reshape(3)])
-
-    def structure(v: np.ndarray) -> np.ndarray:
-        s = stereo_structure(cv2.Rodrigues(v[:3])[0], v[3:])
-        return np.array([s[key] for key in STRUCTURE_KEYS])
-
-    J = np.zeros((4, 6))
-    for k in range(6):
-        h = 1e-7 if k < 3 else 1e-5
-        up, down = x.copy(), x.copy()
-        up[k] += h
-        down[k] -= h
-        J[:, k] = (structure(up) - structure(down)) / (2 * h)
-    variances = np.diag(J @ covariance @ J.T)
-    return {key: float(math.sqrt(max(v, 0.0))) for key, v in zip(STRUCTURE_KEYS, variances, strict=True)}
+                  structure_sigma=structure_sigma(R, T, structure_covariance))
 
 
 # --------------------------------------------------------------------------------------------------
