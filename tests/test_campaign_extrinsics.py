@@ -274,4 +274,6 @@ def test_rig_calibrate_kinematics_runs_only_the_design_and_writes_the_model(tmp_
     assert "not overwriting" in capsys.readouterr().err
     assert main(["rig", "status"]) == 2
     assert "--port is required" in capsys.readouterr().err
+    assert main(["rig", "--port", str(tmp_path / "no-such-port"), "home", "calibrate-kinematics"]) == 2
+    assert "runs on its own" in capsys.readouterr().err
     assert math.isfinite(np.sum(model.covariance_matrix()))

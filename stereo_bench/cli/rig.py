@@ -59,7 +59,9 @@ from drivers.sim.grbl_emulator import (
 from stereo_bench.cli import CliError
 
 EXIT_FAULT = 1
-ACTIONS = ("home", "unlock", "move", "status", "resume", "reset", "shell", "calibrate-kinematics")
+ACTIONS = ("home", "unlock", "move", "status", "resume", "reset", "shell")
+#: Not an action on the connection: a run of the kinematic design on a bench of its own (cli/rig_kinematics.py).
+CALIBRATE_KINEMATICS = "calibrate-kinematics"
 #: Actions that connect without the soft reset: looking must not disturb, and a reset would abandon a hold.
 _LOOKING = ("status", "resume", "shell")
 
@@ -177,14 +179,14 @@ def _parse_actions(tokens: list[str], config: RigConfig) -> list[_Action]:
         raise CliError(f"give an action: {', '.join(ACTIONS)} (several run in order on one connection)")
     groups: list[list[str]] = []
     for token in tokens:
-        if token in ACTIONS:
+        if token in ACTIONS or token == CALIBRATE_KINEMATICS:
             groups.append([token])
         elif not groups:
             raise CliError(f"unknown action {token!r}; actions: {', '.join(ACTIONS)}")
         else:
             groups[-1].append(token)
     parsers = _action_parsers()
-    if any(group[0] == "calibrate-kinematics" for group in groups):
+    if any(group[0] == CALIBRATE_KINEMATICS for group in groups):
         raise CliError("calibrate-kinematics runs on its own: give it alone (`rig calibrate-kinematics --out DIR`)")
     actions = [_parse_action(parsers, group[0], group[1:], config) for group in groups]
     if len(actions) > 1 and any(a.name == "shell" for a in actions):
@@ -193,6 +195,8 @@ def _parse_actions(tokens: list[str], config: RigConfig) -> list[_Action]:
 
 
 def _parse_action(parsers: dict[str, _ActionParser], name: str, argv: list[str], config: RigConfig) -> _Action:
+    if name == CALIBRATE_KINEMATICS:
+        raise CliError("calibrate-kinematics runs on its own: `stereo-bench rig calibrate-kinematics --out DIR`")
     if name not in parsers:
         raise CliError(f"unknown action {name!r}; actions: {', '.join(ACTIONS)}")
     options = parsers[name].parse_args(argv)
@@ -269,7 +273,7 @@ def _warnings_to_stderr() -> Iterator[None]:
 
 
 def _cmd_rig(args) -> int:
-    if args.actions and args.actions[0] == "calibrate-kinematics":
+    if args.actions and args.actions[0] == CALIBRATE_KINEMATICS:
         from stereo_bench.cli import rig_kinematics
 
         if args.spy_log is not None or args.timeout is not None:
