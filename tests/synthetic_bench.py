@@ -128,7 +128,7 @@ def fit_design(rig: SyntheticRig, ranges: tuple[tuple[float, float], tuple[float
 
 def measure(rig: SyntheticRig, model: KinematicModel | None, configuration: tuple[float, float, float], *,
             frames: int, tolerances: dict[str, float], calibration_views: int = 0,
-            intrinsics: StereoCalibration | None = None) -> dict[str, dict]:
+            intrinsics: StereoCalibration | None = None, nominal: bool = True) -> dict[str, dict]:
     """Move to (B, Z, toe-in), measure the target with every source; per source the error against the true
     print, u and the budget (what the campaign's structure document holds). Nominal takes ``intrinsics``, else
     this configuration's calibration's (``calibration_views``), else the model's."""
@@ -147,9 +147,10 @@ def measure(rig: SyntheticRig, model: KinematicModel | None, configuration: tupl
         sources.append(calibrated_source(calib, EXACT_BOARDS))
         intrinsics = calib
     intrinsics = given or intrinsics
-    sources.append(nominal_source(intrinsics, baseline_mm=baseline, alpha_left_deg=90.0 - toe_in,
-                                  alpha_right_deg=90.0 - toe_in, tilt_deg=0.0, tolerances=tolerances,
-                                  board_scale=EXACT_BOARDS))
+    if nominal:
+        sources.append(nominal_source(intrinsics, baseline_mm=baseline, alpha_left_deg=90.0 - toe_in,
+                                      alpha_right_deg=90.0 - toe_in, tilt_deg=0.0, tolerances=tolerances,
+                                      board_scale=EXACT_BOARDS))
     detections, square_true = rig.target_frames(distance, frames)
     R_true, T_true = rig.truth()
     out = {}

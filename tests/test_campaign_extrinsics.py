@@ -241,6 +241,15 @@ def test_board_presentations_per_mode_and_adding_configurations_adds_none_to_kin
 KINEMATIC_TOML = SMALL + '[extrinsics]\nmode = "kinematic"\n'
 
 
+def test_campaign_schema_describes_the_extrinsics_sources(capsys):
+    assert main(["campaign", "schema"]) == 0
+    schema = json.loads(capsys.readouterr().out)
+    extrinsics = schema["$defs"]["ExtrinsicsSection"]["properties"]
+    assert extrinsics["mode"]["enum"] == ["per-config", "kinematic", "nominal", "fixed"]
+    assert {"kinematic_file", "repeatability_mm", "repeatability_deg", "tolerances"} <= set(extrinsics)
+    assert "yaw_deg" in schema["$defs"]["RigTolerances"]["properties"]
+
+
 def test_campaign_plan_shows_the_design_and_the_presentations(capsys, tmp_path):
     path = tmp_path / "kin.toml"
     path.write_text(KINEMATIC_TOML)

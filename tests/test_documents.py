@@ -117,7 +117,8 @@ def test_session_schema_prints_the_json_schema_of_every_document(capsys):
     schema = json.loads(capsys.readouterr().out)
     text = json.dumps(schema)
     for name in ("StartDocument", "ResumeDocument", "MoveEvent", "PromptEvent", "CalibrationEvent",
-                 "ResultDocument", "StopDocument", "ResultRow"):
+                 "ResultDocument", "StopDocument", "ResultRow", "TruthEvent", "ControllerEvent", "StructureEvent",
+                 "KinematicModelEvent", "IntrinsicsEvent"):
         assert name in schema["$defs"], name
     assert f"schema version {SCHEMA_VERSION}" in schema["title"] and "square_mean_mm" in text
     assert main(["session", "schema", "--row"]) == 0

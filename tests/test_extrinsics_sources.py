@@ -130,15 +130,15 @@ def test_approach_directions_follow_every_reported_position_from_home():
 
 @pytest.fixture(scope="module")
 def lab_runs():
-    """Per seed: the kinematic model fitted to the design (3 views per visit), then the 5 configurations
+    """Per seed: the kinematic model fitted to the design (2 views per visit), then the 5 configurations
     measured with the kinematic source (the per-config budget's coverage on synthetic corners is
     tests/test_uncertainty.py's; on rendered frames scripts/coverage_campaign.py's)."""
     runs = []
     for seed in SEEDS:
         rig = SyntheticRig(LAB, seed)
-        model = fit_design(rig, ((60.0, 240.0), (0.0, 13.0)), views=3)
-        runs.append({"model": model, "results": [measure(rig, model, c, frames=2, tolerances=TOLERANCES)
-                                                 for c in CONFIGURATIONS]})
+        model = fit_design(rig, ((60.0, 240.0), (0.0, 13.0)), views=2)
+        runs.append({"model": model, "results": [measure(rig, model, c, frames=2, tolerances=TOLERANCES,
+                                                         nominal=False) for c in CONFIGURATIONS]})
     return runs
 
 
