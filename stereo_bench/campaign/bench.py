@@ -56,6 +56,10 @@ class Bench:
     ``rig`` implements ``drivers.rig.rig.Rig``; ``cameras`` a stereo camera (``capture_pair()``,
     ``flush()``); ``presenter`` a :class:`Presenter`; ``operators`` answer the operator steps;
     ``camera_gate`` lends the cameras to a preview while the runner waits (see camera_gate.py).
+    ``truth(config_id)``: a simulated bench's ground truth now (JSON-ready; a replay serves the recorded one),
+    recorded beside the measurement and never used by it; None on real hardware.
+    ``recorded_approach(config_id)``: a replay serves the directions the recorded moves came from (the
+    runner infers them from the positions reported since homing, which a replay does not see).
     """
 
     kind: str  # "simulated", "bring-up", "hardware" or "replay"
@@ -68,6 +72,8 @@ class Bench:
     camera_gate: CameraGate = field(default_factory=CameraGate)
     preview: Callable[[], tuple[np.ndarray, np.ndarray, float]] | None = None  # see grab_preview()
     _stack: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
+    truth: Callable[[str], dict | None] | None = None
+    recorded_approach: Callable[[str], dict] | None = None
 
     def grab_preview(self) -> tuple[np.ndarray, np.ndarray, float]:
         """(left, right, dt_s) for a live preview; only with the cameras borrowed (``camera_gate.borrowed()``).
@@ -148,7 +154,8 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
         raise
     return Bench(kind="bring-up" if bring_up else "simulated", rig=rig, cameras=cameras, presenter=presenter,
                  operators=list(operators), clock=Clock(1.0 if bring_up else config.rig.time_scale),
-                 homes=config.rig.homing, preview=_simulated_preview(sim, stack), _stack=stack)
+                 homes=config.rig.homing, preview=_simulated_preview(sim, stack), _stack=stack,
+                 truth=lambda config_id: sim.truth())
 
 
 def _simulated_preview(sim, stack: contextlib.ExitStack) -> Callable[[], tuple[np.ndarray, np.ndarray, float]]:
@@ -320,6 +327,8 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
 
     frames: dict[str, dict] = {}
     readings = []
+    approaches: dict[str, dict] = {}
+    truths: dict[str, dict] = {}
     for event in reader.events():
         config_id = event.get("config_id")
         if config_id not in config_ids:
@@ -327,6 +336,9 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
         data = event["data"]
         if event["kind"] == "move":
             readings.append(data["rig"])
+            approaches[config_id] = dict(data.get("approach") or {})
+        elif event["kind"] == "truth":
+            truths[config_id] = data
         elif event["kind"] == "calibration_view":
             frames[f"{config_id}/calibration_view/{data['index']}"] = event
         elif event["kind"] == "measurement_frame":
@@ -342,7 +354,9 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     rig = stack.enter_context(ReplayRig(readings))
     cameras = stack.enter_context(ReplayStereoCamera(load_pair))
     return Bench(kind="replay", rig=rig, cameras=cameras, presenter=ReplayPresenter(cameras),
-                 operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack)
+                 operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack,
+                 truth=truths.get if truths else None,
+                 recorded_approach=lambda config_id: approaches.get(config_id, {}))
 
 
 __all__ = [
