@@ -61,13 +61,17 @@ class HeadlessClient:
         with httpx.Client(base_url=self.base_url, timeout=10) as fetch, \
                 httpx.Client(base_url=self.base_url, timeout=None) as stream_client, \
                 stream_client.stream("GET", "/api/events") as stream:
+            event = "state"
             for line in stream.iter_lines():
                 if self._stop.is_set():
                     return
+                if line.startswith("event: "):
+                    event = line[7:]
                 if not line.startswith("data: "):
                     continue
                 self.events += 1
-                preview = json.loads(line[6:]).get("preview") or {}
+                data = json.loads(line[6:])
+                preview = (data if event == "preview" else data.get("preview")) or {}  # a preview event: its meta
                 if preview.get("version", 0) > shown:
                     shown = preview["version"]
                     for side in ("left", "right"):

@@ -35,15 +35,19 @@ def test_live_previews_the_simulated_bench_and_ends_on_ctrl_c():
         assert any(line.startswith("warning: the live page listens on 127.0.0.2") for line in lines)
         base = url.split("/?")[0]
         with httpx.stream("GET", f"{base}/api/events", timeout=30) as stream:  # somebody watches: previews
-            state = None
+            preview, event = None, "state"
             for line in stream.iter_lines():
-                if line.startswith("data: "):
-                    state = json.loads(line[6:])
-                    if state["preview"] and state["preview"]["corners"]["left"]:
+                if line.startswith("event: "):
+                    event = line[7:]
+                elif line.startswith("data: ") and event == "preview":  # the newest preview's meta
+                    preview = json.loads(line[6:])
+                    if preview["corners"]["left"]:
                         break
+        state = httpx.get(f"{base}/api/state").json()
         assert state["run"]["status"] == "live preview"
-        assert state["preview"]["source"] == "live" and state["preview"]["board"] == "target"
-        assert state["preview"]["in_both"] == 54  # the simulated target at 450 mm, whole in both views
+        assert preview["source"] == "live" and preview["board"] == "target"
+        assert preview["in_both"] == 54  # the simulated target at 450 mm, whole in both views
+        assert state["preview"]["version"] >= preview["version"]  # the state carries the newest preview too
         assert state["rig"]["position"]["baseline_mm"] == pytest.approx(100.0, abs=0.01)  # homed and moved
         assert httpx.get(f"{base}/preview/right.jpg").headers["content-type"] == "image/jpeg"
         control = httpx.post(url.replace("/?token=", "/api/control/stop?token="))

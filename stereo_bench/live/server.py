@@ -6,7 +6,8 @@ Routes (everything the page needs ships in the package: no CDN, works offline):
 ``GET /``                 the page (``static/index.html``)
 ``GET /static/NAME``      its script and style (a fixed list, read from the package at start)
 ``GET /api/state``        the state as JSON (:meth:`LiveState.snapshot`)
-``GET /api/events``       Server-Sent Events: the state, each time it changes (at most 5 a second)
+``GET /api/events``       Server-Sent Events: ``state`` (the state, each time it changes, at most 5 a
+                          second) and ``preview`` (the newest preview's meta, each time there is one)
 ``GET /preview/SIDE.jpg`` the newest preview of ``left`` or ``right``
 ``GET /session/PATH``     a file of the session directory (refused outside it, symlinks included)
 ``POST /api/control/ACT`` continue, capture_now, discard_last_view, pause, resume, stop: needs the token
@@ -119,26 +120,36 @@ class LiveApp:
                                  headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
 
     async def _stream(self, request):
-        """The state as an SSE stream: one event per change, coalesced, at most MAX_UPDATES_PER_S."""
+        """The state as an SSE stream: a ``state`` event per change (coalesced, at most MAX_UPDATES_PER_S) and a
+        ``preview`` event per new preview (its meta only: the live previews come faster than that and are small)."""
         self.page.previews.watchers(+1)
         try:
-            sent = -1
-            last_write = time.monotonic()
+            sent, sent_preview, next_state = -1, None, 0.0
+            last_write = last_check = time.monotonic()
             while not self.closing:
                 changed = self._changed
-                version = self.page.state.version
-                if version != sent:
-                    snapshot = await asyncio.to_thread(self.page.state.snapshot)
-                    sent = version
+                state = self.page.state
+                now = time.monotonic()
+                if state.version != sent and now >= next_state:
+                    snapshot = await asyncio.to_thread(state.snapshot)
+                    sent, sent_preview = snapshot["version"], _version_of(snapshot["preview"])
                     yield f"event: state\ndata: {json.dumps(snapshot, separators=(',', ':'))}\n\n"
-                    last_write = time.monotonic()
-                    await asyncio.sleep(1.0 / MAX_UPDATES_PER_S)
+                    last_write, next_state = now, now + 1.0 / MAX_UPDATES_PER_S
                     continue
-                try:
-                    await asyncio.wait_for(changed.wait(), timeout=0.5)
-                except TimeoutError:
+                preview = state.preview
+                if _version_of(preview) != sent_preview:
+                    sent_preview = _version_of(preview)
+                    yield f"event: preview\ndata: {json.dumps(preview, separators=(',', ':'))}\n\n"
+                    last_write = now
+                    continue
+                if now - last_check > 0.5:  # previews may flow without pause: look for a closed tab anyway
+                    last_check = now
                     if await request.is_disconnected():
                         return
+                timeout = 0.5 if state.version == sent else max(0.0, next_state - now)
+                try:
+                    await asyncio.wait_for(changed.wait(), timeout=timeout)
+                except TimeoutError:
                     if time.monotonic() - last_write > KEEPALIVE_S:
                         yield ": keepalive\n\n"
                         last_write = time.monotonic()
@@ -230,6 +241,10 @@ class LiveServer:
             self._server.should_exit = True
         if self._thread is not None:
             self._thread.join(timeout=10)
+
+
+def _version_of(preview: dict | None) -> int | None:
+    return None if preview is None else preview.get("version")
 
 
 def url_for(host: str, port: int, token: str) -> str:
