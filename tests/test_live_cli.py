@@ -13,8 +13,10 @@ import time
 import httpx
 import pytest
 
-from stereo_bench.cli import CliError, main
+from stereo_bench.cli import main
 from stereo_bench.cli.campaign_run import start_live_page
+from stereo_bench.live.page import LivePage
+from stereo_bench.live.server import LiveServerError
 from tests.campaigns import small_config
 
 
@@ -60,13 +62,15 @@ def test_live_previews_the_simulated_bench_and_ends_on_ctrl_c():
         process.communicate()
 
 
-def test_a_taken_port_is_one_line_naming_it():
+def test_a_taken_port_is_one_line_naming_it_and_leaves_nothing_running():
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        with pytest.raises(CliError, match=f"cannot serve on 127.0.0.1:{port}"):
-            start_live_page(small_config(), session_dir=None, host="127.0.0.1", port=port, write=lambda _: None)
+        page = LivePage.for_campaign(small_config(), session_dir=None, host="127.0.0.1", port=port)
+        with pytest.raises(LiveServerError, match=f"cannot serve on 127.0.0.1:{port}: the port is in use"):
+            start_live_page(page, write=lambda _: pytest.fail("no URL for a page that is not served"))
+        assert not page.previews._threads  # the previews never started
 
 
 def test_live_refuses_a_simulated_rig_with_real_cameras(capsys):
