@@ -134,11 +134,13 @@ def add_ui_options(parser: argparse.ArgumentParser, *, required: bool = False) -
         parser.add_argument("--ui", action="store_true",
                             help="serve the live page (cameras, coverage, rig, plan, results, prompts and controls) "
                                  "while the campaign runs; prints its URL")
+    needs = "" if required else "with --ui: "
     parser.add_argument("--ui-host", default=DEFAULT_UI_HOST if required else None, metavar="HOST",
-                        help=f"address the live page listens on (default {DEFAULT_UI_HOST}: this machine only; "
-                             "0.0.0.0 exposes it on the lab network, with a warning)")
+                        help=f"{needs}address the live page listens on (default {DEFAULT_UI_HOST}: this machine "
+                             "only; 0.0.0.0 exposes it on the lab network, with a warning)")
     parser.add_argument("--ui-port", type=UI_PORT, default=DEFAULT_UI_PORT if required else None, metavar="PORT",
-                        help=f"port of the live page, 0 to 65535 (default {DEFAULT_UI_PORT}; 0 picks a free one)")
+                        help=f"{needs}port of the live page, 0 to 65535 (default {DEFAULT_UI_PORT}; 0 picks a "
+                             "free one)")
 
 
 def _resume_command(args: argparse.Namespace, out: Path) -> str:
