@@ -36,6 +36,9 @@ from stereo_bench.geometry import RigPose, alpha_from_toe_in
 from stereo_bench.targets import Target
 from stereo_bench.vision.detect import Detection
 
+# (width_px or None) -> (left, right, dt_s): a live preview pair (Bench.grab_preview)
+PreviewGrab = Callable[[int | None], tuple[np.ndarray, np.ndarray, float]]
+
 
 class Clock:
     """The bench's waits (settle times): divided by ``time_scale``, and cut short by a stop request."""
@@ -70,19 +73,21 @@ class Bench:
     clock: Clock
     homes: bool = True  # run the homing cycle before the first move
     camera_gate: CameraGate = field(default_factory=CameraGate)
-    preview: Callable[[], tuple[np.ndarray, np.ndarray, float]] | None = None  # see grab_preview()
+    preview: PreviewGrab | None = None  # see grab_preview()
     _stack: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
     truth: Callable[[str], dict | None] | None = None
     recorded_approach: Callable[[str], dict] | None = None
 
-    def grab_preview(self) -> tuple[np.ndarray, np.ndarray, float]:
+    def grab_preview(self, width_px: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """(left, right, dt_s) for a live preview; only with the cameras borrowed (``camera_gate.borrowed()``).
 
-        Real cameras grab a pair (the runner flushes before it captures); the simulated bench renders the
-        scene without counting the frames, so previews never change what a capture renders.
+        Real cameras grab a pair at their capture size (the runner flushes before it captures); the
+        simulated bench renders the scene without counting the frames, so previews never change what a
+        capture renders, and at most ``width_px`` wide when given (the preview's size: a render is
+        the sensor's stand-in, and a full-size one would only be shrunk).
         """
         if self.preview is not None:
-            return self.preview()
+            return self.preview(width_px)
         pair = self.cameras.capture_pair()
         return pair.left.image, pair.right.image, pair.dt_s
 
@@ -158,16 +163,16 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
                  truth=lambda config_id: sim.truth())
 
 
-def _simulated_preview(sim, stack: contextlib.ExitStack) -> Callable[[], tuple[np.ndarray, np.ndarray, float]]:
-    """Both simulated views of the scene now, rendered side by side (a pair in the time of one view)."""
+def _simulated_preview(sim, stack: contextlib.ExitStack) -> PreviewGrab:
+    """Both simulated views of the scene now (at most ``width_px`` wide), rendered side by side."""
     from concurrent.futures import ThreadPoolExecutor
 
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-preview")
     stack.callback(pool.shutdown)
 
-    def preview() -> tuple[np.ndarray, np.ndarray, float]:
-        right = pool.submit(sim.preview, "right")
-        return sim.preview("left"), right.result(), 0.0  # one trigger: no skew
+    def preview(width_px: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+        right = pool.submit(sim.preview, "right", width_px)
+        return sim.preview("left", width_px), right.result(), 0.0  # one trigger: no skew
 
     return preview
 
