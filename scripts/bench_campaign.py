@@ -319,13 +319,17 @@ class HeadlessClient:
         with httpx.Client(base_url=self.base_url, timeout=10) as fetch, \
                 httpx.Client(base_url=self.base_url, timeout=None) as stream_client, \
                 stream_client.stream("GET", "/api/events") as stream:
+            event = "state"
             for line in stream.iter_lines():
                 if self._stop.is_set():
                     return
+                if line.startswith("event: "):
+                    event = line[7:]
                 if not line.startswith("data: "):
                     continue
                 self.events += 1
-                preview = json.loads(line[6:]).get("preview") or {}
+                data = json.loads(line[6:])
+                preview = (data if event == "preview" else data.get("preview")) or {}  # a preview event: its meta
                 if preview.get("version", 0) > shown:
                     shown = preview["version"]
                     for side in ("left", "right"):
@@ -387,10 +391,11 @@ def live_preview_rate(config, seconds: float = 5.0) -> dict:
 def ui_overhead(config, plan, workdir: Path, repeat: int) -> dict:
     walls: dict[str, list[float]] = {"without": [], "with": []}
     cpus: dict[str, list[float]] = {"without": [], "with": []}  # this process, all threads: the load-proof part
-    clients = []
+    clients, loads = [], []
     for i in range(repeat):
         for mode in ("without", "with"):
             session = workdir / f"{mode}-{i}"
+            loads.append((mode, os.getloadavg()[0]))  # others share the machine: the load each run started at
             started, cpu_started = time.monotonic(), time.process_time()
             if mode == "with":
                 summary, client, stats = run_with_page(config, session, plan)
@@ -405,7 +410,7 @@ def ui_overhead(config, plan, workdir: Path, repeat: int) -> dict:
     cpu_ratio = statistics.median(cpus["with"]) / statistics.median(cpus["without"])
     return {"wall_s_without_page": walls["without"], "wall_s_with_page": walls["with"], "median_ratio": ratio,
             "cpu_s_without_page": cpus["without"], "cpu_s_with_page": cpus["with"], "cpu_median_ratio": cpu_ratio,
-            "target": 1.05, "client": clients}
+            "target": 1.05, "client": clients, "loadavg_1min_at_start": loads}
 
 
 def main() -> None:

@@ -224,6 +224,91 @@ def nominal_extrinsics(baseline_mm: float, alpha_left_deg: float = 90.0, alpha_r
     return RigPose(baseline_mm, alpha_left_deg, alpha_right_deg, tilt_left_deg, tilt_right_deg).stereo_extrinsics()
 
 
+#: The as-built deviations from the ideal geometry that :func:`nominal_covariance` propagates: shared by
+#: both cameras, the slide's zero, scale and direction (two angles) and the optical centres' offset ahead of
+#: the pan axes (the same
+#: lens and head on both sides); per camera, the centre's own offset about that (forward, sideways, height),
+#: the camera's yaw (pan zero and mount), pitch and roll, the pan axis' tilt (two directions), the pan scale
+#: and its per-move landing (backlash and repeatability). Units mm, deg and 1 as named.
+TOLERANCE_NAMES = ("baseline_zero_mm", "baseline_scale", "slide_direction_deg", "centre_forward_mm",
+                   "centre_forward_each_mm", "centre_sideways_mm", "centre_height_mm", "yaw_deg", "pitch_deg",
+                   "roll_deg", "axis_tilt_deg", "pan_scale", "pan_repeat_deg")
+_SHARED_TOLERANCES = ("baseline_zero_mm", "baseline_scale", "slide_yaw_deg", "slide_pitch_deg", "centre_forward_mm")
+_PER_CAMERA_DEVIATIONS = ("centre_forward_each_mm", "centre_sideways_mm", "centre_height_mm", "yaw_deg",
+                          "pitch_deg", "roll_deg", "axis_tilt_x_deg", "axis_tilt_z_deg", "pan_scale", "pan_repeat_deg")
+
+
+def _as_built_camera(side: str, baseline_mm: float, toe_in_deg: float, tilt_deg: float,
+                     d: Mapping[str, float]) -> np.ndarray:
+    """T_rig_cam (4x4) of one camera with deviations ``d`` (keys of the shared and per-camera deviations).
+
+    Zero deviations give :func:`stereo_bench.geometry.camera_pose_in_rig`: the camera turns about a vertical
+    axis through its optical centre. The pan axis stands on the carriage at x = -+(B (1 + scale) + zero) / 2;
+    the optical centre sits (sideways, -height, forward) from it in the head's frame, which the pan turns.
+    """
+    sign = 1.0 if side == "left" else -1.0
+    separation = baseline_mm * (1.0 + d["baseline_scale"]) + d["baseline_zero_mm"]
+    slide = (_rot("y", math.radians(d["slide_yaw_deg"])) @ _rot("z", math.radians(d["slide_pitch_deg"]))
+             @ np.array([1.0, 0.0, 0.0]))
+    axis = (_rot("x", math.radians(d["axis_tilt_x_deg"])) @ _rot("z", math.radians(d["axis_tilt_z_deg"]))
+            @ np.array([0.0, 1.0, 0.0]))
+    pan = sign * math.radians(toe_in_deg * (1.0 + d["pan_scale"]) + d["yaw_deg"] + d["pan_repeat_deg"])
+    R_pan = _axis_angle(axis, pan)
+    R_mount = _rot("z", math.radians(d["roll_deg"])) @ _rot("x", math.radians(d["pitch_deg"]))
+    T = np.eye(4)
+    T[:3, :3] = R_pan @ R_mount @ _rot("x", -math.radians(tilt_deg))
+    offset = np.array([d["centre_sideways_mm"], -d["centre_height_mm"],
+                       d["centre_forward_mm"] + d["centre_forward_each_mm"]])
+    T[:3, 3] = -sign * separation / 2.0 * slide + R_pan @ offset
+    return T
+
+
+def nominal_covariance(baseline_mm: float, alpha_left_deg: float = 90.0, alpha_right_deg: float = 90.0, *,
+                       tolerances: Mapping[str, float], tilt_left_deg: float = 0.0,
+                       tilt_right_deg: float = 0.0) -> np.ndarray:
+    """(6, 6) covariance over (rvec [rad], T [mm]) of :func:`nominal_extrinsics` from the rig's stated tolerances.
+
+    ``tolerances``: standard uncertainty of each of :data:`TOLERANCE_NAMES` (per camera where it applies:
+    each camera's deviation is independent of the other's; ``axis_tilt_deg`` and ``slide_direction_deg`` in
+    each of two directions;
+    ``centre_forward_mm`` is one offset shared by both cameras, ``centre_forward_each_mm`` each camera's own).
+    First-order propagation through the as-built chain (central differences); the nominal geometry is the
+    chain at zero deviations, so a deviation the rig really has is an error the covariance must cover:
+    the optical centres ahead of the pan axes shorten the optical baseline by ~2 f sin t with toe-in t.
+    """
+    missing = [name for name in TOLERANCE_NAMES if name not in tolerances]
+    if missing:
+        raise ValueError(f"tolerances: missing {', '.join(missing)}")
+    toe_left, toe_right = 90.0 - alpha_left_deg, 90.0 - alpha_right_deg
+    keys = [(name, "both") for name in _SHARED_TOLERANCES] + [
+        (name, side) for side in ("left", "right") for name in _PER_CAMERA_DEVIATIONS]
+    def tolerance(name: str) -> float:
+        shared = {"axis_tilt_x_deg": "axis_tilt_deg", "axis_tilt_z_deg": "axis_tilt_deg",
+                  "slide_yaw_deg": "slide_direction_deg", "slide_pitch_deg": "slide_direction_deg"}
+        return float(tolerances[shared.get(name, name)])
+
+    sigma = np.array([tolerance(name) for name, _ in keys])
+
+    def pair(values: np.ndarray) -> np.ndarray:
+        by_side = {side: dict.fromkeys(_PER_CAMERA_DEVIATIONS, 0.0) for side in ("left", "right")}
+        shared = dict.fromkeys(_SHARED_TOLERANCES, 0.0)
+        for (name, side), value in zip(keys, values, strict=True):
+            (shared if side == "both" else by_side[side])[name] = float(value)
+        T_rig_left = _as_built_camera("left", baseline_mm, toe_left, tilt_left_deg, {**shared, **by_side["left"]})
+        T_rig_right = _as_built_camera("right", baseline_mm, toe_right, tilt_right_deg,
+                                       {**shared, **by_side["right"]})
+        return _rvec_t(np.linalg.inv(T_rig_right) @ T_rig_left)
+
+    J = np.zeros((6, len(keys)))
+    for k in range(len(keys)):
+        if sigma[k] == 0.0:
+            continue
+        step = np.zeros(len(keys))
+        step[k] = sigma[k]  # the chain is smooth over one sigma; central differences are exact to second order
+        J[:, k] = (pair(step) - pair(-step)) / (2.0 * sigma[k])
+    return J @ np.diag(sigma**2) @ J.T
+
+
 # --------------------------------------------------------------------------------------------------
 # The design
 
@@ -338,6 +423,7 @@ class FitSummary(BaseModel):
     intrinsics: str
     design: list[dict[str, float]]
     per_configuration_rms_px: list[float] = Field(default_factory=list)
+    dof: int | None = Field(None, description="degrees of freedom of pixel_sigma_px (coordinates - unknowns)")
 
 
 class KinematicModel(BaseModel):
@@ -360,6 +446,16 @@ class KinematicModel(BaseModel):
     K2: list[list[float]]
     D2: list[float]
     fit: FitSummary | None = None
+    # Of the intrinsics the fit refined (left.fx ... right.p2, px and 1): what the measurement's calibration
+    # component rests on. Empty: not estimated (fixed intrinsics, or a file written before it was saved).
+    intrinsics_covariance_names: list[str] = Field(default_factory=list)
+    intrinsics_covariance: list[list[float]] = Field(default_factory=list)
+    # Cov(intrinsics, kinematic parameters): rows intrinsics_covariance_names, columns covariance_names. One fit
+    # estimates both, and their errors are correlated (a focal length against the right camera's position).
+    cross_covariance: list[list[float]] = Field(default_factory=list)
+    # (a_sin, a_cos) px: the corner detector's pixel locking fitted to the fit's residuals
+    # (stereo_bench.vision.covariance.pixel_locking); None: not significant or not estimated.
+    pixel_locking_px: list[float] | None = None
 
     @model_validator(mode="after")
     def _check(self) -> KinematicModel:
@@ -374,6 +470,15 @@ class KinematicModel(BaseModel):
             raise ValueError("covariance_names: names a parameter that does not exist")
         if len(self.covariance) != n or any(len(row) != n for row in self.covariance):
             raise ValueError(f"covariance must be {n}x{n} (one row and column per covariance_names entry)")
+        m = len(self.intrinsics_covariance_names)
+        if len(self.intrinsics_covariance) != m or any(len(row) != m for row in self.intrinsics_covariance):
+            raise ValueError(f"intrinsics_covariance must be {m}x{m} (one row and column per "
+                             "intrinsics_covariance_names entry)")
+        if self.cross_covariance and (len(self.cross_covariance) != m or any(len(row) != n
+                                                                            for row in self.cross_covariance)):
+            raise ValueError(f"cross_covariance must be {m}x{n} (intrinsics_covariance_names x covariance_names)")
+        if self.pixel_locking_px is not None and len(self.pixel_locking_px) != 2:
+            raise ValueError("pixel_locking_px must be [a_sin, a_cos]")
         if self.schema_id != FILE_SCHEMA:
             raise ValueError(f"schema: expected {FILE_SCHEMA!r}, not {self.schema_id!r}")
         return self
@@ -393,6 +498,20 @@ class KinematicModel(BaseModel):
         return (np.asarray(self.K1, float), np.asarray(self.D1, float).reshape(1, -1),
                 np.asarray(self.K2, float), np.asarray(self.D2, float).reshape(1, -1))
 
+    def cross_covariance_matrix(self) -> np.ndarray | None:
+        """(P, K) Cov(intrinsics, kinematic parameters); None when the file has none."""
+        if not self.cross_covariance:
+            return None
+        return np.asarray(self.cross_covariance, dtype=float).reshape(len(self.intrinsics_covariance_names),
+                                                                      len(self.covariance_names))
+
+    def intrinsics_covariance_matrix(self) -> np.ndarray | None:
+        """(P, P) covariance of ``intrinsics_covariance_names``; None when the file has none."""
+        if not self.intrinsics_covariance_names:
+            return None
+        m = len(self.intrinsics_covariance_names)
+        return np.asarray(self.intrinsics_covariance, dtype=float).reshape(m, m)
+
 
 class KinematicFileError(ValueError):
     """A kinematic model file that cannot be used; one line naming the file and the field."""
@@ -401,6 +520,15 @@ class KinematicFileError(ValueError):
 def save_model(model: KinematicModel, path: str | Path) -> Path:
     """Write ``model`` as a readable TOML file (every parameter with value, sigma, unit; the covariance)."""
     path = Path(path)
+    text = model_toml(model)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)
+    return path
+
+
+def model_toml(model: KinematicModel) -> str:
+    """The readable TOML text :func:`save_model` writes (checked to read back)."""
     data = model.model_dump(mode="json", by_alias=True)
     lines = ["# stereo-bench kinematic rig model: T_right_left at any (B, toe-ins) from the rig's axis positions.",
              "# Parameters in mm, deg and 1; covariance over the identifiable ones, same units and order.", ""]
@@ -414,6 +542,20 @@ def save_model(model: KinematicModel, path: str | Path) -> Path:
         lines.append(f"{key} = {_toml_value(data[key])}")
     for key in ("D1", "D2"):
         lines.append(f"{key} = {_toml_value(data[key])}")
+    if data.get("pixel_locking_px") is not None:
+        lines.append("# the corner detector's pixel locking (a_sin, a_cos) px, from the fit's residuals")
+        lines.append(f"pixel_locking_px = {_toml_value(data['pixel_locking_px'])}")
+    if data["intrinsics_covariance_names"]:
+        lines.append("# covariance of the intrinsics the fit refined (px and 1), marginal over everything else")
+        lines.append(f"intrinsics_covariance_names = {_toml_value(data['intrinsics_covariance_names'])}")
+        lines.append("intrinsics_covariance = [")
+        lines.extend(f"  {_toml_value(row)}," for row in data["intrinsics_covariance"])
+        lines.append("]")
+    if data["cross_covariance"]:
+        lines.append("# Cov(intrinsics, parameters): rows intrinsics_covariance_names, columns covariance_names")
+        lines.append("cross_covariance = [")
+        lines.extend(f"  {_toml_value(row)}," for row in data["cross_covariance"])
+        lines.append("]")
     lines += ["", "[span]"]
     lines.extend(f"{axis} = {_toml_value(values)}" for axis, values in data["span"].items())
     for name in NAMES:
@@ -423,13 +565,10 @@ def save_model(model: KinematicModel, path: str | Path) -> Path:
                      if value is not None)
     if data.get("fit") is not None:
         lines += ["", "[fit]"]
-        lines.extend(f"{key} = {_toml_value(value)}" for key, value in data["fit"].items())
+        lines.extend(f"{key} = {_toml_value(value)}" for key, value in data["fit"].items() if value is not None)
     text = "\n".join(lines) + "\n"
     tomllib.loads(text)  # never write a file that does not read back
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
-    return path
+    return text
 
 
 def _toml_value(value: Any) -> str:
@@ -454,11 +593,21 @@ def load_model(path: str | Path) -> KinematicModel:
     """Read and validate a kinematic model file; :class:`KinematicFileError` names the file and field."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise KinematicFileError(f"{path}: no such kinematic model file") from None
+    except IsADirectoryError:
+        raise KinematicFileError(f"{path}: is a directory, not a kinematic model file") from None
     except OSError as error:
         raise KinematicFileError(f"{path}: cannot read: {error.strerror or error}") from None
+    return model_from_toml(text, str(path))
+
+
+def model_from_toml(text: str, source: str = "kinematic model") -> KinematicModel:
+    """Parse and validate the TOML text of a model; :class:`KinematicFileError` names ``source`` and the field."""
+    path = source
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
         raise KinematicFileError(f"{path}: invalid TOML: {error}") from None
     try:
@@ -490,6 +639,11 @@ class Prediction:
     structure: dict[str, float]
     structure_sigma: dict[str, float]
     extrapolated: list[str] = field(default_factory=list)
+    # The parts of ``covariance``: d(rvec, T)/d(free parameters) (6, K) in the order of the model's
+    # covariance_names, and the rig's own part (landing repeatability; the backlash when the approach is
+    # unknown), so covariance = J C J^T + rig_covariance.
+    parameter_jacobian: np.ndarray | None = None
+    rig_covariance: np.ndarray | None = None
 
 
 def _rvec_t(T_right_left: np.ndarray) -> np.ndarray:
@@ -499,6 +653,24 @@ def _rvec_t(T_right_left: np.ndarray) -> np.ndarray:
 def _structure_vector(x: np.ndarray) -> np.ndarray:
     s = stereo_structure(cv2.Rodrigues(x[:3])[0], x[3:])
     return np.array([s["baseline_mm"], s["alpha_left_deg"], s["alpha_right_deg"], s["rotation_deg"]])
+
+
+STRUCTURE_KEYS = ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "rotation_deg")
+
+
+def structure_sigma(R: np.ndarray, T: np.ndarray, covariance: np.ndarray) -> dict[str, float]:
+    """Standard uncertainties of :func:`stereo_bench.geometry.stereo_structure`'s optical baseline, alphas and
+    rotation angle, from the (6, 6) covariance of (rvec [rad], T [mm]) (first order, central differences)."""
+    x = np.concatenate([_rvec(R), np.asarray(T, dtype=float).reshape(3)])
+    J = np.zeros((4, 6))
+    for k in range(6):
+        h = 1e-7 if k < 3 else 1e-5
+        up, down = x.copy(), x.copy()
+        up[k] += h
+        down[k] -= h
+        J[:, k] = (_structure_vector(up) - _structure_vector(down)) / (2 * h)
+    variances = np.diag(J @ np.asarray(covariance, dtype=float) @ J.T)
+    return {key: float(math.sqrt(max(v, 0.0))) for key, v in zip(STRUCTURE_KEYS, variances, strict=True)}
 
 
 def predict(model: KinematicModel, axes: Mapping[str, float], approach: Mapping[str, int] | None = None,
@@ -532,7 +704,7 @@ def predict(model: KinematicModel, axes: Mapping[str, float], approach: Mapping[
         up[i] += h
         down[i] -= h
         J[:, k] = (at(up, _effective(axes, approach, up)) - at(down, _effective(axes, approach, down))) / (2 * h)
-    covariance = J @ model.covariance_matrix() @ J.T if free else np.zeros((6, 6))
+    parameter_part = J @ model.covariance_matrix() @ J.T if free else np.zeros((6, 6))
     # Landing repeatability and unknown backlash, through the axes.
     J_axes = np.zeros((6, 3))
     for k in range(3):
@@ -543,24 +715,14 @@ def predict(model: KinematicModel, axes: Mapping[str, float], approach: Mapping[
     backlash = p[[_INDEX["slide_backlash_mm"], _INDEX["left_backlash_deg"], _INDEX["right_backlash_deg"]]]
     unknown = np.array([approach.get(axis, 0) == 0 for axis in AXES])
     variances = variances + np.where(unknown, (backlash / 2.0) ** 2, 0.0)
-    covariance = covariance + J_axes @ np.diag(variances) @ J_axes.T
-    # The structure's sigma, by the same propagation.
-    J_s = np.zeros((4, 6))
-    for k in range(6):
-        h = 1e-7 if k < 3 else 1e-5
-        up, down = x.copy(), x.copy()
-        up[k] += h
-        down[k] -= h
-        J_s[:, k] = (_structure_vector(up) - _structure_vector(down)) / (2 * h)
-    structure_cov = J_s @ covariance @ J_s.T
-    keys = ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "rotation_deg")
+    rig_part = J_axes @ np.diag(variances) @ J_axes.T
+    covariance = parameter_part + rig_part
     R = cv2.Rodrigues(x[:3])[0]
     extrapolated = [a for a in AXES if not (model.span[a][0] - 1e-6 <= float(axes[a]) <= model.span[a][1] + 1e-6)]
     return Prediction(R=R, T=x[3:].copy(), rvec=x[:3].copy(), covariance=covariance,
                       structure=stereo_structure(R, x[3:]),
-                      structure_sigma={k: float(math.sqrt(max(v, 0.0))) for k, v in zip(keys, np.diag(structure_cov),
-                                                                                           strict=True)},
-                      extrapolated=extrapolated)
+                      structure_sigma=structure_sigma(R, x[3:], covariance),
+                      extrapolated=extrapolated, parameter_jacobian=J, rig_covariance=rig_part)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -911,6 +1073,14 @@ class _Bundle:
         dv = np.einsum("vkl,vl->vk", V_inv, -lin["gv"] - np.einsum("vgk,g->vk", lin["W"], dg))
         return np.concatenate([dg, dv.ravel()])
 
+    def pixel_locking(self, x: np.ndarray) -> tuple[float, float] | None:
+        """The corner detector's pixel locking fitted to the residuals at ``x`` (as a calibration covariance's)."""
+        from stereo_bench.vision.covariance import pixel_locking
+
+        observed = np.concatenate([self.obs["left"][2].ravel(), self.obs["right"][2].ravel()])[self.order]
+        residual = self.residuals(x)[: self.m_px] * self.sigma_px  # projected - observed, px
+        return pixel_locking(observed, residual)
+
     def global_covariance(self, lin: dict) -> np.ndarray:
         """Covariance of the global unknowns (board poses marginalised): inverse of the Schur complement."""
         V_inv = np.linalg.inv(lin["V"])
@@ -1027,6 +1197,15 @@ def fit_kinematics(
     covariance = bundle.global_covariance(lin)
     p, landing, intr_l, intr_r, poses = bundle.unpack(x)
     cov_k = covariance[: bundle.nk, : bundle.nk]
+    intrinsic_names: list[str] = []
+    cov_i = cross = np.zeros((0, 0))
+    if refine_intrinsics:
+        o = bundle.nk + bundle.ne
+        intrinsic_names = [f"{side}.{name}" for side in ("left", "right")
+                           for name in ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")]
+        cov_i = covariance[o : o + 16, o : o + 16]
+        cross = covariance[o : o + 16, : bundle.nk]
+    locking = bundle.pixel_locking(x)
     sig = np.sqrt(np.clip(np.diag(cov_k), 0.0, None))
     parameters = {}
     for i, spec in enumerate(PARAMETERS):
@@ -1058,8 +1237,11 @@ def fit_kinematics(
             n_configurations=len(configurations), n_views=bundle.V, n_observations=len(residual),
             intrinsics="refined jointly" if refine_intrinsics else "fixed",
             design=[{a: float(c.axes[a]) for a in AXES} for c in configurations],
-            per_configuration_rms_px=per_config_rms,
+            per_configuration_rms_px=per_config_rms, dof=int(dof),
         ),
+        intrinsics_covariance_names=intrinsic_names, intrinsics_covariance=cov_i.tolist(),
+        cross_covariance=cross.tolist(),
+        pixel_locking_px=None if locking is None else [float(locking[0]), float(locking[1])],
     )
     return KinematicFit(model=model, T_left_board=[_pose_matrix(pose) for pose in poses], view_rms_px=per_view,
                         view_configuration=bundle.view_config.copy(), views_dropped=dropped, landing=landing)

@@ -16,7 +16,6 @@ from pathlib import Path
 import pytest
 
 from stereo_bench.campaign.bench import simulated_bench
-from stereo_bench.campaign.documents import MoveEvent
 from stereo_bench.campaign.execute import RunControl, replay_session, run_campaign
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.cli import main
@@ -212,13 +211,21 @@ def test_stop_request_leaves_a_resumable_session_and_resume_runs_the_recorded_pl
     control = RunControl()
     moves = []
 
-    def stop_at_second_move(document):  # a subscriber, as a live page's Stop button would be
-        if isinstance(document, MoveEvent):
-            moves.append(document)
+    def stop_at_second_move(config, **options):  # as a live page's Stop button would, during the second move
+        bench = simulated_bench(config, **options)
+        move_to = bench.rig.move_to
+
+        def counted(**targets):
+            moves.append(targets)
+            result = move_to(**targets)
             if len(moves) == 2:
                 control.request_stop()
+            return result
 
-    summary = run_campaign(config, out, yes=True, subscribers=[stop_at_second_move], control=control,
+        bench.rig.move_to = counted
+        return bench
+
+    summary = run_campaign(config, out, yes=True, bench_factory=stop_at_second_move, control=control,
                            resume_command="stereo-bench campaign run small.toml --out stopped --resume")
     assert summary.exit_status == "interrupted"
     stop = SessionReader(out).stops()[-1]

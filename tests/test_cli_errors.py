@@ -15,6 +15,7 @@ import json
 import os
 import re
 import shutil
+import socket
 from collections.abc import Callable
 from pathlib import Path
 
@@ -67,10 +68,15 @@ def _second_move(doc: dict) -> bool:
 
 
 @pytest.fixture(scope="module")
-def ctx(tmp_path_factory, small_reference) -> dict[str, str]:
-    """Every input file the table needs, made once."""
+def ctx(tmp_path_factory, small_reference, request) -> dict[str, str]:
+    """Every input file the table needs, made once (and a local port another program listens on)."""
     root = tmp_path_factory.mktemp("errors")
     paths: dict[str, str] = {"root": str(root), "session": str(small_reference)}
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen()
+    request.addfinalizer(taken.close)
+    paths["taken_port"] = str(taken.getsockname()[1])
 
     calib = root / "calib"
     assert main(["calibrate", "--board", "9x6", "--square", "30", "--left", SAMPLE_LEFT, "--right", SAMPLE_RIGHT,
@@ -148,9 +154,15 @@ def _rig_argv(*more: str) -> list[str]:
     return ["rig", "--port", "/dev/ttyNOPE9", *more]
 
 
+def _run_ui_argv(c: dict, *more: str) -> list[str]:
+    return ["campaign", "run", "--preset", "paper-exp1", "--out", c["root"] + "/ui", "--yes", "--quiet", *more]
+
+
+TEST_NET = "192.0.2.1"  # RFC 5737's documentation range: the address of no machine's interface
+
 P, S = PAIR
-# (id, argv from the fixture's paths, exit status, text the one line must contain)
-CASES: list[tuple[str, Callable[[dict], list[str]], int, str]] = [
+# (id, argv from the fixture's paths, exit status, text the one line must contain, or a function of the paths)
+CASES: list[tuple[str, Callable[[dict], list[str]], int, str | Callable[[dict], str]]] = [
     # --- numbers where they enter: render ---
     ("render-baseline-nan", lambda c: ["render", "--baseline", "nan", "--distance", "500", "--out", c["root"] + "/r"],
      2, "--baseline: must be a finite number > 0"),
@@ -260,6 +272,27 @@ CASES: list[tuple[str, Callable[[dict], list[str]], int, str]] = [
     ("run-corrupt-calibration", lambda c: ["campaign", "run", c["root"] + "/corrupt_calib.toml", "--out",
                                            c["root"] + "/cc", "--yes", "--quiet"], 2,
      "corrupt_calib/extrinsics.yml: not a readable OpenCV YAML"),
+    # --- the live page: campaign run --ui and stereo-bench live ---
+    ("run-ui-port-out-of-range", lambda c: _run_ui_argv(c, "--ui", "--ui-port", "70000"), 2,
+     "argument --ui-port: must be a whole number >= 0 and <= 65535"),
+    ("run-ui-port-in-use", lambda c: _run_ui_argv(c, "--ui", "--ui-port", c["taken_port"]), 2,
+     lambda c: f"cannot serve on 127.0.0.1:{c['taken_port']}: the port is in use"),
+    ("run-ui-host-not-this-machine", lambda c: _run_ui_argv(c, "--ui", "--ui-host", TEST_NET, "--ui-port", "0"), 2,
+     f"cannot serve on {TEST_NET}:0: no network interface of this machine has that address"),
+    ("run-ui-port-without-ui", lambda c: _run_ui_argv(c, "--ui-port", "8080"), 2, "--ui-port applies to the live page"),
+    ("live-ui-port-out-of-range", lambda c: ["live", "--ui-port", "-1"], 2, "argument --ui-port"),
+    ("live-ui-port-in-use", lambda c: ["live", "--ui-port", c["taken_port"]], 2,
+     lambda c: f"cannot serve on 127.0.0.1:{c['taken_port']}: the port is in use"),
+    ("live-ui-host-not-this-machine", lambda c: ["live", "--ui-host", TEST_NET, "--ui-port", "0"], 2,
+     f"cannot serve on {TEST_NET}:0"),
+    ("live-baseline-nan", lambda c: ["live", "--baseline", "nan", "--ui-port", "0"], 2,
+     "argument --baseline: must be a finite number > 0"),
+    ("live-alpha-180", lambda c: ["live", "--alpha", "180", "--ui-port", "0"], 2, "argument --alpha"),
+    ("live-distance-negative", lambda c: ["live", "--distance", "-5", "--ui-port", "0"], 2, "argument --distance"),
+    ("live-time-scale-0", lambda c: ["live", "--time-scale", "0", "--ui-port", "0"], 2, "argument --time-scale"),
+    ("live-baseline-beyond-the-soft-limits", lambda c: ["live", "--baseline", "5000", "--ui-port", "0"], 2,
+     "baseline_mm = 5000 outside"),
+    ("live-port-missing", lambda c: ["live", "--port", "/dev/ttyNOPE9", "--ui-port", "0"], 2, "/dev/ttyNOPE9"),
     ("session-schema-unknown-option", lambda c: ["session", "schema", "--rows"], 2, "--rows"),
     # --- replay ---
     ("replay-missing-move", lambda c: ["replay", c["missing_move"], "--out", c["root"] + "/rmm"], 2,
@@ -284,7 +317,7 @@ def test_a_bad_input_is_one_line_naming_it(ctx, capfd, argv, status, names):
     out, line = _one_line(capfd)
     assert code == status, line
     assert line.startswith("stereo-bench ") and ": error: " in line
-    assert names in line
+    assert (names(ctx) if callable(names) else names) in line
 
 
 @pytest.fixture
@@ -439,6 +472,7 @@ def _failures():
     from drivers.rig.config import LimitError, RigConfigError
     from drivers.rig.grbl import GrblAlarm, GrblConnectionError, GrblConnectionLost, GrblLocked, GrblTimeout
     from stereo_bench.campaign.session import SessionError
+    from stereo_bench.live.server import LiveServerError
     from stereo_bench.vision.calibio import CalibrationFileError
 
     class Model(BaseModel):
@@ -471,6 +505,7 @@ def _failures():
         (OSError(errno.EROFS, "Read-only file system", "out"), 2, "out: Read-only file system"),
         (UnicodeDecodeError("utf-8", b"ab\xff", 2, 3, "invalid start byte"), 2, "not UTF-8"),
         (refused, 2, "OpenCV refused the input"),
+        (LiveServerError("live page: cannot serve on 127.0.0.1:8765: the port is in use"), 2, "127.0.0.1:8765"),
     ]
 
 

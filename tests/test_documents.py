@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from stereo_bench.campaign.documents import (
+    ADDED_COLUMNS,
     COMPARED_COLUMNS,
     RESULT_COLUMNS,
     SCHEMA_VERSION,
@@ -80,10 +81,14 @@ def test_the_result_row_is_defined_once():
     from stereo_bench.campaign import store
     from stereo_bench.report import build
 
-    nested_fields = {"uncertainty"}  # dict-valued: kept in the JSON extra column, not a column of its own
-    assert store.RESULT_COLUMNS == [f for f in ResultRow.model_fields if f not in nested_fields] == list(RESULT_COLUMNS)
+    nested_fields = ["uncertainty"]  # the budget: kept in SQLite's extra column, not a column
+    assert store.RESULT_COLUMNS == [n for n in ResultRow.model_fields if n not in nested_fields] == list(RESULT_COLUMNS)
     assert set(COMPARED_COLUMNS) == {"status", "square_mean_mm", "square_std_mm", "n_squares", "error_mm",
-                                     "sigma_mm", "rms_px", "epipolar_rms_px"}
+                                     "sigma_mm", "rms_px", "epipolar_rms_px", "extrinsics_mode", "baseline_used_mm",
+                                     "alpha_left_used_deg", "alpha_right_used_deg", "u_combined_mm", "U_expanded_mm"}
+    # Sessions recorded before the extrinsics sources lack these: a replay of one does not compare them.
+    assert ADDED_COLUMNS == {"extrinsics_mode", "baseline_used_mm", "alpha_left_used_deg", "alpha_right_used_deg",
+                             "u_combined_mm", "U_expanded_mm"}
     assert set(build.RESULT_COLUMNS) - {"K"} <= set(RESULT_COLUMNS)
     row = ResultRow(config_id="c0", status="measured", square_mean_mm=27.01, per_square=[27.0, 27.02])
     assert row.stored() == {"config_id": "c0", "status": "measured", "square_mean_mm": 27.01,
@@ -95,12 +100,12 @@ def test_a_new_column_is_one_line_and_a_nested_field_stays_out_of_the_columns(tm
     from stereo_bench.campaign.store import ResultStore
 
     class Extended(ResultRow):
-        u_example_mm: float | None = column("an example uncertainty of square_mean_mm, mm")
+        u_extra_mm: float | None = column("another standard uncertainty of square_mean_mm, mm")
         budget: dict[str, float] | None = nested("uncertainty budget: contribution -> mm")
 
-    assert columns_of(Extended) == (*RESULT_COLUMNS, "u_example_mm")
-    row = Extended(config_id="c0", status="measured", u_example_mm=0.01, budget={"pixel_noise": 0.008})
-    assert row.stored() == {"config_id": "c0", "status": "measured", "u_example_mm": 0.01,
+    assert columns_of(Extended) == (*RESULT_COLUMNS, "u_extra_mm")
+    row = Extended(config_id="c0", status="measured", u_extra_mm=0.01, budget={"pixel_noise": 0.008})
+    assert row.stored() == {"config_id": "c0", "status": "measured", "u_extra_mm": 0.01,
                             "budget": {"pixel_noise": 0.008}}
     with ResultStore(tmp_path / "results.sqlite") as store:  # the nested value lands in the JSON extra column
         store.upsert(row.stored())
@@ -112,7 +117,8 @@ def test_session_schema_prints_the_json_schema_of_every_document(capsys):
     schema = json.loads(capsys.readouterr().out)
     text = json.dumps(schema)
     for name in ("StartDocument", "ResumeDocument", "MoveEvent", "PromptEvent", "CalibrationEvent",
-                 "ResultDocument", "StopDocument", "ResultRow"):
+                 "ResultDocument", "StopDocument", "ResultRow", "TruthEvent", "ControllerEvent", "StructureEvent",
+                 "KinematicModelEvent", "IntrinsicsEvent"):
         assert name in schema["$defs"], name
     assert f"schema version {SCHEMA_VERSION}" in schema["title"] and "square_mean_mm" in text
     assert main(["session", "schema", "--row"]) == 0

@@ -13,8 +13,10 @@ import time
 import httpx
 import pytest
 
-from stereo_bench.cli import CliError, main
+from stereo_bench.cli import main
 from stereo_bench.cli.campaign_run import start_live_page
+from stereo_bench.live.page import LivePage
+from stereo_bench.live.server import LiveServerError
 from tests.campaigns import small_config
 
 
@@ -35,15 +37,19 @@ def test_live_previews_the_simulated_bench_and_ends_on_ctrl_c():
         assert any(line.startswith("warning: the live page listens on 127.0.0.2") for line in lines)
         base = url.split("/?")[0]
         with httpx.stream("GET", f"{base}/api/events", timeout=30) as stream:  # somebody watches: previews
-            state = None
+            preview, event = None, "state"
             for line in stream.iter_lines():
-                if line.startswith("data: "):
-                    state = json.loads(line[6:])
-                    if state["preview"] and state["preview"]["corners"]["left"]:
+                if line.startswith("event: "):
+                    event = line[7:]
+                elif line.startswith("data: ") and event == "preview":  # the newest preview's meta
+                    preview = json.loads(line[6:])
+                    if preview["corners"]["left"]:
                         break
+        state = httpx.get(f"{base}/api/state").json()
         assert state["run"]["status"] == "live preview"
-        assert state["preview"]["source"] == "live" and state["preview"]["board"] == "target"
-        assert state["preview"]["in_both"] == 54  # the simulated target at 450 mm, whole in both views
+        assert preview["source"] == "live" and preview["board"] == "target"
+        assert preview["in_both"] == 54  # the simulated target at 450 mm, whole in both views
+        assert state["preview"]["version"] >= preview["version"]  # the state carries the newest preview too
         assert state["rig"]["position"]["baseline_mm"] == pytest.approx(100.0, abs=0.01)  # homed and moved
         assert httpx.get(f"{base}/preview/right.jpg").headers["content-type"] == "image/jpeg"
         control = httpx.post(url.replace("/?token=", "/api/control/stop?token="))
@@ -56,13 +62,15 @@ def test_live_previews_the_simulated_bench_and_ends_on_ctrl_c():
         process.communicate()
 
 
-def test_a_taken_port_is_one_line_naming_it():
+def test_a_taken_port_is_one_line_naming_it_and_leaves_nothing_running():
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        with pytest.raises(CliError, match=f"cannot serve on 127.0.0.1:{port}"):
-            start_live_page(small_config(), session_dir=None, host="127.0.0.1", port=port, write=lambda _: None)
+        page = LivePage.for_campaign(small_config(), session_dir=None, host="127.0.0.1", port=port)
+        with pytest.raises(LiveServerError, match=f"cannot serve on 127.0.0.1:{port}: the port is in use"):
+            start_live_page(page, write=lambda _: pytest.fail("no URL for a page that is not served"))
+        assert not page.previews._threads  # the previews never started
 
 
 def test_live_refuses_a_simulated_rig_with_real_cameras(capsys):

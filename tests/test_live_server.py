@@ -232,3 +232,37 @@ def test_a_resumed_campaign_shows_the_plan_and_the_results_recorded_before(tmp_p
     assert snapshot["run"]["attempt"] == 2 and snapshot["plan"]["counts"]["remaining"] == 0
     assert before <= {row["config_id"] for row in snapshot["results"]} and len(snapshot["results"]) == 4
     assert any("resumed (attempt 2)" in entry["text"] for entry in snapshot["log"])
+
+
+def test_previews_reach_the_page_as_their_own_events_unthrottled_and_change_no_state():
+    """Live previews come 6 a second: each is a small ``preview`` event, not a whole state (those stay <= 5/s)."""
+    page = LivePage.for_campaign(small_config(), session_dir=None, control=RunControl()).start()
+    states, previews = [], []
+    try:
+        def listen():
+            with httpx.stream("GET", f"http://127.0.0.1:{page.server.port}/api/events", timeout=10) as stream:
+                event = None
+                for line in stream.iter_lines():
+                    if line.startswith("event: "):
+                        event = line[7:]
+                    elif line.startswith("data: "):
+                        (states if event == "state" else previews).append((time.monotonic(), json.loads(line[6:])))
+                        if previews and previews[-1][1]["version"] == 10:
+                            return
+
+        listener = threading.Thread(target=listen)
+        listener.start()
+        deadline = time.monotonic() + 10
+        while not states and time.monotonic() < deadline:
+            time.sleep(0.01)
+        version = page.state.version
+        for n in range(1, 11):  # 25 previews a second
+            page.state.set_preview({"version": n, "source": "live", "corners": {"left": 54, "right": 54}})
+            time.sleep(0.04)
+        listener.join(10)
+    finally:
+        page.stop()
+    assert page.state.version == version and len(states) == 1  # the previews changed nothing else
+    assert previews[-1][1] == {"version": 10, "source": "live", "corners": {"left": 54, "right": 54}}
+    gaps = np.diff([at for at, _ in previews])
+    assert len(previews) >= 2 and gaps.min() < 0.1  # not held to the state's 5 a second

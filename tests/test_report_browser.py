@@ -93,19 +93,19 @@ def test_report_renders_in_headless_chromium(tmp_path):
                      "figures/s1-tiny-exp1_structure.png", "figures/s3-built-nominal_normalised.png",
                      "figures/structural_fig8_A90.png", "figures/structural_fig11.png"):
         assert expected in srcs
-    # the simulated sessions predate the truth event: their truth is read from the frames' metadata
+    # the simulated sessions record the truth beside each measurement (the structure event)
     tiny = summary.sessions[0].configs[0].structure
-    assert tiny.origin["truth"] == "simulated frames' metadata" and tiny.square_true_mm is not None
+    assert tiny.origin["truth"] == "structure event" and tiny.square_true_mm is not None
 
     profile = tmp_path / "chromium-profile"
     checked = image_check(report, profile)
     assert checked["bad"] == []
     assert checked["total"] == len(srcs)  # every figure and image file is on the page, and loaded
     assert all(width > 0 and height > 0 for _, width, height in checked["sizes"])
-    # Tables 1 and 2, per session the comparison, calibration and structure tables, one budget table (the built
-    # session), and the extrinsics side by side in each measured configuration's block
+    # Tables 1 and 2, per session the comparison, calibration and structure tables, a budget table per session
+    # (every session records budgets), and the extrinsics side by side in each measured configuration's block
     page = (report / "index.html").read_text(encoding="utf-8")
-    assert checked["tables"] == page.count("<table") == (1 + 1) + (1 + 1) + 3 * 3 + 1 + 6 + len(GRID + SWEEP)
+    assert checked["tables"] == page.count("<table") == (1 + 1) + (1 + 1) + 3 * 3 + 3 + 6 + len(GRID + SWEEP)
 
     # the check does catch an image that does not load
     broken = image_check(report, profile, extra='<img src="figures/missing.png" alt="missing">')

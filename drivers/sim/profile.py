@@ -42,6 +42,7 @@ resumes draws what one that never stopped would have.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -366,3 +367,39 @@ def lab_table_markdown() -> str:
     lines = ["| parameter | lab | why |", "|---|---|---|"]
     lines += [f"| `{name}` | {_format(value)} | {LAB_JUSTIFICATIONS[name]} |" for name, value, _ in LAB.rows()]
     return "\n".join(lines) + "\n"
+
+
+def drawn_build(base: SimProfile, sigmas: Mapping[str, float], rng: Any) -> SimProfile:
+    """``base`` with its as-built geometry drawn from a rig's stated tolerances: one sample of the class of
+    benches the tolerances describe (``campaign.config.RigTolerances``: standard uncertainties keyed
+    ``baseline_zero_mm``, ``baseline_scale``, ``slide_direction_deg``, ``centre_forward_mm``,
+    ``centre_forward_each_mm``, ``centre_sideways_mm``, ``centre_height_mm``, ``yaw_deg``, ``pitch_deg``,
+    ``roll_deg``, ``axis_tilt_deg``, ``pan_scale``).
+
+    Each deviation is normal with its sigma, independent per camera, except the optical centres' offset
+    ahead of the pan axes: 15-30 mm (uniform, shared by both: the same lens and head), which the ideal
+    geometry ignores, plus each camera's own offset. The pan zero and the camera's mount yaw are one
+    yaw. Backlash, repeatability, lenses and boards stay ``base``'s. ``rng``: a numpy Generator.
+    """
+    s = sigmas
+
+    def head(errors: PanHeadErrors, forward: float) -> PanHeadErrors:
+        return errors.model_copy(update={
+            "axis_tilt_x_deg": rng.normal(0.0, s["axis_tilt_deg"]),
+            "axis_tilt_z_deg": rng.normal(0.0, s["axis_tilt_deg"]),
+            "centre_forward_mm": forward + rng.normal(0.0, s["centre_forward_each_mm"]),
+            "centre_sideways_mm": rng.normal(0.0, s["centre_sideways_mm"]),
+            "centre_height_mm": 40.0 + rng.normal(0.0, s["centre_height_mm"]),
+            "mount_roll_deg": rng.normal(0.0, s["roll_deg"]), "mount_pitch_deg": rng.normal(0.0, s["pitch_deg"]),
+            "mount_yaw_deg": rng.normal(0.0, s["yaw_deg"]), "zero_offset_deg": 0.0,
+            "scale_error": rng.normal(0.0, s["pan_scale"])})
+
+    forward = float(rng.uniform(15.0, 30.0))
+    slide = base.slide.model_copy(update={
+        "direction_yaw_deg": rng.normal(0.0, s["slide_direction_deg"]),
+        "direction_pitch_deg": rng.normal(0.0, s["slide_direction_deg"]),
+        "scale_error": rng.normal(0.0, s["baseline_scale"]),
+        "zero_offset_mm": rng.normal(0.0, s["baseline_zero_mm"])})
+    return base.model_copy(update={"name": f"{base.name} (drawn build)", "slide": slide,
+                                   "left_head": head(base.left_head, forward),
+                                   "right_head": head(base.right_head, forward)})

@@ -13,6 +13,7 @@ import numpy as np
 
 from stereo_bench.targets import Target
 from stereo_bench.vision.calibrate import StereoCalibration
+from stereo_bench.vision.covariance import CalibrationCovariance
 from stereo_bench.vision.detect import AmbiguousViewError, Detection
 from stereo_bench.vision.pipeline import (
     BoardNotFoundError,
@@ -39,6 +40,7 @@ class ConfigurationAnalysis:
     calibration_views_rejected: list[dict] = field(default_factory=list)
     frames: list[PairMeasurement] = field(default_factory=list)
     frames_failed: list[dict] = field(default_factory=list)
+    calibrated: bool = True  # R, T calibrated from this configuration's views (False: kinematic, nominal, fixed)
 
     def row(self) -> dict:
         """The result columns of this configuration (status 'measured')."""
@@ -62,7 +64,7 @@ class ConfigurationAnalysis:
             "calibration_epipolar_rms_px": self.calibration_epipolar_rms_px,
             "depth_mm": float(np.mean([f.square.depth_mm for f in self.frames])),
             "fraction_in_both_measured": float(np.mean([f.fraction_in_both for f in self.frames])),
-            "baseline_estimated_mm": float(self.calib.baseline_mm),
+            "baseline_estimated_mm": float(self.calib.baseline_mm) if self.calibrated else None,
             "calib_views_used": len(self.calibration_views_used),
             "calib_views_rejected": len(self.calibration_views_rejected),
         }
@@ -88,17 +90,19 @@ class ConfigurationAnalysis:
 def calibrate_configuration(
     calibration_pairs: Sequence[tuple[np.ndarray, np.ndarray]], board: Target, *,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: str = "joint",
+    intrinsics_covariance: CalibrationCovariance | None = None,
     detections: Sequence[tuple[Detection | None, Detection | None]] | None = None,
 ) -> ConfigurationAnalysis:
     """Stereo calibration of one (B, alpha) from its calibration views; raises AnalysisError if it can't.
 
+    ``intrinsics_covariance``: of given ``intrinsics`` held fixed (without it the covariance is unknown).
     ``detections``: per view, the (left, right) detections already made while capturing (None: detect here).
     """
     try:
         result = calibrate_from_images([left for left, _ in calibration_pairs],
                                        [right for _, right in calibration_pairs], board, intrinsics=intrinsics,
                                        mode="fixed" if mode == "fixed" else "joint", thorough=False,
-                                       detections=detections)
+                                       intrinsics_covariance=intrinsics_covariance, detections=detections)
     except (ValueError, np.linalg.LinAlgError) as error:
         raise AnalysisError(str(error)) from None
     return ConfigurationAnalysis(

@@ -37,6 +37,9 @@ from stereo_bench.geometry import RigPose, alpha_from_toe_in
 from stereo_bench.targets import Target
 from stereo_bench.vision.detect import Detection
 
+# (width_px or None) -> (left, right, dt_s): a live preview pair (Bench.grab_preview)
+PreviewGrab = Callable[[int | None], tuple[np.ndarray, np.ndarray, float]]
+
 
 class Clock:
     """The bench's waits (settle times): divided by ``time_scale``, and cut short by a stop request."""
@@ -57,6 +60,10 @@ class Bench:
     ``rig`` implements ``drivers.rig.rig.Rig``; ``cameras`` a stereo camera (``capture_pair()``,
     ``flush()``); ``presenter`` a :class:`Presenter`; ``operators`` answer the operator steps;
     ``camera_gate`` lends the cameras to a preview while the runner waits (see camera_gate.py).
+    ``truth(config_id)``: a simulated bench's ground truth now (JSON-ready; a replay serves the recorded one),
+    recorded beside the measurement and never used by it; None on real hardware.
+    ``recorded_approach(config_id)``: a replay serves the directions the recorded moves came from (the
+    runner infers them from the positions reported since homing, which a replay does not see).
     """
 
     kind: str  # "simulated", "bring-up", "hardware" or "replay"
@@ -67,17 +74,21 @@ class Bench:
     clock: Clock
     homes: bool = True  # run the homing cycle before the first move
     camera_gate: CameraGate = field(default_factory=CameraGate)
-    preview: Callable[[], tuple[np.ndarray, np.ndarray, float]] | None = None  # see grab_preview()
+    preview: PreviewGrab | None = None  # see grab_preview()
     _stack: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
+    truth: Callable[[str], dict | None] | None = None
+    recorded_approach: Callable[[str], dict] | None = None
 
-    def grab_preview(self) -> tuple[np.ndarray, np.ndarray, float]:
+    def grab_preview(self, width_px: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """(left, right, dt_s) for a live preview; only with the cameras borrowed (``camera_gate.borrowed()``).
 
-        Real cameras grab a pair (the runner flushes before it captures); the simulated bench renders the
-        scene without counting the frames, so previews never change what a capture renders.
+        Real cameras grab a pair at their capture size (the runner flushes before it captures); the
+        simulated bench renders the scene without counting the frames, so previews never change what a
+        capture renders, and at most ``width_px`` wide when given (the preview's size: a render is
+        the sensor's stand-in, and a full-size one would only be shrunk).
         """
         if self.preview is not None:
-            return self.preview()
+            return self.preview(width_px)
         pair = self.cameras.capture_pair()
         return pair.left.image, pair.right.image, pair.dt_s
 
@@ -158,19 +169,20 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
         raise
     return Bench(kind="bring-up" if bring_up else "simulated", rig=rig, cameras=cameras, presenter=presenter,
                  operators=list(operators), clock=Clock(1.0 if bring_up else config.rig.time_scale),
-                 homes=config.rig.homing, preview=_simulated_preview(sim, stack), _stack=stack)
+                 homes=config.rig.homing, preview=_simulated_preview(sim, stack), _stack=stack,
+                 truth=lambda config_id: sim.truth())
 
 
-def _simulated_preview(sim, stack: contextlib.ExitStack) -> Callable[[], tuple[np.ndarray, np.ndarray, float]]:
-    """Both simulated views of the scene now, rendered side by side (a pair in the time of one view)."""
+def _simulated_preview(sim, stack: contextlib.ExitStack) -> PreviewGrab:
+    """Both simulated views of the scene now (at most ``width_px`` wide), rendered side by side."""
     from concurrent.futures import ThreadPoolExecutor
 
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-preview")
     stack.callback(pool.shutdown)
 
-    def preview() -> tuple[np.ndarray, np.ndarray, float]:
-        right = pool.submit(sim.preview, "right")
-        return sim.preview("left"), right.result(), 0.0  # one trigger: no skew
+    def preview(width_px: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+        right = pool.submit(sim.preview, "right", width_px)
+        return sim.preview("left", width_px), right.result(), 0.0  # one trigger: no skew
 
     return preview
 
@@ -385,6 +397,8 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
 
     frames: dict[str, dict] = {}  # key -> event, in recorded order (the order the replay will ask for them)
     readings = []
+    approaches: dict[str, dict] = {}
+    truths: dict[str, dict] = {}
     for event in reader.events():
         config_id = event.get("config_id")
         if config_id not in config_ids:
@@ -392,6 +406,9 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
         data = event["data"]
         if event["kind"] == "move":
             readings.append(data["rig"])
+            approaches[config_id] = dict(data.get("approach") or {})
+        elif event["kind"] == "truth":
+            truths[config_id] = data
         elif event["kind"] == "calibration_view":
             frames[f"{config_id}/calibration_view/{data['index']}"] = event
         elif event["kind"] == "measurement_frame":
@@ -418,7 +435,9 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     # Read and decode ~8 pairs ahead on two threads: a pair is ~2 MB and ~20 ms of decoding.
     cameras = stack.enter_context(ReplayStereoCamera(load_pair, order=list(frames), ahead=8, workers=2))
     return Bench(kind="replay", rig=rig, cameras=cameras, presenter=ReplayPresenter(cameras, detections),
-                 operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack)
+                 operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack,
+                 truth=truths.get if truths else None,
+                 recorded_approach=lambda config_id: approaches.get(config_id, {}))
 
 
 def _not_kept(description: dict) -> np.ndarray:

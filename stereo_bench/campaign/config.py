@@ -19,7 +19,9 @@ Sections (all optional except ``[plan]``; units in every key's name):
     [calibration_board]   the board shown for stereo calibration (11x8 inner corners, 25 mm)
     [target]              the measured board (9x6 inner corners, 27 mm squares)
     [capture]             settle_s, frames_per_config, calibration_views, board_retries
-    [extrinsics]          mode = "per-config" | "fixed", intrinsics = "joint" | "fixed", calib_dir
+    [extrinsics]          mode = "per-config" | "kinematic" | "nominal" | "fixed", intrinsics = "joint" |
+                          "fixed", calib_dir, kinematic_file, repeatability_mm, repeatability_deg,
+                          [extrinsics.tolerances] (the rig's stated tolerances, for nominal extrinsics)
     [sim]                 profile = "lab" | "ideal" (the simulated bench's imperfections), and
                           [sim.slide] / [sim.left_head] / ... overrides (drivers/sim/profile.py)
     [plan]                baseline_mm, distance_mm, alpha_deg or toe_in_deg, tilt_deg
@@ -29,7 +31,8 @@ simulated ("bring-up": the real controller moves, simulated cameras render from 
 reports); simulated rig + v4l2 cameras is refused.
 
 Every model forbids unknown keys, so a typo is an error naming the key. Relative paths
-(``rig.config_file``, ``extrinsics.calib_dir``) are resolved against the campaign file's directory.
+(``rig.config_file``, ``extrinsics.calib_dir``, ``extrinsics.kinematic_file``) are resolved against the
+campaign file's directory.
 Errors are :class:`ConfigError` with one line: ``FILE: dotted.field: what is wrong``.
 
 Angles: alpha is the angle between the baseline and an optical axis (90 deg = parallel rig); the pan
@@ -76,6 +79,11 @@ from stereo_bench.geometry import (
 )
 from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision.calibrate import MIN_VIEWS
+from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL
+
+#: Relative standard uncertainty of a printed measured target's square when the config does not state it:
+#: an office laser/inkjet print is +-0.1 % in scale from the paper feed (rectangular: 0.1 % / sqrt(3)).
+PRINTED_TARGET_SCALE_U_REL = 0.001 / math.sqrt(3.0)
 
 # cv2.stereoCalibrate through stereo_bench.vision.calibrate.calibrate_stereo needs at least this many views.
 MIN_CALIBRATION_VIEWS = MIN_VIEWS  # what calibrate_stereo accepts
@@ -140,6 +148,13 @@ class TargetConfig(BaseModel):
     marker_mm: float | None = Field(None, gt=0, allow_inf_nan=False,
                                     description="charuco only: ArUco marker side, mm (default 0.75 * square_mm)")
     dictionary: str = Field("DICT_5X5_1000", description="charuco only: OpenCV ArUco dictionary name")
+    scale_u_rel: float | None = Field(
+        None, ge=0, le=0.1, allow_inf_nan=False,
+        description="relative standard uncertainty of the board's square (its certificate or the printer's "
+                    "tolerance): the uncertainty budget's target component. Default by role: the measured "
+                    "[target] 5.8e-4 (an office laser/inkjet print is +-0.1 % in scale from the paper feed: "
+                    "0.1 %/sqrt(3)); the [calibration_board] 1e-4 (the bench's length reference, a rigid "
+                    "certified board: what inspection reports of precision boards state)")
 
     @model_validator(mode="after")
     def _check(self) -> TargetConfig:
@@ -164,6 +179,13 @@ class TargetConfig(BaseModel):
             return Checkerboard(self.cols, self.rows, self.square_mm)
         marker = self.marker_mm if self.marker_mm is not None else 0.75 * self.square_mm
         return CharucoTarget(self.cols, self.rows, self.square_mm, marker, dictionary=self.dictionary)
+
+    def scale_u(self, role: str) -> float:
+        """The board's relative scale uncertainty: stated, or the default of its ``role`` ("target": a print,
+        "calibration_board": a certified board)."""
+        if self.scale_u_rel is not None:
+            return self.scale_u_rel
+        return PRINTED_TARGET_SCALE_U_REL if role == "target" else DEFAULT_BOARD_SCALE_U_REL
 
     def describe(self) -> str:
         """E.g. 'checkerboard 9x6 inner corners, 27 mm squares'."""
@@ -334,6 +356,55 @@ class CaptureSection(BaseModel):
                            "none (no frames: a replay cannot reproduce the configurations)")
 
 
+def _tolerance(default: float, why: str, unit: str) -> Any:
+    return Field(default, ge=0, allow_inf_nan=False, description=f"standard uncertainty, {unit}: {why}")
+
+
+class RigTolerances(BaseModel):
+    """The rig's stated tolerances: how far the rig as built may be from its ideal geometry (standard
+    uncertainties, per camera where it applies). ``nominal`` extrinsics take R, T from the ideal geometry at the
+    commanded B and alphas; these tolerances are their uncertainty (the budget's structure component,
+    :func:`stereo_bench.kinematics.nominal_covariance`). The defaults describe a bench built from hobby-grade
+    catalogue parts and not measured (the class of bench docs/SIMULATED_BENCH.md's ``lab`` profile simulates);
+    a rig built exactly (the ``ideal`` simulated bench) states zeros.
+    """
+
+    model_config = _STRICT
+
+    baseline_zero_mm: float = _tolerance(
+        0.5, "homing switch and head plates placed at assembly to ~0.5 mm; the centres' separation at the "
+             "commanded B", "mm")
+    baseline_scale: float = _tolerance(
+        0.001, "lead screw of accuracy class C10 (0.07 %) plus the rounding of steps/mm: separation error per mm "
+               "of commanded B", "1")
+    slide_direction_deg: float = _tolerance(
+        0.3, "rail squared to the camera plate by eye and a try-square on an extrusion frame (+-0.3 deg), each of "
+             "two directions", "deg")
+    centre_forward_mm: float = _tolerance(
+        23.0, "the ideal geometry turns each camera about its optical centre; an M12 lens's entrance pupil "
+              "stands 15-30 mm ahead of the pan axis (the same lens and head on both sides: one offset shared "
+              "by both), uncorrected: sqrt(22.5^2 + 15^2 / 12)", "mm")
+    centre_forward_each_mm: float = _tolerance(
+        1.0, "each camera's own forward offset about the shared one: the same head and camera mounted again "
+             "land ~1 mm apart", "mm")
+    centre_sideways_mm: float = _tolerance(2.0, "camera centred on the head's screw by eye: a few mm (each)", "mm")
+    centre_height_mm: float = _tolerance(0.5, "head plates' thickness tolerance (each)", "mm")
+    yaw_deg: float = _tolerance(
+        0.3, "pan homing switch placed to 0.1-0.2 deg, camera screwed on with +-0.5 deg of play (M2 screws in "
+             "clearance holes): sqrt(0.15^2 + 0.29^2)", "deg")
+    pitch_deg: float = _tolerance(0.3, "camera mount, as yaw_deg (plate flatness, screw clearance)", "deg")
+    roll_deg: float = _tolerance(0.3, "camera mount, as yaw_deg", "deg")
+    axis_tilt_deg: float = _tolerance(
+        0.3, "pan axis off vertical (bearing seat and plate perpendicularity of a hobby pan-tilt head), each of "
+             "two directions", "deg")
+    pan_scale: float = _tolerance(0.002, "belt reduction: effective pitch radius 0.1-0.3 % off nominal", "1")
+    pan_repeat_deg: float = _tolerance(
+        0.02, "half the backlash of a tensioned belt reduction (0.02-0.05 deg) and its repeatability", "deg")
+
+    def sigmas(self) -> dict[str, float]:
+        return self.model_dump()
+
+
 class ExtrinsicsSection(BaseModel):
     """Where the stereo extrinsics R, T come from.
 
@@ -342,17 +413,39 @@ class ExtrinsicsSection(BaseModel):
     measured abs(T) errors of 0.001 vs 0.002 mm, square errors equal) or kept fixed (``fixed``: from
     ``calib_dir`` if given, else from mono calibrations of the same views). ``fixed``: R, T (and the
     intrinsics) read from ``calib_dir`` (OpenCV stereo_calib layout: intrinsics.yml, extrinsics.yml).
+    ``kinematic``: R, T predicted at each configuration by the kinematic rig model
+    (:mod:`stereo_bench.kinematics`) from the rig's reported axis positions and directions of approach; the
+    model (with both cameras' intrinsics) is fitted once, in one joint adjustment, to calibration views at
+    a design of configurations the plan chooses, or read from ``kinematic_file`` (no design visits).
+    ``nominal``: R, T of the ideal geometry at the commanded B and alphas (a user who trusts the rig's
+    scales); the intrinsics from ``calib_dir`` if given, else from one stereo calibration at the first
+    configuration; the uncertainty of R, T is the rig's stated ``tolerances``. ``kinematic_file`` in the
+    other modes adds the model's prediction as a comparison (the structure document).
     """
 
     model_config = _STRICT
 
-    mode: Literal["per-config", "fixed"] = "per-config"
+    mode: Literal["per-config", "kinematic", "nominal", "fixed"] = "per-config"
     intrinsics: Literal["joint", "fixed"] = "joint"
     calib_dir: Path | None = Field(None, description="calibration directory, relative to the campaign file")
+    kinematic_file: Path | None = Field(
+        None, description="a saved kinematic rig model (TOML, stereo-bench rig calibrate-kinematics), relative to "
+                          "the campaign file: kinematic mode uses it instead of visiting a design")
+    repeatability_mm: float = Field(
+        0.003, ge=0, le=1, allow_inf_nan=False,
+        description="std of the slide's landing error per move, mm (kinematic model: prior of the fit and part of "
+                    "each prediction's uncertainty). Default: a stepper lead-screw slide repeats to +-0.01 mm "
+                    "(~3 sigma)")
+    repeatability_deg: float = Field(
+        0.002, ge=0, le=1, allow_inf_nan=False,
+        description="std of each pan head's landing error per move, deg. Default: a microstepped stepper "
+                    "through a tensioned belt repeats to +-0.005 deg (~2.5 sigma)")
+    tolerances: RigTolerances = Field(default_factory=RigTolerances,
+                                      description="the rig's stated tolerances (nominal extrinsics' uncertainty)")
 
-    @field_validator("calib_dir")
+    @field_validator("calib_dir", "kinematic_file")
     @classmethod
-    def _resolve_calib_dir(cls, value: Path | None, info: ValidationInfo) -> Path | None:
+    def _resolve_paths(cls, value: Path | None, info: ValidationInfo) -> Path | None:
         return _resolve(value, info)
 
     @model_validator(mode="after")
@@ -360,6 +453,16 @@ class ExtrinsicsSection(BaseModel):
         if self.mode == "fixed" and self.calib_dir is None:
             raise ValueError("mode = \"fixed\" needs calib_dir (a directory with intrinsics.yml and extrinsics.yml)")
         return self
+
+    @property
+    def design_visits(self) -> bool:
+        """Kinematic extrinsics without a saved model: the plan starts with the design's calibration visits."""
+        return self.mode == "kinematic" and self.kinematic_file is None
+
+    @property
+    def intrinsics_visit(self) -> bool:
+        """Nominal extrinsics without a calibration directory: one calibration at the first configuration."""
+        return self.mode == "nominal" and self.calib_dir is None
 
 
 # Open intervals each plan value must lie in.
@@ -441,8 +544,10 @@ class CampaignConfig(BaseModel):
         if (self.rig.kind, self.cameras.kind) not in BENCH_KINDS:
             raise ValueError(f"rig.kind = \"{self.rig.kind}\" with cameras.kind = \"{self.cameras.kind}\" is not a "
                              f"bench: {UNSUPPORTED_BENCHES[self.rig.kind, self.cameras.kind]}")
-        if self.extrinsics.mode == "per-config" and self.capture.calibration_views < MIN_CALIBRATION_VIEWS:
-            raise ValueError(f"capture.calibration_views: per-config extrinsics need at least "
+        extrinsics = self.extrinsics
+        if ((extrinsics.mode == "per-config" or extrinsics.intrinsics_visit)
+                and self.capture.calibration_views < MIN_CALIBRATION_VIEWS):
+            raise ValueError(f"capture.calibration_views: {extrinsics.mode} extrinsics need at least "
                              f"{MIN_CALIBRATION_VIEWS} calibration views, not {self.capture.calibration_views}")
         return self
 
@@ -533,6 +638,14 @@ def _check_files(config: CampaignConfig, source: str) -> None:
             config.rig.rig_config()
         except RigConfigError as error:
             raise ConfigError(f"{source}: rig.config_file: {error}") from None
+    kinematic_file = config.extrinsics.kinematic_file
+    if kinematic_file is not None:
+        from stereo_bench.kinematics import KinematicFileError, load_model
+
+        try:
+            load_model(kinematic_file)
+        except KinematicFileError as error:
+            raise ConfigError(f"{source}: extrinsics.kinematic_file: {error}") from None
     calib_dir = config.extrinsics.calib_dir
     if calib_dir is not None:
         if not calib_dir.is_dir():

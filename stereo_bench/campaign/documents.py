@@ -87,9 +87,14 @@ _OPEN = ConfigDict(extra="allow")
 # The result row
 
 
-def column(description: str, *, compared: bool = False, report: bool = True) -> Any:
-    """A scalar result column (CSV, SQLite). ``compared``: a replay must reproduce it to the last digit."""
-    return Field(None, description=description, json_schema_extra={"compared": compared, "report": report})
+def column(description: str, *, compared: bool = False, report: bool = True, added: bool = False) -> Any:
+    """A scalar result column (CSV, SQLite). ``compared``: a replay must reproduce it to the last digit.
+
+    ``added``: a compared column that sessions recorded before it existed lack; a replay of such a
+    session does not compare it (every session recorded since has it).
+    """
+    return Field(None, description=description,
+                 json_schema_extra={"compared": compared, "report": report, "added": added})
 
 
 def nested(description: str) -> Any:
@@ -136,20 +141,25 @@ class ResultRow(BaseModel):
     calibration_epipolar_rms_px: float | None = column("epipolar error of the calibration views, px", report=False)
     fraction_in_both_measured: float | None = column("measured share of the target's corners in both views")
     baseline_estimated_mm: float | None = column("|T| of the stereo calibration, mm", report=False)
-    # Issue 11 (structure) and issue 12 (uncertainty): which extrinsics measured the square, the structure they
-    # describe, the simulator's truth, and the uncertainty budget.
-    extrinsics_mode: str | None = column("extrinsics the measurement used: per-config | kinematic | nominal | fixed")
-    baseline_used_mm: float | None = column("optical baseline |T| of the extrinsics the measurement used, mm")
-    alpha_left_used_deg: float | None = column("left camera's alpha in the extrinsics the measurement used, deg")
-    alpha_right_used_deg: float | None = column("right camera's alpha in the extrinsics the measurement used, deg")
-    baseline_true_mm: float | None = column("simulated benches: the true optical baseline, mm")
-    alpha_left_true_deg: float | None = column("simulated benches: the left camera's true alpha, deg")
-    alpha_right_true_deg: float | None = column("simulated benches: the right camera's true alpha, deg")
-    square_true_mm: float | None = column("simulated benches: the printed square as the simulated board really is, mm")
-    u_combined_mm: float | None = column("combined standard uncertainty u_c of square_mean_mm, mm")
-    U_expanded_mm: float | None = column("expanded uncertainty U = k u_c of square_mean_mm, mm")
+    extrinsics_mode: str | None = column("where the measurement's R, T came from: per-config | kinematic | nominal | "
+                                         "fixed", compared=True, added=True)
+    baseline_used_mm: float | None = column("optical baseline |T| of the extrinsics the measurement used, mm",
+                                            compared=True, added=True)
+    alpha_left_used_deg: float | None = column("left camera's alpha in the extrinsics the measurement used, deg",
+                                               compared=True, added=True)
+    alpha_right_used_deg: float | None = column("right camera's alpha in the extrinsics the measurement used, deg",
+                                                compared=True, added=True)
+    baseline_true_mm: float | None = column("simulated sessions: the true optical baseline at the measurement, mm")
+    alpha_left_true_deg: float | None = column("simulated sessions: the left camera's true alpha, deg")
+    alpha_right_true_deg: float | None = column("simulated sessions: the right camera's true alpha, deg")
+    square_true_mm: float | None = column("simulated sessions: the measured board's printed square as it really "
+                                          "is, mm")
+    u_combined_mm: float | None = column("combined standard uncertainty u_c of square_mean_mm (noise, calibration, "
+                                         "structure, target), mm", compared=True, added=True)
+    U_expanded_mm: float | None = column("expanded uncertainty U = k u_c (k = 2) of square_mean_mm, mm",
+                                         compared=True, added=True)
     uncertainty: dict | None = nested("the uncertainty budget of square_mean_mm: noise, calibration, structure, "
-                                      "target (None: unknown), combined, expanded, k (mm) and what they rest on")
+                                      "target, combined, expanded, k (mm) and what they rest on")
 
     def stored(self) -> dict[str, Any]:
         """The row as recorded (stream, store): strict JSON values, null known columns left out."""
@@ -172,6 +182,8 @@ def columns_of(model: type[BaseModel]) -> tuple[str, ...]:
 RESULT_COLUMNS: tuple[str, ...] = columns_of(ResultRow)
 #: What a replay must reproduce to the last digit.
 COMPARED_COLUMNS: tuple[str, ...] = tuple(name for name in RESULT_COLUMNS if _flag(name, "compared"))
+#: Compared columns added after the first sessions were recorded: compared only when the recording has them.
+ADDED_COLUMNS: frozenset[str] = frozenset(name for name in COMPARED_COLUMNS if _flag(name, "added"))
 #: What a report's ``tables/results.csv`` shows of each row (in this order).
 REPORT_COLUMNS: tuple[str, ...] = tuple(name for name in RESULT_COLUMNS if _flag(name, "report"))
 
@@ -227,6 +239,9 @@ class FrameRecord(BaseModel):
 class RigData(BaseModel):
     model_config = _STRICT
     rig: RigReadingRecord
+    approach: dict[str, int] | None = Field(
+        None, description="move: per axis the direction the rig arrived from (+1 increasing, -1 decreasing, 0 "
+                          "unknown), from the positions it reported since homing; the kinematic model's backlash")
 
 
 class ActionData(BaseModel):
@@ -328,6 +343,80 @@ class TranscriptData(BaseModel):
     name: str
 
 
+class TruthData(BaseModel):
+    """The simulated bench's ground truth at a configuration's measurement (``SimulatedBench.truth()``);
+    never used by the measurement. Keys not listed here (the profile's values, camera poses, lenses) are kept."""
+
+    model_config = _OPEN
+    profile: str
+    R: list[list[float]]
+    T: list[float]
+    structure: dict[str, float] | None = Field(description="optical baseline, alphas and rotation angle of R, T")
+    target: dict[str, Any] | None = Field(None, description="the board in the scene: pose, print scale, bow, "
+                                                            "placement, square_true_mm")
+    reported: dict[str, float | None] = Field(default_factory=dict, description="the axes the rig reported")
+
+
+class ControllerData(BaseModel):
+    """The rig controller as read at connect (``GrblRig.controller_info()``): build, options, settings, warnings."""
+
+    model_config = _STRICT
+    port: str | None = None
+    info: dict[str, Any]
+    warnings: list[str] = Field(default_factory=list)
+
+
+class SourceRecord(BaseModel):
+    """One source of extrinsics at a configuration: its R, T, structure and the square measured with it."""
+
+    model_config = _STRICT
+    R: list[list[float]]
+    T: list[float]
+    structure: dict[str, float] = Field(description="baseline_mm, alpha_left_deg, alpha_right_deg, rotation_deg")
+    structure_sigma: dict[str, float] | None = Field(None, description="their standard uncertainties, when known")
+    square_mean_mm: float | None = Field(None, description="the configuration's frames measured with this source")
+    error_mm: float | None = Field(None, description="square_mean_mm minus the nominal square, mm")
+    error_true_mm: float | None = Field(None, description="square_mean_mm minus the true printed square (simulated)")
+    uncertainty: dict[str, Any] | None = Field(None, description="its budget: noise, calibration, structure, "
+                                                                 "target, combined, expanded, k, ... (mm)")
+    note: str | None = None
+
+
+class StructureData(BaseModel):
+    """Per configuration: the extrinsics used and every other available source side by side, with the truth."""
+
+    model_config = _STRICT
+    mode: str = Field(description="the extrinsics mode the measurement used")
+    used: str = Field(description="which entry of sources the measurement used")
+    axes: dict[str, float | None] = Field(description="the axis positions the rig reported at the configuration")
+    approach: dict[str, int] = Field(default_factory=dict, description="per axis the direction the move arrived "
+                                                                       "from: +1 increasing, -1 decreasing, 0 unknown")
+    sources: dict[str, SourceRecord] = Field(description="calibrated | kinematic | nominal | fixed -> record")
+    truth: dict[str, Any] | None = Field(None, description="simulated sessions: R, T, structure, square_true_mm")
+
+
+class IntrinsicsData(BaseModel):
+    """The intrinsics nominal extrinsics use, read from ``[extrinsics] calib_dir`` (``files``: its intrinsics.yml)."""
+
+    model_config = _STRICT
+    source: Literal["calib_dir"]
+    path: str = Field(description="the directory it was read from (copied into the session)")
+
+
+class KinematicModelData(BaseModel):
+    """The kinematic rig model the campaign predicts R, T with (``files.model``: the readable TOML)."""
+
+    model_config = _STRICT
+    source: Literal["design", "file"]
+    path: str | None = Field(None, description="source 'file': the file it was read from (copied into the session)")
+    n_views: int | None = None
+    rms_px: float | None = None
+    visits_used: list[str] = Field(default_factory=list, description="source 'design': the visits fitted")
+    views_dropped: list[dict[str, Any]] = Field(default_factory=list)
+    fit_s: float | None = None
+    error: str | None = Field(None, description="the fit failed: why (no model; configurations fail with it)")
+
+
 PromptKind = Literal["target", "manual", "calibration_board", "calibration_view", "calibration_review",
                      "measured_target"]
 
@@ -396,6 +485,9 @@ class StartDocument(Document):
     extra: dict[str, Any] = Field(default_factory=dict)
     recovery: dict[str, Any] | None = None
     bench: BenchName | None = Field(None, description="v2: what recorded it: simulated, hardware, bring-up, replay")
+    design: list[dict[str, Any]] | None = Field(
+        None, description="v2: the visits before the configurations (plan.Visit.as_dict()): the kinematic design "
+                          "or the one-off intrinsics calibration; a resume and a replay run these")
 
 
 class ResumeDocument(Document):
@@ -494,6 +586,31 @@ class RunControlEvent(EventDocument):
     data: RunControlData
 
 
+class TruthEvent(EventDocument):
+    kind: Literal["truth"] = "truth"
+    data: TruthData
+
+
+class ControllerEvent(EventDocument):
+    kind: Literal["controller"] = "controller"
+    data: ControllerData
+
+
+class IntrinsicsEvent(EventDocument):
+    kind: Literal["intrinsics"] = "intrinsics"
+    data: IntrinsicsData
+
+
+class StructureEvent(EventDocument):
+    kind: Literal["structure"] = "structure"
+    data: StructureData
+
+
+class KinematicModelEvent(EventDocument):
+    kind: Literal["kinematic_model"] = "kinematic_model"
+    data: KinematicModelData
+
+
 class ResultDocument(Document):
     type: Literal["result"] = "result"
     config_id: str
@@ -514,7 +631,8 @@ EVENT_MODELS: dict[str, type[EventDocument]] = {
     model.model_fields["kind"].default: model
     for model in (HomeEvent, MoveEvent, RigRecoveredEvent, RigUnrecoverableEvent, CalibrationViewEvent,
                   MeasurementFrameEvent, TargetNotFoundEvent, CalibrationEvent, AnalysisEvent, TranscriptEvent,
-                  PromptEvent, CalibrationViewDiscardedEvent, RunControlEvent, CalibrationDetectionsEvent)
+                  PromptEvent, CalibrationViewDiscardedEvent, RunControlEvent, CalibrationDetectionsEvent,
+                  TruthEvent, ControllerEvent, StructureEvent, KinematicModelEvent, IntrinsicsEvent)
 }
 DOCUMENT_MODELS: dict[str, type[Document]] = {
     "start": StartDocument, "resume": ResumeDocument, "event": EventDocument, "result": ResultDocument,
@@ -545,7 +663,11 @@ AnyDocument = Annotated[
     | Annotated[TranscriptEvent, Tag("event:transcript")] | Annotated[PromptEvent, Tag("event:prompt")]
     | Annotated[CalibrationViewDiscardedEvent, Tag("event:calibration_view_discarded")]
     | Annotated[RunControlEvent, Tag("event:run_control")]
-    | Annotated[CalibrationDetectionsEvent, Tag("event:calibration_detections")],
+    | Annotated[CalibrationDetectionsEvent, Tag("event:calibration_detections")]
+    | Annotated[TruthEvent, Tag("event:truth")] | Annotated[ControllerEvent, Tag("event:controller")]
+    | Annotated[StructureEvent, Tag("event:structure")]
+    | Annotated[KinematicModelEvent, Tag("event:kinematic_model")]
+    | Annotated[IntrinsicsEvent, Tag("event:intrinsics")],
     Discriminator(_tag),
 ]
 _ADAPTER: TypeAdapter = TypeAdapter(AnyDocument)
@@ -669,12 +791,13 @@ def event_draft(kind: str, *, config_id: str | None = None, data: Any = None, **
 
 
 __all__ = [
-    "COMPARED_COLUMNS", "DOCUMENT_MODELS", "DOCUMENT_TYPES", "EVENT_MODELS", "EXIT_STATUSES",
+    "ADDED_COLUMNS", "COMPARED_COLUMNS", "DOCUMENT_MODELS", "DOCUMENT_TYPES", "EVENT_MODELS", "EXIT_STATUSES",
     "READABLE_SCHEMA_VERSIONS", "REPORT_COLUMNS", "RESULT_COLUMNS", "SCHEMA_VERSION", "AnalysisEvent",
     "CalibrationDetectionsEvent", "CalibrationEvent", "CalibrationFiles", "CalibrationViewDiscardedEvent",
-    "CalibrationViewEvent", "DetectionRecord", "Document", "DocumentError", "Draft", "EventDocument", "HomeEvent",
+    "CalibrationViewEvent", "ControllerEvent", "DetectionRecord", "Document", "DocumentError", "Draft",
+    "EventDocument", "HomeEvent", "IntrinsicsEvent", "KinematicModelEvent",
     "MeasurementFrameEvent", "MoveEvent", "PromptEvent", "ResultDocument", "ResultRow", "ResumeDocument",
-    "RunControlEvent", "StartDocument", "StopDocument", "TargetNotFoundEvent", "TranscriptEvent", "document_json",
-    "columns_of", "column", "document_json_schema", "event_draft", "json_safe", "nested", "parse_document",
-    "result_row",
+    "RunControlEvent", "StartDocument", "StopDocument", "StructureEvent", "TargetNotFoundEvent", "TranscriptEvent",
+    "TruthEvent", "document_json", "columns_of", "column", "document_json_schema", "event_draft", "json_safe",
+    "nested", "parse_document", "result_row",
 ]

@@ -26,16 +26,19 @@ from stereo_bench import __version__
 from stereo_bench.campaign.bench import Bench, open_bench, replay_bench
 from stereo_bench.campaign.config import CampaignConfig, recorded_campaign
 from stereo_bench.campaign.documents import (
+    ADDED_COLUMNS,
     COMPARED_COLUMNS,
     CalibrationEvent,
     CalibrationFiles,
+    ControllerEvent,
     Draft,
     ResultDocument,
     StartDocument,
     StopDocument,
 )
+from stereo_bench.campaign.extrinsics_run import session_sources
 from stereo_bench.campaign.operator import Operator, OperatorAbsent, SimulatedOperator, TerminalOperator
-from stereo_bench.campaign.plan import Configuration, Step, expand_plan, plan_steps
+from stereo_bench.campaign.plan import PREPARE_ID, Configuration, Step, Visit, expand_plan, plan_steps, plan_visits
 from stereo_bench.campaign.runner import CampaignRunner, RunnerOptions, group_steps
 from stereo_bench.campaign.session import SessionError, SessionReader, SessionWriter, first_difference
 from stereo_bench.campaign.stream import Collector, DocumentBus, FrameSubscriber, MemoryRecorder, Subscriber
@@ -53,15 +56,31 @@ def software_versions() -> dict:
 
 @dataclass(frozen=True)
 class CampaignPlan:
-    """A config's configurations and steps, expanded once per run."""
+    """A config's configurations, the visits its extrinsics source needs first, and the steps, expanded once."""
 
     configurations: list[Configuration]
     steps: list[Step]
+    visits: list[Visit] = field(default_factory=list)
 
     @classmethod
-    def of(cls, config: CampaignConfig, configurations: Sequence[Configuration] | None = None) -> CampaignPlan:
+    def of(cls, config: CampaignConfig, configurations: Sequence[Configuration] | None = None,
+           visits: Sequence[Visit] | None = None) -> CampaignPlan:
         configurations = list(configurations) if configurations is not None else expand_plan(config)
-        return cls(configurations, plan_steps(config, configurations))
+        visits = list(visits) if visits is not None else plan_visits(config, configurations)
+        return cls(configurations, plan_steps(config, configurations, visits), visits)
+
+    @classmethod
+    def design_only(cls, plan: CampaignPlan, config: CampaignConfig | None = None) -> CampaignPlan:
+        """Only the visits and the preparation of ``plan`` (``rig calibrate-kinematics``): nothing is measured."""
+        steps = [step for cid, group in group_steps(plan.steps) if cid not in {c.config_id for c in plan.configurations}
+                 for step in group]
+        return cls([], steps, list(plan.visits))
+
+    @classmethod
+    def recorded(cls, config: CampaignConfig, start: dict) -> CampaignPlan:
+        """The plan a session's start document recorded (its configurations and visits), never today's re-planning."""
+        return cls.of(config, [Configuration.from_dict(entry) for entry in start["plan"]],
+                      [Visit.from_dict(entry) for entry in start.get("design") or []])
 
 
 def plan_drift(config: CampaignConfig, recorded_plan: list[dict]) -> str | None:
@@ -143,27 +162,74 @@ class RunSummary:
         return counts
 
 
-def runner_options(config: CampaignConfig, *, reader: SessionReader | None = None) -> RunnerOptions:
-    """The runner's options from the config; ``reader``: a replay takes a fixed calibration from the recording."""
-    from stereo_bench.vision.calibio import CalibrationFileError, read_calibration, read_intrinsics
+def runner_options(config: CampaignConfig, *, reader: SessionReader | None = None,
+                   visits: Sequence[Visit] = ()) -> RunnerOptions:
+    """The runner's options from the config; ``reader``: a replay takes a fixed calibration, a model file's copy
+    and nominal's ``calib_dir`` intrinsics from the recording, never from outside the session."""
+    from stereo_bench.campaign.extrinsics_run import intrinsics_from_dir, recorded_sources
+    from stereo_bench.kinematics import KinematicFileError, load_model
+    from stereo_bench.vision.calibio import (
+        CalibrationFileError,
+        read_calibration,
+        read_intrinsics,
+        read_intrinsics_covariance,
+    )
+    from stereo_bench.vision.uncertainty import BoardScale
 
     extrinsics = config.extrinsics
     board = config.calibration_board
+    optics = config.cameras.optics
+    image_size = (optics.width_px, optics.height_px)
     options = RunnerOptions(board_retries=config.capture.board_retries, intrinsics_mode=extrinsics.intrinsics,
-                            calibration_board=f"{board.kind} {board.cols}x{board.rows} square {board.square_mm:g} mm")
-    if extrinsics.mode == "fixed":
-        if reader is not None and reader.events(kind="calibration", config_id=None, attempt=None):
-            options.fixed_calibration = reader.calibration(None)  # what the recording used, from inside it
-        else:
-            optics = config.cameras.optics
-            try:
-                options.fixed_calibration = read_calibration(extrinsics.calib_dir,
-                                                             image_size=(optics.width_px, optics.height_px))
-            except CalibrationFileError as error:
-                raise SessionError(f"extrinsics.calib_dir: {error}") from None
-    elif extrinsics.calib_dir is not None:
-        options.intrinsics = read_intrinsics(extrinsics.calib_dir)[:4]
+                            calibration_board=f"{board.kind} {board.cols}x{board.rows} square {board.square_mm:g} mm",
+                            extrinsics_mode=extrinsics.mode, visits=list(visits),
+                            board_scale=BoardScale(target_u_rel=config.target.scale_u("target"),
+                                                   calibration_board_u_rel=board.scale_u("calibration_board")),
+                            tolerances=extrinsics.tolerances.sigmas(),
+                            repeatability=(extrinsics.repeatability_mm, extrinsics.repeatability_deg))
+    try:
+        if extrinsics.mode == "fixed":
+            if reader is not None and reader.events(kind="calibration", config_id=None, attempt=None):
+                options.fixed_calibration = reader.calibration(None)  # what the recording used, from inside it
+            else:
+                options.fixed_calibration = read_calibration(extrinsics.calib_dir, image_size=image_size)
+        elif extrinsics.calib_dir is not None:
+            options.intrinsics = read_intrinsics(extrinsics.calib_dir)[:4]
+            options.intrinsics_covariance = read_intrinsics_covariance(extrinsics.calib_dir)
+            if extrinsics.mode == "nominal" and reader is None:
+                options.nominal_intrinsics = intrinsics_from_dir(extrinsics.calib_dir, image_size)
+    except CalibrationFileError as error:
+        raise SessionError(f"extrinsics.calib_dir: {error}") from None
+    if reader is not None:
+        recorded = recorded_sources(reader, sources=("file",), image_size=image_size)
+        options.kinematic_model = recorded.kinematic_model
+        options.nominal_intrinsics = recorded.nominal_intrinsics or options.nominal_intrinsics
+    elif extrinsics.kinematic_file is not None:
+        try:
+            options.kinematic_model = load_model(extrinsics.kinematic_file)
+        except KinematicFileError as error:
+            raise SessionError(f"extrinsics.kinematic_file: {error}") from None
     return options
+
+
+def resume_sources(options: RunnerOptions, writer: SessionWriter, config: CampaignConfig,
+                   visits: Sequence[Visit]) -> set[str]:
+    """A resume's extrinsics source from the earlier attempts (the fitted model, nominal's calibrated intrinsics):
+    the visits and the preparation to skip (all of them when it is recorded, none when it is not)."""
+    from stereo_bench.campaign.extrinsics_run import recorded_sources
+
+    if not visits or writer.recorded_start is None:
+        return set()
+    optics = config.cameras.optics
+    recorded = recorded_sources(writer.reader(), sources=("design",),
+                                image_size=(optics.width_px, optics.height_px))
+    purpose = visits[0].purpose
+    if (purpose == "kinematic" and recorded.kinematic_model is None) or (
+            purpose == "intrinsics" and recorded.nominal_intrinsics is None):
+        return set()
+    options.kinematic_model = recorded.kinematic_model or options.kinematic_model
+    options.nominal_intrinsics = recorded.nominal_intrinsics or options.nominal_intrinsics
+    return {visit.config_id for visit in visits} | {PREPARE_ID}
 
 
 def default_operators(config: CampaignConfig, *, yes: bool) -> list[Operator]:
@@ -190,7 +256,7 @@ def run_campaign(
     with SessionWriter(out_dir, resume=resume) as writer:
         recorded = writer.recorded_start
         if recorded is not None and isinstance(recorded.get("plan"), list):
-            campaign = CampaignPlan.of(config, [Configuration.from_dict(entry) for entry in recorded["plan"]])
+            campaign = CampaignPlan.recorded(config, recorded)
             summary.plan_drift = plan_drift(config, recorded["plan"])
         else:
             campaign = plan or CampaignPlan.of(config)
@@ -205,20 +271,27 @@ def run_campaign(
         bus.publish(Draft(StartDocument, config=config.model_dump(mode="json"),
                           plan=[c.as_dict() for c in campaign.configurations], software=software_versions(),
                           extra={}, bench=config.bench_kind,
-                          **({"plan_drift": summary.plan_drift} if summary.plan_drift else {})))
+                          **({"plan_drift": summary.plan_drift} if summary.plan_drift else {}),
+                          **({"design": [v.as_dict() for v in campaign.visits]} if campaign.visits else {})))
         done = writer.completed_config_ids()
         summary.skipped = len(done)
         status, reason = "failed", None
         try:
-            options = runner_options(config)
+            options = runner_options(config, visits=campaign.visits)
+            skip = set(done) | resume_sources(options, writer, config, campaign.visits)
+            if campaign.visits and all(c.config_id in done for c in campaign.configurations if c.runnable) and done:
+                skip |= {visit.config_id for visit in campaign.visits} | {PREPARE_ID}  # nothing left to measure
             with bench_factory(config, operators=operators, transcript=transcript) as bench:
                 runner = CampaignRunner(config, campaign.configurations, campaign.steps, bench=bench, bus=bus,
                                         options=options)
+                _record_connect(bus, bench, config)
                 if config.extrinsics.mode == "fixed":  # the calibration used goes into the session
                     bus.publish(Draft(CalibrationEvent, config_id=None, calibration=CalibrationFiles(
                         options.fixed_calibration, None, board=f"fixed: {config.extrinsics.calib_dir}")))
+                for draft in session_sources(config):  # a model file, calib_dir's intrinsics: copied in
+                    bus.publish(draft)
                 control.attach(runner)
-                status = runner.run(skip=done)
+                status = runner.run(skip=skip)
                 reason = runner.stop_reason if status == "interrupted" else None
         except KeyboardInterrupt:  # a second Ctrl-C while the bench opened or closed
             status, reason = "interrupted", "stopped at once (second interrupt)"
@@ -234,6 +307,16 @@ def run_campaign(
     summary.exit_status, summary.reason = status, reason
     summary.rows = collector.rows
     return summary
+
+
+def _record_connect(bus: DocumentBus, bench: Bench, config: CampaignConfig) -> None:
+    """The rig controller as read at connect (build, settings, startup lines, warnings): part of the recording."""
+    info = getattr(bench.rig, "controller_info", None)
+    if not callable(info):
+        return
+    port = config.rig.port if config.rig.kind == "grbl" else "simulated (GRBL emulator on a pty)"
+    bus.publish(Draft(ControllerEvent, config_id=None, data={"port": port, "info": info(),
+                                                             "warnings": list(getattr(bench.rig, "warnings", []))}))
 
 
 # -- replay -------------------------------------------------------------------------------------------------------
@@ -308,7 +391,8 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
         where = ".".join(str(part) for part in first.get("loc", ())) or "config"
         raise SessionError(f"{reader.documents_path} line 1: the recorded campaign config does not validate "
                            f"({where}: {first.get('msg')})") from None
-    configurations = [Configuration.from_dict(entry) for entry in start["plan"]]
+    campaign = CampaignPlan.recorded(config, start)
+    configurations = campaign.configurations
     # Re-planning takes ~20 ms a configuration: while the frames replay, unless the new session's start needs it.
     drifting = ThreadPoolExecutor(max_workers=1, thread_name_prefix="plan-drift")
     drift_future = drifting.submit(plan_drift, config, start["plan"])
@@ -318,7 +402,11 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     all_measured = {cid for cid, row in recorded_rows.items() if row.get("status") == "measured"}
     not_reproducible, from_detections = reproducibility(reader, all_measured)
     measured = all_measured - set(not_reproducible)  # what is replayed
-    steps = [s for cid, group in group_steps(plan_steps(config, configurations)) if cid in measured for s in group]
+    # The visits run again (their recorded views fitted again) when the recording made its source from them.
+    visited = {v.config_id for v in campaign.visits if reader.events(config_id=v.config_id, kind="calibration_view")}
+    if visited:
+        visited.add(PREPARE_ID)
+    steps = [s for cid, group in group_steps(campaign.steps) if cid in measured | visited for s in group]
 
     recorder = SessionWriter(out_dir) if out_dir is not None else contextlib.nullcontext(MemoryRecorder())
     with recorder as writer:
@@ -331,14 +419,18 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
             bus.publish(Draft(StartDocument, config=config.model_dump(mode="json"), plan=start["plan"],
                               software=software_versions(), bench="replay",
                               extra={"replay_of": str(Path(session_dir).resolve()),
-                                     **({"plan_drift": drift} if drift else {})}))
-        options = runner_options(config, reader=reader)
+                                     **({"plan_drift": drift} if drift else {})},
+                              **({"design": start["design"]} if start.get("design") else {})))
+        options = runner_options(config, reader=reader, visits=campaign.visits)
         # Nothing waits for hardware here: analyse two configurations at once (OpenCV's solvers run
         # single-threaded either way, so the numbers are those of one at a time).
         options.analysis_workers = 2
         options.background_nice = False  # the detections are the critical path here, not something that can wait
-        with replay_bench(reader, measured) as bench:
+        with replay_bench(reader, measured | visited) as bench:
             runner = CampaignRunner(config, configurations, steps, bench=bench, bus=bus, options=options)
+            if out_dir is not None:
+                for draft in _recorded_session_sources(reader):
+                    bus.publish(draft)
             status = runner.run()
         if out_dir is not None:
             for cid, row in recorded_rows.items():  # failed and infeasible configurations: as recorded
@@ -349,13 +441,16 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     drift = drift_future.result()
     new_rows = {row["config_id"]: row for row in collector.rows}
     differences, identical = [], 0
+    if PREPARE_ID in visited:
+        differences += _model_differences(reader, runner.kinematic_model)
     for cid in sorted(measured):
         new = new_rows.get(cid)
         if new is None:
             differences.append(f"{cid}: not reproduced")
             continue
-        changed = [f"{key} {recorded_rows[cid].get(key)!r} -> {new.get(key)!r}" for key in COMPARED_COLUMNS
-                   if not _same(recorded_rows[cid].get(key), new.get(key))]
+        recorded = recorded_rows[cid]
+        changed = [f"{key} {recorded.get(key)!r} -> {new.get(key)!r}" for key in COMPARED_COLUMNS
+                   if not (key in ADDED_COLUMNS and key not in recorded) and not _same(recorded.get(key), new.get(key))]
         if changed:
             differences.append(f"{cid}: " + ", ".join(changed))
         else:
@@ -365,6 +460,37 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
                          out=None if out_dir is None else Path(out_dir),
                          measured=sum(new_rows.get(cid, {}).get("status") == "measured" for cid in measured),
                          plan_drift=drift, not_reproducible=not_reproducible, from_detections=from_detections)
+
+
+def _model_differences(reader: SessionReader, model) -> list[str]:
+    """The kinematic model fitted again from the recorded design views against the one the recording holds."""
+    from stereo_bench.campaign.extrinsics_run import MODEL_FILE
+    from stereo_bench.kinematics import model_toml
+
+    recorded = [e for e in reader.events(kind="kinematic_model", attempt=None) if e["data"].get("source") == "design"]
+    if not recorded:
+        return []
+    relative = (recorded[-1].get("files") or {}).get(MODEL_FILE)
+    if model is None:
+        return [f"kinematic model: not fitted again ({recorded[-1]['data'].get('error') or 'no model'})"] \
+            if relative else []
+    if relative is None or reader.read_bytes(relative).decode("utf-8") != model_toml(model):
+        return ["kinematic model: the model fitted again from the recorded views differs from the recorded one"]
+    return []
+
+
+def _recorded_session_sources(reader: SessionReader) -> list[Draft]:
+    """A model file's and calib_dir's copies in the recording, recorded again into a replay's new session."""
+    from stereo_bench.campaign.documents import IntrinsicsEvent, KinematicModelEvent
+
+    drafts = []
+    for kind, model in (("kinematic_model", KinematicModelEvent), ("intrinsics", IntrinsicsEvent)):
+        for event in reader.events(kind=kind, attempt=None):
+            if kind == "kinematic_model" and event["data"].get("source") != "file":
+                continue
+            files = {name: reader.read_bytes(relative) for name, relative in (event.get("files") or {}).items()}
+            drafts.append(Draft(model, config_id=None, data=event["data"], files=files))
+    return drafts
 
 
 def _same(a, b) -> bool:

@@ -1,7 +1,8 @@
 """Plans as data: a campaign config expands to configurations and to the steps a runner executes.
 
     configurations = expand_plan(config)          # ordered (Z, B, alpha) grid, feasibility predicted
-    steps = plan_steps(config, configurations)    # Move, PromptTarget, Settle, Flush, Capture..., Checkpoint
+    visits = plan_visits(config, configurations)  # kinematic design / one-off intrinsics calibration, if any
+    steps = plan_steps(config, configurations, visits)  # Move, PromptTarget, Settle, Flush, Capture..., Checkpoint
     predict_duration_s(config, configurations, steps)
 
 Nothing here moves or opens anything: feasibility is predicted from geometry and soft limits are
@@ -27,6 +28,16 @@ Feasibility of a configuration (B, Z, alpha, tilt), predicted before moving:
 
 Only runnable configurations (feasible, no limit violation) get a move and captures; the others get
 a single :class:`Checkpoint` carrying the reason.
+
+Extrinsics that need calibration views elsewhere than at the measured configurations start with
+visits (:func:`plan_visits`, :class:`Visit`): ``kinematic`` extrinsics without a saved model visit the
+kinematic rig model's design (:func:`stereo_bench.kinematics.kinematic_design` over the range of the
+runnable configurations' B and toe-ins: 9 visits, 12 views each = 108 board presentations however many
+configurations follow), ``nominal`` extrinsics without a calibration directory one configuration for
+their intrinsics. Each visit is Move, Settle, Flush, CaptureCalibration, :class:`VisitDone`; then one
+:class:`PrepareExtrinsics` fits the model (or calibrates the intrinsics) before the first measured
+configuration. A visit where the calibration board cannot be shown to both cameras or outside the soft
+limits is not run (the fit goes on without it, and says what it could not identify).
 """
 
 from __future__ import annotations
@@ -51,6 +62,7 @@ from stereo_bench.geometry import (
     VIEW_MARGIN_PX,
     CameraModel,
     RigPose,
+    alpha_from_toe_in,
     board_pose_facing_rig,
     calibration_view_fits,
     make_transform,
@@ -159,8 +171,23 @@ def format_id_value(value: float) -> str:
     return text.replace("-", "m").replace("+", "").replace(".", "p")
 
 
+class _Runnable:
+    """What a planned configuration or visit says about whether it runs (``feasible``, ``reason``,
+    ``limit_violation``)."""
+
+    @property
+    def runnable(self) -> bool:
+        return self.feasible and self.limit_violation is None
+
+    @property
+    def skip_reason(self) -> str | None:
+        """Why it is not run (None if it is)."""
+        reasons = [r for r in (self.reason, self.limit_violation) if r]
+        return "; ".join(reasons) if reasons else None
+
+
 @dataclass(frozen=True)
-class Configuration:
+class Configuration(_Runnable):
     """One (B, Z, alpha, tilt) of the campaign and its predicted feasibility.
 
     ``feasible`` is geometric (target and, per-config, calibration board in both views; ``reason`` says
@@ -190,16 +217,6 @@ class Configuration:
         if not self.feasible:
             return "infeasible"
         return "partial" if self.corners_in_both < self.n_corners else "feasible"
-
-    @property
-    def runnable(self) -> bool:
-        return self.feasible and self.limit_violation is None
-
-    @property
-    def skip_reason(self) -> str | None:
-        """Why the configuration is not run (None if it is)."""
-        reasons = [r for r in (self.reason, self.limit_violation) if r]
-        return "; ".join(reasons) if reasons else None
 
     def rig_pose(self) -> RigPose:
         return RigPose.symmetric(self.baseline_mm, self.alpha_deg, self.tilt_deg)
@@ -304,6 +321,132 @@ def expand_plan(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN
 
 
 # --------------------------------------------------------------------------------------------------
+# Visits: calibration views for the extrinsics source (kinematic design, one-off intrinsics)
+
+VISIT_PURPOSES = ("kinematic", "intrinsics")
+
+
+@dataclass(frozen=True)
+class Visit(_Runnable):
+    """A visit before the measured configurations: calibration views at commanded axes, no measurement.
+
+    ``purpose``: ``kinematic`` (a visit of the kinematic rig model's design) or ``intrinsics`` (the
+    one stereo calibration whose intrinsics ``nominal`` extrinsics use). Presenters and the runner use
+    it like a :class:`Configuration` (``config_id``, ``distance_mm``: where the calibration board is
+    shown, ``calibration_range_mm``, :meth:`rig_pose`, :meth:`move_request`).
+    """
+
+    index: int
+    config_id: str
+    purpose: str
+    baseline_mm: float
+    toe_in_left_deg: float
+    toe_in_right_deg: float
+    tilt_deg: float
+    distance_mm: float
+    calibration_range_mm: tuple[float, float] | None
+    feasible: bool
+    reason: str | None = None
+    limit_violation: str | None = None
+    fraction_in_both: ClassVar[float] = 1.0
+
+    def axes(self) -> dict[str, float]:
+        return {"baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_left_deg,
+                "toe_in_right_deg": self.toe_in_right_deg}
+
+    def rig_pose(self) -> RigPose:
+        return RigPose(self.baseline_mm, alpha_from_toe_in(self.toe_in_left_deg),
+                       alpha_from_toe_in(self.toe_in_right_deg), self.tilt_deg, self.tilt_deg)
+
+    def move_request(self) -> dict[str, float]:
+        return {"baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_left_deg,
+                "toe_in_right_deg": self.toe_in_right_deg, "tilt_left_deg": self.tilt_deg,
+                "tilt_right_deg": self.tilt_deg, "target_distance_mm": self.distance_mm}
+
+    def as_dict(self) -> dict[str, Any]:
+        data = asdict(self)
+        data["calibration_range_mm"] = list(self.calibration_range_mm) if self.calibration_range_mm else None
+        data["runnable"] = self.runnable
+        return data
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Visit:
+        """The visit a recorded ``start.design`` entry describes (resume and replay run the recorded visits)."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        values = {key: value for key, value in data.items() if key in names}
+        if values.get("calibration_range_mm") is not None:
+            values["calibration_range_mm"] = tuple(values["calibration_range_mm"])
+        return cls(**values)
+
+
+def design_ranges(configurations: Sequence[Configuration]) -> dict[str, tuple[float, float]] | None:
+    """(min, max) of B and of the toe-ins over the runnable configurations: what the design must span."""
+    runnable = [c for c in configurations if c.runnable]
+    if not runnable:
+        return None
+    baselines = [c.baseline_mm for c in runnable]
+    toe_ins = [c.toe_in_deg for c in runnable]
+    return {"baseline_mm": (min(baselines), max(baselines)), "toe_in_deg": (min(toe_ins), max(toe_ins))}
+
+
+def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration]) -> list[Visit]:
+    """The visits the extrinsics source needs before the measured configurations (none for most modes).
+
+    ``kinematic`` without ``kinematic_file``: the design of :func:`stereo_bench.kinematics.kinematic_design`
+    over :func:`design_ranges`, each visit checked like a configuration (the calibration board must fit both
+    views somewhere, the move must pass the soft limits); the board is shown around the middle of the plan's
+    target distances. ``nominal`` without ``calib_dir``: the first runnable configuration at which the
+    calibration board fits, for one stereo calibration whose intrinsics every configuration uses.
+    """
+    from stereo_bench.kinematics import kinematic_design
+
+    extrinsics = config.extrinsics
+    if not (extrinsics.design_visits or extrinsics.intrinsics_visit):
+        return []
+    ranges = design_ranges(configurations)
+    if ranges is None:
+        return []
+    board = config.calibration_board.build()
+    left = config.cameras.optics.camera_model("left")
+    right = config.cameras.optics.camera_model("right")
+    rig_config = config.rig.rig_config()
+    tilt = float(config.plan.tilt_deg)
+
+    def visit(index: int, config_id: str, purpose: str, baseline: float, toe_left: float, toe_right: float,
+              distance: float) -> Visit:
+        pose = RigPose(baseline, alpha_from_toe_in(toe_left), alpha_from_toe_in(toe_right), tilt, tilt)
+        fits = calibration_distance_range(board, pose, left=left, right=right)
+        reason = None
+        if fits is None:
+            reason = (f"calibration board ({config.calibration_board.describe()}) never fits both views at "
+                      f"B = {baseline:g} mm, toe-ins {toe_left:g}/{toe_right:g} deg")
+        draft = Visit(index=index, config_id=config_id, purpose=purpose, baseline_mm=float(baseline),
+                      toe_in_left_deg=float(toe_left), toe_in_right_deg=float(toe_right), tilt_deg=tilt,
+                      distance_mm=float(distance), calibration_range_mm=fits, feasible=fits is not None,
+                      reason=reason)
+        return dataclasses.replace(draft, limit_violation=_limit_violation(rig_config, draft.move_request()))
+
+    if extrinsics.intrinsics_visit:
+        candidates = [c for c in configurations if c.runnable]
+        first = None
+        for c in candidates:
+            first = visit(0, f"intrinsics-{c.config_id}", "intrinsics", c.baseline_mm, c.toe_in_deg, c.toe_in_deg,
+                          c.distance_mm)
+            if first.runnable:
+                break
+        return [first] if first is not None else []
+    distances = sorted(c.distance_mm for c in configurations if c.runnable)
+    distance = distances[len(distances) // 2]
+    visits = []
+    for k, design in enumerate(kinematic_design(ranges["baseline_mm"], ranges["toe_in_deg"], ranges["toe_in_deg"])):
+        config_id = (f"design-{k + 1}_B{format_id_value(design.baseline_mm)}_L{format_id_value(design.toe_in_left_deg)}"
+                     f"_R{format_id_value(design.toe_in_right_deg)}")
+        visits.append(visit(k, config_id, "kinematic", design.baseline_mm, design.toe_in_left_deg,
+                            design.toe_in_right_deg, distance))
+    return visits
+
+
+# --------------------------------------------------------------------------------------------------
 # Steps
 
 
@@ -401,14 +544,51 @@ class Checkpoint:
         return {"step": self.kind, "config_id": self.config_id, "skipped": self.skipped, "reason": self.reason}
 
 
-Step = Move | PromptTarget | PromptManual | Settle | Flush | CaptureCalibration | CaptureMeasurement | Checkpoint
+@dataclass(frozen=True)
+class VisitDone:
+    """End of a visit (:class:`Visit`): its calibration views are kept for :class:`PrepareExtrinsics`.
+
+    ``skipped``: the visit is not run (the board does not fit, or outside the soft limits); ``reason`` says why.
+    """
+
+    config_id: str
+    skipped: bool = False
+    reason: str | None = None
+    kind: ClassVar[str] = "visit_done"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"step": self.kind, "config_id": self.config_id, "skipped": self.skipped, "reason": self.reason}
 
 
-def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration]) -> list[Step]:
+#: The config_id of the PrepareExtrinsics step's group (not a configuration: nothing is measured there).
+PREPARE_ID = "extrinsics-source"
+
+
+@dataclass(frozen=True)
+class PrepareExtrinsics:
+    """Fit the kinematic rig model to the design's views (``kinematic``), or calibrate the intrinsics
+    (``intrinsics``), before the first measured configuration; recorded, and read back by a resume."""
+
+    purpose: str
+    config_id: str = PREPARE_ID
+    kind: ClassVar[str] = "prepare_extrinsics"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"step": self.kind, "config_id": self.config_id, "purpose": self.purpose}
+
+
+Step = (Move | PromptTarget | PromptManual | Settle | Flush | CaptureCalibration | CaptureMeasurement | Checkpoint
+        | VisitDone | PrepareExtrinsics)
+
+
+def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration],
+               visits: Sequence[Visit] | None = None) -> list[Step]:
     """The steps of a campaign, in order.
 
-    Per runnable configuration: Move; a prompt for each manual quantity whose value changes
-    (PromptTarget for the target distance, PromptManual for any other); Settle; Flush;
+    First the visits (``visits``, default :func:`plan_visits`): Move, Settle, Flush, CaptureCalibration,
+    VisitDone each (a visit that is not runnable: only ``VisitDone(skipped=True)``), then one
+    PrepareExtrinsics. Then per runnable configuration: Move; a prompt for each manual quantity whose
+    value changes (PromptTarget for the target distance, PromptManual for any other); Settle; Flush;
     CaptureCalibration (per-config extrinsics only); CaptureMeasurement; Checkpoint. A configuration
     that is not runnable gets only ``Checkpoint(skipped=True, reason=...)``.
     """
@@ -416,6 +596,16 @@ def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration]) 
     manual = [q for q in QUANTITIES if rig_config.quantities[q].axis == "manual"]
     last_manual: dict[str, float] = {}
     steps: list[Step] = []
+    visits = plan_visits(config, configurations) if visits is None else visits
+    for visit in visits:
+        if not visit.runnable:
+            steps.append(VisitDone(visit.config_id, skipped=True, reason=visit.skip_reason))
+            continue
+        # The calibration board is shown by hand or by the simulator: no prompt for the target distance.
+        steps += [Move(visit), Settle(config.capture.settle_s), Flush(),
+                  CaptureCalibration(config.capture.calibration_views), VisitDone(visit.config_id)]
+    if visits:
+        steps.append(PrepareExtrinsics(visits[0].purpose))
     for configuration in configurations:
         if not configuration.runnable:
             steps.append(Checkpoint(configuration.config_id, skipped=True, reason=configuration.skip_reason))
@@ -560,12 +750,31 @@ def predict_duration_s(config: CampaignConfig, configurations: Sequence[Configur
 # Summary
 
 
+def calibration_presentations(steps: Sequence[Step]) -> dict[str, int]:
+    """Board presentations the steps need: ``visits`` (design or intrinsics visits), ``configurations``
+    (per-config calibration views at the measured configurations) and ``total``."""
+    out = {"visits": 0, "configurations": 0}
+    in_visit = False
+    for step in steps:
+        if isinstance(step, Move):
+            in_visit = isinstance(step.configuration, Visit)
+        elif isinstance(step, CaptureCalibration):
+            out["visits" if in_visit else "configurations"] += step.n_views
+    out["total"] = out["visits"] + out["configurations"]
+    return out
+
+
 def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN_PX) -> dict[str, Any]:
     """Everything ``stereo-bench campaign plan`` reports, as one JSON-able object."""
     configurations = expand_plan(config, margin_px=margin_px)
-    steps = plan_steps(config, configurations)
+    visits = plan_visits(config, configurations)
+    steps = plan_steps(config, configurations, visits)
     estimate = estimate_duration(config, configurations, steps)
     return {
+        "extrinsics_mode": config.extrinsics.mode,
+        "design": [v.as_dict() for v in visits],
+        "design_ranges": design_ranges(configurations) if visits else None,
+        "calibration_presentations": calibration_presentations(steps),
         "name": config.name,
         "configurations": [c.as_dict() for c in configurations],
         "predicted_duration_s": estimate.total_s,

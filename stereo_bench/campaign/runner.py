@@ -58,25 +58,34 @@ from stereo_bench.campaign.documents import (
     RigRecoveredEvent,
     RigUnrecoverableEvent,
     RunControlEvent,
+    StructureEvent,
     TargetNotFoundEvent,
+    TruthEvent,
 )
 from stereo_bench.campaign.operator import CONTINUE, DISCARD_LAST_VIEW, Answer, OperatorDesk, Prompt, StopRequested
 from stereo_bench.campaign.plan import (
+    PREPARE_ID,
     CaptureCalibration,
     CaptureMeasurement,
     Checkpoint,
     Configuration,
     Flush,
     Move,
+    PrepareExtrinsics,
     PromptManual,
     PromptTarget,
     Settle,
+    Visit,
+    VisitDone,
 )
 from stereo_bench.campaign.presenters import CalibrationPlacementError
+from stereo_bench.campaign.sources import ApproachTracker, reported_axes
 from stereo_bench.executors import background_threads
+from stereo_bench.targets import Target
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.detect import AmbiguousViewError, detect
 from stereo_bench.vision.rectify import rectify
+from stereo_bench.vision.uncertainty import BoardScale
 
 __all__ = ["CampaignRunner", "ConfigurationFailed", "RunnerOptions", "StopRequested", "group_steps"]
 
@@ -89,11 +98,24 @@ class ConfigurationFailed(Exception):
 class Captured:
     """What was captured at one configuration (images stay in memory until the analysis is done)."""
 
-    configuration: Configuration
+    configuration: Configuration | Visit | None
     calibration_pairs: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     calibration_detections: list[tuple[Future, Future]] = field(default_factory=list)  # detect(), made ahead
     measurement_pairs: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     measurement_detections: list[tuple] = field(default_factory=list)  # (left, right) Detection | None
+    axes: dict | None = None  # the kinematic axes the rig reported after the move
+    approach: dict | None = None  # per axis the direction the move came from
+    truth: dict | None = None  # simulated benches: the truth at the measurement (never used by it)
+
+    def detections(self, board: Target) -> list[tuple]:
+        """Per calibration view the (left, right) Detection or None: those made while capturing (waited for),
+        else detected here. AnalysisError if a detection failed (as it would have inside the calibration)."""
+        if len(self.calibration_detections) != len(self.calibration_pairs):
+            return [(detect(left, board), detect(right, board)) for left, right in self.calibration_pairs]
+        try:
+            return [(left.result(), right.result()) for left, right in self.calibration_detections]
+        except (ValueError, np.linalg.LinAlgError) as error:
+            raise AnalysisError(str(error)) from None
 
 
 @dataclass
@@ -101,8 +123,18 @@ class RunnerOptions:
     board_retries: int = 3
     intrinsics_mode: str = "joint"
     intrinsics: tuple | None = None  # (K1, D1, K2, D2) to start from / keep fixed
+    intrinsics_covariance: object | None = None  # CalibrationCovariance of ``intrinsics``, when stored with them
     fixed_calibration: StereoCalibration | None = None  # extrinsics mode "fixed"
     calibration_board: str = ""  # how calibrations name their board, e.g. 'checkerboard 11x8 square 25 mm'
+    extrinsics_mode: str = "per-config"
+    # Extrinsics sources prepared before the run (campaign/extrinsics_run.py): a kinematic model (kinematic
+    # mode from a file or a recording; a comparison in the other modes) and the intrinsics nominal uses.
+    kinematic_model: object | None = None
+    nominal_intrinsics: StereoCalibration | None = None
+    visits: list[Visit] = field(default_factory=list)
+    board_scale: BoardScale = field(default_factory=BoardScale)
+    tolerances: dict = field(default_factory=dict)
+    repeatability: tuple[float, float] = (0.0, 0.0)  # slide mm, pan heads deg
     # Configurations analysed at once (threads; results are still published in plan order). A live run
     # analyses one while the rig moves on; a replay, which waits for nothing, uses more.
     analysis_workers: int = 1
@@ -161,6 +193,11 @@ class CampaignRunner:
         self._recorder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="recorder")
         self._recording: list[Future] = []
         self._pending: list[tuple[Captured, Future]] = []
+        self.visits = {visit.config_id: visit for visit in options.visits}
+        self._approach = ApproachTracker()
+        self._visit_captures: list[Captured] = []
+        self._prepared: Future | None = None  # the extrinsics source prepared from the visits
+        self.kinematic_model = options.kinematic_model  # after the run: the model used (fitted or given)
 
     # -- control (thread- and signal-safe) ----------------------------------------------------------------------
 
@@ -250,13 +287,16 @@ class CampaignRunner:
                 for config_id, group in group_steps(self.steps):
                     if config_id in skip:
                         continue
-                    configuration = self.configurations[config_id]
+                    configuration = self._configuration_of(config_id)
                     captured, failed = Captured(configuration), None
-                    self.bench.presenter.begin_configuration(configuration)
+                    if configuration is not None:
+                        self.bench.presenter.begin_configuration(configuration)
                     for step in group:
                         self._between_steps()
                         if isinstance(step, Checkpoint):
                             self._checkpoint(configuration, captured, failed)
+                        elif isinstance(step, VisitDone | PrepareExtrinsics):
+                            self._prepare_step(step, captured, failed)
                         elif failed is None:
                             try:
                                 self._execute(step, captured)
@@ -283,10 +323,16 @@ class CampaignRunner:
             finally:
                 self._recorder.shutdown(wait=True)
 
+    def _configuration_of(self, config_id: str) -> Configuration | Visit | None:
+        """The configuration (or visit) a group of steps belongs to; None for the extrinsics preparation."""
+        if config_id == PREPARE_ID:
+            return None
+        return self.configurations.get(config_id) or self.visits[config_id]
+
     def _execute(self, step, captured: Captured) -> None:
         configuration = captured.configuration
         if isinstance(step, Move):
-            self._move(configuration)
+            captured.axes, captured.approach = self._move(configuration)
         elif isinstance(step, PromptTarget):
             self._set_by_hand(configuration, "target_distance_mm", step.distance_mm)
         elif isinstance(step, PromptManual):
@@ -299,6 +345,7 @@ class CampaignRunner:
             self._capture_calibration(step.n_views, captured)
         elif isinstance(step, CaptureMeasurement):
             self._capture_measurement(step.n_frames, captured)
+            self._record_truth(captured)
         else:
             raise TypeError(f"unknown step {step!r}")
 
@@ -327,9 +374,12 @@ class CampaignRunner:
     def _home(self) -> None:
         reading = self.bench.rig.home()
         self._homed = True
+        self._approach.reached(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
+                                                      "toe_in_right_deg": 0.0}))
         self._publish(Draft(HomeEvent, data={"rig": reading.to_dict()}))
 
-    def _move(self, configuration: Configuration) -> None:
+    def _move(self, configuration: Configuration | Visit) -> tuple[dict, dict]:
+        """Move to ``configuration``; returns the kinematic axes the rig reported and the approach directions."""
         from drivers.rig.config import RigError
 
         # The motors only: the operator sets the manual quantities in the prompt steps that follow.
@@ -349,7 +399,16 @@ class CampaignRunner:
                     continue
                 self._recover_rig()
                 raise ConfigurationFailed(f"rig: {error}") from None
-        self._publish(Draft(MoveEvent, config_id=configuration.config_id, data={"rig": reading.to_dict()}))
+        request = configuration.move_request()
+        axes = reported_axes(reading, {"baseline_mm": request["baseline_mm"],
+                                       "toe_in_left_deg": request["toe_in_left_deg"],
+                                       "toe_in_right_deg": request["toe_in_right_deg"]})
+        recorded = self.bench.recorded_approach
+        # A replay serves the directions the recording's moves came from (homes of earlier attempts included).
+        approach = recorded(configuration.config_id) if recorded is not None else self._approach.reached(axes)
+        self._publish(Draft(MoveEvent, config_id=configuration.config_id,
+                            data={"rig": reading.to_dict(), "approach": approach}))
+        return axes, approach
 
     def _move_once(self, request: dict):
         """One move; a pause requested meanwhile feed-holds it (see :meth:`request_pause`)."""
@@ -364,7 +423,9 @@ class CampaignRunner:
     def _recover_rig(self) -> None:
         """After an alarm or a failed move, home again so the next configuration starts from a known state."""
         try:
-            self.bench.rig.home()
+            reading = self.bench.rig.home()
+            self._approach.reached(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
+                                                          "toe_in_right_deg": 0.0}))
             self._publish(Draft(RigRecoveredEvent, data={"action": "homed after a failed move"}))
         except Exception as error:  # noqa: BLE001 - the campaign cannot go on without a working rig
             self._publish(Draft(RigUnrecoverableEvent, data={"error": str(error)}))
@@ -477,6 +538,39 @@ class CampaignRunner:
             # An ambiguous partial view is left to the analysis to detect again, so its reason is kept.
             captured.measurement_detections.append(None if _AMBIGUOUS in found else found)
 
+    def _record_truth(self, captured: Captured) -> None:
+        """Simulated benches: the truth at the measurement, recorded beside it (the measurement never sees it)."""
+        truth = self.bench.truth
+        if truth is None:
+            return
+        captured.truth = truth(captured.configuration.config_id)
+        if captured.truth is not None:
+            self._publish(Draft(TruthEvent, config_id=captured.configuration.config_id, data=captured.truth))
+
+    # -- the extrinsics source: visits, then one preparation (campaign/extrinsics_run.py) ------------------------
+
+    def _prepare_step(self, step, captured: Captured, failed: str | None) -> None:
+        from stereo_bench.campaign.extrinsics_run import prepare_source
+
+        if isinstance(step, VisitDone):
+            if not step.skipped:
+                self._visit_captures.append(captured if failed is None else Captured(captured.configuration))
+            return
+        visits, captures = list(self.visits.values()), list(self._visit_captures)
+        self._visit_captures = []
+        self._prepared = self._analysis.submit(prepare_source, step.purpose, visits, captures, self.config,
+                                               self.options)
+        self._pending.append((Captured(None), self._prepared))
+
+    def _source(self):
+        """The prepared extrinsics source (analysis thread): a fitted model, or the intrinsics for nominal."""
+        from stereo_bench.campaign.extrinsics_run import Prepared
+
+        if self._prepared is None:
+            return Prepared(kinematic_model=self.options.kinematic_model,
+                            nominal_intrinsics=self.options.nominal_intrinsics)
+        return self._prepared.result()
+
     # -- analysis and results ------------------------------------------------------------------------------------
 
     def _checkpoint(self, configuration: Configuration, captured: Captured, failed: str | None) -> None:
@@ -492,27 +586,31 @@ class CampaignRunner:
 
     def _analyse(self, captured: Captured) -> dict:
         """Runs on the analysis thread: no recording here, only computation."""
+        from stereo_bench.campaign.extrinsics_run import compare_sources, used_source
+
         configuration = captured.configuration
         options = self.options
         try:
-            if options.fixed_calibration is not None:
-                analysis = ConfigurationAnalysis(calib=options.fixed_calibration,
-                                                 rect=rectify(options.fixed_calibration))
-            else:
-                try:  # a detection that failed fails the calibration, as it would have inside it
-                    detections = [(left.result(), right.result()) for left, right in captured.calibration_detections]
-                except (ValueError, np.linalg.LinAlgError) as error:
-                    raise AnalysisError(str(error)) from None
+            if options.extrinsics_mode == "per-config":
                 analysis = calibrate_configuration(captured.calibration_pairs, self.calibration_board,
                                                    intrinsics=options.intrinsics, mode=options.intrinsics_mode,
-                                                   detections=detections)
+                                                   intrinsics_covariance=options.intrinsics_covariance,
+                                                   detections=captured.detections(self.calibration_board))
+            else:
+                source = used_source(options, self._source(), configuration, captured)
+                analysis = ConfigurationAnalysis(calib=source.calib, rect=rectify(source.calib),
+                                                 calibrated=options.extrinsics_mode == "fixed")
             measure_configuration(analysis, captured.measurement_pairs, self.target,
                                   partial=configuration.fraction_in_both < 1.0,
                                   detections=captured.measurement_detections)
         except AnalysisError as error:
             return result_fields(configuration, status="failed", reason=str(error))
         row = result_fields(configuration, status="measured", measured=analysis.row())
+        comparison = compare_sources(options, self._source(), configuration, captured, analysis, self.target,
+                                     used=None if options.extrinsics_mode == "per-config" else source)
+        row.update(comparison.columns)
         row["_analysis"] = analysis
+        row["_structure"] = comparison.data
         return row
 
     def _collect(self, *, block: bool) -> None:
@@ -523,17 +621,32 @@ class CampaignRunner:
                 return
             row = future.result()
             self._pending.pop(0)
+            if captured.configuration is None:  # the extrinsics source was prepared: record it
+                self._record_prepared(row)
+                continue
             analysis = row.pop("_analysis", None)
+            structure = row.pop("_structure", None)
             config_id = captured.configuration.config_id
             if analysis is not None:
-                if self.options.fixed_calibration is None:
+                if analysis.calibrated and self.options.extrinsics_mode == "per-config":
                     self._publish(Draft(CalibrationEvent, config_id=config_id, calibration=CalibrationFiles(
                         analysis.calib, analysis.rect, board=self.options.calibration_board)))
                 self._publish(Draft(AnalysisEvent, config_id=config_id, data=analysis.details()))
+            if structure is not None:
+                self._publish(Draft(StructureEvent, config_id=config_id, data=structure))
             # A result is the checkpoint: everything of its configuration is on disk before it, since the
             # recorder writes in order. The capture goes on meanwhile (a crash before the line is written
             # runs the configuration again on resume); the run ends only once everything is recorded.
             self._publish(Draft(ResultDocument, config_id=config_id, row=row))
+
+
+    def _record_prepared(self, prepared) -> None:
+        """Record what the visits prepared: the kinematic model (with its TOML) or the intrinsics' calibration."""
+        if prepared.kinematic_model is not None:
+            self.kinematic_model = prepared.kinematic_model
+        for draft in prepared.drafts(self.options.calibration_board):
+            self._publish(draft)
+        self._sync_recording()
 
 
 _AMBIGUOUS = object()  # a partial view whose corner ids cannot be proven

@@ -153,6 +153,7 @@ def failure(error: BaseException) -> CliError | None:
     from stereo_bench.executors import ExecutorUnavailable
     from stereo_bench.frames import FrameError
     from stereo_bench.kinematics import KinematicFileError
+    from stereo_bench.live.server import LiveServerError
     from stereo_bench.report.build import ReportError
     from stereo_bench.vision.calibio import CalibrationFileError
     from stereo_bench.vision.detect import AmbiguousViewError
@@ -176,7 +177,7 @@ def failure(error: BaseException) -> CliError | None:
         return CliError(f"the recording cannot be replayed: {text}")
     if isinstance(error, ConfigError | SessionError | DocumentError | StoreError | ReportError | FrameError
                   | CalibrationFileError | KinematicFileError | OperatorAbsent | ExecutorUnavailable
-                  | BoardNotFoundError | AmbiguousViewError | ImplausibleMeasurement):
+                  | BoardNotFoundError | AmbiguousViewError | ImplausibleMeasurement | LiveServerError):
         return CliError(text)
     if isinstance(error, ValidationError):
         return CliError(_validation_error(error))

@@ -101,6 +101,7 @@ def _plan_text(config: CampaignConfig, summary: dict[str, Any], *, source: str, 
             lines.append(f"{'':>5}why: {row['reason']}")
         if row["limit_violation"]:
             lines.append(f"{'':>5}limits: {row['limit_violation']}")
+    lines += _extrinsics_text(config, summary)
     duration = summary["duration"]
     parts = ", ".join(f"{name} {format_duration(duration[name + '_s'])}"
                       for name in ("homing", "motion", "settle", "flush", "capture", "operator"))
@@ -115,6 +116,42 @@ def _plan_text(config: CampaignConfig, summary: dict[str, Any], *, source: str, 
         lines += [f"{i:>5}  " + _step_text(step) for i, step in enumerate(summary["steps"])]
     lines.append("dry run: nothing moved, no port opened")
     return "\n".join(lines)
+
+
+def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[str]:
+    """Where R, T come from, the visits that prepare it (the kinematic design) and the board presentations."""
+    mode = config.extrinsics.mode
+    counts = summary["calibration_presentations"]
+    source = {
+        "per-config": "calibrated at every configuration from its own views",
+        "kinematic": ("predicted by the kinematic rig model "
+                      + (f"read from {config.extrinsics.kinematic_file}" if config.extrinsics.kinematic_file
+                         else "fitted once to the design's views")),
+        "nominal": "the ideal geometry at the commanded B and alpha, intrinsics "
+                   + (f"from {config.extrinsics.calib_dir}" if config.extrinsics.calib_dir
+                      else "from one calibration at the first configuration"),
+        "fixed": f"read from {config.extrinsics.calib_dir}",
+    }[mode]
+    lines = ["", f"extrinsics {mode}: {source}"]
+    design = summary["design"]
+    if design:
+        ranges = summary["design_ranges"]
+        title = ("kinematic design" if design[0]["purpose"] == "kinematic" else "intrinsics calibration")
+        span = (f" over B {ranges['baseline_mm'][0]:g}-{ranges['baseline_mm'][1]:g} mm, toe-in "
+                f"{ranges['toe_in_deg'][0]:g}-{ranges['toe_in_deg'][1]:g} deg" if ranges else "")
+        lines.append(f"{title}: {sum(v['runnable'] for v in design)} of {len(design)} visits to run{span}")
+        for visit in design:
+            where = (f"board at {visit['calibration_range_mm'][0]:g}-{visit['calibration_range_mm'][1]:g} mm"
+                     if visit["calibration_range_mm"] else "")
+            why = "; ".join(r for r in (visit["reason"], visit["limit_violation"]) if r)
+            status = where if visit["runnable"] else f"NOT RUN: {why}"
+            lines.append(f"{'':>5}{visit['config_id']:<24} B {visit['baseline_mm']:>6g} mm  toe-in "
+                         f"{visit['toe_in_left_deg']:g}/{visit['toe_in_right_deg']:g} deg  {status}")
+    per_configuration = "" if mode != "per-config" else " (one set per configuration)"
+    note = " (adding configurations adds none)" if counts["visits"] and not counts["configurations"] else ""
+    lines.append(f"calibration board presentations: {counts['total']}: {counts['visits']} at visits{note}, "
+                 f"{counts['configurations']} at the configurations{per_configuration}")
+    return lines
 
 
 def _step_text(step: dict[str, Any]) -> str:
@@ -135,6 +172,12 @@ def _step_text(step: dict[str, Any]) -> str:
         return f"capture {step['n_views']} calibration views"
     if kind == "capture_measurement":
         return f"capture {step['n_frames']} measurement frames"
+    if kind == "visit_done":
+        return (f"visit {step['config_id']} done" if not step["skipped"]
+                else f"visit {step['config_id']} (skipped: {step['reason']})")
+    if kind == "prepare_extrinsics":
+        return ("fit the kinematic rig model to the design's views" if step["purpose"] == "kinematic"
+                else "calibrate the intrinsics from the visit's views")
     if step["skipped"]:
         return f"checkpoint {step['config_id']} (skipped: {step['reason']})"
     return f"checkpoint {step['config_id']}"

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 from stereo_bench.cli import CliError, failure
-from stereo_bench.cli.args import TIME_SCALE, output_dir
+from stereo_bench.cli.args import TIME_SCALE, int_in, output_dir
 
 EXIT_INTERRUPTED = 130
 
@@ -105,35 +105,42 @@ class Progress:
         self.bar.close()
 
 
-def start_live_page(config, *, session_dir: Path | None, host: str, port: int, control=None, write=None):
-    """Start the live page (``--ui``); print its URL (and a warning when it is exposed beyond this machine)."""
-    from stereo_bench.live.page import LivePage
-    from stereo_bench.live.server import LiveServerError
+def start_live_page(page, *, write=None):
+    """Serve ``page`` (a :class:`~stereo_bench.live.page.LivePage`, for ``--ui``) and print its URL (see
+    :func:`announce_live_page`). An address it cannot serve on raises ``LiveServerError``: one line naming
+    host:port, exit status 2 through ``failure``."""
+    page.start()
+    return announce_live_page(page, write=write)
 
+
+def announce_live_page(page, *, write=None):
+    """Print a started page's URL, with a warning first when it listens beyond this machine."""
     write = write or (lambda text: print(text, file=sys.stderr, flush=True))
-    page = LivePage.for_campaign(config, session_dir=session_dir, host=host, port=port, control=control)
-    try:
-        page.start()
-    except LiveServerError as error:
-        page.previews.stop()
-        raise CliError(str(error)) from None
     if page.exposed:
-        write(f"warning: the live page listens on {host}, beyond this machine: anyone on that network can watch; "
-              "only the URL's token can control the run")
+        write(f"warning: the live page listens on {page.host}, beyond this machine: anyone on that network can "
+              "watch; only the URL's token can control the run")
     write(f"live page: {page.url}")
     return page
 
 
+DEFAULT_UI_HOST = "127.0.0.1"
+DEFAULT_UI_PORT = 8765
+UI_PORT = int_in(min=0, max=65535)  # a TCP port; 0 asks the system for a free one
+
+
 def add_ui_options(parser: argparse.ArgumentParser, *, required: bool = False) -> None:
+    """--ui-host and --ui-port (and --ui, unless the command always serves the page: ``required``)."""
     if not required:
         parser.add_argument("--ui", action="store_true",
                             help="serve the live page (cameras, coverage, rig, plan, results, prompts and controls) "
                                  "while the campaign runs; prints its URL")
-    parser.add_argument("--ui-host", default="127.0.0.1", metavar="HOST",
-                        help="address the live page listens on (default 127.0.0.1: this machine only; 0.0.0.0 "
-                             "exposes it on the lab network, with a warning)")
-    parser.add_argument("--ui-port", type=int, default=8765, metavar="PORT",
-                        help="port of the live page (default 8765; 0 picks a free one)")
+    needs = "" if required else "with --ui: "
+    parser.add_argument("--ui-host", default=DEFAULT_UI_HOST if required else None, metavar="HOST",
+                        help=f"{needs}address the live page listens on (default {DEFAULT_UI_HOST}: this machine "
+                             "only; 0.0.0.0 exposes it on the lab network, with a warning)")
+    parser.add_argument("--ui-port", type=UI_PORT, default=DEFAULT_UI_PORT if required else None, metavar="PORT",
+                        help=f"{needs}port of the live page, 0 to 65535 (default {DEFAULT_UI_PORT}; 0 picks a "
+                             "free one)")
 
 
 def _resume_command(args: argparse.Namespace, out: Path) -> str:
@@ -162,16 +169,24 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.yes and config.cameras.kind != "simulated":
         raise CliError("--yes lets the simulator do the manual steps, for simulated cameras only; at the real "
                        "bench the operator does them")
+    if not args.ui and (args.ui_host is not None or args.ui_port is not None):
+        given = " and ".join(name for name, value in (("--ui-host", args.ui_host), ("--ui-port", args.ui_port))
+                             if value is not None)
+        raise CliError(f"{given} {'apply' if ' and ' in given else 'applies'} to the live page: add --ui to serve it")
     plan = CampaignPlan.of(config)  # expanded once: the progress bar and the run share it
     resume_command = _resume_command(args, out)
-    progress = Progress(len(plan.configurations), config.name, quiet=args.quiet)
-    subscribers = [progress] + ([JsonLines(sys.stdout)] if args.json else [])
     control = RunControl()
     operators, frame_subscribers, page = None, [], None
-    if args.ui:
-        page = start_live_page(config, session_dir=out, host=args.ui_host, port=args.ui_port, control=control,
-                               write=progress.write)
+    if args.ui:  # before the progress bar: an address it cannot serve on is one line
+        from stereo_bench.live.page import LivePage
+
+        page = start_live_page(LivePage.for_campaign(
+            config, session_dir=out, host=args.ui_host or DEFAULT_UI_HOST,
+            port=DEFAULT_UI_PORT if args.ui_port is None else args.ui_port, control=control))
         operators = default_operators(config, yes=args.yes) + [page.operator]  # the first answer wins
+    progress = Progress(len(plan.configurations), config.name, quiet=args.quiet)
+    subscribers = [progress] + ([JsonLines(sys.stdout)] if args.json else [])
+    if page is not None:
         subscribers.append(page.state)
         frame_subscribers.append(page.previews.captured)
     signals = {"count": 0}

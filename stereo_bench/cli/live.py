@@ -16,7 +16,8 @@ import threading
 from pathlib import Path
 
 from stereo_bench.cli import CliError
-from stereo_bench.cli.campaign_run import add_ui_options, start_live_page
+from stereo_bench.cli.args import ALPHA_DEG, BASELINE_MM, DISTANCE_MM, TIME_SCALE
+from stereo_bench.cli.campaign_run import add_ui_options, announce_live_page
 
 
 def live_config(args: argparse.Namespace):
@@ -54,28 +55,32 @@ def live_config(args: argparse.Namespace):
 
 
 def cmd_live(args: argparse.Namespace) -> int:
-    from drivers.camera.base import CameraError
-    from drivers.rig.config import RigError
+    from drivers.rig.config import plan_move
     from stereo_bench.campaign.bench import open_bench
     from stereo_bench.campaign.execute import CampaignPlan
+    from stereo_bench.live.page import LivePage
 
     config = live_config(args)
     plan = CampaignPlan.of(config)
     configuration = plan.configurations[0]
-    page = start_live_page(config, session_dir=None, host=args.ui_host, port=args.ui_port)
+    rig_config = config.rig.rig_config()
+    request = {q: v for q, v in configuration.move_request().items() if rig_config.quantities[q].driven}
+    plan_move(rig_config, request)  # outside the soft limits: refused (one line) before anything opens
+    page = LivePage.for_campaign(config, session_dir=None, host=args.ui_host, port=args.ui_port)
     page.state.run.update(status="live preview", name=config.name)
+    page.start()  # the address first: one it cannot serve on is one line (LiveServerError), before the rig moves
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
+        # The URL once the bench is open: a rig or camera that is not there is one line (exit status 2).
         with open_bench(config, operators=[], transcript=page.state.transcript) as bench:
+            announce_live_page(page)
             page.use_bench(bench)
             simulated = config.cameras.kind == "simulated"
             wants_move = simulated or any(v is not None for v in (args.baseline, args.alpha))
             if wants_move and not args.no_move:
                 if config.rig.homing:
                     bench.rig.home()
-                request = {q: v for q, v in configuration.move_request().items()
-                           if config.rig.rig_config().quantities[q].driven}
                 bench.rig.move_to(**request)
             if simulated:  # the measured target where the campaign would put it
                 bench.presenter.begin_configuration(configuration)
@@ -85,8 +90,6 @@ def cmd_live(args: argparse.Namespace) -> int:
                 while not stop.wait(0.5):
                     with bench.camera_gate.borrowed():
                         bench.rig.read()  # a status report: the page's rig state and position
-    except (RigError, CameraError) as error:
-        raise CliError(str(error), exit_code=1) from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -105,11 +108,13 @@ def register(subparsers) -> None:
     live.add_argument("--rig-config", metavar="FILE", help="rig configuration TOML (axis mapping, soft limits)")
     live.add_argument("--cameras", nargs=2, metavar=("LEFT", "RIGHT"),
                       help="the real cameras, by stable name (e.g. usb-port:1-2 usb-port:1-3, by-id:...)")
-    live.add_argument("--baseline", type=float, metavar="MM", help="move the baseline here first (default 100 mm)")
-    live.add_argument("--alpha", type=float, metavar="DEG", help="turn both cameras to this alpha first (default 90)")
-    live.add_argument("--distance", type=float, metavar="MM",
+    live.add_argument("--baseline", type=BASELINE_MM, metavar="MM",
+                      help="move the baseline here first (default 100 mm)")
+    live.add_argument("--alpha", type=ALPHA_DEG, metavar="DEG",
+                      help="turn both cameras to this alpha first (default 90)")
+    live.add_argument("--distance", type=DISTANCE_MM, metavar="MM",
                       help="simulated bench: where the measured target stands (default 500 mm)")
     live.add_argument("--no-move", action="store_true", help="do not home or move the rig")
-    live.add_argument("--time-scale", type=float, metavar="X", help="simulated rig: motion X times faster")
+    live.add_argument("--time-scale", type=TIME_SCALE, metavar="X", help="simulated rig: motion X times faster")
     add_ui_options(live, required=True)
     live.set_defaults(func=cmd_live)

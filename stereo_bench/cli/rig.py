@@ -62,6 +62,8 @@ MOVE_VALUE = finite_float()
 
 EXIT_FAULT = 1
 ACTIONS = ("home", "unlock", "move", "status", "resume", "reset", "shell")
+#: Not an action on the connection: a run of the kinematic design on a bench of its own (cli/rig_kinematics.py).
+CALIBRATE_KINEMATICS = "calibrate-kinematics"
 #: Actions that connect without the soft reset: looking must not disturb, and a reset would abandon a hold.
 _LOOKING = ("status", "resume", "shell")
 
@@ -74,6 +76,8 @@ actions (several run in order on one connection; ACTION --help for its options):
   resume                continue a move held by Ctrl-C / feed hold (waits until the hold is complete)
   reset                 soft reset: abandon a held move, end a halt after ALARM:1/2
   shell                 an interactive prompt for all of the above, on one connection
+  calibrate-kinematics  visit the kinematic rig model's design, fit it, write the model (alone; simulated bench
+                        without --port; calibrate-kinematics --help for its options)
 
 Opening the port of an Arduino-based controller reboots it (DTR auto-reset) and its position is then
 unknown: chain actions in one call (`rig --port P home move --baseline 100 status`) or use `shell`."""
@@ -85,15 +89,16 @@ def register(subparsers) -> None:
         description="Drive the stereo rig through its GRBL 1.1 controller, in mm and degrees.",
         epilog=ACTIONS_HELP, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    rig.add_argument("--port", required=True, metavar="PORT",
-                     help="serial device or pyserial URL of the controller (e.g. /dev/ttyUSB0, a sim-controller link)")
+    rig.add_argument("--port", metavar="PORT",
+                     help="serial device or pyserial URL of the controller (e.g. /dev/ttyUSB0, a sim-controller link); "
+                          "required except for calibrate-kinematics, which runs on the simulated bench without it")
     rig.add_argument("--rig-config", type=Path, metavar="FILE",
                      help="rig configuration TOML (axis mapping, limits); default: stock Grbl machine space, "
                           "X = baseline 0-350 mm at X -350..0, Y/Z = left/right toe-in 0-90 deg at -0..-90")
     rig.add_argument("--timeout", type=TIMEOUT_S, metavar="S", help="bound on homing or a move, seconds (> 0)")
     rig.add_argument("--spy-log", type=Path, metavar="FILE", help="record every byte on the link as JSON lines")
     rig.add_argument("actions", nargs=argparse.REMAINDER, metavar="ACTION [OPTIONS] ...",
-                     help="home | unlock | move ... | status [--json] | resume | reset | shell")
+                     help="home | unlock | move ... | status [--json] | resume | reset | shell | calibrate-kinematics")
     rig.set_defaults(func=_cmd_rig)
 
     sim = subparsers.add_parser(
@@ -176,13 +181,15 @@ def _parse_actions(tokens: list[str], config: RigConfig) -> list[_Action]:
         raise CliError(f"give an action: {', '.join(ACTIONS)} (several run in order on one connection)")
     groups: list[list[str]] = []
     for token in tokens:
-        if token in ACTIONS:
+        if token in ACTIONS or token == CALIBRATE_KINEMATICS:
             groups.append([token])
         elif not groups:
             raise CliError(f"unknown action {token!r}; actions: {', '.join(ACTIONS)}")
         else:
             groups[-1].append(token)
     parsers = _action_parsers()
+    if any(group[0] == CALIBRATE_KINEMATICS for group in groups):
+        raise CliError("calibrate-kinematics runs on its own: give it alone (`rig calibrate-kinematics --out DIR`)")
     actions = [_parse_action(parsers, group[0], group[1:], config) for group in groups]
     if len(actions) > 1 and any(a.name == "shell" for a in actions):
         raise CliError("shell runs on its own: give it alone (`rig --port P shell`)")
@@ -190,6 +197,8 @@ def _parse_actions(tokens: list[str], config: RigConfig) -> list[_Action]:
 
 
 def _parse_action(parsers: dict[str, _ActionParser], name: str, argv: list[str], config: RigConfig) -> _Action:
+    if name == CALIBRATE_KINEMATICS:
+        raise CliError("calibrate-kinematics runs on its own: `stereo-bench rig calibrate-kinematics --out DIR`")
     if name not in parsers:
         raise CliError(f"unknown action {name!r}; actions: {', '.join(ACTIONS)}")
     options = parsers[name].parse_args(argv)
@@ -277,6 +286,15 @@ def _warnings_to_stderr() -> Iterator[None]:
 
 
 def _cmd_rig(args) -> int:
+    if args.actions and args.actions[0] == CALIBRATE_KINEMATICS:
+        from stereo_bench.cli import rig_kinematics
+
+        if args.spy_log is not None or args.timeout is not None:
+            raise CliError("calibrate-kinematics records the serial transcript in its session and times moves from "
+                           "the rig config: --spy-log and --timeout do not apply")
+        return rig_kinematics.run(list(args.actions[1:]), port=args.port, rig_config=args.rig_config)
+    if args.port is None:
+        raise CliError("rig: --port is required (the controller's serial device or a sim-controller link)")
     config = _config(args)
     try:
         actions = _parse_actions(list(args.actions), config)

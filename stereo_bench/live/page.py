@@ -110,8 +110,8 @@ class LivePage:
         return self.host not in LOCAL_HOSTS
 
     def start(self) -> LivePage:
+        self.server.start()  # first: an address it cannot serve on leaves nothing running
         self.previews.start()
-        self.server.start()
         self._poller = threading.Thread(target=self._poll_transcript, name="live-transcript", daemon=True)
         self._poller.start()
         return self

@@ -6,7 +6,8 @@ Routes (everything the page needs ships in the package: no CDN, works offline):
 ``GET /``                 the page (``static/index.html``)
 ``GET /static/NAME``      its script and style (a fixed list, read from the package at start)
 ``GET /api/state``        the state as JSON (:meth:`LiveState.snapshot`)
-``GET /api/events``       Server-Sent Events: the state, each time it changes (at most 5 a second)
+``GET /api/events``       Server-Sent Events: ``state`` (the state, each time it changes, at most 5 a
+                          second) and ``preview`` (the newest preview's meta, each time there is one)
 ``GET /preview/SIDE.jpg`` the newest preview of ``left`` or ``right``
 ``GET /session/PATH``     a file of the session directory (refused outside it, symlinks included)
 ``POST /api/control/ACT`` continue, capture_now, discard_last_view, pause, resume, stop: needs the token
@@ -20,8 +21,10 @@ A browser that connects makes previews start; one that leaves changes nothing el
 from __future__ import annotations
 
 import asyncio
+import errno
 import json
 import secrets
+import socket
 import threading
 import time
 from importlib import resources
@@ -35,7 +38,48 @@ KEEPALIVE_S = 15.0
 
 
 class LiveServerError(RuntimeError):
-    """The server could not start (e.g. the port is taken); the message names host and port."""
+    """The server could not start (the port is taken, the host is not this machine's); one line naming host:port."""
+
+
+def _bind_reason(error: OSError) -> str:
+    if error.errno == errno.EADDRINUSE:
+        return "the port is in use (another program, or another live page, listens on it): choose another --ui-port, " \
+               "or 0 for a free one"
+    if error.errno == errno.EADDRNOTAVAIL:
+        return "no network interface of this machine has that address: give --ui-host one of its own addresses, " \
+               "or 0.0.0.0 for all of them"
+    if error.errno in (errno.EACCES, errno.EPERM):
+        return "not allowed (ports below 1024 need privileges): choose a port from 1024 to 65535, or 0 for a free one"
+    return error.strerror or str(error)
+
+
+def bind(host: str, port: int) -> socket.socket:
+    """A listening TCP socket on ``host:port`` (0: any free port), or :class:`LiveServerError` saying why not.
+
+    Bound here rather than by uvicorn, which logs a bind failure over several lines and exits.
+    """
+    where = f"{host}:{port}"
+    if not 0 <= port <= 65535:
+        raise LiveServerError(f"live page: cannot serve on {where}: a port is a number from 0 to 65535")
+    try:
+        addresses = socket.getaddrinfo(host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (socket.gaierror, UnicodeError) as error:
+        reason = getattr(error, "strerror", None) or str(error)
+        raise LiveServerError(f"live page: cannot serve on {where}: {host!r} is not an address or a host name this "
+                              f"machine can resolve ({reason})") from None
+    failure: OSError | None = None
+    for family, kind, protocol, _, address in addresses:
+        sock = socket.socket(family, kind, protocol)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn does: a restart reuses the port
+            sock.bind(address)
+            sock.listen(128)
+        except OSError as error:
+            sock.close()
+            failure = failure or error
+            continue
+        return sock
+    raise LiveServerError(f"live page: cannot serve on {where}: {_bind_reason(failure)}")
 
 
 def static_files() -> dict[str, bytes]:
@@ -119,26 +163,36 @@ class LiveApp:
                                  headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
 
     async def _stream(self, request):
-        """The state as an SSE stream: one event per change, coalesced, at most MAX_UPDATES_PER_S."""
+        """The state as an SSE stream: a ``state`` event per change (coalesced, at most MAX_UPDATES_PER_S) and a
+        ``preview`` event per new preview (its meta only: the live previews come faster than that and are small)."""
         self.page.previews.watchers(+1)
         try:
-            sent = -1
-            last_write = time.monotonic()
+            sent, sent_preview, next_state = -1, None, 0.0
+            last_write = last_check = time.monotonic()
             while not self.closing:
                 changed = self._changed
-                version = self.page.state.version
-                if version != sent:
-                    snapshot = await asyncio.to_thread(self.page.state.snapshot)
-                    sent = version
+                state = self.page.state
+                now = time.monotonic()
+                if state.version != sent and now >= next_state:
+                    snapshot = await asyncio.to_thread(state.snapshot)
+                    sent, sent_preview = snapshot["version"], _version_of(snapshot["preview"])
                     yield f"event: state\ndata: {json.dumps(snapshot, separators=(',', ':'))}\n\n"
-                    last_write = time.monotonic()
-                    await asyncio.sleep(1.0 / MAX_UPDATES_PER_S)
+                    last_write, next_state = now, now + 1.0 / MAX_UPDATES_PER_S
                     continue
-                try:
-                    await asyncio.wait_for(changed.wait(), timeout=0.5)
-                except TimeoutError:
+                preview = state.preview
+                if _version_of(preview) != sent_preview:
+                    sent_preview = _version_of(preview)
+                    yield f"event: preview\ndata: {json.dumps(preview, separators=(',', ':'))}\n\n"
+                    last_write = now
+                    continue
+                if now - last_check > 0.5:  # previews may flow without pause: look for a closed tab anyway
+                    last_check = now
                     if await request.is_disconnected():
                         return
+                timeout = 0.5 if state.version == sent else max(0.0, next_state - now)
+                try:
+                    await asyncio.wait_for(changed.wait(), timeout=timeout)
+                except TimeoutError:
                     if time.monotonic() - last_write > KEEPALIVE_S:
                         yield ": keepalive\n\n"
                         last_write = time.monotonic()
@@ -195,33 +249,34 @@ class LiveServer:
         self.requested_port = port
         self.port: int | None = None
         self._server = None
+        self._socket: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
 
     def start(self, timeout_s: float = 10.0) -> LiveServer:
         import uvicorn
 
+        sock = self._socket = bind(self.host, self.requested_port)
         config = uvicorn.Config(self.live_app.app, host=self.host, port=self.requested_port, log_level="warning",
                                 access_log=False, lifespan="off", timeout_graceful_shutdown=2)
         self._server = uvicorn.Server(config)
-        self._thread = threading.Thread(target=self._serve, name="live-server", daemon=True)
+        self._thread = threading.Thread(target=self._serve, args=(sock,), name="live-server", daemon=True)
         self._thread.start()
         deadline = time.monotonic() + timeout_s
         while not self._server.started:
             if not self._thread.is_alive() or time.monotonic() > deadline:
+                sock.close()
                 why = self._error or "it did not start in time"
                 raise LiveServerError(f"live page: cannot serve on {self.host}:{self.requested_port} ({why})")
             time.sleep(0.01)
-        self.port = self._server.servers[0].sockets[0].getsockname()[1]
+        self.port = sock.getsockname()[1]
         return self
 
-    def _serve(self) -> None:
+    def _serve(self, sock: socket.socket) -> None:
         try:
-            self._server.run()
+            self._server.run(sockets=[sock])
         except BaseException as error:  # noqa: BLE001 - reported by start()
             self._error = error
-        if not self._server.started and self._error is None:
-            self._error = "the address is in use or not available"
 
     def stop(self) -> None:
         self.live_app.closing = True
@@ -230,6 +285,12 @@ class LiveServer:
             self._server.should_exit = True
         if self._thread is not None:
             self._thread.join(timeout=10)
+        if self._socket is not None:
+            self._socket.close()  # uvicorn closed it when it served; not when it failed to start
+
+
+def _version_of(preview: dict | None) -> int | None:
+    return None if preview is None else preview.get("version")
 
 
 def url_for(host: str, port: int, token: str) -> str:

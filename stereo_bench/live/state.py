@@ -5,7 +5,8 @@ from ``home``/``move``, captures, prompts answered, calibrations, analyses, resu
 three things a recording holds elsewhere: the serial transcript (a session file the ``transcript``
 event names), the pending prompt (offered to the page as an operator) and the previews/coverage
 (the recorded frames, see preview.py). :meth:`LiveState.snapshot` is the JSON the page renders; every
-browser tab gets the same one.
+browser tab gets the same one. ``version`` counts the changes of everything but the preview, which
+has a version of its own (``preview["version"]``): the server sends the two as separate events.
 """
 
 from __future__ import annotations
@@ -294,9 +295,10 @@ class LiveState:
         self.on_change()
 
     def set_preview(self, meta: dict) -> None:
+        """The newest preview (its own ``version``): not a change of the state's version, so that the live
+        previews (6 a second while idle) reach the page as small ``preview`` events, not whole snapshots."""
         with self._lock:
             self.preview = meta
-            self.version += 1
         self.on_change()
 
     def calibration_view_detected(self, config_id: str, index: int, detections: dict) -> None:

@@ -322,7 +322,7 @@ def calibrate_stereo(
         cov = stereo_covariance(
             [object_points[i] for i in used], [left_points[i] for i in used], [right_points[i] for i in used],
             K1n, D1n, K2n, D2n, R, T, rvecs, tvecs, flags=stereo_flags, view_indices=used,
-            intrinsics_covariance=intrinsics_covariance, intrinsics_from=intrinsics_from,
+            intrinsics_covariance=intrinsics_covariance, intrinsics_from=intrinsics_from, image_size=tuple(image_size),
         )
     except CovarianceUnavailable as error:
         note = str(error)

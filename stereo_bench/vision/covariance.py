@@ -56,6 +56,60 @@ _FIXED_BY_FLAG = {
 _COUPLING_FLAGS = ("CALIB_FIX_ASPECT_RATIO", "CALIB_SAME_FOCAL_LENGTH")
 
 
+#: Bins of the residual map over the image (columns, rows): ~120 px squares at 1080p, so a bin holds
+#: tens of a 12-view calibration's corners where the boards went.
+RESIDUAL_MAP_BINS = (16, 9)
+
+
+@dataclass(frozen=True, eq=False)
+class ResidualMap:
+    """One camera's calibration residuals binned by image position: where the model misses the corners.
+
+    ``count`` (ny, nx) corners per bin, ``mean`` (ny, nx, 2) their mean residual (projected - observed, px),
+    ``sumsq`` (ny, nx, 2) the sum of squared residuals per coordinate. A smooth error the model cannot
+    follow (a lens term it lacks) shows as a mean that differs from zero where it acts; random noise,
+    pixel locking and corner-to-corner errors average out of the means.
+    """
+
+    image_size: tuple[int, int]
+    count: np.ndarray
+    mean: np.ndarray
+    sumsq: np.ndarray
+
+    @classmethod
+    def of(cls, observed_px: np.ndarray, residual_px: np.ndarray, image_size: tuple[int, int],
+           bins: tuple[int, int] = RESIDUAL_MAP_BINS) -> ResidualMap:
+        """From interleaved (u0, v0, u1, ...) observed pixels and residuals of one camera."""
+        observed = np.asarray(observed_px, float).reshape(-1, 2)
+        residual = np.asarray(residual_px, float).reshape(-1, 2)
+        index = cls._index(observed, image_size, bins)
+        nx, ny = bins
+        count = np.bincount(index, minlength=nx * ny).astype(float)
+        total = np.stack([np.bincount(index, weights=residual[:, c], minlength=nx * ny) for c in (0, 1)], axis=-1)
+        sumsq = np.stack([np.bincount(index, weights=residual[:, c] ** 2, minlength=nx * ny) for c in (0, 1)], axis=-1)
+        mean = total / np.maximum(count, 1.0)[:, None]
+        return cls(tuple(int(v) for v in image_size), count.reshape(ny, nx), mean.reshape(ny, nx, 2),
+                   sumsq.reshape(ny, nx, 2))
+
+    @staticmethod
+    def _index(pixels: np.ndarray, image_size: tuple[int, int], bins: tuple[int, int]) -> np.ndarray:
+        nx, ny = bins
+        u = np.clip((pixels[:, 0] / image_size[0] * nx).astype(int), 0, nx - 1)
+        v = np.clip((pixels[:, 1] / image_size[1] * ny).astype(int), 0, ny - 1)
+        return v * nx + u
+
+    def bins_of(self, pixels: np.ndarray) -> np.ndarray:
+        """(N,) flat bin index of each of (N, 2) pixels."""
+        ny, nx = self.count.shape
+        return self._index(np.asarray(pixels, float).reshape(-1, 2), self.image_size, (nx, ny))
+
+    def standard_error(self) -> np.ndarray:
+        """(ny, nx, 2) standard error of each bin's mean (from the scatter in the bin)."""
+        n = np.maximum(self.count, 1.0)[..., None]
+        variance = np.maximum(self.sumsq / n - self.mean**2, 0.0) * n / np.maximum(n - 1.0, 1.0)
+        return np.sqrt(variance / n)
+
+
 class CovarianceUnavailable(ValueError):
     """The covariance cannot be computed (unsupported flags, singular normal matrix); the message says why."""
 
@@ -75,6 +129,10 @@ class CalibrationCovariance:
     # (a_sin, a_cos) px: the detector's corner error e(p) = a_sin sin(2 pi frac(p)) + a_cos cos(2 pi frac(p))
     # per coordinate, fitted to the residuals; None when not estimated.
     pixel_locking_px: tuple[float, float] | None = None
+    # Per camera ("left", "right"; "" for a mono calibration) the residuals binned over the image: where the
+    # model misses the corners (stereo_bench.vision.uncertainty uses it for the corner error beyond noise and
+    # locking). None when not computed (a calibration read from a file, a prediction).
+    residual_map: dict[str, ResidualMap] | None = None
 
     def __post_init__(self):
         matrix = np.asarray(self.matrix, float)
@@ -102,11 +160,11 @@ class CalibrationCovariance:
         """The marginal covariance of ``names`` (in that order)."""
         i = self.index(names)
         return CalibrationCovariance(tuple(names), self.matrix[np.ix_(i, i)], self.sigma_px, self.dof,
-                                     self.pixel_locking_px)
+                                     self.pixel_locking_px, self.residual_map)
 
     def prefixed(self, prefix: str) -> CalibrationCovariance:
         return CalibrationCovariance(tuple(prefix + n for n in self.names), self.matrix, self.sigma_px, self.dof,
-                                     self.pixel_locking_px)
+                                     self.pixel_locking_px, self.residual_map)
 
     def with_prefix(self, prefix: str) -> tuple[str, ...]:
         return tuple(n for n in self.names if n.startswith(prefix))
@@ -163,6 +221,7 @@ class _Solution:
     n_parameters: int  # P + 6 per view
     pixel_locking_px: tuple[float, float] | None
     assumed_sigma_px: float | None = None  # given instead of estimated from the residuals
+    residual_map: dict[str, ResidualMap] | None = None
 
     @property
     def dof(self) -> int:
@@ -175,7 +234,22 @@ class _Solution:
         return float(np.sqrt(self.ssr / self.dof)) if self.dof > 0 else float("nan")
 
 
-def _solve(views: list[_View], *, locking: bool = True, jhat: bool = False) -> _Solution:
+def _residual_maps(views: list[_View], image_size: tuple[int, int]) -> dict[str, ResidualMap]:
+    """Per camera side the residuals of ``views`` binned over the image."""
+    observed: dict[str, list[np.ndarray]] = {}
+    residual: dict[str, list[np.ndarray]] = {}
+    for view in views:
+        start = 0
+        for (_, side), size in zip(view.key, view.sizes, strict=True):
+            observed.setdefault(side, []).append(view.observed[start:start + size])
+            residual.setdefault(side, []).append(view.residual[start:start + size])
+            start += size
+    return {side: ResidualMap.of(np.concatenate(observed[side]), np.concatenate(residual[side]), image_size)
+            for side in observed}
+
+
+def _solve(views: list[_View], *, locking: bool = True, jhat: bool = False,
+           image_size: tuple[int, int] | None = None) -> _Solution:
     """Schur complement of the per-view poses; raises CovarianceUnavailable if the problem is singular.
 
     All views at once: each view's rows are zero-padded to the longest view's (zero rows add nothing
@@ -211,6 +285,7 @@ def _solve(views: list[_View], *, locking: bool = True, jhat: bool = False) -> _
         S_inv=S_inv, Jhat=Jhat, ssr=float(residual @ residual),
         n_rows=len(residual), n_parameters=P + 6 * n,
         pixel_locking_px=pixel_locking(np.concatenate([v.observed for v in views]), residual) if locking else None,
+        residual_map=_residual_maps(views, image_size) if locking and image_size is not None else None,
     )
 
 
@@ -252,7 +327,7 @@ def _mono_views(object_points, image_points, K, D, rvecs, tvecs, free: tuple[str
 
 def mono_covariance(
     object_points: Sequence[np.ndarray], image_points: Sequence[np.ndarray], K: np.ndarray, D: np.ndarray,
-    rvecs: Sequence[np.ndarray], tvecs: Sequence[np.ndarray], *, flags: int,
+    rvecs: Sequence[np.ndarray], tvecs: Sequence[np.ndarray], *, flags: int, image_size: tuple[int, int] | None = None,
 ) -> CalibrationCovariance:
     """Covariance of one camera's estimated intrinsics (names ``fx fy cx cy k1 ...``) after cv2.calibrateCamera.
 
@@ -265,9 +340,9 @@ def mono_covariance(
     if not free:
         raise CovarianceUnavailable("all intrinsics were fixed: nothing was estimated")
     views = _mono_views(object_points, image_points, K, D, rvecs, tvecs, free, range(len(object_points)), "")
-    solution = _solve(views)
+    solution = _solve(views, image_size=image_size)
     return CalibrationCovariance(free, solution.sigma_px**2 * solution.S_inv, solution.sigma_px, solution.dof,
-                                 solution.pixel_locking_px)
+                                 solution.pixel_locking_px, solution.residual_map)
 
 
 @dataclass(frozen=True)
@@ -347,6 +422,7 @@ def stereo_covariance(
     intrinsics_covariance: CalibrationCovariance | None = None,
     intrinsics_from: tuple[MonoLinearisation, MonoLinearisation] | str | None = None,
     view_indices: Sequence[int] | None = None, sigma_px: float | None = None,
+    image_size: tuple[int, int] | None = None,
 ) -> CalibrationCovariance:
     """Covariance of both cameras' intrinsics and R (rotation vector), T after cv2.stereoCalibrate.
 
@@ -368,6 +444,8 @@ def stereo_covariance(
         sigma_px: the corner noise per coordinate to scale by; default the fit's residual sigma.
             Given, it predicts a planned calibration's covariance from noise-free projections
             (``dof`` is then 0: assumed, not estimated).
+        image_size: (width, height) px: with it, each camera's residuals are binned over the image
+            (:class:`ResidualMap`, ``residual_map``).
 
     Returns: names ``left.* right.* rvec.* T.*`` (intrinsics: those estimated here or given).
 
@@ -394,14 +472,14 @@ def stereo_covariance(
         ext_r = tuple(n[6:] for n in intrinsics_covariance.with_prefix("right."))
     views = _stereo_views(object_points, left_points, right_points, K1, D1, K2, D2, R, T, rvecs, tvecs,
                           free_l, free_r, ext_l, ext_r, view_indices)
-    solution = _solve(views, locking=sigma_px is None, jhat=fixed)
+    solution = _solve(views, locking=sigma_px is None, jhat=fixed, image_size=image_size)
     if sigma_px is not None:
         solution = replace(solution, assumed_sigma_px=float(sigma_px))
     sigma2 = solution.sigma_px**2
     names = tuple("left." + n for n in free_l) + tuple("right." + n for n in free_r) + EXTRINSIC_NAMES
     if not fixed:
         return CalibrationCovariance(names, sigma2 * solution.S_inv, solution.sigma_px, solution.dof,
-                                     solution.pixel_locking_px)
+                                     solution.pixel_locking_px, solution.residual_map)
 
     ext_names = tuple("left." + n for n in ext_l) + tuple("right." + n for n in ext_r)
     # The intrinsics held fixed move the stereo solution: d(rvec, T) = S^-1 Jhat^T (dq - J_ext d(intrinsics)).
@@ -412,7 +490,7 @@ def stereo_covariance(
         cross = -G @ C_e  # Cov(rvec T, intrinsics)
         matrix = np.block([[C_e, cross.T], [cross, cov_rt]])
         return CalibrationCovariance(ext_names + EXTRINSIC_NAMES, matrix, solution.sigma_px, solution.dof,
-                                     solution.pixel_locking_px)
+                                     solution.pixel_locking_px, solution.residual_map)
 
     # Same data. Every estimate is linear in the observed corners q (independent, variance sigma^2):
     # intrinsics e = M q with M = S_m^-1 Jhat_m^T (per camera), the stereo fit a = D q - G e with
@@ -438,7 +516,7 @@ def stereo_covariance(
     cross = X - G @ B  # Cov(rvec T, intrinsics) / sigma^2
     matrix = sigma2 * np.block([[B, cross.T], [cross, cov_rt]])
     return CalibrationCovariance(ext_names + EXTRINSIC_NAMES, matrix, solution.sigma_px, solution.dof,
-                                 solution.pixel_locking_px)
+                                 solution.pixel_locking_px, solution.residual_map)
 
 
 def _mono_linearisations_from(views: list[_View], names_left: tuple[str, ...], names_right: tuple[str, ...],

@@ -25,11 +25,20 @@ mean adjacent-corner length (mm). Its standard-uncertainty components:
   simulator the target's corners lock 1.0-1.4 times as strongly as the calibration views'), so b
   gets a relative standard uncertainty of :data:`LOCKING_TRANSFER_U_REL`. Corner error the fit
   shows beyond the random noise and the locking (:func:`corner_systematic_px`, when significant)
-  has no known pattern; part of it is smooth across the board (edges curved by the lens), which no
-  averaging over corners removes, so it is propagated as an unknown shift and magnification of each
-  image (:func:`coherent_displacement_mm`). The detector part, sqrt(b^2 (1 + 0.5^2) + rest^2), is
-  not divided by the number of frames; noise = sqrt(sum sigma_i^2 / n^2 + bias^2 + detector^2),
-  every part in ``details()``.
+  has no known pattern; part of it is smooth across the board (edges curved by a lens term the model
+  lacks), which no averaging over corners removes, part differs from corner to corner (JPEG blocks,
+  the board's texture) and repeats in every frame of a static target. When the calibration binned its
+  residuals over the image (:class:`~stereo_bench.vision.covariance.ResidualMap`), the smooth part is
+  read where the measured corners are: each bin's mean residual is the model's miss there, its effect
+  on the square a bias with the bins' standard errors as its uncertainty; the rest of the excess is
+  counted independent from corner to corner and shared by the frames (:func:`mapped_systematic_mm`).
+  On the lab bench the excess (~0.015 px at 1080p) is nearly all corner-to-corner: the bins' means
+  over the target are ~0.003 px, so a whole-image shift and magnification of 0.015 px overstated the
+  square's uncertainty 2.5 times (per-config coverage RMS 0.42). Without a map (a calibration read
+  from a file, a rig model) the excess is propagated, as the GUM does for an unknown correlation, as
+  an unknown shift and magnification of each image (:func:`coherent_displacement_mm`). The detector
+  part, sqrt(b^2 (1 + 0.5^2) + rest^2), is not divided by the number of frames; noise = sqrt(sum
+  sigma_i^2 / n^2 + bias^2 + detector^2), every part in ``details()``.
 - ``calibration``: the calibration's covariance C (:mod:`stereo_bench.vision.covariance`) pushed
   through the square's sensitivity to each calibrated parameter, g = d(square)/d(parameters)
   evaluated at the measured corners: sqrt(g^T C g). One calibration serves every frame of a
@@ -263,6 +272,57 @@ def coherent_displacement_mm(calib: StereoCalibration, frames: Sequence[PairMeas
     return float(math.sqrt(variance))
 
 
+#: A bin of the residual map speaks for the corners in it when it holds at least this many calibration corners.
+MIN_MAP_CORNERS = 8
+
+
+def mapped_systematic_mm(calib: StereoCalibration, frames: Sequence[PairMeasurement | FrameCorners], target: Target,
+                         maps: dict, sigma_px: float) -> tuple[float, float] | None:
+    """(bias, standard uncertainty) mm of the square from the corner error beyond noise and locking, read from the
+    calibration's residual maps (``maps``: "left", "right" -> ResidualMap) where the measured corners lie.
+
+    The smooth part: each bin's mean residual r_b (projected - observed) says the model puts a corner r_b off
+    there, so the square moves by b = -sum_b G_b . r_b (G_b: the square's pixel gradient summed over the
+    corners in bin b, every frame), uncertain by the bins' standard errors. The rest of the excess
+    ``sigma_px`` (its variance less the map's mean squared miss) is independent from corner to corner and
+    the same in every frame of a static target. None when a measured corner lies in a bin with fewer than
+    :data:`MIN_MAP_CORNERS` calibration corners (the map does not speak for it).
+    """
+    frames = _frames(frames)
+    if not maps or any(side not in maps for side in ("left", "right")):
+        return None
+    gradients = pixel_gradients(calib, frames, target)
+    bias = variance = 0.0
+    explained, weight = 0.0, 0.0
+    per_corner: dict[tuple[str, int], np.ndarray] = {}
+    for side, columns in (("left", slice(0, 2)), ("right", slice(2, 4))):
+        residual_map = maps[side]
+        pixels = np.vstack([f.left_px if side == "left" else f.right_px for f in frames])
+        gradient = np.vstack([g[:, columns] for g in gradients])
+        bins = residual_map.bins_of(pixels)
+        count = residual_map.count.ravel()
+        if np.any(count[bins] < MIN_MAP_CORNERS):
+            return None
+        mean = residual_map.mean.reshape(-1, 2)
+        error = residual_map.standard_error().reshape(-1, 2)
+        G = np.zeros_like(mean)
+        np.add.at(G, bins, gradient)
+        bias -= float(np.sum(G * mean))
+        variance += float(np.sum((G * error) ** 2))
+        # How much of the excess the map's smooth miss explains over the calibration corners (noise removed).
+        supported = count >= MIN_MAP_CORNERS
+        explained += float(np.sum(count[supported, None] * np.maximum(mean[supported] ** 2 - error[supported] ** 2,
+                                                                      0.0)))
+        weight += 2.0 * float(np.sum(count[supported]))
+        ids = np.concatenate([f.ids for f in frames])
+        for corner, g in zip(ids, gradient, strict=True):
+            key = (side, int(corner))
+            per_corner[key] = per_corner.get(key, 0.0) + g
+    independent = math.sqrt(max(sigma_px**2 - explained / max(weight, 1.0), 0.0))
+    variance += independent**2 * float(sum(np.sum(g**2) for g in per_corner.values()))
+    return bias, float(math.sqrt(variance))
+
+
 def corner_systematic_px(covariance: CalibrationCovariance | None, random_px: float) -> float:
     """Systematic corner error per coordinate (px) the calibration's residuals show and the fitted locking does not.
 
@@ -339,6 +399,8 @@ class UncertaintyBudget:
     noise_systematic_mm: float = float("nan")  # the detector's systematic error, shared by the frames
     detector_bias_mm: float = float("nan")  # its predictable part: the fitted pixel locking on these corners
     corner_systematic_px: float = float("nan")  # systematic corner error the locking fit leaves (per coordinate)
+    field_bias_mm: float = float("nan")  # the smooth part of that error where the corners are (residual map)
+    systematic_model: str = ""  # how that error was counted: "residual map" or "coherent shift and magnification"
     pixel_locking_px: tuple[float, float] | None = None  # (a_sin, a_cos) from the calibration's residuals
 
     @property
@@ -376,7 +438,8 @@ class UncertaintyBudget:
             "n_frames": self.n_frames, "unknown": self.unknown, "dominant": self.dominant,
             "noise_random_mm": self.noise_random_mm, "noise_bias_mm": self.noise_bias_mm,
             "noise_systematic_mm": self.noise_systematic_mm, "detector_bias_mm": self.detector_bias_mm,
-            "corner_systematic_px": self.corner_systematic_px,
+            "corner_systematic_px": self.corner_systematic_px, "field_bias_mm": self.field_bias_mm,
+            "systematic_model": self.systematic_model or None,
             "pixel_locking_px": None if self.pixel_locking_px is None else list(self.pixel_locking_px),
             "complete": not self.unknown, "structure_source": self.structure_source or None,
             "calibration_note": self.calibration_note or None,
@@ -452,10 +515,20 @@ def configuration_budget(
         corner_systematic = corner_systematic_px(covariance, random_px)
     locking = None if covariance is None else covariance.pixel_locking_px
     detector_bias = rest = 0.0
+    field_bias, systematic_model = float("nan"), ""
     if locking is not None:
         detector_bias = float((complex(*locking) * phase_sum(calib, frames, target)).imag)
     if corner_systematic > 0:
-        rest = coherent_displacement_mm(calib, frames, target, corner_systematic)
+        mapped = None
+        if covariance is not None and covariance.residual_map is not None:
+            mapped = mapped_systematic_mm(calib, frames, target, covariance.residual_map, corner_systematic)
+        if mapped is not None:
+            field_bias, u_field = mapped
+            rest = float(math.sqrt(field_bias**2 + u_field**2))
+            systematic_model = "residual map"
+        else:
+            rest = coherent_displacement_mm(calib, frames, target, corner_systematic)
+            systematic_model = "coherent shift and magnification"
     systematic = float(math.sqrt(detector_bias**2 * (1.0 + LOCKING_TRANSFER_U_REL**2) + rest**2))
     measured = _square_function(frames, target)(calib)
     return UncertaintyBudget(
@@ -464,5 +537,6 @@ def configuration_budget(
         structure=u_structure, target=board_scale.u_mm(target.square_mm), k=float(k),
         structure_source=structure_source, calibration_note=note, sensitivities=gradient, noise_random_mm=random,
         noise_bias_mm=bias, noise_systematic_mm=systematic, corner_systematic_px=float(corner_systematic),
-        detector_bias_mm=detector_bias, pixel_locking_px=locking,
+        detector_bias_mm=detector_bias, pixel_locking_px=locking, field_bias_mm=field_bias,
+        systematic_model=systematic_model,
     )

@@ -273,6 +273,12 @@ function render(next) {
 function connect() {
   const source = new EventSource("/api/events");
   source.addEventListener("state", (event) => { $("connection").hidden = true; render(JSON.parse(event.data)); });
+  // The newest preview alone (live previews come faster than whole states): the state's copy follows it.
+  source.addEventListener("preview", (event) => {
+    const meta = JSON.parse(event.data);
+    if (state) state.preview = meta;
+    renderPreview(meta);
+  });
   source.onerror = () => { $("connection").hidden = state === null || ["success", "failed", "interrupted", "aborted"].includes(state.run.status); };
 }
 connect();

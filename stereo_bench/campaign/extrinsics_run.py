@@ -1,0 +1,257 @@
+"""The extrinsics source of a campaign run: prepared from the visits, read back for a resume or a replay, and
+applied at each configuration (the runner's steps call these; :mod:`stereo_bench.campaign.sources` is the math).
+
+- :func:`prepare_source` (analysis thread, after the visits): fits the kinematic rig model to the design's
+  views in one joint adjustment (:func:`stereo_bench.kinematics.fit_kinematics`), or calibrates the
+  intrinsics ``nominal`` extrinsics use from one visit's views. What it made is recorded
+  (:meth:`Prepared.drafts`: the model's TOML as a ``kinematic_model`` event's side file, or a
+  ``calibration`` event of the visit).
+- :func:`used_source` / :func:`compare_sources`: the source a configuration is measured with and every
+  other one available there, on the same detections, with their uncertainty budgets; the result row's
+  columns and the ``structure`` event.
+- :func:`session_sources` / :func:`recorded_sources`: what a run starts with (a model file, a calibration
+  directory's intrinsics) and what a recording holds (a resume does not visit the design again; a replay
+  takes a model file's copy from the session, never from outside it).
+
+Intrinsics: ``kinematic`` extrinsics use the intrinsics of the model's joint fit (refined on every view of
+the design: 108 views determine them better than any one configuration's 12, and they are consistent with
+the fitted chain); ``nominal`` extrinsics use ``calib_dir``'s when given (a lens calibration the user
+trusts, with its covariance), else one stereo calibration at the first configuration (12 views: the same
+calibration a per-config run makes there, whose joint intrinsics carry their covariance into the budget).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stereo_bench.campaign.analysis import AnalysisError, ConfigurationAnalysis, calibrate_configuration
+from stereo_bench.campaign.documents import (
+    CalibrationEvent,
+    CalibrationFiles,
+    Draft,
+    IntrinsicsEvent,
+    KinematicModelEvent,
+)
+from stereo_bench.campaign.sources import (
+    Source,
+    StructureComparison,
+    assess,
+    calibrated_source,
+    compare,
+    fixed_source,
+    kinematic_source,
+    nominal_source,
+    result_columns,
+    structure_data,
+    truth_columns,
+)
+from stereo_bench.kinematics import (
+    ConfigurationViews,
+    KinematicFileError,
+    KinematicModel,
+    fit_kinematics,
+    model_from_toml,
+    model_toml,
+)
+from stereo_bench.vision.calibrate import StereoCalibration
+
+MODEL_FILE = "kinematic_model.toml"
+INTRINSICS_FILE = "intrinsics.yml"
+
+
+@dataclass
+class Prepared:
+    """What the extrinsics source needs before the configurations: a kinematic model, nominal's intrinsics."""
+
+    kinematic_model: KinematicModel | None = None
+    nominal_intrinsics: StereoCalibration | None = None
+    error: str | None = None
+    record: dict[str, Any] = field(default_factory=dict)  # the kinematic_model event's data
+    calibration: tuple[str, ConfigurationAnalysis] | None = None  # (visit id, its calibration) for nominal
+
+    def drafts(self, board: str) -> list[Draft]:
+        """The documents that record it (nothing for a source given before the run)."""
+        out = []
+        if self.record:
+            files = {} if self.kinematic_model is None else {MODEL_FILE: model_toml(self.kinematic_model).encode()}
+            out.append(Draft(KinematicModelEvent, config_id=None, data=self.record, files=files))
+        if self.calibration is not None:
+            visit_id, analysis = self.calibration
+            out.append(Draft(CalibrationEvent, config_id=visit_id, calibration=CalibrationFiles(
+                analysis.calib, analysis.rect, board=board, extra={"purpose": "intrinsics of nominal extrinsics"})))
+        return out
+
+
+def prepare_source(purpose: str, visits: Sequence, captures: Sequence, config, options) -> Prepared:
+    """Fit the kinematic model (``purpose`` kinematic) or calibrate the intrinsics (intrinsics) from the visits'
+    captures (:class:`~stereo_bench.campaign.runner.Captured`, each with its calibration pairs, reported axes
+    and approach). A failure is kept (``error``): every configuration then fails with it."""
+    board = config.calibration_board.build()
+    captured = [c for c in captures if c.calibration_pairs]
+    ids = [c.configuration.config_id for c in captured]
+    if purpose == "intrinsics":
+        if not captured:
+            return Prepared(error="no intrinsics for nominal extrinsics: the calibration visit captured nothing")
+        try:
+            analysis = calibrate_configuration(captured[0].calibration_pairs, board, mode="joint",
+                                               detections=captured[0].detections(board))
+        except AnalysisError as error:
+            return Prepared(error=f"no intrinsics for nominal extrinsics: calibration at {ids[0]} failed: {error}")
+        return Prepared(nominal_intrinsics=analysis.calib, calibration=(ids[0], analysis))
+
+    record: dict[str, Any] = {"source": "design", "visits_used": ids}
+    if not captured:
+        return Prepared(error="kinematic fit: no design visit captured views", record={**record, "error":
+                        "no design visit captured views"})
+    configurations = []
+    for capture in captured:
+        try:
+            views = capture.detections(board)  # made while capturing (or recorded, in a replay)
+        except AnalysisError as error:
+            return Prepared(error=f"kinematic fit failed: {error}", record={**record, "error": str(error)})
+        configurations.append(ConfigurationViews(axes=capture.axes, approach=capture.approach, views=views))
+    image = captured[0].calibration_pairs[0][0]
+    slide_mm, heads_deg = options.repeatability
+    started = time.perf_counter()
+    try:
+        fit = fit_kinematics(configurations, board.object_points, (int(image.shape[1]), int(image.shape[0])),
+                             intrinsics=options.intrinsics, refine_intrinsics=True, repeatability_mm=slide_mm,
+                             repeatability_left_deg=heads_deg, repeatability_right_deg=heads_deg)
+    except (ValueError, np.linalg.LinAlgError) as error:
+        return Prepared(error=f"kinematic fit failed: {error}", record={**record, "error": str(error)})
+    model = fit.model
+    record.update(n_views=model.fit.n_views, rms_px=model.fit.rms_px, fit_s=time.perf_counter() - started,
+                  views_dropped=[{"visit": ids[c], "view": i, "reason": why} for c, i, why in fit.views_dropped])
+    return Prepared(kinematic_model=model, record=record)
+
+
+# --------------------------------------------------------------------------------------------------
+# At a configuration
+
+
+def used_source(options, prepared: Prepared, configuration, captured) -> Source:
+    """The source a kinematic, nominal or fixed run measures ``configuration`` with; AnalysisError if it has none."""
+    mode = options.extrinsics_mode
+    if mode == "fixed":
+        return fixed_source(options.fixed_calibration, options.board_scale)
+    if mode == "kinematic":
+        if prepared.kinematic_model is None:
+            raise AnalysisError(prepared.error or "no kinematic rig model")
+        return kinematic_source(prepared.kinematic_model, captured.axes, captured.approach, options.board_scale)
+    if mode == "nominal":
+        if prepared.nominal_intrinsics is None:
+            raise AnalysisError(prepared.error or "no intrinsics for nominal extrinsics")
+        return _nominal(options, prepared.nominal_intrinsics, configuration)
+    raise ValueError(f"extrinsics mode {mode!r} is measured with its own calibration")
+
+
+def _nominal(options, intrinsics: StereoCalibration, configuration) -> Source:
+    return nominal_source(intrinsics, baseline_mm=configuration.baseline_mm, alpha_left_deg=configuration.alpha_deg,
+                          alpha_right_deg=configuration.alpha_deg, tilt_deg=configuration.tilt_deg,
+                          tolerances=options.tolerances, board_scale=options.board_scale)
+
+
+def compare_sources(options, prepared: Prepared, configuration, captured, analysis: ConfigurationAnalysis, target,
+                    *, used: Source | None) -> StructureComparison:
+    """The used source's budget and columns, and every other available source on the same detections.
+
+    Available: the kinematic model's prediction wherever a model is (kinematic mode, or ``kinematic_file``);
+    the nominal geometry with the used calibration's intrinsics; the calibrated R, T in per-config mode.
+    """
+    mode = options.extrinsics_mode
+    if used is None:  # per-config: the configuration's own calibration
+        used = calibrated_source(analysis.calib, options.board_scale)
+    others: list[Source] = []
+    model = prepared.kinematic_model
+    if mode != "kinematic" and model is not None and captured.axes is not None:
+        others.append(kinematic_source(model, captured.axes, captured.approach or {}, options.board_scale))
+    if mode != "nominal":
+        others.append(_nominal(options, used.calib, configuration))
+    results = {used.name: assess(used, analysis.frames, target)}
+    results.update(compare(others, [(f.left, f.right) for f in analysis.frames], target))
+    axes = captured.axes or {"baseline_mm": configuration.baseline_mm, "toe_in_left_deg": configuration.toe_in_deg,
+                             "toe_in_right_deg": configuration.toe_in_deg}
+    columns = {**result_columns(mode, results[used.name]), **truth_columns(captured.truth)}
+    return StructureComparison(columns=columns, data=structure_data(mode, results, axes=axes,
+                                                                    approach=captured.approach or {},
+                                                                    truth=captured.truth))
+
+
+# --------------------------------------------------------------------------------------------------
+# Before the run, and from a recording
+
+
+def session_sources(config) -> list[Draft]:
+    """Documents recording the sources a run starts with from outside the session (a model file, the intrinsics
+    of ``calib_dir`` for nominal), so a replay reads them from inside it."""
+    extrinsics = config.extrinsics
+    drafts = []
+    if extrinsics.kinematic_file is not None:
+        path = Path(extrinsics.kinematic_file)
+        drafts.append(Draft(KinematicModelEvent, config_id=None, data={"source": "file", "path": str(path)},
+                            files={MODEL_FILE: path.read_bytes()}))
+    if extrinsics.mode == "nominal" and extrinsics.calib_dir is not None:
+        path = Path(extrinsics.calib_dir)
+        drafts.append(Draft(IntrinsicsEvent, config_id=None, data={"source": "calib_dir", "path": str(path)},
+                            files={INTRINSICS_FILE: (path / INTRINSICS_FILE).read_bytes()}))
+    return drafts
+
+
+def recorded_sources(reader, *, sources: tuple[str, ...], image_size: tuple[int, int]) -> Prepared:
+    """The kinematic model (from the ``kinematic_model`` events whose source is in ``sources``) and nominal's
+    intrinsics (a ``calib_dir`` copy, or the calibration of an intrinsics visit) a recording holds.
+
+    A resume takes ``("file", "design")`` (the design is not visited again); a replay ``("file",)`` (it fits
+    the design's recorded views again and must find the recorded model).
+    """
+    from stereo_bench.campaign.session import SessionError
+    from stereo_bench.vision.calibio import read_intrinsics, read_intrinsics_covariance
+
+    prepared = Prepared()
+    for event in reader.events(kind="kinematic_model", attempt=None):
+        relative = (event.get("files") or {}).get(MODEL_FILE)
+        if event["data"].get("source") in sources and relative:
+            try:
+                prepared.kinematic_model = model_from_toml(reader.read_bytes(relative).decode("utf-8"),
+                                                           str(reader.path(relative)))
+            except KinematicFileError as error:
+                raise SessionError(str(error)) from None
+    for event in reader.events(kind="intrinsics", attempt=None):
+        relative = (event.get("files") or {}).get(INTRINSICS_FILE)
+        if relative:
+            path = reader.path(relative)
+            K1, D1, K2, D2, size = read_intrinsics(path)
+            prepared.nominal_intrinsics = _intrinsics_calibration(K1, D1, K2, D2, size or image_size,
+                                                                  read_intrinsics_covariance(path))
+    if "design" in sources:
+        start = reader.start()
+        visits = [v for v in start.get("design") or [] if v.get("purpose") == "intrinsics"]
+        for visit in visits:
+            if reader.events(kind="calibration", config_id=visit["config_id"], attempt=None):
+                prepared.nominal_intrinsics = reader.calibration(visit["config_id"])
+    return prepared
+
+
+def _intrinsics_calibration(K1, D1, K2, D2, image_size, covariance) -> StereoCalibration:
+    """Intrinsics as a calibration (R, T are replaced by each configuration's nominal ones)."""
+    return StereoCalibration(K1=K1, D1=D1, K2=K2, D2=D2, R=np.eye(3), T=np.array([-1.0, 0.0, 0.0]),
+                             image_size=tuple(image_size), mode="intrinsics", covariance=covariance,
+                             covariance_note="" if covariance is not None else "the intrinsics file has no covariance")
+
+
+def intrinsics_from_dir(calib_dir: Path, image_size: tuple[int, int]) -> StereoCalibration:
+    """``calib_dir``'s intrinsics (and their covariance, if stored) as a calibration for nominal extrinsics."""
+    from stereo_bench.vision.calibio import read_intrinsics, read_intrinsics_covariance
+
+    K1, D1, K2, D2, size = read_intrinsics(calib_dir)
+    return _intrinsics_calibration(K1, D1, K2, D2, size or image_size, read_intrinsics_covariance(calib_dir))
+
+
+__all__ = ["Prepared", "compare_sources", "intrinsics_from_dir", "prepare_source", "recorded_sources",
+           "session_sources", "used_source"]

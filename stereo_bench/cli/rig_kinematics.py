@@ -1,0 +1,182 @@
+"""``stereo-bench rig calibrate-kinematics``: visit the kinematic rig model's design only, fit it, write the model.
+
+    stereo-bench rig calibrate-kinematics --out sessions/kin --yes                     # the simulated lab bench
+    stereo-bench rig calibrate-kinematics --preset paper-exp2-toe-in --out s --yes     # the design a campaign needs
+    stereo-bench rig --port /dev/ttyUSB0 --rig-config rig.toml calibrate-kinematics --config bench.toml --out s
+
+It is a campaign of visits only (recorded as a session: every view, the rig's telemetry, the fitted model),
+over the design :func:`stereo_bench.campaign.plan.plan_visits` chooses for the campaign's plan (or for
+``--baseline-range`` / ``--toe-in-range``). The model is written to ``--model`` (default
+``OUT/kinematic_model.toml``), ready for a campaign's ``[extrinsics] kinematic_file``. On the simulated
+bench by default; ``--port`` drives a real controller (cameras from the config: ``[cameras] kind = "v4l2"``
+at the real bench, where the operator presents the calibration board).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+from stereo_bench.cli import CliError
+
+EXIT_INTERRUPTED = 130
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):
+        raise CliError(f"rig calibrate-kinematics: {message}")
+
+
+def parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="stereo-bench rig calibrate-kinematics",
+                description="Visit the kinematic rig model's design (9 configurations x the calibration views), fit "
+                            "the model in one joint adjustment and write it (every parameter with its sigma) for "
+                            "[extrinsics] kinematic_file. Records a session in --out. Simulated bench unless "
+                            "`rig --port` is given.")
+    p.add_argument("--config", type=Path, metavar="FILE", help="campaign file: its plan's range, boards, cameras")
+    p.add_argument("--preset", metavar="NAME", help="a built-in campaign instead of --config")
+    p.add_argument("--baseline-range", type=float, nargs=2, metavar=("MIN", "MAX"),
+                   help="baselines the model must cover, mm (default: the campaign's, else 50 250)")
+    p.add_argument("--toe-in-range", type=float, nargs=2, metavar=("MIN", "MAX"),
+                   help="toe-ins the model must cover, deg (default: the campaign's, else 0 20)")
+    p.add_argument("--distance", type=float, metavar="MM",
+                   help="where the calibration board is shown, mm (default: the middle of the campaign's distances)")
+    p.add_argument("--out", required=True, type=Path, metavar="DIR", help="session directory (never overwritten)")
+    p.add_argument("--model", type=Path, metavar="FILE",
+                   help="where to write the model (default OUT/kinematic_model.toml)")
+    p.add_argument("--yes", action="store_true", help="simulated cameras: the simulator presents the boards")
+    p.add_argument("--time-scale", type=float, metavar="X", help="simulated rig: X times faster than real time")
+    p.add_argument("--sim", choices=("lab", "ideal"), help="simulated cameras: the bench's profile")
+    p.add_argument("--json", action="store_true", help="print one JSON object (the model's summary) on stdout")
+    return p
+
+
+def _config(args, port: str | None, rig_config: Path | None):
+    """The campaign config of the design: the file's or preset's, extrinsics kinematic, the ranges applied."""
+    import tomllib
+
+    from stereo_bench.campaign.config import ConfigError, campaign_from_dict, preset_text
+
+    if args.config is not None and args.preset is not None:
+        raise CliError("rig calibrate-kinematics: give --config FILE or --preset NAME, not both")
+    try:
+        if args.config is not None:
+            data = tomllib.loads(args.config.read_text(encoding="utf-8"))
+        elif args.preset is not None:
+            data = tomllib.loads(preset_text(args.preset))
+        else:
+            data = {}
+    except ConfigError as error:
+        raise CliError(str(error)) from None
+    except OSError as error:
+        raise CliError(f"--config {args.config}: cannot read: {error.strerror or error}") from None
+    except tomllib.TOMLDecodeError as error:
+        raise CliError(f"--config {args.config}: invalid TOML: {error}") from None
+    base = bool(data)
+    plan = dict(data.get("plan") or {"distance_mm": [500.0]})
+    if not base or args.baseline_range:
+        plan["baseline_mm"] = sorted(set(args.baseline_range or (50.0, 250.0)))
+    if not base or args.toe_in_range:
+        plan.pop("alpha_deg", None)
+        plan["toe_in_deg"] = sorted(set(args.toe_in_range or (0.0, 20.0)))
+    if args.distance is not None:
+        plan["distance_mm"] = [args.distance]
+    data["plan"] = plan
+    extrinsics = {key: value for key, value in (data.get("extrinsics") or {}).items() if key != "kinematic_file"}
+    data["extrinsics"] = {**extrinsics, "mode": "kinematic"}
+    data.setdefault("name", "calibrate-kinematics")
+    rig = dict(data.get("rig") or {})
+    if port is not None:
+        rig.update(kind="grbl", port=port)
+        rig.pop("time_scale", None)
+    if rig_config is not None:
+        rig["config_file"] = str(rig_config)
+        rig.pop("controller", None)
+        rig.pop("quantities", None)
+    if args.time_scale is not None:
+        rig["time_scale"] = args.time_scale
+    data["rig"] = rig
+    if args.sim is not None:
+        data["sim"] = {**(data.get("sim") or {}), "profile": args.sim}
+    source = str(args.config) if args.config is not None else f"preset {args.preset}" if args.preset else \
+        "rig calibrate-kinematics"
+    try:
+        return campaign_from_dict(data, source=source, base_dir=args.config.parent if args.config is not None else None)
+    except ConfigError as error:
+        raise CliError(str(error)) from None
+
+
+def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
+    """``rig calibrate-kinematics`` with its own options ``argv``; ``port``/``rig_config``: the rig group's."""
+    from drivers.camera.base import CameraError
+    from drivers.rig.config import RigError
+    from stereo_bench.campaign.execute import CampaignPlan, OperatorAbsent, RunControl, run_campaign
+    from stereo_bench.campaign.extrinsics_run import recorded_sources
+    from stereo_bench.campaign.session import SessionError, SessionReader
+    from stereo_bench.kinematics import save_model
+
+    args = parser().parse_args(argv)
+    config = _config(args, port, rig_config)
+    model_path = args.model or args.out / "kinematic_model.toml"
+    if model_path.exists():
+        raise CliError(f"--model {model_path}: exists; not overwriting it (choose another path)")
+    if args.yes and config.cameras.kind != "simulated":
+        raise CliError("--yes lets the simulator present the boards, for simulated cameras only")
+    full = CampaignPlan.of(config)
+    if not any(visit.runnable for visit in full.visits):
+        reasons = "; ".join(v.skip_reason or "" for v in full.visits) or "no runnable configuration in the plan"
+        raise CliError(f"rig calibrate-kinematics: no design visit can run: {reasons}")
+    plan = CampaignPlan.design_only(full)
+    control = RunControl()
+
+    def on_signal(signum, frame) -> None:
+        control.request_stop(f"stopped by {signal.Signals(signum).name}")
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    started = time.monotonic()
+    print(f"kinematic design: {sum(v.runnable for v in plan.visits)} visits x {config.capture.calibration_views} "
+          f"views on the {config.bench_kind} bench; recording {args.out}", file=sys.stderr, flush=True)
+    try:
+        summary = run_campaign(config, args.out, yes=args.yes, control=control, plan=plan)
+    except (SessionError, OperatorAbsent) as error:
+        raise CliError(str(error)) from None
+    except (RigError, CameraError) as error:
+        raise CliError(f"{error} (session {args.out}: stopped as failed)", exit_code=1) from None
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if summary.exit_status == "interrupted":
+        print(f"interrupted: {summary.reason}; the design's views are in {args.out}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    reader = SessionReader(args.out)
+    optics = config.cameras.optics
+    size = (optics.width_px, optics.height_px)
+    model = recorded_sources(reader, sources=("design",), image_size=size).kinematic_model
+    if model is None:
+        errors = [e["data"].get("error") for e in reader.events(kind="kinematic_model", attempt=None)]
+        raise CliError(f"kinematic fit failed: {errors[-1] if errors else 'no model recorded'} (session {args.out})",
+                       exit_code=1)
+    save_model(model, model_path)
+    fit = model.fit
+    summary_out = {"model": str(model_path), "session": str(args.out), "views": fit.n_views,
+                   "visits": fit.n_configurations, "rms_px": fit.rms_px, "elapsed_s": time.monotonic() - started,
+                   "parameters": {name: {"value": p.value, "sigma": p.sigma, "unit": p.unit,
+                                         "identifiable": p.identifiable} for name, p in model.parameters.items()}}
+    if args.json:
+        print(json.dumps(summary_out))
+    else:
+        print(f"kinematic model fitted to {fit.n_views} views at {fit.n_configurations} visits (RMS {fit.rms_px:.3f} "
+              f"px) in {summary_out['elapsed_s']:.0f} s")
+        for name, p in model.parameters.items():
+            sigma = f"+- {p.sigma:.3g}" if p.sigma is not None else "(held nominal: not identifiable by this design)"
+            print(f"  {name:<24} {p.value:12.5g} {p.unit:<4} {sigma}")
+        print(f"model:   {model_path}  (use it: [extrinsics] mode = \"kinematic\", kinematic_file = \"{model_path}\")")
+        print(f"session: {args.out}/")
+    return 0
+
+
+__all__ = ["parser", "run"]
