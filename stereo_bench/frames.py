@@ -21,7 +21,8 @@ bytes, not the file name: a format added later goes beside PNG there.
 
 Decoding: a grey frame written with this setting (8-bit, every row "up") is inflated by libdeflate
 and unfiltered here, 6.2 ms instead of OpenCV's 8.8 (one thread, 1080p, load average ~14 from
-other jobs; the inflate is 5.0 of it against zlib's 8.6), with the same checks as libpng: every
+other jobs; the inflate is 5.0 of it against zlib's 8.6; the un-filtering 0.5 of it since it adds
+rows in place, 1.0 before), with the same checks as libpng: every
 chunk's CRC, the data's Adler-32 and its length. Any other PNG (colour, 16-bit, other filters, extra
 chunks: older sessions) is decoded by OpenCV, as is everything when the ``deflate`` package (the
 libdeflate binding) is missing. The pixels are the same either way (tests/test_frames.py).
@@ -149,11 +150,12 @@ def _decode_grey_up_png(data: bytes, name: str) -> np.ndarray | None:
     filters = rows[:, 0]
     if not np.all((filters == _FILTER_UP) | (filters == _FILTER_NONE)):
         return None  # sub, average or Paeth rows: OpenCV's reader
-    pixels, image = rows[:, 1:], np.empty((height, width), np.uint8)
-    image[0] = pixels[0]  # "up" on the first row adds the zero row above it
-    for row in range(1, height):  # "up": each row is the difference to the row above, mod 256
-        if filters[row] == _FILTER_UP:
-            np.add(image[row - 1], pixels[row], out=image[row])
-        else:
-            image[row] = pixels[row]
+    # "up": each row is the difference to the row above, mod 256 (on the first row, to a zero row). The
+    # differences are copied out once and summed in place down the rows: a cumulative sum along the
+    # columns (np.cumsum(axis=0)) gives the same bytes but runs ~5x slower than these row-wide adds.
+    image = rows[:, 1:].copy()
+    lines = list(image)
+    for above, line, kind in zip(lines[:-1], lines[1:], filters[1:].tolist(), strict=True):
+        if kind == _FILTER_UP:
+            np.add(above, line, out=line)
     return image

@@ -111,6 +111,30 @@ def test_grey_frames_are_decoded_by_libdeflate_exactly_as_opencv_decodes_them(sh
     np.testing.assert_array_equal(image, expected)
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_rows_filtered_none_or_up_in_any_mix_are_unfiltered_exactly_as_libpng_does(seed, monkeypatch):
+    """Uniformly random bytes (every sum wraps mod 256 somewhere), and rows 'none' and 'up' in a random mix,
+    each a 'none' row restarting the running sum: the fast path's pixels are libpng's."""
+    pytest.importorskip("deflate")
+    from stereo_bench import frames
+
+    rng = np.random.default_rng(seed)
+    height, width = 97, 131
+    image = rng.integers(0, 256, (height, width), dtype=np.uint8)
+    kinds = rng.choice([0, 2], height)  # PNG filter types: 0 none, 2 up
+    above = np.vstack([np.zeros((1, width), np.uint8), image[:-1]])
+    filtered = np.where(kinds[:, None] == 2, image - above, image).astype(np.uint8)
+    raw = np.hstack([kinds[:, None].astype(np.uint8), filtered]).tobytes()
+    header = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 0, 0, 0, 0])
+    data = PNG_MAGIC + _with_crc(b"IHDR", header) + _with_crc(b"IDAT", zlib.compress(raw)) + _with_crc(b"IEND", b"")
+    expected = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(expected, image)  # the hand-made PNG is what it claims to be
+    monkeypatch.setattr(frames.cv2, "imdecode", lambda *args: pytest.fail("OpenCV decoded a grey none/up PNG"))
+    decoded = decode_frame(data, "f.png")
+    assert decoded.flags.c_contiguous and decoded.flags.writeable
+    np.testing.assert_array_equal(decoded, image)
+
+
 def test_damaged_image_data_behind_a_valid_crc_is_refused():
     """A chunk whose CRC was recomputed over damaged data: the inflate's Adler-32 or length catches it."""
     data = encode_frame(noisy_frame((200, 300)))

@@ -42,6 +42,7 @@ from stereo_bench.campaign.plan import PREPARE_ID, Configuration, Step, Visit, e
 from stereo_bench.campaign.runner import CampaignRunner, RunnerOptions, group_steps
 from stereo_bench.campaign.session import SessionError, SessionReader, SessionWriter, first_difference
 from stereo_bench.campaign.stream import Collector, DocumentBus, FrameSubscriber, MemoryRecorder, Subscriber
+from stereo_bench.vision.calibrate import single_threaded_opencv
 
 __all__ = [
     "CampaignPlan", "OperatorAbsent", "ReplaySummary", "RunControl", "RunSummary", "plan_drift", "replay_job",
@@ -426,7 +427,9 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
         # single-threaded either way, so the numbers are those of one at a time).
         options.analysis_workers = 2
         options.background_nice = False  # the detections are the critical path here, not something that can wait
-        with replay_bench(reader, measured | visited) as bench:
+        # Decoding, detection and analysis pools keep every core busy: OpenCV's own threads would only
+        # add hand-over cost, and its solvers then run side by side instead of queueing for one thread.
+        with single_threaded_opencv(), replay_bench(reader, measured | visited) as bench:
             runner = CampaignRunner(config, configurations, steps, bench=bench, bus=bus, options=options)
             if out_dir is not None:
                 for draft in _recorded_session_sources(reader):
