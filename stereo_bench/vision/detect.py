@@ -201,23 +201,28 @@ def _grid_outliers(grid: np.ndarray, *, tolerance_px: float) -> tuple[np.ndarray
     return suspects, 0.5 * (by_row + by_col)
 
 
+_NOISE_KERNEL = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+
+
 def image_noise_dn(gray: np.ndarray, *, tile_px: int = 128, tiles_per_side: int = 4) -> float:
     """Standard deviation (grey levels) of white sensor noise in ``gray``.
 
     Immerkaer's estimator (1996): the 3x3 operator [[1,-2,1],[-2,4,-2],[1,-2,1]] cancels smooth image
     content and leaves 6 x sigma of white noise. Taken as the median over a grid of tiles, so tiles
-    crossed by strong edges do not inflate it; ~1 ms on a 1080p frame.
+    crossed by strong edges do not inflate it; ~0.5 ms on a 1080p frame.
+
+    The tiles are filtered as one stack (one OpenCV call instead of one per tile, half the time): a
+    tile's border rows and columns, the only ones its neighbours in the stack reach, are not used, so
+    each tile's mean response is bit-identical to filtering it alone (tests/test_replay_speed.py).
     """
     height, width = gray.shape
-    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
     tile_px = min(tile_px, height, width)
-    estimates = []
-    for y in np.linspace(0, height - tile_px, tiles_per_side).astype(int):
-        for x in np.linspace(0, width - tile_px, tiles_per_side).astype(int):
-            tile = gray[y : y + tile_px, x : x + tile_px].astype(np.float32)
-            response = cv2.filter2D(tile, -1, kernel)[1:-1, 1:-1]
-            estimates.append(np.sqrt(np.pi / 2) * np.abs(response).mean() / 6.0)
-    return float(np.median(estimates))
+    tops = np.linspace(0, height - tile_px, tiles_per_side).astype(int)
+    lefts = np.linspace(0, width - tile_px, tiles_per_side).astype(int)
+    tiles = np.stack([gray[y : y + tile_px, x : x + tile_px] for y in tops for x in lefts]).astype(np.float32)
+    response = cv2.filter2D(tiles.reshape(-1, tile_px), -1, _NOISE_KERNEL).reshape(tiles.shape)
+    means = np.abs(response[:, 1:-1, 1:-1]).mean(axis=(1, 2))  # (tiles,) float32, as tile by tile
+    return float(np.median([np.sqrt(np.pi / 2) * mean / 6.0 for mean in means]))
 
 
 def corner_noise_px(gray: np.ndarray, corners_px: np.ndarray, *, half: int) -> np.ndarray:

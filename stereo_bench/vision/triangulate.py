@@ -28,17 +28,19 @@ def triangulation_jacobian(
 ) -> np.ndarray:
     """(N, 3, 4) derivatives of each triangulated point (mm) w.r.t. (u_left, v_left, u_right, v_right) (px).
 
-    Central differences: the DLT solution is smooth in the pixel coordinates, and four extra
-    vectorised triangulations cost far less than deriving the SVD's derivative by hand.
+    Central differences: the DLT solution is smooth in the pixel coordinates, and eight extra
+    triangulations cost far less than deriving the SVD's derivative by hand. All eight go through one
+    call (OpenCV undistorts and triangulates point by point, so each point comes out as from a call
+    of its own), which saves the per-call cost of 15 more.
     """
-    jac = np.zeros((len(left_px), 3, 4))
-    for k in range(4):
-        delta = np.zeros((len(left_px), 4))
-        delta[:, k] = step_px
-        plus = triangulate(calib, left_px + delta[:, :2], right_px + delta[:, 2:])
-        minus = triangulate(calib, left_px - delta[:, :2], right_px - delta[:, 2:])
-        jac[:, :, k] = (plus - minus) / (2 * step_px)
-    return jac
+    left_px, right_px = np.asarray(left_px, float), np.asarray(right_px, float)
+    n = len(left_px)
+    steps = np.zeros((4, 2, n, 4))  # (coordinate k, +/-, point, (u_l, v_l, u_r, v_r))
+    steps[np.arange(4), 0, :, np.arange(4)] = step_px
+    steps[np.arange(4), 1, :, np.arange(4)] = -step_px
+    moved = triangulate(calib, (left_px + steps[..., :2]).reshape(-1, 2),
+                        (right_px + steps[..., 2:]).reshape(-1, 2)).reshape(4, 2, n, 3)
+    return np.moveaxis((moved[:, 0] - moved[:, 1]) / (2 * step_px), 0, 2)
 
 
 def camera_depths_mm(calib: StereoCalibration, points_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

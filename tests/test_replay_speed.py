@@ -1,0 +1,130 @@
+"""The replay's fast paths give bit-identical numbers to the plain computations they replace.
+
+(The PNG decoder's own fast path is checked against OpenCV's reader in tests/test_frames.py; the replay as
+a whole against the recorded numbers in tests/test_campaign_run.py.)
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from stereo_bench.frames import decode_frame
+from stereo_bench.vision import calibrate
+from stereo_bench.vision.calibrate import StereoCalibration, single_threaded_opencv
+from stereo_bench.vision.detect import image_noise_dn
+from stereo_bench.vision.triangulate import triangulate, triangulation_jacobian
+
+SAMPLE_FRAMES = Path(__file__).resolve().parents[1] / "calib_data" / "sample_session" / "frames"
+
+
+def plain_image_noise_dn(gray: np.ndarray, *, tile_px: int = 128, tiles_per_side: int = 4) -> float:
+    """The estimator tile by tile, as it was computed before the tiles were filtered as one stack."""
+    height, width = gray.shape
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    tile_px = min(tile_px, height, width)
+    estimates = []
+    for y in np.linspace(0, height - tile_px, tiles_per_side).astype(int):
+        for x in np.linspace(0, width - tile_px, tiles_per_side).astype(int):
+            tile = gray[y : y + tile_px, x : x + tile_px].astype(np.float32)
+            response = cv2.filter2D(tile, -1, kernel)[1:-1, 1:-1]
+            estimates.append(np.sqrt(np.pi / 2) * np.abs(response).mean() / 6.0)
+    return float(np.median(estimates))
+
+
+def rendered_frames() -> list[np.ndarray]:
+    paths = sorted(SAMPLE_FRAMES.rglob("*.png"))[::5]
+    assert len(paths) >= 4
+    return [decode_frame(path.read_bytes(), str(path)) for path in paths]
+
+
+def random_frames() -> list[np.ndarray]:
+    rng = np.random.default_rng(7)
+    return [rng.integers(0, 256, shape, dtype=np.uint8) for shape in ((1080, 1920), (480, 640), (100, 90), (37, 300))]
+
+
+def test_noise_estimate_is_bit_identical_to_the_tile_by_tile_one():
+    for image in rendered_frames() + random_frames():
+        assert image_noise_dn(image) == plain_image_noise_dn(image), image.shape
+    image = random_frames()[1]
+    assert image_noise_dn(image, tile_px=64, tiles_per_side=3) == plain_image_noise_dn(image, tile_px=64,
+                                                                                       tiles_per_side=3)
+
+
+def plain_triangulation_jacobian(calib, left_px, right_px, *, step_px: float = 1e-3) -> np.ndarray:
+    """Central differences with one pair of triangulations per pixel coordinate, as before."""
+    jac = np.zeros((len(left_px), 3, 4))
+    for k in range(4):
+        delta = np.zeros((len(left_px), 4))
+        delta[:, k] = step_px
+        plus = triangulate(calib, left_px + delta[:, :2], right_px + delta[:, 2:])
+        minus = triangulate(calib, left_px - delta[:, :2], right_px - delta[:, 2:])
+        jac[:, :, k] = (plus - minus) / (2 * step_px)
+    return jac
+
+
+@pytest.mark.parametrize("n_points", [1, 7, 54, 130])
+def test_triangulation_jacobian_in_one_call_is_bit_identical_to_one_call_per_coordinate(n_points):
+    rng = np.random.default_rng(n_points)
+    K1 = np.array([[1333.0, 0, 960], [0, 1331, 541], [0, 0, 1]])
+    K2 = np.array([[1340.0, 0, 955], [0, 1338, 537], [0, 0, 1]])
+    D1, D2 = np.array([[-0.05, 0.02, 0.001, -0.0005, 0.003]]), np.array([[-0.04, 0.015, -0.001, 0.0004, 0.0]])
+    R, _ = cv2.Rodrigues(np.array([0.01, -0.2, 0.003]))
+    T = np.array([-150.0, 1.0, 2.0])
+    calib = StereoCalibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=(1920, 1080))
+    points = np.c_[rng.uniform(-200, 200, (n_points, 2)), rng.uniform(300, 700, n_points)]
+    left, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), K1, D1)
+    right, _ = cv2.projectPoints(points, cv2.Rodrigues(R)[0], T, K2, D2)
+    left = left.reshape(-1, 2) + rng.normal(0, 0.3, (n_points, 2))
+    right = right.reshape(-1, 2) + rng.normal(0, 0.3, (n_points, 2))
+    fast = triangulation_jacobian(calib, left, right)
+    assert fast.shape == (n_points, 3, 4)
+    np.testing.assert_array_equal(fast, plain_triangulation_jacobian(calib, left, right))
+    # every point moves with every pixel coordinate: no entry is left at zero
+    assert np.all(np.abs(fast) > 0) and np.all(np.isfinite(fast))
+
+
+def test_single_threaded_opencv_pins_one_thread_and_restores_the_previous_count():
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        with single_threaded_opencv():
+            assert cv2.getNumThreads() == 1
+            with single_threaded_opencv():
+                assert cv2.getNumThreads() == 1
+            assert cv2.getNumThreads() == 1  # the inner end leaves the outer setting
+            with calibrate._deterministic():
+                pass
+            assert cv2.getNumThreads() == 1  # a solve inside does not restore 2 behind the block's back
+        assert cv2.getNumThreads() == 2
+    finally:
+        cv2.setNumThreads(before)
+
+
+def test_solves_inside_single_threaded_opencv_do_not_queue_for_the_solver_lock():
+    """Outside the block a solve waits for the lock another solve holds; inside it runs at once."""
+
+    def solve_on_a_thread() -> tuple[bool, threading.Thread]:
+        done = threading.Event()
+
+        def solve() -> None:
+            with calibrate._deterministic():
+                done.set()
+
+        thread = threading.Thread(target=solve, daemon=True)
+        thread.start()
+        finished = done.wait(timeout=1.0)
+        return finished, thread
+
+    with single_threaded_opencv(), calibrate._SINGLE_THREAD:  # another solve holds the lock
+        finished, _ = solve_on_a_thread()
+        assert finished
+    with calibrate._SINGLE_THREAD:
+        finished, thread = solve_on_a_thread()
+        assert not finished  # queued behind the lock, as it must be while OpenCV may use several threads
+    thread.join(timeout=5.0)
+    assert not thread.is_alive()
