@@ -1,4 +1,5 @@
-"""The replay's fast paths give bit-identical numbers to the plain computations they replace.
+"""The replay's fast paths give bit-identical numbers to the plain computations they replace; OpenCV and
+OpenBLAS threads that would only spin beside the replay's own pools.
 
 (The PNG decoder's own fast path is checked against OpenCV's reader in tests/test_frames.py; the replay as
 a whole against the recorded numbers in tests/test_campaign_run.py.)
@@ -6,6 +7,9 @@ a whole against the recorded numbers in tests/test_campaign_run.py.)
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -128,3 +132,19 @@ def test_solves_inside_single_threaded_opencv_do_not_queue_for_the_solver_lock()
         assert not finished  # queued behind the lock, as it must be while OpenCV may use several threads
     thread.join(timeout=5.0)
     assert not thread.is_alive()
+
+
+def _in_a_fresh_interpreter(code: str, **env: str) -> str:
+    environment = {k: v for k, v in os.environ.items() if k != "OPENBLAS_THREAD_TIMEOUT"} | env
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment, timeout=120,
+                          check=True)
+    return done.stdout.strip()
+
+
+def test_openblas_workers_sleep_at_once_unless_the_user_says_otherwise():
+    """Set before numpy or cv2 loads OpenBLAS (it reads the variable once, then): importing stereo_bench loads
+    neither, so whatever the program imports next sees it."""
+    code = ("import os, sys, stereo_bench; print(os.environ['OPENBLAS_THREAD_TIMEOUT'], "
+            "'numpy' in sys.modules or 'cv2' in sys.modules)")
+    assert _in_a_fresh_interpreter(code) == "4 False"
+    assert _in_a_fresh_interpreter(code, OPENBLAS_THREAD_TIMEOUT="28") == "28 False"
