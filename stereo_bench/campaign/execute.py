@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import math
 import platform
+import shutil
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +22,7 @@ import cv2
 import numpy as np
 from pydantic import ValidationError
 
-from stereo_bench import __version__
+from stereo_bench import __version__, atomic, paths
 from stereo_bench.campaign.bench import Bench, open_bench, replay_bench
 from stereo_bench.campaign.config import CampaignConfig, recorded_campaign
 from stereo_bench.campaign.documents import (
@@ -333,6 +334,43 @@ class ReplaySummary:
     plan_drift: str | None = None
 
 
+def check_replay_out(session_dir: str | Path, out_dir: str | Path) -> Path:
+    """Refuse a replay's --out that is, holds or lies inside the session replayed, or that is anything but a
+    new (or empty) directory; before anything is read or written."""
+    out, source = Path(out_dir), Path(session_dir)
+    resolved_out, resolved_source = out.resolve(), source.resolve()
+    if paths.is_inside(resolved_source, resolved_out):
+        raise SessionError(f"--out {out}: is or lies inside the session {source} being replayed: a recording is never "
+                           "written to; choose a directory outside it")
+    if paths.is_inside(resolved_out, resolved_source):
+        raise SessionError(f"--out {out}: holds the session {source} being replayed; choose another directory")
+    if out.is_symlink() or (out.exists() and (not out.is_dir() or any(out.iterdir()))):
+        raise SessionError(f"--out {out}: exists; a replay records a new session: choose a new directory")
+    return out
+
+
+@contextlib.contextmanager
+def _replay_out(session_dir: str | Path, out_dir: str | Path | None):
+    """Where a replay records: a temporary directory beside --out, renamed to --out only when the replay ran to
+    its end; a replay that fails (a recording that cannot be replayed, Ctrl-C) leaves no --out behind that
+    would look like a good session (its temporary directory is removed: the source recording holds it all)."""
+    if out_dir is None:
+        yield None
+        return
+    out = check_replay_out(session_dir, out_dir)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    work = atomic.make_temp_dir(out.parent, prefix=f".{out.name}.")
+    try:
+        yield work
+        if out.is_dir():  # an empty --out given (checked above): a directory renames over an empty one
+            out.rmdir()
+        work.rename(out)
+        atomic.fsync_dir(out.parent)
+    finally:
+        if work.exists():
+            shutil.rmtree(work, ignore_errors=True)
+
+
 def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *,
                    pipeline: dict | None = None, subscribers: Iterable[Subscriber] = ()) -> ReplaySummary:
     """Run a recorded session's frames and telemetry through the runner again.
@@ -343,6 +381,8 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     stands alone). ``pipeline`` overrides pipeline settings (e.g. ``{"extrinsics": {"intrinsics":
     "fixed"}}``) for a re-analysis.
     """
+    if out_dir is not None:
+        check_replay_out(session_dir, out_dir)
     reader = SessionReader(session_dir)
     start = reader.start()
     recorded_config = dict(start["config"])
@@ -365,9 +405,15 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     if visited:
         visited.add(PREPARE_ID)
     steps = [s for cid, group in group_steps(campaign.steps) if cid in measured | visited for s in group]
+    if not measured and not visited:  # "0 of 0 reproduced" would pass a recording that holds nothing to check
+        torn = f"; {reader.warnings[0]}" if reader.torn is not None else ""
+        raise SessionError(f"{reader.documents_path}: nothing to replay: no measured configuration is recorded "
+                           f"({len(recorded_rows)} result(s), none measured){torn}")
 
-    recorder = SessionWriter(out_dir) if out_dir is not None else contextlib.nullcontext(MemoryRecorder())
-    with recorder as writer:
+    with contextlib.ExitStack() as stack:
+        work = stack.enter_context(_replay_out(session_dir, out_dir))
+        writer = stack.enter_context(SessionWriter(work) if work is not None
+                                     else contextlib.nullcontext(MemoryRecorder()))
         bus = DocumentBus(writer)
         collector = Collector()
         bus.subscribe(collector)
