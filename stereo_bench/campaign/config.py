@@ -32,7 +32,8 @@ reports); simulated rig + v4l2 cameras is refused.
 
 Every model forbids unknown keys, so a typo is an error naming the key. Relative paths
 (``rig.config_file``, ``extrinsics.calib_dir``, ``extrinsics.kinematic_file``) are resolved against the
-campaign file's directory.
+campaign file's directory (the working directory for a config with no file) and kept absolute, never
+relative to the working directory, so a session records where they are however the command was spelled.
 Errors are :class:`ConfigError` with one line: ``FILE: dotted.field: what is wrong``.
 
 Angles: alpha is the angle between the baseline and an optical axis (90 deg = parallel rig); the pan
@@ -126,10 +127,12 @@ _STRICT = ConfigDict(extra="forbid")
 
 
 def _resolve(path: Path | None, info: ValidationInfo) -> Path | None:
+    """A file a campaign names, made absolute (against the campaign file's directory, else the working directory)
+    and resolved: recorded in a session so that a resume matches however the plan or the cwd is spelled."""
     base = (info.context or {}).get("base_dir")
-    if path is None or path.is_absolute() or base is None:
+    if path is None:
         return path
-    return Path(base) / path
+    return (path if path.is_absolute() or base is None else Path(base) / path).resolve()
 
 
 # --------------------------------------------------------------------------------------------------

@@ -162,6 +162,17 @@ class RunSummary:
         return counts
 
 
+def _recorded_intrinsics(reader: SessionReader) -> Path | None:
+    """The recording's copy of ``calib_dir``'s intrinsics.yml (an 'intrinsics' event), if it holds one."""
+    from stereo_bench.vision.calibio import INTRINSICS_FILE
+
+    for event in reversed(reader.events(kind="intrinsics", attempt=None)):
+        relative = (event.get("files") or {}).get(INTRINSICS_FILE)
+        if relative:
+            return reader.path(relative)
+    return None
+
+
 def runner_options(config: CampaignConfig, *, reader: SessionReader | None = None,
                    visits: Sequence[Visit] = ()) -> RunnerOptions:
     """The runner's options from the config; ``reader``: a replay takes a fixed calibration, a model file's copy
@@ -194,8 +205,12 @@ def runner_options(config: CampaignConfig, *, reader: SessionReader | None = Non
             else:
                 options.fixed_calibration = read_calibration(extrinsics.calib_dir, image_size=image_size)
         elif extrinsics.calib_dir is not None:
-            options.intrinsics = read_intrinsics(extrinsics.calib_dir)[:4]
-            options.intrinsics_covariance = read_intrinsics_covariance(extrinsics.calib_dir)
+            # a replay reads the recording's copy of calib_dir's intrinsics (sessions recorded before the copy
+            # was made for every mode: calib_dir itself)
+            source = _recorded_intrinsics(reader) if reader is not None else None
+            source = source or extrinsics.calib_dir
+            options.intrinsics = read_intrinsics(source)[:4]
+            options.intrinsics_covariance = read_intrinsics_covariance(source)
             if extrinsics.mode == "nominal" and reader is None:
                 options.nominal_intrinsics = intrinsics_from_dir(extrinsics.calib_dir, image_size)
     except CalibrationFileError as error:

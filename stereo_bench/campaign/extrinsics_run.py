@@ -186,14 +186,15 @@ def compare_sources(options, prepared: Prepared, configuration, captured, analys
 
 def session_sources(config) -> list[Draft]:
     """Documents recording the sources a run starts with from outside the session (a model file, the intrinsics
-    of ``calib_dir`` for nominal), so a replay reads them from inside it."""
+    of ``calib_dir`` in every mode that reads them: nominal, and ``intrinsics = "fixed"``), so a replay reads them
+    from inside it and replays after ``calib_dir`` has moved. (``fixed`` mode records its whole calibration.)"""
     extrinsics = config.extrinsics
     drafts = []
     if extrinsics.kinematic_file is not None:
         path = Path(extrinsics.kinematic_file)
         drafts.append(Draft(KinematicModelEvent, config_id=None, data={"source": "file", "path": str(path)},
                             files={MODEL_FILE: path.read_bytes()}))
-    if extrinsics.mode == "nominal" and extrinsics.calib_dir is not None:
+    if extrinsics.mode != "fixed" and extrinsics.calib_dir is not None:
         path = Path(extrinsics.calib_dir)
         drafts.append(Draft(IntrinsicsEvent, config_id=None, data={"source": "calib_dir", "path": str(path)},
                             files={INTRINSICS_FILE: (path / INTRINSICS_FILE).read_bytes()}))
