@@ -140,7 +140,46 @@ def ctx(tmp_path_factory, small_reference, request) -> dict[str, str]:
         return doc
 
     paths["bad_config"] = str(_damage_session(small_reference, root / "bad_config", bad_config))
+    _confinement_cases(small_reference, root, paths)
     return paths
+
+
+ESCAPED = "../../ESCAPED"
+
+
+def _escape_config_id(value):
+    """A document with the configuration B100_Z450_A90 renamed to a path that leads out of a report."""
+    if isinstance(value, dict):
+        return {k: ESCAPED if k == "config_id" and v == "B100_Z450_A90" else _escape_config_id(v)
+                for k, v in value.items()}
+    return [_escape_config_id(v) for v in value] if isinstance(value, list) else value
+
+
+def _confinement_cases(small_reference: Path, root: Path, paths: dict[str, str]) -> None:
+    """Sessions whose ids or symlinks lead outside them, and a torn one (issue 9, 'What must exist' 2)."""
+    (root / "small.toml").write_text(SMALL)
+    paths["escaped_id"] = str(_damage_session(small_reference, root / "escaped_id", _escape_config_id))
+    outside = root / "outside"
+    outside.mkdir()
+    docs = root / "docs_symlink"
+    shutil.copytree(small_reference, docs)
+    (docs / "documents.jsonl").rename(outside / "documents.jsonl")
+    (docs / "documents.jsonl").symlink_to(outside / "documents.jsonl")
+    frames = root / "frames_symlink"
+    shutil.copytree(small_reference, frames)
+    (frames / "frames" / "B100_Z450_A90").rename(outside / "frames_B100")
+    (frames / "frames" / "B100_Z450_A90").symlink_to(outside / "frames_B100")
+    torn = root / "torn"
+    shutil.copytree(small_reference, torn)
+    lines = (torn / "documents.jsonl").read_bytes().splitlines(keepends=True)
+    (torn / "documents.jsonl").write_bytes(lines[0] + lines[1][: len(lines[1]) // 2])  # the start, then cut
+    (root / "not_empty").mkdir()
+    (root / "not_empty" / "notes.txt").write_text("mine")
+    paths["docs_symlink"], paths["frames_symlink"], paths["torn"] = str(docs), str(frames), str(torn)
+
+
+def _resume_argv(c: dict, session: str) -> list[str]:
+    return ["campaign", "run", c["root"] + "/small.toml", "--out", session, "--yes", "--quiet", "--resume"]
 
 
 def _v4l2_campaign(path: Path, port: str, left: str) -> Path:
@@ -300,6 +339,22 @@ CASES: list[tuple[str, Callable[[dict], list[str]], int, str | Callable[[dict], 
     ("replay-mismatched-move", lambda c: ["replay", c["mismatch_move"]], 2,
      "baseline_mm = 150, the recording holds 151"),
     ("replay-config-no-longer-validates", lambda c: ["replay", c["bad_config"]], 2, "frames_per_config"),
+    # --- paths confined to their roots (issue 9, "What must exist" 2) ---
+    ("report-config-id-escapes", lambda c: ["report", c["escaped_id"], "--out", c["root"] + "/esc_report/r"], 2,
+     f"config_id '{ESCAPED}' is not a valid name"),
+    ("resume-documents-symlink-outside", lambda c: _resume_argv(c, c["docs_symlink"]), 2,
+     "docs_symlink/documents.jsonl: is a symlink to"),
+    ("resume-frames-symlink-outside", lambda c: _resume_argv(c, c["frames_symlink"]), 2,
+     "frames_symlink/frames/B100_Z450_A90: is a symlink to"),
+    ("replay-out-inside-source", lambda c: ["replay", c["session"], "--out", c["session"] + "/replayed"], 2,
+     "is or lies inside the session"),
+    ("replay-out-is-source", lambda c: ["replay", c["session"], "--out", c["session"]], 2,
+     "is or lies inside the session"),
+    ("replay-out-holds-source", lambda c: ["replay", c["session"], "--out", str(Path(c["session"]).parent)], 2,
+     "holds the session"),
+    ("replay-out-exists", lambda c: ["replay", c["session"], "--out", c["root"] + "/not_empty"], 2,
+     "exists; a replay records a new session"),  # was "pass --resume", an option replay does not have
+    ("replay-torn-nothing-recorded", lambda c: ["replay", c["torn"]], 2, "nothing to replay"),
 ]
 
 

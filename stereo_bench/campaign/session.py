@@ -775,6 +775,9 @@ class SessionWriter:
         host = {"hostname": socket.gethostname(), "pid": os.getpid()}
         software, extra = fields.pop("software"), fields.pop("extra", None) or {}
         plan_drift = fields.pop("plan_drift", None)
+        for entry in plan if isinstance(plan, list) else []:
+            if isinstance(entry, dict) and "config_id" in entry:
+                _check_name(entry["config_id"], "plan config_id")
         recorded = self._recorded_start
         if recorded is None:
             document = Draft(StartDocument, config=config, plan=plan, software=software, extra=extra,
@@ -822,6 +825,8 @@ class SessionWriter:
         for name in list(frames) + list(files):
             _check_name(name, "side file name")
         config_id = draft.fields.get("config_id")
+        if config_id is not None:  # the reader refuses a session carrying a bad id: never record one
+            _check_name(config_id, "config_id")
         seq = self._next_seq
         frame_paths, file_paths = {}, {}
         if frames:
