@@ -347,6 +347,7 @@ class ReplaySummary:
     out: Path | None
     measured: int = 0  # replayed configurations measured again
     plan_drift: str | None = None
+    warnings: list[str] = field(default_factory=list)  # what of the recording was not replayed (a torn stream)
 
 
 def check_replay_out(session_dir: str | Path, out_dir: str | Path) -> Path:
@@ -473,7 +474,16 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
                          rows=list(new_rows.values()), carried_over=len(recorded_rows) - len(measured),
                          out=None if out_dir is None else Path(out_dir),
                          measured=sum(new_rows.get(cid, {}).get("status") == "measured" for cid in measured),
-                         plan_drift=drift)
+                         plan_drift=drift, warnings=_partial_recording(reader))
+
+
+def _partial_recording(reader: SessionReader) -> list[str]:
+    """What a replay of an interrupted or torn recording leaves out: only its completed configurations replay."""
+    notes = list(reader.warnings)
+    if reader.status() == "incomplete":
+        notes.append(f"{reader.documents_path}: the recording has no 'stop' document (interrupted): only its "
+                     "completed configurations were replayed")
+    return notes
 
 
 def _model_differences(reader: SessionReader, model) -> list[str]:
@@ -533,4 +543,5 @@ def replay_job(job: tuple[str, str | None, dict]) -> dict:
         return {"session": session, "out": out, "error": text}
     return {"session": session, "out": out, "compared": summary.compared, "identical": summary.identical,
             "measured": summary.measured, "differences": summary.differences,
-            "carried_over": summary.carried_over, "pipeline": pipeline, "plan_drift": summary.plan_drift}
+            "carried_over": summary.carried_over, "pipeline": pipeline, "plan_drift": summary.plan_drift,
+            "warnings": summary.warnings}

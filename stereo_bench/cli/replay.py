@@ -48,6 +48,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
                       f"{report['identical']} reproduced exactly{carried}")
             if report.get("plan_drift"):
                 print(f"  note: the recorded plan was replayed; {report['plan_drift']}")
+            for warning in report.get("warnings", []):
+                print(f"  note: {warning}")
             for line in report["differences"]:
                 print(f"  differs: {line}")
             if report["out"]:
