@@ -235,12 +235,17 @@ def test_a_session_is_created_with_the_umask(tmp_path, umask):
     assert _modes(out) == {("dir", 0o777 & ~umask), ("file", 0o666 & ~umask)}  # was 0600 files, 0700 calib dirs
 
 
-@pytest.mark.slow  # a report of the small session (~2 s)
-def test_a_report_is_created_with_the_umask(small_reference, tmp_path, umask):
+@pytest.mark.slow  # a report of the small session (~1.5 s)
+@pytest.mark.parametrize("mask", [0o022, 0o077])
+def test_a_report_is_created_with_the_umask(small_reference, tmp_path, mask):
     from stereo_bench.report.build import build_report
 
-    build_report([small_reference], tmp_path / "r", images=False)
-    assert _modes(tmp_path / "r") == {("dir", 0o777 & ~umask), ("file", 0o666 & ~umask)}
+    old = os.umask(mask)
+    try:
+        build_report([small_reference], tmp_path / "r", images=False)
+    finally:
+        os.umask(old)
+    assert _modes(tmp_path / "r") == {("dir", 0o777 & ~mask), ("file", 0o666 & ~mask)}  # was 0755 whatever the mask
 
 
 # -- paths recorded in a session: relative to the plan file, never to the working directory ------------------
@@ -272,3 +277,14 @@ def test_a_torn_recording_replays_what_is_complete_and_says_what_is_left_out(sma
     out = capfd.readouterr().out
     assert "1 reproduced exactly" in out  # the configuration whose result is complete
     assert "torn last line" in out and "no 'stop' document (interrupted)" in out  # was silent
+
+
+@pytest.mark.slow  # a campaign and a replay (~5 s)
+@pytest.mark.parametrize("mode", ["fixed", "nominal"])
+def test_a_session_replays_after_its_calib_dir_moved(small_reference, tmp_path, mode):
+    shutil.copytree(next((small_reference / "calib").glob("*/a1")), tmp_path / "cal")
+    (tmp_path / "plan.toml").write_text(SMALL + f'\n[extrinsics]\nmode = "{mode}"\ncalib_dir = "cal"\n')
+    assert main(["campaign", "run", str(tmp_path / "plan.toml"), "--out", str(tmp_path / "s"), "--yes",
+                 "--quiet"]) == 0
+    (tmp_path / "cal").rename(tmp_path / "moved")
+    assert main(["replay", str(tmp_path / "s")]) == 0  # nominal was: "extrinsics.calib_dir: ... not found"
