@@ -205,6 +205,49 @@ def test_a_report_run_never_removes_another_runs_work(small_reference, tmp_path,
     assert {p.name for p in tmp_path.iterdir()} == {"r"}  # nothing left beside it
 
 
+def test_two_swaps_into_one_out_take_turns(tmp_path, monkeypatch):
+    """The second run's swap comes while the first has moved the old report aside but not yet renamed its own
+    into place: it waits for the parent's lock (before, its rename took the free name and the first's failed)."""
+    from stereo_bench.report import build
+
+    out = tmp_path / "r"
+    for name in ("old", "first", "second"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / build.MANIFEST).write_text(json.dumps({"kind": build.REPORT_KIND, "run": name}))
+    (tmp_path / "old").rename(out)
+    moved_aside, second_done = threading.Event(), threading.Event()
+    real_rename = os.rename
+
+    def rename(source, target):
+        real_rename(source, target)
+        if threading.current_thread().name == "first" and Path(source) == out:
+            moved_aside.set()
+            second_done.wait(1.0)  # with the lock the second run cannot finish meanwhile: this times out
+
+    monkeypatch.setattr(build, "os", type("Os", (), {"rename": staticmethod(rename),
+                                                     "__getattr__": lambda self, n: getattr(os, n)})())
+    errors = []
+
+    def swap(name):
+        try:
+            if name == "second":
+                moved_aside.wait(10)
+            build._replace_dir(tmp_path / name, out)
+        except BaseException as error:  # noqa: BLE001 - reported by the assertion below
+            errors.append(error)
+        if name == "second":
+            second_done.set()
+
+    threads = [threading.Thread(target=swap, args=(name,), name=name) for name in ("first", "second")]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(20)
+    assert not errors
+    assert json.loads((out / build.MANIFEST).read_text())["run"] == "second"  # the last one, whole
+    assert {p.name for p in tmp_path.iterdir()} == {"r"}
+
+
 def test_a_crashed_reports_temporary_directory_is_cleaned_but_not_a_running_one(tmp_path):
     from stereo_bench.report.build import _locked, _remove_stale_temps
 
