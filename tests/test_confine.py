@@ -331,3 +331,14 @@ def test_a_session_replays_after_its_calib_dir_moved(small_reference, tmp_path, 
                  "--quiet"]) == 0
     (tmp_path / "cal").rename(tmp_path / "moved")
     assert main(["replay", str(tmp_path / "s")]) == 0  # nominal was: "extrinsics.calib_dir: ... not found"
+
+
+@pytest.mark.slow  # a campaign and a replay (~5 s)
+def test_a_session_replays_after_its_rig_config_file_moved(tmp_path):
+    (tmp_path / "rig.toml").write_text("# the default mapping and limits\n")
+    (tmp_path / "plan.toml").write_text(SMALL.replace("[rig]\n", '[rig]\nconfig_file = "rig.toml"\n'))
+    assert main(["campaign", "run", str(tmp_path / "plan.toml"), "--out", str(tmp_path / "s"), "--yes",
+                 "--quiet"]) == 0
+    (tmp_path / "rig.toml").rename(tmp_path / "moved.toml")
+    assert main(["replay", str(tmp_path / "s"), "--out", str(tmp_path / "r")]) == 0  # was: no such rig config file
+    assert main(["replay", str(tmp_path / "r")]) == 0  # the replay's session carries the copy too

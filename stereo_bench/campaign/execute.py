@@ -32,11 +32,12 @@ from stereo_bench.campaign.documents import (
     CalibrationFiles,
     ControllerEvent,
     Draft,
+    EventDocument,
     ResultDocument,
     StartDocument,
     StopDocument,
 )
-from stereo_bench.campaign.extrinsics_run import session_sources
+from stereo_bench.campaign.extrinsics_run import RIG_CONFIG_FILE, RIG_CONFIG_KIND, session_sources
 from stereo_bench.campaign.operator import Operator, OperatorAbsent, SimulatedOperator, TerminalOperator
 from stereo_bench.campaign.plan import PREPARE_ID, Configuration, Step, Visit, expand_plan, plan_steps, plan_visits
 from stereo_bench.campaign.runner import CampaignRunner, RunnerOptions, group_steps
@@ -160,6 +161,15 @@ class RunSummary:
         for row in self.rows:
             counts[row["status"]] = counts.get(row["status"], 0) + 1
         return counts
+
+
+def _recorded_rig_config(reader: SessionReader) -> Path | None:
+    """The recording's copy of ``[rig] config_file`` (a 'rig_config' event), if it holds one."""
+    for event in reversed(reader.events(kind=RIG_CONFIG_KIND, attempt=None)):
+        relative = (event.get("files") or {}).get(RIG_CONFIG_FILE)
+        if relative:
+            return reader.path(relative)
+    return None
 
 
 def _recorded_intrinsics(reader: SessionReader) -> Path | None:
@@ -402,6 +412,9 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     reader = SessionReader(session_dir)
     start = reader.start()
     recorded_config = dict(start["config"])
+    rig_copy = _recorded_rig_config(reader)
+    if rig_copy is not None and isinstance(recorded_config.get("rig"), dict):  # the copy, not where the file was
+        recorded_config["rig"] = {**recorded_config["rig"], "config_file": str(rig_copy)}
     for section, values in (pipeline or {}).items():
         recorded_config[section] = {**recorded_config.get(section, {}), **values}
     try:
@@ -504,16 +517,19 @@ def _model_differences(reader: SessionReader, model) -> list[str]:
 
 
 def _recorded_session_sources(reader: SessionReader) -> list[Draft]:
-    """A model file's and calib_dir's copies in the recording, recorded again into a replay's new session."""
+    """A model file's, calib_dir's and the rig config file's copies in the recording, recorded again into a
+    replay's new session."""
     from stereo_bench.campaign.documents import IntrinsicsEvent, KinematicModelEvent
 
     drafts = []
-    for kind, model in (("kinematic_model", KinematicModelEvent), ("intrinsics", IntrinsicsEvent)):
+    for kind, model in (("kinematic_model", KinematicModelEvent), ("intrinsics", IntrinsicsEvent),
+                        (RIG_CONFIG_KIND, EventDocument)):
         for event in reader.events(kind=kind, attempt=None):
             if kind == "kinematic_model" and event["data"].get("source") != "file":
                 continue
             files = {name: reader.read_bytes(relative) for name, relative in (event.get("files") or {}).items()}
-            drafts.append(Draft(model, config_id=None, data=event["data"], files=files))
+            drafts.append(Draft(model, config_id=None, data=event["data"], files=files,
+                                **({"kind": kind} if model is EventDocument else {})))
     return drafts
 
 
