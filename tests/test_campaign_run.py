@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import math
 import os
 import shutil
 import signal
@@ -369,3 +370,15 @@ def test_a_frame_without_the_target_is_captured_again_and_replays(tmp_path):
     assert [(d["index"], d["retry"]) for d in first][:2] == [(0, 0), (0, 1)]
     # The replay of this fresh session asks for the same re-capture and finds the same numbers.
     assert main(["replay", str(out)]) == 0
+
+
+def test_the_result_line_shows_the_expanded_uncertainty_and_says_when_only_noise_is_known():
+    from stereo_bench.cli.campaign_run import _format_row
+
+    row = {"config_id": "B250_Z700_A90", "baseline_mm": 250.0, "distance_mm": 700.0, "alpha_deg": 90.0,
+           "status": "measured", "square_mean_mm": 28.2697, "error_mm": 1.2697, "sigma_mm": 0.00004,
+           "n_squares": 279, "rms_px": 0.032, "U_expanded_mm": 2.4431}
+    assert "error +1.2697 +- 2.4431 mm (U, k=2)" in _format_row(row)
+    for unknown in (None, math.nan):  # a session recorded without a budget, or a budget that is unknown
+        line = _format_row({**row, "U_expanded_mm": unknown})
+        assert "+- 0.0000 mm (sigma of image noise only)" in line and "k=2" not in line
