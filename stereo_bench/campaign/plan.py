@@ -43,6 +43,7 @@ limits is not run (the fit goes on without it, and says what it could not identi
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, ClassVar
@@ -65,12 +66,12 @@ from stereo_bench.geometry import (
     alpha_from_toe_in,
     board_pose_facing_rig,
     calibration_view_fits,
+    invert_transform,
     make_transform,
     transform_points,
-    visible_in_both,
-    visible_in_view,
 )
 from stereo_bench.targets import CharucoTarget, Checkerboard
+from stereo_bench.vision.detect import min_detectable_square_px
 from stereo_bench.vision.pipeline import MIN_COMMON_CORNERS
 
 MIN_CORNERS_IN_BOTH = MIN_COMMON_CORNERS  # what the measurement needs, not a planning guess
@@ -99,6 +100,8 @@ class Visibility:
     in_both: int
     in_left: int
     in_right: int
+    square_px_left: float = math.inf  # the smallest side of a target square the left camera sees whole, px
+    square_px_right: float = math.inf
 
     @property
     def fraction_in_both(self) -> float:
@@ -112,12 +115,31 @@ def target_visibility(
     """Corners of ``target`` in view when it faces the rig, centred on the rig z axis at ``distance_mm``."""
     T_rig_board = board_pose_facing_rig(distance_mm=distance_mm, board_size_mm=target.grid_size_mm)
     points = transform_points(T_rig_board, np.asarray(target.object_points, dtype=float))
-    both = visible_in_both(points, rig=rig, left=left, right=right, margin_px=margin_px)
+    pairs = target.adjacent_pairs()
+    seen, square_px = [], []
+    for camera, T_rig_cam in ((left, rig.T_rig_left), (right, rig.T_rig_right)):
+        pixels, valid = camera.project(transform_points(invert_transform(T_rig_cam), points))
+        visible = valid & camera.in_image(pixels, margin_px=margin_px)
+        whole = visible[pairs].all(axis=1)  # both corners of a square's side in view
+        sides = np.linalg.norm(pixels[pairs[whole, 0]] - pixels[pairs[whole, 1]], axis=1)
+        seen.append(visible)
+        square_px.append(float(sides.min()) if len(sides) else math.inf)
     return Visibility(
-        n_corners=len(points), in_both=int(both.sum()),
-        in_left=int(visible_in_view(points, left, rig.T_rig_left, margin_px=margin_px).sum()),
-        in_right=int(visible_in_view(points, right, rig.T_rig_right, margin_px=margin_px).sum()),
+        n_corners=len(points), in_both=int((seen[0] & seen[1]).sum()), in_left=int(seen[0].sum()),
+        in_right=int(seen[1].sum()), square_px_left=square_px[0], square_px_right=square_px[1],
     )
+
+
+def _why_too_small(vis: Visibility, need_px: float, *, distance_mm: float, target: Target) -> str | None:
+    """Why the corner detector would not find the target (its squares too small in a view), or None."""
+    side, smallest = min((("left", vis.square_px_left), ("right", vis.square_px_right)), key=lambda item: item[1])
+    if smallest >= need_px:
+        return None
+    detector = ("ChArUco markers" if isinstance(target, CharucoTarget)
+                else "the checkerboard detector's search image")
+    return (f"target squares {smallest:.1f} px in the {side} view at Z = {distance_mm:g} mm, below the "
+            f"{need_px:.1f} px the corner detector finds (minimum board size in pixels: {detector}); "
+            f"a larger target or a longer lens reaches farther")
 
 
 def calibration_distance_range(
@@ -275,6 +297,7 @@ def expand_plan(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN
     calibration_board = config.calibration_board.build()
     left = config.cameras.optics.camera_model("left")
     right = config.cameras.optics.camera_model("right")
+    image_size = (config.cameras.optics.width_px, config.cameras.optics.height_px)
     rig_config = config.rig.rig_config()
     per_config = config.extrinsics.mode == "per-config"
     angles = plan.angles_deg()
@@ -293,6 +316,11 @@ def expand_plan(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN
                 reasons = []
                 if vis.in_both < MIN_CORNERS_IN_BOTH:
                     reasons.append(_why_too_few(vis, alpha_deg=alpha))
+                else:  # the runner detects a view with fewer corners than the board's as partial: the same rule
+                    need = min_detectable_square_px(target, image_size, partial=vis.in_both < vis.n_corners)
+                    too_small = _why_too_small(vis, need, distance_mm=distance, target=target)
+                    if too_small:
+                        reasons.append(too_small)
                 calibration_range = None
                 if per_config:
                     if (baseline, alpha) not in calibration_ranges:

@@ -24,7 +24,8 @@ EXIT_INTERRUPTED = 130
 def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: float | None = None,
                      sim: str | None = None):
     """The campaign config named by a file or a preset (exactly one), ``time_scale`` and the ``sim`` profile
-    applied; errors -> CliError.
+    applied, and checked as ``run`` checks it before moving (:func:`stereo_bench.campaign.preflight.check_campaign`);
+    errors -> CliError or ConfigError (one line, exit status 2).
 
     The one way the CLI loads a campaign (``campaign plan`` and ``campaign run``).
     """
@@ -46,6 +47,10 @@ def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: 
         if config.cameras.kind != "simulated":
             raise CliError("--sim applies to simulated cameras only (the simulated bench or bring-up)")
         config = _override(config, "sim", "profile", sim, "--sim")
+    from stereo_bench.campaign.preflight import check_campaign
+
+    # What run checks before moving, checked for plan too (run_campaign checks again for callers of the API).
+    check_campaign(config, source=f"preset {preset}" if preset is not None else str(plan_file))
     return config
 
 
