@@ -473,6 +473,12 @@ _PLAN_BOUNDS = {
 }
 
 
+#: The most configurations one campaign plans: a plan of 10,000 takes ~3 s to check (scripts/bench_plan.py) and its
+#: run days even on the simulated bench (each configuration calibrates and measures); beyond this is a typo
+#: (a step of 0.001 instead of 1) or several campaigns' work.
+MAX_PLAN_CONFIGURATIONS = 20_000
+
+
 class PlanSection(BaseModel):
     """The grid of configurations: every combination of baseline, distance and angle.
 
@@ -500,8 +506,9 @@ class PlanSection(BaseModel):
         for value in values:
             if not (math.isfinite(value) and low < value < high):
                 raise ValueError(f"value {value:g} outside ({low:g}, {high:g})")
-        duplicates = sorted({v for v in values if values.count(v) > 1})
-        if duplicates:
+        if len(set(values)) != len(values):  # linear: a 10,000-value list is checked in milliseconds
+            seen: set[float] = set()
+            duplicates = sorted({v for v in values if v in seen or seen.add(v)})
             raise ValueError(f"lists {duplicates[0]:g} more than once")
         return values
 
@@ -511,6 +518,12 @@ class PlanSection(BaseModel):
             raise ValueError("give alpha_deg or toe_in_deg, not both")
         if self.alpha_deg is None and self.toe_in_deg is None:
             self.alpha_deg = [90.0]
+        angles = self.alpha_deg if self.toe_in_deg is None else self.toe_in_deg
+        counts = (len(self.baseline_mm), len(self.distance_mm), len(angles or ()))
+        if math.prod(counts) > MAX_PLAN_CONFIGURATIONS:
+            raise ValueError(f"{math.prod(counts):,} configurations ({counts[0]:,} baselines x {counts[1]:,} distances "
+                             f"x {counts[2]:,} angles): at most {MAX_PLAN_CONFIGURATIONS:,} per campaign; split the "
+                             "grid into several campaigns")
         return self
 
     def angles_deg(self) -> list[tuple[float, float]]:
