@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -83,19 +84,58 @@ class ReplayStereoCamera:
 
     ``load_pair(key)`` returns (left image, right image, meta) where meta may hold the recorded
     ``left``/``right`` frame descriptions (timestamps, sequence numbers) and ``dt_s``.
+
+    ``order``: the keys in the order they were recorded, which is the order a replay asks for them;
+    up to ``ahead`` pairs are then loaded ahead on ``workers`` threads (reading and decoding overlap
+    the analysis instead of preceding it). A key asked for out of that order is loaded when asked;
+    the pairs loaded ahead of it that were skipped are dropped.
     """
 
-    def __init__(self, load_pair: Callable[[str], tuple[np.ndarray, np.ndarray, dict]]):
+    def __init__(self, load_pair: Callable[[str], tuple[np.ndarray, np.ndarray, dict]], *,
+                 order: Sequence[str] = (), ahead: int = 0, workers: int = 2):
+        if ahead < 0 or workers < 1:
+            raise ValueError(f"ahead must be >= 0 and workers >= 1, got {ahead} and {workers}")
         self._load = load_pair
         self._expected: deque[str] = deque()
         self._open = False
+        self._order = list(order) if ahead else []
+        self._position = {key: i for i, key in enumerate(self._order)}
+        self._next = 0  # the first key of the order not yet handed to the pool
+        self._loading: dict[str, Future] = {}
+        self._ahead = ahead
+        self._workers = workers
+        self._pool: ThreadPoolExecutor | None = None
 
     def open(self) -> ReplayStereoCamera:
         self._open = True
+        if self._order and self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=self._workers, thread_name_prefix="replay-load")
+            self._load_ahead()
         return self
 
     def close(self) -> None:
         self._open = False
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        self._loading.clear()
+
+    def _load_ahead(self) -> None:
+        while self._pool is not None and len(self._loading) < self._ahead and self._next < len(self._order):
+            key = self._order[self._next]
+            self._next += 1
+            self._loading[key] = self._pool.submit(self._load, key)
+
+    def _take(self, key: str) -> tuple[np.ndarray, np.ndarray, dict]:
+        """The pair ``key``: loaded ahead if it was, else now; pairs before it in the order are not needed."""
+        position = self._position.get(key)
+        if position is not None:
+            for skipped in [k for k in self._loading if self._position[k] < position]:
+                self._loading.pop(skipped).cancel()
+            self._next = max(self._next, position + 1) if key not in self._loading else self._next
+        future = self._loading.pop(key, None)
+        self._load_ahead()
+        return future.result() if future is not None else self._load(key)
 
     def __enter__(self) -> ReplayStereoCamera:
         return self.open()
@@ -120,7 +160,7 @@ class ReplayStereoCamera:
         if not self._expected:
             raise ReplayMismatch("replay: a capture was asked for that the recording does not hold")
         key = self._expected.popleft()
-        left, right, meta = self._load(key)
+        left, right, meta = self._take(key)
         frames = []
         for side, image in (("left", left), ("right", right)):
             described = meta.get(side) or {}

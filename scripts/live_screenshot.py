@@ -62,6 +62,12 @@ def main() -> None:
         while True:
             state = client.get("/api/state").json()
             if state["prompt"] is not None:
+                # The analyses run behind the captures: let the results of the configurations before this
+                # prompt arrive before deciding whether this is the prompt to photograph.
+                settled = time.monotonic() + 3.0
+                while time.monotonic() < settled and len(state["results"]) < args.results:
+                    time.sleep(0.2)
+                    state = client.get("/api/state").json()
                 if len(state["results"]) >= args.results:
                     break
                 client.post("/api/control/continue")

@@ -18,14 +18,18 @@ tasks (see :func:`spawn_seeds`), so neither the executor nor the grouping change
 
 Every executor is a context manager; ``close()`` releases what it started (pools, clusters) and
 nothing it was given.
+
+:func:`background_threads` is the other kind of pool: threads for work that can wait (encoding
+recorded frames, detecting calibration views ahead of their analysis) while a capture cannot.
 """
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, Literal, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
@@ -206,3 +210,23 @@ def group(items: list[T], n_groups: int) -> list[list[T]]:
     n_groups = max(1, min(n_groups, len(items)))
     bounds = np.linspace(0, len(items), n_groups + 1).round().astype(int)
     return [items[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True) if b > a]
+
+
+# How much nicer than the thread that starts them background threads run (on Linux nice() applies to
+# the calling thread only; a thread may lower its own priority without privileges, never raise it back).
+BACKGROUND_NICE = 10
+
+
+def _lower_thread_priority() -> None:
+    with contextlib.suppress(AttributeError, OSError):  # not available, or not allowed: the same priority
+        os.nice(BACKGROUND_NICE)
+
+
+def background_threads(max_workers: int, name: str) -> ThreadPoolExecutor:
+    """A thread pool whose threads run at a lower CPU priority (nice +``BACKGROUND_NICE`` on Linux).
+
+    For work that can wait while the rest of the process cannot: on a busy machine the capture,
+    its detection and the rendering that stands for a sensor come first, and the background work
+    catches up when they wait (while the rig moves). Results do not depend on the priority.
+    """
+    return ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix=name, initializer=_lower_thread_priority)

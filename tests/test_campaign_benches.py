@@ -198,7 +198,11 @@ def test_nothing_moves_when_nothing_is_left_to_run(tmp_path, small_copy):
 
 
 def test_pause_holds_the_run_at_a_step_boundary_until_resumed(tmp_path):
-    config = small_config(plan={"baseline_mm": [100], "distance_mm": [450], "alpha_deg": [90]})
+    # The subscriber pauses from the recorder thread, after the move is written; a settle of 0.1 s (real)
+    # lets that land before the next step boundary: the captures after it take a few ms once the simulator
+    # has rendered them ahead.
+    config = small_config(plan={"baseline_mm": [100], "distance_mm": [450], "alpha_deg": [90]},
+                          capture={"settle_s": 5.0})
     control = RunControl()
     paused_at: list[float] = []
 

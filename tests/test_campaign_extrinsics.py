@@ -286,3 +286,16 @@ def test_rig_calibrate_kinematics_runs_only_the_design_and_writes_the_model(tmp_
     assert main(["rig", "--port", str(tmp_path / "no-such-port"), "home", "calibrate-kinematics"]) == 2
     assert "runs on its own" in capsys.readouterr().err
     assert math.isfinite(np.sum(model.covariance_matrix()))
+
+
+def test_a_kinematic_session_that_kept_only_detections_of_its_design_views_replays_every_number(tmp_path):
+    # keep_frames = "measurement": the design visits' views are recorded as detections, not frames; the
+    # replay fits the model again from those and must give the recorded model and results.
+    config = lab_config(extrinsics={"mode": "kinematic"},
+                        capture={"calibration_views": 3, "keep_frames": "measurement"})
+    summary = run_campaign(config, tmp_path / "s", yes=True, plan=_two_configurations(config))
+    assert summary.exit_status == "success", summary.reason
+    views = _events(tmp_path / "s", "calibration_view")
+    assert views and not any(e.get("frames") for e in views)
+    replayed = replay_session(tmp_path / "s", tmp_path / "replayed")
+    assert replayed.differences == [] and replayed.identical == replayed.compared == 2

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import math
 import os
 import shutil
 import signal
@@ -16,7 +17,6 @@ from pathlib import Path
 import pytest
 
 from stereo_bench.campaign.bench import simulated_bench
-from stereo_bench.campaign.documents import MoveEvent
 from stereo_bench.campaign.execute import RunControl, replay_session, run_campaign
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.cli import main
@@ -88,6 +88,15 @@ def test_manual_steps_without_an_operator_are_a_clear_error(plan_file, tmp_path)
     assert "standard input is closed" in result.stderr and "--yes" in result.stderr
 
 
+@pytest.fixture
+def long_settle_plan_file(tmp_path) -> Path:
+    """The small plan with a settle of 1 s (real): time to signal or kill a run at a configuration before its
+    captures, which take a few ms once the simulator has rendered them ahead (the numbers do not depend on it)."""
+    path = tmp_path / "small-long-settle.toml"
+    path.write_text(SMALL.replace("settle_s = 0.1", "settle_s = 50"))
+    return path
+
+
 def _launch(plan_file: Path, out: Path, *more: str) -> subprocess.Popen:
     command = [sys.executable, "-m", "stereo_bench", "campaign", "run", str(plan_file), "--out", str(out), "--yes",
                "--quiet", *more]
@@ -117,9 +126,9 @@ def _wait_for_the_last_move(process: subprocess.Popen, out: Path) -> None:
 
 @pytest.mark.slow
 def test_sigkill_mid_campaign_then_resume_gives_every_configuration_once_with_the_same_numbers(
-        plan_file, tmp_path, small_reference):
+        long_settle_plan_file, tmp_path, small_reference):
     out = tmp_path / "killed"
-    process = _launch(plan_file, out)
+    process = _launch(long_settle_plan_file, out)
     _wait_for_first_result(process, out)
     os.kill(process.pid, signal.SIGKILL)
     process.wait(timeout=30)
@@ -134,7 +143,8 @@ def test_sigkill_mid_campaign_then_resume_gives_every_configuration_once_with_th
 
 
 @pytest.mark.slow
-def test_sigterm_stops_like_ctrl_c_and_the_session_resumes(plan_file, tmp_path, small_reference):
+def test_sigterm_stops_like_ctrl_c_and_the_session_resumes(long_settle_plan_file, tmp_path, small_reference):
+    plan_file = long_settle_plan_file
     out = tmp_path / "terminated"
     process = _launch(plan_file, out)
     _wait_for_the_last_move(process, out)
@@ -152,9 +162,9 @@ def test_sigterm_stops_like_ctrl_c_and_the_session_resumes(plan_file, tmp_path, 
 
 
 @pytest.mark.slow
-def test_ctrl_c_twice_records_interrupted_with_the_resume_command(plan_file, tmp_path):
+def test_ctrl_c_twice_records_interrupted_with_the_resume_command(long_settle_plan_file, tmp_path):
     out = tmp_path / "aborted"
-    process = _launch(plan_file, out)
+    process = _launch(long_settle_plan_file, out)
     _wait_for_the_last_move(process, out)
     process.send_signal(signal.SIGINT)
     time.sleep(0.02)  # two separate signals (the kernel merges two pending ones)
@@ -202,13 +212,21 @@ def test_stop_request_leaves_a_resumable_session_and_resume_runs_the_recorded_pl
     control = RunControl()
     moves = []
 
-    def stop_at_second_move(document):  # a subscriber, as a live page's Stop button would be
-        if isinstance(document, MoveEvent):
-            moves.append(document)
+    def stop_at_second_move(config, **options):  # as a live page's Stop button would, during the second move
+        bench = simulated_bench(config, **options)
+        move_to = bench.rig.move_to
+
+        def counted(**targets):
+            moves.append(targets)
+            result = move_to(**targets)
             if len(moves) == 2:
                 control.request_stop()
+            return result
 
-    summary = run_campaign(config, out, yes=True, subscribers=[stop_at_second_move], control=control,
+        bench.rig.move_to = counted
+        return bench
+
+    summary = run_campaign(config, out, yes=True, bench_factory=stop_at_second_move, control=control,
                            resume_command="stereo-bench campaign run small.toml --out stopped --resume")
     assert summary.exit_status == "interrupted"
     stop = SessionReader(out).stops()[-1]
@@ -352,3 +370,15 @@ def test_a_frame_without_the_target_is_captured_again_and_replays(tmp_path):
     assert [(d["index"], d["retry"]) for d in first][:2] == [(0, 0), (0, 1)]
     # The replay of this fresh session asks for the same re-capture and finds the same numbers.
     assert main(["replay", str(out)]) == 0
+
+
+def test_the_result_line_shows_the_expanded_uncertainty_and_says_when_only_noise_is_known():
+    from stereo_bench.cli.campaign_run import _format_row
+
+    row = {"config_id": "B250_Z700_A90", "baseline_mm": 250.0, "distance_mm": 700.0, "alpha_deg": 90.0,
+           "status": "measured", "square_mean_mm": 28.2697, "error_mm": 1.2697, "sigma_mm": 0.00004,
+           "n_squares": 279, "rms_px": 0.032, "U_expanded_mm": 2.4431}
+    assert "error +1.2697 +- 2.4431 mm (U, k=2)" in _format_row(row)
+    for unknown in (None, math.nan):  # a session recorded without a budget, or a budget that is unknown
+        line = _format_row({**row, "U_expanded_mm": unknown})
+        assert "+- 0.0000 mm (sigma of image noise only)" in line and "k=2" not in line

@@ -92,3 +92,47 @@ def test_old_sessions_frames_read_exactly_as_written():
         for relative in event["frames"].values():
             expected = cv2.imread(str(SAMPLE_SESSION / relative), cv2.IMREAD_UNCHANGED)
             np.testing.assert_array_equal(reader.frame(relative), expected)
+
+
+def _with_crc(kind: bytes, body: bytes) -> bytes:
+    return len(body).to_bytes(4, "big") + kind + body + zlib.crc32(kind + body).to_bytes(4, "big")
+
+
+@pytest.mark.parametrize("shape", [(1080, 1920), (37, 53), (1, 9)])
+def test_grey_frames_are_decoded_by_libdeflate_exactly_as_opencv_decodes_them(shape, monkeypatch):
+    pytest.importorskip("deflate")
+    from stereo_bench import frames
+
+    data = encode_frame(noisy_frame(shape, seed=3))
+    expected = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    monkeypatch.setattr(frames.cv2, "imdecode", lambda *args: pytest.fail("OpenCV decoded a frame of ours"))
+    image = decode_frame(data, "f.png")
+    assert image.dtype == np.uint8 and image.shape == shape
+    np.testing.assert_array_equal(image, expected)
+
+
+def test_damaged_image_data_behind_a_valid_crc_is_refused():
+    """A chunk whose CRC was recomputed over damaged data: the inflate's Adler-32 or length catches it."""
+    data = encode_frame(noisy_frame((200, 300)))
+    chunks = png_chunks(data)
+    idat = b"".join(body for kind, body in chunks if kind == b"IDAT")
+    flipped = bytearray(idat)
+    flipped[len(idat) // 2] ^= 0x10
+    for damaged_idat in (bytes(flipped), idat[: len(idat) - 40] + idat[-4:]):
+        rebuilt = (PNG_MAGIC + _with_crc(b"IHDR", chunks[0][1]) + _with_crc(b"IDAT", damaged_idat)
+                   + _with_crc(b"IEND", b""))
+        with pytest.raises(FrameError, match="not a complete PNG frame"):
+            decode_frame(rebuilt, "f.png")
+
+
+def test_other_pngs_are_decoded_by_opencv_and_without_libdeflate_every_frame_is(monkeypatch):
+    from stereo_bench import frames
+
+    grey = noisy_frame((64, 96), seed=5)
+    ok, sub_filtered = cv2.imencode(".png", grey, [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]
+                                    if hasattr(cv2, "IMWRITE_PNG_FILTER") else [])
+    assert ok
+    np.testing.assert_array_equal(decode_frame(sub_filtered.tobytes(), "f.png"), grey)
+    ours = encode_frame(grey)
+    monkeypatch.setattr(frames, "_libdeflate", None)
+    np.testing.assert_array_equal(decode_frame(ours, "f.png"), grey)

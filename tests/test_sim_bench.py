@@ -52,6 +52,30 @@ def test_cameras_see_the_board_from_where_the_motors_are(bench):
                          BOARD)
 
 
+def test_a_stereo_pair_takes_one_exposure_for_both_cameras(bench):
+    """Both cameras expose on one trigger: the second grab of a pair does not wait a second exposure."""
+    import time
+
+    bench.show(BOARD, board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm), seed=4)
+    bench.render("left")  # builds the renderer (~1 s) before the timed exposure
+    exposure_s = bench.exposure_s
+    bench.exposure_s = 1.0 * bench.time_scale  # 1 s of real time: longer than a render, even on a busy machine
+    try:
+        left, right = bench.cameras()
+        slept = {"left": [], "right": []}
+        for side, camera in (("left", left), ("right", right)):
+            camera._sleep = lambda s, side=side: (slept[side].append(s), time.sleep(s))
+        with StereoCamera(left, right) as cameras:
+            started = time.monotonic()
+            pair = cameras.capture_pair()
+            took_s = time.monotonic() - started
+    finally:
+        bench.exposure_s = exposure_s
+    assert pair.dt_s == 0.0
+    assert len(slept["left"]) == 1 and slept["right"] == []  # the right frame was read out with the left one
+    assert took_s >= 1.0
+
+
 def test_frames_of_a_scene_are_reproducible(bench):
     bench.show(BOARD, board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm), seed=9)
     first, _ = bench.render("left")

@@ -309,3 +309,157 @@ def test_the_truth_without_landing_errors_differs_from_the_truth_by_the_moves_la
     with SimulatedBench(profile=IDEAL, **cameras()) as ideal:
         assert ideal.truth_without_landing() == {key: value for key, value in ideal.truth().items()
                                                  if key in ("R", "T", "structure")}
+
+
+def _wait_rendered_ahead(bench: SimulatedBench, n: int, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while bench.staged_rendered() < n:
+        assert time.monotonic() < deadline, "the staged scenes were never rendered ahead"
+        time.sleep(0.01)
+
+
+def test_scenes_rendered_ahead_are_the_frames_a_render_at_the_trigger_gives(lab_bench):
+    """Rendered once the rig rests (landing errors drawn, ringing stopped), served at the trigger, bit for bit."""
+    from drivers.camera.stereo import StereoCamera
+
+    bench, rig = lab_bench
+    rig.move_to(baseline_mm=140.0, alpha_left_deg=84.0, alpha_right_deg=84.0, target_distance_mm=450.0)
+    poses = [board_pose_facing_rig(distance_mm=distance, board_size_mm=BOARD.grid_size_mm, yaw_deg=yaw)
+             for distance, yaw in ((400.0, 10.0), (470.0, -5.0))]
+    bench.stage([("board", BOARD, pose, 50 + i) for i, pose in enumerate(poses)],
+                at=RigPose.symmetric(140.0, 84.0))
+    _wait_rendered_ahead(bench, 2)
+    with StereoCamera(*bench.cameras()) as cameras:
+        for i, pose in enumerate(poses):
+            used = bench.prerendered_used
+            bench.show(BOARD, pose, seed=50 + i)
+            pair = cameras.capture_pair()
+            assert bench.prerendered_used == used + 1
+            snapshot = bench._snapshot()  # the pair at rest: what the trigger saw
+            for side, frame in (("left", pair.left), ("right", pair.right)):
+                image, meta = bench._render_job(side, snapshot, bench._scene, 0)
+                np.testing.assert_array_equal(frame.image, image)
+                assert frame.meta == meta
+            assert pair.left.meta["truth"]["ringing_deg"] == 0.0
+
+
+def test_a_frame_rendered_ahead_is_dropped_when_the_rig_stands_elsewhere_at_the_trigger(lab_bench):
+    from drivers.camera.stereo import StereoCamera
+
+    bench, rig = lab_bench
+    rig.move_to(baseline_mm=160.0, alpha_left_deg=86.0, alpha_right_deg=86.0, target_distance_mm=450.0)
+    pose = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm)
+    bench.stage([("board", BOARD, pose, 61)], at=RigPose.symmetric(160.0, 86.0))
+    _wait_rendered_ahead(bench, 1)
+    rig.move_to(baseline_mm=161.0, alpha_left_deg=86.0, alpha_right_deg=86.0, target_distance_mm=450.0)
+    time.sleep(0.4 / 50)  # the ringing has stopped
+    used = bench.prerendered_used
+    with StereoCamera(*bench.cameras()) as cameras:
+        bench.show(BOARD, pose, seed=61)
+        pair = cameras.capture_pair()
+    assert bench.prerendered_used == used  # rendered for B = 160 mm: not served
+    assert pair.left.meta["baseline_mm"] == pytest.approx(161.0, abs=0.01)
+    image, _ = bench._render_job("left", bench._snapshot(), bench._scene, 0)
+    np.testing.assert_array_equal(pair.left.image, image)
+
+
+def test_nothing_is_rendered_ahead_before_the_move_to_where_the_scenes_need_the_rig_is_queued(lab_bench):
+    bench, rig = lab_bench
+    rig.move_to(baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=85.0, target_distance_mm=450.0)
+    pose = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm)
+    bench.stage([("board", BOARD, pose, 70)], at=RigPose.symmetric(200.0, 85.0))
+    time.sleep(0.2)
+    assert bench.staged_rendered() == 0
+    rig.move_to(baseline_mm=200.0, alpha_left_deg=85.0, alpha_right_deg=85.0, target_distance_mm=450.0)
+    _wait_rendered_ahead(bench, 1)
+    bench.stage([], at=RigPose.symmetric(200.0, 85.0))  # nothing left staged
+
+
+@pytest.mark.slow
+def test_scenes_are_rendered_during_the_move_for_where_it_will_rest_and_served_bit_for_bit():
+    """The move's end is planned (whole steps) and its landing drawn as the mechanics will draw it: the
+    frames rendered while the rig still moves are those a render at the trigger gives after it."""
+    import threading
+
+    from drivers.camera.stereo import StereoCamera
+
+    with SimulatedBench(time_scale=5.0, profile=LAB, seed=5, **cameras()) as bench:
+        with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+            rig.home()
+            rig.move_to(baseline_mm=60.0, alpha_left_deg=88.0, alpha_right_deg=88.0, target_distance_mm=450.0)
+            bench.warm_up(BOARD)
+            pose = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm, yaw_deg=4.0)
+            bench.stage([("board", BOARD, pose, 80)], at=RigPose.symmetric(220.0, 84.0))
+            moving = threading.Thread(target=rig.move_to, kwargs={
+                "baseline_mm": 220.0, "alpha_left_deg": 84.0, "alpha_right_deg": 84.0, "target_distance_mm": 450.0})
+            moving.start()
+            rendered_while_moving = False
+            while moving.is_alive():
+                rendered_while_moving |= bench.staged_rendered() > 0 and bench.emulator.state == "Run"
+                time.sleep(0.005)
+            moving.join()
+        assert rendered_while_moving
+        time.sleep(0.5 / 5)  # the settle: the ringing has stopped
+        with StereoCamera(*bench.cameras()) as cameras_:
+            bench.show(BOARD, pose, seed=80)
+            pair = cameras_.capture_pair()
+        assert bench.prerendered_used == 1
+        snapshot = bench._snapshot()
+        for side, frame in (("left", pair.left), ("right", pair.right)):
+            image, meta = bench._render_job(side, snapshot, bench._scene, 0)
+            np.testing.assert_array_equal(frame.image, image)
+            assert frame.meta == meta
+
+
+def test_frames_rendered_for_a_wrong_prediction_are_rendered_again_once_the_rig_rests(lab_bench, monkeypatch):
+    import dataclasses
+
+    from drivers.camera.stereo import StereoCamera
+
+    bench, rig = lab_bench
+    real_predict = bench._predicted_snapshot
+    wrong = []
+
+    def predict_wrongly():  # the right pose, a camera 0.1 mm off
+        snapshot = real_predict()
+        if snapshot is None:
+            return None
+        T = {side: matrix.copy() for side, matrix in snapshot.T_rig_cam.items()}
+        T["left"][0, 3] += 0.1
+        wrong.append(True)
+        return dataclasses.replace(snapshot, T_rig_cam=T)
+
+    real_render = bench._render_job
+    renders = []
+
+    def render_job(side, snapshot, scene, index):
+        renders.append((side, scene.seed))
+        return real_render(side, snapshot, scene, index)
+
+    monkeypatch.setattr(bench, "_predicted_snapshot", predict_wrongly)
+    monkeypatch.setattr(bench, "_render_job", render_job)
+    pose = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm)
+    # The prediction is made while the rig moves: on a loaded machine the render-ahead thread may not run
+    # before the move ends (then nothing is predicted and the frames are simply rendered at rest), so the
+    # move is made again until a prediction was made during one.
+    for _ in range(5):
+        renders.clear()
+        rig.move_to(baseline_mm=40.0, alpha_left_deg=87.0, alpha_right_deg=87.0, target_distance_mm=450.0)
+        wrong.clear()
+        bench.stage([("board", BOARD, pose, 90)], at=RigPose.symmetric(300.0, 87.0))
+        rig.move_to(baseline_mm=300.0, alpha_left_deg=87.0, alpha_right_deg=87.0, target_distance_mm=450.0)
+        time.sleep(0.5 / 50)
+        deadline = time.monotonic() + 30
+        while not all(entry.checked for entry in bench._staged):
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        if wrong:
+            break
+    used = bench.prerendered_used
+    with StereoCamera(*bench.cameras()) as cameras_:
+        bench.show(BOARD, pose, seed=90)
+        pair = cameras_.capture_pair()
+    assert bench.prerendered_used == used + 1
+    assert wrong and renders.count(("left", 90)) == 2  # for the prediction, then again for the real state
+    image, _ = real_render("left", bench._snapshot(), bench._scene, 0)
+    np.testing.assert_array_equal(pair.left.image, image)

@@ -161,3 +161,19 @@ def test_device_gone_during_exposure(scene):
 def test_bad_timing_arguments_are_refused(scene):
     with pytest.raises(ValueError):
         SyntheticCamera(scene.render, exposure_s=-1)
+
+
+def test_a_camera_sharing_a_trigger_waits_for_that_exposure_not_for_one_of_its_own(scene):
+    import time
+
+    slept: list[float] = []
+    deadline = time.monotonic() + 30.0  # the shared exposure ends then
+    camera = SyntheticCamera(scene.render, exposure_s=0.02, sleep=slept.append, ready_at=lambda: deadline)
+    with camera:
+        camera.capture()
+    assert len(slept) == 1 and 29.0 < slept[0] <= 30.0
+    slept.clear()
+    camera = SyntheticCamera(scene.render, exposure_s=0.02, sleep=slept.append, ready_at=lambda: deadline - 60.0)
+    with camera:
+        camera.capture()  # that exposure is over: the frame is there
+    assert slept == []

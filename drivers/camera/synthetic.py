@@ -41,6 +41,10 @@ class SyntheticCamera(CameraBase):
     given, must match what ``render`` returns. ``exposure_s``/``readout_s``: simulated time a grab takes
     (exposure, then sensor readout), seconds, multiplied by ``time_scale`` (0 makes grabs instantaneous; tests
     and fast simulations use a scale < 1). ``clock``/``sleep``: injectable time source (seconds, monotonic).
+    ``ready_at``: when the frame being grabbed is read out (``time.monotonic()`` seconds), for cameras
+    that share a trigger: the second camera of a hardware-triggered pair exposed at the same time as
+    the first, so its grab waits for that exposure's end, not for an exposure of its own. Default: the
+    (scaled) exposure + readout after the grab starts.
     """
 
     def __init__(
@@ -54,6 +58,7 @@ class SyntheticCamera(CameraBase):
         time_scale: float = 1.0,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
+        ready_at: Callable[[], float] | None = None,
     ):
         if exposure_s < 0 or readout_s < 0 or time_scale < 0:
             raise ValueError("exposure_s, readout_s and time_scale must be >= 0")
@@ -65,6 +70,7 @@ class SyntheticCamera(CameraBase):
         self.time_scale = time_scale
         self._clock = clock
         self._sleep = sleep
+        self._ready_at = ready_at
         self._lock = threading.Lock()
         self._open = False
         self._gone = False
@@ -136,7 +142,10 @@ class SyntheticCamera(CameraBase):
             rendered, meta = rendered
         image = np.asarray(rendered)
         self._check_shape(image)
-        delay_s = (self.exposure_s + self.readout_s) * self.time_scale - (time.monotonic() - started)
+        if self._ready_at is not None:
+            delay_s = self._ready_at() - time.monotonic()
+        else:
+            delay_s = (self.exposure_s + self.readout_s) * self.time_scale - (time.monotonic() - started)
         if delay_s > 0:
             self._sleep(delay_s)
         self._check_gone()  # the device may vanish mid-exposure

@@ -33,6 +33,17 @@ imperfections of *motion* (backlash, landing errors, ringing) do not: they need 
 which only a watcher of an emulator sees (a real controller is read once per grab, not every
 millisecond).
 
+Rendering ahead (:meth:`SimulatedBench.stage`): whoever places the boards may say which scenes come
+next and where the rig will stand for them. As soon as the emulator has the move there queued, the
+bench predicts the pair's state at rest there (the end of the planned move in whole steps; on a
+bench with motion errors, the history fed that move: its backlash and landing draws, no ringing)
+and renders the scenes' first frames in the background, so the render (~30 ms a view, longer than
+an exposure) overlaps the motion and the settle instead of delaying the captures. Once the rig
+rests there (idle, ringing stopped dead by friction), the prediction is checked against the real
+state and frames rendered for a wrong one are rendered again. A prerendered frame is used only if
+the scene shown and the pair's state at the trigger are exactly those it was rendered for, so it is
+bit for bit the frame a render at the trigger would give; otherwise the frame is rendered there.
+
 The bench knows the truth at every frame: the true camera poses, R and T of the pair
 (X_right = R X_left + T), the board's true pose, scale and bow. ``truth()`` returns it for the
 current state; every frame carries it in its metadata (``meta["truth"]``).
@@ -40,12 +51,13 @@ current state; every frame carries it in its metadata (``meta["truth"]``).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -75,6 +87,11 @@ PREVIEW_FRAME_BASE = 1 << 40  # preview frames' noise streams start here, far fr
 
 # How often (real seconds) the watcher samples the emulator's axes while the bench runs.
 WATCH_PERIOD_S = 0.001
+# How often (real seconds) the renderer ahead looks whether the rig rests where a staged scene needs it.
+REST_POLL_S = 0.005
+# How close (mm, deg) the reported axes must be to a staged scene's rig pose to render it ahead (whole
+# motor steps put them a few thousandths off the commanded values; the trigger then checks exactly).
+REST_TOLERANCE = 0.01
 
 
 @dataclass
@@ -103,6 +120,37 @@ class _Snapshot:
     state: PairState | None = None  # None on a mechanically ideal bench
     smear_px: dict[str, tuple[float, float] | None] = field(default_factory=lambda: {"left": None, "right": None})
     sim_time_s: float = math.nan
+
+
+def _same_view(a: _Snapshot, b: _Snapshot) -> bool:
+    """Whether two triggers see the pair in the same state (everything a frame and its truth are made of)."""
+    if a.pose != b.pose or a.smear_px != b.smear_px:
+        return False
+    if any(not np.array_equal(a.T_rig_cam[side], b.T_rig_cam[side]) for side in SIDES):
+        return False
+    if (a.state is None) != (b.state is None):
+        return False
+    return a.state is None or (a.state.ringing_deg == b.state.ringing_deg and a.state.rock_deg == b.state.rock_deg)
+
+
+def _same_scene(a: Scene, b: Scene) -> bool:
+    if a.target != b.target or a.seed != b.seed or a.shape != b.shape or a.measured_target != b.measured_target:
+        return False
+    if a.placement != b.placement or (a.T_rig_board is None) != (b.T_rig_board is None):
+        return False
+    return a.T_rig_board is None or np.array_equal(a.T_rig_board, b.T_rig_board)
+
+
+@dataclass(eq=False)  # compared by identity: scenes hold arrays
+class _Staged:
+    """A scene announced ahead (:meth:`SimulatedBench.stage`) and, once rendered, its first frame pair."""
+
+    scene: Scene
+    at: RigPose  # where the rig will stand when the scene is captured
+    snapshot: _Snapshot | None = None  # the pair's state the frames were rendered for
+    frames: dict[str, Future] | None = None
+    dropped: bool = False
+    checked: bool = False  # rendered for the state the rig was seen to rest in (not only predicted)
 
 
 def _scaled_camera(camera: CameraModel, scale: float) -> CameraModel:
@@ -189,7 +237,7 @@ class SimulatedBench:
         self._t0 = time.monotonic()  # bring-up's clock (real time) for the truth's time stamps
         self._scene = Scene()
         self._lock = threading.Lock()
-        self._renderers: dict[Target, StereoRenderer] = {}
+        self._renderers: dict[Target, Future] = {}  # a StereoRenderer per target, built once
         self._renderers_lock = threading.Lock()
         self._preview_renderers: dict[tuple[Target, float], StereoRenderer] = {}
         self._trigger_time = time.monotonic()
@@ -197,6 +245,14 @@ class SimulatedBench:
         self._prefetched: dict[str, Future] = {}
         self._previews = 0
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-render")
+        # Rendering ahead (stage()): scenes announced, in order; the one the current scene matched.
+        self._staged: list[_Staged] = []
+        self._staged_now: _Staged | None = None
+        self._stage_changed = threading.Condition(self._lock)
+        self._ahead_pool: ThreadPoolExecutor | None = None
+        self._ahead_thread: threading.Thread | None = None
+        self._ahead = 16  # frame pairs rendered ahead at most (stage())
+        self.prerendered_used = 0  # frame pairs served from a render ahead (for tests and benchmarks)
         # What the operator would set by hand (the target distance unless it is motorised).
         self.manual_values: dict[str, float] = {}
         # The axes' history (backlash, landing errors, ringing), when the profile needs one and an emulator
@@ -224,9 +280,19 @@ class SimulatedBench:
 
     def stop(self) -> None:
         self._watch_stop.set()
+        with self._lock:
+            self._drop_staged(self._staged)
+            self._staged = []
+            self._stage_changed.notify_all()
         if self._watcher is not None:
             self._watcher.join()
             self._watcher = None
+        if self._ahead_thread is not None:
+            self._ahead_thread.join()
+            self._ahead_thread = None
+        if self._ahead_pool is not None:
+            self._ahead_pool.shutdown(wait=True, cancel_futures=True)
+            self._ahead_pool = None
         self._pool.shutdown(wait=True)
         if self.emulator is not None:
             self.emulator.stop()
@@ -259,6 +325,14 @@ class SimulatedBench:
             self._scene = scene
             self._prefetched.clear()  # frames of the old scene
             self._trigger_used = set(SIDES)
+            # A scene staged ahead: the ones announced before it were skipped and will not be shown.
+            match = next((i for i, staged in enumerate(self._staged) if _same_scene(staged.scene, scene)), None)
+            self._staged_now = None
+            if match is not None:
+                self._drop_staged(self._staged[:match])
+                self._staged_now = self._staged[match]
+                del self._staged[: match + 1]
+                self._stage_changed.notify_all()
 
     def place_target(self, target: Target, *, distance_mm: float, seed: int = 0) -> np.ndarray:
         """The operator places the measured ``target`` facing the rig at ``distance_mm``; returns T_rig_board.
@@ -269,30 +343,167 @@ class SimulatedBench:
         distance (the next frame, a retry) keeps the target where it stands. The target is shown
         with its print scale and bow. ``seed`` is the scene's noise seed, as for :meth:`show`.
         """
-        nominal = board_pose_facing_rig(distance_mm=distance_mm, board_size_mm=target.grid_size_mm)
+        key, placement, where = self._placement_for(target, distance_mm)
+        if key != self._placed:
+            self._placed, self._placement = key, placement
+            if where is not None:
+                self._placements[where] += 1
+        scene = self._target_scene(target, distance_mm, self._placement, seed)
+        self._set_scene(scene)
+        return scene.T_rig_board
+
+    def _placement_for(self, target: Target, distance_mm: float) -> tuple[tuple, dict, int | None]:
+        """(key, placement, where) of placing ``target`` at ``distance_mm`` now, without placing it.
+
+        ``where`` is the placement counter a new placement draws from (None: no draw).
+        """
         errors = self.profile.target
         manual = self.rig_config.quantities["target_distance_mm"].axis == "manual"
         key = (target, float(distance_mm))
-        if key != self._placed:
-            self._placed = key
-            placement = {"distance_error_mm": 0.0, "yaw_error_deg": 0.0}
-            if manual and (errors.placement_distance_sigma_mm > 0 or errors.placement_yaw_sigma_deg > 0):
-                where = int(round(distance_mm * 1000)) & 0xFFFFFFFF
-                rng = np.random.default_rng([self.seed & 0xFFFFFFFF, 0x91ACE, where, self._placements[where]])
-                self._placements[where] += 1
-                placement = {"distance_error_mm": float(rng.normal(0.0, errors.placement_distance_sigma_mm)),
-                             "yaw_error_deg": float(rng.normal(0.0, errors.placement_yaw_sigma_deg))}
-            self._placement = placement
-        placement = self._placement
+        if key == self._placed:
+            return key, self._placement, None
+        placement, where = {"distance_error_mm": 0.0, "yaw_error_deg": 0.0}, None
+        if manual and (errors.placement_distance_sigma_mm > 0 or errors.placement_yaw_sigma_deg > 0):
+            where = int(round(distance_mm * 1000)) & 0xFFFFFFFF
+            rng = np.random.default_rng([self.seed & 0xFFFFFFFF, 0x91ACE, where, self._placements[where]])
+            placement = {"distance_error_mm": float(rng.normal(0.0, errors.placement_distance_sigma_mm)),
+                         "yaw_error_deg": float(rng.normal(0.0, errors.placement_yaw_sigma_deg))}
+        return key, placement, where
+
+    def _target_scene(self, target: Target, distance_mm: float, placement: dict, seed: int) -> Scene:
         if placement["distance_error_mm"] or placement["yaw_error_deg"]:
             T_rig_board = board_pose_facing_rig(distance_mm=distance_mm + placement["distance_error_mm"],
                                                 board_size_mm=target.grid_size_mm,
                                                 yaw_deg=placement["yaw_error_deg"])
         else:
-            T_rig_board = nominal
-        self._set_scene(Scene(target=target, T_rig_board=T_rig_board, seed=int(seed), shape=board_shape(errors),
-                              measured_target=True, placement=dict(placement, distance_mm=float(distance_mm))))
-        return T_rig_board
+            T_rig_board = board_pose_facing_rig(distance_mm=distance_mm, board_size_mm=target.grid_size_mm)
+        return Scene(target=target, T_rig_board=T_rig_board, seed=int(seed), shape=board_shape(self.profile.target),
+                     measured_target=True, placement=dict(placement, distance_mm=float(distance_mm)))
+
+    # -- rendering ahead ---------------------------------------------------------------------------------------
+
+    def stage(self, scenes: Sequence[tuple], *, at: RigPose, ahead: int = 16) -> None:
+        """Announce the scenes that will be shown next, in order, all captured with the rig at ``at``.
+
+        Each scene is ``("board", target, T_rig_board, seed)`` (as :meth:`show` will be called) or
+        ``("target", target, distance_mm, seed)`` (as :meth:`place_target` will be called; the
+        placement the operator will make is drawn as that call will draw it). Replaces what was
+        staged before. Once the rig rests at ``at``, the first frame pair of up to ``ahead`` scenes
+        not yet shown is rendered in the background (see the module docstring). Does nothing in
+        bring-up, where the rig's rest is not observed.
+        """
+        if self.emulator is None:
+            return
+        placed, placement = self._placed, self._placement
+        staged = []
+        for kind, target, where, seed in scenes:
+            if kind == "board":
+                scene = Scene(target=target, T_rig_board=np.array(where, dtype=np.float64), seed=int(seed),
+                              shape=board_shape(self.profile.calibration_board))
+            elif kind == "target":
+                key, new_placement, _ = self._placement_for(target, where)
+                if key != placed:  # later frames at the same distance keep this placement
+                    placed, placement = key, new_placement
+                scene = self._target_scene(target, where, placement, seed)
+            else:
+                raise ValueError(f"staged scene kind must be 'board' or 'target', not {kind!r}")
+            staged.append(_Staged(scene=scene, at=at))
+        with self._lock:
+            self._drop_staged(self._staged)
+            self._staged = staged
+            self._ahead = max(1, int(ahead))
+            self._stage_changed.notify_all()
+            if self._ahead_thread is None:
+                self._ahead_pool = ThreadPoolExecutor(max_workers=len(SIDES), thread_name_prefix="sim-render-ahead")
+                self._ahead_thread = threading.Thread(target=self._render_ahead, name="sim-render-ahead", daemon=True)
+                self._ahead_thread.start()
+
+    def staged_rendered(self) -> int:
+        """How many staged scenes, not shown yet, have their frames rendered (or being rendered)."""
+        with self._lock:
+            return sum(1 for entry in self._staged if entry.frames is not None)
+
+    @staticmethod
+    def _drop_staged(staged: Sequence[_Staged]) -> None:
+        for entry in staged:
+            entry.dropped = True
+            for future in (entry.frames or {}).values():
+                future.cancel()
+
+    @staticmethod
+    def _at_pose(pose: RigPose, at: RigPose) -> bool:
+        return all(abs(getattr(pose, name) - getattr(at, name)) <= REST_TOLERANCE for name in
+                   ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "tilt_left_deg", "tilt_right_deg"))
+
+    def _at_rest(self, snapshot: _Snapshot, at: RigPose) -> bool:
+        """The rig stands still at ``at`` and rings no more: a frame taken now or later looks the same."""
+        if not self._at_pose(snapshot.pose, at):
+            return False
+        if snapshot.state is not None and (any(snapshot.state.ringing_deg.values())
+                                           or any(snapshot.state.rock_deg.values())):
+            return False
+        return self.emulator.state == "Idle"
+
+    def _predicted_snapshot(self) -> _Snapshot | None:
+        """The pair at rest where the queued moves end: what a trigger will see there once the ringing stopped."""
+        planned = self.emulator.planned_physical_position()
+        if planned is None:
+            return None
+        values = to_physical(self.rig_config, planned)
+        for quantity, mapping in self.rig_config.quantities.items():
+            if mapping.axis == "fixed":
+                values.setdefault(quantity, float(mapping.value))
+        pose = self._pose_of(values)
+        if self.profile.mechanically_ideal and self.history is None:
+            return _Snapshot(pose=pose, T_rig_cam={"left": pose.T_rig_left, "right": pose.T_rig_right})
+        with self._history_lock:
+            history = copy.deepcopy(self.history)
+        if history is not None:  # the watcher will see the axes arrive there, then stand still
+            history.observe(values, math.inf, idle=False)
+            history.observe(values, math.inf, idle=True)
+        state = pair_state(self.profile, values, history=history, now_s=math.inf)
+        return _Snapshot(pose=pose, T_rig_cam={"left": state.T_bench_left, "right": state.T_bench_right},
+                         state=state)
+
+    def _render_ahead(self) -> None:
+        """The thread that renders staged scenes for the state the rig will rest in, and checks it once it does."""
+        while not self._watch_stop.is_set():
+            with self._lock:
+                entries = [e for e in self._staged if not e.dropped]
+                unchecked = [e for e in entries if e.frames is not None and not e.checked]
+                waiting = [e for e in entries if e.frames is None]
+                render = bool(waiting) and len(entries) - len(waiting) < self._ahead
+                if not unchecked and not render:
+                    self._stage_changed.wait(0.1)
+                    continue
+                at = (unchecked or waiting)[0].at
+            try:
+                snapshot = self._snapshot()
+                at_rest = self._at_rest(snapshot, at)
+                predicted = self._predicted_snapshot() if render and not at_rest else None
+            except Exception:  # noqa: BLE001 - the emulator stopping under the thread ends it
+                if self.emulator is None or not self.emulator.running:
+                    return
+                raise
+            with self._lock:
+                if at_rest:  # the real state: keep what was rendered for it, render again what was not
+                    for entry in unchecked:
+                        if any(e is entry for e in self._staged) and not _same_view(entry.snapshot, snapshot):
+                            self._drop_staged([entry])
+                            entry.dropped, entry.frames = False, None
+                        entry.checked = True
+                elif predicted is not None and self._at_pose(predicted.pose, at):
+                    snapshot = predicted  # the move there is queued: render for where it will rest
+                else:
+                    self._stage_changed.wait(REST_POLL_S)
+                    continue
+                budget = self._ahead - sum(1 for e in self._staged if e.frames is not None and not e.dropped)
+                for entry in [e for e in self._staged if e.frames is None and not e.dropped][:max(0, budget)]:
+                    entry.snapshot, entry.checked = snapshot, at_rest
+                    entry.frames = {side: self._ahead_pool.submit(self._render_job, side, snapshot, entry.scene, 0)
+                                    for side in SIDES}
+                if not at_rest:
+                    self._stage_changed.wait(REST_POLL_S)  # until the rig rests, to check the prediction
 
     def operator_prompt(self, message: str) -> None:
         """Stands in for the operator at a manual step: records the values the rig asked for."""
@@ -450,16 +661,32 @@ class SimulatedBench:
                 "square_true_mm": float(scene.target.square_mm * shape.scale), "placement": scene.placement}
 
     def _renderer(self, target: Target) -> StereoRenderer:
+        # Built outside the lock (~1-2 s): a render of a target whose renderer exists never waits for another's.
         with self._renderers_lock:
-            if target not in self._renderers:
-                self._renderers[target] = StereoRenderer(target, self.left_model, self.right_model,
-                                                         optics=self.optics)
-            return self._renderers[target]
+            built = self._renderers.get(target)
+            if built is None:
+                built = self._renderers[target] = Future()
+                built.set_running_or_notify_cancel()
+                build = True
+            else:
+                build = False
+        if build:
+            try:
+                built.set_result(StereoRenderer(target, self.left_model, self.right_model, optics=self.optics))
+            except BaseException as error:
+                built.set_exception(error)
+                raise
+        return built.result()
 
     def warm_up(self, *targets: Target) -> None:
-        """Build the renderers of ``targets`` in the background (~1-2 s each), e.g. while the rig homes."""
+        """Build the renderers of ``targets`` in the background (~1-2 s each, side by side), e.g. while the rig
+        homes; a failure is raised by the first render that needs the renderer."""
+        def build(target: Target) -> None:
+            with contextlib.suppress(Exception):
+                self._renderer(target)
+
         for target in targets:
-            self._pool.submit(self._renderer, target)
+            threading.Thread(target=build, args=(target,), name="sim-warm-up", daemon=True).start()
 
     def render(self, side: str) -> tuple[np.ndarray, dict]:
         """One frame of the ``side`` camera now, with its ground truth as metadata.
@@ -474,14 +701,32 @@ class SimulatedBench:
                 job = prefetched
             else:
                 snapshot = self._snapshot()
-                job = self._claim(side, snapshot)
-                if new_trigger:
-                    other = "right" if side == "left" else "left"
-                    other_job = self._claim(other, snapshot)
-                    self._prefetched[other] = self._pool.submit(self._render_job, *other_job)
+                other = "right" if side == "left" else "left"
+                ahead = self._prerendered(snapshot) if new_trigger else None
+                if ahead is not None:  # rendered ahead for exactly this scene and state: claim both frames
+                    job, self._prefetched[other] = ahead[side], ahead[other]
+                    self._claim(side, snapshot)
+                    self._claim(other, snapshot)
+                    self.prerendered_used += 1
+                else:
+                    job = self._claim(side, snapshot)
+                    if new_trigger:
+                        other_job = self._claim(other, snapshot)
+                        self._prefetched[other] = self._pool.submit(self._render_job, *other_job)
         if isinstance(job, Future):
             return job.result()
         return self._render_job(*job)
+
+    def _prerendered(self, snapshot: _Snapshot) -> dict[str, Future] | None:
+        """The frames rendered ahead for the current scene's first trigger, if this trigger sees what they show."""
+        staged, self._staged_now = self._staged_now, None  # one use: a second trigger renders anew
+        if staged is None or staged.dropped:
+            return None
+        if (staged.frames is None or any(self._scene.frames_rendered[side] for side in SIDES)
+                or not _same_view(staged.snapshot, snapshot)):
+            self._drop_staged([staged])
+            return None
+        return staged.frames
 
     def preview(self, side: str, width_px: int | None = None) -> np.ndarray:
         """The ``side`` camera's view of the scene now, for a live preview (aiming, watching).
@@ -563,7 +808,7 @@ class SimulatedBench:
         return new
 
     def frame_clock(self) -> float:
-        """Timestamp (monotonic s) of the current capture: trigger time + exposure."""
+        """Timestamp (monotonic s) of the current capture: trigger time + exposure (when both frames are read out)."""
         return self._trigger_time + self.exposure_s / self.time_scale
 
     def cameras(self, settings: CameraSettings | None = None) -> tuple[SyntheticCamera, SyntheticCamera]:
@@ -572,8 +817,10 @@ class SimulatedBench:
         settings = settings or CameraSettings(width_px=width, height_px=height)
         # SyntheticCamera scales its exposure delay by its own factor, the inverse of a speed-up.
         scale = 1.0 / self.time_scale
+        # Both cameras expose on one trigger: a pair takes one exposure, not one per camera.
         return tuple(
             SyntheticCamera(lambda side=side: self.render(side), name=f"sim-{side}", settings=settings,
-                            exposure_s=self.exposure_s, time_scale=scale, clock=self.frame_clock)
+                            exposure_s=self.exposure_s, time_scale=scale, clock=self.frame_clock,
+                            ready_at=self.frame_clock)
             for side in SIDES
         )

@@ -656,6 +656,16 @@ class GrblEmulator:
             machine = self._on_grid(self._current_position(now))
             return {a: machine[a] + self._offset[a] for a in self.axes}
 
+    def planned_physical_position(self) -> dict[str, float] | None:
+        """Where the axes will stand once the moves queued now have run (whole steps, as
+        :meth:`physical_position` will then say), or None while homing or stopping (not known ahead)."""
+        with self._lock:
+            if self._homing_block is not None or any(isinstance(b, _Stop) for b in self._planner):
+                return None
+            machine = self._on_grid(self._planner[-1].end) if self._planner else self._on_grid(
+                self._current_position(self._sim_now()))
+            return {a: machine[a] + self._offset[a] for a in self.axes}
+
     @property
     def state(self) -> str:
         """Machine state as a status report would name it (``Idle``, ``Run``, ``Hold:0``, ``Alarm``, ``Home``...)."""

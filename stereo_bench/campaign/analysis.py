@@ -91,16 +91,18 @@ def calibrate_configuration(
     calibration_pairs: Sequence[tuple[np.ndarray, np.ndarray]], board: Target, *,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: str = "joint",
     intrinsics_covariance: CalibrationCovariance | None = None,
+    detections: Sequence[tuple[Detection | None, Detection | None]] | None = None,
 ) -> ConfigurationAnalysis:
     """Stereo calibration of one (B, alpha) from its calibration views; raises AnalysisError if it can't.
 
     ``intrinsics_covariance``: of given ``intrinsics`` held fixed (without it the covariance is unknown).
+    ``detections``: per view, the (left, right) detections already made while capturing (None: detect here).
     """
     try:
         result = calibrate_from_images([left for left, _ in calibration_pairs],
                                        [right for _, right in calibration_pairs], board, intrinsics=intrinsics,
                                        mode="fixed" if mode == "fixed" else "joint", thorough=False,
-                                       intrinsics_covariance=intrinsics_covariance)
+                                       intrinsics_covariance=intrinsics_covariance, detections=detections)
     except (ValueError, np.linalg.LinAlgError) as error:
         raise AnalysisError(str(error)) from None
     return ConfigurationAnalysis(

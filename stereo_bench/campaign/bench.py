@@ -21,6 +21,7 @@ import math
 import threading
 from collections import Counter
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -127,8 +128,12 @@ def pose_from_reading(reading) -> RigPose:
 
 
 def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
-                    transcript: Path | None = None) -> Bench:
-    """Simulated cameras and scene; the rig is the emulator on a pty, or (bring-up) the real controller."""
+                    transcript: Path | None = None, render_ahead: bool = True) -> Bench:
+    """Simulated cameras and scene; the rig is the emulator on a pty, or (bring-up) the real controller.
+
+    ``render_ahead``: the presenter stages each configuration's scenes so that the simulator renders
+    them while the rig settles (the frames are the same either way; see drivers/sim/bench.py).
+    """
     from drivers.camera.stereo import StereoCamera
     from drivers.rig.rig import GrblRig
     from drivers.sim.bench import SimulatedBench
@@ -153,7 +158,12 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
         rig = _open_rig(stack, GrblRig(port, rig_config, spy_log=transcript))
         rig_holder.append(rig)
         cameras = stack.enter_context(StereoCamera(*sim.cameras(), max_skew_s=config.cameras.max_skew_s))
-        presenter = SimulatedPresenter(sim, config.calibration_board.build(), config.target.build(), seed=config.seed)
+        # What each configuration will capture (as plan_steps asks for it), so the presenter can stage the
+        # scenes and the bench render them ahead while the rig settles.
+        views = config.capture.calibration_views if config.extrinsics.mode == "per-config" else 0
+        presenter = SimulatedPresenter(sim, config.calibration_board.build(), config.target.build(), seed=config.seed,
+                                       stage_ahead=(views, config.capture.frames_per_config) if render_ahead else None)
+        stack.callback(presenter.close)
     except BaseException:
         stack.close()
         raise
@@ -178,33 +188,63 @@ def _simulated_preview(sim, stack: contextlib.ExitStack) -> PreviewGrab:
 
 
 class SimulatedPresenter:
-    """Places boards in a :class:`drivers.sim.bench.SimulatedBench` scene."""
+    """Places boards in a :class:`drivers.sim.bench.SimulatedBench` scene.
+
+    ``stage_ahead``: (calibration views, measurement frames) each configuration will capture. At the
+    start of a configuration (before the rig moves) the presenter then draws the calibration board's
+    poses on a background thread and stages every scene it will show with the bench
+    (:meth:`~drivers.sim.bench.SimulatedBench.stage`), which renders them ahead once the rig rests
+    there; the frames are exactly those a render at the trigger gives. None: nothing ahead.
+    """
 
     wants_detections = False
 
     def __init__(self, bench, calibration_board: Target, target: Target, *, seed: int = 0,
-                 calibration_distance_mm: Callable[[float], tuple[float, float]] | None = None):
+                 calibration_distance_mm: Callable[[float], tuple[float, float]] | None = None,
+                 stage_ahead: tuple[int, int] | None = None):
         self.bench = bench
         self.calibration_board = calibration_board
         self.target = target
         self.seed = seed
         # Where an operator would hold the calibration board, around the target distance.
         self.calibration_distance_mm = calibration_distance_mm or (lambda z: (max(250.0, 0.6 * z), 1.3 * z))
+        self.stage_ahead = stage_ahead
         self._poses: list[np.ndarray] = []
         self._configuration: Configuration | None = None
         self._target_requests: Counter = Counter()
+        self._planned: Future | None = None  # (n_views, poses or the error) of the current configuration
+        self._planner = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-presenter") if stage_ahead else None
         bench.warm_up(calibration_board, target)
+
+    def close(self) -> None:
+        if self._planner is not None:
+            self._planner.shutdown(wait=True, cancel_futures=True)
 
     def begin_configuration(self, configuration: Configuration) -> None:
         self._configuration = configuration
         self._target_requests = Counter()
         self._poses = []
+        self._planned = None
+        if self._planner is not None:
+            self._planned = self._planner.submit(self._stage, configuration, *self.stage_ahead)
 
-    def prepare_calibration(self, n_views: int) -> None:
+    def _stage(self, configuration: Configuration, n_views: int, n_frames: int) -> tuple[int, list | Exception]:
+        """Draws the calibration poses and stages the configuration's scenes (on the presenter's thread)."""
+        try:
+            poses: list | Exception = self._calibration_poses(configuration, n_views) if n_views else []
+        except CalibrationPlacementError as error:
+            poses = error
+        scenes = [] if isinstance(poses, Exception) else [
+            ("board", self.calibration_board, pose,
+             scene_seed(self.seed, configuration.config_id, "calibration", index)) for index, pose in enumerate(poses)]
+        scenes += [("target", self.target, configuration.distance_mm,
+                    scene_seed(self.seed, configuration.config_id, "target", index)) for index in range(n_frames)]
+        self.bench.stage(scenes, at=configuration.rig_pose(), ahead=len(scenes))
+        return n_views, poses
+
+    def _calibration_poses(self, configuration: Configuration, n_views: int) -> list[np.ndarray]:
         from drivers.sim.render import calibration_board_poses
 
-        configuration = self._configuration
-        assert configuration is not None, "begin_configuration() first"
         near, far = self.calibration_distance_mm(configuration.distance_mm)
         fits = configuration.calibration_range_mm
         if fits:  # where the plan found the board fits both views
@@ -214,12 +254,23 @@ class SimulatedPresenter:
         rng = np.random.default_rng(scene_seed(self.seed, configuration.config_id, "calibration-poses", 0))
         try:
             # Usable views by the rule the plan predicted with (geometry.calibration_view_fits).
-            self._poses = calibration_board_poses(
+            return calibration_board_poses(
                 configuration.rig_pose(), self.calibration_board, n_views=n_views, rng=rng, distance_mm=(near, far),
                 left=self.bench.left_model, right=self.bench.right_model,
             )
         except ValueError as error:
             raise CalibrationPlacementError(f"calibration board cannot be shown to both cameras: {error}") from None
+
+    def prepare_calibration(self, n_views: int) -> None:
+        configuration = self._configuration
+        assert configuration is not None, "begin_configuration() first"
+        planned = self._planned.result() if self._planned is not None else None
+        if planned is not None and planned[0] == n_views:  # drawn ahead (the same seeded draw)
+            if isinstance(planned[1], Exception):
+                raise planned[1]
+            self._poses = planned[1]
+        else:
+            self._poses = self._calibration_poses(configuration, n_views)
         return None
 
     def present_calibration_view(self, index: int) -> None:
@@ -280,14 +331,23 @@ def hardware_bench(config: CampaignConfig, *, operators: Sequence[Operator], tra
 
 
 class ReplayPresenter:
-    """Queues the recorded pair the runner is about to capture."""
+    """Queues the recorded pair the runner is about to capture.
+
+    ``detections``: per ``config_id/index``, the (left, right) detections recorded for calibration
+    views whose frames were not kept (``[capture] keep_frames``): the runner uses them instead of
+    detecting the placeholder images it is served.
+    """
 
     wants_detections = False
 
-    def __init__(self, cameras):
+    def __init__(self, cameras, detections: dict[str, tuple] | None = None):
         self.cameras = cameras
         self.config_id = ""
         self.retries: Counter = Counter()
+        self.detections = detections or {}
+
+    def recorded_detections(self, index: int) -> tuple | None:
+        return self.detections.get(f"{self.config_id}/{index}")
 
     def begin_configuration(self, configuration: Configuration) -> None:
         self.config_id = configuration.config_id
@@ -327,10 +387,15 @@ class ReplayOperator:
 
 
 def replay_bench(reader, config_ids: set[str]) -> Bench:
-    """The recorded rig telemetry and frames of ``config_ids`` (a ``SessionReader``'s session), opened."""
-    from drivers.replay import ReplayRig, ReplayStereoCamera
+    """The recorded rig telemetry and frames of ``config_ids`` (a ``SessionReader``'s session), opened.
 
-    frames: dict[str, dict] = {}
+    A calibration view whose frames were not kept is served as black frames of the recorded size, and
+    its recorded detections stand in for what the runner would detect in them.
+    """
+    from drivers.replay import ReplayRig, ReplayStereoCamera
+    from stereo_bench.campaign.documents import CalibrationDetectionsEvent
+
+    frames: dict[str, dict] = {}  # key -> event, in recorded order (the order the replay will ask for them)
     readings = []
     approaches: dict[str, dict] = {}
     truths: dict[str, dict] = {}
@@ -348,20 +413,36 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
             frames[f"{config_id}/calibration_view/{data['index']}"] = event
         elif event["kind"] == "measurement_frame":
             frames[f"{config_id}/measurement_frame/{data['index']}/{data.get('retry', 0)}"] = event
+    detections = {}
+    for event in reader.parsed(CalibrationDetectionsEvent):
+        if event.config_id in config_ids:
+            detections[f"{event.config_id}/{event.data.index}"] = tuple(
+                None if side is None else side.detection() for side in (event.data.left, event.data.right))
 
     def load_pair(key: str):
         event = frames.get(key)
         if event is None:
             raise KeyError(f"{reader.directory}: recording holds no {key}")
-        return reader.frame(event["frames"]["left"]), reader.frame(event["frames"]["right"]), event["data"]
+        kept = event.get("frames") or {}
+        if "left" in kept and "right" in kept:
+            return reader.frame(kept["left"]), reader.frame(kept["right"]), event["data"]
+        if key.split("/")[1] == "calibration_view" and key.replace("/calibration_view", "", 1) in detections:
+            return _not_kept(event["data"]["left"]), _not_kept(event["data"]["right"]), event["data"]
+        raise KeyError(f"{reader.directory}: the frames of {key} were not kept")
 
     stack = contextlib.ExitStack()
     rig = stack.enter_context(ReplayRig(readings))
-    cameras = stack.enter_context(ReplayStereoCamera(load_pair))
-    return Bench(kind="replay", rig=rig, cameras=cameras, presenter=ReplayPresenter(cameras),
+    # Read and decode ~8 pairs ahead on two threads: a pair is ~2 MB and ~20 ms of decoding.
+    cameras = stack.enter_context(ReplayStereoCamera(load_pair, order=list(frames), ahead=8, workers=2))
+    return Bench(kind="replay", rig=rig, cameras=cameras, presenter=ReplayPresenter(cameras, detections),
                  operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack,
                  truth=truths.get if truths else None,
                  recorded_approach=lambda config_id: approaches.get(config_id, {}))
+
+
+def _not_kept(description: dict) -> np.ndarray:
+    """A black frame of the recorded shape and type: stands in for a frame that was not kept."""
+    return np.zeros(tuple(description.get("shape") or (0, 0)), dtype=np.dtype(description.get("dtype") or "uint8"))
 
 
 __all__ = [

@@ -353,6 +353,10 @@ class CaptureSection(BaseModel):
     board_retries: int = Field(3, ge=0, description="re-captures of a measurement frame whose target is not "
                                                          "detected (calibration views without the board are "
                                                          "dropped by the calibration instead)")
+    keep_frames: Literal["all", "measurement", "none"] = Field(
+        "all", description="frames written to the session: all; measurement (calibration views are not kept: "
+                           "their detections and the calibration are, and a replay calibrates from those); "
+                           "none (no frames: a replay cannot reproduce the configurations)")
 
 
 def _tolerance(default: float, why: str, unit: str) -> Any:

@@ -265,6 +265,48 @@ class CaptureData(BaseModel):
     retry: int | None = Field(None, ge=0, description="measurement frames: re-capture number (0 = first)")
 
 
+class DetectionRecord(BaseModel):
+    """The corners found in one image (:class:`stereo_bench.vision.detect.Detection`), exactly: JSON keeps
+    every float64 to the last bit, so a calibration from these gives the numbers the images gave."""
+
+    model_config = _STRICT
+    ids: list[int] = Field(description="corner ids (indices into the board's object points)")
+    corners_px: list[tuple[float, float]] = Field(description="(x, y) full-resolution pixels, per id")
+    image_size: tuple[int, int] = Field(description="(width, height) of the image, px")
+    order: str = Field(description="how the ids were assigned: colour, layout, edges or ids")
+    sigma_px: list[float | None] | None = Field(None, description="per-coordinate corner noise, px (null: unknown)")
+
+    @classmethod
+    def of(cls, detection) -> DetectionRecord | None:
+        if detection is None:
+            return None
+        sigma = None if detection.sigma_px is None else [
+            None if not math.isfinite(value) else float(value) for value in detection.sigma_px]
+        return cls(ids=[int(i) for i in detection.ids], corners_px=[(float(x), float(y)) for x, y in
+                                                                    detection.corners_px],
+                   image_size=(int(detection.image_size[0]), int(detection.image_size[1])),
+                   order=detection.order, sigma_px=sigma)
+
+    def detection(self):
+        """The :class:`~stereo_bench.vision.detect.Detection` recorded (ids int64, corners and sigmas float64)."""
+        from stereo_bench.vision.detect import Detection
+
+        sigma = None if self.sigma_px is None else np.array(
+            [math.nan if value is None else value for value in self.sigma_px], dtype=np.float64)
+        return Detection(ids=np.array(self.ids, dtype=np.int64),
+                         corners_px=np.array(self.corners_px, dtype=np.float64).reshape(-1, 2),
+                         image_size=tuple(self.image_size), order=self.order, sigma_px=sigma)
+
+
+class CalibrationDetectionsData(BaseModel):
+    """The detections of a calibration view whose frames were not kept (``[capture] keep_frames``)."""
+
+    model_config = _STRICT
+    index: int = Field(ge=0, description="the calibration view's index, as in its calibration_view event")
+    left: DetectionRecord | None = Field(description="null: the board was not found in the left image")
+    right: DetectionRecord | None = Field(description="null: the board was not found in the right image")
+
+
 class TargetNotFoundData(BaseModel):
     model_config = _STRICT
     index: int = Field(ge=0)
@@ -504,6 +546,11 @@ class MeasurementFrameEvent(EventDocument):
     data: CaptureData
 
 
+class CalibrationDetectionsEvent(EventDocument):
+    kind: Literal["calibration_detections"] = "calibration_detections"
+    data: CalibrationDetectionsData
+
+
 class TargetNotFoundEvent(EventDocument):
     kind: Literal["target_not_found"] = "target_not_found"
     data: TargetNotFoundData
@@ -584,8 +631,8 @@ EVENT_MODELS: dict[str, type[EventDocument]] = {
     model.model_fields["kind"].default: model
     for model in (HomeEvent, MoveEvent, RigRecoveredEvent, RigUnrecoverableEvent, CalibrationViewEvent,
                   MeasurementFrameEvent, TargetNotFoundEvent, CalibrationEvent, AnalysisEvent, TranscriptEvent,
-                  PromptEvent, CalibrationViewDiscardedEvent, RunControlEvent, TruthEvent, ControllerEvent,
-                  StructureEvent, KinematicModelEvent, IntrinsicsEvent)
+                  PromptEvent, CalibrationViewDiscardedEvent, RunControlEvent, CalibrationDetectionsEvent,
+                  TruthEvent, ControllerEvent, StructureEvent, KinematicModelEvent, IntrinsicsEvent)
 }
 DOCUMENT_MODELS: dict[str, type[Document]] = {
     "start": StartDocument, "resume": ResumeDocument, "event": EventDocument, "result": ResultDocument,
@@ -616,6 +663,7 @@ AnyDocument = Annotated[
     | Annotated[TranscriptEvent, Tag("event:transcript")] | Annotated[PromptEvent, Tag("event:prompt")]
     | Annotated[CalibrationViewDiscardedEvent, Tag("event:calibration_view_discarded")]
     | Annotated[RunControlEvent, Tag("event:run_control")]
+    | Annotated[CalibrationDetectionsEvent, Tag("event:calibration_detections")]
     | Annotated[TruthEvent, Tag("event:truth")] | Annotated[ControllerEvent, Tag("event:controller")]
     | Annotated[StructureEvent, Tag("event:structure")]
     | Annotated[KinematicModelEvent, Tag("event:kinematic_model")]
@@ -745,8 +793,9 @@ def event_draft(kind: str, *, config_id: str | None = None, data: Any = None, **
 __all__ = [
     "ADDED_COLUMNS", "COMPARED_COLUMNS", "DOCUMENT_MODELS", "DOCUMENT_TYPES", "EVENT_MODELS", "EXIT_STATUSES",
     "READABLE_SCHEMA_VERSIONS", "REPORT_COLUMNS", "RESULT_COLUMNS", "SCHEMA_VERSION", "AnalysisEvent",
-    "CalibrationEvent", "CalibrationFiles", "CalibrationViewDiscardedEvent", "CalibrationViewEvent", "ControllerEvent",
-    "Document", "DocumentError", "Draft", "EventDocument", "HomeEvent", "IntrinsicsEvent", "KinematicModelEvent",
+    "CalibrationDetectionsEvent", "CalibrationEvent", "CalibrationFiles", "CalibrationViewDiscardedEvent",
+    "CalibrationViewEvent", "ControllerEvent", "DetectionRecord", "Document", "DocumentError", "Draft",
+    "EventDocument", "HomeEvent", "IntrinsicsEvent", "KinematicModelEvent",
     "MeasurementFrameEvent", "MoveEvent", "PromptEvent", "ResultDocument", "ResultRow", "ResumeDocument",
     "RunControlEvent", "StartDocument", "StopDocument", "StructureEvent", "TargetNotFoundEvent", "TranscriptEvent",
     "TruthEvent", "document_json", "columns_of", "column", "document_json_schema", "event_draft", "json_safe",

@@ -14,6 +14,7 @@ import contextlib
 import math
 import platform
 from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,7 +45,7 @@ from stereo_bench.campaign.stream import Collector, DocumentBus, FrameSubscriber
 
 __all__ = [
     "CampaignPlan", "OperatorAbsent", "ReplaySummary", "RunControl", "RunSummary", "plan_drift", "replay_job",
-    "replay_session", "run_campaign", "runner_options", "software_versions",
+    "replay_session", "reproducibility", "run_campaign", "runner_options", "software_versions",
 ]
 
 
@@ -334,6 +335,36 @@ class ReplaySummary:
     out: Path | None
     measured: int = 0  # replayed configurations measured again
     plan_drift: str | None = None
+    # Measured configurations the session kept too little of to replay ([capture] keep_frames), with why.
+    not_reproducible: dict[str, str] = field(default_factory=dict)
+    from_detections: list[str] = field(default_factory=list)  # calibrated from recorded detections, not frames
+
+
+def reproducibility(reader: SessionReader, config_ids: Iterable[str]) -> tuple[dict[str, str], list[str]]:
+    """({config_id: why it cannot be replayed}, [config_ids calibrated from recorded detections]).
+
+    A configuration replays from its measurement frames and, for its calibration, from each
+    calibration view's frames or, where those were not kept, its recorded detections.
+    """
+    config_ids = set(config_ids)
+    keep = (reader.start().get("config") or {}).get("capture", {}).get("keep_frames", "all")
+    detected = {(e["config_id"], e["data"].get("index")) for e in reader.events(kind="calibration_detections")}
+    reasons: dict[str, str] = {}
+    from_detections: set[str] = set()
+    for event in reader.events():
+        config_id, kind = event.get("config_id"), event.get("kind")
+        if config_id not in config_ids or config_id in reasons:
+            continue
+        kept = event.get("frames") or {}
+        if kind not in ("measurement_frame", "calibration_view") or ("left" in kept and "right" in kept):
+            continue
+        if kind == "measurement_frame":
+            reasons[config_id] = f"measurement frames not kept ([capture] keep_frames = \"{keep}\")"
+        elif (config_id, event["data"].get("index")) in detected:
+            from_detections.add(config_id)
+        else:
+            reasons[config_id] = "a calibration view kept neither as frames nor as detections"
+    return reasons, sorted(from_detections - set(reasons))
 
 
 def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *,
@@ -345,6 +376,11 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     compared with the recorded ones; with it, a new session is recorded there (frames copied, so it
     stands alone). ``pipeline`` overrides pipeline settings (e.g. ``{"extrinsics": {"intrinsics":
     "fixed"}}``) for a re-analysis.
+
+    A session recorded with ``[capture] keep_frames`` other than "all" replays what it kept: a
+    configuration whose calibration views were kept as detections is calibrated from those (listed
+    in ``from_detections``); one whose measurement frames were not kept cannot be replayed (listed in
+    ``not_reproducible`` with the reason; a new session under ``out_dir`` leaves it out).
     """
     reader = SessionReader(session_dir)
     start = reader.start()
@@ -360,9 +396,15 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
                            f"({where}: {first.get('msg')})") from None
     campaign = CampaignPlan.recorded(config, start)
     configurations = campaign.configurations
-    drift = plan_drift(config, start["plan"])
+    # Re-planning takes ~20 ms a configuration: while the frames replay, unless the new session's start needs it.
+    drifting = ThreadPoolExecutor(max_workers=1, thread_name_prefix="plan-drift")
+    drift_future = drifting.submit(plan_drift, config, start["plan"])
+    drifting.shutdown(wait=False)
+    drift = drift_future.result() if out_dir is not None else None
     recorded_rows = {row["config_id"]: row for row in reader.results()}
-    measured = {cid for cid, row in recorded_rows.items() if row.get("status") == "measured"}
+    all_measured = {cid for cid, row in recorded_rows.items() if row.get("status") == "measured"}
+    not_reproducible, from_detections = reproducibility(reader, all_measured)
+    measured = all_measured - set(not_reproducible)  # what is replayed
     # The visits run again (their recorded views fitted again) when the recording made its source from them.
     visited = {v.config_id for v in campaign.visits if reader.events(config_id=v.config_id, kind="calibration_view")}
     if visited:
@@ -383,6 +425,10 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
                                      **({"plan_drift": drift} if drift else {})},
                               **({"design": start["design"]} if start.get("design") else {})))
         options = runner_options(config, reader=reader, visits=campaign.visits)
+        # Nothing waits for hardware here: analyse two configurations at once (OpenCV's solvers run
+        # single-threaded either way, so the numbers are those of one at a time).
+        options.analysis_workers = 2
+        options.background_nice = False  # the detections are the critical path here, not something that can wait
         with replay_bench(reader, measured | visited) as bench:
             runner = CampaignRunner(config, configurations, steps, bench=bench, bus=bus, options=options)
             if out_dir is not None:
@@ -390,11 +436,12 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
                     bus.publish(draft)
             status = runner.run()
         if out_dir is not None:
-            for cid, row in recorded_rows.items():
-                if cid not in measured:
+            for cid, row in recorded_rows.items():  # failed and infeasible configurations: as recorded
+                if cid not in all_measured:
                     bus.publish(Draft(ResultDocument, config_id=cid,
                                       row={k: v for k, v in row.items() if not k.startswith("_")}))
             bus.publish(Draft(StopDocument, exit_status=status))
+    drift = drift_future.result()
     new_rows = {row["config_id"]: row for row in collector.rows}
     differences, identical = [], 0
     if PREPARE_ID in visited:
@@ -412,10 +459,10 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
         else:
             identical += 1
     return ReplaySummary(compared=len(measured), identical=identical, differences=differences,
-                         rows=list(new_rows.values()), carried_over=len(recorded_rows) - len(measured),
+                         rows=list(new_rows.values()), carried_over=len(recorded_rows) - len(all_measured),
                          out=None if out_dir is None else Path(out_dir),
                          measured=sum(new_rows.get(cid, {}).get("status") == "measured" for cid in measured),
-                         plan_drift=drift)
+                         plan_drift=drift, not_reproducible=not_reproducible, from_detections=from_detections)
 
 
 def _model_differences(reader: SessionReader, model) -> list[str]:
@@ -475,4 +522,5 @@ def replay_job(job: tuple[str, str | None, dict]) -> dict:
         return {"session": session, "out": out, "error": text}
     return {"session": session, "out": out, "compared": summary.compared, "identical": summary.identical,
             "measured": summary.measured, "differences": summary.differences,
-            "carried_over": summary.carried_over, "pipeline": pipeline, "plan_drift": summary.plan_drift}
+            "carried_over": summary.carried_over, "pipeline": pipeline, "plan_drift": summary.plan_drift,
+            "not_reproducible": summary.not_reproducible, "from_detections": summary.from_detections}

@@ -60,7 +60,6 @@ from stereo_bench.kinematics import (
     model_toml,
 )
 from stereo_bench.vision.calibrate import StereoCalibration
-from stereo_bench.vision.detect import detect
 
 MODEL_FILE = "kinematic_model.toml"
 INTRINSICS_FILE = "intrinsics.yml"
@@ -100,7 +99,8 @@ def prepare_source(purpose: str, visits: Sequence, captures: Sequence, config, o
         if not captured:
             return Prepared(error="no intrinsics for nominal extrinsics: the calibration visit captured nothing")
         try:
-            analysis = calibrate_configuration(captured[0].calibration_pairs, board, mode="joint")
+            analysis = calibrate_configuration(captured[0].calibration_pairs, board, mode="joint",
+                                               detections=captured[0].detections(board))
         except AnalysisError as error:
             return Prepared(error=f"no intrinsics for nominal extrinsics: calibration at {ids[0]} failed: {error}")
         return Prepared(nominal_intrinsics=analysis.calib, calibration=(ids[0], analysis))
@@ -111,7 +111,10 @@ def prepare_source(purpose: str, visits: Sequence, captures: Sequence, config, o
                         "no design visit captured views"})
     configurations = []
     for capture in captured:
-        views = [(detect(left, board), detect(right, board)) for left, right in capture.calibration_pairs]
+        try:
+            views = capture.detections(board)  # made while capturing (or recorded, in a replay)
+        except AnalysisError as error:
+            return Prepared(error=f"kinematic fit failed: {error}", record={**record, "error": str(error)})
         configurations.append(ConfigurationViews(axes=capture.axes, approach=capture.approach, views=views))
     image = captured[0].calibration_pairs[0][0]
     slide_mm, heads_deg = options.repeatability

@@ -43,10 +43,12 @@ from stereo_bench.campaign.analysis import (
 )
 from stereo_bench.campaign.documents import (
     AnalysisEvent,
+    CalibrationDetectionsEvent,
     CalibrationEvent,
     CalibrationFiles,
     CalibrationViewDiscardedEvent,
     CalibrationViewEvent,
+    DetectionRecord,
     Draft,
     HomeEvent,
     MeasurementFrameEvent,
@@ -78,6 +80,8 @@ from stereo_bench.campaign.plan import (
 )
 from stereo_bench.campaign.presenters import CalibrationPlacementError
 from stereo_bench.campaign.sources import ApproachTracker, reported_axes
+from stereo_bench.executors import background_threads
+from stereo_bench.targets import Target
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.detect import AmbiguousViewError, detect
 from stereo_bench.vision.rectify import rectify
@@ -96,11 +100,22 @@ class Captured:
 
     configuration: Configuration | Visit | None
     calibration_pairs: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    calibration_detections: list[tuple[Future, Future]] = field(default_factory=list)  # detect(), made ahead
     measurement_pairs: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     measurement_detections: list[tuple] = field(default_factory=list)  # (left, right) Detection | None
     axes: dict | None = None  # the kinematic axes the rig reported after the move
     approach: dict | None = None  # per axis the direction the move came from
     truth: dict | None = None  # simulated benches: the truth at the measurement (never used by it)
+
+    def detections(self, board: Target) -> list[tuple]:
+        """Per calibration view the (left, right) Detection or None: those made while capturing (waited for),
+        else detected here. AnalysisError if a detection failed (as it would have inside the calibration)."""
+        if len(self.calibration_detections) != len(self.calibration_pairs):
+            return [(detect(left, board), detect(right, board)) for left, right in self.calibration_pairs]
+        try:
+            return [(left.result(), right.result()) for left, right in self.calibration_detections]
+        except (ValueError, np.linalg.LinAlgError) as error:
+            raise AnalysisError(str(error)) from None
 
 
 @dataclass
@@ -120,6 +135,12 @@ class RunnerOptions:
     board_scale: BoardScale = field(default_factory=BoardScale)
     tolerances: dict = field(default_factory=dict)
     repeatability: tuple[float, float] = (0.0, 0.0)  # slide mm, pan heads deg
+    # Configurations analysed at once (threads; results are still published in plan order). A live run
+    # analyses one while the rig moves on; a replay, which waits for nothing, uses more.
+    analysis_workers: int = 1
+    # Work that can wait (detecting calibration views ahead of their analysis) runs at a lower priority,
+    # so that the capture comes first; a replay, where that work is the critical path, sets False.
+    background_nice: bool = True
 
 
 def result_fields(configuration: Configuration, *, status: str, reason: str | None = None,
@@ -161,9 +182,14 @@ class CampaignRunner:
         self._moving = False
         self._feed_held = False  # a pause feed-held the rig: resume it before anything else moves
         self.stop_reason: str | None = None
-        self._analysis = ThreadPoolExecutor(max_workers=1, thread_name_prefix="analysis")
-        # Every document goes through one recorder thread, in submission order: PNG encoding and fsync
-        # then overlap the next capture instead of delaying it.
+        self._analysis = ThreadPoolExecutor(max_workers=max(1, options.analysis_workers), thread_name_prefix="analysis")
+        # Calibration views are detected as they come (in the background: the analysis needs them later,
+        # the capture must not wait), a measurement frame's two views side by side (the capture waits).
+        self._detector = (background_threads(2, "detect") if options.background_nice
+                          else ThreadPoolExecutor(max_workers=2, thread_name_prefix="detect"))
+        self._side_detector = ThreadPoolExecutor(max_workers=1, thread_name_prefix="detect-side")
+        # Every document goes through one recorder thread, in submission order: PNG encoding (on the
+        # recorder's encoder pool) and fsync then overlap the next capture instead of delaying it.
         self._recorder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="recorder")
         self._recording: list[Future] = []
         self._pending: list[tuple[Captured, Future]] = []
@@ -228,14 +254,27 @@ class CampaignRunner:
     # -- recording ----------------------------------------------------------------------------------------------
 
     def _publish(self, draft: Draft) -> None:
-        """Queue a document; failures surface at the next sync."""
-        self._recording.append(self._recorder.submit(self.bus.publish, draft))
-        if len(self._recording) > 64:
+        """Queue a document; a failure to record an earlier one surfaces here (or at the next sync)."""
+        # The recorder starts on it at once (frames are encoded on its pool, in parallel); the recorder
+        # thread then writes each document in turn, a frame file before the line that references it.
+        self._enqueue(self.bus.publish, self.bus.prepare(draft))
+
+    def _enqueue(self, job, *args) -> None:
+        """Run ``job(*args)`` on the recorder thread after everything queued before it."""
+        self._recording.append(self._recorder.submit(job, *args))
+        if len(self._recording) > 64:  # at most a few configurations' frames wait in memory
             self._sync_recording(keep=32)
+        else:
+            self._reap_recording()
 
     def _sync_recording(self, keep: int = 0) -> None:
         """Wait until all but ``keep`` queued documents are recorded; re-raise the first failure."""
         while len(self._recording) > keep:
+            self._recording.pop(0).result()
+
+    def _reap_recording(self) -> None:
+        """Forget the documents already recorded, re-raising the first failure; never waits."""
+        while self._recording and self._recording[0].done():
             self._recording.pop(0).result()
 
     # -- execution -----------------------------------------------------------------------------------------------
@@ -275,6 +314,10 @@ class CampaignRunner:
             return "interrupted"
         finally:
             self._analysis.shutdown(wait=not abandon, cancel_futures=abandon)
+            self._side_detector.shutdown(wait=True)
+            # Detections still queued are of configurations that will not be analysed; their documents
+            # (keep_frames) still wait for them, unless the run stops at once.
+            self._detector.shutdown(wait=not abandon, cancel_futures=abandon)
             try:
                 self._sync_recording()
             finally:
@@ -389,15 +432,32 @@ class CampaignRunner:
             self.request_stop(f"rig unrecoverable: {error}")
             raise StopRequested() from error
 
+    def _keeps_frames(self, model) -> bool:
+        """Whether captures of this kind write their frames to the session (``[capture] keep_frames``)."""
+        keep = self.config.capture.keep_frames
+        return keep == "all" or (keep == "measurement" and model is MeasurementFrameEvent)
+
     def _capture(self, model, index: int, configuration: Configuration, **extra) -> tuple[np.ndarray, np.ndarray]:
         pair = self.bench.cameras.capture_pair()
         self._publish(Draft(
             model, config_id=configuration.config_id,
             data={"index": index, "dt_s": pair.dt_s, "left": pair.left.describe(), "right": pair.right.describe(),
                   **extra},
-            frames={"left": pair.left.image, "right": pair.right.image},
+            frames={"left": pair.left.image, "right": pair.right.image} if self._keeps_frames(model) else None,
         ))
         return pair.left.image, pair.right.image
+
+    def _publish_detections(self, config_id: str, index: int, found: tuple[Future, Future]) -> None:
+        """Record a calibration view's detections (kept instead of its frames) once made, next in the stream."""
+        def publish() -> list:
+            # A detection that failed is the analysis' to report (one dropped by a stop at once: nobody's).
+            sides = [None if future.cancelled() or future.exception() is not None else DetectionRecord.of(
+                future.result()) for future in found]
+            return self.bus.publish(Draft(CalibrationDetectionsEvent, config_id=config_id, data={
+                "index": index, **{side: None if record is None else record.model_dump()
+                                   for side, record in zip(("left", "right"), sides, strict=True)}}))
+
+        self._enqueue(publish)
 
     def _capture_calibration(self, n_views: int, captured: Captured) -> None:
         if self.options.fixed_calibration is not None:
@@ -423,15 +483,26 @@ class CampaignRunner:
             if reviewing:
                 return
             left, right = self._capture(CalibrationViewEvent, index, captured.configuration)
+            # Detected once, while the next views are captured; the analysis calibrates from these. A replay
+            # of a session that kept the detections instead of the frames serves the recorded ones.
+            recorded = getattr(presenter, "recorded_detections", lambda index: None)(index)
+            if recorded is not None:
+                found = (_done(recorded[0]), _done(recorded[1]))
+            else:
+                found = (self._detector.submit(detect, left, self.calibration_board),
+                         self._detector.submit(detect, right, self.calibration_board))
+            if not self._keeps_frames(CalibrationViewEvent):
+                self._publish_detections(captured.configuration.config_id, index, found)
             if presenter.wants_detections:  # coverage feedback for an operator
-                presenter.calibration_view_captured(
-                    index, detect(left, self.calibration_board), detect(right, self.calibration_board))
+                presenter.calibration_view_captured(index, found[0].result(), found[1].result())
             captured.calibration_pairs.append((left, right))
+            captured.calibration_detections.append(found)
             index += 1
 
     def _discard_calibration_view(self, index: int, captured: Captured, answer: Answer) -> None:
         """Drop kept view ``index`` (the last one) so that it is taken again; its frames stay recorded."""
         captured.calibration_pairs.pop()
+        captured.calibration_detections.pop()
         self.bench.presenter.calibration_view_discarded(index)
         self._publish(Draft(CalibrationViewDiscardedEvent, config_id=captured.configuration.config_id,
                             data={"index": index, "answered_by": answer.operator}))
@@ -453,7 +524,9 @@ class CampaignRunner:
                 if prompt is not None:
                     self._ask(prompt)
                 left, right = self._capture(MeasurementFrameEvent, index, configuration, retry=retry)
-                found = tuple(_detect_or_none(image, self.target, partial) for image in (left, right))
+                left_found = self._side_detector.submit(_detect_or_none, left, self.target, partial)
+                right_found = _detect_or_none(right, self.target, partial)
+                found = (left_found.result(), right_found)
                 if all(d is not None for d in found):
                     break
                 ambiguous = any(d is _AMBIGUOUS for d in found)
@@ -521,7 +594,8 @@ class CampaignRunner:
             if options.extrinsics_mode == "per-config":
                 analysis = calibrate_configuration(captured.calibration_pairs, self.calibration_board,
                                                    intrinsics=options.intrinsics, mode=options.intrinsics_mode,
-                                                   intrinsics_covariance=options.intrinsics_covariance)
+                                                   intrinsics_covariance=options.intrinsics_covariance,
+                                                   detections=captured.detections(self.calibration_board))
             else:
                 source = used_source(options, self._source(), configuration, captured)
                 analysis = ConfigurationAnalysis(calib=source.calib, rect=rectify(source.calib),
@@ -560,9 +634,10 @@ class CampaignRunner:
                 self._publish(Draft(AnalysisEvent, config_id=config_id, data=analysis.details()))
             if structure is not None:
                 self._publish(Draft(StructureEvent, config_id=config_id, data=structure))
-            # A result is the checkpoint: everything of its configuration must be on disk first.
+            # A result is the checkpoint: everything of its configuration is on disk before it, since the
+            # recorder writes in order. The capture goes on meanwhile (a crash before the line is written
+            # runs the configuration again on resume); the run ends only once everything is recorded.
             self._publish(Draft(ResultDocument, config_id=config_id, row=row))
-            self._sync_recording()
 
 
     def _record_prepared(self, prepared) -> None:
@@ -585,9 +660,9 @@ def _detect_or_none(image: np.ndarray, target, partial: bool):
         return _AMBIGUOUS
 
 
-def _done(row: dict) -> Future:
+def _done(value) -> Future:
     future: Future = Future()
-    future.set_result(row)
+    future.set_result(value)
     return future
 
 

@@ -18,7 +18,10 @@ number goes up by one; side files are written under the attempt's own directorie
 never overwrites what an interrupted one recorded.
 
 Durability: side files are written atomically (temporary file, fsync, rename, directory fsync)
-*before* the line that references them; each line is written with one ``write`` and fsynced. A
+*before* the line that references them; each line is written with one ``write`` and fsynced.
+Frames may be encoded ahead, in parallel (:meth:`SessionWriter.prepare`, a small pool of encoder
+threads): only the CPU work moves; every file and line is still written by :meth:`SessionWriter.record`,
+one document at a time, in the order the documents are recorded. A
 crash therefore leaves at most one torn last line (repaired on resume, its bytes kept under
 ``recovered/``), temporary files (removed on resume: they were never referenced) and complete but
 unreferenced side files (kept). A configuration is complete only when its ``result`` document is in
@@ -39,9 +42,11 @@ import re
 import shutil
 import socket
 import tempfile
+import threading
 import time
 import uuid
 from collections.abc import Iterable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -79,6 +84,7 @@ from stereo_bench.campaign.store import (
     normalise_row,
     order_rows,
 )
+from stereo_bench.executors import background_threads
 from stereo_bench.frames import FRAME_EXTENSION, FrameError, decode_frame, encode_frame
 from stereo_bench.vision import calibio
 from stereo_bench.vision.calibrate import StereoCalibration
@@ -459,6 +465,12 @@ def _attempts_on_disk(root: Path) -> int:
     return highest
 
 
+# Frames encoded at once by a session writer (:meth:`SessionWriter.prepare`): a grey 1080p frame takes
+# ~16 ms of one core to encode and a stereo pair comes every ~20 ms at the bench, so one encoder
+# falls behind while two keep up with the capture on a 2-core machine (scripts/bench_campaign.py).
+DEFAULT_ENCODERS = 2
+
+
 class SessionWriter:
     """Write (or resume) a session directory. Construction does no I/O; see :meth:`open`.
 
@@ -466,11 +478,20 @@ class SessionWriter:
     :meth:`write_calibration` / :meth:`result` per configuration, and :meth:`stop`. Leaving the
     ``with`` block on an exception before :meth:`stop` records a 'stop' with exit status
     ``"interrupted"`` (Ctrl-C) or ``"failed"``. One process at a time: the stream is locked.
+
+    ``encoders``: threads that encode frames ahead for :meth:`prepare` (0: each frame is encoded
+    when its document is recorded).
     """
 
-    def __init__(self, directory: str | Path, *, resume: bool = False):
+    def __init__(self, directory: str | Path, *, resume: bool = False, encoders: int = DEFAULT_ENCODERS):
+        if encoders < 0:
+            raise ValueError(f"encoders must be >= 0, got {encoders}")
         self.directory = Path(directory)
         self.resume = resume
+        self.encoders = encoders
+        self._encoder_pool: ThreadPoolExecutor | None = None
+        self._encoding: dict[int, tuple[Draft, dict[str, Future]]] = {}  # prepared drafts' frames being encoded
+        self._encoding_lock = threading.Lock()
         self.documents_path = self.directory / DOCUMENTS_FILE
         self.attempt = 0
         self.recovery: dict[str, Any] = {}  # what open() repaired when resuming
@@ -500,6 +521,10 @@ class SessionWriter:
         except BaseException:
             self.close()
             raise
+        if self.encoders:
+            # At a lower priority: a recording can wait, the capture it would slow down cannot; the
+            # encoders catch up while the rig moves on.
+            self._encoder_pool = background_threads(self.encoders, "frame-encoder")
         return self
 
     def _lock(self, fd: int) -> None:
@@ -618,6 +643,10 @@ class SessionWriter:
         return report
 
     def close(self) -> None:
+        if self._encoder_pool is not None:  # frames encoded for documents that were never recorded are dropped
+            self._encoder_pool.shutdown(wait=True, cancel_futures=True)
+            self._encoder_pool = None
+            self._encoding.clear()
         if self._store is not None:
             self._store.close()
             self._store = None
@@ -727,6 +756,21 @@ class SessionWriter:
         self._append(document_json(document))
         return document
 
+    def prepare(self, draft: Draft) -> Draft:
+        """Start encoding ``draft``'s frames on the encoder pool now; returns the draft to :meth:`record` later.
+
+        Only the encoding moves ahead (it is pure CPU): :meth:`record` still writes each frame file,
+        then the line that references it, in the order documents are recorded, so what is on disk
+        after a crash is exactly what it would be without the pool. Documents may be prepared on
+        one thread and recorded on another (the campaign runner records on an ordered thread).
+        """
+        if not draft.frames or self._encoder_pool is None:
+            return draft
+        encoding = {name: self._encoder_pool.submit(encode_frame, image) for name, image in draft.frames.items()}
+        with self._encoding_lock:  # the draft itself keeps its images (frame subscribers show them)
+            self._encoding[id(draft)] = (draft, encoding)  # holding the draft keeps its id unique meanwhile
+        return draft
+
     def start(self, *, config: dict, plan: list[dict], software: dict, extra: dict | None = None,
               **more: Any) -> Document:
         """Write the 'start' document — or, when resuming, check the config and plan and write 'resume'.
@@ -811,11 +855,14 @@ class SessionWriter:
         if frames:
             directory, _ = self._side_dir("frames", config_id)
             self._mkdir(directory)
+            with self._encoding_lock:
+                _, encoding = self._encoding.pop(id(draft), (None, {}))
             for name, image in frames.items():
-                try:
-                    atomic.write_bytes(self.directory / frame_paths[name], encode_frame(image), overwrite=False)
+                try:  # encoded ahead by prepare(), or now
+                    data = encoding[name].result() if name in encoding else encode_frame(image)
                 except FrameError as error:
                     raise SessionError(f"frame {name!r} of event {kind!r}: {error}") from None
+                atomic.write_bytes(self.directory / frame_paths[name], data, overwrite=False)
         if files:
             directory, _ = self._side_dir("files", config_id)
             self._mkdir(directory)

@@ -38,9 +38,15 @@ FrameSubscriber = Callable[[Document, Mapping[str, np.ndarray]], None]
 
 
 class Recorder(Protocol):
-    """Turns drafts into documents: :class:`SessionWriter` (a session directory) or :class:`MemoryRecorder`."""
+    """Turns drafts into documents: :class:`SessionWriter` (a session directory) or :class:`MemoryRecorder`.
+
+    ``prepare`` may start work on a draft ahead of its turn (a session writer encodes its frames on
+    a pool); ``record`` records drafts one at a time, in the order they are to appear in the stream.
+    """
 
     attempt: int
+
+    def prepare(self, draft: Draft) -> Draft: ...
 
     def record(self, draft: Draft) -> list[Document]: ...
 
@@ -53,6 +59,9 @@ class MemoryRecorder:
         self.rows: dict[str, dict] = {}
         self._seq = 0
         self._lock = threading.Lock()
+
+    def prepare(self, draft: Draft) -> Draft:
+        return draft  # frames are not kept: nothing to encode
 
     def record(self, draft: Draft) -> list[Document]:
         with self._lock:
@@ -108,6 +117,14 @@ class DocumentBus:
             for subscribers in (self._subscribers, self._frame_subscribers):
                 if subscriber in subscribers:
                     subscribers.remove(subscriber)
+
+    def prepare(self, draft: Draft) -> Draft:
+        """Let the recorder start on ``draft`` now (e.g. encode its frames), before :meth:`publish` records it.
+
+        For a publisher that records on another thread: prepare on the capturing thread, publish on
+        the recording one, in stream order.
+        """
+        return self.recorder.prepare(draft)
 
     def publish(self, draft: Draft) -> list[Document]:
         """Record ``draft`` and hand every document written to the subscribers, in order."""

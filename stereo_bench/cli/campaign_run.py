@@ -10,6 +10,7 @@ stops at once, still recording "interrupted" and printing the command that resum
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
 import time
@@ -69,12 +70,21 @@ def _override(config, section: str, field: str, value, option: str):
 
 
 
+def _uncertainty(row: dict) -> str:
+    """The expanded uncertainty U (k=2) where the budget is known; else the image-noise sigma, said so (a
+    bare +- sigma beside a calibration- or structure-dominated error reads as a false precision)."""
+    expanded = row.get("U_expanded_mm")
+    if expanded is not None and math.isfinite(expanded):
+        return f"+- {expanded:.4f} mm (U, k=2)"
+    return f"+- {row['sigma_mm']:.4f} mm (sigma of image noise only)"
+
+
 def _format_row(row: dict) -> str:
     head = (f"{row['config_id']:>16s}  B {row['baseline_mm']:6.1f}  Z {row['distance_mm']:6.1f}  "
             f"alpha {row['alpha_deg']:5.1f}")
     if row["status"] == "measured":
         return (f"{head}  square {row['square_mean_mm']:8.4f} mm  error {row['error_mm']:+.4f} "
-                f"+- {row['sigma_mm']:.4f} mm  (n {row['n_squares']}, RMS {row['rms_px']:.3f} px)")
+                f"{_uncertainty(row)}  (n {row['n_squares']}, RMS {row['rms_px']:.3f} px)")
     return f"{head}  {row['status'].upper()}: {row.get('reason')}"
 
 

@@ -46,6 +46,14 @@ def cmd_replay(args: argparse.Namespace) -> int:
             else:
                 print(f"replayed {report['compared']} measured configurations of {report['session']}: "
                       f"{report['identical']} reproduced exactly{carried}")
+            if report.get("from_detections"):
+                print(f"  calibrated from the recorded detections of their calibration views (frames not kept): "
+                      f"{_listing(report['from_detections'], report['compared'])}")
+            by_reason: dict[str, list[str]] = {}
+            for config_id, reason in report.get("not_reproducible", {}).items():
+                by_reason.setdefault(reason, []).append(config_id)
+            for reason, config_ids in by_reason.items():
+                print(f"  cannot reproduce, {reason}: {_listing(config_ids, len(report['not_reproducible']))}")
             if report.get("plan_drift"):
                 print(f"  note: the recorded plan was replayed; {report['plan_drift']}")
             for line in report["differences"]:
@@ -54,9 +62,18 @@ def cmd_replay(args: argparse.Namespace) -> int:
                 print(f"  new session: {report['out']}")
     if errors:
         return 2
+    # A session that kept too few frames to reproduce any measured configuration ([capture] keep_frames =
+    # "none") fails its replay; configurations it cannot reproduce beside ones it can are listed, not failed.
+    if any(r["not_reproducible"] and not r["compared"] for r in reports):
+        return 1
     if pipeline:  # a re-analysis may change numbers, but one that measures nothing has failed
         return 0 if all(r["measured"] or not r["compared"] for r in reports) else 1
     return 0 if all(not r["differences"] for r in reports) else 1
+
+
+def _listing(config_ids: list[str], of: int) -> str:
+    listed = ", ".join(config_ids)
+    return f"all {of} ({listed})" if len(config_ids) == of and of > 1 else listed
 
 
 def register(subparsers) -> None:
@@ -65,8 +82,12 @@ def register(subparsers) -> None:
         description="Serve the recorded frames and rig telemetry through replay drivers to the campaign runner, "
                     "over the recorded plan. Without options the results must reproduce the recording exactly "
                     "(exit 1 if not); with changed pipeline options each session is re-analysed into --out "
-                    "(exit 1 if a session's re-analysis measures nothing). Several sessions are replayed in "
-                    "parallel through the executor (a local process pool, or Dask).",
+                    "(exit 1 if a session's re-analysis measures nothing). A session recorded with [capture] "
+                    "keep_frames = \"measurement\" is calibrated from its recorded detections; configurations "
+                    "whose frames were not kept are listed as not reproducible, and a session that can "
+                    "reproduce none of its measured configurations (keep_frames = \"none\") exits 1. Exit 2: "
+                    "a session cannot be read. Several sessions are replayed in parallel through the executor "
+                    "(a local process pool, or Dask).",
     )
     replay.add_argument("session", nargs="+", metavar="SESSION", help="recorded session directory")
     replay.add_argument("--out", type=output_dir, metavar="DIR",

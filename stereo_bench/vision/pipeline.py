@@ -118,13 +118,16 @@ def calibrate_from_images(
     left_images: Sequence[np.ndarray], right_images: Sequence[np.ndarray], target: Target, *,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: StereoMode = "joint",
     thorough: bool = True, intrinsics_covariance: CalibrationCovariance | None = None,
+    detections: Sequence[tuple[Detection | None, Detection | None]] | None = None,
 ) -> CalibrationResult:
     """Stereo calibration from image pairs of a calibration target (pairs in matching order).
 
     ``thorough`` retries a missed board with the slower detectors (right for stored images; a live
     campaign, whose views are known to hold the board, passes False). ``intrinsics_covariance``: of
     the given ``intrinsics`` (see :func:`~stereo_bench.vision.calibio.read_intrinsics_covariance`);
-    fixed intrinsics without it leave the calibration's covariance unknown.
+    fixed intrinsics without it leave the calibration's covariance unknown. ``detections``: per pair,
+    the (left, right) detections of these images (``detect(image, target, thorough=thorough)``), when
+    the caller made them already (a campaign detects each view while the next ones are captured).
 
     Raises:
         ValueError: fewer than ``MIN_VIEWS`` pairs show the board in both images, or the solver fails.
@@ -133,6 +136,8 @@ def calibrate_from_images(
     """
     if len(left_images) != len(right_images):
         raise ValueError(f"{len(left_images)} left images but {len(right_images)} right images")
+    if detections is not None and len(detections) != len(left_images):
+        raise ValueError(f"{len(detections)} detections for {len(left_images)} image pairs")
     image_size = left_images[0].shape[1::-1]
     if intrinsics is not None:
         given = camera_problems(intrinsics[0], intrinsics[1], image_size, "left camera")
@@ -142,8 +147,11 @@ def calibrate_from_images(
     rejected: list[RejectedView] = []
     pair_index, objects, lefts, rights = [], [], [], []
     for index, (left_image, right_image) in enumerate(zip(left_images, right_images, strict=True)):
-        left = detect(left_image, target, thorough=thorough)
-        right = detect(right_image, target, thorough=thorough)
+        if detections is not None:
+            left, right = detections[index]
+        else:
+            left = detect(left_image, target, thorough=thorough)
+            right = detect(right_image, target, thorough=thorough)
         missing = [side for side, d in (("left", left), ("right", right)) if d is None]
         if missing:
             rejected.append(RejectedView(index, f"board not found in the {' and '.join(missing)} image"))
