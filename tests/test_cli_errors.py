@@ -129,6 +129,9 @@ def ctx(tmp_path_factory, small_reference, request) -> dict[str, str]:
                                                              'baseline_mm = ["100", "1_50"]'))
     (root / "bool_baseline.toml").write_text(SMALL.replace("baseline_mm = [100, 150]", "baseline_mm = [true]"))
     (root / "homing_yes.toml").write_text(SMALL.replace("time_scale = 50", 'time_scale = 50\nhoming = "yes"'))
+    (root / "sim_rig_v4l2.toml").write_text(SMALL.replace("[cameras.optics]", '[cameras]\nkind = "v4l2"\n'
+                                                          'left = "usb-port:9-8"\nright = "usb-port:9-9"\n'
+                                                          "[cameras.optics]"))
     many = ", ".join(str(k) for k in range(1, 30_001))
     (root / "too_many.toml").write_text(SMALL.replace("baseline_mm = [100, 150]", f"baseline_mm = [{many}]"))
 
@@ -323,6 +326,8 @@ CASES: list[tuple[str, Callable[[dict], list[str]], int, str | Callable[[dict], 
      "bool_baseline.toml: plan.baseline_mm[0]: true is a boolean, not a number"),
     ("plan-homing-yes", lambda c: ["campaign", "plan", c["root"] + "/homing_yes.toml"], 2,
      "homing_yes.toml: rig.homing: 'yes' is a string, not true or false"),
+    ("plan-simulated-rig-with-v4l2-cameras", lambda c: ["campaign", "plan", c["root"] + "/sim_rig_v4l2.toml"], 2,
+     'sim_rig_v4l2.toml: rig.kind = "simulated" with cameras.kind = "v4l2" is not a bench'),
     ("plan-too-many-configurations", lambda c: ["campaign", "plan", c["root"] + "/too_many.toml"], 2,
      "too_many.toml: plan: 60,000 configurations (30,000 baselines x 1 distances x 2 angles): at most 20,000"),
     ("run-error-after-no-progress-bar-line", lambda c: ["campaign", "run", c["root"] + "/port_missing.toml", "--out",

@@ -163,13 +163,15 @@ def test_the_plans_pixel_limit_is_where_the_detector_stops_finding_the_board(tar
     renderer = StereoRenderer(target, camera, camera, optics=Optics(noise_sigma_dn=2.0, blur_sigma_px=0.7))
     rig = RigPose.symmetric(100.0, 90.0)
 
-    def found(distance_mm: float, seed: int) -> bool:
+    def found(distance_mm: float, seed: int) -> int:
         T_cam_board = invert_transform(rig.T_rig_left) @ board_pose_facing_rig(
             distance_mm=distance_mm, board_size_mm=target.grid_size_mm)
         detection = detect(renderer.render_view("left", T_cam_board, np.random.default_rng(seed)).image, target)
-        return detection is not None and len(detection.ids) == target.n_corners
+        return 0 if detection is None else len(detection.ids)
 
-    assert all(found(max(feasible), seed) for seed in range(2))
+    # A checkerboard is found whole or not at all; a ChArUco board corner by corner: most of it at the limit.
+    needed = target.n_corners if isinstance(target, Checkerboard) else target.n_corners // 2
+    assert all(found(max(feasible), seed) >= needed for seed in range(2))
     assert not any(found(1.15 * max(feasible), seed) for seed in range(2))
 
 

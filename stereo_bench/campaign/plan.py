@@ -70,7 +70,7 @@ from stereo_bench.geometry import (
     transform_points,
 )
 from stereo_bench.targets import CharucoTarget, Checkerboard
-from stereo_bench.vision.detect import min_detectable_square_px
+from stereo_bench.vision.detect import MIN_CHARUCO_MARKER_PX, MIN_SEARCH_SQUARE_PX, min_detectable_square_px
 from stereo_bench.vision.pipeline import MIN_COMMON_CORNERS
 
 MIN_CORNERS_IN_BOTH = MIN_COMMON_CORNERS  # what the measurement needs, not a planning guess
@@ -149,10 +149,12 @@ def _why_too_small(vis: Visibility, need_px: float, *, distance_mm: float, targe
     side, smallest = min((("left", vis.square_px_left), ("right", vis.square_px_right)), key=lambda item: item[1])
     if smallest >= need_px:
         return None
-    detector = ("ChArUco markers" if isinstance(target, CharucoTarget)
-                else "the checkerboard detector's search image")
+    if isinstance(target, CharucoTarget):
+        limit = f"ChArUco markers of {MIN_CHARUCO_MARKER_PX:g} px"
+    else:
+        limit = f"{MIN_SEARCH_SQUARE_PX:g} px in the checkerboard detector's reduced search image"
     return (f"target squares {smallest:.1f} px in the {side} view at Z = {distance_mm:g} mm, below the "
-            f"{need_px:.1f} px the corner detector finds (minimum board size in pixels: {detector}); "
+            f"{need_px:.1f} px the corner detector finds (minimum board size in pixels: {limit}); "
             f"a larger target or a longer lens reaches farther")
 
 

@@ -39,10 +39,11 @@ SUBPIX_WINDOW_FRACTION = 0.4
 # classic detector finds 9x6 and 5x4 checkerboards (27 and 40 mm squares) whose squares measure >= 13.3 px in the
 # search image and none at <= 12.6 px, at the same search-image size for 640-, 960- and 1920-px-wide frames;
 # the partial-capable search (SB at 960 px) found every corner down to 13.8 px there (not measured below).
-# ChArUco (DICT_5X5, marker 0.75 of the square, full resolution): every corner at 24 px squares (18 px markers),
-# 30-38 of 40 at 22.5 px, none at <= 20 px.
+# ChArUco (DICT_5X5, marker 0.75 of the square, full resolution; identified corner by corner, so a view is usable
+# with part of them): 40 of 40 corners at 24 px squares (18 px markers), 30-38 at 22.5 px (16.9 px markers), 16-24
+# at 21.2 px, none at <= 20 px. The limit keeps most of the board: markers of 17 px.
 MIN_SEARCH_SQUARE_PX = 13.0
-MIN_CHARUCO_MARKER_PX = 18.0
+MIN_CHARUCO_MARKER_PX = 17.0
 CHARUCO_HALF_WINDOW = 3  # CharucoDetector refines with a 3 px half-window by default
 # cornerSubPix's corner scatter relative to the structure-tensor (Foerstner) bound, measured on
 # rendered views (scripts/bench_corner_noise.py): median 2.04, range 1.83-2.41 over Z 300-700 mm,
