@@ -269,3 +269,18 @@ def test_render_charuco_hints_a_measure_command_that_works(tmp_path, capsys):
     argv = hint.removeprefix("next: stereo-bench ").split()
     assert "--charuco" in argv
     assert main(argv) == 0
+
+
+@pytest.mark.slow  # one re-analysis (a stereo calibration per configuration)
+def test_a_batch_re_analysis_reports_a_bad_session_and_goes_on(small_reference, tmp_path, capsys):
+    """Already true on main (the first half of issue 9 made replay_job return errors as data); kept as a test."""
+    damaged = tmp_path / "damaged"
+    shutil.copytree(small_reference, damaged)
+    next(p for p in sorted((damaged / "frames").rglob("*.png"))).unlink()
+    code = main(["replay", str(small_reference), str(damaged), "--intrinsics", "fixed", "--out",
+                 str(tmp_path / "again"), "--executor", "serial"])
+    out, err = capsys.readouterr()
+    assert code == 2 and "Traceback" not in err
+    assert f"re-analysed 2 measured configurations of {small_reference}" in out
+    (line,) = [text for text in out.splitlines() if text.startswith(f"{damaged}: error: ")]
+    assert ".png" in line
