@@ -276,6 +276,9 @@ def run_campaign(
     a live page's previews); ``control`` stops or pauses the run from outside.
     ``bench_factory(config, operators=..., transcript=...)`` opens the bench (default: the config's).
     """
+    from stereo_bench.campaign.preflight import check_campaign
+
+    check_campaign(config)  # what `campaign plan` checks: before the session is written or anything moves
     control = control or RunControl()
     operators = list(operators) if operators is not None else default_operators(config, yes=yes)
     summary = RunSummary(session=Path(out_dir), exit_status="failed")
