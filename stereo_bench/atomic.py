@@ -7,6 +7,10 @@ fails if the target exists: recorded data is never replaced by accident.
 
 Temporary files are named ``.<name>.<random>.tmp`` (:data:`TEMP_SUFFIX`); a crash can leave one
 behind, never a torn target. :func:`is_temp_file` recognises them for clean-up.
+
+Files and directories are created with the ordinary modes (0o666 and 0o777) less the user's umask, as
+``open`` and ``mkdir`` make them — not ``mkstemp``'s 0600 / ``mkdtemp``'s 0700 — so a session or report
+is as readable by colleagues as anything else the user writes.
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
-import tempfile
+import secrets
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -29,6 +33,37 @@ def is_temp_file(path: str | Path) -> bool:
     """True for a temporary file this module creates (``.<name>.<random>.tmp``)."""
     name = Path(path).name
     return name.startswith(".") and name.endswith(TEMP_SUFFIX)
+
+
+def _temp_name(directory: Path, prefix: str) -> Path:
+    return directory / f"{prefix}{secrets.token_hex(6)}{TEMP_SUFFIX}"
+
+
+def make_temp_file(directory: str | Path, prefix: str) -> tuple[int, Path]:
+    """Create a new, empty temporary file ``<prefix><random>.tmp`` in ``directory``, mode 0o666 less the umask.
+
+    Returns (an open write descriptor, its path). Like ``tempfile.mkstemp`` (O_EXCL, never an existing file)
+    but with the mode every other file of the user gets.
+    """
+    for _ in range(100):
+        path = _temp_name(Path(directory), prefix)
+        try:
+            return os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC | os.O_NOFOLLOW, 0o666), path
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "no free temporary name", str(directory))
+
+
+def make_temp_dir(directory: str | Path, prefix: str) -> Path:
+    """Create a new temporary directory ``<prefix><random>.tmp`` in ``directory``, mode 0o777 less the umask."""
+    for _ in range(100):
+        path = _temp_name(Path(directory), prefix)
+        try:
+            os.mkdir(path, 0o777)
+            return path
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "no free temporary name", str(directory))
 
 
 def fsync_dir(directory: str | Path) -> None:
@@ -64,9 +99,8 @@ def atomic_path(path: str | Path, *, overwrite: bool = True) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     if not overwrite and path.exists():
         raise FileExistsError(errno.EEXIST, "refusing to overwrite", str(path))
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
+    fd, tmp = make_temp_file(path.parent, prefix=f".{path.name}.")
     os.close(fd)
-    tmp = Path(tmp_name)
     try:
         yield tmp
         fd = os.open(tmp, os.O_RDONLY)
@@ -86,8 +120,7 @@ def write_bytes(path: str | Path, data: bytes, *, overwrite: bool = True) -> Pat
     path.parent.mkdir(parents=True, exist_ok=True)
     if not overwrite and path.exists():
         raise FileExistsError(errno.EEXIST, "refusing to overwrite", str(path))
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
-    tmp = Path(tmp_name)
+    fd, tmp = make_temp_file(path.parent, prefix=f".{path.name}.")
     try:
         view = memoryview(data)
         while view:

@@ -20,8 +20,10 @@ This module is a leaf: numpy and OpenCV only, so both the measurement code and t
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -101,17 +103,27 @@ class RigPose:
 
     @property
     def T_rig_left(self) -> np.ndarray:
-        return camera_pose_in_rig(
-            baseline_mm=self.baseline_mm, side="left",
-            toe_in_deg=self.toe_in_left_deg, tilt_deg=self.tilt_left_deg,
-        )
+        return self._T_rig_cameras[0].copy()  # a copy: the pose is immutable, a caller may not be
 
     @property
     def T_rig_right(self) -> np.ndarray:
-        return camera_pose_in_rig(
-            baseline_mm=self.baseline_mm, side="right",
-            toe_in_deg=self.toe_in_right_deg, tilt_deg=self.tilt_right_deg,
-        )
+        return self._T_rig_cameras[1].copy()
+
+    @cached_property
+    def T_cameras_rig(self) -> tuple[np.ndarray, np.ndarray]:
+        """(T_left_rig, T_right_rig): the inverse camera poses, computed once per pose (read-only arrays)."""
+        inverses = tuple(invert_transform(T) for T in self._T_rig_cameras)
+        for T in inverses:
+            T.flags.writeable = False
+        return inverses
+
+    @cached_property
+    def _T_rig_cameras(self) -> tuple[np.ndarray, np.ndarray]:
+        # Computed once per pose: a plan asks each pose for them several times (a 10,000-configuration plan).
+        return (camera_pose_in_rig(baseline_mm=self.baseline_mm, side="left", toe_in_deg=self.toe_in_left_deg,
+                                   tilt_deg=self.tilt_left_deg),
+                camera_pose_in_rig(baseline_mm=self.baseline_mm, side="right", toe_in_deg=self.toe_in_right_deg,
+                                   tilt_deg=self.tilt_right_deg))
 
     def stereo_extrinsics(self) -> tuple[np.ndarray, np.ndarray]:
         """(R (3, 3), T (3,) mm) with X_right = R @ X_left + T, as cv2.stereoCalibrate returns them."""
@@ -182,6 +194,36 @@ def board_pose_facing_rig(
     return make_transform(R, origin)
 
 
+def _coefficients(dist) -> tuple[float, ...]:
+    if isinstance(dist, tuple) and len(dist) == 12:
+        return dist
+    values = [float(v) for v in np.asarray(dist, dtype=float).ravel()]
+    return tuple(values + [0.0] * (12 - len(values)))
+
+
+def distort_normalised(normalised: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """(N, 2) pixels of (N, 2) normalised image coordinates through OpenCV's distortion model (k1 k2 p1 p2
+    [k3 [k4 k5 k6 [s1 s2 s3 s4]]]) and ``K`` (fx, fy, cx, cy): what ``cv2.projectPoints`` computes, ~20x faster
+    on small point sets (it always computes its Jacobians); tests/test_geometry.py holds them to 1e-9 px."""
+    k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = _coefficients(dist)
+    x, y = normalised[:, 0], normalised[:, 1]
+    r2 = x * x + y * y
+    r4 = r2 * r2
+    radial = 1.0 + k1 * r2 + k2 * r4 + k3 * (r4 * r2)
+    if k4 or k5 or k6:  # the rational model
+        radial = radial / (1.0 + k4 * r2 + k5 * r4 + k6 * (r4 * r2))
+    xy2 = 2.0 * x * y
+    xd = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
+    if s1 or s2 or s3 or s4:  # thin prism
+        xd = xd + s1 * r2 + s2 * r4
+        yd = yd + s3 * r2 + s4 * r4
+    pixels = np.empty_like(normalised)
+    pixels[:, 0] = K[0, 0] * xd + K[0, 2]
+    pixels[:, 1] = K[1, 1] * yd + K[1, 2]
+    return pixels
+
+
 @dataclass(frozen=True, eq=False)
 class CameraModel:
     """Pinhole + OpenCV distortion camera. ``K`` (3, 3) px, ``dist`` (5,) or longer, ``image_size`` (w, h) px.
@@ -219,6 +261,20 @@ class CameraModel:
     def fx(self) -> float:
         return float(self.K[0, 0])
 
+    @cached_property
+    def _trusted_radius(self) -> float:
+        # The radial polynomial folds back beyond the lens's field of view; only trust it up to a
+        # margin past the image corners.
+        w, h = self.image_size
+        corner_norm = np.abs(np.array([[-0.5, -0.5], [w - 0.5, h - 0.5]]) - self.K[:2, 2]) / np.diag(self.K)[:2]
+        return 1.25 * float(np.hypot(*corner_norm.max(axis=0)))
+
+    @cached_property
+    def _dist_12(self) -> tuple[float, ...] | None:
+        """The distortion as 12 floats for :func:`distort_normalised`; None for the tilted-sensor model."""
+        dist = np.asarray(self.dist, dtype=float).ravel()
+        return _coefficients(dist) if len(dist) in (4, 5, 8, 12) else None
+
     def project(self, points_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Project (N, 3) camera-frame points (mm) to (N, 2) pixels.
 
@@ -230,13 +286,10 @@ class CameraModel:
         in_front = z > 1e-6
         safe_z = np.where(in_front, z, 1.0)
         normalised = points_cam[:, :2] / safe_z[:, None]
-        # The radial polynomial folds back beyond the lens's field of view; only trust it up to a
-        # margin past the image corners.
-        w, h = self.image_size
-        corner_norm = np.abs(np.array([[-0.5, -0.5], [w - 0.5, h - 0.5]]) - self.K[:2, 2]) / np.diag(self.K)[:2]
-        limit = 1.25 * float(np.hypot(*corner_norm.max(axis=0)))
-        sane = in_front & (np.hypot(normalised[:, 0], normalised[:, 1]) < limit)
-        pixels, _ = cv2.projectPoints(
+        sane = in_front & (np.hypot(normalised[:, 0], normalised[:, 1]) < self._trusted_radius)
+        if self._dist_12 is not None:
+            return distort_normalised(normalised, self.K, self._dist_12), sane
+        pixels, _ = cv2.projectPoints(  # the tilted-sensor model (14 coefficients): OpenCV's own
             np.column_stack([normalised, np.ones(len(normalised))]).reshape(-1, 1, 3),
             np.zeros(3), np.zeros(3), self.K, self.dist,
         )
@@ -292,8 +345,13 @@ def calibration_outline(board) -> np.ndarray:
     A chessboard detector needs the outer squares of a whole board in view, not only its inner corners.
     ``board`` has ``grid_size_mm`` and ``square_mm`` (``stereo_bench.targets`` boards).
     """
-    width_mm, height_mm = board.grid_size_mm
-    sq = board.square_mm
+    return _calibration_outline(tuple(board.grid_size_mm), float(board.square_mm)).copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _calibration_outline(grid_size_mm: tuple[float, float], square_mm: float) -> np.ndarray:
+    width_mm, height_mm = grid_size_mm
+    sq = square_mm
     t = np.linspace(0.0, 1.0, CALIBRATION_OUTLINE_POINTS_PER_SIDE)
     x0, x1, y0, y1 = -sq, width_mm + sq, -sq, height_mm + sq
     outline = np.concatenate([
@@ -318,23 +376,60 @@ def calibration_view_fits(
     board needed whole shows its outer squares too (:func:`calibration_outline`).
     ``board``: a ``stereo_bench.targets`` board (object_points, grid_size_mm, square_mm).
     """
+    return bool(calibration_views_fit(board, np.asarray(T_rig_board, dtype=float)[None], rig=rig, left=left,
+                                      right=right, margin_px=margin_px, max_obliquity_deg=max_obliquity_deg,
+                                      min_fraction=min_fraction)[0])
+
+
+def calibration_views_fit(
+    board, T_rig_boards: np.ndarray, *, rig: RigPose, left: CameraModel, right: CameraModel,
+    margin_px: float = CALIBRATION_MARGIN_PX, max_obliquity_deg: float = CALIBRATION_MAX_OBLIQUITY_DEG,
+    min_fraction: float | None = None,
+) -> np.ndarray:
+    """(K,) bool: :func:`calibration_view_fits` for K board poses ``T_rig_boards`` (K, 4, 4) at once (the one
+    implementation of the rule; a plan asks it for many distances per rig pose)."""
     fraction = board.min_calibration_fraction if min_fraction is None else min_fraction
-    object_points = np.asarray(board.object_points, dtype=np.float64)
-    width_mm, height_mm = board.grid_size_mm
-    centre_board = np.array([width_mm / 2.0, height_mm / 2.0, 0.0])
+    points, n_corners, centre_board = _calibration_points(board, fraction >= 1.0)  # (P, 3) board frame
     cos_limit = math.cos(math.radians(max_obliquity_deg))
-    seen = np.ones(len(object_points), dtype=bool)
-    for camera, T_rig_cam in ((left, rig.T_rig_left), (right, rig.T_rig_right)):
-        T_cam_board = invert_transform(T_rig_cam) @ T_rig_board
-        if not board_faces_camera(T_cam_board):
-            return False
-        centre_cam = T_cam_board[:3, :3] @ centre_board + T_cam_board[:3, 3]
-        if abs(T_cam_board[:3, 2] @ centre_cam) < cos_limit * np.linalg.norm(centre_cam):
-            return False
-        pixels, valid = camera.project(transform_points(T_cam_board, object_points))
-        seen &= valid & camera.in_image(pixels, margin_px=margin_px)
-        if fraction >= 1.0:
-            pixels, valid = camera.project(transform_points(T_cam_board, calibration_outline(board)))
-            if not (valid & camera.in_image(pixels, margin_px=margin_px)).all():
-                return False
-    return bool(seen.mean() >= fraction - 1e-12)
+    T_rig_boards = np.asarray(T_rig_boards, dtype=np.float64).reshape(-1, 4, 4)
+    K = len(T_rig_boards)
+    ok = np.ones(K, dtype=bool)
+    in_views = []
+    for T_cam_rig in rig.T_cameras_rig:
+        T_cam_boards = T_cam_rig @ T_rig_boards  # (K, 4, 4)
+        R, t = T_cam_boards[:, :3, :3], T_cam_boards[:, :3, 3]
+        normal = R[:, :, 2]
+        ok &= (normal * t).sum(axis=1) > 0.0  # board_faces_camera
+        centre_cam = R @ centre_board + t
+        ok &= ~(np.abs((normal * centre_cam).sum(axis=1)) < cos_limit * np.linalg.norm(centre_cam, axis=1))
+        in_views.append((points @ R.transpose(0, 2, 1) + t[:, None, :]).reshape(-1, 3))  # (K * P, 3)
+    inside = [visible.reshape(K, -1) for visible in _in_images(in_views, (left, right), margin_px)]
+    seen = inside[0][:, :n_corners] & inside[1][:, :n_corners]
+    if fraction >= 1.0:
+        ok &= inside[0][:, n_corners:].all(axis=1) & inside[1][:, n_corners:].all(axis=1)
+    return ok & (seen.mean(axis=1) >= fraction - 1e-12)
+
+
+@functools.lru_cache(maxsize=16)
+def _calibration_points(board, with_outline: bool) -> tuple[np.ndarray, int, np.ndarray]:
+    """(the board's inner corners [and outline], float64 (P, 3); the number of corners; the grid's centre)."""
+    object_points = np.asarray(board.object_points, dtype=np.float64)
+    outline = calibration_outline(board) if with_outline else np.zeros((0, 3))
+    width_mm, height_mm = board.grid_size_mm
+    points = np.vstack([object_points, outline])
+    points.flags.writeable = False
+    return points, len(object_points), np.array([width_mm / 2.0, height_mm / 2.0, 0.0])
+
+
+def _in_images(points_cam: list[np.ndarray], cameras: tuple[CameraModel, ...], margin_px: float) -> list[np.ndarray]:
+    """Per camera, (N_i,) bool: its camera-frame points (N_i, 3) land ``margin_px`` inside its image; cameras
+    with the same intrinsics (the usual pair) project in one call."""
+    if all(camera == cameras[0] for camera in cameras[1:]):
+        pixels, valid = cameras[0].project(np.concatenate(points_cam))
+        inside = valid & cameras[0].in_image(pixels, margin_px=margin_px)
+        return np.split(inside, np.cumsum([len(p) for p in points_cam])[:-1])
+    out = []
+    for camera, points in zip(cameras, points_cam, strict=True):
+        pixels, valid = camera.project(points)
+        out.append(valid & camera.in_image(pixels, margin_px=margin_px))
+    return out

@@ -403,7 +403,7 @@ def approach_directions(previous: Mapping[str, float] | None, current: Mapping[s
 
 
 class ParameterValue(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
 
     value: float = Field(allow_inf_nan=False)
     sigma: float | None = Field(None, ge=0, allow_inf_nan=False)
@@ -413,7 +413,7 @@ class ParameterValue(BaseModel):
 
 
 class FitSummary(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
 
     rms_px: float
     pixel_sigma_px: float
@@ -429,7 +429,7 @@ class FitSummary(BaseModel):
 class KinematicModel(BaseModel):
     """A fitted kinematic rig model: every parameter with its standard deviation, and their covariance."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
 
     schema_id: str = Field(FILE_SCHEMA, alias="schema")
     reference_baseline_mm: float = Field(allow_inf_nan=False)

@@ -70,7 +70,7 @@ def test_angle_defaults_to_parallel_and_toe_in_converts():
     (MINIMAL + "[cameras.settings]\nexposure = 100\n", "cameras.settings: exposure: unknown camera setting"),
     (MINIMAL + "[cameras.settings]\nexposure_us = -1\n", "cameras.settings: exposure_us: Input should be greater"),
     (MINIMAL + "[captur]\nsettle_s = 1\n", "captur: unknown key; known: name, description, seed, rig"),
-    ("[plan]\nbaseline_mm = [100, 'x']\ndistance_mm = [400]\n", "plan.baseline_mm[1]: Input should be a valid number"),
+    ("[plan]\nbaseline_mm = [100, 'x']\ndistance_mm = [400]\n", "plan.baseline_mm[1]: 'x' is a string, not a number"),
     ("[plan]\nbaseline_mm = [100, 100]\ndistance_mm = [400]\n", "plan.baseline_mm: lists 100 more"),
     ("[plan]\nbaseline_mm = [100]\ndistance_mm = [0]\n", "plan.distance_mm: value 0 outside (0, inf)"),
     ("[plan]\nbaseline_mm = []\ndistance_mm = [400]\n", "plan.baseline_mm: needs at least one value"),

@@ -123,6 +123,18 @@ def ctx(tmp_path_factory, small_reference, request) -> dict[str, str]:
     (corrupt / "extrinsics.yml").write_text("%YAML:1.0\nR: [this is not\n")
     (root / "corrupt_calib.toml").write_text(SMALL + f'\n[extrinsics]\nmode = "fixed"\ncalib_dir = "{corrupt}"\n')
 
+    # What `campaign plan` must refuse as `run` would (issue 9, second half B).
+    (root / "manual_baseline.toml").write_text(SMALL + '\n[rig.quantities.baseline_mm]\naxis = "manual"\n')
+    (root / "string_baseline.toml").write_text(SMALL.replace("baseline_mm = [100, 150]",
+                                                             'baseline_mm = ["100", "1_50"]'))
+    (root / "bool_baseline.toml").write_text(SMALL.replace("baseline_mm = [100, 150]", "baseline_mm = [true]"))
+    (root / "homing_yes.toml").write_text(SMALL.replace("time_scale = 50", 'time_scale = 50\nhoming = "yes"'))
+    (root / "sim_rig_v4l2.toml").write_text(SMALL.replace("[cameras.optics]", '[cameras]\nkind = "v4l2"\n'
+                                                          'left = "usb-port:9-8"\nright = "usb-port:9-9"\n'
+                                                          "[cameras.optics]"))
+    many = ", ".join(str(k) for k in range(1, 30_001))
+    (root / "too_many.toml").write_text(SMALL.replace("baseline_mm = [100, 150]", f"baseline_mm = [{many}]"))
+
     # Damaged sessions: a move missing, a move that does not match, a recorded config that no longer validates.
     paths["missing_move"] = str(_damage_session(small_reference, root / "missing_move",
                                                 lambda d: None if _second_move(d) else d))
@@ -140,7 +152,46 @@ def ctx(tmp_path_factory, small_reference, request) -> dict[str, str]:
         return doc
 
     paths["bad_config"] = str(_damage_session(small_reference, root / "bad_config", bad_config))
+    _confinement_cases(small_reference, root, paths)
     return paths
+
+
+ESCAPED = "../../ESCAPED"
+
+
+def _escape_config_id(value):
+    """A document with the configuration B100_Z450_A90 renamed to a path that leads out of a report."""
+    if isinstance(value, dict):
+        return {k: ESCAPED if k == "config_id" and v == "B100_Z450_A90" else _escape_config_id(v)
+                for k, v in value.items()}
+    return [_escape_config_id(v) for v in value] if isinstance(value, list) else value
+
+
+def _confinement_cases(small_reference: Path, root: Path, paths: dict[str, str]) -> None:
+    """Sessions whose ids or symlinks lead outside them, and a torn one (issue 9, 'What must exist' 2)."""
+    (root / "small.toml").write_text(SMALL)
+    paths["escaped_id"] = str(_damage_session(small_reference, root / "escaped_id", _escape_config_id))
+    outside = root / "outside"
+    outside.mkdir()
+    docs = root / "docs_symlink"
+    shutil.copytree(small_reference, docs)
+    (docs / "documents.jsonl").rename(outside / "documents.jsonl")
+    (docs / "documents.jsonl").symlink_to(outside / "documents.jsonl")
+    frames = root / "frames_symlink"
+    shutil.copytree(small_reference, frames)
+    (frames / "frames" / "B100_Z450_A90").rename(outside / "frames_B100")
+    (frames / "frames" / "B100_Z450_A90").symlink_to(outside / "frames_B100")
+    torn = root / "torn"
+    shutil.copytree(small_reference, torn)
+    lines = (torn / "documents.jsonl").read_bytes().splitlines(keepends=True)
+    (torn / "documents.jsonl").write_bytes(lines[0] + lines[1][: len(lines[1]) // 2])  # the start, then cut
+    (root / "not_empty").mkdir()
+    (root / "not_empty" / "notes.txt").write_text("mine")
+    paths["docs_symlink"], paths["frames_symlink"], paths["torn"] = str(docs), str(frames), str(torn)
+
+
+def _resume_argv(c: dict, session: str) -> list[str]:
+    return ["campaign", "run", c["root"] + "/small.toml", "--out", session, "--yes", "--quiet", "--resume"]
 
 
 def _v4l2_campaign(path: Path, port: str, left: str) -> Path:
@@ -300,6 +351,42 @@ CASES: list[tuple[str, Callable[[dict], list[str]], int, str | Callable[[dict], 
     ("replay-mismatched-move", lambda c: ["replay", c["mismatch_move"]], 2,
      "baseline_mm = 150, the recording holds 151"),
     ("replay-config-no-longer-validates", lambda c: ["replay", c["bad_config"]], 2, "frames_per_config"),
+    # --- paths confined to their roots (issue 9, "What must exist" 2) ---
+    ("report-config-id-escapes", lambda c: ["report", c["escaped_id"], "--out", c["root"] + "/esc_report/r"], 2,
+     f"config_id '{ESCAPED}' is not a valid name"),
+    ("resume-documents-symlink-outside", lambda c: _resume_argv(c, c["docs_symlink"]), 2,
+     "docs_symlink/documents.jsonl: is a symlink to"),
+    ("resume-frames-symlink-outside", lambda c: _resume_argv(c, c["frames_symlink"]), 2,
+     "frames_symlink/frames/B100_Z450_A90: is a symlink to"),
+    ("replay-out-inside-source", lambda c: ["replay", c["session"], "--out", c["session"] + "/replayed"], 2,
+     "is or lies inside the session"),
+    ("replay-out-is-source", lambda c: ["replay", c["session"], "--out", c["session"]], 2,
+     "is or lies inside the session"),
+    ("replay-out-holds-source", lambda c: ["replay", c["session"], "--out", str(Path(c["session"]).parent)], 2,
+     "holds the session"),
+    ("replay-out-exists", lambda c: ["replay", c["session"], "--out", c["root"] + "/not_empty"], 2,
+     "exists; a replay records a new session"),  # was "pass --resume", an option replay does not have
+    ("replay-torn-nothing-recorded", lambda c: ["replay", c["torn"]], 2, "nothing to replay"),
+    # --- campaign plan checks what run checks, with strict types (issue 9, second half B) ---
+    ("plan-corrupt-calibration", lambda c: ["campaign", "plan", c["root"] + "/corrupt_calib.toml"], 2,
+     "corrupt_calib/extrinsics.yml: not a readable OpenCV YAML"),
+    ("plan-manual-baseline-on-the-simulated-rig", lambda c: ["campaign", "plan", c["root"] + "/manual_baseline.toml"],
+     2, 'manual_baseline.toml: rig.quantities.baseline_mm: axis = "manual" cannot run on the simulated bench'),
+    ("run-manual-baseline-on-the-simulated-rig", lambda c: ["campaign", "run", c["root"] + "/manual_baseline.toml",
+                                                            "--out", c["root"] + "/mb", "--yes"], 2,
+     "rig.quantities.baseline_mm: axis = \"manual\""),
+    ("plan-string-as-number", lambda c: ["campaign", "plan", c["root"] + "/string_baseline.toml"], 2,
+     "string_baseline.toml: plan.baseline_mm[0]: '100' is a string, not a number"),
+    ("plan-bool-as-number", lambda c: ["campaign", "plan", c["root"] + "/bool_baseline.toml"], 2,
+     "bool_baseline.toml: plan.baseline_mm[0]: true is a boolean, not a number"),
+    ("plan-homing-yes", lambda c: ["campaign", "plan", c["root"] + "/homing_yes.toml"], 2,
+     "homing_yes.toml: rig.homing: 'yes' is a string, not true or false"),
+    ("plan-simulated-rig-with-v4l2-cameras", lambda c: ["campaign", "plan", c["root"] + "/sim_rig_v4l2.toml"], 2,
+     'sim_rig_v4l2.toml: rig.kind = "simulated" with cameras.kind = "v4l2" is not a bench'),
+    ("plan-too-many-configurations", lambda c: ["campaign", "plan", c["root"] + "/too_many.toml"], 2,
+     "too_many.toml: plan: 60,000 configurations (30,000 baselines x 1 distances x 2 angles): at most 20,000"),
+    ("run-error-after-no-progress-bar-line", lambda c: ["campaign", "run", c["root"] + "/port_missing.toml", "--out",
+                                                        c["root"] + "/pm_bar", "--yes"], 2, "/dev/ttyNOPE9"),
 ]
 
 

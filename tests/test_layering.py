@@ -17,7 +17,7 @@ PACKAGES = ("stereo_bench", "drivers")
 
 # Modules anything may import: the conventions (leaf modules) and small helpers with no dependencies.
 LEAVES = {"stereo_bench", "stereo_bench.geometry", "stereo_bench.targets", "stereo_bench.atomic",
-          "stereo_bench.executors", "stereo_bench.frames"}
+          "stereo_bench.executors", "stereo_bench.frames", "stereo_bench.paths"}
 # stereo_bench's layers, lowest first: a module may import its own layer and the ones below it.
 LAYERS = [
     ("vision", {"stereo_bench.vision"}),

@@ -92,7 +92,7 @@ class CameraSettings(BaseModel):
     do not agree on a physical scale for gain or focus.
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", strict=True)  # no "30" or true as a number
 
     pixel_format: str | None = Field(None, description="FourCC of the stream, e.g. 'MJPG' or 'YUYV'")
     width_px: int | None = Field(None, gt=0)

@@ -111,7 +111,7 @@ def alpha_from_toe_in(toe_in_deg: float) -> float:
 class QuantityMapping(BaseModel):
     """How one physical quantity is set. ``offset``/``min``/``max``/``value`` are in the quantity's units."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     axis: AxisName
     offset: float = Field(0.0, allow_inf_nan=False, description="machine units at physical value 0")
@@ -146,7 +146,7 @@ class QuantityMapping(BaseModel):
 class ControllerSettings(BaseModel):
     """Link and timing settings for the controller (seconds, bits per second, bytes)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     baudrate: int = Field(115200, gt=0)
     rx_buffer_size: int = Field(128, ge=16, description="GRBL's serial receive buffer; 1024 on most grblHAL")
@@ -180,7 +180,7 @@ class RigConfig(BaseModel):
     negative machine space.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     controller: ControllerSettings = Field(default_factory=ControllerSettings)
     quantities: dict[str, QuantityMapping] = Field(default_factory=_default_quantities)

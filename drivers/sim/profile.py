@@ -43,11 +43,13 @@ resumes draws what one that never stopped would have.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
 
-_STRICT = ConfigDict(extra="forbid", frozen=True)
+# strict: no string-to-number or bool-to-number coercion (an int is accepted for a float)
+_STRICT = ConfigDict(extra="forbid", frozen=True, strict=True)
+_Real = Annotated[float, Strict()]  # in a lax tuple (TOML gives a list): still no "1" or true as a number
 
 
 def _f(default: float, description: str, **limits) -> Any:
@@ -124,11 +126,11 @@ class CameraErrors(BaseModel):
                                              "numerator and c r^6 as the denominator of OpenCV's rational model; they "
                                              "cancel to leading order and leave terms from r^8 up", ge=-5, le=5)
     radial_high_order_right: float = _f(0.0, "the same for the right lens", ge=-5, le=5)
-    thin_prism_left: tuple[float, float, float, float] = Field(
-        (0.0, 0.0, 0.0, 0.0), description="OpenCV thin-prism coefficients s1..s4 of the left lens (not in the "
-                                          "5-coefficient model)")
-    thin_prism_right: tuple[float, float, float, float] = Field(
-        (0.0, 0.0, 0.0, 0.0), description="thin-prism coefficients s1..s4 of the right lens")
+    thin_prism_left: tuple[_Real, _Real, _Real, _Real] = Field(
+        (0.0, 0.0, 0.0, 0.0), strict=False,
+        description="OpenCV thin-prism coefficients s1..s4 of the left lens (not in the 5-coefficient model)")
+    thin_prism_right: tuple[_Real, _Real, _Real, _Real] = Field(
+        (0.0, 0.0, 0.0, 0.0), strict=False, description="thin-prism coefficients s1..s4 of the right lens")
     vibration_yaw_deg: float = _f(0.0, "amplitude of the pan-angle oscillation right after a move, deg", ge=0, le=1)
     vibration_rock_deg: float = _f(0.0, "amplitude of the head's rocking on its carriage about the rig z axis after "
                                         "a slide move (the stop pushes the camera sideways), deg", ge=0, le=1)
@@ -310,7 +312,7 @@ class SimSettings(BaseModel):
         jpeg_quality = 95
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
 
     profile: Literal["lab", "ideal"] = Field("lab", description="imperfections of the simulated bench: 'lab' (a "
                                                                 "bench as built, the default) or 'ideal'")

@@ -32,7 +32,8 @@ reports); simulated rig + v4l2 cameras is refused.
 
 Every model forbids unknown keys, so a typo is an error naming the key. Relative paths
 (``rig.config_file``, ``extrinsics.calib_dir``, ``extrinsics.kinematic_file``) are resolved against the
-campaign file's directory.
+campaign file's directory (the working directory for a config with no file) and kept absolute, never
+relative to the working directory, so a session records where they are however the command was spelled.
 Errors are :class:`ConfigError` with one line: ``FILE: dotted.field: what is wrong``.
 
 Angles: alpha is the angle between the baseline and an optical axis (90 deg = parallel rig); the pan
@@ -122,14 +123,18 @@ class ConfigError(ValueError):
     """A campaign configuration that cannot be used: one line, ``FILE: dotted.field: what is wrong``."""
 
 
-_STRICT = ConfigDict(extra="forbid")
+# strict: no string-to-number or bool-to-number coercion (TOML "100" or true is not 100 mm); an integer is still
+# accepted for a float field (TOML 100 for 100.0). Paths are lax (strict=False) so TOML strings load as paths.
+_STRICT = ConfigDict(extra="forbid", strict=True)
 
 
 def _resolve(path: Path | None, info: ValidationInfo) -> Path | None:
+    """A file a campaign names, made absolute (against the campaign file's directory, else the working directory)
+    and resolved: recorded in a session so that a resume matches however the plan or the cwd is spelled."""
     base = (info.context or {}).get("base_dir")
-    if path is None or path.is_absolute() or base is None:
+    if path is None:
         return path
-    return Path(base) / path
+    return (path if path.is_absolute() or base is None else Path(base) / path).resolve()
 
 
 # --------------------------------------------------------------------------------------------------
@@ -248,7 +253,8 @@ class RigSection(BaseModel):
 
     kind: Literal["simulated", "grbl"] = "simulated"
     port: str | None = Field(None, description="grbl: serial device or pyserial URL of the controller")
-    config_file: Path | None = Field(None, description="rig configuration TOML, relative to the campaign file")
+    config_file: Path | None = Field(None, strict=False,
+                                     description="rig configuration TOML, relative to the campaign file")
     controller: ControllerSettings | None = Field(None, description="inline rig config: controller settings")
     quantities: dict[str, QuantityMapping] | None = Field(
         None, description="inline rig config: quantity -> axis mapping (missing quantities keep the default)")
@@ -427,10 +433,12 @@ class ExtrinsicsSection(BaseModel):
 
     mode: Literal["per-config", "kinematic", "nominal", "fixed"] = "per-config"
     intrinsics: Literal["joint", "fixed"] = "joint"
-    calib_dir: Path | None = Field(None, description="calibration directory, relative to the campaign file")
+    calib_dir: Path | None = Field(None, strict=False,
+                                   description="calibration directory, relative to the campaign file")
     kinematic_file: Path | None = Field(
-        None, description="a saved kinematic rig model (TOML, stereo-bench rig calibrate-kinematics), relative to "
-                          "the campaign file: kinematic mode uses it instead of visiting a design")
+        None, strict=False,
+        description="a saved kinematic rig model (TOML, stereo-bench rig calibrate-kinematics), relative to "
+                    "the campaign file: kinematic mode uses it instead of visiting a design")
     repeatability_mm: float = Field(
         0.003, ge=0, le=1, allow_inf_nan=False,
         description="std of the slide's landing error per move, mm (kinematic model: prior of the fit and part of "
@@ -472,6 +480,12 @@ _PLAN_BOUNDS = {
 }
 
 
+#: The most configurations one campaign plans: a plan of 10,000 takes ~3 s to check (scripts/bench_plan.py) and its
+#: run days even on the simulated bench (each configuration calibrates and measures); beyond this is a typo
+#: (a step of 0.001 instead of 1) or several campaigns' work.
+MAX_PLAN_CONFIGURATIONS = 20_000
+
+
 class PlanSection(BaseModel):
     """The grid of configurations: every combination of baseline, distance and angle.
 
@@ -499,8 +513,9 @@ class PlanSection(BaseModel):
         for value in values:
             if not (math.isfinite(value) and low < value < high):
                 raise ValueError(f"value {value:g} outside ({low:g}, {high:g})")
-        duplicates = sorted({v for v in values if values.count(v) > 1})
-        if duplicates:
+        if len(set(values)) != len(values):  # linear: a 10,000-value list is checked in milliseconds
+            seen: set[float] = set()
+            duplicates = sorted({v for v in values if v in seen or seen.add(v)})
             raise ValueError(f"lists {duplicates[0]:g} more than once")
         return values
 
@@ -510,6 +525,12 @@ class PlanSection(BaseModel):
             raise ValueError("give alpha_deg or toe_in_deg, not both")
         if self.alpha_deg is None and self.toe_in_deg is None:
             self.alpha_deg = [90.0]
+        angles = self.alpha_deg if self.toe_in_deg is None else self.toe_in_deg
+        counts = (len(self.baseline_mm), len(self.distance_mm), len(angles or ()))
+        if math.prod(counts) > MAX_PLAN_CONFIGURATIONS:
+            raise ValueError(f"{math.prod(counts):,} configurations ({counts[0]:,} baselines x {counts[1]:,} distances "
+                             f"x {counts[2]:,} angles): at most {MAX_PLAN_CONFIGURATIONS:,} per campaign; split the "
+                             "grid into several campaigns")
         return self
 
     def angles_deg(self) -> list[tuple[float, float]]:
@@ -590,6 +611,41 @@ def _section_model(loc: tuple) -> type[BaseModel] | None:
     return model
 
 
+_EXPECTED = {"float_type": "a number", "int_type": "a whole number", "bool_type": "true or false",
+             "string_type": "a string"}
+
+
+def strict_type_message(error: Mapping[str, Any]) -> str | None:
+    """What a strict-type refusal says to a user: the value as written and what it must be (None: not one).
+
+    E.g. ``"100" is a string, not a number: write 100 without quotes`` or ``true is a boolean, not a number``.
+    """
+    expected = _EXPECTED.get(str(error.get("type")))
+    if expected is None:
+        return None
+    value = error.get("input")
+    if isinstance(value, bool):
+        return f"{str(value).lower()} is a boolean, not {expected}"
+    if isinstance(value, str):
+        hint = ""
+        if expected != "true or false" and value.strip():
+            hint = f": write {value.strip()} without quotes" if _is_number(value) else ""
+        elif expected == "true or false" and value.strip().lower() in ("true", "false"):
+            hint = f": write {value.strip().lower()} without quotes"
+        return f"{value!r} is a string, not {expected}{hint}"
+    if isinstance(value, float) and expected == "a whole number":
+        return f"{value!r} is not {expected}"
+    return None
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _one_line(error: ValidationError, source: str) -> ConfigError:
     first = error.errors()[0]
     loc = tuple(first.get("loc", ()))
@@ -600,6 +656,8 @@ def _one_line(error: ValidationError, source: str) -> ConfigError:
         message = f"unknown key{known}"
     elif first.get("type") == "missing":
         message = "missing (required)"
+    elif (coerced := strict_type_message(first)) is not None:
+        message = coerced
     where = _dotted(loc)
     more = f" (and {error.error_count() - 1} more)" if error.error_count() > 1 else ""
     # A cross-section check names its field at the start of its message.

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import math
 import platform
+import shutil
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -22,7 +23,7 @@ import cv2
 import numpy as np
 from pydantic import ValidationError
 
-from stereo_bench import __version__
+from stereo_bench import __version__, atomic, paths
 from stereo_bench.campaign.bench import Bench, open_bench, replay_bench
 from stereo_bench.campaign.config import CampaignConfig, recorded_campaign
 from stereo_bench.campaign.documents import (
@@ -32,11 +33,12 @@ from stereo_bench.campaign.documents import (
     CalibrationFiles,
     ControllerEvent,
     Draft,
+    EventDocument,
     ResultDocument,
     StartDocument,
     StopDocument,
 )
-from stereo_bench.campaign.extrinsics_run import session_sources
+from stereo_bench.campaign.extrinsics_run import RIG_CONFIG_FILE, RIG_CONFIG_KIND, session_sources
 from stereo_bench.campaign.operator import Operator, OperatorAbsent, SimulatedOperator, TerminalOperator
 from stereo_bench.campaign.plan import PREPARE_ID, Configuration, Step, Visit, expand_plan, plan_steps, plan_visits
 from stereo_bench.campaign.runner import CampaignRunner, RunnerOptions, group_steps
@@ -163,6 +165,26 @@ class RunSummary:
         return counts
 
 
+def _recorded_rig_config(reader: SessionReader) -> Path | None:
+    """The recording's copy of ``[rig] config_file`` (a 'rig_config' event), if it holds one."""
+    for event in reversed(reader.events(kind=RIG_CONFIG_KIND, attempt=None)):
+        relative = (event.get("files") or {}).get(RIG_CONFIG_FILE)
+        if relative:
+            return reader.path(relative)
+    return None
+
+
+def _recorded_intrinsics(reader: SessionReader) -> Path | None:
+    """The recording's copy of ``calib_dir``'s intrinsics.yml (an 'intrinsics' event), if it holds one."""
+    from stereo_bench.vision.calibio import INTRINSICS_FILE
+
+    for event in reversed(reader.events(kind="intrinsics", attempt=None)):
+        relative = (event.get("files") or {}).get(INTRINSICS_FILE)
+        if relative:
+            return reader.path(relative)
+    return None
+
+
 def runner_options(config: CampaignConfig, *, reader: SessionReader | None = None,
                    visits: Sequence[Visit] = ()) -> RunnerOptions:
     """The runner's options from the config; ``reader``: a replay takes a fixed calibration, a model file's copy
@@ -195,8 +217,12 @@ def runner_options(config: CampaignConfig, *, reader: SessionReader | None = Non
             else:
                 options.fixed_calibration = read_calibration(extrinsics.calib_dir, image_size=image_size)
         elif extrinsics.calib_dir is not None:
-            options.intrinsics = read_intrinsics(extrinsics.calib_dir)[:4]
-            options.intrinsics_covariance = read_intrinsics_covariance(extrinsics.calib_dir)
+            # a replay reads the recording's copy of calib_dir's intrinsics (sessions recorded before the copy
+            # was made for every mode: calib_dir itself)
+            source = _recorded_intrinsics(reader) if reader is not None else None
+            source = source or extrinsics.calib_dir
+            options.intrinsics = read_intrinsics(source)[:4]
+            options.intrinsics_covariance = read_intrinsics_covariance(source)
             if extrinsics.mode == "nominal" and reader is None:
                 options.nominal_intrinsics = intrinsics_from_dir(extrinsics.calib_dir, image_size)
     except CalibrationFileError as error:
@@ -251,6 +277,9 @@ def run_campaign(
     a live page's previews); ``control`` stops or pauses the run from outside.
     ``bench_factory(config, operators=..., transcript=...)`` opens the bench (default: the config's).
     """
+    from stereo_bench.campaign.preflight import check_campaign
+
+    check_campaign(config)  # what `campaign plan` checks: before the session is written or anything moves
     control = control or RunControl()
     operators = list(operators) if operators is not None else default_operators(config, yes=yes)
     summary = RunSummary(session=Path(out_dir), exit_status="failed")
@@ -336,6 +365,44 @@ class ReplaySummary:
     # Measured configurations the session kept too little of to replay ([capture] keep_frames), with why.
     not_reproducible: dict[str, str] = field(default_factory=dict)
     from_detections: list[str] = field(default_factory=list)  # calibrated from recorded detections, not frames
+    warnings: list[str] = field(default_factory=list)  # what of the recording was not replayed (a torn stream)
+
+
+def check_replay_out(session_dir: str | Path, out_dir: str | Path) -> Path:
+    """Refuse a replay's --out that is, holds or lies inside the session replayed, or that is anything but a
+    new (or empty) directory; before anything is read or written."""
+    out, source = Path(out_dir), Path(session_dir)
+    resolved_out, resolved_source = out.resolve(), source.resolve()
+    if paths.is_inside(resolved_source, resolved_out):
+        raise SessionError(f"--out {out}: is or lies inside the session {source} being replayed: a recording is never "
+                           "written to; choose a directory outside it")
+    if paths.is_inside(resolved_out, resolved_source):
+        raise SessionError(f"--out {out}: holds the session {source} being replayed; choose another directory")
+    if out.is_symlink() or (out.exists() and (not out.is_dir() or any(out.iterdir()))):
+        raise SessionError(f"--out {out}: exists; a replay records a new session: choose a new directory")
+    return out
+
+
+@contextlib.contextmanager
+def _replay_out(session_dir: str | Path, out_dir: str | Path | None):
+    """Where a replay records: a temporary directory beside --out, renamed to --out only when the replay ran to
+    its end; a replay that fails (a recording that cannot be replayed, Ctrl-C) leaves no --out behind that
+    would look like a good session (its temporary directory is removed: the source recording holds it all)."""
+    if out_dir is None:
+        yield None
+        return
+    out = check_replay_out(session_dir, out_dir)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    work = atomic.make_temp_dir(out.parent, prefix=f".{out.name}.")
+    try:
+        yield work
+        if out.is_dir():  # an empty --out given (checked above): a directory renames over an empty one
+            out.rmdir()
+        work.rename(out)
+        atomic.fsync_dir(out.parent)
+    finally:
+        if work.exists():
+            shutil.rmtree(work, ignore_errors=True)
 
 
 def reproducibility(reader: SessionReader, config_ids: Iterable[str]) -> tuple[dict[str, str], list[str]]:
@@ -380,9 +447,14 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     in ``from_detections``); one whose measurement frames were not kept cannot be replayed (listed in
     ``not_reproducible`` with the reason; a new session under ``out_dir`` leaves it out).
     """
+    if out_dir is not None:
+        check_replay_out(session_dir, out_dir)
     reader = SessionReader(session_dir)
     start = reader.start()
     recorded_config = dict(start["config"])
+    rig_copy = _recorded_rig_config(reader)
+    if rig_copy is not None and isinstance(recorded_config.get("rig"), dict):  # the copy, not where the file was
+        recorded_config["rig"] = {**recorded_config["rig"], "config_file": str(rig_copy)}
     for section, values in (pipeline or {}).items():
         recorded_config[section] = {**recorded_config.get(section, {}), **values}
     try:
@@ -408,9 +480,15 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     if visited:
         visited.add(PREPARE_ID)
     steps = [s for cid, group in group_steps(campaign.steps) if cid in measured | visited for s in group]
+    if not all_measured and not visited:  # "0 of 0 reproduced" would pass a recording holding nothing to check
+        torn = f"; {reader.warnings[0]}" if reader.torn is not None else ""
+        raise SessionError(f"{reader.documents_path}: nothing to replay: no measured configuration is recorded "
+                           f"({len(recorded_rows)} result(s), none measured){torn}")
 
-    recorder = SessionWriter(out_dir) if out_dir is not None else contextlib.nullcontext(MemoryRecorder())
-    with recorder as writer:
+    with contextlib.ExitStack() as stack:
+        work = stack.enter_context(_replay_out(session_dir, out_dir))
+        writer = stack.enter_context(SessionWriter(work) if work is not None
+                                     else contextlib.nullcontext(MemoryRecorder()))
         bus = DocumentBus(writer)
         collector = Collector()
         bus.subscribe(collector)
@@ -462,7 +540,17 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
                          rows=list(new_rows.values()), carried_over=len(recorded_rows) - len(all_measured),
                          out=None if out_dir is None else Path(out_dir),
                          measured=sum(new_rows.get(cid, {}).get("status") == "measured" for cid in measured),
-                         plan_drift=drift, not_reproducible=not_reproducible, from_detections=from_detections)
+                         plan_drift=drift, not_reproducible=not_reproducible, from_detections=from_detections,
+                         warnings=_partial_recording(reader))
+
+
+def _partial_recording(reader: SessionReader) -> list[str]:
+    """What a replay of an interrupted or torn recording leaves out: only its completed configurations replay."""
+    notes = list(reader.warnings)
+    if reader.status() == "incomplete":
+        notes.append(f"{reader.documents_path}: the recording has no 'stop' document (interrupted): only its "
+                     "completed configurations were replayed")
+    return notes
 
 
 def _model_differences(reader: SessionReader, model) -> list[str]:
@@ -483,16 +571,19 @@ def _model_differences(reader: SessionReader, model) -> list[str]:
 
 
 def _recorded_session_sources(reader: SessionReader) -> list[Draft]:
-    """A model file's and calib_dir's copies in the recording, recorded again into a replay's new session."""
+    """A model file's, calib_dir's and the rig config file's copies in the recording, recorded again into a
+    replay's new session."""
     from stereo_bench.campaign.documents import IntrinsicsEvent, KinematicModelEvent
 
     drafts = []
-    for kind, model in (("kinematic_model", KinematicModelEvent), ("intrinsics", IntrinsicsEvent)):
+    for kind, model in (("kinematic_model", KinematicModelEvent), ("intrinsics", IntrinsicsEvent),
+                        (RIG_CONFIG_KIND, EventDocument)):
         for event in reader.events(kind=kind, attempt=None):
             if kind == "kinematic_model" and event["data"].get("source") != "file":
                 continue
             files = {name: reader.read_bytes(relative) for name, relative in (event.get("files") or {}).items()}
-            drafts.append(Draft(model, config_id=None, data=event["data"], files=files))
+            drafts.append(Draft(model, config_id=None, data=event["data"], files=files,
+                                **({"kind": kind} if model is EventDocument else {})))
     return drafts
 
 
@@ -523,4 +614,5 @@ def replay_job(job: tuple[str, str | None, dict]) -> dict:
     return {"session": session, "out": out, "compared": summary.compared, "identical": summary.identical,
             "measured": summary.measured, "differences": summary.differences,
             "carried_over": summary.carried_over, "pipeline": pipeline, "plan_drift": summary.plan_drift,
-            "not_reproducible": summary.not_reproducible, "from_detections": summary.from_detections}
+            "not_reproducible": summary.not_reproducible, "from_detections": summary.from_detections,
+            "warnings": summary.warnings}

@@ -37,6 +37,7 @@ from stereo_bench.campaign.documents import (
     Draft,
     IntrinsicsEvent,
     KinematicModelEvent,
+    event_draft,
 )
 from stereo_bench.campaign.sources import (
     Source,
@@ -187,16 +188,25 @@ def compare_sources(options, prepared: Prepared, configuration, captured, analys
 # Before the run, and from a recording
 
 
+RIG_CONFIG_KIND, RIG_CONFIG_FILE = "rig_config", "rig.toml"  # the copy of [rig] config_file in a session
+
+
 def session_sources(config) -> list[Draft]:
-    """Documents recording the sources a run starts with from outside the session (a model file, the intrinsics
-    of ``calib_dir`` for nominal), so a replay reads them from inside it."""
+    """Documents recording the sources a run starts with from outside the session (a model file, the rig's
+    ``config_file`` (a plain ``rig_config`` event with the file's copy), the intrinsics
+    of ``calib_dir`` in every mode that reads them: nominal, and ``intrinsics = "fixed"``), so a replay reads them
+    from inside it and replays after ``calib_dir`` has moved. (``fixed`` mode records its whole calibration.)"""
     extrinsics = config.extrinsics
     drafts = []
     if extrinsics.kinematic_file is not None:
         path = Path(extrinsics.kinematic_file)
         drafts.append(Draft(KinematicModelEvent, config_id=None, data={"source": "file", "path": str(path)},
                             files={MODEL_FILE: path.read_bytes()}))
-    if extrinsics.mode == "nominal" and extrinsics.calib_dir is not None:
+    if config.rig.config_file is not None:  # the rig's axis mapping and limits: a replay needs them too
+        path = Path(config.rig.config_file)
+        drafts.append(event_draft(RIG_CONFIG_KIND, config_id=None, data={"path": str(path)},
+                                  files={RIG_CONFIG_FILE: path.read_bytes()}))
+    if extrinsics.mode != "fixed" and extrinsics.calib_dir is not None:
         path = Path(extrinsics.calib_dir)
         drafts.append(Draft(IntrinsicsEvent, config_id=None, data={"source": "calib_dir", "path": str(path)},
                             files={INTRINSICS_FILE: (path / INTRINSICS_FILE).read_bytes()}))

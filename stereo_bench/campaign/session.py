@@ -41,7 +41,6 @@ import os
 import re
 import shutil
 import socket
-import tempfile
 import threading
 import time
 import uuid
@@ -53,7 +52,7 @@ from typing import Any
 
 import numpy as np
 
-from stereo_bench import atomic
+from stereo_bench import atomic, paths
 from stereo_bench.campaign.documents import (
     DOCUMENT_TYPES,
     EXIT_STATUSES,
@@ -94,7 +93,6 @@ DOCUMENTS_FILE = "documents.jsonl"
 RECOVERED_DIR = "recovered"
 SESSION_LEVEL = "_session"  # the directory of side files of events that belong to no configuration
 
-_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
 _ATTEMPT_DIR = re.compile(r"a(\d+)(?:-\d+)?")
 _ATTEMPT_IN_NAME = re.compile(r"-a(\d+)(?:\.|$)")
 
@@ -109,10 +107,11 @@ def utc_now() -> str:
 
 
 def _check_name(value: object, what: str) -> str:
-    """A config id, frame name or transcript name is one safe path component."""
-    if not isinstance(value, str) or not _NAME.fullmatch(value) or value in (".", ".."):
-        raise SessionError(f"{what} {value!r} is not a valid name (letters, digits, '.', '_', '+', '-')")
-    return value
+    """A config id, frame name or transcript name is one safe path component (:func:`stereo_bench.paths.check_name`)."""
+    try:
+        return paths.check_name(value, what)
+    except paths.UnsafeName as error:
+        raise SessionError(str(error)) from None
 
 
 def encode_document(doc: Mapping[str, Any] | Document) -> bytes:
@@ -219,11 +218,24 @@ def _check_documents(path: Path, documents: list[dict]) -> list[Document]:
             raise SessionError(f"{path} line {line}: {kind} document has no integer 'attempt'")
         if kind == "result" and (not isinstance(doc.get("row"), dict) or not isinstance(doc.get("config_id"), str)):
             raise SessionError(f"{path} line {line}: result document needs 'config_id' and a 'row' object")
+        _check_ids(path, doc)
         try:
             typed.append(parse_document(_strip(doc)))
         except DocumentError as error:
             raise SessionError(f"{path} line {line}: {error}") from None
     return typed
+
+
+def _check_ids(path: Path, doc: dict) -> None:
+    """The configuration ids a document carries (its own, its plan's) follow the one name rule: a reader builds
+    file names from them (a report's images), so an id such as ``../x`` makes the session corrupt."""
+    ids = [doc.get("config_id")] if doc.get("config_id") is not None else []
+    if doc["type"] == "start" and isinstance(doc.get("plan"), list):
+        ids += [entry.get("config_id") for entry in doc["plan"] if isinstance(entry, dict) and "config_id" in entry]
+    for value in ids:
+        if not paths.is_safe_name(value):
+            raise SessionError(f"corrupt session {path} line {doc['_line']}: config_id {value!r} is not a valid name "
+                               f"({paths.NAME_RULE})")
 
 
 def _completed(documents: Iterable[dict]) -> set[str]:
@@ -262,6 +274,10 @@ class SessionReader:
             raise SessionError(f"{self.directory}: session directory not found")
         if not self.documents_path.is_file():
             raise SessionError(f"{self.directory}: not a session (no {DOCUMENTS_FILE})")
+        try:
+            paths.confined(self.directory, DOCUMENTS_FILE)
+        except paths.OutsideRoot as error:
+            raise SessionError(f"{self.documents_path}: refused: {error}") from None
         parsed = parse_stream(self.documents_path)
         self._documents = parsed.documents
         self._typed = parsed.typed
@@ -382,7 +398,7 @@ class SessionReader:
             raise refuse("'..' leads outside the session directory")
         root = self.directory.resolve()
         target = (root / pure).resolve()
-        if target != root and root not in target.parents:
+        if not paths.is_inside(root, target):
             raise refuse(f"resolves to {target}, outside the session directory (a symlink?)")
         return target
 
@@ -413,8 +429,12 @@ class SessionReader:
         if not isinstance(relative, str):
             raise SessionError(f"{self.documents_path} line {events[-1]['_line']}: calibration event lists no "
                                "'intrinsics' file")
+        directory = PurePosixPath(relative).parent
+        # read_calibration opens both files of the directory: each is checked, not only the one the event names
+        for name in (calibio.INTRINSICS_FILE, calibio.EXTRINSICS_FILE):
+            self.path(str(directory / name))
         try:
-            return calibio.read_calibration(self.path(relative).parent)
+            return calibio.read_calibration(self.path(str(directory)))
         except calibio.CalibrationFileError as error:
             raise SessionError(str(error)) from None
 
@@ -543,7 +563,7 @@ class SessionWriter:
         self._mkdir(root)
         try:
             self._fd = os.open(self.documents_path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC,
-                               0o644)
+                               0o666)  # the user's umask decides who may read the session
         except FileExistsError:
             raise SessionError(f"{root} exists: pass --resume or choose another --out") from None
         self._lock(self._fd)
@@ -557,7 +577,13 @@ class SessionWriter:
             raise SessionError(f"{root}: no such session directory: nothing to resume")
         if not self.documents_path.is_file():
             raise SessionError(f"{root}: not a session (no {DOCUMENTS_FILE}): refusing to resume into it")
-        self._fd = os.open(self.documents_path, os.O_RDWR | os.O_APPEND | os.O_CLOEXEC)
+        # A resume appends to the stream and writes under frames/, files/, calib/, ...: a symlink anywhere in the
+        # session that leads outside would take those writes (or the repairs) out of it. Refused before anything.
+        leaving = paths.symlinks_leaving(root)
+        if leaving:
+            raise SessionError(f"{leaving[0]}: is a symlink to {leaving[0].resolve()}, outside the session "
+                               f"{root}: refusing to resume (nothing was written)")
+        self._fd = os.open(self.documents_path, os.O_RDWR | os.O_APPEND | os.O_CLOEXEC | os.O_NOFOLLOW)
         self._lock(self._fd)
         parsed = parse_stream(self.documents_path)
         docs = parsed.documents
@@ -793,6 +819,9 @@ class SessionWriter:
         host = {"hostname": socket.gethostname(), "pid": os.getpid()}
         software, extra = fields.pop("software"), fields.pop("extra", None) or {}
         plan_drift = fields.pop("plan_drift", None)
+        for entry in plan if isinstance(plan, list) else []:
+            if isinstance(entry, dict) and "config_id" in entry:
+                _check_name(entry["config_id"], "plan config_id")
         recorded = self._recorded_start
         if recorded is None:
             document = Draft(StartDocument, config=config, plan=plan, software=software, extra=extra,
@@ -840,6 +869,8 @@ class SessionWriter:
         for name in list(frames) + list(files):
             _check_name(name, "side file name")
         config_id = draft.fields.get("config_id")
+        if config_id is not None:  # the reader refuses a session carrying a bad id: never record one
+            _check_name(config_id, "config_id")
         seq = self._next_seq
         frame_paths, file_paths = {}, {}
         if frames:
@@ -903,7 +934,7 @@ class SessionWriter:
         document = draft.build(self._header("event", seq), kind="calibration", data=data, files=files)
         self._reserve_seq()
         self._mkdir(parent)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=atomic.TEMP_SUFFIX, dir=parent))
+        tmp = atomic.make_temp_dir(parent, prefix=f".{name}.")
         try:
             calibio.write_calibration(tmp, calib, rect, board=files_in.board, extra=files_in.extra)
             atomic.fsync_dir(tmp)

@@ -10,9 +10,11 @@ loss rolls an unfinished transaction back on the next open and never corrupts th
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
+import os
 import sqlite3
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -92,6 +94,13 @@ class ResultStore:
     def open(self) -> ResultStore:
         if self._db is not None:
             return self
+        try:
+            # SQLite creates a new database 0644 whatever the umask: made first here with the user's mode (0666 less
+            # the umask, like every other file of a session); SQLite takes an empty file as a new database.
+            with contextlib.suppress(FileExistsError):
+                os.close(os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666))
+        except OSError as error:
+            raise StoreError(f"{self.path}: cannot create the results store ({error.strerror})") from None
         try:
             # The session writer may be driven from a recorder thread; it serialises all access itself.
             db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)  # autocommit; explicit BEGIN

@@ -25,7 +25,8 @@ EXIT_INTERRUPTED = 130
 def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: float | None = None,
                      sim: str | None = None):
     """The campaign config named by a file or a preset (exactly one), ``time_scale`` and the ``sim`` profile
-    applied; errors -> CliError.
+    applied, and checked as ``run`` checks it before moving (:func:`stereo_bench.campaign.preflight.check_campaign`);
+    errors -> CliError or ConfigError (one line, exit status 2).
 
     The one way the CLI loads a campaign (``campaign plan`` and ``campaign run``).
     """
@@ -47,6 +48,10 @@ def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: 
         if config.cameras.kind != "simulated":
             raise CliError("--sim applies to simulated cameras only (the simulated bench or bring-up)")
         config = _override(config, "sim", "profile", sim, "--sim")
+    from stereo_bench.campaign.preflight import check_campaign
+
+    # What run checks before moving, checked for plan too (run_campaign checks again for callers of the API).
+    check_campaign(config, source=f"preset {preset}" if preset is not None else str(plan_file))
     return config
 
 
@@ -91,7 +96,10 @@ class Progress:
 
         self._tqdm = tqdm
         self.quiet = quiet
-        self.bar = tqdm(total=total, unit="config", disable=quiet, dynamic_ncols=True, desc=name, file=sys.stderr)
+        # No bar where stderr is not a terminal (a log, a pipe, a test): its redrawn lines would be text there. The
+        # per-configuration lines are written either way (unless quiet).
+        self.bar = tqdm(total=total, unit="config", disable=quiet or not _is_terminal(sys.stderr), dynamic_ncols=True,
+                        desc=name, file=sys.stderr)
 
     def __call__(self, document) -> None:
         from stereo_bench.campaign.documents import MoveEvent, PromptEvent, ResultDocument, ResumeDocument
@@ -111,8 +119,18 @@ class Progress:
     def write(self, text: str) -> None:
         self._tqdm.write(text, file=sys.stderr)
 
-    def close(self) -> None:
+    def close(self, *, clear: bool = False) -> None:
+        """End the bar; ``clear``: erase it (a failure's one-line error follows, clean, as the last line)."""
+        if clear:
+            self.bar.leave = False
         self.bar.close()
+
+
+def _is_terminal(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):  # a closed or replaced stream
+        return False
 
 
 def start_live_page(page, *, write=None):
@@ -213,12 +231,14 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     started = time.monotonic()
+    ended = False  # True once the summary is printed; otherwise an error line follows and the bar is erased
     try:
         summary = run_campaign(config, out, resume=args.resume, yes=args.yes, subscribers=subscribers,
                                control=control, plan=plan, resume_command=resume_command, operators=operators,
                                frame_subscribers=frame_subscribers)
         signals["finished"] = True
         progress.close()
+        ended = True
         return _summarise(args, summary, out, resume_command, time.monotonic() - started)
     except (SessionError, OperatorAbsent) as error:
         raise CliError(str(error)) from None
@@ -233,7 +253,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-        progress.close()
+        progress.close(clear=not ended)
         if page is not None:
             if page.previews.watched:
                 time.sleep(0.5)  # let the browsers get the final state before the page goes away
@@ -246,18 +266,25 @@ def _summarise(args: argparse.Namespace, summary, out: Path, resume_command: str
     report = sys.stderr if args.json else sys.stdout  # --json: stdout holds only the documents
     if summary.plan_drift:
         print(f"note: the recorded plan runs; {summary.plan_drift}", file=report)
-    print(f"campaign {summary.exit_status} in {elapsed:.0f} s: {parts or 'nothing run'}"
-          + (f" ({summary.skipped} already complete)" if summary.skipped else ""), file=report)
+    # The word and the exit status agree (docs/EXIT_STATUS.md): success 0, interrupted 130, failed 1, and a run
+    # that measured nothing (every configuration infeasible, outside the limits or failed) is failed, not success.
+    status, code, why = summary.exit_status, 0, ""
+    if status == "interrupted":
+        code = EXIT_INTERRUPTED
+    elif status != "success":
+        code = 1
+    elif counts and not counts.get("measured", 0):
+        status, code, why = "failed", 1, " (nothing was measured)"
+    print(f"campaign {status} in {elapsed:.0f} s: {parts or 'nothing run'}"
+          + (f" ({summary.skipped} already complete)" if summary.skipped else "") + why, file=report)
     print(f"session:  {out}/  (documents.jsonl, frames/, calib/, results.sqlite)", file=report)
     print(f"results:  {out / 'results.csv'}", file=report)
     print(f"report:   stereo-bench report {out}", file=report)
-    if summary.exit_status == "interrupted":
+    if code == EXIT_INTERRUPTED:
         print(f"resume:   {resume_command}", file=report)
-        return EXIT_INTERRUPTED
-    if counts and not counts.get("measured", 0):
-        print("nothing was measured: exit status 1", file=report)  # a 'success' with nothing to show
-        return 1
-    return 0
+    elif code:
+        print(f"exit status {code}: {why.strip(' ()') or 'the campaign ' + status}", file=report)
+    return code
 
 
 def register_run(subparsers) -> None:

@@ -56,6 +56,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
                 print(f"  cannot reproduce, {reason}: {_listing(config_ids, len(report['not_reproducible']))}")
             if report.get("plan_drift"):
                 print(f"  note: the recorded plan was replayed; {report['plan_drift']}")
+            for warning in report.get("warnings", []):
+                print(f"  note: {warning}")
             for line in report["differences"]:
                 print(f"  differs: {line}")
             if report["out"]:

@@ -30,20 +30,21 @@ it is a report (it holds ``report.json`` written by this module); recorded data 
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
+import fcntl
 import json
 import math
 import os
 import shutil
-import tempfile
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from stereo_bench import __version__, atomic
+from stereo_bench import __version__, atomic, paths
 from stereo_bench.campaign.documents import REPORT_COLUMNS
 from stereo_bench.campaign.session import DOCUMENTS_FILE, SessionError
 from stereo_bench.report import annotate, figures, html
@@ -140,28 +141,60 @@ def _is_report(directory: Path) -> bool:
     return isinstance(manifest, dict) and manifest.get("kind") == REPORT_KIND
 
 
-def _replace_dir(tmp: Path, out: Path) -> None:
-    """Rename ``tmp`` to ``out``; a previous report at ``out`` is moved aside first, then removed."""
-    old = None
-    if out.exists():
-        old = out.parent / f".{out.name}.old-{uuid.uuid4().hex[:8]}{atomic.TEMP_SUFFIX}"
-        os.rename(out, old)
+@contextlib.contextmanager
+def _locked(directory: Path, *, wait: bool = True) -> Iterator[bool]:
+    """An exclusive ``flock`` on a directory while the block runs; yields False if ``wait=False`` and it is held.
+
+    Runs of ``report`` to one --out take the lock of their own temporary directory for their whole life (so
+    another run never removes it as stale) and the lock of the parent directory for the swap into place (so
+    two swaps never interleave: the last run's report wins, whole).
+    """
+    fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | os.O_CLOEXEC)
     try:
-        os.rename(tmp, out)
-    except BaseException:
-        if old is not None:
-            os.rename(old, out)
-        raise
-    atomic.fsync_dir(out.parent)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            yield False
+            return
+        yield True
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _replace_dir(tmp: Path, out: Path) -> None:
+    """Rename ``tmp`` to ``out``; a previous report at ``out`` is moved aside first, then removed.
+
+    The swap holds the parent directory's lock: a concurrent run swapping into the same ``out`` waits.
+    """
+    old = None
+    with _locked(out.parent):
+        if out.is_symlink() or (out.exists() and not _is_report(out) and any(out.iterdir())):
+            raise ReportError(f"{out}: appeared while the report was written and is not a stereo-bench report: "
+                              "refusing to replace it")
+        if out.exists():
+            old = out.parent / f".{out.name}.old-{uuid.uuid4().hex[:8]}{atomic.TEMP_SUFFIX}"
+            os.rename(out, old)
+        try:
+            os.rename(tmp, out)
+        except BaseException:
+            if old is not None:
+                os.rename(old, out)
+            raise
+        atomic.fsync_dir(out.parent)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
 
 
 def _remove_stale_temps(parent: Path, name: str) -> None:
-    """Temporary report directories a crashed run left beside ``name`` (never referenced by anything)."""
+    """Temporary report directories a crashed run left beside ``name`` (never referenced by anything).
+
+    One that a running report holds locked is another run's work in progress: left alone.
+    """
     for path in parent.glob(f".{name}.*{atomic.TEMP_SUFFIX}"):
         if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path, ignore_errors=True)
+            with contextlib.suppress(OSError), _locked(path, wait=False) as free:
+                if free:
+                    shutil.rmtree(path, ignore_errors=True)
 
 
 # -- content -------------------------------------------------------------------------------------------
@@ -173,7 +206,10 @@ class _Writer:
         self.files: list[str] = []
 
     def write(self, relative: str, data: bytes | str) -> str:
-        path = self.root / relative
+        try:  # names come from sessions (config ids, session keys): none may lead out of the report
+            path = paths.confined(self.root, relative)
+        except paths.OutsideRoot as error:
+            raise ReportError(f"report file {relative!r} refused: {error}") from None
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
         self.files.append(relative)
@@ -617,9 +653,15 @@ def build_report(
     try:
         parent.mkdir(parents=True, exist_ok=True)
         _remove_stale_temps(parent, destination.name)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{destination.name}.", suffix=atomic.TEMP_SUFFIX, dir=parent))
+        tmp = atomic.make_temp_dir(parent, prefix=f".{destination.name}.")
     except OSError as error:
         raise ReportError(f"{parent}: cannot write the report ({error.strerror})") from None
+    with _locked(tmp):  # ours until renamed: a concurrent run's clean-up leaves it alone
+        return _build_into(tmp, destination, sessions, warnings, images=images, progress=progress)
+
+
+def _build_into(tmp: Path, destination: Path, sessions: list[SessionReport], warnings: list[str], *, images: bool,
+                progress: Callable[[str], None] | None) -> ReportSummary:
     try:
         writer = _Writer(tmp)
         pages = []
@@ -639,7 +681,6 @@ def build_report(
             "files": sorted(writer.files), "warnings": warnings,
         }
         writer.write(MANIFEST, json.dumps(manifest, indent=1, ensure_ascii=False) + "\n")
-        os.chmod(tmp, 0o755)  # mkdtemp makes it 0700
         _replace_dir(tmp, destination)
     except OSError as error:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -34,6 +34,16 @@ from stereo_bench.targets import CharucoTarget, Checkerboard, Target
 DEFAULT_SEARCH_WIDTH_PX = 640
 THOROUGH_SEARCH_WIDTH_PX = 960
 SUBPIX_WINDOW_FRACTION = 0.4
+# The smallest squares the detectors find (what `campaign plan` predicts feasibility with, and `run` skips below).
+# Measured on rendered views (drivers/sim/render, 2 DN noise, 0.7 px blur, 4 seeds, fronto-parallel): the
+# classic detector finds 9x6 and 5x4 checkerboards (27 and 40 mm squares) whose squares measure >= 13.3 px in the
+# search image and none at <= 12.6 px, at the same search-image size for 640-, 960- and 1920-px-wide frames;
+# the partial-capable search (SB at 960 px) found every corner down to 13.8 px there (not measured below).
+# ChArUco (DICT_5X5, marker 0.75 of the square, full resolution; identified corner by corner, so a view is usable
+# with part of them): 40 of 40 corners at 24 px squares (18 px markers), 30-38 at 22.5 px (16.9 px markers), 16-24
+# at 21.2 px, none at <= 20 px. The limit keeps most of the board: markers of 17 px.
+MIN_SEARCH_SQUARE_PX = 13.0
+MIN_CHARUCO_MARKER_PX = 17.0
 CHARUCO_HALF_WINDOW = 3  # CharucoDetector refines with a 3 px half-window by default
 # cornerSubPix's corner scatter relative to the structure-tensor (Foerstner) bound, measured on
 # rendered views (scripts/bench_corner_noise.py): median 2.04, range 1.83-2.41 over Z 300-700 mm,
@@ -95,6 +105,17 @@ def detect(
     if isinstance(target, CharucoTarget):
         return detect_charuco(image, target)
     raise TypeError(f"unsupported target {target!r}")
+
+
+def min_detectable_square_px(target: Target, image_size: tuple[int, int], *, partial: bool = False) -> float:
+    """The smallest side (px, full resolution) of the target's squares :func:`detect` finds in a
+    ``image_size`` (width, height) frame; ``partial`` as :func:`detect` takes it. Measured limits
+    (:data:`MIN_SEARCH_SQUARE_PX`, :data:`MIN_CHARUCO_MARKER_PX`), not a margin of safety."""
+    if isinstance(target, CharucoTarget):
+        return MIN_CHARUCO_MARKER_PX * target.square_mm / target.marker_mm
+    width = max(DEFAULT_SEARCH_WIDTH_PX, THOROUGH_SEARCH_WIDTH_PX) if partial else DEFAULT_SEARCH_WIDTH_PX
+    scale = min(1.0, width / max(image_size))
+    return MIN_SEARCH_SQUARE_PX / scale
 
 
 def _search_image(gray: np.ndarray, search_width_px: int) -> tuple[np.ndarray, float]:

@@ -1,0 +1,106 @@
+"""What a campaign is checked for before anything moves, in one place: ``campaign plan`` and ``campaign run`` both
+call :func:`check_campaign`, so a plan that passes cannot fail ``run`` on what is checked here (issue 9 item 5).
+
+Checked, each failure one :class:`~stereo_bench.campaign.config.ConfigError` line ``SOURCE: field: what``:
+
+- the bench: the rig and camera kinds make a bench (``CampaignConfig``'s own validator); with simulated cameras
+  (the simulated bench and bring-up) every quantity the cameras render from (baseline, toe-ins, tilts) is driven
+  by an axis or fixed: the renderer places the cameras where the controller reports the axes, so a ``manual``
+  one has no value there (the target distance is set "by hand" by the simulator, and a manual tilt renders as 0,
+  right only for a plan at ``tilt_deg = 0``);
+- the files the config names, read the way ``run`` reads them: ``extrinsics.calib_dir`` (``fixed``: the whole
+  stereo calibration; otherwise the intrinsics and their covariance) and its image size against
+  ``cameras.optics``; ``extrinsics.kinematic_file``; ``rig.config_file``.
+
+Per configuration (not an error: the configuration is planned as infeasible and skipped by ``run``), the
+feasibility rule of :func:`stereo_bench.campaign.plan.expand_plan`, which ``run`` uses too: enough target corners
+in both views, each view's target squares large enough for the corner detector
+(:func:`stereo_bench.vision.detect.min_detectable_square_px`), the calibration board placeable, the soft limits.
+"""
+
+from __future__ import annotations
+
+from drivers.rig.config import RigConfigError
+from stereo_bench.campaign.config import CampaignConfig, ConfigError
+
+#: The quantities simulated cameras render from: each must be driven by an axis or fixed.
+RENDERED_QUANTITIES = ("baseline_mm", "toe_in_left_deg", "toe_in_right_deg", "tilt_left_deg", "tilt_right_deg")
+
+
+def check_campaign(config: CampaignConfig, *, source: str = "campaign config") -> None:
+    """Everything ``run`` checks before moving, without moving or opening anything; raises ``ConfigError``."""
+    check_bench(config, source=source)
+    check_files(config, source=source)
+
+
+def check_bench(config: CampaignConfig, *, source: str = "campaign config") -> None:
+    """The rig mapping fits the bench: simulated cameras cannot render a quantity set by hand."""
+    try:
+        rig_config = config.rig.rig_config()
+    except RigConfigError as error:
+        raise ConfigError(f"{source}: rig.config_file: {error}") from None
+    if config.cameras.kind != "simulated":
+        return
+    where = (f"rig.config_file ({config.rig.config_file}): quantities" if config.rig.config_file is not None
+             else "rig.quantities")
+    for quantity in RENDERED_QUANTITIES:
+        if quantity.startswith("tilt_") and config.plan.tilt_deg == 0.0:
+            continue  # the renderer takes a tilt without a value as 0, which is what the operator is asked to set
+        if rig_config.quantities[quantity].axis == "manual":
+            bench = "bring-up" if config.rig.kind == "grbl" else "the simulated bench"
+            raise ConfigError(
+                f"{source}: {where}.{quantity}: axis = \"manual\" cannot run on {bench}: the simulated cameras "
+                f"render from the axis positions the controller reports, and a manual {quantity} has none; drive "
+                f"it by an axis, or set axis = \"fixed\" with its value (only target_distance_mm can be manual)")
+
+
+def _image_size(config: CampaignConfig) -> tuple[tuple[int, int], str] | None:
+    """(width, height) of the frames the cameras will give and the keys that say so; None when not known offline."""
+    if config.cameras.kind == "simulated":
+        optics = config.cameras.optics
+        return (optics.width_px, optics.height_px), "cameras.optics width_px, height_px"
+    settings = config.cameras.camera_settings()
+    if settings.width_px is not None and settings.height_px is not None:
+        return (settings.width_px, settings.height_px), "cameras.settings width_px, height_px"
+    return None
+
+
+def check_files(config: CampaignConfig, *, source: str = "campaign config") -> None:
+    """Read the calibration and model files the config names, as ``run`` will (a corrupt YAML fails here)."""
+    from stereo_bench.kinematics import KinematicFileError, load_model
+    from stereo_bench.vision.calibio import (
+        CalibrationFileError,
+        read_calibration,
+        read_intrinsics,
+        read_intrinsics_covariance,
+    )
+
+    extrinsics = config.extrinsics
+    optics = config.cameras.optics
+    image_size = (optics.width_px, optics.height_px)
+    calib_dir = extrinsics.calib_dir
+    if calib_dir is not None:
+        if not calib_dir.is_dir():
+            raise ConfigError(f"{source}: extrinsics.calib_dir: no such directory: {calib_dir}")
+        try:
+            if extrinsics.mode == "fixed":
+                calibration = read_calibration(calib_dir, image_size=image_size)
+                size = tuple(calibration.image_size)
+            else:
+                size = read_intrinsics(calib_dir)[4]
+                read_intrinsics_covariance(calib_dir)
+        except CalibrationFileError as error:
+            raise ConfigError(f"{source}: extrinsics.calib_dir: {error}") from None
+        given = _image_size(config)
+        if size is not None and given is not None and tuple(size) != given[0]:
+            raise ConfigError(
+                f"{source}: extrinsics.calib_dir: {calib_dir} is a calibration of {size[0]}x{size[1]} images, the "
+                f"cameras give {given[0][0]}x{given[0][1]} ({given[1]})")
+    if extrinsics.kinematic_file is not None:
+        try:
+            load_model(extrinsics.kinematic_file)
+        except KinematicFileError as error:
+            raise ConfigError(f"{source}: extrinsics.kinematic_file: {error}") from None
+
+
+__all__ = ["RENDERED_QUANTITIES", "check_bench", "check_campaign", "check_files"]
