@@ -71,3 +71,33 @@ def transcript_commands(path: Path) -> list[str]:
         if record.get("dir") == "tx" and record["data"].endswith("\n"):
             sent.append(record["data"].strip())
     return sent
+
+
+
+def act_at_move(number: int, action):
+    """A bench factory (``run_campaign(bench_factory=...)``) whose rig calls ``action()`` at the end of its
+    ``number``-th move, as an operator's Stop or Pause button would. Deterministic where a subscriber is not:
+    the runner publishes documents on the recorder's thread, so a subscriber may see a move only after the
+    run has gone past it (and, on a loaded machine, after the last configuration)."""
+    from stereo_bench.campaign.bench import simulated_bench
+
+    def factory(config, **options):
+        bench = simulated_bench(config, **options)
+        move_to, moves = bench.rig.move_to, []
+
+        def counted(**targets):
+            moves.append(targets)
+            result = move_to(**targets)
+            if len(moves) == number:
+                action()
+            return result
+
+        bench.rig.move_to = counted
+        return bench
+
+    return factory
+
+
+def stop_at_move(control, number: int):
+    """:func:`act_at_move` asking ``control`` to stop."""
+    return act_at_move(number, control.request_stop)

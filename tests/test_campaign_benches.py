@@ -11,7 +11,6 @@ import io
 import os
 import shutil
 import threading
-import time
 from dataclasses import replace
 
 import pytest
@@ -30,7 +29,7 @@ from stereo_bench.campaign.operator import (
 )
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.cli import main
-from tests.campaigns import SAMPLE_SESSION, SMALL, motion_commands, small_config, transcript_commands
+from tests.campaigns import SAMPLE_SESSION, SMALL, act_at_move, motion_commands, small_config, transcript_commands
 
 HALF_RES = {"optics": {"width_px": 960, "height_px": 540, "pixel_um": 6.0}}
 
@@ -198,21 +197,16 @@ def test_nothing_moves_when_nothing_is_left_to_run(tmp_path, small_copy):
 
 
 def test_pause_holds_the_run_at_a_step_boundary_until_resumed(tmp_path):
-    # The subscriber pauses from the recorder thread, after the move is written; a settle of 0.1 s (real)
-    # lets that land before the next step boundary: the captures after it take a few ms once the simulator
-    # has rendered them ahead.
     config = small_config(plan={"baseline_mm": [100], "distance_mm": [450], "alpha_deg": [90]},
                           capture={"settle_s": 5.0})
     control = RunControl()
-    paused_at: list[float] = []
 
-    def pause_after_the_move(document):
-        if isinstance(document, MoveEvent):
-            control.request_pause()
-            paused_at.append(time.monotonic())
-            threading.Timer(0.5, control.request_resume).start()
+    def pause_after_the_move():  # the step boundary after the move (and its settle) holds the run
+        control.request_pause()
+        threading.Timer(0.5, control.request_resume).start()
 
-    summary = run_campaign(config, tmp_path / "paused", yes=True, control=control, subscribers=[pause_after_the_move])
+    summary = run_campaign(config, tmp_path / "paused", yes=True, control=control,
+                           bench_factory=act_at_move(1, pause_after_the_move))
     assert summary.counts() == {"measured": 1}
     reader = SessionReader(tmp_path / "paused")
     first_view = reader.events(kind="calibration_view")[0]

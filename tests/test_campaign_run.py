@@ -20,7 +20,7 @@ from stereo_bench.campaign.bench import simulated_bench
 from stereo_bench.campaign.execute import RunControl, replay_session, run_campaign
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.cli import main
-from tests.campaigns import SAMPLE_SESSION, SMALL, numbers, results_csv, small_config
+from tests.campaigns import SAMPLE_SESSION, SMALL, numbers, results_csv, small_config, stop_at_move
 
 REQUIRED_COLUMNS = ["config_id", "baseline_mm", "distance_mm", "alpha_deg", "status", "square_mean_mm",
                     "square_std_mm", "n_squares", "error_mm", "sigma_mm", "rms_px", "epipolar_rms_px"]
@@ -210,23 +210,7 @@ def test_stop_request_leaves_a_resumable_session_and_resume_runs_the_recorded_pl
     config = small_config()
     out = tmp_path / "stopped"
     control = RunControl()
-    moves = []
-
-    def stop_at_second_move(config, **options):  # as a live page's Stop button would, during the second move
-        bench = simulated_bench(config, **options)
-        move_to = bench.rig.move_to
-
-        def counted(**targets):
-            moves.append(targets)
-            result = move_to(**targets)
-            if len(moves) == 2:
-                control.request_stop()
-            return result
-
-        bench.rig.move_to = counted
-        return bench
-
-    summary = run_campaign(config, out, yes=True, bench_factory=stop_at_second_move, control=control,
+    summary = run_campaign(config, out, yes=True, bench_factory=stop_at_move(control, 2), control=control,
                            resume_command="stereo-bench campaign run small.toml --out stopped --resume")
     assert summary.exit_status == "interrupted"
     stop = SessionReader(out).stops()[-1]

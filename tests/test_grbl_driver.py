@@ -301,19 +301,26 @@ def test_overshoot_and_short_stop_are_told_apart(homed):
 # ---------------------------------------------------------------------------------------------- hold / resume
 
 
-def test_feed_hold_decelerates_and_resume_waits_for_the_hold_to_complete(emulator, homed):
-    status = homed.move_to({"X": -301.0}, feed_per_min=3000.0)  # 50 mm/s, 0.25 s to stop: 12.5 ms real
-    time.sleep(0.05)
-    homed.feed_hold()
-    assert homed.status(timeout=1.0).full_state == "Hold:1"  # still decelerating
-    started = time.monotonic()
-    with pytest.raises(GrblMoveError, match="feed hold"):  # not a wait into the timeout
-        status.wait(5.0)
-    assert time.monotonic() - started < 2.0
-    assert emulator.state == "Hold:0"
-    reading = homed.resume(timeout=5.0)
-    assert reading.state == "Run"  # it left the hold
-    assert homed.wait_idle(timeout=5.0).machine_position["X"] == -301.0
+def test_feed_hold_decelerates_and_resume_waits_for_the_hold_to_complete():
+    # 50 mm/s, 20 mm/s^2: 2.5 s (0.5 s real at x5) to stop from full speed, so that "still decelerating" is
+    # seen however loaded the machine is (a 12.5 ms deceleration was missed under load).
+    slow = {"X": AxisSpec(max_travel=350.0, max_rate_per_min=3000.0, acceleration=20.0)}
+    with GrblEmulator(time_scale=5.0, axis_specs=slow) as emu, _controller(emu) as grbl:
+        grbl.unlock()
+        status = grbl.move_to({"X": -340.0})
+        deadline = time.monotonic() + 5.0
+        while emu.machine_position()["X"] > -70.0 and time.monotonic() < deadline:  # cruising
+            time.sleep(0.01)
+        grbl.feed_hold()
+        assert grbl.status(timeout=1.0).full_state == "Hold:1"  # still decelerating
+        started = time.monotonic()
+        with pytest.raises(GrblMoveError, match="feed hold"):  # not a wait into the timeout
+            status.wait(5.0)
+        assert time.monotonic() - started < 2.0
+        assert emu.state == "Hold:0"
+        reading = grbl.resume(timeout=5.0)
+        assert reading.state == "Run"  # it left the hold
+        assert grbl.wait_idle(timeout=30.0).machine_position["X"] == -340.0
 
 
 def test_resume_during_hold_1_waits_instead_of_being_ignored():

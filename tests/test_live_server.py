@@ -19,7 +19,7 @@ from stereo_bench.campaign.operator import CAPTURE_NOW, CONTINUE, Prompt, Ticket
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.live.page import LivePage
 from stereo_bench.live.preview import Previews
-from tests.campaigns import small_config
+from tests.campaigns import small_config, stop_at_move
 
 
 @pytest.fixture
@@ -213,18 +213,12 @@ def test_server_sent_events_and_a_second_tab_see_the_same_state_and_leaving_chan
 
 
 def test_a_resumed_campaign_shows_the_plan_and_the_results_recorded_before(tmp_path):
-    from stereo_bench.campaign.documents import MoveEvent
     from stereo_bench.campaign.execute import run_campaign
     from stereo_bench.live.state import LiveState
 
     out, control = tmp_path / "resumed", RunControl()
-
-    def stop_at_second_move(document):
-        if isinstance(document, MoveEvent) and document.config_id != "B100_Z450_A90":
-            control.request_stop()
-
     assert run_campaign(small_config(), out, yes=True, control=control,
-                        subscribers=[stop_at_second_move]).exit_status == "interrupted"
+                        bench_factory=stop_at_move(control, 2)).exit_status == "interrupted"
     before = {row["config_id"] for row in SessionReader(out).results()}
     state = LiveState(session_dir=out)
     assert run_campaign(small_config(), out, resume=True, yes=True, subscribers=[state]).exit_status == "success"
