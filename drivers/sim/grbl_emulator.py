@@ -27,9 +27,11 @@ behaviour mirrors. What it does:
 - Homing (limits.c ``limits_go_home``): the switch is at the positive end of each axis (at the negative
   end with its ``$23`` bit set); after pull-off the axis is set to ``-$27`` (``-$13x + $27``): machine
   space is ``[-$13x, 0]``. A HOMING_FORCE_SET_ORIGIN build (``force_set_origin``, ``Z`` in ``[OPT:]``)
-  sets 0 instead, and ``[0, $13x]`` on the axes whose ``$23`` bit is set. No status is reported while
-  homing. With homing enabled the controller boots in Alarm (``[MSG:'$H'|'$X' to unlock]``). After a
-  successful ``$H`` the startup lines run (echoed ``>line:ok``) before the ``ok`` of the ``$H``.
+  sets 0 instead, and ``[0, $13x]`` on the axes whose ``$23`` bit is set; its switches are then one
+  pull-off beyond 0 (at ``-$27`` or ``+$27``), as the physical frame is the homed machine frame on either
+  build. No status is reported while homing. With homing enabled the controller boots in Alarm
+  (``[MSG:'$H'|'$X' to unlock]``). After a successful ``$H`` the startup lines run (echoed
+  ``>line:ok``) before the ``ok`` of the ``$H``.
 - Homing failure (:class:`HomingFail`): ``ALARM:8``/``ALARM:9``, then - Grbl has reset itself - the late
   ``ok`` of the ``$H`` line and the banner with ``[MSG:'$H'|'$X' to unlock]`` (system.c ``$H`` still
   returns STATUS_OK, main.c re-initialises). The ALARM line can be left out (``alarm_line=False``),
@@ -530,17 +532,25 @@ class GrblEmulator:
             return 0.0, travel
         return -travel, 0.0
 
-    def _switch_physical(self, axis: str) -> float:
-        return -self._max_travel(axis) if self._home_negative(axis) else 0.0
+    # The physical frame is the machine frame a successful homing sets up on this build (see
+    # physical_position), so where homing leaves an axis and where its switch is follow the build: a
+    # HOMING_FORCE_SET_ORIGIN build calls the pulled-off position 0, with the switch one pull-off beyond it.
 
     def _home_physical(self, axis: str) -> float:
+        """limits.c limits_go_home: where homing leaves the axis, ``-$27`` (``-$13x + $27`` homing toward -),
+        or 0 on a HOMING_FORCE_SET_ORIGIN build."""
+        if self.force_set_origin:
+            return 0.0
         pulloff = float(self.settings[27])
         return -self._max_travel(axis) + pulloff if self._home_negative(axis) else -pulloff
 
+    def _switch_physical(self, axis: str) -> float:
+        """The homing switch: one pull-off (``$27``) from where homing leaves the axis, on the side it homes to."""
+        pulloff = float(self.settings[27])
+        return self._home_physical(axis) + (-pulloff if self._home_negative(axis) else pulloff)
+
     def _home_machine(self, axis: str) -> float:
-        """limits.c limits_go_home: the machine position a homed axis is set to."""
-        if self.force_set_origin:
-            return 0.0
+        """limits.c limits_go_home: the machine position a homed axis is set to (whole steps)."""
         spu = self._steps_per_unit(axis)
         return _lround(self._home_physical(axis) * spu) / spu
 
