@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -18,6 +19,15 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                     help="run camera hardware tests on this V4L2 device (repeat for a stereo pair)")
     group.addoption("--serial-port", default=None, metavar="PATH",
                     help="run rig-controller hardware tests on this GRBL serial port (the rig WILL move)")
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """``-n auto`` (pyproject's addopts): the suite on up to 4 processes (2 on the project's 2-core machines:
+    4:48 -> 2:56, since many tests wait on simulated motion and subprocesses), and the hardware tier in one
+    process, so that no two workers open the same camera or serial port."""
+    if config.getoption("--camera") or config.getoption("--serial-port"):
+        return 0
+    return max(1, min(4, os.cpu_count() or 1))
 
 
 @pytest.fixture

@@ -132,3 +132,22 @@ def test_a_stop_at_once_while_detections_are_pending_still_leaves_a_session_that
     assert run_campaign(config, out, resume=True, yes=True).exit_status == "success"
     assert numbers(out) == numbers(small_reference)
     assert replay_session(out).identical == 2
+
+
+def test_a_detection_cancelled_while_its_record_waits_for_it_is_recorded_as_none():
+    # The recorder waits for a view's detections; a stop at once cancels those still queued meanwhile. Checking
+    # cancelled() and then waiting raced: the wait raised CancelledError and failed the recording.
+    import threading
+    from concurrent.futures import Future
+
+    from stereo_bench.campaign.runner import _record_or_none
+
+    pending: Future = Future()
+    threading.Timer(0.05, pending.cancel).start()
+    assert _record_or_none(pending) is None
+    failed: Future = Future()
+    failed.set_exception(ValueError("corrupt image"))
+    assert _record_or_none(failed) is None
+    found: Future = Future()
+    found.set_result(None)  # the board was not in the view
+    assert _record_or_none(found) is None

@@ -30,7 +30,7 @@ view's prompt, recorded as ``calibration_view_discarded``; its frames stay in th
 from __future__ import annotations
 
 import threading
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import CancelledError, Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -451,8 +451,7 @@ class CampaignRunner:
         """Record a calibration view's detections (kept instead of its frames) once made, next in the stream."""
         def publish() -> list:
             # A detection that failed is the analysis' to report (one dropped by a stop at once: nobody's).
-            sides = [None if future.cancelled() or future.exception() is not None else DetectionRecord.of(
-                future.result()) for future in found]
+            sides = [_record_or_none(future) for future in found]
             return self.bus.publish(Draft(CalibrationDetectionsEvent, config_id=config_id, data={
                 "index": index, **{side: None if record is None else record.model_dump()
                                    for side, record in zip(("left", "right"), sides, strict=True)}}))
@@ -658,6 +657,18 @@ def _detect_or_none(image: np.ndarray, target, partial: bool):
         return detect(image, target, partial=partial)
     except AmbiguousViewError:
         return _AMBIGUOUS
+
+
+def _record_or_none(future: Future):
+    """A detection's record, or None if it failed or was cancelled (also while this waits for it: a stop at once
+    cancels what is queued, so checking ``cancelled()`` first and then waiting would race)."""
+    try:
+        detection = future.result()
+    except CancelledError:
+        return None
+    except Exception:  # noqa: BLE001 - a detection that failed is the analysis' to report, not the recorder's
+        return None
+    return DetectionRecord.of(detection)
 
 
 def _done(value) -> Future:
