@@ -10,10 +10,11 @@ The firmware is the specification: gnea/grbl 1.1h with its default config.h (3 a
 two startup lines, 128-byte serial buffer, 16-block planner). Comments name the file and function each
 behaviour mirrors. What it does:
 
-- Serial (serial.c, protocol.c ``protocol_main_loop``): a 128-byte receive buffer (bytes arriving when
-  it holds 127 are dropped and counted); spaces and comments dropped, at most 79 characters kept
-  (``error:11`` beyond); lines answered ``ok``/``error:N`` in order once planned; real-time bytes
-  ``?`` ``!`` ``~`` 0x18 and 0x85 acted on at once, without ``ok``.
+- Serial (serial.c, protocol.c ``protocol_main_loop``): a 128-byte receive buffer (serial.c's ring has
+  ``RX_BUFFER_SIZE+1`` slots, so it holds all 128; bytes arriving when it is full are dropped and counted);
+  spaces and comments dropped, at most 79 characters kept (``error:11`` beyond); lines answered
+  ``ok``/``error:N`` in order once planned; real-time bytes ``?`` ``!`` ``~`` 0x18 and 0x85 acted on at
+  once, without ``ok``.
 - Settings (settings.c, report.c): ``$$`` lists defaults.h DEFAULTS_GENERIC overridden by the
   constructor's arguments, ``$x=value`` stores with the firmware's checks. Honoured: ``$10`` status
   mask, ``$13`` report inches, ``$20`` soft limits, ``$22`` homing, ``$23`` homing direction mask,
@@ -451,6 +452,10 @@ class GrblEmulator:
         self.force_set_origin = force_set_origin
         self.firmware = firmware
         self.rx_buffer_size = rx_buffer_size or (1024 if firmware == "grblhal" else RX_BUFFER_SIZE)
+        # serial.c: Grbl's ring buffer has RX_BUFFER_SIZE+1 slots (RX_RING_BUFFER), one always free, so it holds
+        # all RX_BUFFER_SIZE bytes (and Bf: reports RX_BUFFER_SIZE free when empty). grblHAL keeps the size-1
+        # it always had here (not checked against its source).
+        self._rx_capacity = self.rx_buffer_size - (1 if firmware == "grblhal" else 0)
         self.shuffle_fields = shuffle_fields
         self.reboot_on_open = reboot_on_open
         self.boot_delay_s = boot_delay_s
@@ -1148,7 +1153,7 @@ class GrblEmulator:
                 self._jog_cancel()
             elif byte >= 0x80:
                 pass  # overrides: accepted, not modelled
-            elif len(self._rx) >= self.rx_buffer_size - 1:
+            elif len(self._rx) >= self._rx_capacity:
                 self.rx_overflow_bytes += 1
             else:
                 self._rx.append(byte)
