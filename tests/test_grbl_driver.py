@@ -490,6 +490,41 @@ def test_no_status_while_homing():
         assert controller.status().state == "Idle"
 
 
+def _raw_homing(emu: GrblEmulator, until: bytes) -> list[str]:
+    """Send ``$H`` and, while it runs, two ``?``; return the lines received up to and including ``until``."""
+    port = serial.Serial(emu.tty_path, 115200, timeout=0.02)
+    try:
+        port.write(b"$H\n")
+        time.sleep(0.05)  # well inside the cycle: its settle alone lasts 0.2 s real
+        port.write(b"??")
+        received, deadline = b"", time.monotonic() + 5.0
+        while until not in received and time.monotonic() < deadline:
+            received += port.read(256)
+        time.sleep(0.1)
+        received += port.read(256)
+        return received.decode().split("\r\n")
+    finally:
+        port.close()
+
+
+def test_a_status_asked_during_homing_is_answered_once_when_the_cycle_ends():
+    # motion_control.c mc_homing_cycle: limits_go_home serves no real-time request; the protocol_execute_realtime
+    # after it answers the '?' (one report for any number of them), still in Home, at the homed position.
+    with GrblEmulator(time_scale=5.0, homing_settle_s=1.0) as emu:
+        lines = _raw_homing(emu, until=b"ok\r\n")
+    reports = [line for line in lines if line.startswith("<")]
+    assert len(reports) == 1 and reports[0].startswith("<Home|MPos:-1.000,-1.000,-1.000|")
+    assert lines.index(reports[0]) < lines.index("ok")
+
+
+def test_a_status_asked_during_a_failed_homing_is_never_answered():
+    # limits.c: the failed cycle's mc_reset reaches protocol_exec_rt_system's EXEC_RESET first; main.c clears the rest.
+    with GrblEmulator(time_scale=5.0, homing_settle_s=1.0, faults=[HomingFail(code=8)]) as emu:
+        lines = _raw_homing(emu, until=b"to unlock]\r\n")
+    assert "ALARM:8" in lines and "ok" in lines and "[MSG:'$H'|'$X' to unlock]" in lines
+    assert not [line for line in lines if line.startswith("<")]
+
+
 def test_the_emulator_drops_bytes_past_its_buffer_like_grbl(emulator):
     # Without character counting: 60 lines at once while GRBL is busy overflow its 128 bytes (serial.c: the
     # ring has RX_BUFFER_SIZE+1 slots, so all 128 hold data before the receive interrupt drops a byte).

@@ -30,9 +30,10 @@ behaviour mirrors. What it does:
   space is ``[-$13x, 0]``. A HOMING_FORCE_SET_ORIGIN build (``force_set_origin``, ``Z`` in ``[OPT:]``)
   sets 0 instead, and ``[0, $13x]`` on the axes whose ``$23`` bit is set; its switches are then one
   pull-off beyond 0 (at ``-$27`` or ``+$27``), as the physical frame is the homed machine frame on either
-  build. No status is reported while homing. With homing enabled the controller boots in Alarm
-  (``[MSG:'$H'|'$X' to unlock]``). After a successful ``$H`` the startup lines run (echoed
-  ``>line:ok``) before the ``ok`` of the ``$H``.
+  build. No status is reported while homing: a ``?`` sent meanwhile is answered once the cycle is over
+  (``<Home|MPos:...>``, motion_control.c ``mc_homing_cycle``), or never if it fails. With homing
+  enabled the controller boots in Alarm (``[MSG:'$H'|'$X' to unlock]``). After a successful ``$H`` the
+  startup lines run (echoed ``>line:ok``) before the ``ok`` of the ``$H``.
 - Homing failure (:class:`HomingFail`): ``ALARM:8``/``ALARM:9``, then - Grbl has reset itself - the late
   ``ok`` of the ``$H`` line and the banner with ``[MSG:'$H'|'$X' to unlock]`` (system.c ``$H`` still
   returns STATUS_OK, main.c re-initialises). The ALARM line can be left out (``alarm_line=False``),
@@ -734,6 +735,9 @@ class GrblEmulator:
         self._dwell_end: float | None = None
         self._homing_block: _Block | None = None
         self._homing_fail: HomingFail | None = None
+        # A '?' during homing, answered when the cycle ends; main.c clears it (sys_rt_exec_state) on a reset,
+        # and a failed cycle resets before serving it (protocol_exec_rt_system returns at EXEC_RESET).
+        self._status_after_homing = False
         self._modal = {"motion": 0, "distance": 90, "units": 21, "feed": 0.0}  # gcode.c gc_init
         self._wco_counter = 0
         self._ovr_counter = 0
@@ -1143,7 +1147,11 @@ class GrblEmulator:
                 self._soft_reset()
             elif byte == ord("?"):
                 self._advance(self._sim_now())
-                if self._homing_block is None and not self._halted:  # GRBL 1.1 does not report while homing
+                if self._homing_block is not None:
+                    # limits.c limits_go_home never runs protocol_execute_realtime: the request waits for the
+                    # one motion_control.c mc_homing_cycle runs once the cycle is over (see _finish_homing).
+                    self._status_after_homing = True
+                elif not self._halted:
                     self._emit(self._status_report(), "status")
             elif byte == ord("!"):
                 self._feed_hold()
@@ -1368,6 +1376,11 @@ class GrblEmulator:
             self._position = {a: self._home_machine(a) for a in self.axes}
             self._offset = {a: block.end[a] - self._position[a] for a in self.axes}  # type: ignore[union-attr]
             self._homed = True
+            if self._status_after_homing:
+                # motion_control.c mc_homing_cycle: its protocol_execute_realtime serves a '?' that came during
+                # the cycle, once, still in Home (system.c sets Idle after it returns), at the homed position.
+                self._status_after_homing = False
+                self._emit(self._status_report(), "status")
             self._state = "Idle"
             self._alarm_code = None
             self._run_startup_lines()  # system.c: after a successful $H, before its 'ok'
