@@ -112,8 +112,9 @@ GRBL_ALARMS: dict[int, str] = {
 #: Machine states as GRBL 1.1 names them in status reports.
 STATES = ("Idle", "Run", "Hold", "Jog", "Alarm", "Door", "Check", "Home", "Sleep", "Tool")
 
-#: Alarms after which GRBL 1.1 ignores everything but status and reset until a soft reset
-#: (hard limit, soft limit; grblHAL's e-stop).
+#: Alarms after which GRBL 1.1 answers nothing, not even ``?``, until a soft reset (hard limit, soft limit;
+#: grblHAL's e-stop): protocol.c ``protocol_exec_rt_system`` spins in an empty loop until EXEC_RESET (its comment
+#: says status reports are served too; the loop does not serve them), and main.c clears the pending request.
 CRITICAL_ALARMS = frozenset({1, 2, 10})
 
 #: Alarms that end a homing cycle (limits.c ``limits_go_home``): Grbl resets after them, still answers the
@@ -622,9 +623,9 @@ _AXIS_WORD_RE = re.compile(r"[XYZABC][-+.\d]")
 def startup_line_hazards(line: str) -> list[str]:
     """Why a stored startup line is a trap for a driver, if it is one (empty list if not).
 
-    Grbl runs its startup lines after every reset and every successful homing cycle
-    (protocol.c ``protocol_main_loop``, system.c ``$H``), so modal state they set is the state the
-    next program meets.
+    Grbl runs its startup lines after every reset that comes back Idle (protocol.c ``protocol_main_loop``;
+    one that stays in Alarm prints the unlock message instead) and after every successful homing cycle
+    (system.c ``system_execute_line``, ``$H``), so modal state they set is the state the next program meets.
     """
     text = "".join(line.split()).upper()
     text = re.sub(r"\([^)]*\)", "", text).split(";", 1)[0]

@@ -7,7 +7,8 @@ and :class:`GrblController` (here) keeps the protocol's state:
   oldest outstanding line (GRBL answers in order), ``<...>`` answers the oldest ``?``, ``ALARM:N`` and
   banners fail whatever is outstanding;
 - lines are streamed by character counting: the bytes of lines not yet answered never exceed GRBL's
-  receive buffer (``rx_buffer_size - 1``; the ring buffer keeps one slot free), so nothing is dropped;
+  receive buffer, less one byte (``rx_buffer_size - 1``: Grbl 1.1's ring holds all of it, serial.c
+  ``RX_RING_BUFFER``, but a ring of exactly that size, as grblHAL's, keeps one slot free), so nothing is dropped;
 - real-time bytes (``?`` ``!`` ``~`` 0x18) bypass the buffer and get no ``ok``;
 - every wait has a deadline. ``ok`` only means *queued*; the end of motion is known from ``G4 P0``
   (its ``ok`` comes once the planner is empty), and while waiting for it the driver polls ``?`` so that
@@ -23,12 +24,18 @@ What Grbl 1.1h does that the driver must know (its source is the specification):
   refused, a startup line that switches units or moves is warned about, the receive buffer size in
   ``[OPT:]`` replaces a different configured one.
 - A failed homing cycle (``ALARM:8``/``9``) resets Grbl: the ``$H`` line still gets a late ``ok`` and a
-  banner follows (limits.c, system.c). The driver keeps the ``$H`` outstanding for that ``ok`` and
+  banner follows (limits.c ``limits_go_home`` calls ``mc_reset``; system.c ``system_execute_line`` still
+  returns STATUS_OK for ``$H``; main.c re-initialises). The driver keeps the ``$H`` outstanding for that ``ok`` and
   treats the banner as part of the failure; when the ALARM line is missing, the Alarm state after the
   ``ok`` tells.
-- After ``ALARM:1``/``ALARM:2`` Grbl answers nothing, not even ``?``, until a soft reset (protocol.c):
-  the driver says so instead of timing out.
-- ``~`` during ``Hold:1`` (still decelerating) is ignored: :meth:`GrblController.resume` waits for ``Hold:0``.
+- After ``ALARM:1``/``ALARM:2`` Grbl answers nothing, not even ``?``, until a soft reset (protocol.c
+  ``protocol_exec_rt_system``, its critical-event loop): the driver says so instead of timing out.
+- ``~`` during ``Hold:1`` (still decelerating) is ignored (protocol.c ``protocol_exec_rt_system`` starts a
+  cycle only from Idle or a hold with SUSPEND_HOLD_COMPLETE, and clears the request either way):
+  :meth:`GrblController.resume` waits for ``Hold:0``.
+- Every ``ALARM:N`` line is followed by 0.5 s in which Grbl sends nothing (report.c ``report_alarm_message``,
+  ``delay_ms(500)``), and ``?`` requests made meanwhile collapse into one report (a flag, serial.c):
+  :meth:`GrblController.status` resends and takes any report newer than its request.
 - Leaving check mode (``$C``) resets Grbl: expected, not an unexpected reset.
 
 Positions in readings are only ever what the controller reported (MPos, or WPos + the last WCO).
