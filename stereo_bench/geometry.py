@@ -79,6 +79,18 @@ def _rot_y(angle_rad: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
+def axis_rotation(axis: str, angle_deg: float) -> np.ndarray:
+    """(3, 3) right-handed rotation by ``angle_deg`` about the frame's ``"x"``, ``"y"`` or ``"z"`` axis."""
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    if axis == "x":
+        return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    if axis == "y":
+        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    if axis == "z":
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    raise ValueError(f"axis must be 'x', 'y' or 'z', not {axis!r}")
+
+
 @dataclass(frozen=True)
 class RigPose:
     """Where the two cameras of the rig stand, as set by the slide and the pan-tilt heads."""

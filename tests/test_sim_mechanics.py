@@ -184,3 +184,14 @@ def test_the_mechanics_in_the_estimators_parametrisation_reproduce_the_simulated
 def test_camera_pose_rejects_an_unknown_side():
     with pytest.raises(ValueError, match="side must be"):
         camera_pose(LAB, "middle", separation_mm=100.0, pan_deg=0.0)
+
+
+def test_axis_rotation_is_right_handed_about_each_axis():
+    from stereo_bench.geometry import axis_rotation
+
+    for axis, before, after in (("x", (0, 1, 0), (0, 0, 1)), ("y", (0, 0, 1), (1, 0, 0)), ("z", (1, 0, 0), (0, 1, 0))):
+        R = axis_rotation(axis, 90.0)
+        np.testing.assert_allclose(R @ np.array(before, float), after, atol=1e-15)
+        np.testing.assert_allclose(R @ axis_rotation(axis, -90.0), np.eye(3), atol=1e-15)
+    with pytest.raises(ValueError, match="'w'"):
+        axis_rotation("w", 1.0)

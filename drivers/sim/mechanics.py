@@ -32,27 +32,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.sim.profile import CameraErrors, PanHeadErrors, SimProfile, SlideErrors
-from stereo_bench.geometry import make_transform
+from stereo_bench.geometry import axis_rotation, make_transform
 
 SIDES = ("left", "right")
 # The quantities whose motion the mechanics model (tilts are fixed on every rig this simulates).
 MOVED = ("baseline_mm", "toe_in_left_deg", "toe_in_right_deg")
 _MOVE_EPS = 1e-9  # a reported value that changes by less than this has not moved
-
-
-def _rot_x(deg: float) -> np.ndarray:
-    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def _rot_y(deg: float) -> np.ndarray:
-    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _rot_z(deg: float) -> np.ndarray:
-    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def rotation_about(axis: np.ndarray, deg: float) -> np.ndarray:
@@ -65,17 +50,20 @@ def rotation_about(axis: np.ndarray, deg: float) -> np.ndarray:
 
 def slide_direction(slide: SlideErrors) -> np.ndarray:
     """(3,) unit vector along which the right carriage moves away from the left one (bench frame)."""
-    return _rot_y(slide.direction_yaw_deg) @ _rot_z(slide.direction_pitch_deg) @ np.array([1.0, 0.0, 0.0])
+    return (axis_rotation("y", slide.direction_yaw_deg) @ axis_rotation("z", slide.direction_pitch_deg)
+            @ np.array([1.0, 0.0, 0.0]))
 
 
 def pan_axis(head: PanHeadErrors) -> np.ndarray:
     """(3,) unit direction of a head's pan axis (nominally the rig's +y, i.e. down)."""
-    return _rot_x(head.axis_tilt_x_deg) @ _rot_z(head.axis_tilt_z_deg) @ np.array([0.0, 1.0, 0.0])
+    return (axis_rotation("x", head.axis_tilt_x_deg) @ axis_rotation("z", head.axis_tilt_z_deg)
+            @ np.array([0.0, 1.0, 0.0]))
 
 
 def mount_rotation(head: PanHeadErrors) -> np.ndarray:
     """(3, 3) camera orientation on the head: yaw (about y, > 0 toward +x), pitch (> 0 down), roll (about z)."""
-    return _rot_y(head.mount_yaw_deg) @ _rot_x(-head.mount_pitch_deg) @ _rot_z(head.mount_roll_deg)
+    return (axis_rotation("y", head.mount_yaw_deg) @ axis_rotation("x", -head.mount_pitch_deg)
+            @ axis_rotation("z", head.mount_roll_deg))
 
 
 def true_separation_mm(slide: SlideErrors, baseline_mm: float, *, approach: int = 0, landing_mm: float = 0.0) -> float:
@@ -113,8 +101,8 @@ def camera_pose(
     carriage = sign * separation_mm / 2.0 * slide_direction(profile.slide) + np.array([0.0, height, -forward])
     centre_on_head = np.array([head.centre_sideways_mm, -head.centre_height_mm, head.centre_forward_mm])
     R_pan = rotation_about(pan_axis(head), toward * (pan_deg + ringing_deg))
-    R_rock = _rot_z(rock_deg)
-    R = R_rock @ R_pan @ mount_rotation(head) @ _rot_x(-tilt_deg)
+    R_rock = axis_rotation("z", rock_deg)
+    R = R_rock @ R_pan @ mount_rotation(head) @ axis_rotation("x", -tilt_deg)
     return make_transform(R, carriage + R_rock @ R_pan @ centre_on_head)
 
 

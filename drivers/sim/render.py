@@ -51,6 +51,7 @@ from stereo_bench.geometry import (
     CALIBRATION_MAX_OBLIQUITY_DEG,
     CameraModel,
     RigPose,
+    axis_rotation,
     board_faces_camera,
     calibration_view_fits,
     invert_transform,
@@ -891,15 +892,6 @@ def _auto_px_per_square(target: Target) -> int:
 # Calibration views
 
 
-def _rotation(axis: str, angle_deg: float) -> np.ndarray:
-    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
-    if axis == "x":
-        return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-    if axis == "y":
-        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def calibration_board_poses(
     rig: RigPose, target: Target, *, n_views: int, rng: np.random.Generator,
     distance_mm: tuple[float, float] = (300.0, 700.0), left: CameraModel | None = None,
@@ -954,7 +946,7 @@ def calibration_board_poses(
         bx = x_axis - (x_axis @ normal) * normal
         bx /= np.linalg.norm(bx)
         R_face = np.column_stack([bx, np.cross(normal, bx), normal])
-        R = R_face @ _rotation("y", yaw) @ _rotation("x", pitch) @ _rotation("z", roll)
+        R = R_face @ axis_rotation("y", yaw) @ axis_rotation("x", pitch) @ axis_rotation("z", roll)
         return make_transform(R, centre - R @ grid_centre)
 
     def acceptable(T_rig_board):
