@@ -79,17 +79,17 @@ class RigConfigError(RigError):
 class LimitError(RigError):
     """A requested move outside the configured soft limits (nothing was sent)."""
 
+    _prefix = "move refused, outside soft limits: "
+
     def __init__(self, violations: list[str]):
-        super().__init__("move refused, outside soft limits: " + "; ".join(violations))
+        super().__init__(self._prefix + "; ".join(violations))
         self.violations = violations
 
 
 class MachineSpaceError(LimitError):
     """A move whose machine targets the controller would not accept (outside ``[-$13x, 0]`` once homed)."""
 
-    def __init__(self, violations: list[str]):
-        RigError.__init__(self, "move refused: " + "; ".join(violations))
-        self.violations = violations
+    _prefix = "move refused: "  # each violation names the controller's machine space itself
 
 
 class MoveRequestError(RigError):
