@@ -21,7 +21,8 @@ import sys
 import time
 from pathlib import Path
 
-from stereo_bench.cli import CliError
+from stereo_bench.cli import CliError, failure
+from stereo_bench.cli.args import BASELINE_MM, DISTANCE_MM, TIME_SCALE, TOE_IN_DEG
 
 EXIT_INTERRUPTED = 130
 
@@ -39,17 +40,17 @@ def parser() -> argparse.ArgumentParser:
                             "`rig --port` is given.")
     p.add_argument("--config", type=Path, metavar="FILE", help="campaign file: its plan's range, boards, cameras")
     p.add_argument("--preset", metavar="NAME", help="a built-in campaign instead of --config")
-    p.add_argument("--baseline-range", type=float, nargs=2, metavar=("MIN", "MAX"),
+    p.add_argument("--baseline-range", type=BASELINE_MM, nargs=2, metavar=("MIN", "MAX"),
                    help="baselines the model must cover, mm (default: the campaign's, else 50 250)")
-    p.add_argument("--toe-in-range", type=float, nargs=2, metavar=("MIN", "MAX"),
+    p.add_argument("--toe-in-range", type=TOE_IN_DEG, nargs=2, metavar=("MIN", "MAX"),
                    help="toe-ins the model must cover, deg (default: the campaign's, else 0 20)")
-    p.add_argument("--distance", type=float, metavar="MM",
+    p.add_argument("--distance", type=DISTANCE_MM, metavar="MM",
                    help="where the calibration board is shown, mm (default: the middle of the campaign's distances)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="session directory (never overwritten)")
     p.add_argument("--model", type=Path, metavar="FILE",
                    help="where to write the model (default OUT/kinematic_model.toml)")
     p.add_argument("--yes", action="store_true", help="simulated cameras: the simulator presents the boards")
-    p.add_argument("--time-scale", type=float, metavar="X", help="simulated rig: X times faster than real time")
+    p.add_argument("--time-scale", type=TIME_SCALE, metavar="X", help="simulated rig: X times faster than real time")
     p.add_argument("--sim", choices=("lab", "ideal"), help="simulated cameras: the bench's profile")
     p.add_argument("--json", action="store_true", help="print one JSON object (the model's summary) on stdout")
     return p
@@ -144,8 +145,9 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
         summary = run_campaign(config, args.out, yes=args.yes, control=control, plan=plan)
     except (SessionError, OperatorAbsent) as error:
         raise CliError(str(error)) from None
-    except (RigError, CameraError) as error:
-        raise CliError(f"{error} (session {args.out}: stopped as failed)", exit_code=1) from None
+    except (RigError, CameraError) as error:  # as campaign run: a port or camera not there 2, a fault in work 1
+        mapped = failure(error)
+        raise CliError(f"{mapped} (session {args.out}: stopped as failed)", exit_code=mapped.exit_code) from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
