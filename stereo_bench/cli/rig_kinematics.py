@@ -60,7 +60,7 @@ def _config(args, port: str | None, rig_config: Path | None):
     """The campaign config of the design: the file's or preset's, extrinsics kinematic, the ranges applied."""
     import tomllib
 
-    from stereo_bench.campaign.config import ConfigError, campaign_from_dict, preset_text
+    from stereo_bench.campaign.config import campaign_from_dict, preset_text
 
     if args.config is not None and args.preset is not None:
         raise CliError("rig calibrate-kinematics: give --config FILE or --preset NAME, not both")
@@ -71,8 +71,6 @@ def _config(args, port: str | None, rig_config: Path | None):
             data = tomllib.loads(preset_text(args.preset))
         else:
             data = {}
-    except ConfigError as error:
-        raise CliError(str(error)) from None
     except OSError as error:
         raise CliError(f"--config {args.config}: cannot read: {error.strerror or error}") from None
     except tomllib.TOMLDecodeError as error:
@@ -105,19 +103,16 @@ def _config(args, port: str | None, rig_config: Path | None):
         data["sim"] = {**(data.get("sim") or {}), "profile": args.sim}
     source = str(args.config) if args.config is not None else f"preset {args.preset}" if args.preset else \
         "rig calibrate-kinematics"
-    try:
-        return campaign_from_dict(data, source=source, base_dir=args.config.parent if args.config is not None else None)
-    except ConfigError as error:
-        raise CliError(str(error)) from None
+    return campaign_from_dict(data, source=source, base_dir=args.config.parent if args.config is not None else None)
 
 
 def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
     """``rig calibrate-kinematics`` with its own options ``argv``; ``port``/``rig_config``: the rig group's."""
     from drivers.camera.base import CameraError
     from drivers.rig.config import RigError
-    from stereo_bench.campaign.execute import CampaignPlan, OperatorAbsent, RunControl, run_campaign
+    from stereo_bench.campaign.execute import CampaignPlan, RunControl, run_campaign
     from stereo_bench.campaign.extrinsics_run import recorded_sources
-    from stereo_bench.campaign.session import SessionError, SessionReader
+    from stereo_bench.campaign.session import SessionReader
     from stereo_bench.kinematics import save_model
 
     args = parser().parse_args(argv)
@@ -143,8 +138,6 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
           f"views on the {config.bench_kind} bench; recording {args.out}", file=sys.stderr, flush=True)
     try:
         summary = run_campaign(config, args.out, yes=args.yes, control=control, plan=plan)
-    except (SessionError, OperatorAbsent) as error:
-        raise CliError(str(error)) from None
     except (RigError, CameraError) as error:  # as campaign run: a port or camera not there 2, a fault in work 1
         mapped = failure(error)
         raise CliError(f"{mapped} (session {args.out}: stopped as failed)", exit_code=mapped.exit_code) from None
