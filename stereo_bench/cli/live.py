@@ -38,9 +38,12 @@ def live_config(args: argparse.Namespace):
     if args.cameras:
         cameras.update(kind="v4l2", left=args.cameras[0], right=args.cameras[1])
     plan = dict(data.get("plan", {}))
+    # The file's first angle, as alpha: a file giving toe_in_deg keeps only the alpha set here (both: refused).
+    toe_ins = plan.pop("toe_in_deg", None)
+    first_alpha = 90.0 - toe_ins[0] if toe_ins else (plan.get("alpha_deg") or [90.0])[0]
     plan.update(baseline_mm=[args.baseline if args.baseline is not None else (plan.get("baseline_mm") or [100.0])[0]],
                 distance_mm=[args.distance if args.distance is not None else (plan.get("distance_mm") or [500.0])[0]],
-                alpha_deg=[args.alpha if args.alpha is not None else (plan.get("alpha_deg") or [90.0])[0]])
+                alpha_deg=[args.alpha if args.alpha is not None else first_alpha])
     data.update(rig=rig, cameras=cameras, plan=plan, name=data.get("name", "live preview"))
     for key in ("tilt_deg",):
         plan.pop(key, None)
