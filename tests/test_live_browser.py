@@ -106,6 +106,11 @@ def test_a_campaign_followed_and_steered_from_the_live_page(tmp_path):
             second.wait_for_selector("#results-table tr[data-config='B100_Z400_A90']", timeout=10_000)
             assert second.inner_text("#results-table tbody tr") == row
             page.wait_for_selector(".cov canvas", timeout=10_000)  # the coverage of the kept views
+            # The results plot's series legend sits below the plot, clear of the error bars (it overlapped them).
+            page.wait_for_selector("#plot .legend", timeout=10_000)
+            plot, legend = page.locator("#plot svg").bounding_box(), page.locator("#plot .legend").bounding_box()
+            assert legend is not None and legend["y"] >= plot["y"] + plot["height"], (plot, legend)
+            assert "Z = 400 mm" in page.inner_text("#plot .legend")
             if SCREENSHOT:
                 page.screenshot(path=SCREENSHOT, full_page=True)
 

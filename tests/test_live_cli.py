@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import re
 import signal
@@ -15,6 +16,7 @@ import pytest
 
 from stereo_bench.cli import main
 from stereo_bench.cli.campaign_run import start_live_page
+from stereo_bench.cli.live import live_config
 from stereo_bench.live.page import LivePage
 from stereo_bench.live.server import LiveServerError
 from tests.campaigns import small_config
@@ -77,3 +79,14 @@ def test_live_refuses_a_simulated_rig_with_real_cameras(capsys):
     assert main(["live", "--cameras", "usb-port:1-2", "usb-port:1-3", "--ui-port", "0"]) == 2
     error = capsys.readouterr().err.strip().splitlines()
     assert len(error) == 1 and "cameras" in error[0] and "rig" in error[0]
+
+
+def test_live_takes_the_first_configuration_of_a_campaign_given_in_toe_ins(tmp_path):
+    # A campaign file may give its angles as toe_in_deg; live sets alpha_deg, and the plan refuses both.
+    campaign = tmp_path / "toe.toml"
+    campaign.write_text('name = "t"\n[plan]\nbaseline_mm = [120]\ndistance_mm = [600]\ntoe_in_deg = [10, 20]\n')
+    options = dict(campaign=str(campaign), port=None, rig_config=None, time_scale=None, cameras=None, baseline=None,
+                   distance=None, alpha=None)
+    plan = live_config(argparse.Namespace(**options)).plan
+    assert (plan.baseline_mm, plan.distance_mm, plan.alpha_deg, plan.toe_in_deg) == ([120.0], [600.0], [80.0], None)
+    assert live_config(argparse.Namespace(**{**options, "alpha": 70.0})).plan.alpha_deg == [70.0]

@@ -112,6 +112,15 @@ def test_unreachable_port(tmp_path, capsys):
     assert "cannot open serial port" in _one_line_error(err) and "No such file or directory" in err
 
 
+def test_calibrate_kinematics_on_a_port_that_is_not_there_is_exit_2_as_campaign_run(tmp_path, capsys):
+    # The one mapping (stereo_bench.cli.failure): a port that is not there is the user's to fix (2), not a fault
+    # of the controller during work (1); `campaign run` on the same port says 2.
+    code, _, err = _run(capsys, "rig", "--port", str(tmp_path / "no-such-tty"), "calibrate-kinematics",
+                        "--out", str(tmp_path / "kin"))
+    assert code == 2, err
+    assert "cannot open serial port" in err and "stopped as failed" in err
+
+
 def test_move_before_homing_is_a_clear_error(emulator, capsys):
     code, _, err = _run(capsys, "rig", "--port", emulator.tty_path, "move", "--baseline", "10")
     assert code == 1

@@ -34,12 +34,9 @@ def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: 
         raise CliError("give a campaign file or --preset NAME, not both")
     if plan_file is None and preset is None:
         raise CliError("give a campaign file or --preset NAME")
-    from stereo_bench.campaign.config import ConfigError, load_campaign, load_preset
+    from stereo_bench.campaign.config import load_campaign, load_preset
 
-    try:
-        config = load_preset(preset) if preset is not None else load_campaign(plan_file)  # type: ignore[arg-type]
-    except ConfigError as error:
-        raise CliError(str(error)) from None
+    config = load_preset(preset) if preset is not None else load_campaign(plan_file)  # type: ignore[arg-type]
     if time_scale is not None:
         if config.rig.kind != "simulated":
             raise CliError("--time-scale applies to the simulated rig only")
@@ -183,12 +180,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     from drivers.rig.config import RigError
     from stereo_bench.campaign.execute import (
         CampaignPlan,
-        OperatorAbsent,
         RunControl,
         default_operators,
         run_campaign,
     )
-    from stereo_bench.campaign.session import SessionError
     from stereo_bench.campaign.stream import JsonLines
 
     config = config_from_args(Path(args.plan) if args.plan else None, args.preset, time_scale=args.time_scale,
@@ -240,8 +235,6 @@ def cmd_run(args: argparse.Namespace) -> int:
         progress.close()
         ended = True
         return _summarise(args, summary, out, resume_command, time.monotonic() - started)
-    except (SessionError, OperatorAbsent) as error:
-        raise CliError(str(error)) from None
     except (RigError, CameraError) as error:  # recorded as 'failed' in the session; one line here
         mapped = failure(error)  # a port or camera that is not there: 2; a fault during the run: 1
         raise CliError(f"{mapped} (session {out}: stopped as failed)", exit_code=mapped.exit_code) from None

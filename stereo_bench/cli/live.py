@@ -15,19 +15,15 @@ import sys
 import threading
 from pathlib import Path
 
-from stereo_bench.cli import CliError
 from stereo_bench.cli.args import ALPHA_DEG, BASELINE_MM, DISTANCE_MM, TIME_SCALE
 from stereo_bench.cli.campaign_run import add_ui_options, announce_live_page
 
 
 def live_config(args: argparse.Namespace):
     """The campaign config the preview opens its bench from: a campaign file (or the defaults), the options applied."""
-    from stereo_bench.campaign.config import ConfigError, campaign_from_dict, load_campaign
+    from stereo_bench.campaign.config import campaign_from_dict, load_campaign
 
-    try:
-        base = load_campaign(Path(args.campaign)) if args.campaign else None
-    except ConfigError as error:
-        raise CliError(str(error)) from None
+    base = load_campaign(Path(args.campaign)) if args.campaign else None
     data = base.model_dump(mode="json", exclude_none=True) if base is not None else {}
     rig = dict(data.get("rig", {}))
     cameras = dict(data.get("cameras", {}))
@@ -42,16 +38,16 @@ def live_config(args: argparse.Namespace):
     if args.cameras:
         cameras.update(kind="v4l2", left=args.cameras[0], right=args.cameras[1])
     plan = dict(data.get("plan", {}))
+    # The file's first angle, as alpha: a file giving toe_in_deg keeps only the alpha set here (both: refused).
+    toe_ins = plan.pop("toe_in_deg", None)
+    first_alpha = 90.0 - toe_ins[0] if toe_ins else (plan.get("alpha_deg") or [90.0])[0]
     plan.update(baseline_mm=[args.baseline if args.baseline is not None else (plan.get("baseline_mm") or [100.0])[0]],
                 distance_mm=[args.distance if args.distance is not None else (plan.get("distance_mm") or [500.0])[0]],
-                alpha_deg=[args.alpha if args.alpha is not None else (plan.get("alpha_deg") or [90.0])[0]])
+                alpha_deg=[args.alpha if args.alpha is not None else first_alpha])
     data.update(rig=rig, cameras=cameras, plan=plan, name=data.get("name", "live preview"))
     for key in ("tilt_deg",):
         plan.pop(key, None)
-    try:
-        return campaign_from_dict(data, source=args.campaign or "live options")
-    except ConfigError as error:
-        raise CliError(str(error)) from None
+    return campaign_from_dict(data, source=args.campaign or "live options")
 
 
 def cmd_live(args: argparse.Namespace) -> int:

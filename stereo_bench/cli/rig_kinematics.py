@@ -21,7 +21,8 @@ import sys
 import time
 from pathlib import Path
 
-from stereo_bench.cli import CliError
+from stereo_bench.cli import CliError, failure
+from stereo_bench.cli.args import BASELINE_MM, DISTANCE_MM, TIME_SCALE, TOE_IN_DEG
 
 EXIT_INTERRUPTED = 130
 
@@ -39,17 +40,17 @@ def parser() -> argparse.ArgumentParser:
                             "`rig --port` is given.")
     p.add_argument("--config", type=Path, metavar="FILE", help="campaign file: its plan's range, boards, cameras")
     p.add_argument("--preset", metavar="NAME", help="a built-in campaign instead of --config")
-    p.add_argument("--baseline-range", type=float, nargs=2, metavar=("MIN", "MAX"),
+    p.add_argument("--baseline-range", type=BASELINE_MM, nargs=2, metavar=("MIN", "MAX"),
                    help="baselines the model must cover, mm (default: the campaign's, else 50 250)")
-    p.add_argument("--toe-in-range", type=float, nargs=2, metavar=("MIN", "MAX"),
+    p.add_argument("--toe-in-range", type=TOE_IN_DEG, nargs=2, metavar=("MIN", "MAX"),
                    help="toe-ins the model must cover, deg (default: the campaign's, else 0 20)")
-    p.add_argument("--distance", type=float, metavar="MM",
+    p.add_argument("--distance", type=DISTANCE_MM, metavar="MM",
                    help="where the calibration board is shown, mm (default: the middle of the campaign's distances)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="session directory (never overwritten)")
     p.add_argument("--model", type=Path, metavar="FILE",
                    help="where to write the model (default OUT/kinematic_model.toml)")
     p.add_argument("--yes", action="store_true", help="simulated cameras: the simulator presents the boards")
-    p.add_argument("--time-scale", type=float, metavar="X", help="simulated rig: X times faster than real time")
+    p.add_argument("--time-scale", type=TIME_SCALE, metavar="X", help="simulated rig: X times faster than real time")
     p.add_argument("--sim", choices=("lab", "ideal"), help="simulated cameras: the bench's profile")
     p.add_argument("--json", action="store_true", help="print one JSON object (the model's summary) on stdout")
     return p
@@ -59,7 +60,7 @@ def _config(args, port: str | None, rig_config: Path | None):
     """The campaign config of the design: the file's or preset's, extrinsics kinematic, the ranges applied."""
     import tomllib
 
-    from stereo_bench.campaign.config import ConfigError, campaign_from_dict, preset_text
+    from stereo_bench.campaign.config import campaign_from_dict, preset_text
 
     if args.config is not None and args.preset is not None:
         raise CliError("rig calibrate-kinematics: give --config FILE or --preset NAME, not both")
@@ -70,8 +71,6 @@ def _config(args, port: str | None, rig_config: Path | None):
             data = tomllib.loads(preset_text(args.preset))
         else:
             data = {}
-    except ConfigError as error:
-        raise CliError(str(error)) from None
     except OSError as error:
         raise CliError(f"--config {args.config}: cannot read: {error.strerror or error}") from None
     except tomllib.TOMLDecodeError as error:
@@ -104,19 +103,16 @@ def _config(args, port: str | None, rig_config: Path | None):
         data["sim"] = {**(data.get("sim") or {}), "profile": args.sim}
     source = str(args.config) if args.config is not None else f"preset {args.preset}" if args.preset else \
         "rig calibrate-kinematics"
-    try:
-        return campaign_from_dict(data, source=source, base_dir=args.config.parent if args.config is not None else None)
-    except ConfigError as error:
-        raise CliError(str(error)) from None
+    return campaign_from_dict(data, source=source, base_dir=args.config.parent if args.config is not None else None)
 
 
 def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
     """``rig calibrate-kinematics`` with its own options ``argv``; ``port``/``rig_config``: the rig group's."""
     from drivers.camera.base import CameraError
     from drivers.rig.config import RigError
-    from stereo_bench.campaign.execute import CampaignPlan, OperatorAbsent, RunControl, run_campaign
+    from stereo_bench.campaign.execute import CampaignPlan, RunControl, run_campaign
     from stereo_bench.campaign.extrinsics_run import recorded_sources
-    from stereo_bench.campaign.session import SessionError, SessionReader
+    from stereo_bench.campaign.session import SessionReader
     from stereo_bench.kinematics import save_model
 
     args = parser().parse_args(argv)
@@ -142,10 +138,9 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
           f"views on the {config.bench_kind} bench; recording {args.out}", file=sys.stderr, flush=True)
     try:
         summary = run_campaign(config, args.out, yes=args.yes, control=control, plan=plan)
-    except (SessionError, OperatorAbsent) as error:
-        raise CliError(str(error)) from None
-    except (RigError, CameraError) as error:
-        raise CliError(f"{error} (session {args.out}: stopped as failed)", exit_code=1) from None
+    except (RigError, CameraError) as error:  # as campaign run: a port or camera not there 2, a fault in work 1
+        mapped = failure(error)
+        raise CliError(f"{mapped} (session {args.out}: stopped as failed)", exit_code=mapped.exit_code) from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -210,20 +210,23 @@ function renderPlot(rows, varying) {
   svg += `<line x1="${L}" x2="${W - R}" y1="${sy(0).toFixed(1)}" y2="${sy(0).toFixed(1)}" stroke="#6b7385" stroke-dasharray="4 3"/>`;
   svg += `<text x="${(L + W - R) / 2}" y="${H - 6}" text-anchor="middle">${QUANTITY[xKey][0]} (${QUANTITY[xKey][1]})</text>`;
   svg += `<text transform="translate(12 ${(T + H - B) / 2}) rotate(-90)" text-anchor="middle">error (mm) ± ${rows.some((r) => r.U_expanded_mm !== undefined) ? "U" : "2σ"}</text>`;
-  const groups = new Map();
+  const groups = new Map(), legend = [];
   for (const r of rows) { const key = seriesKey ? r[seriesKey] : ""; if (!groups.has(key)) groups.set(key, []); groups.get(key).push(r); }
   [...groups.keys()].sort((a, b) => a - b).forEach((key, i) => {
     const colour = SERIES_COLOURS[i % SERIES_COLOURS.length];
+    const dodge = (i - (groups.size - 1) / 2) * 4;  // px: series at the same x keep their error bars apart
+    const px = (r) => (sx(r[xKey]) + dodge).toFixed(1);
     const points = groups.get(key).sort((a, b) => a[xKey] - b[xKey]);
-    if (points.length > 1) svg += `<polyline fill="none" stroke="${colour}" stroke-width="1.5" points="${points.map((r) => `${sx(r[xKey]).toFixed(1)},${sy(r.error_mm).toFixed(1)}`).join(" ")}"/>`;
+    if (points.length > 1) svg += `<polyline fill="none" stroke="${colour}" stroke-width="1.5" points="${points.map((r) => `${px(r)},${sy(r.error_mm).toFixed(1)}`).join(" ")}"/>`;
     for (const r of points) {
-      const u = uncertainty(r) || 0, x = sx(r[xKey]).toFixed(1);
+      const u = uncertainty(r) || 0, x = px(r);
       svg += `<line x1="${x}" x2="${x}" y1="${sy(r.error_mm - u).toFixed(1)}" y2="${sy(r.error_mm + u).toFixed(1)}" stroke="${colour}"/>` +
         `<circle cx="${x}" cy="${sy(r.error_mm).toFixed(1)}" r="3.5" fill="${colour}"><title>${esc(r.config_id)}: ${r.error_mm.toFixed(4)} mm</title></circle>`;
     }
-    if (seriesKey) svg += `<text x="${W - R - 4}" y="${T + 12 + 13 * i}" text-anchor="end" fill="${colour}" style="fill:${colour}">${QUANTITY[seriesKey][0]} = ${fmtTick(key, 1)} ${QUANTITY[seriesKey][1]}</text>`;
+    // Below the plot, not in it: inside, the top-right corner is where the error bars of the largest x reach.
+    if (seriesKey) legend.push(`<span style="color:${colour}">■ ${QUANTITY[seriesKey][0]} = ${fmtTick(key, 1)} ${QUANTITY[seriesKey][1]}</span>`);
   });
-  box.innerHTML = svg + "</svg>";
+  box.innerHTML = svg + "</svg>" + (legend.length ? `<div class="legend series">${legend.join("")}</div>` : "");
 }
 function niceStep(raw) { const p = Math.pow(10, Math.floor(Math.log10(raw || 1))); const f = raw / p; return (f < 1.5 ? 1 : f < 3 ? 2 : f < 7 ? 5 : 10) * p; }
 function fmtTick(v, step) {
