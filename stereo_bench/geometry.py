@@ -79,8 +79,8 @@ def _rot_y(angle_rad: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
-def axis_rotation(axis: str, angle_deg: float) -> np.ndarray:
-    """(3, 3) right-handed rotation by ``angle_deg`` about the frame's ``"x"``, ``"y"`` or ``"z"`` axis."""
+def rotation_deg(axis: str, angle_deg: float) -> np.ndarray:
+    """(3, 3) right-handed rotation by ``angle_deg`` about the frame's ``axis`` ("x", "y" or "z")."""
     c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
     if axis == "x":
         return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
@@ -204,6 +204,33 @@ def board_pose_facing_rig(
     centre = np.array([centre_offset_mm[0], centre_offset_mm[1], distance_mm])
     origin = centre - R @ np.array([width_mm / 2.0, height_mm / 2.0, 0.0])
     return make_transform(R, origin)
+
+
+def mean_view_frame(T_rig_left: np.ndarray, T_rig_right: np.ndarray) -> np.ndarray:
+    """(3, 3) R_rig_view: the rig's mean viewing frame, z along the sum of the two optical axes, x along the
+    baseline (the rig's x made perpendicular to z), y = z x x. Columns are the view axes in the rig frame."""
+    z_axis = T_rig_left[:3, 2] + T_rig_right[:3, 2]
+    z_axis = z_axis / np.linalg.norm(z_axis)
+    x_axis = np.array([1.0, 0.0, 0.0]) - z_axis[0] * z_axis
+    x_axis /= np.linalg.norm(x_axis)
+    return np.column_stack([x_axis, np.cross(z_axis, x_axis), z_axis])
+
+
+def board_pose_in_view(
+    R_rig_view: np.ndarray, grid_centre: np.ndarray, distance_mm: float, offset: tuple[float, float] | np.ndarray,
+    yaw_deg: float, pitch_deg: float, roll_deg: float,
+) -> np.ndarray:
+    """T_rig_board (4x4, mm) of a board whose grid centre ``grid_centre`` (3,) (board frame, mm) sits at
+    ``distance_mm`` along the view direction (offset[0], offset[1], 1) of :func:`mean_view_frame`
+    ``R_rig_view``, facing the rig origin and then turned about its own y, x, z axes (degrees, in that order)."""
+    x_axis = R_rig_view[:, 0]
+    centre = distance_mm * (R_rig_view @ np.array([offset[0], offset[1], 1.0]))
+    normal = centre / np.linalg.norm(centre)
+    bx = x_axis - (x_axis @ normal) * normal
+    bx /= np.linalg.norm(bx)
+    R_face = np.column_stack([bx, np.cross(normal, bx), normal])
+    R = R_face @ rotation_deg("y", yaw_deg) @ rotation_deg("x", pitch_deg) @ rotation_deg("z", roll_deg)
+    return make_transform(R, centre - R @ grid_centre)
 
 
 def _coefficients(dist) -> tuple[float, ...]:

@@ -55,7 +55,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from stereo_bench.geometry import RigPose, alpha_from_toe_in, stereo_structure
+from stereo_bench.geometry import RigPose, alpha_from_toe_in, rotation_deg, stereo_structure
 
 AXES = ("baseline_mm", "toe_in_left_deg", "toe_in_right_deg")
 FILE_SCHEMA = "stereo-bench kinematic rig model 1"
@@ -130,15 +130,6 @@ def _rvec(R: np.ndarray) -> np.ndarray:
     return cv2.Rodrigues(np.asarray(R, dtype=float))[0].reshape(3)
 
 
-def _rot(axis: str, rad: float) -> np.ndarray:
-    c, s = math.cos(rad), math.sin(rad)
-    if axis == "x":
-        return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-    if axis == "y":
-        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def _axis_angle(direction: np.ndarray, rad: float) -> np.ndarray:
     """(3, 3) rotation by ``rad`` about the unit vector ``direction`` (one rotation: no batch overhead)."""
     x, y, z = float(direction[0]), float(direction[1]), float(direction[2])
@@ -169,7 +160,7 @@ def _pan_line(p: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
     """(unit direction, point) of a pan axis in its camera's frame, from parameter vector ``p``."""
     i = _INDEX[f"{side}_axis_tilt_x_deg"]
     tilt_x, tilt_z, x, z = p[i], p[i + 1], p[i + 2], p[i + 3]
-    direction = _rot("x", math.radians(tilt_x)) @ _rot("z", math.radians(tilt_z)) @ np.array([0.0, 1.0, 0.0])
+    direction = rotation_deg("x", tilt_x) @ rotation_deg("z", tilt_z) @ np.array([0.0, 1.0, 0.0])
     return direction, np.array([x, 0.0, z])
 
 
@@ -192,7 +183,7 @@ def chain(p: np.ndarray, reference_baseline_mm: float, baseline_mm: float, toe_i
     right_dir, right_point = _pan_line(p, "right")
     T_S_L = _about_line(left_dir, left_point, math.radians(p[_INDEX["left_angle_scale"]] * toe_in_left_deg))
     T_R0_R = _about_line(right_dir, right_point, -math.radians(p[_INDEX["right_angle_scale"]] * toe_in_right_deg))
-    d = (_rot("y", math.radians(p[_INDEX["slide_yaw_deg"]])) @ _rot("z", math.radians(p[_INDEX["slide_pitch_deg"]]))
+    d = (rotation_deg("y", p[_INDEX["slide_yaw_deg"]]) @ rotation_deg("z", p[_INDEX["slide_pitch_deg"]])
          @ np.array([1.0, 0.0, 0.0]))
     i = _INDEX["right_rot_x_deg"]
     T_S_R0 = np.eye(4)
@@ -248,15 +239,15 @@ def _as_built_camera(side: str, baseline_mm: float, toe_in_deg: float, tilt_deg:
     """
     sign = 1.0 if side == "left" else -1.0
     separation = baseline_mm * (1.0 + d["baseline_scale"]) + d["baseline_zero_mm"]
-    slide = (_rot("y", math.radians(d["slide_yaw_deg"])) @ _rot("z", math.radians(d["slide_pitch_deg"]))
+    slide = (rotation_deg("y", d["slide_yaw_deg"]) @ rotation_deg("z", d["slide_pitch_deg"])
              @ np.array([1.0, 0.0, 0.0]))
-    axis = (_rot("x", math.radians(d["axis_tilt_x_deg"])) @ _rot("z", math.radians(d["axis_tilt_z_deg"]))
+    axis = (rotation_deg("x", d["axis_tilt_x_deg"]) @ rotation_deg("z", d["axis_tilt_z_deg"])
             @ np.array([0.0, 1.0, 0.0]))
     pan = sign * math.radians(toe_in_deg * (1.0 + d["pan_scale"]) + d["yaw_deg"] + d["pan_repeat_deg"])
     R_pan = _axis_angle(axis, pan)
-    R_mount = _rot("z", math.radians(d["roll_deg"])) @ _rot("x", math.radians(d["pitch_deg"]))
+    R_mount = rotation_deg("z", d["roll_deg"]) @ rotation_deg("x", d["pitch_deg"])
     T = np.eye(4)
-    T[:3, :3] = R_pan @ R_mount @ _rot("x", -math.radians(tilt_deg))
+    T[:3, :3] = R_pan @ R_mount @ rotation_deg("x", -tilt_deg)
     offset = np.array([d["centre_sideways_mm"], -d["centre_height_mm"],
                        d["centre_forward_mm"] + d["centre_forward_each_mm"]])
     T[:3, 3] = -sign * separation / 2.0 * slide + R_pan @ offset
@@ -894,10 +885,10 @@ def _initial_parameters(free: np.ndarray, B_ref: float, configurations: Sequence
                                     abs(configurations[i].axes["baseline_mm"] - B_ref)))
     axes = configurations[c0].axes
     T_S_L = np.eye(4)
-    T_S_L[:3, :3] = _rot("y", math.radians(axes["toe_in_left_deg"]))
+    T_S_L[:3, :3] = rotation_deg("y", axes["toe_in_left_deg"])
     T_S_R = T_S_L @ np.linalg.inv(T_rl[c0])
     T_S_R[:3, 3] -= (axes["baseline_mm"] - B_ref) * np.array([1.0, 0.0, 0.0])
-    T_S_R[:3, :3] = T_S_R[:3, :3] @ _rot("y", math.radians(axes["toe_in_right_deg"]))
+    T_S_R[:3, :3] = T_S_R[:3, :3] @ rotation_deg("y", axes["toe_in_right_deg"])
     i = _INDEX["right_rot_x_deg"]
     p[i : i + 3] = np.degrees(_rvec(T_S_R[:3, :3]))
     p[i + 3 : i + 6] = T_S_R[:3, 3]

@@ -72,3 +72,21 @@ def test_camera_models_compare_and_hash_by_value():
     a, b = CameraModel.from_sensor(name="left"), CameraModel.from_sensor(name="right")
     assert a == b and hash(a) == hash(b) and len({a, b}) == 1
     assert a != CameraModel.from_sensor(focal_mm=6.0)
+
+
+def test_board_pose_in_view_puts_the_grid_centre_on_the_view_ray_facing_the_rig():
+    from stereo_bench.geometry import board_pose_in_view, mean_view_frame, rotation_deg
+
+    rig = RigPose(baseline_mm=150.0, alpha_left_deg=80.0, alpha_right_deg=85.0)
+    R_view = mean_view_frame(rig.T_rig_left, rig.T_rig_right)
+    np.testing.assert_allclose(R_view.T @ R_view, np.eye(3), atol=1e-12)
+    assert abs(R_view[1, 0]) < 1e-15 and R_view[:, 2] @ rig.T_rig_left[:3, 2] > 0.9  # x in the rig's x-z plane
+    grid_centre = np.array([100.0, 60.0, 0.0])
+    T = board_pose_in_view(R_view, grid_centre, 500.0, (0.1, -0.05), 0.0, 0.0, 0.0)
+    centre_rig = T[:3, :3] @ grid_centre + T[:3, 3]
+    np.testing.assert_allclose(centre_rig, 500.0 * R_view @ np.array([0.1, -0.05, 1.0]), atol=1e-9)
+    np.testing.assert_allclose(T[:3, 2], centre_rig / np.linalg.norm(centre_rig), atol=1e-12)  # faces the rig
+    turned = board_pose_in_view(R_view, grid_centre, 500.0, (0.1, -0.05), 20.0, 0.0, 0.0)
+    np.testing.assert_allclose(turned[:3, :3], T[:3, :3] @ rotation_deg("y", 20.0), atol=1e-12)
+    with pytest.raises(ValueError, match="axis"):
+        rotation_deg("w", 1.0)

@@ -187,11 +187,11 @@ def test_camera_pose_rejects_an_unknown_side():
 
 
 def test_axis_rotation_is_right_handed_about_each_axis():
-    from stereo_bench.geometry import axis_rotation
+    from stereo_bench.geometry import rotation_deg
 
     for axis, before, after in (("x", (0, 1, 0), (0, 0, 1)), ("y", (0, 0, 1), (1, 0, 0)), ("z", (1, 0, 0), (0, 1, 0))):
-        R = axis_rotation(axis, 90.0)
+        R = rotation_deg(axis, 90.0)
         np.testing.assert_allclose(R @ np.array(before, float), after, atol=1e-15)
-        np.testing.assert_allclose(R @ axis_rotation(axis, -90.0), np.eye(3), atol=1e-15)
+        np.testing.assert_allclose(R @ rotation_deg(axis, -90.0), np.eye(3), atol=1e-15)
     with pytest.raises(ValueError, match="'w'"):
-        axis_rotation("w", 1.0)
+        rotation_deg("w", 1.0)

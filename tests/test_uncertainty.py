@@ -58,6 +58,43 @@ def test_board_scale_cancels_on_the_same_board_and_is_validated():
         BoardScale(target_u_rel=-1e-4)
 
 
+def _scaled_board_frames(config: Configuration, calib, target_scale: float) -> list[FrameCorners]:
+    """One noise-free frame of a board printed ``target_scale`` times its nominal size."""
+    from stereo_bench.errormodel.rigorous import visible_corners
+    from tests.synthetic_rig import project_pair
+
+    ids, _ = visible_corners(config.setup)
+    points = target_scale * np.asarray(TARGET.object_points, float)[ids]
+    left, right = project_pair(config.rig, config.setup.T_rig_board, points, np.random.default_rng(0), 0.0)
+    return [FrameCorners(ids, left, right, 0.0, (0.0, 0.0))]
+
+
+def test_target_component_matches_the_scatter_of_boards_printed_within_their_tolerance():
+    # Each trial prints both boards afresh within their stated relative uncertainties: a calibration board
+    # s_c times nominal scales the calibrated translation by 1/s_c (the board sets the scale), the measured
+    # board is s_m times nominal. The square's error against the nominal must scatter as the target component.
+    config = CONFIGURATIONS[1]
+    true = _true_calibration(config)
+    scale = BoardScale(target_u_rel=1e-3, calibration_board_u_rel=2e-3)  # either alone, or summed, would fail
+    rng = np.random.default_rng(11)
+    errors, claimed = [], set()
+    for _ in range(200):
+        s_c = 1.0 + scale.calibration_board_u_rel * rng.standard_normal()
+        s_m = 1.0 + scale.target_u_rel * rng.standard_normal()
+        calib = replace(true, T=np.asarray(true.T, float) / s_c)
+        budget = configuration_budget(_scaled_board_frames(config, calib, s_m), calib, TARGET, board_scale=scale)
+        errors.append(budget.error_mm)
+        claimed.add(round(budget.target, 12))
+    (target_mm,) = claimed
+    ratio = float(np.std(errors, ddof=1)) / target_mm
+    assert 0.85 <= ratio <= 1.15, ratio  # 200 trials: standard error of the std 5 %
+    # The same board for calibration and measurement: its scale cancels, as the zero component claims.
+    same = BoardScale(same_board=True)
+    calib = replace(true, T=np.asarray(true.T, float) / 1.004)
+    budget = configuration_budget(_scaled_board_frames(config, calib, 1.004), calib, TARGET, board_scale=same)
+    assert budget.target == 0.0 and abs(budget.error_mm) < 1e-6
+
+
 def test_square_sensitivity_to_the_baseline_is_the_square_over_the_baseline():
     # Parallel rig, T = (-B, 0, 0): every triangulated length scales with abs(T).
     config = CONFIGURATIONS[0]

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.sim.profile import CameraErrors, PanHeadErrors, SimProfile, SlideErrors
-from stereo_bench.geometry import axis_rotation, make_transform
+from stereo_bench.geometry import make_transform, rotation_deg
 
 SIDES = ("left", "right")
 # The quantities whose motion the mechanics model (tilts are fixed on every rig this simulates).
@@ -50,20 +50,20 @@ def rotation_about(axis: np.ndarray, deg: float) -> np.ndarray:
 
 def slide_direction(slide: SlideErrors) -> np.ndarray:
     """(3,) unit vector along which the right carriage moves away from the left one (bench frame)."""
-    return (axis_rotation("y", slide.direction_yaw_deg) @ axis_rotation("z", slide.direction_pitch_deg)
+    return (rotation_deg("y", slide.direction_yaw_deg) @ rotation_deg("z", slide.direction_pitch_deg)
             @ np.array([1.0, 0.0, 0.0]))
 
 
 def pan_axis(head: PanHeadErrors) -> np.ndarray:
     """(3,) unit direction of a head's pan axis (nominally the rig's +y, i.e. down)."""
-    return (axis_rotation("x", head.axis_tilt_x_deg) @ axis_rotation("z", head.axis_tilt_z_deg)
+    return (rotation_deg("x", head.axis_tilt_x_deg) @ rotation_deg("z", head.axis_tilt_z_deg)
             @ np.array([0.0, 1.0, 0.0]))
 
 
 def mount_rotation(head: PanHeadErrors) -> np.ndarray:
     """(3, 3) camera orientation on the head: yaw (about y, > 0 toward +x), pitch (> 0 down), roll (about z)."""
-    return (axis_rotation("y", head.mount_yaw_deg) @ axis_rotation("x", -head.mount_pitch_deg)
-            @ axis_rotation("z", head.mount_roll_deg))
+    return (rotation_deg("y", head.mount_yaw_deg) @ rotation_deg("x", -head.mount_pitch_deg)
+            @ rotation_deg("z", head.mount_roll_deg))
 
 
 def true_separation_mm(slide: SlideErrors, baseline_mm: float, *, approach: int = 0, landing_mm: float = 0.0) -> float:
@@ -101,8 +101,8 @@ def camera_pose(
     carriage = sign * separation_mm / 2.0 * slide_direction(profile.slide) + np.array([0.0, height, -forward])
     centre_on_head = np.array([head.centre_sideways_mm, -head.centre_height_mm, head.centre_forward_mm])
     R_pan = rotation_about(pan_axis(head), toward * (pan_deg + ringing_deg))
-    R_rock = axis_rotation("z", rock_deg)
-    R = R_rock @ R_pan @ mount_rotation(head) @ axis_rotation("x", -tilt_deg)
+    R_rock = rotation_deg("z", rock_deg)
+    R = R_rock @ R_pan @ mount_rotation(head) @ rotation_deg("x", -tilt_deg)
     return make_transform(R, carriage + R_rock @ R_pan @ centre_on_head)
 
 

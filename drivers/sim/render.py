@@ -51,11 +51,11 @@ from stereo_bench.geometry import (
     CALIBRATION_MAX_OBLIQUITY_DEG,
     CameraModel,
     RigPose,
-    axis_rotation,
     board_faces_camera,
+    board_pose_in_view,
     calibration_view_fits,
     invert_transform,
-    make_transform,
+    mean_view_frame,
     transform_points,
 )
 from stereo_bench.targets import CharucoTarget, Checkerboard
@@ -930,24 +930,13 @@ def calibration_board_poses(
     width_mm, height_mm = target.grid_size_mm
     grid_centre = np.array([width_mm / 2.0, height_mm / 2.0, 0.0])
 
-    # Mean viewing frame: z along the sum of the optical axes, x along the baseline.
-    z_axis = rig.T_rig_left[:3, 2] + rig.T_rig_right[:3, 2]
-    z_axis /= np.linalg.norm(z_axis)
-    x_axis = np.array([1.0, 0.0, 0.0]) - z_axis[0] * z_axis
-    x_axis /= np.linalg.norm(x_axis)
-    R_view = np.column_stack([x_axis, np.cross(z_axis, x_axis), z_axis])
+    R_view = mean_view_frame(rig.T_rig_left, rig.T_rig_right)
     f = 0.5 * (left.fx + right.fx)
     half_fov = np.array([left.image_size[0] / 2.0 / f, left.image_size[1] / 2.0 / f])
 
     def pose(distance, offset, yaw, pitch, roll):
-        centre = distance * (R_view @ np.array([offset[0], offset[1], 1.0]))
         # Face the rig origin, then tilt about the board's own axes through its centre.
-        normal = centre / np.linalg.norm(centre)
-        bx = x_axis - (x_axis @ normal) * normal
-        bx /= np.linalg.norm(bx)
-        R_face = np.column_stack([bx, np.cross(normal, bx), normal])
-        R = R_face @ axis_rotation("y", yaw) @ axis_rotation("x", pitch) @ axis_rotation("z", roll)
-        return make_transform(R, centre - R @ grid_centre)
+        return board_pose_in_view(R_view, grid_centre, distance, offset, yaw, pitch, roll)
 
     def acceptable(T_rig_board):
         return calibration_view_fits(target, T_rig_board, rig=rig, left=left, right=right, margin_px=margin_px,

@@ -51,8 +51,9 @@ from stereo_bench.geometry import (
     RigPose,
     board_faces_camera,
     board_pose_facing_rig,
+    board_pose_in_view,
     invert_transform,
-    make_transform,
+    mean_view_frame,
     transform_points,
 )
 from stereo_bench.targets import Checkerboard
@@ -546,24 +547,11 @@ def planned_board_poses(setup: Setup, plan: CalibrationPlan) -> list[np.ndarray]
     sq = board.square_mm  # the outer squares must show too: chessboard detectors need them
     outline = np.array([[x, y, 0.0] for x in (-sq, width + sq) for y in (-sq, height + sq)])
     check = np.vstack([points, outline])
-    z_axis = rig.T_rig_left[:3, 2] + rig.T_rig_right[:3, 2]
-    z_axis /= np.linalg.norm(z_axis)
-    x_axis = np.array([1.0, 0.0, 0.0]) - z_axis[0] * z_axis
-    x_axis /= np.linalg.norm(x_axis)
-    R_view = np.column_stack([x_axis, np.cross(z_axis, x_axis), z_axis])
+    R_view = mean_view_frame(rig.T_rig_left, rig.T_rig_right)
     f = 0.5 * (setup.left.fx + setup.right.fx)
     half_fov = np.array(setup.left.image_size, float) / 2.0 / f
     cameras = [(camera, invert_transform(T)) for camera, T in ((setup.left, rig.T_rig_left),
                                                               (setup.right, rig.T_rig_right))]
-
-    def pose(distance, offset, yaw, pitch, roll):
-        position = distance * (R_view @ np.array([offset[0], offset[1], 1.0]))
-        normal = position / np.linalg.norm(position)
-        bx = x_axis - (x_axis @ normal) * normal
-        bx /= np.linalg.norm(bx)
-        R_face = np.column_stack([bx, np.cross(normal, bx), normal])
-        R = R_face @ _rotation_y(yaw) @ _rotation_x(pitch) @ _rotation_z(roll)
-        return make_transform(R, position - R @ centre)
 
     def fits(T_rig_board):
         for camera, T_cam_rig in cameras:
@@ -591,7 +579,8 @@ def planned_board_poses(setup: Setup, plan: CalibrationPlan) -> list[np.ndarray]
             # The largest offset the board's size leaves in the mean field of view, scaled by the push.
             room = np.maximum(half_fov - np.array([width, height]) / 2.0 / d, 0.0)
             offset = push * (1.0 - ease) * room * np.array([math.cos(theta), math.sin(theta)])
-            candidate = pose(d, offset, t * math.cos(phi), t * math.sin(phi), roll * (1.0 - ease))
+            candidate = board_pose_in_view(R_view, centre, d, offset, t * math.cos(phi), t * math.sin(phi),
+                                           roll * (1.0 - ease))
             if fits(candidate):
                 poses.append(candidate)
                 break
@@ -600,21 +589,6 @@ def planned_board_poses(setup: Setup, plan: CalibrationPlan) -> list[np.ndarray]
                              f"{near:g}-{far:g} mm: the views overlap too little for a {board.cols}x{board.rows} "
                              f"board of {board.square_mm:g} mm squares")
     return poses
-
-
-def _rotation_x(angle_deg: float) -> np.ndarray:
-    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def _rotation_y(angle_deg: float) -> np.ndarray:
-    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _rotation_z(angle_deg: float) -> np.ndarray:
-    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def planned_calibration(setup: Setup, plan: CalibrationPlan, pixel_sigma_px: float) -> StereoCalibration:
