@@ -312,8 +312,10 @@ def test_the_truth_without_landing_errors_differs_from_the_truth_by_the_moves_la
 
 
 def _wait_rendered_ahead(bench: SimulatedBench, n: int, timeout_s: float = 60.0) -> None:
+    """Until ``n`` staged scenes are rendered and checked against the rig at rest: a trigger before that (a
+    loaded machine, the heads still ringing) renders anew, and the test would depend on the timing."""
     deadline = time.monotonic() + timeout_s
-    while bench.staged_rendered() < n:
+    while bench.staged_rendered() < n or not all(entry.checked for entry in bench._staged if entry.frames):
         assert time.monotonic() < deadline, "the staged scenes were never rendered ahead"
         time.sleep(0.01)
 
