@@ -714,15 +714,11 @@ class SessionWriter:
             view = view[os.write(self._fd, view):]
         os.fsync(self._fd)
 
-    def _append(self, doc: dict) -> dict:
-        """Append one document as one line and fsync; on failure cut the partial line off again.
-
-        Returns the document as recorded (strict JSON values).
-        """
+    def _append(self, doc: dict) -> None:
+        """Append one document as one line and fsync; on failure cut the partial line off again."""
         if self._fd is None:
             raise SessionError(f"{self.directory}: session is not open")
         line = encode_document(doc)
-        doc = json.loads(line)  # what was recorded: strict JSON values
         offset = self._size
         try:
             self._write_all(line)
@@ -732,7 +728,6 @@ class SessionWriter:
                 os.fsync(self._fd)
             raise
         self._size = offset + len(line)
-        return doc
 
     def _require_started(self) -> None:
         if self._fd is None:
