@@ -1007,10 +1007,6 @@ class SessionWriter:
         self._export_csv()
         return document
 
-    @property
-    def stopped(self) -> bool:
-        return self._stopped
-
     def completed_config_ids(self) -> set[str]:
         return set(self._completed)
 
