@@ -484,7 +484,7 @@ class CampaignRunner:
             left, right = self._capture(CalibrationViewEvent, index, captured.configuration)
             # Detected once, while the next views are captured; the analysis calibrates from these. A replay
             # of a session that kept the detections instead of the frames serves the recorded ones.
-            recorded = getattr(presenter, "recorded_detections", lambda index: None)(index)
+            recorded = presenter.recorded_detections(index)
             if recorded is not None:
                 found = (_done(recorded[0]), _done(recorded[1]))
             else:
