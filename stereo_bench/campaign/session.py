@@ -403,18 +403,13 @@ class SessionReader:
         return target
 
     def read_bytes(self, relative: str) -> bytes:
-        path = self.path(relative)
-        try:
-            return path.read_bytes()
-        except FileNotFoundError:
-            raise SessionError(f"{path}: side file missing") from None
-        except OSError as error:
-            raise SessionError(f"{path}: cannot read ({error.strerror})") from None
+        return _read_side_file(self.path(relative))
 
     def frame(self, relative: str) -> np.ndarray:
         """A recorded frame, exactly as written (grey (H, W) or BGR (H, W, 3))."""
+        path = self.path(relative)  # resolved once: a replay reads every frame of the session
         try:
-            return decode_frame(self.read_bytes(relative), str(self.path(relative)))
+            return decode_frame(_read_side_file(path), str(path))
         except FrameError as error:
             raise SessionError(str(error)) from None
 
@@ -440,6 +435,15 @@ class SessionReader:
 
 
 # -- writing -----------------------------------------------------------------------------------------
+def _read_side_file(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise SessionError(f"{path}: side file missing") from None
+    except OSError as error:
+        raise SessionError(f"{path}: cannot read ({error.strerror})") from None
+
+
 def first_difference(recorded: Any, now: Any, where: str) -> str | None:
     """Where two JSON values first differ, as ``key.path: recorded X, now Y``; None if equal."""
     def show(value: Any) -> str:
