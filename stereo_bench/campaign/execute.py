@@ -73,7 +73,7 @@ class CampaignPlan:
         return cls(configurations, plan_steps(config, configurations, visits), visits)
 
     @classmethod
-    def design_only(cls, plan: CampaignPlan, config: CampaignConfig | None = None) -> CampaignPlan:
+    def design_only(cls, plan: CampaignPlan) -> CampaignPlan:
         """Only the visits and the preparation of ``plan`` (``rig calibrate-kinematics``): nothing is measured."""
         steps = [step for cid, group in group_steps(plan.steps) if cid not in {c.config_id for c in plan.configurations}
                  for step in group]

@@ -555,10 +555,8 @@ class CampaignRunner:
             if not step.skipped:
                 self._visit_captures.append(captured if failed is None else Captured(captured.configuration))
             return
-        visits, captures = list(self.visits.values()), list(self._visit_captures)
-        self._visit_captures = []
-        self._prepared = self._analysis.submit(prepare_source, step.purpose, visits, captures, self.config,
-                                               self.options)
+        captures, self._visit_captures = self._visit_captures, []
+        self._prepared = self._analysis.submit(prepare_source, step.purpose, captures, self.config, self.options)
         self._pending.append((Captured(None), self._prepared))
 
     def _source(self):
