@@ -278,6 +278,9 @@ class SimulatedPresenter:
         self.bench.show(self.calibration_board, self._poses[index],
                         seed=scene_seed(self.seed, self._configuration.config_id, "calibration", index))
 
+    def recorded_detections(self, index: int) -> None:
+        return None  # the rendered views are detected
+
     def calibration_view_captured(self, index: int, left: Detection | None, right: Detection | None) -> None:
         return None
 

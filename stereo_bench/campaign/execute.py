@@ -73,7 +73,7 @@ class CampaignPlan:
         return cls(configurations, plan_steps(config, configurations, visits), visits)
 
     @classmethod
-    def design_only(cls, plan: CampaignPlan, config: CampaignConfig | None = None) -> CampaignPlan:
+    def design_only(cls, plan: CampaignPlan) -> CampaignPlan:
         """Only the visits and the preparation of ``plan`` (``rig calibrate-kinematics``): nothing is measured."""
         steps = [step for cid, group in group_steps(plan.steps) if cid not in {c.config_id for c in plan.configurations}
                  for step in group]
@@ -476,7 +476,8 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     not_reproducible, from_detections = reproducibility(reader, all_measured)
     measured = all_measured - set(not_reproducible)  # what is replayed
     # The visits run again (their recorded views fitted again) when the recording made its source from them.
-    visited = {v.config_id for v in campaign.visits if reader.events(config_id=v.config_id, kind="calibration_view")}
+    viewed = {event.get("config_id") for event in reader.events(kind="calibration_view")}  # one pass over the stream
+    visited = {v.config_id for v in campaign.visits if v.config_id in viewed}
     if visited:
         visited.add(PREPARE_ID)
     steps = [s for cid, group in group_steps(campaign.steps) if cid in measured | visited for s in group]

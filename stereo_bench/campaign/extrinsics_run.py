@@ -89,7 +89,7 @@ class Prepared:
         return out
 
 
-def prepare_source(purpose: str, visits: Sequence, captures: Sequence, config, options) -> Prepared:
+def prepare_source(purpose: str, captures: Sequence, config, options) -> Prepared:
     """Fit the kinematic model (``purpose`` kinematic) or calibrate the intrinsics (intrinsics) from the visits'
     captures (:class:`~stereo_bench.campaign.runner.Captured`, each with its calibration pairs, reported axes
     and approach). A failure is kept (``error``): every configuration then fails with it."""

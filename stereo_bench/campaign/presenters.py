@@ -38,6 +38,9 @@ class Presenter(Protocol):
 
     def present_calibration_view(self, index: int) -> Prompt | None: ...
 
+    def recorded_detections(self, index: int) -> tuple | None:
+        """A replay of views kept as detections only: view ``index``'s recorded (left, right); else None (detect)."""
+
     def calibration_view_captured(self, index: int, left: Detection | None, right: Detection | None) -> None: ...
 
     def calibration_view_discarded(self, index: int) -> None:
@@ -85,6 +88,9 @@ class OperatorPresenter:
         return Prompt("calibration_view", f"calibration view {index + 1}/{self._n_views}: hold the board still in "
                       f"both views, then press Enter ({self.coverage.summary()}{discard})",
                       config_id=self._config_id, index=index, actions=actions)
+
+    def recorded_detections(self, index: int) -> None:
+        return None  # the views are detected as they are captured
 
     def calibration_view_captured(self, index: int, left: Detection | None, right: Detection | None) -> None:
         for side, detection in (("left", left), ("right", right)):

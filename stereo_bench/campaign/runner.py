@@ -484,7 +484,7 @@ class CampaignRunner:
             left, right = self._capture(CalibrationViewEvent, index, captured.configuration)
             # Detected once, while the next views are captured; the analysis calibrates from these. A replay
             # of a session that kept the detections instead of the frames serves the recorded ones.
-            recorded = getattr(presenter, "recorded_detections", lambda index: None)(index)
+            recorded = presenter.recorded_detections(index)
             if recorded is not None:
                 found = (_done(recorded[0]), _done(recorded[1]))
             else:
@@ -555,10 +555,8 @@ class CampaignRunner:
             if not step.skipped:
                 self._visit_captures.append(captured if failed is None else Captured(captured.configuration))
             return
-        visits, captures = list(self.visits.values()), list(self._visit_captures)
-        self._visit_captures = []
-        self._prepared = self._analysis.submit(prepare_source, step.purpose, visits, captures, self.config,
-                                               self.options)
+        captures, self._visit_captures = self._visit_captures, []
+        self._prepared = self._analysis.submit(prepare_source, step.purpose, captures, self.config, self.options)
         self._pending.append((Captured(None), self._prepared))
 
     def _source(self):

@@ -403,18 +403,13 @@ class SessionReader:
         return target
 
     def read_bytes(self, relative: str) -> bytes:
-        path = self.path(relative)
-        try:
-            return path.read_bytes()
-        except FileNotFoundError:
-            raise SessionError(f"{path}: side file missing") from None
-        except OSError as error:
-            raise SessionError(f"{path}: cannot read ({error.strerror})") from None
+        return _read_side_file(self.path(relative))
 
     def frame(self, relative: str) -> np.ndarray:
         """A recorded frame, exactly as written (grey (H, W) or BGR (H, W, 3))."""
+        path = self.path(relative)  # resolved once: a replay reads every frame of the session
         try:
-            return decode_frame(self.read_bytes(relative), str(self.path(relative)))
+            return decode_frame(_read_side_file(path), str(path))
         except FrameError as error:
             raise SessionError(str(error)) from None
 
@@ -440,6 +435,15 @@ class SessionReader:
 
 
 # -- writing -----------------------------------------------------------------------------------------
+def _read_side_file(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise SessionError(f"{path}: side file missing") from None
+    except OSError as error:
+        raise SessionError(f"{path}: cannot read ({error.strerror})") from None
+
+
 def first_difference(recorded: Any, now: Any, where: str) -> str | None:
     """Where two JSON values first differ, as ``key.path: recorded X, now Y``; None if equal."""
     def show(value: Any) -> str:
@@ -714,15 +718,11 @@ class SessionWriter:
             view = view[os.write(self._fd, view):]
         os.fsync(self._fd)
 
-    def _append(self, doc: dict) -> dict:
-        """Append one document as one line and fsync; on failure cut the partial line off again.
-
-        Returns the document as recorded (strict JSON values).
-        """
+    def _append(self, doc: dict) -> None:
+        """Append one document as one line and fsync; on failure cut the partial line off again."""
         if self._fd is None:
             raise SessionError(f"{self.directory}: session is not open")
         line = encode_document(doc)
-        doc = json.loads(line)  # what was recorded: strict JSON values
         offset = self._size
         try:
             self._write_all(line)
@@ -732,7 +732,6 @@ class SessionWriter:
                 os.fsync(self._fd)
             raise
         self._size = offset + len(line)
-        return doc
 
     def _require_started(self) -> None:
         if self._fd is None:
@@ -1011,10 +1010,6 @@ class SessionWriter:
         self._stopped = True
         self._export_csv()
         return document
-
-    @property
-    def stopped(self) -> bool:
-        return self._stopped
 
     def completed_config_ids(self) -> set[str]:
         return set(self._completed)
