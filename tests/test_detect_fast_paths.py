@@ -1,0 +1,156 @@
+"""Detection's fast paths give bit-identical numbers to the plain computations they replace (replay must reproduce
+recorded sessions to the last bit): the search image, the structure tensors of corner_noise_px, and whole
+detections on rendered frames, the real image sets, odd sizes and colour input.
+
+The replay as a whole is checked against recorded numbers in tests/test_campaign_run.py.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from stereo_bench.frames import decode_frame
+from stereo_bench.targets import Checkerboard
+from stereo_bench.vision import detect as detect_module
+from stereo_bench.vision.detect import (
+    CORNER_NOISE_FACTOR,
+    corner_noise_px,
+    detect,
+    grid_spacing_px,
+    image_noise_dn,
+    subpix_half_window,
+)
+from tests.real_data import OPENCV_SAMPLE, PRESENT_CJN
+
+SAMPLE_FRAMES = Path(__file__).resolve().parents[1] / "calib_data" / "sample_session" / "frames"
+SAMPLE_TARGET = Checkerboard(9, 6, 27.0)
+
+
+def plain_search_image(gray: np.ndarray, search_width_px: int) -> np.ndarray:
+    """The search image as it was made before the box-sum fast path."""
+    height, width = gray.shape
+    scale = min(1.0, search_width_px / max(width, height))
+    return cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1.0 else gray
+
+
+def plain_corner_noise_px(gray: np.ndarray, corners_px: np.ndarray, *, half: int) -> np.ndarray:
+    """corner_noise_px as it was computed before: one float64 patch stack, per-pixel gradient products."""
+    sigma_image = image_noise_dn(gray)
+    size = 2 * half + 3
+    patches = np.stack([
+        cv2.getRectSubPix(gray, (size, size), (float(x), float(y))) for x, y in corners_px
+    ]).astype(np.float64)
+    gx = 0.5 * (patches[:, 1:-1, 2:] - patches[:, 1:-1, :-2])
+    gy = 0.5 * (patches[:, 2:, 1:-1] - patches[:, :-2, 1:-1])
+    axx, axy, ayy = (gx * gx).sum(axis=(1, 2)), (gx * gy).sum(axis=(1, 2)), (gy * gy).sum(axis=(1, 2))
+    det = axx * ayy - axy**2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sigmas = CORNER_NOISE_FACTOR * sigma_image * np.sqrt((axx + ayy) / det / 2.0)
+    return np.where(det > 1e-9, sigmas, np.nan)
+
+
+def assert_same_bits(fast: np.ndarray, plain: np.ndarray, what: str) -> None:
+    assert fast.dtype == plain.dtype and fast.shape == plain.shape, what
+    assert fast.tobytes() == plain.tobytes(), what  # NaN where NaN, and -0.0 apart from 0.0
+
+
+@cache
+def rendered_frames() -> tuple[np.ndarray, ...]:
+    paths = sorted(SAMPLE_FRAMES.rglob("*.png"))[::3]
+    assert len(paths) >= 10
+    return tuple(decode_frame(path.read_bytes(), str(path)) for path in paths)
+
+
+@cache
+def real_images() -> tuple[tuple[np.ndarray, Checkerboard], ...]:
+    """Every third image of both real sets, in colour (BGR) as the JPEG files hold them."""
+    sets = ((OPENCV_SAMPLE, "*.jpg", Checkerboard(9, 6, 30.0)), (PRESENT_CJN, "*.jpg", Checkerboard(8, 11, 12.0)))
+    images = tuple((cv2.imread(str(path), cv2.IMREAD_COLOR), board)
+                   for folder, pattern, board in sets for path in sorted(folder.glob(pattern))[::3])
+    assert len(images) >= 20 and all(image is not None for image, _ in images)
+    return images
+
+
+def random_image(shape: tuple[int, ...], seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 256, shape, dtype=np.uint8)
+
+
+@pytest.mark.parametrize("search_width_px", [640, 960])
+def test_search_image_is_bit_identical_to_inter_area_on_rendered_frames(search_width_px):
+    for frame in rendered_frames():
+        small, scale = detect_module._search_image(frame, search_width_px)
+        assert scale == min(1.0, search_width_px / max(frame.shape))
+        assert_same_bits(small, plain_search_image(frame, search_width_px), f"{frame.shape} at {search_width_px}")
+
+
+@pytest.mark.parametrize("shape, search_width_px", [
+    ((1080, 1920), 640),  # 1/3: the box-sum path
+    ((1920, 1080), 640),  # portrait
+    ((1200, 1920), 640),
+    ((1800, 3200), 640),  # 1/5
+    ((99, 3 * 640), 640),
+    ((1080, 1920), 960),  # 1/2: ties possible, INTER_AREA
+    ((1081, 1920), 640),  # not a whole number of blocks: INTER_AREA
+    ((1080, 1921), 640),  # not a whole-number factor: INTER_AREA
+    ((480, 640), 640),  # no reduction
+    ((720, 1280), 640),
+])
+def test_search_image_is_bit_identical_to_inter_area_on_any_image(shape, search_width_px):
+    # Random levels give block sums of every remainder, the nearest to half-way included (9 k + 4, 9 k + 5).
+    height, width = shape
+    ramp = np.add.outer(np.arange(height), np.arange(width)).astype(np.uint8)
+    for name, image in (("random", random_image(shape, 1)), ("white", np.full(shape, 255, np.uint8)), ("ramp", ramp)):
+        assert_same_bits(detect_module._search_image(image, search_width_px)[0],
+                         plain_search_image(image, search_width_px), f"{shape} {name}")
+
+
+def test_box_shrink_is_used_for_full_hd_frames():
+    """The fast path is the one taken by the replay's 1920x1080 frames at the default search width."""
+    assert detect_module._box_shrinks_exactly(np.zeros((1080, 1920), np.uint8), 3)
+    assert not detect_module._box_shrinks_exactly(np.zeros((1080, 1920), np.uint8), 2)
+    assert not detect_module._box_shrinks_exactly(np.zeros((1081, 1920), np.uint8), 3)
+
+
+def test_corner_noise_is_bit_identical_on_detected_corners_of_rendered_and_real_images():
+    cases = [(frame, SAMPLE_TARGET) for frame in rendered_frames()] + list(real_images())
+    checked = 0
+    for image, board in cases:
+        detection = detect(image, board, thorough=True)
+        if detection is None:
+            continue
+        gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+        half = subpix_half_window(grid_spacing_px(detection.corners_px.reshape(board.rows, board.cols, 2)))
+        assert_same_bits(detection.sigma_px, plain_corner_noise_px(gray, detection.corners_px, half=half),
+                         "the detection's sigmas")
+        for other_half in (2, 11):
+            assert_same_bits(corner_noise_px(gray, detection.corners_px, half=other_half),
+                             plain_corner_noise_px(gray, detection.corners_px, half=other_half), f"half {other_half}")
+        checked += 1
+    assert checked >= 30
+
+
+@pytest.mark.parametrize("shape", [(1080, 1920), (480, 640), (37, 300), (60, 41)])
+def test_corner_noise_is_bit_identical_at_any_point_and_at_the_image_border(shape):
+    rng = np.random.default_rng(shape[0])
+    height, width = shape
+    # Random texture, a smooth ramp (gradients everywhere equal) and a flat image (no gradient: NaN sigmas).
+    ramp = np.add.outer(np.arange(height), 2 * np.arange(width)).astype(np.uint8)
+    for image in (random_image(shape, 3), ramp, np.full(shape, 90, np.uint8)):
+        inside = rng.uniform([0, 0], [width - 1, height - 1], (200, 2))
+        corners = np.vstack([inside, [[0, 0], [width - 1, height - 1], [0.5, height / 2], [width - 1.5, 3.25]]])
+        for half in (2, 5, 11):
+            assert_same_bits(corner_noise_px(image, corners, half=half),
+                             plain_corner_noise_px(image, corners, half=half), f"{shape} half {half}")
+
+
+def test_detections_of_colour_and_grey_input_are_the_same():
+    image, board = real_images()[0]
+    colour, grey = detect(image, board), detect(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), board)
+    assert colour is not None and grey is not None
+    for field in ("ids", "corners_px", "sigma_px"):
+        assert_same_bits(getattr(colour, field), getattr(grey, field), field)
