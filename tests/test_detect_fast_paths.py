@@ -18,6 +18,7 @@ from stereo_bench.frames import decode_frame
 from stereo_bench.targets import Checkerboard
 from stereo_bench.vision import detect as detect_module
 from stereo_bench.vision.detect import (
+    _SEARCH_FLAGS,
     CORNER_NOISE_FACTOR,
     corner_noise_px,
     detect,
@@ -52,6 +53,10 @@ def plain_corner_noise_px(gray: np.ndarray, corners_px: np.ndarray, *, half: int
     with np.errstate(divide="ignore", invalid="ignore"):
         sigmas = CORNER_NOISE_FACTOR * sigma_image * np.sqrt((axx + ayy) / det / 2.0)
     return np.where(det > 1e-9, sigmas, np.nan)
+
+
+def plain_find_chessboard(small: np.ndarray, pattern_size: tuple[int, int]) -> tuple[bool, np.ndarray | None]:
+    return cv2.findChessboardCorners(small, pattern_size, flags=_SEARCH_FLAGS | cv2.CALIB_CB_FAST_CHECK)
 
 
 def assert_same_bits(fast: np.ndarray, plain: np.ndarray, what: str) -> None:
@@ -154,3 +159,57 @@ def test_detections_of_colour_and_grey_input_are_the_same():
     assert colour is not None and grey is not None
     for field in ("ids", "corners_px", "sigma_px"):
         assert_same_bits(getattr(colour, field), getattr(grey, field), field)
+
+
+def assert_same_search(small: np.ndarray, pattern_size: tuple[int, int], what: str) -> bool:
+    found, corners = detect_module._find_chessboard_fast_checked(small, pattern_size)
+    plain_found, plain_corners = plain_find_chessboard(small, pattern_size)
+    assert found == plain_found, what
+    if plain_corners is None:
+        assert corners is None, what
+    else:
+        assert_same_bits(corners, plain_corners, what)
+    return found
+
+
+def test_chessboard_search_is_the_fast_checked_one_on_rendered_frames_and_their_cut_and_empty_parts():
+    found = 0
+    for frame in rendered_frames():
+        for width in (640, 960):
+            small, _ = detect_module._search_image(frame, width)
+            if not assert_same_search(small, SAMPLE_TARGET.pattern_size, f"frame at {width} px"):
+                continue
+            found += 1
+            if found > 2:  # a cut board passes the gate and is searched for long (~0.3 s), in both
+                continue
+            # The board cut by the image border through its middle row of corners, and a strip beside it.
+            corners = plain_find_chessboard(small, SAMPLE_TARGET.pattern_size)[1].reshape(-1, 2)
+            cut = int(np.median(corners[:, 1]))
+            assert not assert_same_search(np.ascontiguousarray(small[:cut]), SAMPLE_TARGET.pattern_size, "cut")
+            left = int(corners[:, 0].min()) - 2
+            assert not assert_same_search(np.ascontiguousarray(small[:, :left]), SAMPLE_TARGET.pattern_size, "beside")
+        assert_same_search(detect_module._search_image(frame, 640)[0], (11, 8), "another board's size")
+    assert found >= 20  # the shortcut was taken
+
+
+def test_chessboard_search_is_the_fast_checked_one_on_real_images():
+    """Both real sets, in both orientations of the pattern size; FAST_CHECK rejects a real board in present_cjn."""
+    found = 0
+    for image, board in real_images():
+        gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        for pattern_size in (board.pattern_size, board.pattern_size[::-1]):
+            found += assert_same_search(gray, pattern_size, f"{board} {pattern_size}")
+    assert found >= 20
+    # leftPic17: the board is there, FAST_CHECK turns it away (checkChessboard too); leftPic07: no board.
+    for name in ("leftPic17.jpg", "leftPic07.jpg"):
+        gray = cv2.imread(str(PRESENT_CJN / name), cv2.IMREAD_GRAYSCALE)
+        assert not assert_same_search(gray, (8, 11), name)
+    assert cv2.findChessboardCorners(cv2.imread(str(PRESENT_CJN / "leftPic17.jpg"), cv2.IMREAD_GRAYSCALE), (8, 11),
+                                     flags=_SEARCH_FLAGS)[0]  # the gate, not the search, decides there
+
+
+@pytest.mark.parametrize("shape", [(360, 640), (37, 300), (60, 41), (5, 5)])
+def test_chessboard_search_is_the_fast_checked_one_without_a_board(shape):
+    ramp = np.add.outer(np.arange(shape[0]), np.arange(shape[1])).astype(np.uint8)
+    for image in (random_image(shape, 5), np.full(shape, 128, np.uint8), ramp):
+        assert not assert_same_search(image, (9, 6), f"{shape}")

@@ -174,11 +174,10 @@ def detect_checkerboard(
     """
     gray = to_gray(image)
     small, scale = _search_image(gray, search_width_px)
-    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
-    found, corners = cv2.findChessboardCorners(small, board.pattern_size, flags=flags)
+    found, corners = _find_chessboard_fast_checked(small, board.pattern_size)
     if not found and thorough:
         small, scale = _search_image(gray, max(search_width_px, THOROUGH_SEARCH_WIDTH_PX))
-        found, corners = cv2.findChessboardCorners(small, board.pattern_size, flags=flags)
+        found, corners = _find_chessboard_fast_checked(small, board.pattern_size)
         if not found:
             found, corners = cv2.findChessboardCornersSB(small, board.pattern_size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
     if not found:
@@ -186,6 +185,26 @@ def detect_checkerboard(
     grid = refine_grid(gray, _to_full_resolution(corners, scale).reshape(board.rows, board.cols, 2))
     grid, order = canonical_order(gray, grid, board)
     return _grid_detection(gray, grid, np.arange(board.n_corners), order)
+
+
+_SEARCH_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+
+
+def _find_chessboard_fast_checked(small: np.ndarray, pattern_size: tuple[int, int]) -> tuple[bool, np.ndarray | None]:
+    """``cv2.findChessboardCorners(small, pattern_size, flags=_SEARCH_FLAGS | CALIB_CB_FAST_CHECK)``, the same
+    result (tests/test_detect_fast_paths.py), ~1 ms (a third) less CPU when the board is there.
+
+    In OpenCV (4.x and 5.x alike) CALIB_CB_FAST_CHECK is only a gate in front of the search: the search goes on
+    if ``checkChessboardBinary`` on the histogram-thresholded image accepts, or else if ``cv::checkChessboard``
+    on the image does; nothing after the gate reads the flag. On our frames the binary check (~0.9 ms) fails
+    and checkChessboard (~0.65 ms) accepts, so asking checkChessboard first and, when it accepts, searching
+    without the flag takes the same path minus the binary check. When it refuses, the flagged call decides as
+    before (a board-less frame then costs those 0.65 ms more).
+    """
+    if small.dtype == np.uint8 and small.ndim == 2 and min(pattern_size) > 2 and \
+            cv2.checkChessboard(small, pattern_size):
+        return cv2.findChessboardCorners(small, pattern_size, flags=_SEARCH_FLAGS)
+    return cv2.findChessboardCorners(small, pattern_size, flags=_SEARCH_FLAGS | cv2.CALIB_CB_FAST_CHECK)
 
 
 def _grid_detection(gray: np.ndarray, grid: np.ndarray, ids: np.ndarray, order: str) -> Detection:
