@@ -148,9 +148,9 @@ def _box_shrinks_exactly(gray: np.ndarray, factor: int) -> bool:
 
 def _box_shrink(gray: np.ndarray, factor: int) -> np.ndarray:
     """``cv2.resize(gray, None, fx=1/factor, fy=1/factor, interpolation=INTER_AREA)`` when
-    :func:`_box_shrinks_exactly`, bit for bit (tests/test_replay_speed.py), in ~60 % of the time (0.5 instead of
-    0.86 ms for 1080p to 640 px): OpenCV's separable box filter sums every block exactly in uint16, and only the
-    blocks' top-left sums are kept and divided."""
+    :func:`_box_shrinks_exactly`, bit for bit (tests/test_detect_fast_paths.py), in 65-75 % of the time (1080p to
+    640 px: 0.86 -> 0.56 ms on a frame in cache, 1.0 -> 0.7 ms on a new one): OpenCV's separable box filter sums
+    every block exactly in uint16, and only the blocks' top-left sums are kept and divided."""
     sums = cv2.boxFilter(gray, cv2.CV_16U, (factor, factor), anchor=(0, 0), normalize=False,
                          borderType=cv2.BORDER_CONSTANT)
     return cv2.convertScaleAbs(sums[::factor, ::factor], alpha=1.0 / factor**2)
@@ -322,11 +322,13 @@ def _structure_tensors(gray: np.ndarray, corners_px: np.ndarray, size: int) -> t
     Exact, hence in any order: the gradients are multiples of 1/2 below 128 in magnitude, their products
     multiples of 1/4, and a sum of fewer than 2^20 of them is an integer number of quarters below 2^36, which
     float64 holds without rounding. So one dot product per corner gives the numbers the per-pixel
-    (N, size - 2, size - 2) arithmetic gave, bit for bit, in 40 % less time.
+    (N, size - 2, size - 2) float64 arithmetic gave, bit for bit (tests/test_detect_fast_paths.py); with the
+    patches written into one stack: 0.39 -> 0.24 ms for an 11x8 board's 88 corners.
     """
     patches = np.empty((len(corners_px), size, size), np.uint8)
     for patch, centre in zip(patches, np.asarray(corners_px, np.float64).tolist(), strict=True):
-        cv2.getRectSubPix(gray, (size, size), centre, patch)  # into its slot of the stack
+        # Written into its slot of the stack; the assignment only matters if OpenCV ever gave a new array.
+        patch[...] = cv2.getRectSubPix(gray, (size, size), centre, patch)
     signed = patches.astype(np.int16)
     steps_x = (signed[:, 1:-1, 2:] - signed[:, 1:-1, :-2]).reshape(len(signed), -1).astype(np.float64)
     steps_y = (signed[:, 2:, 1:-1] - signed[:, :-2, 1:-1]).reshape(len(signed), -1).astype(np.float64)
