@@ -149,11 +149,17 @@ def _box_shrinks_exactly(gray: np.ndarray, factor: int) -> bool:
 def _box_shrink(gray: np.ndarray, factor: int) -> np.ndarray:
     """``cv2.resize(gray, None, fx=1/factor, fy=1/factor, interpolation=INTER_AREA)`` when
     :func:`_box_shrinks_exactly`, bit for bit (tests/test_detect_fast_paths.py), in 65-75 % of the time (1080p to
-    640 px: 0.86 -> 0.56 ms on a frame in cache, 1.0 -> 0.7 ms on a new one): OpenCV's separable box filter sums
-    every block exactly in uint16, and only the blocks' top-left sums are kept and divided."""
-    sums = cv2.boxFilter(gray, cv2.CV_16U, (factor, factor), anchor=(0, 0), normalize=False,
+    640 px: 0.86 -> 0.5 ms on a frame in cache, 1.0 -> 0.7 ms on a new one): each block row's lines are added
+    exactly in uint16, then OpenCV's box filter adds ``factor`` neighbouring column sums, and only every
+    ``factor``-th sum (a block's) is kept and divided."""
+    height, width = gray.shape
+    rows = gray.reshape(height // factor, factor, width)  # each block row's lines side by side
+    column_sums = np.add(rows[:, 0], rows[:, 1], dtype=np.uint16)
+    for line in range(2, factor):
+        column_sums += rows[:, line]
+    sums = cv2.boxFilter(column_sums, cv2.CV_16U, (factor, 1), anchor=(0, 0), normalize=False,
                          borderType=cv2.BORDER_CONSTANT)
-    return cv2.convertScaleAbs(sums[::factor, ::factor], alpha=1.0 / factor**2)
+    return cv2.convertScaleAbs(sums[:, ::factor], alpha=1.0 / factor**2)
 
 
 def _to_full_resolution(corners: np.ndarray, scale: float) -> np.ndarray:
