@@ -25,6 +25,7 @@ from stereo_bench.kinematics import (
 )
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.covariance import EXTRINSIC_NAMES, ResidualMap
+from stereo_bench.vision.measure import measure_square
 from stereo_bench.vision.uncertainty import (
     FrameCorners,
     _square_function,
@@ -186,3 +187,37 @@ def test_nominal_covariance_is_bit_identical_to_building_both_cameras_every_step
         fast = nominal_covariance(baseline_mm, alpha_left_deg, alpha_right_deg, **args)
         assert np.array_equal(fast, plain_nominal_covariance(baseline_mm, alpha_left_deg, alpha_right_deg, **args))
         assert np.all(np.isfinite(fast)) and np.any(fast != 0)
+
+
+def budget_bits(budget) -> str:
+    """Every number of a budget, exactly (hex floats), for an equality that NaN and -0.0 cannot fool."""
+    def exact(value):
+        if isinstance(value, float):
+            return value.hex()
+        if isinstance(value, dict):
+            return {k: exact(v) for k, v in value.items()}
+        if isinstance(value, list | tuple):
+            return [exact(v) for v in value]
+        return value
+    return repr(exact({**budget.as_dict(), **budget.details()}))
+
+
+def test_budget_reads_the_measurements_own_triangulation_only_for_the_same_calibration():
+    calib = calibrations()[-1]
+    calib = replace(calib, covariance=replace(calib.covariance, pixel_locking_px=(0.02, 0.01)))
+    rng = np.random.default_rng(21)
+    plain = frames_of(calib, rng, 4, keep=0.8)
+    measured = []
+    for frame in plain:
+        square = measure_square(calib, TARGET, frame.ids, frame.left_px, frame.right_px, pixel_sigma_px=0.1)
+        assert square.calib is calib and square.jacobian.shape == (len(frame.ids), 3, 4)
+        measured.append(replace(frame, triangulated=(square.calib, square.points_mm, square.jacobian)))
+    structure = np.eye(6) * 1e-6
+    expected = budget_bits(configuration_budget(plain, calib, TARGET, structure_covariance=structure))
+    assert budget_bits(configuration_budget(measured, calib, TARGET, structure_covariance=structure)) == expected
+    # Another calibration (even an equal copy) triangulates afresh: a stale triangulation is never read.
+    moved = replace(calib, T=np.asarray(calib.T, float) * 1.01)
+    assert (budget_bits(configuration_budget(measured, moved, TARGET, structure_covariance=structure))
+            == budget_bits(configuration_budget(plain, moved, TARGET, structure_covariance=structure)))
+    stale = [replace(f, triangulated=(moved, f.triangulated[1] * 2.0, f.triangulated[2])) for f in measured]
+    assert budget_bits(configuration_budget(stale, calib, TARGET, structure_covariance=structure)) == expected

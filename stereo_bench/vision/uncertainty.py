@@ -137,12 +137,20 @@ class FrameCorners:
     right_px: np.ndarray
     sigma_mean_mm: float
     pixel_sigma_px: tuple[float, float]
+    # (calibration, points (N, 3), Jacobian (N, 3, 4)) the measurement already triangulated these corners with
+    # (the same calls :func:`_triangulated` makes); None: not known.
+    triangulated: tuple[StereoCalibration, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     @classmethod
     def from_pair(cls, pair: PairMeasurement) -> FrameCorners:
+        # The very corners measure_pair triangulated (common_corners of the same detections).
         ids, left_px, right_px = common_corners(pair.left, pair.right)
-        return cls(ids=ids, left_px=left_px, right_px=right_px, sigma_mean_mm=pair.square.sigma_mean_mm,
-                   pixel_sigma_px=tuple(pair.square.pixel_sigma_px))
+        square = pair.square
+        triangulated = None
+        if square.calib is not None and square.jacobian is not None:
+            triangulated = (square.calib, square.points_mm, square.jacobian)
+        return cls(ids=ids, left_px=left_px, right_px=right_px, sigma_mean_mm=square.sigma_mean_mm,
+                   pixel_sigma_px=tuple(square.pixel_sigma_px), triangulated=triangulated)
 
 
 def _frames(frames: Sequence[PairMeasurement | FrameCorners]) -> list[FrameCorners]:
@@ -227,10 +235,13 @@ def _adjacent_index_pairs(frame: FrameCorners, target: Target) -> np.ndarray:
 def _triangulated(calib: StereoCalibration, frame: FrameCorners, memo: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """(points (N, 3), Jacobian (N, 3, 4)) of ``frame``'s corners with ``calib``.
 
-    ``memo`` (a dict, or None): the results kept by frame, so the noise bias, the phase sum and the residual
-    map's gradients of one budget triangulate each frame once instead of three times (the same calls: the
-    same bits).
+    The measurement's own when it triangulated the frame with this very calibration object (the budget of the
+    frames a source measured: :meth:`FrameCorners.from_pair`). ``memo`` (a dict, or None): the results kept by
+    frame, so the noise bias, the phase sum and the residual map's gradients of one budget triangulate each
+    frame once instead of three times. Either way the same calls on the same numbers: the same bits.
     """
+    if frame.triangulated is not None and frame.triangulated[0] is calib:
+        return frame.triangulated[1], frame.triangulated[2]
     if memo is not None and id(frame) in memo:
         return memo[id(frame)][1]
     result = (triangulate(calib, frame.left_px, frame.right_px),
