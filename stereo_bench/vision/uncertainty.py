@@ -159,15 +159,21 @@ def _frames(frames: Sequence[PairMeasurement | FrameCorners]) -> list[FrameCorne
 
 def perturbed(calib: StereoCalibration, name: str, delta: float) -> StereoCalibration:
     """``calib`` with one parameter (a covariance name: ``left.fx``, ``right.k1``, ``rvec.y``, ``T.x`` ...) moved."""
+    return replace(calib, **_perturbed_fields(calib, name, delta))
+
+
+def _perturbed_fields(calib: StereoCalibration, name: str, delta: float) -> dict[str, np.ndarray]:
+    """The fields of ``calib`` that :func:`perturbed` replaces (``R``; ``T``; ``K1`` and ``D1``; or ``K2`` and
+    ``D2``), for a caller that needs only those (without a new calibration's copy of every field)."""
     side, _, what = name.partition(".")
     if side == "rvec":
         rvec = cv2.Rodrigues(np.asarray(calib.R, np.float64))[0].reshape(3)
         rvec["xyz".index(what)] += delta
-        return replace(calib, R=cv2.Rodrigues(rvec)[0])
+        return {"R": cv2.Rodrigues(rvec)[0]}
     if side == "T":
         T = np.array(calib.T, float).reshape(3)
         T["xyz".index(what)] += delta
-        return replace(calib, T=T)
+        return {"T": T}
     if side not in ("left", "right"):
         raise KeyError(f"unknown calibration parameter {name!r}")
     K = np.array(calib.K1 if side == "left" else calib.K2, float)
@@ -178,7 +184,7 @@ def perturbed(calib: StereoCalibration, name: str, delta: float) -> StereoCalibr
         D[0, _DIST_INDEX[what]] += delta
     else:
         raise KeyError(f"unknown calibration parameter {name!r}")
-    return replace(calib, **({"K1": K, "D1": D} if side == "left" else {"K2": K, "D2": D}))
+    return {"K1": K, "D1": D} if side == "left" else {"K2": K, "D2": D}
 
 
 def parameter_step(name: str) -> float:
@@ -435,13 +441,14 @@ def square_sensitivities(
         step = parameter_step(name)
         side = name.partition(".")[0]
         for j, delta in enumerate((step, -step)):
-            moved = perturbed(calib, name, delta)
+            moved = _perturbed_fields(calib, name, delta)
             if side == "left":
-                intrinsic.append((i, j, undistort_points(square.left, moved.K1, moved.D1), right_norm))
+                intrinsic.append((i, j, undistort_points(square.left, moved["K1"], moved["D1"]), right_norm))
             elif side == "right":
-                intrinsic.append((i, j, left_norm, undistort_points(square.right, moved.K2, moved.D2)))
+                intrinsic.append((i, j, left_norm, undistort_points(square.right, moved["K2"], moved["D2"])))
             else:
-                values[i, j] = square.of_points(triangulate_normalised(moved.R, moved.T, left_norm, right_norm))
+                points = triangulate_normalised(moved.get("R", calib.R), moved.get("T", calib.T), left_norm, right_norm)
+                values[i, j] = square.of_points(points)
     if intrinsic:
         points = triangulate_normalised(calib.R, calib.T, np.vstack([e[2] for e in intrinsic]),
                                         np.vstack([e[3] for e in intrinsic])).reshape(len(intrinsic), -1, 3)
