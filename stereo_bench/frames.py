@@ -180,11 +180,11 @@ def _decode_grey_up_png(data: memoryview, name: str) -> np.ndarray | None:
     if not np.all((filters == _FILTER_UP) | (filters == _FILTER_NONE)):
         return None  # sub, average or Paeth rows: OpenCV's reader
     # "up": each row is the difference to the row above, mod 256 (on the first row, to a zero row); "none":
-    # the row itself. Row-wide adds straight from the inflated data into the image, one pass down the rows:
-    # np.cumsum(axis=0) gives the same bytes ~5x slower, and copying the differences out first, then adding
-    # in place, wrote the 2 MB image twice (1.1 + 1.1 ms a frame in a replay, against ~1.3 ms now).
+    # the row itself. Summed straight from the inflated data into the image (no copy of the differences first).
     differences = rows[:, 1:]
     image = np.empty((height, width), np.uint8)
+    if np.all(filters[1:] == _FILTER_UP):  # every frame encode_frame writes
+        return _sum_down_rows(differences, image)
     lines = list(image)
     lines[0][...] = differences[0]
     for above, line, difference, kind in zip(lines[:-1], lines[1:], differences[1:], filters[1:].tolist(),
@@ -193,4 +193,30 @@ def _decode_grey_up_png(data: memoryview, name: str) -> np.ndarray | None:
             np.add(above, difference, out=line)
         else:
             line[...] = difference
+    return image
+
+
+def _sum_down_rows(differences: np.ndarray, image: np.ndarray, block: int = 32) -> np.ndarray:
+    """``image[r] = differences[0] + ... + differences[r]`` (mod 256) for (H, W) uint8 arrays; returns ``image``.
+
+    The running sum down the rows in ~H/16 numpy calls instead of H: within blocks of ``block`` rows first
+    (row j of every block in one call), then the blocks' last rows summed down, then each block's offset
+    (the true last row of the block above) added to its other rows in one call. Sums mod 256 are exact and
+    may be taken in any order, so the bytes are those of the row-by-row sum; 0.55 ms a 1080p frame instead
+    of 0.85 (tests/test_frame_reading.py checks them against np.cumsum on random and odd shapes).
+    """
+    height = len(image)
+    image[::block] = differences[::block]
+    for row in range(1, min(block, height)):
+        below = image[row::block]
+        np.add(image[row - 1::block][: len(below)], differences[row::block], out=below)
+    ends = image[block - 1::block]  # the last row of each full block, summed from its block's first row
+    for k in range(1, len(ends)):
+        np.add(ends[k - 1], ends[k], out=ends[k])
+    full = len(ends) * block
+    if len(ends) > 1:
+        blocks = image[:full].reshape(len(ends), block, -1)
+        np.add(blocks[1:, :-1], ends[:-1, None], out=blocks[1:, :-1])
+    if len(ends) and full < height:
+        np.add(image[full:], ends[-1], out=image[full:])
     return image

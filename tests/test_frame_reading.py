@@ -145,3 +145,16 @@ def test_a_frames_directory_leading_outside_is_refused_with_paths_message(tmp_pa
     with pytest.raises(SessionError) as by_frame:
         reader.frame("frames/away/x.png")
     assert str(by_frame.value) == str(by_path.value) and "outside the session directory" in str(by_path.value)
+
+
+@pytest.mark.parametrize("block", [1, 2, 16, 32, 40])
+def test_the_blocked_running_sum_down_the_rows_is_the_row_by_row_one(block):
+    rng = np.random.default_rng(block)
+    shapes = [(1, 1), (1, 5), (5, 1), (31, 7), (32, 7), (33, 7), (63, 3), (64, 3), (65, 3), (97, 131), (1080, 1920)]
+    for shape in shapes:
+        differences = rng.integers(0, 256, shape, dtype=np.uint8)
+        expected = differences.copy()
+        for row in range(1, shape[0]):
+            expected[row] += expected[row - 1]
+        summed = frames._sum_down_rows(differences, np.empty(shape, np.uint8), block)
+        assert np.array_equal(summed, expected) and np.array_equal(summed, np.cumsum(differences, 0, dtype=np.uint8))
