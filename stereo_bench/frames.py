@@ -20,12 +20,15 @@ so old sessions read and replay exactly. :func:`decode_frame` recognises the for
 bytes, not the file name: a format added later goes beside PNG there.
 
 Decoding: a grey frame written with this setting (8-bit, every row "up") is inflated by libdeflate
-and unfiltered here, 6.2 ms instead of OpenCV's 8.8 (one thread, 1080p, load average ~14 from
-other jobs; the inflate is 5.0 of it against zlib's 8.6; the un-filtering 0.5 of it since it adds
-rows in place, 1.0 before), with the same checks as libpng: every
-chunk's CRC, the data's Adler-32 and its length. Any other PNG (colour, 16-bit, other filters, extra
-chunks: older sessions) is decoded by OpenCV, as is everything when the ``deflate`` package (the
-libdeflate binding) is missing. The pixels are the same either way (tests/test_frames.py).
+and unfiltered here, with the same checks as libpng: every chunk's CRC, the data's Adler-32 and its
+length. Per 1080p frame (thread CPU, one thread, load 4-8 from other jobs): ~6 ms a frame in a replay
+against OpenCV's 8.8; the inflate is 4.3-4.7 of it (zlib's: 8.6) and the floor of this format, the rest
+the chunk CRCs (0.07, libdeflate's), gathering the IDAT chunks (0.06, into a reused buffer) and the
+blocked un-filter (0.55), of which the page faults of the image's fresh 2 MB are 0.3-0.9 depending on how
+the allocator reuses freed memory. Any other PNG
+(colour, 16-bit, other filters, extra chunks: older sessions) is decoded by OpenCV, as is everything
+when the ``deflate`` package (the libdeflate binding) is missing. The pixels are the same either way
+(tests/test_frames.py, tests/test_frame_reading.py).
 """
 
 from __future__ import annotations
