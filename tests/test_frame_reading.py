@@ -158,3 +158,14 @@ def test_the_blocked_running_sum_down_the_rows_is_the_row_by_row_one(block):
             expected[row] += expected[row - 1]
         summed = frames._sum_down_rows(differences, np.empty(shape, np.uint8), block)
         assert np.array_equal(summed, expected) and np.array_equal(summed, np.cumsum(differences, 0, dtype=np.uint8))
+
+
+def test_a_directory_named_as_a_frame_is_refused_as_path_refuses_it_and_leaks_no_descriptor(tmp_path):
+    out = record(tmp_path / "s")
+    reader = SessionReader(out)
+    before = len(list(Path("/proc/self/fd").iterdir())) if Path("/proc/self/fd").is_dir() else None
+    for _ in range(3):
+        with pytest.raises(SessionError, match=r"frames/c0: cannot read"):
+            reader.frame("frames/c0")
+    if before is not None:
+        assert len(list(Path("/proc/self/fd").iterdir())) == before

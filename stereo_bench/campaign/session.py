@@ -477,8 +477,12 @@ def _read_no_follow(path: Path) -> bytes | None:
     """The bytes of ``path`` unless it is a symlink (ELOOP, raised as OSError); None where O_NOFOLLOW is missing."""
     if not _OPEN_NO_FOLLOW:
         return None
-    with open(os.open(path, _OPEN_NO_FOLLOW), "rb") as file:
-        return file.read()
+    descriptor = os.open(path, _OPEN_NO_FOLLOW)
+    try:  # closed here: open() does not close a descriptor it was given when it fails (a directory)
+        with open(descriptor, "rb", closefd=False) as file:
+            return file.read()
+    finally:
+        os.close(descriptor)
 
 
 def _read_side_file(path: Path) -> bytes:
