@@ -21,11 +21,11 @@ bytes, not the file name: a format added later goes beside PNG there.
 
 Decoding: a grey frame written with this setting (8-bit, every row "up") is inflated by libdeflate
 and unfiltered here, with the same checks as libpng: every chunk's CRC, the data's Adler-32 and its
-length. Per 1080p frame (thread CPU, load 5-10 from other jobs): ~6.3 ms a frame in a replay
-(scripts/bench_campaign.py --replay) against OpenCV's 8.8; the inflate is 4.3-4.7 of it (zlib's: 8.6) and the floor of this format, the rest
-the chunk CRCs (0.07, libdeflate's), gathering the IDAT chunks (0.06, into a reused buffer) and the
-blocked un-filter (0.55), of which the page faults of the image's fresh 2 MB are 0.3-0.9 depending on how
-the allocator reuses freed memory. Any other PNG
+length. Per 1080p frame (thread CPU, load 5-10 from other jobs): ~6.3 ms in a replay
+(scripts/bench_campaign.py --replay) against OpenCV's 8.8. The inflate is 4.3-4.7 of it (zlib's:
+8.6), the floor of this format; the rest is the chunk CRCs (0.07, libdeflate's), gathering the IDAT
+chunks (0.06, into a reused buffer) and the blocked un-filter (0.55), of which the page faults of the
+image's fresh 2 MB are 0.3-0.9 depending on how the allocator reuses freed memory. Any other PNG
 (colour, 16-bit, other filters, extra chunks: older sessions) is decoded by OpenCV, as is everything
 when the ``deflate`` package (the libdeflate binding) is missing. The pixels are the same either way
 (tests/test_frames.py, tests/test_frame_reading.py).
