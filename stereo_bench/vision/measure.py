@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -29,6 +29,11 @@ class SquareMeasurement:
     pixel_sigma_px: tuple[float, float]  # (left, right) RMS over the corners of the per-coordinate noise
     sigma_mean_mm: float
     sigma_length_mm: np.ndarray  # (M,) first-order sigma of each length
+    # (N, 3, 4) d(points_mm)/d(u_left, v_left, u_right, v_right) (triangulation_jacobian) and the calibration
+    # both were computed with: an uncertainty budget with that very calibration reads them instead of
+    # triangulating the corners again. None for a measurement made otherwise.
+    jacobian: np.ndarray | None = field(default=None, repr=False)
+    calib: StereoCalibration | None = field(default=None, repr=False)
 
     @property
     def n(self) -> int:
@@ -129,5 +134,5 @@ def measure_square(
     return SquareMeasurement(
         nominal_mm=float(target.square_mm), lengths_mm=lengths, pairs=pairs, ids=ids, points_mm=points,
         pixel_sigma_px=(float(np.sqrt(np.mean(sigma_left**2))), float(np.sqrt(np.mean(sigma_right**2)))),
-        sigma_mean_mm=sigma_mean, sigma_length_mm=sigma_length,
+        sigma_mean_mm=sigma_mean, sigma_length_mm=sigma_length, jacobian=jac, calib=calib,
     )

@@ -41,6 +41,10 @@ def rectification_maps(calib: StereoCalibration, rect: Rectification) -> tuple[t
     return left, right
 
 
+_IDENTITY = np.eye(3)
+_IDENTITY.flags.writeable = False  # shared by every call: no caller may change it
+
+
 def undistort_points(
     points_px: np.ndarray, K: np.ndarray, D: np.ndarray, R: np.ndarray | None = None, P: np.ndarray | None = None
 ) -> np.ndarray:
@@ -50,7 +54,7 @@ def undistort_points(
     the edge of a strongly distorted image.
     """
     src = np.asarray(points_px, np.float64).reshape(-1, 1, 2)
-    R = np.eye(3) if R is None else R
+    R = _IDENTITY if R is None else R
     if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x: the criteria overload lives here
         out = cv2.undistortPointsIter(src, K, D, R, P, RECTIFY_CRITERIA)
     else:  # OpenCV 5: undistortPoints takes the criteria itself

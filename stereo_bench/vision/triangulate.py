@@ -17,9 +17,23 @@ def triangulate(calib: StereoCalibration, left_px: np.ndarray, right_px: np.ndar
     """
     left_norm = undistort_points(left_px, calib.K1, calib.D1)
     right_norm = undistort_points(right_px, calib.K2, calib.D2)
-    P1 = np.hstack([np.eye(3), np.zeros((3, 1))])
-    P2 = np.hstack([calib.R, np.asarray(calib.T, float).reshape(3, 1)])
-    homogeneous = cv2.triangulatePoints(P1, P2, left_norm.T.copy(), right_norm.T.copy())
+    return triangulate_normalised(calib.R, calib.T, left_norm, right_norm)
+
+
+#: P1 = [I | 0] of every triangulation (read only).
+_P1 = np.hstack([np.eye(3), np.zeros((3, 1))])
+_P1.flags.writeable = False
+
+
+def triangulate_normalised(R: np.ndarray, T: np.ndarray, left_norm: np.ndarray, right_norm: np.ndarray) -> np.ndarray:
+    """(N, 2) + (N, 2) undistorted normalised coordinates -> (N, 3) points in the left camera frame (mm).
+
+    The DLT step of :func:`triangulate`, for a caller that undistorts once and triangulates many times
+    (a perturbed right camera leaves the left's undistorted corners as they were). OpenCV triangulates
+    point by point, so points stacked into one call come out as from calls of their own.
+    """
+    P2 = np.hstack([R, np.asarray(T, float).reshape(3, 1)])
+    homogeneous = cv2.triangulatePoints(_P1, P2, left_norm.T.copy(), right_norm.T.copy())
     return (homogeneous[:3] / homogeneous[3]).T
 
 

@@ -78,7 +78,8 @@ from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.covariance import EXTRINSIC_NAMES, CalibrationCovariance
 from stereo_bench.vision.detect import common_corners
 from stereo_bench.vision.pipeline import PairMeasurement
-from stereo_bench.vision.triangulate import triangulate, triangulation_jacobian
+from stereo_bench.vision.rectify import undistort_points
+from stereo_bench.vision.triangulate import triangulate, triangulate_normalised, triangulation_jacobian
 
 K_COVERAGE = 2.0
 #: Default relative standard uncertainty of a board's square (scale). 1e-4 is 2.7 um on the 27 mm
@@ -136,12 +137,20 @@ class FrameCorners:
     right_px: np.ndarray
     sigma_mean_mm: float
     pixel_sigma_px: tuple[float, float]
+    # (calibration, points (N, 3), Jacobian (N, 3, 4)) the measurement already triangulated these corners with
+    # (the same calls :func:`_triangulated` makes); None: not known.
+    triangulated: tuple[StereoCalibration, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     @classmethod
     def from_pair(cls, pair: PairMeasurement) -> FrameCorners:
+        # The very corners measure_pair triangulated (common_corners of the same detections).
         ids, left_px, right_px = common_corners(pair.left, pair.right)
-        return cls(ids=ids, left_px=left_px, right_px=right_px, sigma_mean_mm=pair.square.sigma_mean_mm,
-                   pixel_sigma_px=tuple(pair.square.pixel_sigma_px))
+        square = pair.square
+        triangulated = None
+        if square.calib is not None and square.jacobian is not None:
+            triangulated = (square.calib, square.points_mm, square.jacobian)
+        return cls(ids=ids, left_px=left_px, right_px=right_px, sigma_mean_mm=square.sigma_mean_mm,
+                   pixel_sigma_px=tuple(square.pixel_sigma_px), triangulated=triangulated)
 
 
 def _frames(frames: Sequence[PairMeasurement | FrameCorners]) -> list[FrameCorners]:
@@ -150,15 +159,21 @@ def _frames(frames: Sequence[PairMeasurement | FrameCorners]) -> list[FrameCorne
 
 def perturbed(calib: StereoCalibration, name: str, delta: float) -> StereoCalibration:
     """``calib`` with one parameter (a covariance name: ``left.fx``, ``right.k1``, ``rvec.y``, ``T.x`` ...) moved."""
+    return replace(calib, **_perturbed_fields(calib, name, delta))
+
+
+def _perturbed_fields(calib: StereoCalibration, name: str, delta: float) -> dict[str, np.ndarray]:
+    """The fields of ``calib`` that :func:`perturbed` replaces (``R``; ``T``; ``K1`` and ``D1``; or ``K2`` and
+    ``D2``), for a caller that needs only those (without a new calibration's copy of every field)."""
     side, _, what = name.partition(".")
     if side == "rvec":
         rvec = cv2.Rodrigues(np.asarray(calib.R, np.float64))[0].reshape(3)
         rvec["xyz".index(what)] += delta
-        return replace(calib, R=cv2.Rodrigues(rvec)[0])
+        return {"R": cv2.Rodrigues(rvec)[0]}
     if side == "T":
         T = np.array(calib.T, float).reshape(3)
         T["xyz".index(what)] += delta
-        return replace(calib, T=T)
+        return {"T": T}
     if side not in ("left", "right"):
         raise KeyError(f"unknown calibration parameter {name!r}")
     K = np.array(calib.K1 if side == "left" else calib.K2, float)
@@ -169,7 +184,7 @@ def perturbed(calib: StereoCalibration, name: str, delta: float) -> StereoCalibr
         D[0, _DIST_INDEX[what]] += delta
     else:
         raise KeyError(f"unknown calibration parameter {name!r}")
-    return replace(calib, **({"K1": K, "D1": D} if side == "left" else {"K2": K, "D2": D}))
+    return {"K1": K, "D1": D} if side == "left" else {"K2": K, "D2": D}
 
 
 def parameter_step(name: str) -> float:
@@ -177,9 +192,29 @@ def parameter_step(name: str) -> float:
     return _STEP[name.partition(".")[0] if name.startswith(("rvec.", "T.")) else name.partition(".")[2]]
 
 
-def _square_function(frames: list[FrameCorners], target: Target):
+class _Square:
     """f(calib, left=None, right=None) -> the configuration's square (mm): mean over frames of each
-    frame's mean adjacent length; ``left``/``right`` replace the frames' stacked pixels (sum N_i, 2)."""
+    frame's mean adjacent length; ``left``/``right`` replace the frames' stacked pixels (sum N_i, 2).
+
+    ``left``, ``right``: the frames' stacked pixels; :meth:`of_points` the square of their triangulated points.
+    """
+
+    def __init__(self, left: np.ndarray, right: np.ndarray, a_idx: np.ndarray, b_idx: np.ndarray,
+                 weights: np.ndarray):
+        self.left, self.right, self.a_idx, self.b_idx, self.weights = left, right, a_idx, b_idx, weights
+
+    def of_points(self, points: np.ndarray) -> float:
+        """The square of the stacked corners' triangulated points (sum N_i, 3)."""
+        return float(self.weights @ np.linalg.norm(points[self.a_idx] - points[self.b_idx], axis=1))
+
+    def __call__(self, calib: StereoCalibration, left_px: np.ndarray | None = None,
+                 right_px: np.ndarray | None = None) -> float:
+        return self.of_points(triangulate(calib, self.left if left_px is None else left_px,
+                                          self.right if right_px is None else right_px))
+
+
+def _square_function(frames: list[FrameCorners], target: Target) -> _Square:
+    """The configuration's square as a function of the calibration and the stacked pixels (:class:`_Square`)."""
     left = np.vstack([f.left_px for f in frames])
     right = np.vstack([f.right_px for f in frames])
     offsets = np.cumsum([0] + [len(f.ids) for f in frames])
@@ -193,30 +228,47 @@ def _square_function(frames: list[FrameCorners], target: Target):
         a_idx += [offset + p[0] for p in pairs]
         b_idx += [offset + p[1] for p in pairs]
         weights += [1.0 / (len(pairs) * len(frames))] * len(pairs)
-    a_idx, b_idx, weights = np.array(a_idx), np.array(b_idx), np.array(weights)
+    return _Square(left, right, np.array(a_idx), np.array(b_idx), np.array(weights))
 
-    def square(calib: StereoCalibration, left_px: np.ndarray | None = None,
-               right_px: np.ndarray | None = None) -> float:
-        points = triangulate(calib, left if left_px is None else left_px, right if right_px is None else right_px)
-        return float(weights @ np.linalg.norm(points[a_idx] - points[b_idx], axis=1))
-    return square
+
+def _adjacent_index_pairs(frame: FrameCorners, target: Target) -> np.ndarray:
+    """(K, 2) row indices into ``frame``'s corners of the target's adjacent pairs seen in both views."""
+    position = {int(c): i for i, c in enumerate(frame.ids)}
+    return np.array([(position[a], position[b]) for a, b in target.adjacent_pairs()
+                     if a in position and b in position], int).reshape(-1, 2)
+
+
+def _triangulated(calib: StereoCalibration, frame: FrameCorners, memo: dict | None) -> tuple[np.ndarray, np.ndarray]:
+    """(points (N, 3), Jacobian (N, 3, 4)) of ``frame``'s corners with ``calib``.
+
+    The measurement's own when it triangulated the frame with this very calibration object (the budget of the
+    frames a source measured: :meth:`FrameCorners.from_pair`). ``memo`` (a dict, or None): the results kept by
+    frame, so the noise bias, the phase sum and the residual map's gradients of one budget triangulate each
+    frame once instead of three times. Either way the same calls on the same numbers: the same bits.
+    """
+    if frame.triangulated is not None and frame.triangulated[0] is calib:
+        return frame.triangulated[1], frame.triangulated[2]
+    if memo is not None and id(frame) in memo:
+        return memo[id(frame)][1]
+    result = (triangulate(calib, frame.left_px, frame.right_px),
+              triangulation_jacobian(calib, frame.left_px, frame.right_px))
+    if memo is not None:
+        memo[id(frame)] = (frame, result)  # the frame is kept with its result: its id stays its own
+    return result
 
 
 def pixel_gradients(calib: StereoCalibration, frames: Sequence[PairMeasurement | FrameCorners],
-                    target: Target) -> list[np.ndarray]:
+                    target: Target, *, memo: dict | None = None) -> list[np.ndarray]:
     """Per frame (N_i, 4): d(configuration square)/d(u_left, v_left, u_right, v_right) of each corner (mm/px).
 
     First order through the triangulation's Jacobian, as :func:`~stereo_bench.vision.measure.measure_square`
-    propagates the noise; the configuration square weighs each frame 1/n.
+    propagates the noise; the configuration square weighs each frame 1/n. ``memo``: see :func:`_triangulated`.
     """
     frames = _frames(frames)
     out = []
     for frame in frames:
-        position = {int(c): i for i, c in enumerate(frame.ids)}
-        pairs = np.array([(position[a], position[b]) for a, b in target.adjacent_pairs()
-                          if a in position and b in position], int).reshape(-1, 2)
-        points = triangulate(calib, frame.left_px, frame.right_px)
-        jac = triangulation_jacobian(calib, frame.left_px, frame.right_px)  # (N, 3, 4)
+        pairs = _adjacent_index_pairs(frame, target)
+        points, jac = _triangulated(calib, frame, memo)  # (N, 3), (N, 3, 4)
         d = points[pairs[:, 0]] - points[pairs[:, 1]]
         u = d / np.linalg.norm(d, axis=1)[:, None] / (len(pairs) * len(frames))
         gradient = np.zeros((len(frame.ids), 4))
@@ -226,15 +278,19 @@ def pixel_gradients(calib: StereoCalibration, frames: Sequence[PairMeasurement |
     return out
 
 
-def phase_sum(calib: StereoCalibration, frames: Sequence[PairMeasurement | FrameCorners], target: Target) -> complex:
+def phase_sum(calib: StereoCalibration, frames: Sequence[PairMeasurement | FrameCorners], target: Target, *,
+              gradients: list[np.ndarray] | None = None) -> complex:
     """C = sum_k g_k exp(2 pi i frac(p_k)) over every corner coordinate p_k of every frame (g: :func:`pixel_gradients`).
 
     A corner error e(p) = Im(a exp(2 pi i frac(p))) (a = a_sin + i a_cos, px) moves the square by
     Im(a C): corners of alike phase (a regular grid seen square-on) add up, spread phases cancel.
+    ``gradients``: :func:`pixel_gradients` of the same arguments, when the caller has them.
     """
     frames = _frames(frames)
     total = 0j
-    for frame, gradient in zip(frames, pixel_gradients(calib, frames, target), strict=True):
+    if gradients is None:
+        gradients = pixel_gradients(calib, frames, target)
+    for frame, gradient in zip(frames, gradients, strict=True):
         pixels = np.column_stack([frame.left_px, frame.right_px])  # (N, 4) like the gradient's columns
         total += np.sum(gradient * np.exp(2j * np.pi * np.mod(pixels, 1.0)))
     return complex(total)
@@ -277,7 +333,8 @@ MIN_MAP_CORNERS = 8
 
 
 def mapped_systematic_mm(calib: StereoCalibration, frames: Sequence[PairMeasurement | FrameCorners], target: Target,
-                         maps: dict, sigma_px: float) -> tuple[float, float] | None:
+                         maps: dict, sigma_px: float, *,
+                         gradients: list[np.ndarray] | None = None) -> tuple[float, float] | None:
     """(bias, standard uncertainty) mm of the square from the corner error beyond noise and locking, read from the
     calibration's residual maps (``maps``: "left", "right" -> ResidualMap) where the measured corners lie.
 
@@ -286,12 +343,14 @@ def mapped_systematic_mm(calib: StereoCalibration, frames: Sequence[PairMeasurem
     corners in bin b, every frame), uncertain by the bins' standard errors. The rest of the excess
     ``sigma_px`` (its variance less the map's mean squared miss) is independent from corner to corner and
     the same in every frame of a static target. None when a measured corner lies in a bin with fewer than
-    :data:`MIN_MAP_CORNERS` calibration corners (the map does not speak for it).
+    :data:`MIN_MAP_CORNERS` calibration corners (the map does not speak for it). ``gradients``:
+    :func:`pixel_gradients` of the same arguments, when the caller has them.
     """
     frames = _frames(frames)
     if not maps or any(side not in maps for side in ("left", "right")):
         return None
-    gradients = pixel_gradients(calib, frames, target)
+    if gradients is None:
+        gradients = pixel_gradients(calib, frames, target)
     bias = variance = 0.0
     explained, weight = 0.0, 0.0
     per_corner: dict[tuple[str, int], np.ndarray] = {}
@@ -339,20 +398,17 @@ def corner_systematic_px(covariance: CalibrationCovariance | None, random_px: fl
     return float(math.sqrt(covariance.sigma_px**2 - explained))
 
 
-def noise_bias_mm(calib: StereoCalibration, frame: FrameCorners, target: Target) -> float:
+def noise_bias_mm(calib: StereoCalibration, frame: FrameCorners, target: Target, *, memo: dict | None = None) -> float:
     """Expected lengthening (mm) of the frame's mean adjacent length by its corner noise (second order).
 
     Independent corners of per-coordinate noise ``frame.pixel_sigma_px``: S_d = S_a + S_b, each
     point's S = J diag(noise^2) J^T through the triangulation; bias = mean over pairs of
-    (tr S_d - u^T S_d u) / (2 |d|).
+    (tr S_d - u^T S_d u) / (2 |d|). ``memo``: see :func:`_triangulated`.
     """
-    position = {int(c): i for i, c in enumerate(frame.ids)}
-    pairs = np.array([(position[a], position[b]) for a, b in target.adjacent_pairs()
-                      if a in position and b in position], int).reshape(-1, 2)
+    pairs = _adjacent_index_pairs(frame, target)
     if not len(pairs):
         return float("nan")
-    points = triangulate(calib, frame.left_px, frame.right_px)
-    jac = triangulation_jacobian(calib, frame.left_px, frame.right_px)  # (N, 3, 4)
+    points, jac = _triangulated(calib, frame, memo)  # (N, 3), (N, 3, 4)
     s_left, s_right = frame.pixel_sigma_px
     cov = np.einsum("nik,k,njk->nij", jac, np.array([s_left**2, s_left**2, s_right**2, s_right**2]), jac)
     d = points[pairs[:, 0]] - points[pairs[:, 1]]
@@ -370,12 +426,38 @@ def square_sensitivities(
 
     The square is the configuration's (mean over ``frames`` of each frame's mean adjacent length);
     central differences over the triangulation the pipeline itself uses.
+
+    The same numbers as ``square(perturbed(calib, name, +-step))`` per parameter, with two calls fewer each:
+    a camera's parameter leaves the other camera's undistorted corners (and R, T leave both) as they were,
+    so they are undistorted once; and the intrinsics' perturbations share R, T, so their points go through
+    one triangulation (OpenCV undistorts and triangulates point by point: the same bits).
     """
     square = _square_function(_frames(frames), target)
+    left_norm = undistort_points(square.left, calib.K1, calib.D1)
+    right_norm = undistort_points(square.right, calib.K2, calib.D2)
+    values = np.empty((len(names), 2))  # the square at +step and -step
+    intrinsic: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+    for i, name in enumerate(names):
+        step = parameter_step(name)
+        side = name.partition(".")[0]
+        for j, delta in enumerate((step, -step)):
+            moved = _perturbed_fields(calib, name, delta)
+            if side == "left":
+                intrinsic.append((i, j, undistort_points(square.left, moved["K1"], moved["D1"]), right_norm))
+            elif side == "right":
+                intrinsic.append((i, j, left_norm, undistort_points(square.right, moved["K2"], moved["D2"])))
+            else:
+                points = triangulate_normalised(moved.get("R", calib.R), moved.get("T", calib.T), left_norm, right_norm)
+                values[i, j] = square.of_points(points)
+    if intrinsic:
+        points = triangulate_normalised(calib.R, calib.T, np.vstack([e[2] for e in intrinsic]),
+                                        np.vstack([e[3] for e in intrinsic])).reshape(len(intrinsic), -1, 3)
+        for (i, j, _, _), moved_points in zip(intrinsic, points, strict=True):
+            values[i, j] = square.of_points(moved_points)
     gradient = np.empty(len(names))
     for i, name in enumerate(names):
         step = parameter_step(name)
-        gradient[i] = (square(perturbed(calib, name, step)) - square(perturbed(calib, name, -step))) / (2 * step)
+        gradient[i] = (values[i, 0] - values[i, 1]) / (2 * step)
     return gradient
 
 
@@ -509,19 +591,24 @@ def configuration_budget(
         u_structure = float(np.sqrt(max(g @ structure_covariance @ g, 0.0)))
     sigmas = np.array([f.sigma_mean_mm for f in frames], float)
     random = float(np.sqrt(np.sum(sigmas**2)) / len(sigmas))
-    bias = float(np.mean([noise_bias_mm(calib, f, target) for f in frames]))
+    memo: dict = {}  # each frame's points and Jacobian, shared by the noise bias and the pixel gradients
+    bias = float(np.mean([noise_bias_mm(calib, f, target, memo=memo) for f in frames]))
     if corner_systematic is None:
         random_px = float(np.sqrt(np.mean([np.mean(np.square(f.pixel_sigma_px)) for f in frames])))
         corner_systematic = corner_systematic_px(covariance, random_px)
     locking = None if covariance is None else covariance.pixel_locking_px
     detector_bias = rest = 0.0
     field_bias, systematic_model = float("nan"), ""
+    mapping = corner_systematic > 0 and covariance is not None and covariance.residual_map is not None
+    # The phase sum and the residual map read the same pixel gradients: computed once for both.
+    gradients = pixel_gradients(calib, frames, target, memo=memo) if locking is not None or mapping else None
     if locking is not None:
-        detector_bias = float((complex(*locking) * phase_sum(calib, frames, target)).imag)
+        detector_bias = float((complex(*locking) * phase_sum(calib, frames, target, gradients=gradients)).imag)
     if corner_systematic > 0:
         mapped = None
-        if covariance is not None and covariance.residual_map is not None:
-            mapped = mapped_systematic_mm(calib, frames, target, covariance.residual_map, corner_systematic)
+        if mapping:
+            mapped = mapped_systematic_mm(calib, frames, target, covariance.residual_map, corner_systematic,
+                                          gradients=gradients)
         if mapped is not None:
             field_bias, u_field = mapped
             rest = float(math.sqrt(field_bias**2 + u_field**2))
