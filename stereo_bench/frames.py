@@ -20,18 +20,21 @@ so old sessions read and replay exactly. :func:`decode_frame` recognises the for
 bytes, not the file name: a format added later goes beside PNG there.
 
 Decoding: a grey frame written with this setting (8-bit, every row "up") is inflated by libdeflate
-and unfiltered here, 6.2 ms instead of OpenCV's 8.8 (one thread, 1080p, load average ~14 from
-other jobs; the inflate is 5.0 of it against zlib's 8.6; the un-filtering 0.5 of it since it adds
-rows in place, 1.0 before), with the same checks as libpng: every
-chunk's CRC, the data's Adler-32 and its length. Any other PNG (colour, 16-bit, other filters, extra
-chunks: older sessions) is decoded by OpenCV, as is everything when the ``deflate`` package (the
-libdeflate binding) is missing. The pixels are the same either way (tests/test_frames.py).
+and unfiltered here, with the same checks as libpng: every chunk's CRC, the data's Adler-32 and its
+length. Per 1080p frame (thread CPU, load 5-10 from other jobs): ~6.3 ms in a replay
+(scripts/bench_campaign.py --replay) against OpenCV's 8.8. The inflate is 4.3-4.7 of it (zlib's:
+8.6), the floor of this format; the rest is the chunk CRCs (0.07, libdeflate's), gathering the IDAT
+chunks (0.06, into a reused buffer) and the blocked un-filter (0.55), of which the page faults of the
+image's fresh 2 MB are 0.3-0.9 depending on how the allocator reuses freed memory. Any other PNG
+(colour, 16-bit, other filters, extra chunks: older sessions) is decoded by OpenCV, as is everything
+when the ``deflate`` package (the libdeflate binding) is missing. The pixels are the same either way
+(tests/test_frames.py, tests/test_frame_reading.py).
 """
 
 from __future__ import annotations
 
 import struct
-import zlib
+import threading
 
 import cv2
 import numpy as np
@@ -79,24 +82,34 @@ def encode_frame(image: np.ndarray) -> bytes:
     return buffer.tobytes()
 
 
-def decode_frame(data: bytes, name: str) -> np.ndarray:
+def decode_frame(data: bytes | bytearray | memoryview, name: str) -> np.ndarray:
     """The image in ``data`` exactly as it was encoded; ``name`` (a file name) is for the error message.
 
     A PNG must end with its IEND chunk (trailing zero bytes, which some filesystems leave after a
     crash, are tolerated): a truncated file is refused rather than decoded into a partly black image.
     libpng checks every chunk's CRC and zlib the data's checksum, so a corrupted byte is refused too.
+    ``data`` may be any bytes-like object; it is only read, and no reference to it is kept.
 
     Raises:
         FrameError: not a complete frame in a known format (truncated, corrupt, or something else).
     """
+    view = memoryview(data).cast("B")
     image = None
-    if data.startswith(PNG_MAGIC) and data.rstrip(b"\x00").endswith(PNG_END):
-        image = _decode_grey_up_png(data, name) if _libdeflate is not None else None
+    if view[: len(PNG_MAGIC)] == PNG_MAGIC and _png_end(view):
+        image = _decode_grey_up_png(view, name) if _libdeflate is not None else None
         if image is None:
-            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+            image = cv2.imdecode(np.frombuffer(view, np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:  # PNG is the only format sessions hold: anything else is a damaged one
         raise _damaged(name)
     return image
+
+
+def _png_end(view: memoryview) -> int:
+    """Where the data ends if it ends with an IEND chunk (trailing zero bytes ignored), else 0."""
+    end = len(view)
+    if end and view[end - 1] == 0:  # rare (crash leftovers): the copy is paid only then
+        end = len(bytes(view).rstrip(b"\x00"))
+    return end if end >= len(PNG_END) and view[end - len(PNG_END): end] == PNG_END else 0
 
 
 def _damaged(name: str) -> FrameError:
@@ -104,9 +117,28 @@ def _damaged(name: str) -> FrameError:
 
 
 _FILTER_NONE, _FILTER_UP = 0, 2
+_scratch = threading.local()  # per decoding thread: the buffer the image data is gathered in
 
 
-def _decode_grey_up_png(data: bytes, name: str) -> np.ndarray | None:
+def _joined(parts: list[memoryview]) -> memoryview:
+    """The chunks' bytes one after the other, in this thread's scratch buffer (valid until its next call).
+
+    The same bytes as ``b"".join(parts)``, without a new 1 MB object per frame: fresh memory costs a
+    page fault per 4 kB page on first touch (~0.4 ms a frame here), reused memory does not.
+    """
+    size = sum(len(part) for part in parts)
+    buffer = getattr(_scratch, "buffer", None)
+    if buffer is None or len(buffer) < size:
+        buffer = _scratch.buffer = bytearray(size)
+    view = memoryview(buffer)
+    position = 0
+    for part in parts:
+        view[position: position + len(part)] = part
+        position += len(part)
+    return view[:size]
+
+
+def _decode_grey_up_png(data: memoryview, name: str) -> np.ndarray | None:
     """The (H, W) uint8 image of a PNG laid out as :func:`encode_frame` writes grey frames, else None.
 
     That layout: IHDR (8-bit grey, not interlaced), IDAT chunks, IEND, and every row filtered "up"
@@ -116,21 +148,21 @@ def _decode_grey_up_png(data: bytes, name: str) -> np.ndarray | None:
     Raises:
         FrameError: a chunk's CRC or the data do not check out (corrupt or truncated).
     """
-    view = memoryview(data)
+    crc32 = _libdeflate.crc32  # the same CRC-32 as zlib's (tests/test_frames.py), 0.07 ms a frame instead of 0.29
     position, size = len(PNG_MAGIC), len(data)
     header, parts = None, []
     while True:
         if position + 12 > size:
             raise _damaged(name)
         (length,) = struct.unpack_from(">I", data, position)
-        kind = bytes(view[position + 4: position + 8])
+        kind = data[position + 4: position + 8]
         end = position + 8 + length
-        if end + 4 > size or zlib.crc32(view[position + 4: end]) != struct.unpack_from(">I", data, end)[0]:
+        if end + 4 > size or crc32(data[position + 4: end]) != struct.unpack_from(">I", data, end)[0]:
             raise _damaged(name)
         if kind == b"IHDR" and header is None and length == 13:
             header = struct.unpack_from(">IIBBBBB", data, position + 8)
         elif kind == b"IDAT" and header is not None:
-            parts.append(view[position + 8: end])
+            parts.append(data[position + 8: end])
         elif kind == b"IEND" and parts:
             break
         else:  # ancillary chunks, palettes, ...: OpenCV's reader knows what they mean
@@ -141,7 +173,7 @@ def _decode_grey_up_png(data: bytes, name: str) -> np.ndarray | None:
         return None
     expected = height * (width + 1)
     try:
-        raw = _libdeflate.zlib_decompress(b"".join(parts), expected)
+        raw = _libdeflate.zlib_decompress(_joined(parts), expected)
     except _libdeflate.DeflateError:
         raise _damaged(name) from None
     if len(raw) != expected:
@@ -150,12 +182,44 @@ def _decode_grey_up_png(data: bytes, name: str) -> np.ndarray | None:
     filters = rows[:, 0]
     if not np.all((filters == _FILTER_UP) | (filters == _FILTER_NONE)):
         return None  # sub, average or Paeth rows: OpenCV's reader
-    # "up": each row is the difference to the row above, mod 256 (on the first row, to a zero row). The
-    # differences are copied out once and summed in place down the rows: a cumulative sum along the
-    # columns (np.cumsum(axis=0)) gives the same bytes but runs ~5x slower than these row-wide adds.
-    image = rows[:, 1:].copy()
+    # "up": each row is the difference to the row above, mod 256 (on the first row, to a zero row); "none":
+    # the row itself. Summed straight from the inflated data into the image (no copy of the differences first).
+    differences = rows[:, 1:]
+    image = np.empty((height, width), np.uint8)
+    if np.all(filters[1:] == _FILTER_UP):  # every frame encode_frame writes
+        return _sum_down_rows(differences, image)
     lines = list(image)
-    for above, line, kind in zip(lines[:-1], lines[1:], filters[1:].tolist(), strict=True):
+    lines[0][...] = differences[0]
+    for above, line, difference, kind in zip(lines[:-1], lines[1:], differences[1:], filters[1:].tolist(),
+                                             strict=True):
         if kind == _FILTER_UP:
-            np.add(above, line, out=line)
+            np.add(above, difference, out=line)
+        else:
+            line[...] = difference
+    return image
+
+
+def _sum_down_rows(differences: np.ndarray, image: np.ndarray, block: int = 32) -> np.ndarray:
+    """``image[r] = differences[0] + ... + differences[r]`` (mod 256) for (H, W) uint8 arrays; returns ``image``.
+
+    The running sum down the rows in ~H/16 numpy calls instead of H: within blocks of ``block`` rows first
+    (row j of every block in one call), then the blocks' last rows summed down, then each block's offset
+    (the true last row of the block above) added to its other rows in one call. Sums mod 256 are exact and
+    may be taken in any order, so the bytes are those of the row-by-row sum; 0.55 ms a 1080p frame instead
+    of 0.85 (tests/test_frame_reading.py checks them against np.cumsum on random and odd shapes).
+    """
+    height = len(image)
+    image[::block] = differences[::block]
+    for row in range(1, min(block, height)):
+        below = image[row::block]
+        np.add(image[row - 1::block][: len(below)], differences[row::block], out=below)
+    ends = image[block - 1::block]  # the last row of each full block, summed from its block's first row
+    for k in range(1, len(ends)):
+        np.add(ends[k - 1], ends[k], out=ends[k])
+    full = len(ends) * block
+    if len(ends) > 1:
+        blocks = image[:full].reshape(len(ends), block, -1)
+        np.add(blocks[1:, :-1], ends[:-1, None], out=blocks[1:, :-1])
+    if len(ends) and full < height:
+        np.add(image[full:], ends[-1], out=image[full:])
     return image
