@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from stereo_bench.frames import decode_frame
-from stereo_bench.targets import Checkerboard
+from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision import detect as detect_module
 from stereo_bench.vision.detect import (
     _SEARCH_FLAGS,
@@ -213,3 +213,25 @@ def test_chessboard_search_is_the_fast_checked_one_without_a_board(shape):
     ramp = np.add.outer(np.arange(shape[0]), np.arange(shape[1])).astype(np.uint8)
     for image in (random_image(shape, 5), np.full(shape, 128, np.uint8), ramp):
         assert not assert_same_search(image, (9, 6), f"{shape}")
+
+
+def test_without_noise_the_corners_and_ids_are_the_same_and_sigma_is_unknown():
+    """detect(noise=False) (calibration views whose frames are kept) skips only the corner-noise estimate."""
+    cases = [(frame, SAMPLE_TARGET, partial) for frame in rendered_frames()[:3] for partial in (False, True)]
+    cases += [(image, board, False) for image, board in real_images()[:3]]
+    charuco = CharucoTarget(squares_x=7, squares_y=5, square_mm=30.0, marker_mm=22.0)
+    board_image = charuco.cv_board.generateImage((1400, 1000), marginSize=60)
+    cases.append((board_image, charuco, False))
+    checked = 0
+    for image, target, partial in cases:
+        with_noise = detect(image, target, partial=partial)
+        without = detect(image, target, partial=partial, noise=False)
+        assert (with_noise is None) == (without is None)
+        if with_noise is None:
+            continue
+        checked += 1
+        assert without.sigma_px is None and with_noise.sigma_px is not None
+        for field in ("ids", "corners_px"):
+            assert_same_bits(getattr(without, field), getattr(with_noise, field), field)
+        assert (without.order, without.image_size) == (with_noise.order, with_noise.image_size)
+    assert checked >= 6

@@ -45,6 +45,9 @@ def test_measurement_keeps_measurement_frames_and_the_calibration_views_detectio
     assert sorted((d["config_id"], d["data"]["index"]) for d in detections) == sorted(
         (v["config_id"], v["data"]["index"]) for v in views)
     assert all(len(d["data"][side]["ids"]) == 54 for d in detections for side in ("left", "right"))
+    # Recorded detections carry their corner noise (views whose frames are kept are detected without it).
+    assert all(len(d["data"][side]["sigma_px"]) == 54 and all(v > 0 for v in d["data"][side]["sigma_px"])
+               for d in detections for side in ("left", "right"))
     frames = reader.events(kind="measurement_frame")
     on_disk = sorted(p.relative_to(session).as_posix() for p in (session / "frames").rglob("*.png"))
     assert on_disk == sorted(f["frames"][side] for f in frames for side in ("left", "right"))

@@ -148,3 +148,30 @@ def test_openblas_workers_sleep_at_once_unless_the_user_says_otherwise():
             "'numpy' in sys.modules or 'cv2' in sys.modules)")
     assert _in_a_fresh_interpreter(code) == "4 False"
     assert _in_a_fresh_interpreter(code, OPENBLAS_THREAD_TIMEOUT="28") == "28 False"
+
+
+def test_a_configuration_is_calibrated_while_its_measurement_frames_are_captured(monkeypatch):
+    """Per-config extrinsics: the calibration starts once the views are taken, not after the measurement frames
+    (a replay's last configuration then waits for less, a run shows its result sooner); the numbers are the same."""
+    from stereo_bench.campaign import runner as runner_module
+    from stereo_bench.campaign.execute import replay_session
+
+    started: dict[int, threading.Event] = {}
+    overlapped: list[bool] = []
+    calibrate = runner_module.calibrate_configuration
+    capture_measurement = runner_module.CampaignRunner._capture_measurement
+
+    def calibrating(pairs, *args, **kwargs):
+        started.setdefault(id(pairs), threading.Event()).set()
+        return calibrate(pairs, *args, **kwargs)
+
+    def capturing(self, n_frames, captured):
+        # Old behaviour: the calibration could only start after this returns, so the wait would time out.
+        overlapped.append(started.setdefault(id(captured.calibration_pairs), threading.Event()).wait(timeout=20))
+        return capture_measurement(self, n_frames, captured)
+
+    monkeypatch.setattr(runner_module, "calibrate_configuration", calibrating)
+    monkeypatch.setattr(runner_module.CampaignRunner, "_capture_measurement", capturing)
+    summary = replay_session(SAMPLE_FRAMES.parent)
+    assert overlapped == [True, True]
+    assert summary.compared == 2 and summary.identical == 2

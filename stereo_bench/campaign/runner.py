@@ -103,6 +103,9 @@ class Captured:
     calibration_detections: list[tuple[Future, Future]] = field(default_factory=list)  # detect(), made ahead
     measurement_pairs: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     measurement_detections: list[tuple] = field(default_factory=list)  # (left, right) Detection | None
+    # Per-config extrinsics: the calibration, started on the analysis pool once the views are taken, so that
+    # it runs while the measurement frames are captured rather than after them.
+    calibration: Future | None = None
     axes: dict | None = None  # the kinematic axes the rig reported after the move
     approach: dict | None = None  # per axis the direction the move came from
     truth: dict | None = None  # simulated benches: the truth at the measurement (never used by it)
@@ -111,7 +114,8 @@ class Captured:
         """Per calibration view the (left, right) Detection or None: those made while capturing (waited for),
         else detected here. AnalysisError if a detection failed (as it would have inside the calibration)."""
         if len(self.calibration_detections) != len(self.calibration_pairs):
-            return [(detect(left, board), detect(right, board)) for left, right in self.calibration_pairs]
+            return [(detect(left, board, noise=False), detect(right, board, noise=False))
+                    for left, right in self.calibration_pairs]
         try:
             return [(left.result(), right.result()) for left, right in self.calibration_detections]
         except (ValueError, np.linalg.LinAlgError) as error:
@@ -282,6 +286,7 @@ class CampaignRunner:
     def run(self, *, skip: set[str] = frozenset()) -> str:
         """Execute the steps of every configuration not in ``skip``; returns the exit status."""
         abandon = False
+        captured = None
         try:
             try:
                 for config_id, group in group_steps(self.steps):
@@ -306,6 +311,8 @@ class CampaignRunner:
                 self._collect(block=True)
                 return "success"
             except StopRequested:
+                if captured is not None and captured.calibration is not None:
+                    captured.calibration.cancel()  # the configuration stopped before it was measured
                 self._collect(block=True)  # what is complete is recorded
                 return "interrupted"
         except KeyboardInterrupt:  # a second Ctrl-C, even while the first one is being honoured: stop at once
@@ -480,6 +487,7 @@ class CampaignRunner:
                     self._discard_calibration_view(index, captured, answer)
                     continue
             if reviewing:
+                self._start_calibration(captured)
                 return
             left, right = self._capture(CalibrationViewEvent, index, captured.configuration)
             # Detected once, while the next views are captured; the analysis calibrates from these. A replay
@@ -488,8 +496,10 @@ class CampaignRunner:
             if recorded is not None:
                 found = (_done(recorded[0]), _done(recorded[1]))
             else:
-                found = (self._detector.submit(detect, left, self.calibration_board),
-                         self._detector.submit(detect, right, self.calibration_board))
+                # The corner noise of a calibration view is read only where its detections are recorded.
+                noise = not self._keeps_frames(CalibrationViewEvent)
+                found = (self._detector.submit(detect, left, self.calibration_board, noise=noise),
+                         self._detector.submit(detect, right, self.calibration_board, noise=noise))
             if not self._keeps_frames(CalibrationViewEvent):
                 self._publish_detections(captured.configuration.config_id, index, found)
             if presenter.wants_detections:  # coverage feedback for an operator
@@ -497,6 +507,23 @@ class CampaignRunner:
             captured.calibration_pairs.append((left, right))
             captured.calibration_detections.append(found)
             index += 1
+
+    def _start_calibration(self, captured: Captured) -> None:
+        """Per-config extrinsics: calibrate from the views just taken while the measurement frames are captured.
+
+        The same computation :meth:`_analyse` would otherwise start after the measurement frames (so the same
+        numbers); queued on the analysis pool before that configuration's ``_analyse``, which waits for it.
+        The pool takes tasks in order, so a waiting ``_analyse`` never holds up the calibration it waits for.
+        """
+        if self.options.extrinsics_mode == "per-config" and isinstance(captured.configuration, Configuration):
+            captured.calibration = self._analysis.submit(self._calibrate, captured)
+
+    def _calibrate(self, captured: Captured) -> ConfigurationAnalysis:
+        options = self.options
+        return calibrate_configuration(captured.calibration_pairs, self.calibration_board,
+                                       intrinsics=options.intrinsics, mode=options.intrinsics_mode,
+                                       intrinsics_covariance=options.intrinsics_covariance,
+                                       detections=captured.detections(self.calibration_board))
 
     def _discard_calibration_view(self, index: int, captured: Captured, answer: Answer) -> None:
         """Drop kept view ``index`` (the last one) so that it is taken again; its frames stay recorded."""
@@ -571,6 +598,8 @@ class CampaignRunner:
     # -- analysis and results ------------------------------------------------------------------------------------
 
     def _checkpoint(self, configuration: Configuration, captured: Captured, failed: str | None) -> None:
+        if captured.calibration is not None and (failed is not None or not captured.measurement_pairs):
+            captured.calibration.cancel()  # not analysed: a calibration not yet started need not run
         if not configuration.runnable:
             status = "infeasible" if not configuration.feasible else "limit"
             self._pending.append((Captured(configuration), _done(result_fields(
@@ -589,10 +618,8 @@ class CampaignRunner:
         options = self.options
         try:
             if options.extrinsics_mode == "per-config":
-                analysis = calibrate_configuration(captured.calibration_pairs, self.calibration_board,
-                                                   intrinsics=options.intrinsics, mode=options.intrinsics_mode,
-                                                   intrinsics_covariance=options.intrinsics_covariance,
-                                                   detections=captured.detections(self.calibration_board))
+                started = captured.calibration
+                analysis = started.result() if started is not None else self._calibrate(captured)
             else:
                 source = used_source(options, self._source(), configuration, captured)
                 analysis = ConfigurationAnalysis(calib=source.calib, rect=rectify(source.calib),
