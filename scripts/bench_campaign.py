@@ -221,6 +221,7 @@ def instrument_runner(spans: Spans) -> None:
 
     spans.wrap(runner, "detect", "detect (calibration views ahead, measurement frames)")
     spans.wrap(runner.CampaignRunner, "_analyse", "analysis")
+    spans.wrap(runner.CampaignRunner, "_calibrate", "analysis")  # per-config: started as the views are taken
     spans.wrap(runner.CampaignRunner, "_sync_recording", "waiting for the recorder")
     spans.wrap(runner.CampaignRunner, "_collect", "waiting for analyses")
     spans.wrap(runner.CampaignRunner, "_execute", "runner (other)")

@@ -12,8 +12,8 @@ OpenCV offers save 4-7 % (AVIF 0.87 MB, WebP 0.88 MB, JPEG 2000 0.89 MB) at 4-40
 (100-620 ms per frame) and, for AVIF and JPEG 2000, 7-9x the decode time; uncompressed PGM/TIFF
 decode in ~2 ms but double the session. The "up" filter costs 4 % of size against "avg" (0.94 MB)
 but unfilters with vector instructions where "avg" and "paeth" run byte by byte on grey frames, and
-replay decodes every frame: at 60 pairs/s on 2 cores a pair may cost 33 ms of CPU in all, of which
-decoding now takes 18 (26 with "avg").
+replay decodes every frame: at 60 pairs/s on 2 cores a pair may cost ~30 ms of CPU in all, of which
+decoding takes ~12.5 (with "avg", ~8 more).
 
 Every frame a session ever wrote is a PNG, whatever its settings (the reader needs none of them),
 so old sessions read and replay exactly. :func:`decode_frame` recognises the format by its magic
