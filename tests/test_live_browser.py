@@ -88,7 +88,8 @@ def test_a_campaign_followed_and_steered_from_the_live_page(tmp_path):
             time.sleep(2.0)
             rate = (preview_version(page) - first) / (time.monotonic() - started)
             assert rate >= 2.5, f"previews updated at {rate:.1f}/s while the operator was asked"
-            assert page.evaluate("document.querySelector('#img-left').naturalWidth") == 640
+            # A preview whose next frame is still loading has no width yet: wait for a loaded one.
+            page.wait_for_function("document.querySelector('#img-left').naturalWidth === 640", timeout=10_000)
 
             # Refused without the token: the same request the buttons make, from this browser.
             refused = page.request.post(base + "/api/control/stop")
@@ -107,9 +108,13 @@ def test_a_campaign_followed_and_steered_from_the_live_page(tmp_path):
             assert second.inner_text("#results-table tbody tr") == row
             page.wait_for_selector(".cov canvas", timeout=10_000)  # the coverage of the kept views
             # The results plot's series legend sits below the plot, clear of the error bars (it overlapped them).
-            page.wait_for_selector("#plot .legend", timeout=10_000)
-            plot, legend = page.locator("#plot svg").bounding_box(), page.locator("#plot .legend").bounding_box()
-            assert legend is not None and legend["y"] >= plot["y"] + plot["height"], (plot, legend)
+            # Checked in the page in one go: the plot is drawn anew with each result, so boxes read one after the
+            # other from here could belong to two drawings (the legend's of a drawing already replaced).
+            page.wait_for_function("""() => {
+                const svg = document.querySelector('#plot svg'), legend = document.querySelector('#plot .legend');
+                if (!svg || !legend || !legend.getClientRects().length) return false;
+                return legend.getBoundingClientRect().top >= svg.getBoundingClientRect().bottom - 0.5;
+            }""", timeout=10_000)
             assert "Z = 400 mm" in page.inner_text("#plot .legend")
             if SCREENSHOT:
                 page.screenshot(path=SCREENSHOT, full_page=True)
