@@ -150,6 +150,44 @@ def test_openblas_workers_sleep_at_once_unless_the_user_says_otherwise():
     assert _in_a_fresh_interpreter(code, OPENBLAS_THREAD_TIMEOUT="28") == "28 False"
 
 
+_FRAMES_FREED_AND_TAKEN_AGAIN = """
+import platform, resource, sys
+import numpy as np
+from stereo_bench.frames import keep_freed_frame_memory
+kept = keep_freed_frame_memory() if sys.argv[1] == "keep" else False
+def configuration():  # a configuration's frames decoded, then freed together once it is analysed
+    frames = [np.ones((1080, 1920), np.uint8) for _ in range(20)]
+    del frames
+configuration()
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(5):
+    configuration()
+print(platform.libc_ver()[0] == "glibc", kept, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+
+
+def _freed_frames_run(mode: str, **env: str) -> tuple[bool, bool, int]:
+    environment = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
+    done = subprocess.run([sys.executable, "-c", _FRAMES_FREED_AND_TAKEN_AGAIN, mode], capture_output=True, text=True,
+                          env=environment | env, timeout=120, check=True)
+    glibc, kept, faults = done.stdout.split()
+    return glibc == "True", kept == "True", int(faults)
+
+
+def test_freed_frames_are_reused_rather_than_given_back_and_faulted_in_again():
+    """keep_freed_frame_memory (a replay calls it): 20 freed 1080p frames are not returned to the kernel and
+    faulted in page by page the next time (~10,000 faults a configuration with glibc's defaults)."""
+    glibc, kept, faults_default = _freed_frames_run("default")
+    if not glibc:
+        pytest.skip("glibc's allocator only")
+    _, kept, faults_kept = _freed_frames_run("keep")
+    assert kept and faults_default > 5 * 20 * 256  # every frame faulted in again, 5 times
+    assert faults_kept < faults_default / 10
+    # A user's own malloc tuning is left alone.
+    _, kept, _ = _freed_frames_run("keep", MALLOC_TRIM_THRESHOLD_="131072")
+    assert not kept
+
+
 def test_a_configuration_is_calibrated_while_its_measurement_frames_are_captured(monkeypatch):
     """Per-config extrinsics: the calibration starts once the views are taken, not after the measurement frames
     (a replay's last configuration then waits for less, a run shows its result sooner); the numbers are the same."""

@@ -44,6 +44,7 @@ from stereo_bench.campaign.plan import PREPARE_ID, Configuration, Step, Visit, e
 from stereo_bench.campaign.runner import CampaignRunner, RunnerOptions, group_steps
 from stereo_bench.campaign.session import SessionError, SessionReader, SessionWriter, first_difference
 from stereo_bench.campaign.stream import Collector, DocumentBus, FrameSubscriber, MemoryRecorder, Subscriber
+from stereo_bench.frames import keep_freed_frame_memory
 from stereo_bench.vision.calibrate import single_threaded_opencv
 
 __all__ = [
@@ -449,6 +450,7 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     """
     if out_dir is not None:
         check_replay_out(session_dir, out_dir)
+    keep_freed_frame_memory()  # before the decoding threads start: they reuse each other's freed frames
     reader = SessionReader(session_dir)
     start = reader.start()
     recorded_config = dict(start["config"])
