@@ -101,3 +101,27 @@ def act_at_move(number: int, action):
 def stop_at_move(control, number: int):
     """:func:`act_at_move` asking ``control`` to stop."""
     return act_at_move(number, control.request_stop)
+
+
+def interrupt_at_presentation(control, method: str, number: int):
+    """A bench factory whose presenter, at the ``number``-th call of ``method`` (e.g. "present_target",
+    "present_calibration_view"), asks ``control`` to stop and then raises KeyboardInterrupt: a Ctrl-C and,
+    while that stop is pending, the second one that stops at once."""
+    from stereo_bench.campaign.bench import simulated_bench
+
+    def factory(config, **options):
+        bench = simulated_bench(config, **options)
+        presenter, calls = bench.presenter, []
+        present = getattr(presenter, method)
+
+        def interrupted(index):
+            calls.append(index)
+            if len(calls) == number:
+                control.request_stop("stopped by SIGINT")
+                raise KeyboardInterrupt
+            present(index)
+
+        setattr(presenter, method, interrupted)
+        return bench
+
+    return factory

@@ -20,7 +20,15 @@ from stereo_bench.campaign.bench import simulated_bench
 from stereo_bench.campaign.execute import RunControl, replay_session, run_campaign
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.cli import main
-from tests.campaigns import SAMPLE_SESSION, SMALL, numbers, results_csv, small_config, stop_at_move
+from tests.campaigns import (
+    SAMPLE_SESSION,
+    SMALL,
+    interrupt_at_presentation,
+    numbers,
+    results_csv,
+    small_config,
+    stop_at_move,
+)
 
 REQUIRED_COLUMNS = ["config_id", "baseline_mm", "distance_mm", "alpha_deg", "status", "square_mean_mm",
                     "square_std_mm", "n_squares", "error_mm", "sigma_mm", "rms_px", "epipolar_rms_px"]
@@ -183,19 +191,8 @@ def test_a_second_interrupt_stops_at_once_and_the_session_still_resumes(tmp_path
     out = tmp_path / "at-once"
     control = RunControl()
 
-    def bench_interrupted_twice(config, **options):
-        bench = simulated_bench(config, **options)
-        presenter, calls = bench.presenter, []
-
-        def present_target(frame_index):
-            calls.append(frame_index)
-            if len(calls) == 3:  # the second configuration's first frame: Ctrl-C, and again
-                control.request_stop("stopped by SIGINT")
-                raise KeyboardInterrupt
-            presenter.__class__.present_target(presenter, frame_index)
-
-        presenter.present_target = present_target
-        return bench
+    # The second configuration's first frame: Ctrl-C, and again.
+    bench_interrupted_twice = interrupt_at_presentation(control, "present_target", 3)
 
     summary = run_campaign(config, out, yes=True, control=control, bench_factory=bench_interrupted_twice,
                            resume_command="stereo-bench campaign run small.toml --out at-once --resume")

@@ -10,7 +10,7 @@ import pytest
 from stereo_bench.campaign.execute import replay_session, run_campaign
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.cli import main
-from tests.campaigns import numbers, small_config
+from tests.campaigns import interrupt_at_presentation, numbers, small_config
 
 MEASURED = ["B100_Z450_A90", "B150_Z450_A90"]
 
@@ -103,26 +103,13 @@ def test_a_replay_reproduces_what_was_kept_and_succeeds(small_reference, tmp_pat
 def test_a_stop_at_once_while_detections_are_pending_still_leaves_a_session_that_resumes(tmp_path, small_reference):
     """keep_frames = "measurement": a view's detections are recorded once made; a second Ctrl-C mid-views
     drops the ones still queued, and the session resumes to the same numbers."""
-    from stereo_bench.campaign.bench import simulated_bench
     from stereo_bench.campaign.execute import RunControl
 
     config = small_config(capture={"keep_frames": "measurement"})
     out = tmp_path / "at-once"
     control = RunControl()
-
-    def bench_interrupted(config, **options):
-        bench = simulated_bench(config, **options)
-        presenter, calls = bench.presenter, []
-
-        def present_calibration_view(index):
-            calls.append(index)
-            if len(calls) == 6 + 4:  # the second configuration's fifth view
-                control.request_stop("stopped by SIGINT")
-                raise KeyboardInterrupt
-            presenter.__class__.present_calibration_view(presenter, index)
-
-        presenter.present_calibration_view = present_calibration_view
-        return bench
+    # The tenth view presented: the second configuration's fourth.
+    bench_interrupted = interrupt_at_presentation(control, "present_calibration_view", 6 + 4)
 
     summary = run_campaign(config, out, yes=True, control=control, bench_factory=bench_interrupted)
     assert summary.exit_status == "interrupted"
