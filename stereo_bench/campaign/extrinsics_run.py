@@ -101,7 +101,7 @@ def prepare_source(purpose: str, captures: Sequence, config, options) -> Prepare
             return Prepared(error="no intrinsics for nominal extrinsics: the calibration visit captured nothing")
         try:
             analysis = calibrate_configuration(captured[0].calibration_pairs, board, mode="joint",
-                                               detections=captured[0].detections(board))
+                                               detections=captured[0].detections())
         except AnalysisError as error:
             return Prepared(error=f"no intrinsics for nominal extrinsics: calibration at {ids[0]} failed: {error}")
         return Prepared(nominal_intrinsics=analysis.calib, calibration=(ids[0], analysis))
@@ -113,7 +113,7 @@ def prepare_source(purpose: str, captures: Sequence, config, options) -> Prepare
     configurations = []
     for capture in captured:
         try:
-            views = capture.detections(board)  # made while capturing (or recorded, in a replay)
+            views = capture.detections()  # made while capturing (or recorded, in a replay)
         except AnalysisError as error:
             return Prepared(error=f"kinematic fit failed: {error}", record={**record, "error": str(error)})
         configurations.append(ConfigurationViews(axes=capture.axes, approach=capture.approach, views=views))

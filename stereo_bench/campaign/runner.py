@@ -30,7 +30,7 @@ view's prompt, recorded as ``calibration_view_discarded``; its frames stay in th
 from __future__ import annotations
 
 import threading
-from concurrent.futures import CancelledError, Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -81,7 +81,6 @@ from stereo_bench.campaign.plan import (
 from stereo_bench.campaign.presenters import CalibrationPlacementError
 from stereo_bench.campaign.sources import ApproachTracker, reported_axes
 from stereo_bench.executors import background_threads
-from stereo_bench.targets import Target
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.detect import AmbiguousViewError, detect
 from stereo_bench.vision.rectify import rectify
@@ -110,12 +109,9 @@ class Captured:
     approach: dict | None = None  # per axis the direction the move came from
     truth: dict | None = None  # simulated benches: the truth at the measurement (never used by it)
 
-    def detections(self, board: Target) -> list[tuple]:
-        """Per calibration view the (left, right) Detection or None: those made while capturing (waited for),
-        else detected here. AnalysisError if a detection failed (as it would have inside the calibration)."""
-        if len(self.calibration_detections) != len(self.calibration_pairs):
-            return [(detect(left, board, noise=False), detect(right, board, noise=False))
-                    for left, right in self.calibration_pairs]
+    def detections(self) -> list[tuple]:
+        """Per calibration view the (left, right) Detection or None made while capturing (waited for here).
+        AnalysisError if a detection failed (as it would have inside the calibration)."""
         try:
             return [(left.result(), right.result()) for left, right in self.calibration_detections]
         except (ValueError, np.linalg.LinAlgError) as error:
@@ -475,6 +471,7 @@ class CampaignRunner:
             raise ConfigurationFailed(str(error)) from None
         if prompt is not None:
             self._ask(prompt)
+        as_detections = not self._keeps_frames(CalibrationViewEvent)  # recorded instead of the frames
         index = 0
         while True:
             self._between_steps()
@@ -497,10 +494,9 @@ class CampaignRunner:
                 found = (_done(recorded[0]), _done(recorded[1]))
             else:
                 # The corner noise of a calibration view is read only where its detections are recorded.
-                noise = not self._keeps_frames(CalibrationViewEvent)
-                found = (self._detector.submit(detect, left, self.calibration_board, noise=noise),
-                         self._detector.submit(detect, right, self.calibration_board, noise=noise))
-            if not self._keeps_frames(CalibrationViewEvent):
+                found = (self._detector.submit(detect, left, self.calibration_board, noise=as_detections),
+                         self._detector.submit(detect, right, self.calibration_board, noise=as_detections))
+            if as_detections:
                 self._publish_detections(captured.configuration.config_id, index, found)
             if presenter.wants_detections:  # coverage feedback for an operator
                 presenter.calibration_view_captured(index, found[0].result(), found[1].result())
@@ -523,7 +519,7 @@ class CampaignRunner:
         return calibrate_configuration(captured.calibration_pairs, self.calibration_board,
                                        intrinsics=options.intrinsics, mode=options.intrinsics_mode,
                                        intrinsics_covariance=options.intrinsics_covariance,
-                                       detections=captured.detections(self.calibration_board))
+                                       detections=captured.detections())
 
     def _discard_calibration_view(self, index: int, captured: Captured, answer: Answer) -> None:
         """Drop kept view ``index`` (the last one) so that it is taken again; its frames stay recorded."""
@@ -689,9 +685,7 @@ def _record_or_none(future: Future):
     cancels what is queued, so checking ``cancelled()`` first and then waiting would race)."""
     try:
         detection = future.result()
-    except CancelledError:
-        return None
-    except Exception:  # noqa: BLE001 - a detection that failed is the analysis' to report, not the recorder's
+    except Exception:  # noqa: BLE001 - cancelled (CancelledError is one), or failed: the analysis' to report
         return None
     return DetectionRecord.of(detection)
 
