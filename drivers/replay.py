@@ -132,7 +132,8 @@ class ReplayStereoCamera:
         if position is not None:
             for skipped in [k for k in self._loading if self._position[k] < position]:
                 self._loading.pop(skipped).cancel()
-            self._next = max(self._next, position + 1) if key not in self._loading else self._next
+            # Loading ahead goes on after ``key`` (a key already handed to the pool lies before _next anyway).
+            self._next = max(self._next, position + 1)
         future = self._loading.pop(key, None)
         self._load_ahead()
         return future.result() if future is not None else self._load(key)

@@ -243,7 +243,7 @@ def _coefficients(dist) -> tuple[float, ...]:
 def distort_normalised(normalised: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """(N, 2) pixels of (N, 2) normalised image coordinates through OpenCV's distortion model (k1 k2 p1 p2
     [k3 [k4 k5 k6 [s1 s2 s3 s4]]]) and ``K`` (fx, fy, cx, cy): what ``cv2.projectPoints`` computes, ~20x faster
-    on small point sets (it always computes its Jacobians); tests/test_geometry.py holds them to 1e-9 px."""
+    on small point sets (it always computes its Jacobians); tests/test_plan_checks.py holds them to 1e-9 px."""
     k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = _coefficients(dist)
     x, y = normalised[:, 0], normalised[:, 1]
     r2 = x * x + y * y

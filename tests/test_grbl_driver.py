@@ -437,6 +437,16 @@ def test_grblhal_six_axes():
                                                 "C": -400.0}
 
 
+def test_grblhal_reports_the_receive_bytes_its_ring_can_still_take():
+    # grblHAL's ring of RX_BUFFER_SIZE slots is full one byte early and its Bf says so (RX_BUFFER_SIZE - 1 - count);
+    # Grbl 1.1's ring has one slot more and reports all 128 (test_status_fields_in_random_order_and_wpos_reports).
+    with GrblEmulator(time_scale=FAST, firmware="grblhal", status_mask=1 | 2) as emu:
+        with _controller(emu, rx_buffer_size=1024) as grbl:
+            grbl.home(timeout=5.0)
+            reading = grbl.move_to({"X": -12.5}).wait(5.0)
+            assert reading.rx_bytes_free == 1023 and reading.planner_blocks_free == 15
+
+
 def test_a_buffer_size_other_than_configured_is_warned_and_the_controllers_used():
     with GrblEmulator(time_scale=FAST, rx_buffer_size=64) as emu, _controller(emu) as grbl:
         assert grbl.rx_buffer_size == 64

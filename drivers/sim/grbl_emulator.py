@@ -454,8 +454,9 @@ class GrblEmulator:
         self.firmware = firmware
         self.rx_buffer_size = rx_buffer_size or (1024 if firmware == "grblhal" else RX_BUFFER_SIZE)
         # serial.c: Grbl's ring buffer has RX_BUFFER_SIZE+1 slots (RX_RING_BUFFER), one always free, so it holds
-        # all RX_BUFFER_SIZE bytes (and Bf: reports RX_BUFFER_SIZE free when empty). grblHAL keeps the size-1
-        # it always had here (not checked against its source).
+        # all RX_BUFFER_SIZE bytes (and Bf: reports RX_BUFFER_SIZE free when empty). grblHAL's drivers' rings have
+        # RX_BUFFER_SIZE slots, full when BUFNEXT(head) == tail, and report RX_BUFFER_SIZE - 1 - count free (its
+        # serial.c, e.g. the RP2040 driver's): they hold RX_BUFFER_SIZE - 1.
         self._rx_capacity = self.rx_buffer_size - (1 if firmware == "grblhal" else 0)
         self.shuffle_fields = shuffle_fields
         self.reboot_on_open = reboot_on_open
@@ -1622,7 +1623,7 @@ class GrblEmulator:
         else:
             fields.append("WPos:" + ",".join(coord(pos[a] - self._wco[a]) for a in self.axes))
         if self.status_mask & 2:
-            fields.append(f"Bf:{PLANNER_BLOCKS - len(self._planner)},{self.rx_buffer_size - len(self._rx)}")
+            fields.append(f"Bf:{PLANNER_BLOCKS - len(self._planner)},{self._rx_capacity - len(self._rx)}")
         speed = 0.0
         if self._planner and self._planner[0].t_start is not None and self._state in ("Run", "Jog", "Hold"):
             block = self._planner[0]

@@ -193,10 +193,9 @@ def parameter_step(name: str) -> float:
 
 
 class _Square:
-    """f(calib, left=None, right=None) -> the configuration's square (mm): mean over frames of each
-    frame's mean adjacent length; ``left``/``right`` replace the frames' stacked pixels (sum N_i, 2).
-
-    ``left``, ``right``: the frames' stacked pixels; :meth:`of_points` the square of their triangulated points.
+    """f(calib, left_px=None, right_px=None) -> the configuration's square (mm): mean over frames of each
+    frame's mean adjacent length. ``left``/``right``: the frames' stacked pixels (sum N_i, 2), which
+    ``left_px``/``right_px`` replace; :meth:`of_points` the square of their triangulated points.
     """
 
     def __init__(self, left: np.ndarray, right: np.ndarray, a_idx: np.ndarray, b_idx: np.ndarray,
@@ -218,17 +217,15 @@ def _square_function(frames: list[FrameCorners], target: Target) -> _Square:
     left = np.vstack([f.left_px for f in frames])
     right = np.vstack([f.right_px for f in frames])
     offsets = np.cumsum([0] + [len(f.ids) for f in frames])
-    adjacent = target.adjacent_pairs()
     a_idx, b_idx, weights = [], [], []
     for frame, offset in zip(frames, offsets[:-1], strict=True):
-        position = {int(c): i for i, c in enumerate(frame.ids)}
-        pairs = [(position[a], position[b]) for a, b in adjacent if a in position and b in position]
-        if not pairs:
+        pairs = _adjacent_index_pairs(frame, target)
+        if not len(pairs):
             raise ValueError("a frame has no adjacent corner pair seen in both views")
-        a_idx += [offset + p[0] for p in pairs]
-        b_idx += [offset + p[1] for p in pairs]
-        weights += [1.0 / (len(pairs) * len(frames))] * len(pairs)
-    return _Square(left, right, np.array(a_idx), np.array(b_idx), np.array(weights))
+        a_idx.append(offset + pairs[:, 0])
+        b_idx.append(offset + pairs[:, 1])
+        weights.append(np.full(len(pairs), 1.0 / (len(pairs) * len(frames))))
+    return _Square(left, right, np.concatenate(a_idx), np.concatenate(b_idx), np.concatenate(weights))
 
 
 def _adjacent_index_pairs(frame: FrameCorners, target: Target) -> np.ndarray:
