@@ -40,7 +40,7 @@ def check_name(value: object, what: str) -> str:
 
 def is_inside(root: Path, path: Path) -> bool:
     """True if ``path`` is ``root`` or below it, both as given (resolve them first to follow symlinks)."""
-    return path == root or root in path.parents
+    return path.is_relative_to(root)
 
 
 def confined(root: str | Path, path: str | Path) -> Path:

@@ -219,3 +219,58 @@ def test_the_runner_owns_prompting_grbl_rig_gets_no_prompt(tmp_path):
 
     with open_bench(small_config(), operators=[SimulatedOperator()], transcript=None) as bench:
         assert bench.kind == "simulated" and bench.rig.prompt is None
+
+
+# -- the simulated presenter stages what each configuration and design visit captures --------------------------------
+
+
+class _StagingBench:
+    """Records what a SimulatedPresenter stages (the scene kinds, in order); renders nothing."""
+
+    def __init__(self, optics):
+        self.left_model, self.right_model = optics.camera_model("left"), optics.camera_model("right")
+        self.staged: list[list[str]] = []
+
+    def warm_up(self, *targets) -> None:
+        pass
+
+    def stage(self, scenes, *, at, ahead) -> None:
+        self.staged.append([kind for kind, *_ in scenes])
+
+
+@pytest.mark.parametrize("mode", ["per-config", "kinematic", "nominal"])
+def test_the_simulated_presenter_stages_what_plan_steps_captures(mode):
+    """A design visit (kinematic, nominal) captures calibration views only: the presenter stages its boards, not
+    the measurement frames a configuration takes; each group of plan_steps captures what planned_captures says."""
+    import functools
+
+    from stereo_bench.campaign.bench import SimulatedPresenter, planned_captures
+    from stereo_bench.campaign.execute import CampaignPlan
+    from stereo_bench.campaign.plan import CaptureCalibration, CaptureMeasurement
+    from stereo_bench.campaign.runner import group_steps
+
+    config = small_config(extrinsics={"mode": mode})
+    plan = CampaignPlan.of(config)
+    runnable = {c.config_id: c for c in [*plan.visits, *plan.configurations] if c.runnable}
+    assert (len(plan.visits) > 0) == (mode != "per-config")
+    for config_id, group in group_steps(plan.steps):
+        if config_id in runnable:
+            views = sum(step.n_views for step in group if isinstance(step, CaptureCalibration))
+            frames = sum(step.n_frames for step in group if isinstance(step, CaptureMeasurement))
+            assert planned_captures(config, runnable[config_id]) == (views, frames), config_id
+
+    bench = _StagingBench(config.cameras.optics)
+    presenter = SimulatedPresenter(bench, config.calibration_board.build(), config.target.build(), seed=config.seed,
+                                   stage_ahead=functools.partial(planned_captures, config))
+    try:
+        for configuration in runnable.values():
+            views, frames = planned_captures(config, configuration)
+            presenter.begin_configuration(configuration)
+            if views:
+                presenter.prepare_calibration(views)  # waits for the staging thread
+            else:
+                presenter._planned.result()
+            assert bench.staged[-1] == ["board"] * views + ["target"] * frames, configuration.config_id
+    finally:
+        presenter.close()
+    assert len(bench.staged) == len(runnable)

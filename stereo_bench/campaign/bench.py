@@ -17,6 +17,7 @@ is the only module of ``stereo_bench`` outside the CLI that imports the simulato
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import threading
 from collections import Counter
@@ -31,7 +32,7 @@ import numpy as np
 from stereo_bench.campaign.camera_gate import CameraGate
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.operator import Operator, Prompt
-from stereo_bench.campaign.plan import Configuration
+from stereo_bench.campaign.plan import Configuration, Visit
 from stereo_bench.campaign.presenters import CalibrationPlacementError, OperatorPresenter, Presenter, scene_seed
 from stereo_bench.geometry import RigPose, alpha_from_toe_in
 from stereo_bench.targets import Target
@@ -158,11 +159,9 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
         rig = _open_rig(stack, GrblRig(port, rig_config, spy_log=transcript))
         rig_holder.append(rig)
         cameras = stack.enter_context(StereoCamera(*sim.cameras(), max_skew_s=config.cameras.max_skew_s))
-        # What each configuration will capture (as plan_steps asks for it), so the presenter can stage the
-        # scenes and the bench render them ahead while the rig settles.
-        views = config.capture.calibration_views if config.extrinsics.mode == "per-config" else 0
+        stage_ahead = functools.partial(planned_captures, config) if render_ahead else None
         presenter = SimulatedPresenter(sim, config.calibration_board.build(), config.target.build(), seed=config.seed,
-                                       stage_ahead=(views, config.capture.frames_per_config) if render_ahead else None)
+                                       stage_ahead=stage_ahead)
         stack.callback(presenter.close)
     except BaseException:
         stack.close()
@@ -187,12 +186,22 @@ def _simulated_preview(sim, stack: contextlib.ExitStack) -> PreviewGrab:
     return preview
 
 
+def planned_captures(config: CampaignConfig, configuration: Configuration | Visit) -> tuple[int, int]:
+    """(calibration views, measurement frames) that :func:`~stereo_bench.campaign.plan.plan_steps` has a runnable
+    configuration or design visit capture: a visit shows the calibration board only; a configuration its
+    calibration views (per-config extrinsics) and its measurement frames."""
+    if isinstance(configuration, Visit):
+        return config.capture.calibration_views, 0
+    views = config.capture.calibration_views if config.extrinsics.mode == "per-config" else 0
+    return views, config.capture.frames_per_config
+
+
 class SimulatedPresenter:
     """Places boards in a :class:`drivers.sim.bench.SimulatedBench` scene.
 
-    ``stage_ahead``: (calibration views, measurement frames) each configuration will capture. At the
-    start of a configuration (before the rig moves) the presenter then draws the calibration board's
-    poses on a background thread and stages every scene it will show with the bench
+    ``stage_ahead``: given a configuration or design visit, the (calibration views, measurement frames) it
+    will capture (:func:`planned_captures`). At the start of each (before the rig moves) the presenter then
+    draws the calibration board's poses on a background thread and stages every scene it will show with the bench
     (:meth:`~drivers.sim.bench.SimulatedBench.stage`), which renders them ahead once the rig rests
     there; the frames are exactly those a render at the trigger gives. None: nothing ahead.
     """
@@ -201,7 +210,7 @@ class SimulatedPresenter:
 
     def __init__(self, bench, calibration_board: Target, target: Target, *, seed: int = 0,
                  calibration_distance_mm: Callable[[float], tuple[float, float]] | None = None,
-                 stage_ahead: tuple[int, int] | None = None):
+                 stage_ahead: Callable[[Configuration | Visit], tuple[int, int]] | None = None):
         self.bench = bench
         self.calibration_board = calibration_board
         self.target = target
@@ -226,7 +235,7 @@ class SimulatedPresenter:
         self._poses = []
         self._planned = None
         if self._planner is not None:
-            self._planned = self._planner.submit(self._stage, configuration, *self.stage_ahead)
+            self._planned = self._planner.submit(self._stage, configuration, *self.stage_ahead(configuration))
 
     def _stage(self, configuration: Configuration, n_views: int, n_frames: int) -> tuple[int, list | Exception]:
         """Draws the calibration poses and stages the configuration's scenes (on the presenter's thread)."""

@@ -166,21 +166,11 @@ class RunSummary:
         return counts
 
 
-def _recorded_rig_config(reader: SessionReader) -> Path | None:
-    """The recording's copy of ``[rig] config_file`` (a 'rig_config' event), if it holds one."""
-    for event in reversed(reader.events(kind=RIG_CONFIG_KIND, attempt=None)):
-        relative = (event.get("files") or {}).get(RIG_CONFIG_FILE)
-        if relative:
-            return reader.path(relative)
-    return None
-
-
-def _recorded_intrinsics(reader: SessionReader) -> Path | None:
-    """The recording's copy of ``calib_dir``'s intrinsics.yml (an 'intrinsics' event), if it holds one."""
-    from stereo_bench.vision.calibio import INTRINSICS_FILE
-
-    for event in reversed(reader.events(kind="intrinsics", attempt=None)):
-        relative = (event.get("files") or {}).get(INTRINSICS_FILE)
+def _recorded_copy(reader: SessionReader, kind: str, name: str) -> Path | None:
+    """The recording's last copy of an outside file: side file ``name`` of a ``kind`` event (``rig_config``: the
+    ``[rig] config_file``; ``intrinsics``: calib_dir's intrinsics.yml), if it holds one."""
+    for event in reversed(reader.events(kind=kind, attempt=None)):
+        relative = (event.get("files") or {}).get(name)
         if relative:
             return reader.path(relative)
     return None
@@ -193,6 +183,7 @@ def runner_options(config: CampaignConfig, *, reader: SessionReader | None = Non
     from stereo_bench.campaign.extrinsics_run import intrinsics_from_dir, recorded_sources
     from stereo_bench.kinematics import KinematicFileError, load_model
     from stereo_bench.vision.calibio import (
+        INTRINSICS_FILE,
         CalibrationFileError,
         read_calibration,
         read_intrinsics,
@@ -220,7 +211,7 @@ def runner_options(config: CampaignConfig, *, reader: SessionReader | None = Non
         elif extrinsics.calib_dir is not None:
             # a replay reads the recording's copy of calib_dir's intrinsics (sessions recorded before the copy
             # was made for every mode: calib_dir itself)
-            source = _recorded_intrinsics(reader) if reader is not None else None
+            source = _recorded_copy(reader, "intrinsics", INTRINSICS_FILE) if reader is not None else None
             source = source or extrinsics.calib_dir
             options.intrinsics = read_intrinsics(source)[:4]
             options.intrinsics_covariance = read_intrinsics_covariance(source)
@@ -454,7 +445,7 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     reader = SessionReader(session_dir)
     start = reader.start()
     recorded_config = dict(start["config"])
-    rig_copy = _recorded_rig_config(reader)
+    rig_copy = _recorded_copy(reader, RIG_CONFIG_KIND, RIG_CONFIG_FILE)
     if rig_copy is not None and isinstance(recorded_config.get("rig"), dict):  # the copy, not where the file was
         recorded_config["rig"] = {**recorded_config["rig"], "config_file": str(rig_copy)}
     for section, values in (pipeline or {}).items():

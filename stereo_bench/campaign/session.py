@@ -470,14 +470,12 @@ class SessionReader:
 
 
 # -- writing -----------------------------------------------------------------------------------------
-_OPEN_NO_FOLLOW = getattr(os, "O_NOFOLLOW", 0) and os.O_RDONLY | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+def _read_no_follow(path: Path) -> bytes:
+    """The bytes of ``path``; OSError if it is a symlink (ELOOP) or cannot be read.
 
-
-def _read_no_follow(path: Path) -> bytes | None:
-    """The bytes of ``path`` unless it is a symlink (ELOOP, raised as OSError); None where O_NOFOLLOW is missing."""
-    if not _OPEN_NO_FOLLOW:
-        return None
-    descriptor = os.open(path, _OPEN_NO_FOLLOW)
+    O_NOFOLLOW is POSIX, as the ``fcntl`` locks of this module are (resume opens the stream with it too).
+    """
+    descriptor = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
     try:  # closed here: open() does not close a descriptor it was given when it fails (a directory)
         with open(descriptor, "rb", closefd=False) as file:
             return file.read()

@@ -16,10 +16,8 @@ import sys
 import time
 from pathlib import Path
 
-from stereo_bench.cli import CliError, failure
+from stereo_bench.cli import EXIT_FAILED, EXIT_INTERRUPTED, CliError, failure
 from stereo_bench.cli.args import TIME_SCALE, int_in, output_dir
-
-EXIT_INTERRUPTED = 130
 
 
 def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: float | None = None,
@@ -265,9 +263,9 @@ def _summarise(args: argparse.Namespace, summary, out: Path, resume_command: str
     if status == "interrupted":
         code = EXIT_INTERRUPTED
     elif status != "success":
-        code = 1
+        code = EXIT_FAILED
     elif counts and not counts.get("measured", 0):
-        status, code, why = "failed", 1, " (nothing was measured)"
+        status, code, why = "failed", EXIT_FAILED, " (nothing was measured)"
     print(f"campaign {status} in {elapsed:.0f} s: {parts or 'nothing run'}"
           + (f" ({summary.skipped} already complete)" if summary.skipped else "") + why, file=report)
     print(f"session:  {out}/  (documents.jsonl, frames/, calib/, results.sqlite)", file=report)

@@ -22,6 +22,7 @@ from stereo_bench.cli.campaign_run import add_ui_options, announce_live_page
 def live_config(args: argparse.Namespace):
     """The campaign config the preview opens its bench from: a campaign file (or the defaults), the options applied."""
     from stereo_bench.campaign.config import campaign_from_dict, load_campaign
+    from stereo_bench.geometry import PARALLEL_ALPHA_DEG
 
     base = load_campaign(Path(args.campaign)) if args.campaign else None
     data = base.model_dump(mode="json", exclude_none=True) if base is not None else {}
@@ -38,9 +39,10 @@ def live_config(args: argparse.Namespace):
     if args.cameras:
         cameras.update(kind="v4l2", left=args.cameras[0], right=args.cameras[1])
     plan = dict(data.get("plan", {}))
-    # The file's first angle, as alpha: a file giving toe_in_deg keeps only the alpha set here (both: refused).
-    toe_ins = plan.pop("toe_in_deg", None)
-    first_alpha = 90.0 - toe_ins[0] if toe_ins else (plan.get("alpha_deg") or [90.0])[0]
+    # The file's first angle, as alpha (the plan's own reading of alpha_deg or toe_in_deg): live sets alpha_deg, so
+    # a file's toe_in_deg is dropped (both given: refused).
+    first_alpha = base.plan.angles_deg()[0][0] if base is not None else PARALLEL_ALPHA_DEG
+    plan.pop("toe_in_deg", None)
     plan.update(baseline_mm=[args.baseline if args.baseline is not None else (plan.get("baseline_mm") or [100.0])[0]],
                 distance_mm=[args.distance if args.distance is not None else (plan.get("distance_mm") or [500.0])[0]],
                 alpha_deg=[args.alpha if args.alpha is not None else first_alpha])

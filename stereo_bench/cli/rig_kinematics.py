@@ -21,10 +21,8 @@ import sys
 import time
 from pathlib import Path
 
-from stereo_bench.cli import CliError, failure
+from stereo_bench.cli import EXIT_INTERRUPTED, CliError, failure
 from stereo_bench.cli.args import BASELINE_MM, DISTANCE_MM, TIME_SCALE, TOE_IN_DEG
-
-EXIT_INTERRUPTED = 130
 
 
 class _Parser(argparse.ArgumentParser):
