@@ -1,8 +1,8 @@
 """The replay's fast paths give bit-identical numbers to the plain computations they replace; OpenCV and
 OpenBLAS threads that would only spin beside the replay's own pools.
 
-(The PNG decoder's own fast path is checked against OpenCV's reader in tests/test_frames.py; the replay as
-a whole against the recorded numbers in tests/test_campaign_run.py.)
+(The PNG decoder's own fast path is checked against OpenCV's reader in tests/test_frame_reading.py and
+tests/test_frames.py; the replay as a whole against the recorded numbers in tests/test_campaign_run.py.)
 """
 
 from __future__ import annotations
