@@ -47,6 +47,7 @@ from stereo_bench.campaign.operator import SimulatedOperator
 from stereo_bench.campaign.plan import estimate_duration
 from stereo_bench.campaign.session import SessionReader
 
+ROOT = Path(__file__).resolve().parents[1]
 CAMPAIGN = {
     "name": "bench-campaign",
     "seed": 1,
@@ -467,7 +468,7 @@ def ui_overhead(config, plan, workdir: Path, repeat: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profiles", nargs="+", default=["ideal", "lab"], choices=["ideal", "lab"])
-    parser.add_argument("--out", default="scripts/results/bench_campaign.json")
+    parser.add_argument("--out", default=str(ROOT / "scripts" / "results" / "bench_campaign.json"))
     parser.add_argument("--keep", metavar="DIR", type=Path, help="keep the recorded sessions here (DIR/<profile>)")
     parser.add_argument("--ui", action="store_true", help="also measure the live page's cost (see the docstring)")
     parser.add_argument("--repeat", type=int, default=3,

@@ -28,6 +28,7 @@ from types import ModuleType
 import cv2
 import numpy as np
 
+from stereo_bench.campaign.session import SessionReader
 from stereo_bench.frames import decode_frame
 from stereo_bench.targets import Checkerboard
 from stereo_bench.vision import detect as current
@@ -40,11 +41,10 @@ OPENCV_CALLS = ("findChessboardCorners", "checkChessboard", "cornerSubPix", "get
 
 def session_boards(session: Path) -> list[Checkerboard]:
     """The checkerboards a session's frames show (target, calibration board), from its start document."""
-    with open(session / "documents.jsonl", encoding="utf-8") as documents:
-        start = next(doc for doc in map(json.loads, documents) if doc["type"] == "start")
+    config = SessionReader(session).start()["config"]
     boards = []
     for key in ("target", "calibration_board"):
-        spec = start["config"][key]
+        spec = config[key]
         if spec["kind"] == "checkerboard":
             boards.append(Checkerboard(spec["cols"], spec["rows"], spec["square_mm"]))
     return boards

@@ -22,6 +22,7 @@ from stereo_bench.campaign.config import campaign_from_dict, load_preset
 from stereo_bench.campaign.execute import replay_session, run_campaign
 from stereo_bench.campaign.session import SessionReader
 
+ROOT = Path(__file__).resolve().parents[1]
 KEEP = ("all", "measurement", "none")
 
 
@@ -33,7 +34,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="paper-exp1")
     parser.add_argument("--time-scale", type=float, default=20.0)
-    parser.add_argument("--out", default="scripts/results/bench_session_size.json")
+    parser.add_argument("--out", default=str(ROOT / "scripts" / "results" / "bench_session_size.json"))
     args = parser.parse_args()
     base = load_preset(args.preset).model_dump(mode="json")
     rows, results = [], {}

@@ -5,11 +5,23 @@ from __future__ import annotations
 import csv
 import json
 import tomllib
+from functools import cache
 from pathlib import Path
 
+import numpy as np
+
 from stereo_bench.campaign.config import CampaignConfig, campaign_from_dict
+from stereo_bench.frames import decode_frame
 
 SAMPLE_SESSION = Path(__file__).resolve().parents[1] / "calib_data" / "sample_session"
+
+
+@cache
+def sample_session_frames(every: int) -> tuple[np.ndarray, ...]:
+    """Every ``every``-th frame file of the shipped sample session (sorted paths), decoded as a replay decodes
+    it; shared by the tests, so never write into them."""
+    paths = sorted((SAMPLE_SESSION / "frames").rglob("*.png"))[::every]
+    return tuple(decode_frame(path.read_bytes(), str(path)) for path in paths)
 
 # Two baselines x two angles at one distance: alpha = 90 measured, alpha = 35 infeasible.
 SMALL = """

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from dataclasses import replace
 from functools import cache
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -38,9 +37,9 @@ from stereo_bench.vision.uncertainty import (
     pixel_gradients,
     square_sensitivities,
 )
+from tests.campaigns import SAMPLE_SESSION
 from tests.synthetic_rig import TARGET, Configuration, calibrate
 
-SAMPLE_SESSION = Path(__file__).resolve().parents[1] / "calib_data" / "sample_session"
 INTRINSIC_NAMES = tuple(f"{side}.{name}" for side in ("left", "right")
                         for name in ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"))
 

@@ -8,13 +8,11 @@ The replay as a whole is checked against recorded numbers in tests/test_campaign
 from __future__ import annotations
 
 from functools import cache
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from stereo_bench.frames import decode_frame
 from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision import detect as detect_module
 from stereo_bench.vision.detect import (
@@ -26,9 +24,9 @@ from stereo_bench.vision.detect import (
     image_noise_dn,
     subpix_half_window,
 )
+from tests.campaigns import sample_session_frames
 from tests.real_data import OPENCV_SAMPLE, PRESENT_CJN
 
-SAMPLE_FRAMES = Path(__file__).resolve().parents[1] / "calib_data" / "sample_session" / "frames"
 SAMPLE_TARGET = Checkerboard(9, 6, 27.0)
 
 
@@ -64,11 +62,10 @@ def assert_same_bits(fast: np.ndarray, plain: np.ndarray, what: str) -> None:
     assert fast.tobytes() == plain.tobytes(), what  # NaN where NaN, and -0.0 apart from 0.0
 
 
-@cache
 def rendered_frames() -> tuple[np.ndarray, ...]:
-    paths = sorted(SAMPLE_FRAMES.rglob("*.png"))[::3]
-    assert len(paths) >= 10
-    return tuple(decode_frame(path.read_bytes(), str(path)) for path in paths)
+    frames = sample_session_frames(3)
+    assert len(frames) >= 10
+    return frames
 
 
 @cache

@@ -18,11 +18,9 @@ import pytest
 from stereo_bench import frames
 from stereo_bench.campaign.session import SessionError, SessionReader
 from stereo_bench.frames import FrameError, decode_frame, encode_frame
+from tests.campaigns import SAMPLE_SESSION
+from tests.real_data import REAL
 from tests.test_session import record
-
-ROOT = Path(__file__).resolve().parents[1]
-SAMPLE_FRAMES = ROOT / "calib_data" / "sample_session" / "frames"
-REAL_IMAGES = ROOT / "calib_data" / "real"
 
 
 def grey(image: np.ndarray) -> np.ndarray:
@@ -31,8 +29,9 @@ def grey(image: np.ndarray) -> np.ndarray:
 
 def sample_frames() -> list[np.ndarray]:
     """Rendered frames (the sample session's, recorded in an older PNG setting) and real camera images."""
-    rendered = [grey(cv2.imread(str(path), cv2.IMREAD_UNCHANGED)) for path in sorted(SAMPLE_FRAMES.rglob("*.png"))[::6]]
-    real = [cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) for path in sorted(REAL_IMAGES.rglob("*.jpg"))[::20]]
+    rendered = [grey(cv2.imread(str(path), cv2.IMREAD_UNCHANGED))
+                for path in sorted((SAMPLE_SESSION / "frames").rglob("*.png"))[::6]]
+    real = [cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) for path in sorted(REAL.rglob("*.jpg"))[::20]]
     assert len(rendered) >= 4 and len(real) >= 4
     return rendered + real
 

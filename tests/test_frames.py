@@ -98,19 +98,6 @@ def _with_crc(kind: bytes, body: bytes) -> bytes:
     return len(body).to_bytes(4, "big") + kind + body + zlib.crc32(kind + body).to_bytes(4, "big")
 
 
-@pytest.mark.parametrize("shape", [(1080, 1920), (37, 53), (1, 9)])
-def test_grey_frames_are_decoded_by_libdeflate_exactly_as_opencv_decodes_them(shape, monkeypatch):
-    pytest.importorskip("deflate")
-    from stereo_bench import frames
-
-    data = encode_frame(noisy_frame(shape, seed=3))
-    expected = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    monkeypatch.setattr(frames.cv2, "imdecode", lambda *args: pytest.fail("OpenCV decoded a frame of ours"))
-    image = decode_frame(data, "f.png")
-    assert image.dtype == np.uint8 and image.shape == shape
-    np.testing.assert_array_equal(image, expected)
-
-
 @pytest.mark.parametrize("seed", [0, 1])
 def test_rows_filtered_none_or_up_in_any_mix_are_unfiltered_exactly_as_libpng_does(seed, monkeypatch):
     """Uniformly random bytes (every sum wraps mod 256 somewhere), and rows 'none' and 'up' in a random mix,

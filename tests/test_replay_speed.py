@@ -1,8 +1,8 @@
 """The replay's fast paths give bit-identical numbers to the plain computations they replace; OpenCV and
 OpenBLAS threads that would only spin beside the replay's own pools.
 
-(The PNG decoder's own fast path is checked against OpenCV's reader in tests/test_frames.py; the replay as
-a whole against the recorded numbers in tests/test_campaign_run.py.)
+(The PNG decoder's own fast path is checked against OpenCV's reader in tests/test_frame_reading.py and
+tests/test_frames.py; the replay as a whole against the recorded numbers in tests/test_campaign_run.py.)
 """
 
 from __future__ import annotations
@@ -11,19 +11,16 @@ import os
 import subprocess
 import sys
 import threading
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from stereo_bench.frames import decode_frame
 from stereo_bench.vision import calibrate
 from stereo_bench.vision.calibrate import StereoCalibration, single_threaded_opencv
 from stereo_bench.vision.detect import image_noise_dn
 from stereo_bench.vision.triangulate import triangulate, triangulation_jacobian
-
-SAMPLE_FRAMES = Path(__file__).resolve().parents[1] / "calib_data" / "sample_session" / "frames"
+from tests.campaigns import SAMPLE_SESSION, sample_session_frames
 
 
 def plain_image_noise_dn(gray: np.ndarray, *, tile_px: int = 128, tiles_per_side: int = 4) -> float:
@@ -41,9 +38,9 @@ def plain_image_noise_dn(gray: np.ndarray, *, tile_px: int = 128, tiles_per_side
 
 
 def rendered_frames() -> list[np.ndarray]:
-    paths = sorted(SAMPLE_FRAMES.rglob("*.png"))[::5]
-    assert len(paths) >= 4
-    return [decode_frame(path.read_bytes(), str(path)) for path in paths]
+    frames = list(sample_session_frames(5))
+    assert len(frames) >= 4
+    return frames
 
 
 def random_frames() -> list[np.ndarray]:
@@ -210,6 +207,6 @@ def test_a_configuration_is_calibrated_while_its_measurement_frames_are_captured
 
     monkeypatch.setattr(runner_module, "calibrate_configuration", calibrating)
     monkeypatch.setattr(runner_module.CampaignRunner, "_capture_measurement", capturing)
-    summary = replay_session(SAMPLE_FRAMES.parent)
+    summary = replay_session(SAMPLE_SESSION)
     assert overlapped == [True, True]
     assert summary.compared == 2 and summary.identical == 2
