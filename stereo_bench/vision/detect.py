@@ -94,8 +94,9 @@ def detect(
     checkerboard cut by the image border (see :func:`detect_checkerboard_partial`) at ~3x the cost
     of the fast whole-board search; ChArUco views are always partial-capable. ``noise=False`` leaves
     ``sigma_px`` None (unknown) instead of estimating it (:func:`corner_noise_px`, 1.0 ms of a 1080p
-    view's 4.8: scripts/results/bench_detect.json): for views whose corner noise nothing reads, such as calibration views, whose fit
-    takes the noise from its own residuals. The corners and ids are the same either way.
+    view's 4.8: scripts/results/bench_detect.json): for views whose corner noise nothing reads, such as
+    calibration views, whose fit takes the noise from its own residuals. The corners and ids are the same
+    either way.
     """
     if isinstance(target, Checkerboard):
         if partial:
