@@ -793,8 +793,13 @@ def _K_D(intr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), intr[4:].reshape(1, 5)
 
 
+#: The fits stop when a step lowers the cost by less than this share of it: where they stop depends on the
+#: arithmetic (BLAS kernels) within sqrt(FIT_TOLERANCE chi^2) sigmas of the minimum (docs/REPLAY.md).
+FIT_TOLERANCE = 1e-12
+
+
 def _levenberg_marquardt(residuals, linearize, solve, x0: np.ndarray, *, max_iterations: int = 50,
-                         tolerance: float = 1e-12) -> tuple[np.ndarray, Any]:
+                         tolerance: float = FIT_TOLERANCE) -> tuple[np.ndarray, Any]:
     """Minimise |residuals(x)|^2 from ``x0``. Returns (x, the linearisation at x).
 
     ``linearize(x, r)`` returns whatever ``solve(linearisation, lam)`` needs to give the damped

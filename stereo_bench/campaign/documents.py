@@ -87,14 +87,28 @@ _OPEN = ConfigDict(extra="allow")
 # The result row
 
 
-def column(description: str, *, compared: bool = False, report: bool = True, added: bool = False) -> Any:
-    """A scalar result column (CSV, SQLite). ``compared``: a replay must reproduce it to the last digit.
+def column(description: str, *, compared: bool = False, report: bool = True, added: bool = False,
+           scale: str | None = None, uncertainty: str | None = None) -> Any:
+    """A scalar result column (CSV, SQLite). ``compared``: a replay must reproduce it (docs/REPLAY.md).
 
     ``added``: a compared column that sessions recorded before it existed lack; a replay of such a
     session does not compare it (every session recorded since has it).
+
+    A compared number (a float column) states what its replay tolerance is made of
+    (:mod:`stereo_bench.campaign.reproduce`): ``scale``, the size of the operands it is computed from
+    (``"value"``: the number itself; a column name: it is a difference from, or a dispersion of, numbers that
+    size; ``"image_height_px"``: of image rows), and ``uncertainty``, its own standard uncertainty u (a column
+    name, ``"a|b"`` for the first the row has; ``"dispersion:RULE"``: an estimate of a spread over nu
+    degrees of freedom, u = x / sqrt(2 nu), nu by ``RULE``; ``"structure:KEY"``: the structure sigma the
+    recording states for the extrinsics used). A compared column without them (a status, a count, a
+    mode) is compared exactly.
     """
-    return Field(None, description=description,
-                 json_schema_extra={"compared": compared, "report": report, "added": added})
+    extra: dict[str, Any] = {"compared": compared, "report": report, "added": added}
+    if scale is not None or uncertainty is not None:
+        if not compared or scale is None or uncertainty is None:
+            raise ValueError("scale and uncertainty come together, on a compared column")
+        extra.update(scale=scale, uncertainty=uncertainty)
+    return Field(None, description=description, json_schema_extra=extra)
 
 
 def nested(description: str) -> Any:
@@ -120,13 +134,19 @@ class ResultRow(BaseModel):
     alpha_deg: float | None = column("angle between the baseline and each optical axis, deg (90 = parallel)")
     status: ResultStatus | None = column("measured | failed | infeasible | limit (outside the rig's soft limits)",
                                          compared=True)
-    square_mean_mm: float | None = column("mean measured square side over every frame, mm", compared=True)
-    square_std_mm: float | None = column("standard deviation of the individual square sides, mm", compared=True)
+    square_mean_mm: float | None = column("mean measured square side over every frame, mm", compared=True,
+                                          scale="value", uncertainty="u_combined_mm|sigma_mm")
+    square_std_mm: float | None = column("standard deviation of the individual square sides, mm", compared=True,
+                                         scale="square_mean_mm", uncertainty="dispersion:squares")
     n_squares: int | None = column("square sides measured (adjacent corner pairs, all frames)", compared=True)
-    error_mm: float | None = column("square_mean_mm minus the nominal side, mm", compared=True)
-    sigma_mm: float | None = column("sigma of square_mean_mm propagated from the corner noise, mm", compared=True)
-    rms_px: float | None = column("stereo calibration RMS reprojection error, px", compared=True)
-    epipolar_rms_px: float | None = column("rectified epipolar error of the measured corners, px", compared=True)
+    error_mm: float | None = column("square_mean_mm minus the nominal side, mm", compared=True,
+                                    scale="square_mean_mm", uncertainty="u_combined_mm|sigma_mm")
+    sigma_mm: float | None = column("sigma of square_mean_mm propagated from the corner noise, mm", compared=True,
+                                    scale="value", uncertainty="dispersion:squares")
+    rms_px: float | None = column("stereo calibration RMS reprojection error, px", compared=True,
+                                  scale="value", uncertainty="dispersion:calibration_coordinates")
+    epipolar_rms_px: float | None = column("rectified epipolar error of the measured corners, px", compared=True,
+                                           scale="image_height_px", uncertainty="dispersion:measured_corners")
     toe_in_deg: float | None = column("toe-in of each camera, deg (90 - alpha)")
     tilt_deg: float | None = column("tilt of both cameras, deg (> 0 looks down)")
     fraction_in_both: float | None = column("predicted share of the target's corners in both views")
@@ -144,20 +164,24 @@ class ResultRow(BaseModel):
     extrinsics_mode: str | None = column("where the measurement's R, T came from: per-config | kinematic | nominal | "
                                          "fixed", compared=True, added=True)
     baseline_used_mm: float | None = column("optical baseline |T| of the extrinsics the measurement used, mm",
-                                            compared=True, added=True)
+                                            compared=True, added=True, scale="value",
+                                            uncertainty="structure:baseline_mm")
     alpha_left_used_deg: float | None = column("left camera's alpha in the extrinsics the measurement used, deg",
-                                               compared=True, added=True)
+                                               compared=True, added=True, scale="value",
+                                               uncertainty="structure:alpha_left_deg")
     alpha_right_used_deg: float | None = column("right camera's alpha in the extrinsics the measurement used, deg",
-                                                compared=True, added=True)
+                                                compared=True, added=True, scale="value",
+                                                uncertainty="structure:alpha_right_deg")
     baseline_true_mm: float | None = column("simulated sessions: the true optical baseline at the measurement, mm")
     alpha_left_true_deg: float | None = column("simulated sessions: the left camera's true alpha, deg")
     alpha_right_true_deg: float | None = column("simulated sessions: the right camera's true alpha, deg")
     square_true_mm: float | None = column("simulated sessions: the measured board's printed square as it really "
                                           "is, mm")
     u_combined_mm: float | None = column("combined standard uncertainty u_c of square_mean_mm (noise, calibration, "
-                                         "structure, target), mm", compared=True, added=True)
+                                         "structure, target), mm", compared=True, added=True, scale="value",
+                                         uncertainty="dispersion:squares")
     U_expanded_mm: float | None = column("expanded uncertainty U = k u_c (k = 2) of square_mean_mm, mm",
-                                         compared=True, added=True)
+                                         compared=True, added=True, scale="value", uncertainty="dispersion:squares")
     uncertainty: dict | None = nested("the uncertainty budget of square_mean_mm: noise, calibration, structure, "
                                       "target, combined, expanded, k (mm) and what they rest on")
 
@@ -180,8 +204,13 @@ def columns_of(model: type[BaseModel]) -> tuple[str, ...]:
 
 #: Columns of ``results.csv`` and of the SQLite ``results`` table, in this order.
 RESULT_COLUMNS: tuple[str, ...] = columns_of(ResultRow)
-#: What a replay must reproduce to the last digit.
+#: What a replay must reproduce (docs/REPLAY.md): exactly, or within the tolerance of :data:`TOLERANCES`.
 COMPARED_COLUMNS: tuple[str, ...] = tuple(name for name in RESULT_COLUMNS if _flag(name, "compared"))
+#: Compared numbers -> (scale, uncertainty): what their replay tolerance is made of (:func:`column`); the other
+#: compared columns are compared exactly.
+TOLERANCES: dict[str, tuple[str, str]] = {
+    name: (extra["scale"], extra["uncertainty"]) for name in COMPARED_COLUMNS
+    if isinstance(extra := ResultRow.model_fields[name].json_schema_extra, dict) and "scale" in extra}
 #: Compared columns added after the first sessions were recorded: compared only when the recording has them.
 ADDED_COLUMNS: frozenset[str] = frozenset(name for name in COMPARED_COLUMNS if _flag(name, "added"))
 #: What a report's ``tables/results.csv`` shows of each row (in this order).
@@ -474,6 +503,49 @@ class Host(BaseModel):
     pid: int
 
 
+class BlasLibrary(BaseModel):
+    """A BLAS library loaded in the process, as threadpoolctl reports it."""
+
+    model_config = _OPEN
+    package: str | None = Field(None, description="the package that ships it: numpy; opencv_contrib_python_headless "
+                                                  "(OpenCV's wheels bring an OpenBLAS for their LAPACK calls)")
+    library: str | None = Field(None, description="its file name")
+    internal_api: str | None = Field(None, description="openblas, mkl, blis, ...")
+    version: str | None = None
+    architecture: str | None = Field(None, description="the kernel family chosen at run time (OpenBLAS: "
+                                                       "openblas_get_corename(), e.g. Haswell, SkylakeX, Katmai)")
+    num_threads: int | None = None
+    threading_layer: str | None = None
+
+
+class CpuRecord(BaseModel):
+    model_config = _OPEN
+    model: str | None = Field(None, description="e.g. 'AMD EPYC' (/proc/cpuinfo model name; elsewhere the platform's)")
+    machine: str | None = Field(None, description="e.g. x86_64, aarch64")
+    vector_extensions: list[str] | None = Field(
+        None, description="the SIMD extensions present (sse4_2, avx, avx2, fma, avx512f, ..., neon, sve); null: not "
+                          "known on this platform")
+
+
+class NumericEnvironment(BaseModel):
+    """What decides the last digits of the computed numbers (``campaign.environment.numeric_environment()``):
+    a replay on another environment reproduces them within the tolerance of docs/REPLAY.md, not bit for bit."""
+
+    model_config = _OPEN
+    python: str
+    numpy: str
+    opencv: str
+    blas: list[BlasLibrary] = Field(default_factory=list, description="the BLAS libraries loaded (numpy's first)")
+    variables: dict[str, str] = Field(default_factory=dict, description="the environment variables that choose "
+                                      "kernels or thread counts, where set (OPENBLAS_CORETYPE, OPENBLAS_NUM_THREADS, "
+                                      "OMP_NUM_THREADS, OPENCV_CPU_DISABLE, ...)")
+    opencv_threads: int | None = Field(None, description="cv2.getNumThreads() (the calibration solvers run on one "
+                                                         "thread whatever it is)")
+    opencv_cpu_features: str | None = Field(None, description="cv2.getCPUFeaturesLine(): the SIMD paths OpenCV "
+                                                              "dispatches to (* = built for dispatch, ? = not here)")
+    cpu: CpuRecord = Field(default_factory=CpuRecord)
+
+
 class StartDocument(Document):
     type: Literal["start"] = "start"
     schema_version: int
@@ -488,6 +560,9 @@ class StartDocument(Document):
     design: list[dict[str, Any]] | None = Field(
         None, description="v2: the visits before the configurations (plan.Visit.as_dict()): the kinematic design "
                           "or the one-off intrinsics calibration; a resume and a replay run these")
+    numeric_environment: NumericEnvironment | None = Field(
+        None, description="v2: library versions, BLAS kernels and threads, CPU and vector extensions (absent: "
+                          "recorded before it was kept)")
 
 
 class ResumeDocument(Document):
@@ -503,6 +578,7 @@ class ResumeDocument(Document):
     extra: dict[str, Any] = Field(default_factory=dict)
     plan_drift: str | None = Field(None, description="v2: where today's planner differs from the recorded plan "
                                                      "(the recorded plan is what runs)")
+    numeric_environment: NumericEnvironment | None = Field(None, description="v2: this attempt's (as in start)")
 
 
 class EventDocument(Document):
@@ -792,10 +868,10 @@ def event_draft(kind: str, *, config_id: str | None = None, data: Any = None, **
 
 __all__ = [
     "ADDED_COLUMNS", "COMPARED_COLUMNS", "DOCUMENT_MODELS", "DOCUMENT_TYPES", "EVENT_MODELS", "EXIT_STATUSES",
-    "READABLE_SCHEMA_VERSIONS", "REPORT_COLUMNS", "RESULT_COLUMNS", "SCHEMA_VERSION", "AnalysisEvent",
+    "READABLE_SCHEMA_VERSIONS", "REPORT_COLUMNS", "RESULT_COLUMNS", "SCHEMA_VERSION", "TOLERANCES", "AnalysisEvent",
     "CalibrationDetectionsEvent", "CalibrationEvent", "CalibrationFiles", "CalibrationViewDiscardedEvent",
     "CalibrationViewEvent", "ControllerEvent", "DetectionRecord", "Document", "DocumentError", "Draft",
-    "EventDocument", "HomeEvent", "IntrinsicsEvent", "KinematicModelEvent",
+    "EventDocument", "HomeEvent", "IntrinsicsEvent", "KinematicModelEvent", "NumericEnvironment",
     "MeasurementFrameEvent", "MoveEvent", "PromptEvent", "ResultDocument", "ResultRow", "ResumeDocument",
     "RunControlEvent", "StartDocument", "StopDocument", "StructureEvent", "TargetNotFoundEvent", "TranscriptEvent",
     "TruthEvent", "document_json", "columns_of", "column", "document_json_schema", "event_draft", "json_safe",

@@ -11,13 +11,13 @@ its documents and steer it through a :class:`RunControl`; nothing reaches into t
 from __future__ import annotations
 
 import contextlib
-import math
 import platform
 import shutil
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -27,8 +27,6 @@ from stereo_bench import __version__, atomic, paths
 from stereo_bench.campaign.bench import Bench, open_bench, replay_bench
 from stereo_bench.campaign.config import CampaignConfig, recorded_campaign
 from stereo_bench.campaign.documents import (
-    ADDED_COLUMNS,
-    COMPARED_COLUMNS,
     CalibrationEvent,
     CalibrationFiles,
     ControllerEvent,
@@ -38,9 +36,20 @@ from stereo_bench.campaign.documents import (
     StartDocument,
     StopDocument,
 )
+from stereo_bench.campaign.environment import environment_differences, numeric_environment
 from stereo_bench.campaign.extrinsics_run import RIG_CONFIG_FILE, RIG_CONFIG_KIND, session_sources
 from stereo_bench.campaign.operator import Operator, OperatorAbsent, SimulatedOperator, TerminalOperator
 from stereo_bench.campaign.plan import PREPARE_ID, Configuration, Step, Visit, expand_plan, plan_steps, plan_visits
+from stereo_bench.campaign.reproduce import (
+    SCALE_TOLERANCE,
+    UNCERTAINTY_TOLERANCE,
+    Deviation,
+    RecordedContext,
+    compare_models,
+    compare_rows,
+    largest,
+    verdict,
+)
 from stereo_bench.campaign.runner import CampaignRunner, RunnerOptions, group_steps
 from stereo_bench.campaign.session import SessionError, SessionReader, SessionWriter, first_difference
 from stereo_bench.campaign.stream import Collector, DocumentBus, FrameSubscriber, MemoryRecorder, Subscriber
@@ -292,7 +301,7 @@ def run_campaign(
         transcript = writer.transcript_path()  # registered first, so its event follows the start
         bus.publish(Draft(StartDocument, config=config.model_dump(mode="json"),
                           plan=[c.as_dict() for c in campaign.configurations], software=software_versions(),
-                          extra={}, bench=config.bench_kind,
+                          extra={}, bench=config.bench_kind, numeric_environment=numeric_environment(),
                           **({"plan_drift": summary.plan_drift} if summary.plan_drift else {}),
                           **({"design": [v.as_dict() for v in campaign.visits]} if campaign.visits else {})))
         done = writer.completed_config_ids()
@@ -346,6 +355,9 @@ def _record_connect(bus: DocumentBus, bench: Bench, config: CampaignConfig) -> N
 
 @dataclass
 class ReplaySummary:
+    """What a replay found (docs/REPLAY.md): per measured configuration identical, reproduced within tolerance
+    or differing (``differences``: only what is beyond the tolerance, one line per configuration)."""
+
     compared: int
     identical: int
     differences: list[str]
@@ -353,6 +365,15 @@ class ReplaySummary:
     carried_over: int
     out: Path | None
     measured: int = 0  # replayed configurations measured again
+    reproduced: int = 0  # configurations whose every number is within the tolerance, not all bit-equal
+    largest: Deviation | None = None  # the number nearest its tolerance (None: everything bit-identical)
+    deviations: list[Deviation] = field(default_factory=list)  # every number compared
+    kinematic_model: str | None = None  # the model fitted again: identical | reproduced | differs (None: none)
+    fit_resolution: float | None = None  # its r: the tolerance of its numbers and of those measured with it
+    # The recording's numeric environment (None: recorded before it was kept), today's, and where they differ.
+    recorded_environment: dict | None = None
+    environment: dict = field(default_factory=dict)
+    environment_differences: list[tuple[str, Any, Any]] = field(default_factory=list)
     plan_drift: str | None = None
     # Measured configurations the session kept too little of to replay ([capture] keep_frames), with why.
     not_reproducible: dict[str, str] = field(default_factory=dict)
@@ -491,6 +512,7 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
         if out_dir is not None:
             bus.publish(Draft(StartDocument, config=config.model_dump(mode="json"), plan=start["plan"],
                               software=software_versions(), bench="replay",
+                              numeric_environment=numeric_environment(),
                               extra={"replay_of": str(Path(session_dir).resolve()),
                                      **({"plan_drift": drift} if drift else {})},
                               **({"design": start["design"]} if start.get("design") else {})))
@@ -515,27 +537,56 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
             bus.publish(Draft(StopDocument, exit_status=status))
     drift = drift_future.result()
     new_rows = {row["config_id"]: row for row in collector.rows}
-    differences, identical = [], 0
+    differences, counts, deviations = [], {"identical": 0, "reproduced": 0}, []
+    model_verdict, recorded_model = None, None
     if PREPARE_ID in visited:
-        differences += _model_differences(reader, runner.kinematic_model)
+        model_deviations, problem, recorded_model = _model_deviations(reader, runner.kinematic_model)
+        if problem:
+            differences.append(problem)
+        elif model_deviations:
+            deviations += model_deviations
+            model_verdict = verdict(model_deviations)
+            beyond = [d.difference() for d in model_deviations if d.verdict == "differs"]
+            if beyond:
+                differences.append("kinematic model: the model fitted again from the recorded views differs from the "
+                                   "recorded one: " + ", ".join(beyond))
+    context = RecordedContext.of(config, reader, refitted_model=recorded_model)
     for cid in sorted(measured):
         new = new_rows.get(cid)
         if new is None:
             differences.append(f"{cid}: not reproduced")
             continue
-        recorded = recorded_rows[cid]
-        changed = [f"{key} {recorded.get(key)!r} -> {new.get(key)!r}" for key in COMPARED_COLUMNS
-                   if not (key in ADDED_COLUMNS and key not in recorded) and not _same(recorded.get(key), new.get(key))]
-        if changed:
-            differences.append(f"{cid}: " + ", ".join(changed))
+        compared = compare_rows(recorded_rows[cid], new, context)
+        deviations += compared
+        outcome = verdict(compared)
+        if outcome == "differs":
+            differences.append(f"{cid}: " + ", ".join(d.difference() for d in compared if d.verdict == "differs"))
         else:
-            identical += 1
-    return ReplaySummary(compared=len(measured), identical=identical, differences=differences,
+            counts[outcome] += 1
+    recorded_environment = _recorded_environment(reader, [recorded_rows[cid] for cid in measured])
+    today = numeric_environment()
+    return ReplaySummary(compared=len(measured), identical=counts["identical"], differences=differences,
                          rows=list(new_rows.values()), carried_over=len(recorded_rows) - len(all_measured),
                          out=None if out_dir is None else Path(out_dir),
                          measured=sum(new_rows.get(cid, {}).get("status") == "measured" for cid in measured),
+                         reproduced=counts["reproduced"], largest=largest(deviations), deviations=deviations,
+                         kinematic_model=model_verdict, fit_resolution=context.fit_resolution,
+                         recorded_environment=recorded_environment, environment=today,
+                         environment_differences=[] if recorded_environment is None else
+                         environment_differences(recorded_environment, today),
                          plan_drift=drift, not_reproducible=not_reproducible, from_detections=from_detections,
                          warnings=_partial_recording(reader))
+
+
+def _recorded_environment(reader: SessionReader, rows: Sequence[dict]) -> dict | None:
+    """The numeric environment of the attempt that recorded most of ``rows`` (start: attempt 1, a resume: its
+    own); None when that attempt recorded none (sessions recorded before it was kept)."""
+    by_attempt = {1: reader.start().get("numeric_environment")}
+    for resume in reader.resumes():
+        by_attempt[resume.get("attempt")] = resume.get("numeric_environment")
+    attempts = [row.get("attempt") or 1 for row in rows]
+    attempt = max(set(attempts), key=attempts.count) if attempts else 1
+    return by_attempt.get(attempt)
 
 
 def _partial_recording(reader: SessionReader) -> list[str]:
@@ -547,21 +598,26 @@ def _partial_recording(reader: SessionReader) -> list[str]:
     return notes
 
 
-def _model_differences(reader: SessionReader, model) -> list[str]:
-    """The kinematic model fitted again from the recorded design views against the one the recording holds."""
+def _model_deviations(reader: SessionReader, model) -> tuple[list[Deviation], str | None, object]:
+    """The kinematic model fitted again from the recorded design views against the one the recording holds:
+    (every compared number, docs/REPLAY.md; or a line saying why they cannot be compared; the recorded model)."""
     from stereo_bench.campaign.extrinsics_run import MODEL_FILE
-    from stereo_bench.kinematics import model_toml
+    from stereo_bench.kinematics import KinematicFileError, model_from_toml
 
     recorded = [e for e in reader.events(kind="kinematic_model", attempt=None) if e["data"].get("source") == "design"]
     if not recorded:
-        return []
+        return [], None, None
     relative = (recorded[-1].get("files") or {}).get(MODEL_FILE)
     if model is None:
-        return [f"kinematic model: not fitted again ({recorded[-1]['data'].get('error') or 'no model'})"] \
-            if relative else []
-    if relative is None or reader.read_bytes(relative).decode("utf-8") != model_toml(model):
-        return ["kinematic model: the model fitted again from the recorded views differs from the recorded one"]
-    return []
+        return [], (f"kinematic model: not fitted again ({recorded[-1]['data'].get('error') or 'no model'})"
+                    if relative else None), None
+    if relative is None:
+        return [], "kinematic model: fitted again, but the recording holds no model file to compare it with", None
+    try:
+        recorded_model = model_from_toml(reader.read_bytes(relative).decode("utf-8"), relative)
+    except (KinematicFileError, UnicodeDecodeError) as error:
+        return [], f"kinematic model: the recorded model cannot be read ({error})", None
+    return compare_models(recorded_model, model), None, recorded_model
 
 
 def _recorded_session_sources(reader: SessionReader) -> list[Draft]:
@@ -579,12 +635,6 @@ def _recorded_session_sources(reader: SessionReader) -> list[Draft]:
             drafts.append(Draft(model, config_id=None, data=event["data"], files=files,
                                 **({"kind": kind} if model is EventDocument else {})))
     return drafts
-
-
-def _same(a, b) -> bool:
-    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
-        return True
-    return a == b
 
 
 def replay_job(job: tuple[str, str | None, dict]) -> dict:
@@ -606,7 +656,15 @@ def replay_job(job: tuple[str, str | None, dict]) -> dict:
             text = f"the recording cannot be replayed: {text}"
         return {"session": session, "out": out, "error": text}
     return {"session": session, "out": out, "compared": summary.compared, "identical": summary.identical,
-            "measured": summary.measured, "differences": summary.differences,
+            "reproduced": summary.reproduced, "measured": summary.measured, "differences": summary.differences,
+            "largest_deviation": None if summary.largest is None else summary.largest.as_dict(),
+            "tolerance": {"relative_to_scale": SCALE_TOLERANCE, "relative_to_u": UNCERTAINTY_TOLERANCE,
+                          "kinematic_fit": summary.fit_resolution},
+            "kinematic_model": summary.kinematic_model,
+            "numeric_environment": {
+                "recorded": summary.recorded_environment, "today": summary.environment,
+                "differences": [{"field": label, "recorded": old, "today": new}
+                                for label, old, new in summary.environment_differences]},
             "carried_over": summary.carried_over, "pipeline": pipeline, "plan_drift": summary.plan_drift,
             "not_reproducible": summary.not_reproducible, "from_detections": summary.from_detections,
             "warnings": summary.warnings}

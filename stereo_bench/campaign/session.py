@@ -866,6 +866,7 @@ class SessionWriter:
         host = {"hostname": socket.gethostname(), "pid": os.getpid()}
         software, extra = fields.pop("software"), fields.pop("extra", None) or {}
         plan_drift = fields.pop("plan_drift", None)
+        environment = fields.get("numeric_environment")  # the start's, or this attempt's in its resume
         for entry in plan if isinstance(plan, list) else []:
             if isinstance(entry, dict) and "config_id" in entry:
                 _check_name(entry["config_id"], "plan config_id")
@@ -884,7 +885,8 @@ class SessionWriter:
                 self._header("resume", self._next_seq), schema_version=SCHEMA_VERSION, uid=uuid.uuid4().hex,
                 start_uid=recorded.get("uid"), previous_attempt=self._previous_attempt, host=host,
                 completed=sorted(self._completed), recovery=self.recovery,
-                **({"plan_drift": plan_drift} if plan_drift else {}))
+                **({"plan_drift": plan_drift} if plan_drift else {}),
+                **({"numeric_environment": environment} if environment is not None else {}))
         self._reserve_seq()
         written = [self._write(document)]
         self._started = True

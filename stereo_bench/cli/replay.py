@@ -1,4 +1,7 @@
-"""`stereo-bench replay SESSION [SESSION ...] [--out DIR]`: run recorded sessions through the runner again."""
+"""`stereo-bench replay SESSION [SESSION ...] [--out DIR]`: run recorded sessions through the runner again.
+
+Each session's numbers are compared with the recording by the rule of docs/REPLAY.md
+(``stereo_bench.campaign.reproduce``): identical, reproduced within tolerance, or differs (exit 1)."""
 
 from __future__ import annotations
 
@@ -45,7 +48,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
                       f"{report['measured']} measured again, {report['identical']} unchanged{carried}")
             else:
                 print(f"replayed {report['compared']} measured configurations of {report['session']}: "
-                      f"{report['identical']} reproduced exactly{carried}")
+                      f"{_outcome(report)}{carried}")
+            print(f"  {_environment(report['numeric_environment'])}")
             if report.get("from_detections"):
                 print(f"  calibrated from the recorded detections of their calibration views (frames not kept): "
                       f"{_listing(report['from_detections'], report['compared'])}")
@@ -73,6 +77,35 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0 if all(not r["differences"] for r in reports) else 1
 
 
+def _outcome(report: dict) -> str:
+    """'0 identical, 2 reproduced within tolerance (largest deviation: ...), 0 differ' (docs/REPLAY.md)."""
+    largest = report.get("largest_deviation")
+    detail = ""
+    if largest is not None and report["reproduced"] + (report.get("kinematic_model") == "reproduced"):
+        unit = f" {largest['unit']}" if largest["unit"] else ""
+        size = f"|Δ| = {largest['abs']:.2g}{unit}" if largest["abs"] is not None else "no value"
+        if largest["relative_to_scale"] is not None:
+            size += f" = {largest['relative_to_scale']:.2g} of its scale"
+        size += f", {largest['relative_to_u']:.2g} u" if largest["relative_to_u"] is not None else ", u unknown"
+        detail = f" (largest deviation: {largest['column']} of {largest['where']}, {size})"
+    differ = report["compared"] - report["identical"] - report["reproduced"]
+    model = f"; kinematic model fitted again: {report['kinematic_model']}" if report.get("kinematic_model") else ""
+    return (f"{report['identical']} identical, {report['reproduced']} reproduced within tolerance{detail}, "
+            f"{differ} differ{model}")
+
+
+def _environment(environment: dict) -> str:
+    """One line: where today's numeric environment differs from the recording's, or that it has none."""
+    from stereo_bench.campaign.environment import describe_differences
+
+    if environment["recorded"] is None:
+        return "numeric environment: the recording has none (recorded before stereo-bench kept it)"
+    differences = [(d["field"], d["recorded"], d["today"]) for d in environment["differences"]]
+    if not differences:
+        return "numeric environment: as recorded"
+    return f"numeric environment differs from the recording: {describe_differences(differences)}"
+
+
 def _listing(config_ids: list[str], of: int) -> str:
     listed = ", ".join(config_ids)
     return f"all {of} ({listed})" if len(config_ids) == of and of > 1 else listed
@@ -82,8 +115,13 @@ def register(subparsers) -> None:
     replay = subparsers.add_parser(
         "replay", help="replay recorded sessions through the same runner and pipeline",
         description="Serve the recorded frames and rig telemetry through replay drivers to the campaign runner, "
-                    "over the recorded plan. Without options the results must reproduce the recording exactly "
-                    "(exit 1 if not); with changed pipeline options each session is re-analysed into --out "
+                    "over the recorded plan. Without options every recorded number is compared (docs/REPLAY.md): "
+                    "identical when bit-equal, reproduced when within a tolerance derived from the numerics "
+                    "(|d| <= 1e-9 of the size of its operands) and negligible against its own uncertainty "
+                    "(|d| <= 1e-6 u; a kinematic model fitted again, and what is measured with it: both within "
+                    "the fit's resolution), differs beyond (exit 1). The largest deviation is named, and where "
+                    "today's numeric environment (BLAS kernels and threads, library versions, CPU) differs from "
+                    "the recording's. With changed pipeline options each session is re-analysed into --out "
                     "(exit 1 if a session's re-analysis measures nothing). A session recorded with [capture] "
                     "keep_frames = \"measurement\" is calibrated from its recorded detections; configurations "
                     "whose frames were not kept are listed as not reproducible, and a session that can "
