@@ -79,6 +79,7 @@ def test_bring_up_without_the_controller_is_one_line_and_a_failed_session(tmp_pa
 # -- fixed extrinsics work on every bench ------------------------------------------------------------------------
 
 
+@pytest.mark.replay
 def test_fixed_extrinsics_measure_on_the_simulated_rig_and_replay_from_inside_the_session(tmp_path):
     """The sample session's calibration at B = 100 mm, alpha = 90 deg, used as fixed extrinsics."""
     calib_dir = tmp_path / "calib"

@@ -124,6 +124,7 @@ def test_the_controller_as_read_at_connect_is_recorded(kinematic_session):
     assert controller["data"]["info"]["build"].startswith("1.1") and "$100" in controller["data"]["info"]["settings"]
 
 
+@pytest.mark.replay
 def test_replay_refits_the_design_and_reproduces_every_number(kinematic_session, tmp_path):
     summary = replay_session(kinematic_session, tmp_path / "replayed")
     assert summary.differences == [] and summary.identical == summary.compared == 2
@@ -136,6 +137,7 @@ def test_replay_refits_the_design_and_reproduces_every_number(kinematic_session,
         [e["data"]["structure"] for e in _events(kinematic_session, "truth")]
 
 
+@pytest.mark.replay
 def test_replay_says_when_the_recorded_model_is_not_the_one_the_views_give(kinematic_session, tmp_path):
     copy = tmp_path / "copy"
     shutil.copytree(kinematic_session, copy)

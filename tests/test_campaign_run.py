@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from stereo_bench.campaign.bench import simulated_bench
@@ -228,12 +229,22 @@ def test_stop_request_leaves_a_resumable_session_and_resume_runs_the_recorded_pl
     assert {row["status"] for row in reader.results()} == {"measured", "infeasible"}
 
 
-def test_replay_of_the_shipped_session_reproduces_its_results_exactly(capsys):
+@pytest.mark.replay
+def test_replay_of_the_shipped_session_reproduces_its_results(capsys):
+    """Recorded on another CPU: bit-identical where the BLAS kernels are the recording's, else within the
+    tolerance of docs/REPLAY.md (was: exit 1 on any CPU whose kernels give other last digits)."""
     assert main(["replay", str(SAMPLE_SESSION), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert report["compared"] >= 2 and report["identical"] == report["compared"] and report["differences"] == []
+    assert report["compared"] >= 2 and report["differences"] == []
+    assert report["identical"] + report["reproduced"] == report["compared"]
+    largest = report["largest_deviation"]
+    assert (largest is None) == (report["reproduced"] == 0)
+    if largest is not None:  # another CPU's kernels: the last digits moved, far inside the tolerance
+        assert largest["verdict"] == "reproduced" and largest["relative_to_scale"] <= 1e-9
+    assert report["numeric_environment"]["recorded"] is None  # recorded before the environment was kept
 
 
+@pytest.mark.replay
 def test_replay_runs_the_recorded_plan_and_reports_drift(monkeypatch):
     """A change in the feasibility code must not make a recorded session unreplayable."""
     import stereo_bench.campaign.execute as execute
@@ -242,14 +253,26 @@ def test_replay_runs_the_recorded_plan_and_reports_drift(monkeypatch):
     monkeypatch.setattr(execute, "expand_plan", lambda config: [
         dataclasses.replace(c, feasible=False, reason="a stricter rule") for c in real_expand_plan(config)])
     summary = replay_session(SAMPLE_SESSION)
-    assert summary.compared == 2 and summary.identical == 2 and summary.differences == []
+    assert summary.compared == 2 and summary.identical + summary.reproduced == 2 and summary.differences == []
     assert "plan[0].feasible: recorded true, now false" in summary.plan_drift
 
 
+@pytest.mark.replay
 def test_replay_into_a_new_session_and_reanalysis(tmp_path, capsys):
+    from stereo_bench.campaign.config import recorded_campaign
+    from stereo_bench.campaign.reproduce import RecordedContext, compare_rows
+
     out = tmp_path / "replayed"
     assert main(["replay", str(SAMPLE_SESSION), "--out", str(out)]) == 0
-    assert numbers(out) == numbers(SAMPLE_SESSION)
+    # The new session's numbers are the recording's within the replay tolerance (bit-identical on the
+    # recording's kernels), and it records the numeric environment it was computed in.
+    recorded, replayed = SessionReader(SAMPLE_SESSION), SessionReader(out)
+    context = RecordedContext.of(recorded_campaign(recorded.start()["config"]), recorded)
+    new_rows = {row["config_id"]: row for row in replayed.results()}
+    assert new_rows.keys() == {row["config_id"] for row in recorded.results()}
+    for row in recorded.results():
+        assert all(d.verdict != "differs" for d in compare_rows(row, new_rows[row["config_id"]], context)), row
+    assert replayed.start()["numeric_environment"]["numpy"] == np.__version__
     assert SessionReader(out).start()["bench"] == "replay"
     # Recorded before [sim] existed, on the ideal bench: the replay records that bench, not today's default.
     assert "sim" not in SessionReader(SAMPLE_SESSION).start()["config"]
@@ -325,6 +348,7 @@ def test_batch_reanalysis_of_several_sessions_goes_through_the_executor(executor
     assert numbers(tmp_path / "re" / "first") == numbers(tmp_path / "re" / "second")
 
 
+@pytest.mark.replay
 def test_a_frame_without_the_target_is_captured_again_and_replays(tmp_path):
     config = small_config()
     out = tmp_path / "retry"

@@ -34,6 +34,7 @@ def test_keep_frames_is_all_by_default_and_names_are_exact():
         small_config(capture={"keep_frames": "calibration"})
 
 
+@pytest.mark.replay
 @pytest.mark.slow
 def test_measurement_keeps_measurement_frames_and_the_calibration_views_detections(kept, small_reference,
                                                                                   tmp_path):
@@ -80,6 +81,7 @@ def test_none_keeps_no_frame_and_its_replay_reproduces_nothing_and_fails(kept, s
     assert report["compared"] == 0 and sorted(report["not_reproducible"]) == MEASURED
 
 
+@pytest.mark.replay
 @pytest.mark.slow
 def test_a_replay_reproduces_what_was_kept_and_succeeds(small_reference, tmp_path, capsys):
     """One configuration's measurement frames missing from the stream, the other's kept: exit 0, one listed."""
@@ -95,7 +97,7 @@ def test_a_replay_reproduces_what_was_kept_and_succeeds(small_reference, tmp_pat
     (session / "documents.jsonl").write_text("\n".join(lines) + "\n")
     assert main(["replay", str(session)]) == 0
     out = capsys.readouterr().out
-    assert "replayed 1 measured configurations" in out and "1 reproduced exactly" in out
+    assert "replayed 1 measured configurations" in out and "1 identical" in out
     assert f"cannot reproduce, measurement frames not kept ([capture] keep_frames = \"all\"): {MEASURED[1]}" in out
 
 

@@ -185,6 +185,7 @@ def test_freed_frames_are_reused_rather_than_given_back_and_faulted_in_again():
     assert not kept
 
 
+@pytest.mark.replay
 def test_a_configuration_is_calibrated_while_its_measurement_frames_are_captured(monkeypatch):
     """Per-config extrinsics: the calibration starts once the views are taken, not after the measurement frames
     (a replay's last configuration then waits for less, a run shows its result sooner); the numbers are the same."""
@@ -209,4 +210,5 @@ def test_a_configuration_is_calibrated_while_its_measurement_frames_are_captured
     monkeypatch.setattr(runner_module.CampaignRunner, "_capture_measurement", capturing)
     summary = replay_session(SAMPLE_SESSION)
     assert overlapped == [True, True]
-    assert summary.compared == 2 and summary.identical == 2
+    # The shipped session was recorded on another CPU: identical or within the replay tolerance (docs/REPLAY.md).
+    assert summary.compared == 2 and summary.identical + summary.reproduced == 2 and summary.differences == []
