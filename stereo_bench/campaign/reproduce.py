@@ -34,7 +34,7 @@ from typing import Any, Literal
 from stereo_bench.campaign.documents import ADDED_COLUMNS, COMPARED_COLUMNS, TOLERANCES
 from stereo_bench.kinematics import FIT_TOLERANCE
 
-#: |Δ| <= 1e-9 s: seven million float64 roundings (2.2e-16) of the operands, 50 times the largest relative
+#: |Δ| <= 1e-9 s: 4.5 million float64 roundings (2.2e-16) of the operands, 50 times the largest relative
 #: deviation measured between BLAS core types in closed-form numbers (1.8e-11, sigma_mm; docs/REPLAY.md).
 SCALE_TOLERANCE = 1e-9
 #: |Δ| <= 1e-6 u: a millionth of the number's own standard uncertainty, nothing a measurement could see.
