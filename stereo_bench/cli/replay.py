@@ -81,17 +81,21 @@ def _outcome(report: dict) -> str:
     """'0 identical, 2 reproduced within tolerance (largest deviation: ...), 0 differ' (docs/REPLAY.md)."""
     largest = report.get("largest_deviation")
     detail = ""
-    if largest is not None and report["reproduced"] + (report.get("kinematic_model") == "reproduced"):
+    if largest is not None:  # the number nearest its tolerance: beside the verdict it has
         unit = f" {largest['unit']}" if largest["unit"] else ""
-        size = f"|Δ| = {largest['abs']:.2g}{unit}" if largest["abs"] is not None else "no value"
+        size = (f"|Δ| = {largest['abs']:.2g}{unit}" if largest["abs"] is not None
+                else f"{largest['recorded']!r} -> {largest['replayed']!r}")
         if largest["relative_to_scale"] is not None:
             size += f" = {largest['relative_to_scale']:.2g} of its scale"
-        size += f", {largest['relative_to_u']:.2g} u" if largest["relative_to_u"] is not None else ", u unknown"
+        if largest["abs"] is not None:
+            size += f", {largest['relative_to_u']:.2g} u" if largest["relative_to_u"] is not None else ", u unknown"
         detail = f" (largest deviation: {largest['column']} of {largest['where']}, {size})"
     differ = report["compared"] - report["identical"] - report["reproduced"]
     model = f"; kinematic model fitted again: {report['kinematic_model']}" if report.get("kinematic_model") else ""
-    return (f"{report['identical']} identical, {report['reproduced']} reproduced within tolerance{detail}, "
-            f"{differ} differ{model}")
+    reproduced_detail = detail if largest is not None and largest["verdict"] == "reproduced" else ""
+    differ_detail = detail if largest is not None and largest["verdict"] == "differs" else ""
+    return (f"{report['identical']} identical, {report['reproduced']} reproduced within tolerance{reproduced_detail}, "
+            f"{differ} differ{differ_detail}{model}")
 
 
 def _environment(environment: dict) -> str:
