@@ -245,6 +245,17 @@ def hung_up() -> None:
             _to_devnull(fd)
 
 
+def stop_on_signals(stop: threading.Event) -> dict:
+    """Set ``stop`` on each of :data:`STOP_SIGNALS` (SIGHUP: after :func:`hung_up`), for a command that serves until
+    told to end (``sim-controller``, ``live``); returns the previous handlers, to restore with ``signal.signal``."""
+    def on_signal(signum, frame) -> None:
+        if signum == signal.SIGHUP:
+            hung_up()
+        stop.set()
+
+    return {signum: signal.signal(signum, on_signal) for signum in STOP_SIGNALS}
+
+
 def _raise_interrupt(signum, frame) -> None:
     if signum == signal.SIGHUP:
         hung_up()
