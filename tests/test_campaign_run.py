@@ -216,6 +216,7 @@ def test_sighup_of_a_closed_terminal_stops_like_ctrl_c_and_the_session_resumes(l
     assert numbers(out) == numbers(small_reference)
 
 
+@pytest.mark.slow  # a campaign, then its resume
 def test_a_closed_stdout_stops_the_run_at_a_safe_point_with_status_141(plan_file, tmp_path, small_reference):
     """``campaign run --json | head -1``: the reader goes away after the first line. It failed the run (exit 2, or
     134 when a renderer was still being built at exit); now the run stops as at Ctrl-C, says so in one line on
