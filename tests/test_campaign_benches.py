@@ -8,14 +8,16 @@ motion when nothing is left to run.
 from __future__ import annotations
 
 import io
+import json
 import os
+import shlex
 import shutil
 import threading
 from dataclasses import replace
 
 import pytest
 
-from drivers.sim.grbl_emulator import DEFAULT_AXES, GrblEmulator
+from drivers.sim.grbl_emulator import DEFAULT_AXES, AlarmMidMove, GrblEmulator, VanishMidMove
 from stereo_bench.campaign.config import load_campaign
 from stereo_bench.campaign.documents import MoveEvent
 from stereo_bench.campaign.execute import RunControl, replay_session, run_campaign
@@ -66,14 +68,139 @@ def test_bring_up_mode_renders_from_the_positions_the_controller_reports(tmp_pat
     assert sent.index("$H") < min(i for i, line in enumerate(sent) if "G0" in line)  # homed, then moved
 
 
-def test_bring_up_without_the_controller_is_one_line_and_a_failed_session(tmp_path, capsys):
-    plan = tmp_path / "bring-up.toml"
-    plan.write_text(SMALL.replace("[rig]\ntime_scale = 50\n", f'[rig]\nkind = "grbl"\nport = "{tmp_path}/no-tty"\n'))
-    # A port that is not there is the user's to fix: exit 2, as `rig --port` says (docs/EXIT_STATUS.md).
-    assert main(["campaign", "run", str(plan), "--out", str(tmp_path / "s"), "--yes", "--quiet"]) == 2
+def _bring_up_plan(path, port: str, *, one_configuration: bool = False):
+    text = SMALL.replace("[rig]\ntime_scale = 50\n", f'[rig]\nkind = "grbl"\nport = "{port}"\n'
+                                                     "[rig.controller]\nconnect_timeout_s = 0.5\n")
+    if one_configuration:
+        text = text.replace("baseline_mm = [100, 150]", "baseline_mm = [100]").replace("[90, 35]", "[90]")
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("port", ["missing", "/dev/null", "directory", "silent pty"])
+@pytest.mark.parametrize("out_before", ["absent", "empty"])
+def test_a_run_refused_before_anything_moved_leaves_out_as_it_was(tmp_path, capsys, port, out_before):
+    """A port that is not there, not a serial port, or a controller that never answers is the user's to fix: one
+    line, exit 2 (docs/EXIT_STATUS.md), and --out as it was (it held a failed session, so the corrected command
+    was refused: a session is never written over)."""
+    master = None
+    if port == "missing":
+        port = str(tmp_path / "no-tty")
+    elif port == "directory":
+        port = str(tmp_path)
+    elif port == "silent pty":  # a pty nobody serves: no banner, no answer to '?'
+        master, slave = os.openpty()
+        port = os.ttyname(slave)
+    out = tmp_path / "nested" / "s" if out_before == "absent" else tmp_path / "s"
+    if out_before == "empty":
+        out.mkdir()  # the user's: it stays, empty
+    plan = _bring_up_plan(tmp_path / "bring-up.toml", port)
+    try:
+        assert main(["campaign", "run", str(plan), "--out", str(out), "--yes", "--quiet"]) == 2
+    finally:
+        if master is not None:
+            os.close(master)
+            os.close(slave)
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "no-tty" in err[0] and "stopped as failed" in err[0]
-    assert SessionReader(tmp_path / "s").stops()[-1]["exit_status"] == "failed"
+    assert len(err) == 1 and port in err[0] and f"nothing was recorded: --out {out} is as it was" in err[0], err
+    if out_before == "absent":
+        assert not (tmp_path / "nested").exists()  # nor the parent the run created for it
+    else:
+        assert out.is_dir() and not any(out.iterdir())
+
+
+def test_the_corrected_command_runs_where_a_refused_one_left_out(tmp_path, capsys):
+    out = tmp_path / "s"
+    plan = _bring_up_plan(tmp_path / "bring-up.toml", str(tmp_path / "no-tty"), one_configuration=True)
+    assert main(["campaign", "run", str(plan), "--out", str(out), "--yes", "--quiet"]) == 2
+    with GrblEmulator(axes="XYZ", time_scale=50.0) as controller:
+        _bring_up_plan(plan, controller.tty_path, one_configuration=True)  # the port corrected
+        assert main(["campaign", "run", str(plan), "--out", str(out), "--yes", "--quiet"]) == 0
+    assert SessionReader(out).attempts() == [1] and len(SessionReader(out).completed_config_ids()) == 1
+
+
+def test_a_resume_refused_at_connect_keeps_the_session_and_says_how_to_resume(small_copy, capsys, monkeypatch):
+    """Only a new session is removed: a resume whose controller is not there keeps all it had (its stream only
+    grows, by this attempt's resume and stop), and the line says how to resume once it is fixed."""
+    import stereo_bench.campaign.bench as bench_module
+    from drivers.rig.grbl import GrblConnectionError
+
+    def no_controller(config, **options):
+        raise GrblConnectionError("cannot open serial port /dev/ttyGONE: No such file or directory")
+
+    monkeypatch.setattr(bench_module, "simulated_bench", no_controller)
+    before = (small_copy / "documents.jsonl").read_bytes()
+    assert main(["campaign", "run", "--out", str(small_copy), "--resume", "--yes", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "/dev/ttyGONE" in err[0], err
+    assert f"session {small_copy} stopped as failed; once fixed: stereo-bench campaign run --out {small_copy} " \
+           "--resume --yes" in err[0]
+    assert (small_copy / "documents.jsonl").read_bytes().startswith(before)
+    assert SessionReader(small_copy).stops()[-1]["exit_status"] == "failed"
+
+
+# -- a controller fault mid-campaign: soft reset, then home; a rig that cannot be recovered fails the campaign ------
+
+
+def test_an_alarm_mid_move_is_reset_and_homed_away_and_the_campaign_goes_on(tmp_path, capsys):
+    """ALARM:1 halts the controller: it answers nothing but a soft reset, so the recovery resets first (homing
+    alone was refused, and the campaign ended as 'interrupted', exit 130), then homes; the configuration fails
+    with the alarm, the next one is measured."""
+    out = tmp_path / "s"
+    with GrblEmulator(axes="XYZ", time_scale=50.0, faults=[AlarmMidMove(code=1, fraction=0.5)]) as controller:
+        plan = _bring_up_plan(tmp_path / "bring-up.toml", controller.tty_path)
+        plan.write_text(plan.read_text().replace("alpha_deg = [90, 35]", "alpha_deg = [90]"))
+        assert main(["campaign", "run", str(plan), "--out", str(out), "--yes", "--quiet"]) == 0
+    reader = SessionReader(out)
+    rows = {row["config_id"]: row for row in reader.results()}
+    assert rows["B100_Z450_A90"]["status"] == "failed" and "ALARM:1: Hard limit" in rows["B100_Z450_A90"]["reason"]
+    assert rows["B150_Z450_A90"]["status"] == "measured"
+    (recovered,) = reader.events(kind="rig_recovered")
+    assert recovered["data"]["action"] == "soft reset, then homed after a failed move"
+    assert reader.stops()[-1]["exit_status"] == "success"
+    records = [json.loads(line) for line in next((out / "transcripts").glob("serial-*.jsonl")).read_text().splitlines()]
+    sent = [r["data"] for r in records if r.get("dir") == "tx"]
+    reset_at = sent.index("\x18")
+    assert "$H\n" in sent[reset_at:], "homed after the reset"
+
+
+@pytest.mark.parametrize("fault", ["alarm:1 on a rig without homing", "vanish"])
+def test_a_rig_that_cannot_be_recovered_fails_the_campaign_in_one_line_and_resumes(tmp_path, capfd, fault):
+    """Exit status 1 (docs/EXIT_STATUS.md: a controller fault during work), one line on stderr naming the fault
+    and the recovery step that failed, the stop document 'failed' with both and the command that resumes, which
+    completes the session once the controller is back. (It ended 'interrupted': exit 130, nothing on stderr.)"""
+    port = tmp_path / "grbl"  # a stable name for the controller, as /dev/serial/by-id/... is at the bench
+    plan = _bring_up_plan(tmp_path / "bring-up.toml", str(port), one_configuration=True)
+    without_homing = fault != "vanish"
+    if without_homing:  # a hard limit on a rig without homing: after the reset it stays in Alarm and cannot be homed
+        plan.write_text(plan.read_text().replace("[rig.controller]", "homing = false\n[rig.controller]"))
+        injected = AlarmMidMove(code=1, fraction=0.5)
+        expected = ["rig: GRBL ALARM:1: Hard limit triggered", "(at B100_Z450_A90); recovery (soft reset, then "
+                    "homing) failed at the homing: GRBL error:5 for '$H'"]
+    else:
+        injected = VanishMidMove(fraction=0.5)
+        expected = ["rig: lost the connection to", "recovery (soft reset, then homing) failed at the soft reset"]
+    out = tmp_path / "s"
+    with GrblEmulator(axes="XYZ", time_scale=50.0, homing_enabled=not without_homing, faults=[injected]) as emulator:
+        port.symlink_to(emulator.tty_path)
+        code = main(["campaign", "run", str(plan), "--out", str(out), "--yes", "--quiet"])
+    captured = capfd.readouterr()
+    errors = [line for line in captured.err.splitlines() if "error:" in line]
+    assert code == 1 and len(errors) == 1, captured.err
+    resume = f"stereo-bench campaign run --out {out} --resume --yes"
+    assert errors[0].startswith("stereo-bench campaign: error: ") and all(text in errors[0] for text in expected)
+    assert errors[0].endswith(f"(session {out} stopped as failed; once fixed: {resume})")
+    assert "campaign failed" in captured.out and "resume:" not in captured.out
+    reader = SessionReader(out)
+    stop = reader.stops()[-1]
+    assert stop["exit_status"] == "failed" and all(text in stop["reason"] for text in expected)
+    assert stop["resume_command"] == resume and reader.events(kind="rig_unrecoverable")
+    assert not reader.completed_config_ids()  # the configuration the fault struck runs again on resume
+    with GrblEmulator(axes="XYZ", time_scale=50.0, homing_enabled=not without_homing) as controller:  # it is back
+        port.unlink()
+        port.symlink_to(controller.tty_path)
+        assert main(shlex.split(resume)[1:] + ["--quiet"]) == 0
+    assert SessionReader(out).completed_config_ids() == {"B100_Z450_A90"}
 
 
 # -- fixed extrinsics work on every bench ------------------------------------------------------------------------

@@ -7,6 +7,8 @@ import dataclasses
 import json
 import math
 import os
+import select
+import shlex
 import shutil
 import signal
 import subprocess
@@ -151,21 +153,88 @@ def test_sigkill_mid_campaign_then_resume_gives_every_configuration_once_with_th
     assert reader.attempts() == [1, 2]
 
 
+def _run_printed(command: str, **options) -> subprocess.CompletedProcess:
+    """Run a command the CLI printed (``stereo-bench ...``) as a user would paste it, with this interpreter."""
+    argv = shlex.split(command)
+    assert argv[0] == "stereo-bench", command
+    return subprocess.run([sys.executable, "-m", "stereo_bench", *argv[1:]], capture_output=True, text=True,
+                          timeout=300, **options)
+
+
 @pytest.mark.slow
-def test_sigterm_stops_like_ctrl_c_and_the_session_resumes(long_settle_plan_file, tmp_path, small_reference):
-    plan_file = long_settle_plan_file
-    out = tmp_path / "terminated"
-    process = _launch(plan_file, out)
+def test_sigterm_stops_like_ctrl_c_and_the_printed_command_resumes(long_settle_plan_file, tmp_path, small_reference):
+    """The printed resume command carries whatever went into the recorded config: a run started with --time-scale
+    (not in the file) printed one without it, which was refused ("cannot resume with a different config")."""
+    out = tmp_path / "terminated out"  # a space: the command must still paste as one --out
+    process = _launch(long_settle_plan_file, out, "--time-scale", "40")
     _wait_for_the_last_move(process, out)
     process.send_signal(signal.SIGTERM)  # what systemd and docker stop send
     stdout, stderr = process.communicate(timeout=60)
     assert process.returncode == 130, stderr
     stop = SessionReader(out).stops()[-1]
     assert stop["exit_status"] == "interrupted" and stop["reason"] == "stopped by SIGTERM"
-    assert stop["resume_command"] == f"stereo-bench campaign run {plan_file} --out {out} --resume"
-    assert f"resume:   {stop['resume_command']}" in stdout and "SIGTERM: stopping at the next safe point" in stderr
+    assert stop["resume_command"] == f"stereo-bench campaign run --out '{out}' --resume --yes"
+    assert f"resume:   {stop['resume_command']}\n" in stdout and "SIGTERM: stopping at the next safe point" in stderr
     assert len(SessionReader(out).completed_config_ids()) == 3
-    resumed = subprocess.run(process.args + ["--resume"], capture_output=True, text=True, timeout=300)
+    resumed = _run_printed(stop["resume_command"], cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    assert SessionReader(out).start()["config"]["rig"]["time_scale"] == 40
+    assert numbers(out) == numbers(small_reference)
+
+
+@pytest.mark.slow
+def test_sighup_of_a_closed_terminal_stops_like_ctrl_c_and_the_session_resumes(long_settle_plan_file, tmp_path,
+                                                                              small_reference):
+    """An ssh session that ends: the terminal hangs up (every write to it fails) and SIGHUP comes. The run stops at
+    the next safe point with its stop recorded (it was killed without one) and exits 130."""
+    out = tmp_path / "hung-up"
+    master, slave = os.openpty()
+    command = [sys.executable, "-m", "stereo_bench", "campaign", "run", str(long_settle_plan_file), "--out", str(out),
+               "--yes"]  # not --quiet: it writes progress to the terminal until it hangs up
+    process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=slave, stderr=slave)
+    os.close(slave)
+    written = bytearray()
+    try:
+        stream = out / "documents.jsonl"
+        deadline = time.monotonic() + 120
+        while process.poll() is None and time.monotonic() < deadline:
+            if select.select([master], [], [], 0.05)[0]:
+                written += os.read(master, 65536)  # the terminal is read, as a terminal would be
+            if stream.exists() and stream.read_text().count('"kind": "move"') == 2:
+                break
+        assert process.poll() is None, written.decode(errors="replace")
+    finally:
+        os.close(master)  # the terminal hangs up ...
+    process.send_signal(signal.SIGHUP)  # ... and its session's processes get SIGHUP
+    assert process.wait(timeout=60) == 130
+    stop = SessionReader(out).stops()[-1]
+    # A progress line written between the hang-up and the signal fails first, and stops the run just the same.
+    assert stop["exit_status"] == "interrupted"
+    assert stop["reason"] in ("stopped by SIGHUP", "stopped: the terminal of stderr hung up")
+    assert len(SessionReader(out).completed_config_ids()) == 3
+    resumed = _run_printed(stop["resume_command"])
+    assert resumed.returncode == 0, resumed.stderr
+    assert numbers(out) == numbers(small_reference)
+
+
+@pytest.mark.slow  # a campaign, then its resume
+def test_a_closed_stdout_stops_the_run_at_a_safe_point_with_status_141(plan_file, tmp_path, small_reference):
+    """``campaign run --json | head -1``: the reader goes away after the first line. It failed the run (exit 2, or
+    134 when a renderer was still being built at exit); now the run stops as at Ctrl-C, says so in one line on
+    stderr, exits 141 (docs/EXIT_STATUS.md) and the session resumes."""
+    out = tmp_path / "piped"
+    process = _launch(plan_file, out, "--json")
+    first = json.loads(process.stdout.readline())
+    process.stdout.close()  # head -1 exits
+    stderr = process.stderr.read()
+    assert process.wait(timeout=120) == 141, stderr
+    assert first["type"] == "start"
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("stereo-bench campaign: stdout closed (its reader went away)")
+    stop = SessionReader(out).stops()[-1]
+    assert stop["exit_status"] == "interrupted" and stop["reason"] == "stopped: the reader of stdout went away"
+    assert lines[0].endswith(f"resume: {stop['resume_command']}")
+    resumed = _run_printed(stop["resume_command"])
     assert resumed.returncode == 0, resumed.stderr
     assert numbers(out) == numbers(small_reference)
 
@@ -181,8 +250,30 @@ def test_ctrl_c_twice_records_interrupted_with_the_resume_command(long_settle_pl
     stdout, stderr = process.communicate(timeout=60)
     assert process.returncode == 130, stderr
     stop = SessionReader(out).stops()[-1]
-    assert stop["exit_status"] == "interrupted" and stop["resume_command"].endswith("--resume")
-    assert "resume:   stereo-bench campaign run" in stdout
+    assert stop["exit_status"] == "interrupted"
+    assert stop["resume_command"] == f"stereo-bench campaign run --out {out} --resume --yes"
+    assert f"resume:   {stop['resume_command']}" in stdout
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_a_replay_stopped_by_a_signal_exits_130_reports_nothing_and_leaves_no_out(small_reference, tmp_path, signum):
+    """Ctrl-C while the replay runs its configurations: the runner stopped, and the replay went on to announce the
+    partial recording as a new session, comparing it ("not reproduced" for every configuration), exit 1."""
+    out = tmp_path / "replayed"
+    command = [sys.executable, "-m", "stereo_bench", "replay", str(small_reference), "--out", str(out)]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while process.poll() is None and time.monotonic() < deadline:  # until the replay moves to its first configuration
+        streams = list(tmp_path.glob(f".{out.name}.*/documents.jsonl"))
+        if streams and '"kind": "move"' in streams[0].read_text():
+            break
+        time.sleep(0.01)
+    assert process.poll() is None, process.communicate()
+    process.send_signal(signum)
+    stdout, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stdout + stderr
+    assert stdout == "" and stderr.strip() == "stereo-bench replay: interrupted"
+    assert sorted(path.name for path in tmp_path.iterdir()) == []  # neither --out nor its temporary directory
 
 
 def test_a_second_interrupt_stops_at_once_and_the_session_still_resumes(tmp_path):

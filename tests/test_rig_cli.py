@@ -118,7 +118,8 @@ def test_calibrate_kinematics_on_a_port_that_is_not_there_is_exit_2_as_campaign_
     code, _, err = _run(capsys, "rig", "--port", str(tmp_path / "no-such-tty"), "calibrate-kinematics",
                         "--out", str(tmp_path / "kin"))
     assert code == 2, err
-    assert "cannot open serial port" in err and "stopped as failed" in err
+    assert "cannot open serial port" in err and f"nothing was recorded: --out {tmp_path / 'kin'} is as it was" in err
+    assert not (tmp_path / "kin").exists()  # refused before anything moved: --out as it was
 
 
 def test_move_before_homing_is_a_clear_error(emulator, capsys):

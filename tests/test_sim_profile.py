@@ -105,17 +105,25 @@ def test_campaign_run_sim_flag_picks_the_bench_and_refuses_real_cameras(tmp_path
         config_from_args(real, None, sim="ideal")
 
 
-def test_the_resume_command_keeps_the_bench_given_on_the_command_line():
-    """The rest of an interrupted campaign must render on the bench its first part did."""
+def test_the_resume_command_resumes_the_recorded_bench_whatever_the_command_line_gave(small_reference):
+    """The rest of an interrupted campaign must render on the bench its first part did: the resume command names
+    no campaign file and no option, so it continues with the recorded config (``--sim``, ``--time-scale`` and the
+    file's own values), and only ``--yes`` (who does the manual steps) is carried."""
     import argparse
     from pathlib import Path
 
-    from stereo_bench.cli.campaign_run import _resume_command
+    from stereo_bench.campaign.session import SessionReader
+    from stereo_bench.cli.campaign_run import _resume_command, config_from_args
 
-    args = argparse.Namespace(plan="small.toml", preset=None, sim="ideal")
-    assert _resume_command(args, Path("out")) == "stereo-bench campaign run small.toml --out out --resume --sim ideal"
-    args.sim = None
-    assert _resume_command(args, Path("out")) == "stereo-bench campaign run small.toml --out out --resume"
+    args = argparse.Namespace(plan="small.toml", preset=None, sim="lab", time_scale=10.0, yes=False)
+    assert _resume_command(args, Path("my out")) == "stereo-bench campaign run --out 'my out' --resume"
+    args.yes = True
+    assert _resume_command(args, Path("out")) == "stereo-bench campaign run --out out --resume --yes"
+    resumed = config_from_args(None, None, session=small_reference)
+    # What the session writer compares a resume's config with: equal, so it is never refused as a different config.
+    assert resumed.model_dump(mode="json") == SessionReader(small_reference).start()["config"]
+    assert resumed.sim.resolve() == IDEAL
+    assert config_from_args(None, None, session=small_reference, sim="lab").sim.resolve() != IDEAL  # then refused
 
 
 def test_the_documented_lab_table_is_the_code():

@@ -252,6 +252,7 @@ class SimulatedBench:
         self._ahead_pool: ThreadPoolExecutor | None = None
         self._ahead_thread: threading.Thread | None = None
         self._ahead = 16  # frame pairs rendered ahead at most (stage())
+        self._warming: list[threading.Thread] = []  # warm_up()'s builds: joined by stop()
         self.prerendered_used = 0  # frame pairs served from a render ahead (for tests and benchmarks)
         # What the operator would set by hand (the target distance unless it is motorised).
         self.manual_values: dict[str, float] = {}
@@ -294,6 +295,12 @@ class SimulatedBench:
             self._ahead_pool.shutdown(wait=True, cancel_futures=True)
             self._ahead_pool = None
         self._pool.shutdown(wait=True)
+        # A build still running in OpenCV when the process exits aborts it ("terminate called without an active
+        # exception", status 134: the interpreter ends a daemon thread inside C++ code): a run stopped in its
+        # first second (Ctrl-C, a closed pipe) waits for them (~1-2 s at most) instead.
+        for thread in self._warming:
+            thread.join()
+        self._warming.clear()
         if self.emulator is not None:
             self.emulator.stop()
 
@@ -686,7 +693,9 @@ class SimulatedBench:
                 self._renderer(target)
 
         for target in targets:
-            threading.Thread(target=build, args=(target,), name="sim-warm-up", daemon=True).start()
+            thread = threading.Thread(target=build, args=(target,), name="sim-warm-up", daemon=True)
+            thread.start()
+            self._warming.append(thread)
 
     def render(self, side: str) -> tuple[np.ndarray, dict]:
         """One frame of the ``side`` camera now, with its ground truth as metadata.

@@ -698,7 +698,8 @@ class StopDocument(Document):
     exit_status: ExitStatus
     reason: str | None = None
     completed: int = Field(ge=0, description="configurations with a result, all attempts")
-    resume_command: str | None = Field(None, description="v2: the command that continues an interrupted session")
+    resume_command: str | None = Field(None, description="v2: the command that continues an interrupted or failed "
+                                                         "session")
 
 
 #: The typed event kinds. A kind not listed is read (and may be written, e.g. by other tools) as a

@@ -57,8 +57,8 @@ from stereo_bench.frames import keep_freed_frame_memory
 from stereo_bench.vision.calibrate import single_threaded_opencv
 
 __all__ = [
-    "CampaignPlan", "OperatorAbsent", "ReplaySummary", "RunControl", "RunSummary", "plan_drift", "replay_job",
-    "replay_session", "reproducibility", "run_campaign", "runner_options", "software_versions",
+    "CampaignPlan", "OperatorAbsent", "ReplaySummary", "RunControl", "RunSummary", "plan_drift", "recorded_config",
+    "replay_job", "replay_session", "reproducibility", "run_campaign", "runner_options", "software_versions",
 ]
 
 
@@ -284,60 +284,85 @@ def run_campaign(
     control = control or RunControl()
     operators = list(operators) if operators is not None else default_operators(config, yes=yes)
     summary = RunSummary(session=Path(out_dir), exit_status="failed")
-    with SessionWriter(out_dir, resume=resume) as writer:
-        recorded = writer.recorded_start
-        if recorded is not None and isinstance(recorded.get("plan"), list):
-            campaign = CampaignPlan.recorded(config, recorded)
-            summary.plan_drift = plan_drift(config, recorded["plan"])
-        else:
-            campaign = plan or CampaignPlan.of(config)
-        bus = DocumentBus(writer)
-        collector = Collector()
-        bus.subscribe(collector)
-        for subscriber in subscribers:
-            bus.subscribe(subscriber)
-        for frame_subscriber in frame_subscribers:
-            bus.subscribe_frames(frame_subscriber)
-        transcript = writer.transcript_path()  # registered first, so its event follows the start
-        bus.publish(Draft(StartDocument, config=config.model_dump(mode="json"),
-                          plan=[c.as_dict() for c in campaign.configurations], software=software_versions(),
-                          extra={}, bench=config.bench_kind, numeric_environment=numeric_environment(),
-                          **({"plan_drift": summary.plan_drift} if summary.plan_drift else {}),
-                          **({"design": [v.as_dict() for v in campaign.visits]} if campaign.visits else {})))
-        done = writer.completed_config_ids()
-        summary.skipped = len(done)
-        status, reason = "failed", None
-        try:
-            options = runner_options(config, visits=campaign.visits)
-            skip = set(done) | resume_sources(options, writer, config, campaign.visits)
-            if campaign.visits and all(c.config_id in done for c in campaign.configurations if c.runnable) and done:
-                skip |= {visit.config_id for visit in campaign.visits} | {PREPARE_ID}  # nothing left to measure
-            with bench_factory(config, operators=operators, transcript=transcript) as bench:
-                runner = CampaignRunner(config, campaign.configurations, campaign.steps, bench=bench, bus=bus,
-                                        options=options)
-                _record_connect(bus, bench, config)
-                if config.extrinsics.mode == "fixed":  # the calibration used goes into the session
-                    bus.publish(Draft(CalibrationEvent, config_id=None, calibration=CalibrationFiles(
-                        options.fixed_calibration, None, board=f"fixed: {config.extrinsics.calib_dir}")))
-                for draft in session_sources(config):  # a model file, calib_dir's intrinsics: copied in
-                    bus.publish(draft)
-                control.attach(runner)
-                status = runner.run(skip=skip)
-                reason = runner.stop_reason if status == "interrupted" else None
-        except KeyboardInterrupt:  # a second Ctrl-C while the bench opened or closed
-            status, reason = "interrupted", "stopped at once (second interrupt)"
-        except BaseException as error:
-            with contextlib.suppress(Exception):  # the original error is the one to report
-                bus.publish(Draft(StopDocument, exit_status="failed", reason=f"{type(error).__name__}: {error}"))
-            raise
-        finally:
-            control.detach()
-        bus.publish(Draft(StopDocument, exit_status=status, reason=reason,
-                          **({"resume_command": resume_command} if status == "interrupted" and resume_command
-                             else {})))
+    writer = SessionWriter(out_dir, resume=resume)
+    opened = False  # the bench: until it is open nothing has moved, and nothing but the start is recorded
+    try:
+        with writer:
+            recorded = writer.recorded_start
+            if recorded is not None and isinstance(recorded.get("plan"), list):
+                campaign = CampaignPlan.recorded(config, recorded)
+                summary.plan_drift = plan_drift(config, recorded["plan"])
+            else:
+                campaign = plan or CampaignPlan.of(config)
+            bus = DocumentBus(writer)
+            collector = Collector()
+            bus.subscribe(collector)
+            for subscriber in subscribers:
+                bus.subscribe(subscriber)
+            for frame_subscriber in frame_subscribers:
+                bus.subscribe_frames(frame_subscriber)
+            transcript = writer.transcript_path()  # registered first, so its event follows the start
+            bus.publish(Draft(StartDocument, config=config.model_dump(mode="json"),
+                              plan=[c.as_dict() for c in campaign.configurations], software=software_versions(),
+                              extra={}, bench=config.bench_kind, numeric_environment=numeric_environment(),
+                              **({"plan_drift": summary.plan_drift} if summary.plan_drift else {}),
+                              **({"design": [v.as_dict() for v in campaign.visits]} if campaign.visits else {})))
+            done = writer.completed_config_ids()
+            summary.skipped = len(done)
+            status, reason = "failed", None
+            try:
+                options = runner_options(config, visits=campaign.visits)
+                skip = set(done) | resume_sources(options, writer, config, campaign.visits)
+                if campaign.visits and all(c.config_id in done for c in campaign.configurations if c.runnable) and done:
+                    skip |= {visit.config_id for visit in campaign.visits} | {PREPARE_ID}  # nothing left to measure
+                with bench_factory(config, operators=operators, transcript=transcript) as bench:
+                    opened = True
+                    runner = CampaignRunner(config, campaign.configurations, campaign.steps, bench=bench, bus=bus,
+                                            options=options)
+                    _record_connect(bus, bench, config)
+                    if config.extrinsics.mode == "fixed":  # the calibration used goes into the session
+                        bus.publish(Draft(CalibrationEvent, config_id=None, calibration=CalibrationFiles(
+                            options.fixed_calibration, None, board=f"fixed: {config.extrinsics.calib_dir}")))
+                    for draft in session_sources(config):  # a model file, calib_dir's intrinsics: copied in
+                        bus.publish(draft)
+                    control.attach(runner)
+                    status = runner.run(skip=skip)
+                    reason = runner.stop_reason if status != "success" else None  # a stop, or the rig unrecoverable
+            except KeyboardInterrupt:  # a second Ctrl-C while the bench opened or closed
+                status, reason = "interrupted", "stopped at once (second interrupt)"
+            except BaseException as error:
+                with contextlib.suppress(Exception):  # the original error is the one to report
+                    bus.publish(Draft(StopDocument, exit_status="failed", reason=f"{type(error).__name__}: {error}",
+                                      **({"resume_command": resume_command} if opened and resume_command else {})))
+                raise
+            finally:
+                control.detach()
+            bus.publish(Draft(StopDocument, exit_status=status, reason=reason,
+                              **({"resume_command": resume_command} if status != "success" and resume_command
+                                 else {})))
+    except BaseException:
+        if not opened and not resume:
+            # Refused before anything moved (a port that is not there, a controller that never answers): --out is
+            # left as it was, so the corrected command is accepted (a new session is never written over).
+            with contextlib.suppress(SessionError, OSError):  # not begun by this run (e.g. --out exists): kept
+                writer.discard()
+        raise
     summary.exit_status, summary.reason = status, reason
     summary.rows = collector.rows
     return summary
+
+
+def recorded_config(session_dir: str | Path) -> CampaignConfig:
+    """The campaign config the session in ``session_dir`` recorded in its start document: what ``campaign run
+    --resume`` continues with when no campaign file is given (SessionError, one line, if it cannot be read)."""
+    reader = SessionReader(session_dir)
+    try:
+        return recorded_campaign(reader.start()["config"])
+    except ValidationError as error:
+        first = error.errors()[0]
+        where = ".".join(str(part) for part in first.get("loc", ())) or "config"
+        raise SessionError(f"{reader.documents_path} line 1: the recorded campaign config does not validate "
+                           f"({where}: {first.get('msg')})") from None
 
 
 def _record_connect(bus: DocumentBus, bench: Bench, config: CampaignConfig) -> None:
@@ -529,6 +554,8 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
                 for draft in _recorded_session_sources(reader):
                     bus.publish(draft)
             status = runner.run()
+        if status == "interrupted":  # Ctrl-C (a replay has no other stop): no --out, no comparison of a part
+            raise KeyboardInterrupt
         if out_dir is not None:
             for cid, row in recorded_rows.items():  # failed and infeasible configurations: as recorded
                 if cid not in all_measured:

@@ -15,11 +15,13 @@ ordered recorder thread): the session writer, a progress display, a ``--json`` l
 test collector are its subscribers. Nothing else watches the runner.
 
 Faults: a configuration that fails (board not found after retries, calibration impossible, an
-alarm) is recorded as failed with its reason and the campaign goes on; an alarm is cleared by
-homing again first. :meth:`CampaignRunner.request_stop` (Ctrl-C, SIGTERM, a live page's Stop)
-feeds-hold the rig, cuts a settle or an operator prompt short, finishes nothing new, records what
-is complete and leaves the session resumable. A KeyboardInterrupt (a second Ctrl-C) stops at once:
-analyses still running are dropped (their configurations run again on resume).
+alarm) is recorded as failed with its reason and the campaign goes on; after a rig fault the rig is
+soft-reset and homed again first, and if that fails too the run ends as failed (resumable), with the
+fault and the failed recovery step as its reason. :meth:`CampaignRunner.request_stop` (Ctrl-C,
+SIGTERM, SIGHUP, a live page's Stop) feeds-hold the rig, cuts a settle or an operator prompt short,
+finishes nothing new, records what is complete and leaves the session resumable. A KeyboardInterrupt
+(a second Ctrl-C) stops at once: analyses still running are dropped (their configurations run again
+on resume).
 :meth:`request_pause` holds the run at the next step boundary until :meth:`request_resume`; a move in
 progress is feed-held and continues on resume (both recorded as ``run_control`` events). While the
 runner waits for the operator or is paused it lends the cameras to a preview (``bench.camera_gate``).
@@ -86,11 +88,17 @@ from stereo_bench.vision.detect import AmbiguousViewError, detect
 from stereo_bench.vision.rectify import rectify
 from stereo_bench.vision.uncertainty import BoardScale
 
-__all__ = ["CampaignRunner", "ConfigurationFailed", "RunnerOptions", "StopRequested", "group_steps"]
+__all__ = ["CampaignRunner", "ConfigurationFailed", "RigUnrecoverable", "RunnerOptions", "StopRequested", "group_steps"]
 
 
 class ConfigurationFailed(Exception):
     """The configuration cannot be completed; the message is the reason recorded with it."""
+
+
+class RigUnrecoverable(Exception):
+    """The rig failed and could not be recovered (soft reset, then homing): the run ends as failed, resumable once
+    the rig is fixed. The message names the fault (``GRBL ALARM:1: Hard limit triggered ...``) and the recovery step
+    that failed."""
 
 
 @dataclass
@@ -306,10 +314,13 @@ class CampaignRunner:
                         self._collect(block=False)
                 self._collect(block=True)
                 return "success"
-            except StopRequested:
+            except (StopRequested, RigUnrecoverable) as stopped:
                 if captured is not None and captured.calibration is not None:
                     captured.calibration.cancel()  # the configuration stopped before it was measured
                 self._collect(block=True)  # what is complete is recorded
+                if isinstance(stopped, RigUnrecoverable):  # its configuration has no result: it runs on resume
+                    self.stop_reason = str(stopped)
+                    return "failed"
                 return "interrupted"
         except KeyboardInterrupt:  # a second Ctrl-C, even while the first one is being honoured: stop at once
             abandon = True
@@ -400,7 +411,7 @@ class CampaignRunner:
                 if self._feed_held:  # paused mid-move: hold, release the hold, and finish the move
                     self._hold_until_resumed()
                     continue
-                self._recover_rig()
+                self._recover_rig(error, configuration)
                 raise ConfigurationFailed(f"rig: {error}") from None
         request = configuration.move_request()
         axes = reported_axes(reading, {"baseline_mm": request["baseline_mm"],
@@ -423,17 +434,32 @@ class CampaignRunner:
             with self._control_lock:
                 self._moving = False
 
-    def _recover_rig(self) -> None:
-        """After an alarm or a failed move, home again so the next configuration starts from a known state."""
+    def _recover_rig(self, error: Exception, configuration: Configuration | Visit) -> None:
+        """After an alarm or a failed move: a soft reset, then homing, so the next configuration starts from a known
+        state. The reset comes first: a controller halted by ALARM:1/2 answers nothing else, not even '?' (homing
+        alone was refused), and it discards whatever was still queued; homing then finds the position the alarm (or
+        the reset, if the axes were moving) lost. A rig that cannot be recovered ends the run as failed
+        (:class:`RigUnrecoverable`): every later configuration would need it."""
+        rig = self.bench.rig
+        reset = getattr(rig, "reset", None)  # GrblRig.reset(); a rig without one (a replay's) is only homed
+        steps = (["soft reset"] if reset is not None else []) + ["homing"]
+        step = steps[0]
         try:
-            reading = self.bench.rig.home()
-            self._approach.reached(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
-                                                          "toe_in_right_deg": 0.0}))
-            self._publish(Draft(RigRecoveredEvent, data={"action": "homed after a failed move"}))
-        except Exception as error:  # noqa: BLE001 - the campaign cannot go on without a working rig
-            self._publish(Draft(RigUnrecoverableEvent, data={"error": str(error)}))
-            self.request_stop(f"rig unrecoverable: {error}")
-            raise StopRequested() from error
+            if reset is not None:
+                reset()
+            step = "homing"
+            reading = rig.home()
+        except Exception as failure:  # noqa: BLE001 - the campaign cannot go on without a working rig
+            self._publish(Draft(RigUnrecoverableEvent, data={"error": f"{step}: {failure}"}))
+            same = str(failure) == str(error)  # e.g. a vanished port: the reset fails as the move did
+            raise RigUnrecoverable(
+                f"rig: {error} (at {configuration.config_id}); recovery ({', then '.join(steps)}) failed at the "
+                f"{step}" + ("" if same else f": {failure}")) from failure
+        self._homed = True
+        self._approach.reached(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
+                                                      "toe_in_right_deg": 0.0}))
+        self._publish(Draft(RigRecoveredEvent, data={
+            "action": f"{'soft reset, then ' if reset is not None else ''}homed after a failed move"}))
 
     def _keeps_frames(self, model) -> bool:
         """Whether captures of this kind write their frames to the session (``[capture] keep_frames``)."""

@@ -578,6 +578,8 @@ class SessionWriter:
         self._store: ResultStore | None = None
         self._plan_order: list[str] = []
         self._made_dirs: set[Path] = set()
+        self._created_dirs: list[Path] = []  # the directories _mkdir created (not found), in creation order
+        self._began_stream = False  # this writer created documents.jsonl (a new session): discard() may remove it
         self._transcripts: dict[str, str] = {}
         self._pending_transcripts: list[str] = []
 
@@ -618,6 +620,7 @@ class SessionWriter:
                                0o666)  # the user's umask decides who may read the session
         except FileExistsError:
             raise SessionError(f"{root} exists: pass --resume or choose another --out") from None
+        self._began_stream = True
         self._lock(self._fd)
         atomic.fsync_dir(root)
         self.attempt = 1
@@ -732,6 +735,35 @@ class SessionWriter:
             os.close(self._fd)  # releases the lock
             self._fd = None
 
+    def discard(self) -> None:
+        """Remove the new session this writer began, when nothing was recorded in it beyond its start (a run refused
+        before it did anything: a serial port that is not there, a controller that never answers), so that
+        ``--out`` is as it was and the corrected command is accepted. Only what this writer made goes: its stream,
+        results store and CSV, the transcripts it registered (a driver wrote them, here), and the directories it
+        created, if they are then empty: an ``--out`` the user made stays, and so does anything else in it. Closes
+        the writer first. SessionError, and nothing removed, for a resumed session or one that recorded more."""
+        self.close()
+        if not self._began_stream:
+            raise SessionError(f"{self.directory}: not removed: this writer did not begin it (a resumed session, or "
+                               "one that was there)")
+        if self.documents_path.is_file():
+            kinds = {(doc.get("type"), doc.get("kind")) for doc in parse_stream(self.documents_path).documents}
+            recorded = kinds - {("start", None), ("stop", None), ("event", "transcript")}
+            if recorded:
+                raise SessionError(f"{self.directory}: not removed: it records more than its start")
+        store = self.directory / STORE_FILE
+        made = [self.documents_path, self.directory / CSV_FILE, store,
+                *(store.with_name(store.name + suffix) for suffix in ("-journal", "-wal", "-shm")),
+                *(self.directory / relative for relative in self._transcripts.values())]
+        for path in made:
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+        for directory in reversed(self._created_dirs):
+            with contextlib.suppress(OSError):  # not empty: something this writer did not make is in it
+                directory.rmdir()
+                atomic.fsync_dir(directory.parent)
+        self._created_dirs.clear()
+
     def __enter__(self) -> SessionWriter:
         return self.open()
 
@@ -756,6 +788,7 @@ class SessionWriter:
             probe = probe.parent
         for directory in reversed(missing):
             directory.mkdir(exist_ok=True)
+            self._created_dirs.append(directory)
             atomic.fsync_dir(directory.parent)
         self._made_dirs.add(path)
 

@@ -18,7 +18,13 @@ Exit statuses: ``EXIT_OK`` 0; ``EXIT_FAILED`` 1 (the job ran and failed: a contr
 campaign that measured nothing, a replay that does not reproduce); ``EXIT_USAGE`` 2 (the user can fix
 it: an argument, a file, a config, a device that is not there, a path that cannot be written, a
 measurement refused as physically meaningless); ``EXIT_INTERNAL`` 70 (a bug: the traceback is printed);
-``EXIT_INTERRUPTED`` 130 (Ctrl-C, or SIGTERM during a campaign).
+``EXIT_INTERRUPTED`` 130 (Ctrl-C, SIGTERM, or SIGHUP: a closed terminal or ssh session); ``EXIT_BROKEN_PIPE`` 141
+(the reader of stdout went away).
+
+Signals: :func:`main` turns SIGTERM and SIGHUP into ``KeyboardInterrupt``, as Python does SIGINT, so every command
+stops on them as on Ctrl-C (its cleanup runs, and the status is 130); a command with stops of its own (``campaign
+run`` stops at a safe point) installs its own handlers for :data:`STOP_SIGNALS` and calls :func:`hung_up` first on
+SIGHUP.
 """
 
 from __future__ import annotations
@@ -30,7 +36,9 @@ import importlib
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import traceback
 from typing import Any, TextIO
 
@@ -56,6 +64,10 @@ EXIT_INTERNAL = 70  # sysexits.h EX_SOFTWARE: an internal software error
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a Ctrl-C
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE: the reader of stdout went away (``... --json | head -1``)
 
+#: What stops a command as Ctrl-C does: Ctrl-C, SIGTERM (systemd, ``docker stop``, ``kill``) and SIGHUP (the terminal
+#: closed: an ssh session ended, a terminal window was closed).
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
 
 class CliError(Exception):
     """A failure with its one-line message; exit status 2 (the user can fix it) unless ``exit_code`` says otherwise."""
@@ -80,7 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="stereo-bench",
         description="Drive a motorised stereo rig, calibrate, triangulate and measure a checkerboard square.",
         epilog="Exit status: 0 done, 1 the job failed (controller or camera fault, nothing measured, replay "
-               "differs), 2 a usage, input or setup error, 70 an internal error (a bug), 130 interrupted. "
+               "differs), 2 a usage, input or setup error, 70 an internal error (a bug), 130 interrupted (Ctrl-C, "
+               "SIGTERM, SIGHUP), 141 stdout closed. "
                "docs/EXIT_STATUS.md says more.",
     )
     parser.add_argument("--version", action="version", version=f"stereo-bench {__version__}")
@@ -197,6 +210,81 @@ def _stdout_is_closed(error: BaseException) -> bool:
     return isinstance(error, BrokenPipeError) and error.filename is None
 
 
+def output_gone(error: BaseException) -> bool:
+    """Whether writing stdout or stderr failed because its reader is gone: a closed pipe, or a hung-up terminal
+    (EIO: an ssh session that ended)."""
+    return _stdout_is_closed(error) or (isinstance(error, OSError) and error.errno == errno.EIO
+                                        and error.filename is None)
+
+
+def _to_devnull(fd: int) -> None:
+    with contextlib.suppress(OSError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, fd)
+        os.close(devnull)
+
+
+def silence_stdout() -> None:
+    """Point stdout at /dev/null: its reader went away, so nothing more is said there, and Python's flush of the
+    unwritten buffer at exit cannot fail (it would change the exit status to 120)."""
+    with contextlib.suppress(OSError, ValueError):  # ValueError: a replaced stdout without a file descriptor
+        _to_devnull(sys.stdout.fileno())
+
+
+# The standard streams that were a terminal when main() started: after SIGHUP the ones still pointing at it, now
+# hung up, are pointed at /dev/null (see hung_up()).
+_terminal_fds: set[int] = set()
+
+
+def hung_up() -> None:
+    """On SIGHUP: stdout and stderr that were a terminal that has now hung up go to /dev/null, so that the command
+    can still stop cleanly (record its stop, remove its temporary files) and return its status: every write to a
+    hung-up terminal fails (EIO). A SIGHUP sent by hand, with the terminal still there, leaves them as they are."""
+    for fd in sorted(_terminal_fds):
+        if not _isatty(fd):  # a hung-up terminal is no longer one (its tcgetattr fails with EIO)
+            _to_devnull(fd)
+
+
+def stop_on_signals(stop: threading.Event) -> dict:
+    """Set ``stop`` on each of :data:`STOP_SIGNALS` (SIGHUP: after :func:`hung_up`), for a command that serves until
+    told to end (``sim-controller``, ``live``); returns the previous handlers, to restore with ``signal.signal``."""
+    def on_signal(signum, frame) -> None:
+        if signum == signal.SIGHUP:
+            hung_up()
+        stop.set()
+
+    return {signum: signal.signal(signum, on_signal) for signum in STOP_SIGNALS}
+
+
+def _raise_interrupt(signum, frame) -> None:
+    if signum == signal.SIGHUP:
+        hung_up()
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def _stop_signals_interrupt():
+    """SIGTERM and SIGHUP raise KeyboardInterrupt (as SIGINT does) while a command runs; only in the main thread,
+    where Python runs signal handlers (a test calling main() from another thread keeps its handlers)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _terminal_fds.update(fd for fd in (1, 2) if _isatty(fd))  # stdout, stderr
+    previous = {signum: signal.signal(signum, _raise_interrupt) for signum in STOP_SIGNALS if signum != signal.SIGINT}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _isatty(fd: int) -> bool:
+    try:
+        return os.isatty(fd)
+    except OSError:
+        return False
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
@@ -213,25 +301,31 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     prog = f"stereo-bench {args.command}"
     try:
-        return int(args.func(args) or 0)
+        with _stop_signals_interrupt():
+            code = int(args.func(args) or 0)
+            sys.stdout.flush()  # here, not at exit: a reader gone meanwhile is a broken pipe (141), not status 120
+            return code
     except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
+        with contextlib.suppress(OSError):  # a hung-up terminal, or a closed pipe
+            print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     except Exception as error:  # noqa: BLE001 - the one place every failure becomes one line
-        if _stdout_is_closed(error):
+        if output_gone(error):
             # The reader went away: say nothing more on a pipe that is gone, and keep Python from
-            # complaining about the unflushed buffer at exit.
-            with contextlib.suppress(OSError):
-                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-            return EXIT_BROKEN_PIPE
+            # complaining about the unflushed buffer at exit. A terminal that hung up (EIO before its SIGHUP
+            # came) is the hangup: 130, as after SIGHUP.
+            silence_stdout()
+            hung_up()
+            return EXIT_BROKEN_PIPE if _stdout_is_closed(error) else EXIT_INTERRUPTED
         known = failure(error)
-        if known is None:
-            traceback.print_exc()
-            print(f"{prog}: internal error (a bug; please report it with the traceback above): "
-                  f"{type(error).__name__}: {_one_line(error)}", file=sys.stderr)
-            return EXIT_INTERNAL
-        print(f"{prog}: error: {_one_line(known)}", file=sys.stderr)
-        return known.exit_code
+        with contextlib.suppress(OSError):  # stderr's reader gone too: the status still says it
+            if known is None:
+                traceback.print_exc()
+                print(f"{prog}: internal error (a bug; please report it with the traceback above): "
+                      f"{type(error).__name__}: {_one_line(error)}", file=sys.stderr)
+                return EXIT_INTERNAL
+            print(f"{prog}: error: {_one_line(known)}", file=sys.stderr)
+        return EXIT_INTERNAL if known is None else known.exit_code
 
 
 # ---------------------------------------------------------------------------------------------- JSON output

@@ -1,8 +1,16 @@
 """`stereo-bench campaign run`: run a campaign (or resume one) on the simulated, bring-up or real bench.
 
-Stopping: Ctrl-C or SIGTERM (what systemd and ``docker stop`` send) feed-holds the rig and stops at
-the next safe point, recording a 'stop' document and leaving the session resumable; a second one
-stops at once, still recording "interrupted" and printing the command that resumes.
+Stopping: Ctrl-C, SIGTERM (what systemd and ``docker stop`` send) or SIGHUP (the terminal closed: an ssh
+session ended) feed-holds the rig and stops at the next safe point, recording a 'stop' document and
+leaving the session resumable (exit status 130); a second one stops at once, still recording
+"interrupted" and printing the command that resumes. The reader of ``--json`` going away (``| head -1``)
+stops it the same way, with exit status 141. A rig that fails and cannot be recovered (soft reset, then
+homing) ends it as failed: exit status 1, one line naming the fault, and the session resumes once fixed.
+A run refused before anything moved (a port that is not there) leaves ``--out`` as it was.
+
+``--resume`` without a campaign file continues with the config the session recorded: the printed resume
+command is ``stereo-bench campaign run --out DIR --resume`` (with ``--yes`` if the simulator did the
+manual steps), whatever options went into that config.
 
 ``--ui`` serves the live page (``stereo_bench/live``) for the run's duration and prints its URL.
 """
@@ -10,31 +18,51 @@ stops at once, still recording "interrupted" and printing the command that resum
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
+import shlex
 import signal
 import sys
 import time
 from pathlib import Path
 
-from stereo_bench.cli import EXIT_FAILED, EXIT_INTERRUPTED, CliError, failure
+from stereo_bench.cli import (
+    EXIT_BROKEN_PIPE,
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    STOP_SIGNALS,
+    CliError,
+    failure,
+    hung_up,
+    output_gone,
+    silence_stdout,
+)
 from stereo_bench.cli.args import TIME_SCALE, int_in, output_dir
 
 
 def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: float | None = None,
-                     sim: str | None = None):
-    """The campaign config named by a file or a preset (exactly one), ``time_scale`` and the ``sim`` profile
-    applied, and checked as ``run`` checks it before moving (:func:`stereo_bench.campaign.preflight.check_campaign`);
-    errors -> CliError or ConfigError (one line, exit status 2).
+                     sim: str | None = None, session: Path | None = None):
+    """The campaign config named by a file or a preset (exactly one) or, with neither, the one ``session`` recorded
+    (``run --resume``); ``time_scale`` and the ``sim`` profile applied, and checked as ``run`` checks it before
+    moving (:func:`stereo_bench.campaign.preflight.check_campaign`); errors -> CliError, ConfigError or SessionError
+    (one line, exit status 2).
 
     The one way the CLI loads a campaign (``campaign plan`` and ``campaign run``).
     """
     if plan_file is not None and preset is not None:
         raise CliError("give a campaign file or --preset NAME, not both")
-    if plan_file is None and preset is None:
+    if plan_file is None and preset is None and session is None:
         raise CliError("give a campaign file or --preset NAME")
     from stereo_bench.campaign.config import load_campaign, load_preset
 
-    config = load_preset(preset) if preset is not None else load_campaign(plan_file)  # type: ignore[arg-type]
+    if preset is not None:
+        config, source = load_preset(preset), f"preset {preset}"
+    elif plan_file is not None:
+        config, source = load_campaign(plan_file), str(plan_file)
+    else:
+        from stereo_bench.campaign.execute import recorded_config
+
+        config, source = recorded_config(session), f"{session}: the recorded campaign config"
     if time_scale is not None:
         if config.rig.kind != "simulated":
             raise CliError("--time-scale applies to the simulated rig only")
@@ -46,7 +74,7 @@ def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: 
     from stereo_bench.campaign.preflight import check_campaign
 
     # What run checks before moving, checked for plan too (run_campaign checks again for callers of the API).
-    check_campaign(config, source=f"preset {preset}" if preset is not None else str(plan_file))
+    check_campaign(config, source=source)
     return config
 
 
@@ -167,10 +195,39 @@ def add_ui_options(parser: argparse.ArgumentParser, *, required: bool = False) -
 
 
 def _resume_command(args: argparse.Namespace, out: Path) -> str:
-    source = args.plan if args.plan else f"--preset {args.preset}"
-    # The rest must render on the bench the first part did.
-    sim = f" --sim {args.sim}" if args.sim else ""
-    return f"stereo-bench campaign run {source} --out {out} --resume{sim}"
+    """The command that continues the session in ``out``: no campaign file, so the config is the one the session
+    recorded, with every option that went into it (``--time-scale``, ``--sim``, the file's own values); ``--yes``
+    when the simulator did the manual steps (not part of the config: who does them)."""
+    return shlex.join(["stereo-bench", "campaign", "run", "--out", str(out), "--resume", *(["--yes"] if args.yes
+                                                                                          else [])])
+
+
+def stopped_note(out: Path, resume_command: str | None) -> str:
+    """How a run that raised left its session: stopped and resumable, or (refused before anything moved) not there."""
+    if (out / "documents.jsonl").is_file():
+        return f"session {out} stopped as failed" + (f"; once fixed: {resume_command}" if resume_command else "")
+    return f"nothing was recorded: --out {out} is as it was"
+
+
+class _UntilOutputGone:
+    """A subscriber that stops the run once its stream's reader is gone, instead of failing it: :attr:`gone` is
+    then "closed" (a closed pipe: ``--json | head -1``) or "hung up" (a terminal that hung up: SIGHUP follows)."""
+
+    def __init__(self, subscriber, name: str, control):
+        self.subscriber, self.name, self.control = subscriber, name, control
+        self.gone: str | None = None
+
+    def __call__(self, document) -> None:
+        if self.gone is not None:
+            return
+        try:
+            self.subscriber(document)
+        except OSError as error:
+            if not output_gone(error):
+                raise
+            self.gone = "closed" if isinstance(error, BrokenPipeError) else "hung up"
+            self.control.request_stop(f"stopped: the reader of {self.name} went away" if self.gone == "closed"
+                                      else f"stopped: the terminal of {self.name} hung up")
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -184,9 +241,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     from stereo_bench.campaign.stream import JsonLines
 
-    config = config_from_args(Path(args.plan) if args.plan else None, args.preset, time_scale=args.time_scale,
-                              sim=args.sim)
     out = Path(args.out)
+    config = config_from_args(Path(args.plan) if args.plan else None, args.preset, time_scale=args.time_scale,
+                              sim=args.sim, session=out if args.resume else None)
     if args.yes and config.cameras.kind != "simulated":
         raise CliError("--yes lets the simulator do the manual steps, for simulated cameras only; at the real "
                        "bench the operator does them")
@@ -206,23 +263,30 @@ def cmd_run(args: argparse.Namespace) -> int:
             port=DEFAULT_UI_PORT if args.ui_port is None else args.ui_port, control=control))
         operators = default_operators(config, yes=args.yes) + [page.operator]  # the first answer wins
     progress = Progress(len(plan.configurations), config.name, quiet=args.quiet)
-    subscribers = [progress] + ([JsonLines(sys.stdout)] if args.json else [])
+    # Outputs whose reader may go away: stopped at a safe point (as by a signal) rather than failed.
+    outputs = [_UntilOutputGone(progress, "stderr", control)]
+    if args.json:
+        outputs.append(_UntilOutputGone(JsonLines(sys.stdout), "stdout", control))
+    subscribers = list(outputs)
     if page is not None:
         subscribers.append(page.state)
         frame_subscribers.append(page.previews.captured)
     signals = {"count": 0}
 
     def on_signal(signum, frame) -> None:
+        if signum == signal.SIGHUP:
+            hung_up()  # before anything is written to a terminal that may be gone
         if signals.get("finished"):  # the run has ended and recorded its stop: nothing left to stop
             return
         signals["count"] += 1
         if signals["count"] > 1:
             raise KeyboardInterrupt
         name = signal.Signals(signum).name
-        progress.write(f"{name}: stopping at the next safe point (feed hold sent); again to stop at once")
+        with contextlib.suppress(OSError):  # stderr's reader gone too: the stop still happens
+            progress.write(f"{name}: stopping at the next safe point (feed hold sent); again to stop at once")
         control.request_stop(f"stopped by {name}")
 
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.signal(sig, on_signal) for sig in STOP_SIGNALS}
     started = time.monotonic()
     ended = False  # True once the summary is printed; otherwise an error line follows and the bar is erased
     try:
@@ -232,11 +296,20 @@ def cmd_run(args: argparse.Namespace) -> int:
         signals["finished"] = True
         progress.close()
         ended = True
+        if any(output.name == "stdout" and output.gone == "closed" for output in outputs):
+            # The reader went away: nothing more on stdout; one line on stderr (unless that is gone too).
+            silence_stdout()
+            with contextlib.suppress(OSError):
+                print(f"stereo-bench campaign: stdout closed (its reader went away): "
+                      f"{_stop_line(summary, out, resume_command)}", file=sys.stderr, flush=True)
+            return EXIT_BROKEN_PIPE
         return _summarise(args, summary, out, resume_command, time.monotonic() - started)
     except (RigError, CameraError) as error:  # recorded as 'failed' in the session; one line here
         mapped = failure(error)  # a port or camera that is not there: 2; a fault during the run: 1
-        raise CliError(f"{mapped} (session {out}: stopped as failed)", exit_code=mapped.exit_code) from None
+        raise CliError(f"{mapped} ({stopped_note(out, resume_command)})", exit_code=mapped.exit_code) from None
     except OSError as error:  # a full or read-only disk: what is recorded stays, and the session resumes
+        if output_gone(error):
+            raise
         mapped = failure(error)
         resumable = (out / "documents.jsonl").is_file()
         raise CliError(f"{mapped}" + (f" (session {out} stopped; once fixed: {resume_command})" if resumable
@@ -249,6 +322,13 @@ def cmd_run(args: argparse.Namespace) -> int:
             if page.previews.watched:
                 time.sleep(0.5)  # let the browsers get the final state before the page goes away
             page.stop()
+
+
+def _stop_line(summary, out: Path, resume_command: str) -> str:
+    """Where a run stopped by its reader going away left its session (the one line left for stderr)."""
+    if summary.exit_status == "success":  # it went away as the last configuration was recorded
+        return f"session {out} complete"
+    return f"session {out} {summary.exit_status} at a safe point; resume: {resume_command}"
 
 
 def _summarise(args: argparse.Namespace, summary, out: Path, resume_command: str, elapsed: float) -> int:
@@ -273,6 +353,10 @@ def _summarise(args: argparse.Namespace, summary, out: Path, resume_command: str
     print(f"report:   stereo-bench report {out}", file=report)
     if code == EXIT_INTERRUPTED:
         print(f"resume:   {resume_command}", file=report)
+    elif summary.exit_status == "failed" and summary.reason:  # the rig unrecoverable: the one error line says it
+        report.flush()
+        raise CliError(f"{summary.reason} (session {out} stopped as failed; once fixed: {resume_command})",
+                       exit_code=EXIT_FAILED)
     elif code:
         print(f"exit status {code}: {why.strip(' ()') or 'the campaign ' + status}", file=report)
     return code
@@ -283,15 +367,22 @@ def register_run(subparsers) -> None:
         "run", help="run a campaign on the simulated, bring-up or real bench, recording a session",
         description="Drive the rig through every configuration of the plan: move, settle, flush, calibrate "
                     "(per-config extrinsics), capture and measure the square; record everything in --out. "
-                    "Ctrl-C or SIGTERM stops at the next safe point (again: at once); --resume continues an "
-                    "interrupted session. Exit status: 0 done, 1 nothing measured or a rig/camera fault, 2 a usage "
-                    "or config error, 130 interrupted (resumable).",
+                    "Ctrl-C, SIGTERM or SIGHUP (a closed terminal or ssh session) stops at the next safe point "
+                    "(again: at once); so does the reader of --json going away. A rig fault is recovered by a soft "
+                    "reset and homing (the configuration fails, the campaign goes on); if that fails the campaign "
+                    "stops as failed. A run refused before anything moved (a port that is not there) leaves --out "
+                    "as it was. --resume continues a stopped session with the config it recorded (no campaign file "
+                    "needed: the printed resume command). Exit status: 0 done, 1 nothing measured or a rig/camera "
+                    "fault, 2 a usage or config error, 130 interrupted (resumable), 141 stdout closed (resumable).",
     )
-    run.add_argument("plan", nargs="?", metavar="PLAN.toml", help="campaign file")
+    run.add_argument("plan", nargs="?", metavar="PLAN.toml",
+                     help="campaign file; with --resume it may be left out (the config the session recorded "
+                          "continues; a file given must match it)")
     run.add_argument("--preset", metavar="NAME", help="a built-in campaign (see: stereo-bench campaign presets)")
     run.add_argument("--out", required=True, type=output_dir, metavar="DIR",
                      help="session directory (never overwritten)")
-    run.add_argument("--resume", action="store_true", help="continue the interrupted session in --out")
+    run.add_argument("--resume", action="store_true",
+                     help="continue the interrupted or failed session in --out (with the config it recorded)")
     run.add_argument("--yes", action="store_true",
                      help="simulated cameras: let the simulator do the manual steps (moving the target in the "
                           "simulated scene) instead of asking")

@@ -15,6 +15,7 @@ import sys
 import threading
 from pathlib import Path
 
+from stereo_bench.cli import stop_on_signals
 from stereo_bench.cli.args import ALPHA_DEG, BASELINE_MM, DISTANCE_MM, TIME_SCALE
 from stereo_bench.cli.campaign_run import add_ui_options, announce_live_page
 
@@ -68,7 +69,7 @@ def cmd_live(args: argparse.Namespace) -> int:
     page.state.run.update(status="live preview", name=config.name)
     page.start()  # the address first: one it cannot serve on is one line (LiveServerError), before the rig moves
     stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = stop_on_signals(stop)
     try:
         # The URL once the bench is open: a rig or camera that is not there is one line (exit status 2).
         with open_bench(config, operators=[], transcript=page.state.transcript) as bench:

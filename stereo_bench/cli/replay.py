@@ -130,8 +130,9 @@ def register(subparsers) -> None:
                     "keep_frames = \"measurement\" is calibrated from its recorded detections; configurations "
                     "whose frames were not kept are listed as not reproducible, and a session that can "
                     "reproduce none of its measured configurations (keep_frames = \"none\") exits 1. Exit 2: "
-                    "a session cannot be read. Several sessions are replayed in parallel through the executor "
-                    "(a local process pool, or Dask).",
+                    "a session cannot be read. Exit 130: stopped by Ctrl-C, SIGTERM or SIGHUP (nothing is "
+                    "compared, and no --out is left: a partial one would look like a good session). Several "
+                    "sessions are replayed in parallel through the executor (a local process pool, or Dask).",
     )
     replay.add_argument("session", nargs="+", metavar="SESSION", help="recorded session directory")
     replay.add_argument("--out", type=output_dir, metavar="DIR",

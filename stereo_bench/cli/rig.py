@@ -51,7 +51,7 @@ from drivers.sim.grbl_emulator import (
     axis_specs_for_travel,
     parse_fault,
 )
-from stereo_bench.cli import CliError, failure, print_json
+from stereo_bench.cli import CliError, failure, print_json, stop_on_signals
 from stereo_bench.cli.args import TIME_SCALE, finite_float
 
 # A bound on homing or one move: positive, and at most a day (a longer wait is no bound at all).
@@ -523,9 +523,8 @@ def _cmd_sim_controller(args) -> int:
     stop = threading.Event()
     previous: dict[int, object] = {}
     if threading.current_thread() is threading.main_thread():
-        # Ctrl-C and SIGTERM just end the loop, so a second Ctrl-C cannot cut the cleanup short.
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            previous[signum] = signal.signal(signum, lambda *_: stop.set())
+        # Ctrl-C, SIGTERM and SIGHUP just end the loop, so a second Ctrl-C cannot cut the cleanup short.
+        previous = stop_on_signals(stop)
     emulator.start()
     tty_path = emulator.tty_path or ""
     try:

@@ -21,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-from stereo_bench.cli import EXIT_INTERRUPTED, CliError, failure
+from stereo_bench.cli import EXIT_FAILED, EXIT_INTERRUPTED, STOP_SIGNALS, CliError, failure, hung_up
 from stereo_bench.cli.args import BASELINE_MM, DISTANCE_MM, TIME_SCALE, TOE_IN_DEG
 
 
@@ -111,6 +111,7 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
     from stereo_bench.campaign.execute import CampaignPlan, RunControl, run_campaign
     from stereo_bench.campaign.extrinsics_run import recorded_sources
     from stereo_bench.campaign.session import SessionReader
+    from stereo_bench.cli.campaign_run import stopped_note
     from stereo_bench.kinematics import save_model
 
     args = parser().parse_args(argv)
@@ -128,9 +129,11 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
     control = RunControl()
 
     def on_signal(signum, frame) -> None:
+        if signum == signal.SIGHUP:
+            hung_up()
         control.request_stop(f"stopped by {signal.Signals(signum).name}")
 
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.signal(sig, on_signal) for sig in STOP_SIGNALS}
     started = time.monotonic()
     print(f"kinematic design: {sum(v.runnable for v in plan.visits)} visits x {config.capture.calibration_views} "
           f"views on the {config.bench_kind} bench; recording {args.out}", file=sys.stderr, flush=True)
@@ -138,13 +141,15 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
         summary = run_campaign(config, args.out, yes=args.yes, control=control, plan=plan)
     except (RigError, CameraError) as error:  # as campaign run: a port or camera not there 2, a fault in work 1
         mapped = failure(error)
-        raise CliError(f"{mapped} (session {args.out}: stopped as failed)", exit_code=mapped.exit_code) from None
+        raise CliError(f"{mapped} ({stopped_note(args.out, None)})", exit_code=mapped.exit_code) from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     if summary.exit_status == "interrupted":
         print(f"interrupted: {summary.reason}; the design's views are in {args.out}", file=sys.stderr)
         return EXIT_INTERRUPTED
+    if summary.exit_status == "failed" and summary.reason:  # the rig failed and could not be recovered
+        raise CliError(f"{summary.reason} (session {args.out} stopped as failed)", exit_code=EXIT_FAILED)
     reader = SessionReader(args.out)
     optics = config.cameras.optics
     size = (optics.width_px, optics.height_px)
