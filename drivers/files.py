@@ -34,7 +34,7 @@ from typing import Any
 
 #: The largest TOML file a user gives (a campaign, a rig configuration, a kinematic model): the shipped ones are
 #: 0.5-6 kB and a plan at its 20,000-configuration limit written value by value ~200 kB; ``tomllib`` reads 1 MiB
-#: in ~0.3 s (scripts/bench_input_bounds.py).
+#: in ~0.7 s (scripts/bench_input_bounds.py).
 MAX_TOML_BYTES = 1 << 20
 #: How deep arrays and inline tables may nest in a TOML file: a real config nests at most 4 deep (a kinematic
 #: model's ``fit.design`` list of tables inside its table); ``tomllib`` recurses per level and fails near 1,000.

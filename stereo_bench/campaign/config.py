@@ -124,11 +124,12 @@ TIME_SCALE_MIN, TIME_SCALE_MAX = 0.1, 10_000.0
 
 # Bounds on what scales a campaign's work, each checked where the config enters (costs: one core of the shared
 # 2-core machine, scripts/bench_input_bounds.py and its scripts/results/bench_input_bounds.json):
-#: [capture] frames_per_config: a 1080p stereo frame costs ~0.15 s to render, detect and encode and ~1.9 MB of
-#: session; 1,000 is ~2.5 min and ~1.9 GB per configuration, where a measurement averages 3-20.
+#: [capture] frames_per_config: a 1080p stereo frame costs 0.2-0.25 s to render, detect and encode and ~1.9 MB of
+#: session; 1,000 is ~4 min and ~1.9 GB per configuration, where a measurement averages 3-20.
 MAX_FRAMES_PER_CONFIG = 1_000
 #: [capture] calibration_views (and ``model predict --calibration-views``): each view is a stereo frame, and the
-#: joint calibration takes 6-10 ms per view; a bench collects 10-50.
+#: joint calibration grows faster than the views (12: 0.25 s, 50: 1.5 s, 200: 17 s, 500: ~3 min); a bench collects
+#: 10-50.
 MAX_CALIBRATION_VIEWS = 500
 #: [capture] board_retries: each retry is one more frame; a target not found 3 times is misplaced, not unlucky.
 MAX_BOARD_RETRIES = 20
@@ -139,9 +140,9 @@ MAX_SETTLE_S = 60.0
 #: 0.2-1 s (V4L2 exposure_time_absolute up to 2047-10000 in 100 us steps); every frame waits for it.
 MAX_EXPOSURE_S = 1.0
 #: [cameras.optics] width_px, height_px of the simulated camera: rendering grows with the pixels (a 1080p view
-#: ~0.03-0.07 s; an 8192x4608 one ~18x the pixels); no UVC camera this bench drives goes past 4K (3840x2160).
+#: 0.06 s, a 4K one 0.16 s, an 8192x4608 one 0.74 s); no UVC camera this bench drives goes past 4K (3840x2160).
 MAX_SIMULATED_SIDE_PX = 8192
-#: [cameras.optics] blur_px: ``render --blur``'s bound, for the same reason (50 px: 3.6 s a pair, 200 px: 48 s).
+#: [cameras.optics] blur_px: ``render --blur``'s bound, for the same reason (50 px: 1.5-3.6 s a pair, 200 px: 18-48 s).
 MAX_BLUR_PX = 50.0
 #: [plan] baseline_mm: at least the smallest baseline a measurement accepts (|T| >= MIN_BASELINE_MM: two
 #: cameras' optical centres cannot be closer than their housings; 1e-300 ran into "T is zero"); at most 10 m
@@ -152,16 +153,16 @@ MAX_DISTANCE_MM = 100_000.0
 #: Why each bound above is where it is, said with its refusal (with the rig's, drivers.rig.config.BOUND_REASONS).
 BOUND_REASONS = {
     **RIG_BOUND_REASONS,
-    "capture.frames_per_config": "a 1080p stereo frame costs ~0.15 s and ~1.9 MB of session; a measurement "
+    "capture.frames_per_config": "a 1080p stereo frame costs ~0.2 s and ~1.9 MB of session; a measurement "
                                  "averages 3-20",
-    "capture.calibration_views": "each view is a stereo frame, and the calibration 6-10 ms more; a bench collects "
-                                 "10-50",
+    "capture.calibration_views": "each view is a stereo frame, and 500 take ~3 min to calibrate; a bench "
+                                 "collects 10-50",
     "capture.board_retries": "a target not found 3 times is misplaced",
     "capture.settle_s": "the heads ring for 0.24 s; a heavy rig settles in seconds",
     "cameras.optics.exposure_s": "UVC cameras expose at most 0.2-1 s",
     "cameras.optics.width_px": "rendering grows with the pixels; no camera of this bench is past 4K",
     "cameras.optics.height_px": "rendering grows with the pixels; no camera of this bench is past 4K",
-    "cameras.optics.blur_px": "render --blur's bound: 50 px renders in 3.6 s a pair, and no board is found in it",
+    "cameras.optics.blur_px": "render --blur's bound: no board is found at 50 px, and 200 px renders in 18-48 s",
 }
 
 
