@@ -55,6 +55,8 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from drivers.files import MAX_TOML_BYTES, InputFileError, decode_utf8, parse_toml, read_regular_file
+from stereo_bench import atomic
 from stereo_bench.geometry import RigPose, alpha_from_toe_in, rotation_deg, stereo_structure
 
 AXES = ("baseline_mm", "toe_in_left_deg", "toe_in_right_deg")
@@ -519,13 +521,12 @@ class KinematicFileError(ValueError):
 
 
 def save_model(model: KinematicModel, path: str | Path) -> Path:
-    """Write ``model`` as a readable TOML file (every parameter with value, sigma, unit; the covariance)."""
-    path = Path(path)
-    text = model_toml(model)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
-    return path
+    """Write ``model`` as a readable TOML file (every parameter with value, sigma, unit; the covariance).
+
+    Atomically, and never over an existing file (FileExistsError): a file that appeared since the caller checked
+    the path is not replaced.
+    """
+    return atomic.write_text(Path(path), model_toml(model), overwrite=False)
 
 
 def model_toml(model: KinematicModel) -> str:
@@ -591,16 +592,14 @@ def _toml_value(value: Any) -> str:
 
 
 def load_model(path: str | Path) -> KinematicModel:
-    """Read and validate a kinematic model file; :class:`KinematicFileError` names the file and field."""
-    path = Path(path)
+    """Read and validate a kinematic model file; :class:`KinematicFileError` names the file and field.
+
+    Read as every input file is (:func:`drivers.files.read_regular_file`: a regular file of bounded size).
+    """
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise KinematicFileError(f"{path}: no such kinematic model file") from None
-    except IsADirectoryError:
-        raise KinematicFileError(f"{path}: is a directory, not a kinematic model file") from None
-    except OSError as error:
-        raise KinematicFileError(f"{path}: cannot read: {error.strerror or error}") from None
+        text = decode_utf8(read_regular_file(path, what="kinematic model file", max_bytes=MAX_TOML_BYTES), path)
+    except InputFileError as error:
+        raise KinematicFileError(str(error)) from None
     return model_from_toml(text, str(path))
 
 
@@ -608,9 +607,9 @@ def model_from_toml(text: str, source: str = "kinematic model") -> KinematicMode
     """Parse and validate the TOML text of a model; :class:`KinematicFileError` names ``source`` and the field."""
     path = source
     try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as error:
-        raise KinematicFileError(f"{path}: invalid TOML: {error}") from None
+        data = parse_toml(text, path)
+    except InputFileError as error:
+        raise KinematicFileError(str(error)) from None
     try:
         return KinematicModel.model_validate(data)
     except ValidationError as error:

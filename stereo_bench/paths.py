@@ -10,8 +10,11 @@ the report and replay build file names only from names that pass.
 
 from __future__ import annotations
 
+import errno
 import os
 import re
+import secrets
+import stat
 from pathlib import Path
 
 NAME_MAX = 100  # leaves room for the suffixes added to it ("_rectified.jpg", "-a12.jsonl") within 255 bytes
@@ -46,11 +49,14 @@ def is_inside(root: Path, path: Path) -> bool:
 def confined(root: str | Path, path: str | Path) -> Path:
     """``path`` resolved (symlinks followed, also for a file that does not exist yet), if it lies inside ``root``.
 
-    Raises :class:`OutsideRoot` naming the path and where it leads.
+    Raises :class:`OutsideRoot` naming the path and where it leads (or that it leads nowhere: a symlink loop).
     """
-    resolved_root = Path(root).resolve()
     target = Path(path)
-    resolved = (target if target.is_absolute() else Path(root) / target).resolve()
+    try:
+        resolved_root = Path(root).resolve()
+        resolved = (target if target.is_absolute() else Path(root) / target).resolve()
+    except (RuntimeError, OSError) as error:  # a symlink loop (RuntimeError before Python 3.13): leads nowhere
+        raise OutsideRoot(f"{path} cannot be resolved ({error})") from None
     if not is_inside(resolved_root, resolved):
         raise OutsideRoot(f"{path} resolves to {resolved}, outside {root} (a symlink?)")
     return resolved
@@ -74,5 +80,96 @@ def symlinks_leaving(root: str | Path) -> list[Path]:
     return sorted(found)
 
 
-__all__ = ["NAME_MAX", "NAME_RULE", "OutsideRoot", "UnsafeName", "check_name", "confined", "is_inside",
-           "is_safe_name", "symlinks_leaving"]
+# -- where an action will write: checked before it starts ---------------------------------------------------------
+
+#: The file every session directory holds (campaign.session.DOCUMENTS_FILE): what makes a directory a recording.
+SESSION_MARKER = "documents.jsonl"
+
+
+class UnwritablePath(ValueError):
+    """An output path an action could not write, or must not (it would overwrite a recording); one line naming it."""
+
+
+def _kind(mode: int) -> str:
+    return ("a FIFO" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode)
+            else "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a file")
+
+
+def nearest_existing(path: Path) -> Path:
+    """``path`` or its nearest ancestor that exists (symlinks followed), made absolute."""
+    current = Path(os.path.abspath(path))
+    while not os.path.lexists(current) and current != current.parent:
+        current = current.parent
+    return current
+
+
+def recording_holding(path: Path) -> Path | None:
+    """The recorded session directory ``path`` lies in (itself or an ancestor holding :data:`SESSION_MARKER`)."""
+    current = nearest_existing(path)
+    for directory in (current, *current.parents):
+        if (directory / SESSION_MARKER).is_file():
+            return directory
+    return None
+
+
+def probe_writable(directory: Path) -> str | None:
+    """None if a new file can be created in ``directory`` (tried: one is created and removed), else why not.
+
+    ``os.access`` cannot tell: it says yes to root everywhere, and about ``/proc`` or a read-only mount it says
+    nothing true.
+    """
+    probe = directory / f".stereo-bench-probe-{secrets.token_hex(6)}.tmp"
+    try:
+        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC | os.O_NOFOLLOW, 0o600))
+    except OSError as error:
+        reason = error.strerror or str(error)
+        if error.errno in (errno.ENOENT, errno.EROFS):
+            reason += " (a read-only or virtual file system)"
+        return reason
+    os.unlink(probe)
+    return None
+
+
+def check_output_file(path: str | Path, *, option: str, exists_ok: bool = False,
+                      will_create: str | Path | None = None) -> Path:
+    """``path`` if an action can write it as a new file (or append to it: ``exists_ok``); else :class:`UnwritablePath`.
+
+    Checked before the action starts (before a rig moves or an operator presents a board), so that a path it
+    cannot write fails in one line up front, not after the work: ``path`` is not a directory or a special file,
+    exists only if ``exists_ok``, does not lie inside a recorded session (a recording is never written into), and
+    its directory exists (or lies inside ``will_create``, a directory the action makes first) and a file can be
+    created there.
+    """
+    path = Path(path)
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        info = None
+    except OSError as error:
+        raise UnwritablePath(f"{option} {path}: {error.strerror or error}") from None
+    if info is not None:
+        if stat.S_ISDIR(info.st_mode):
+            raise UnwritablePath(f"{option} {path}: is a directory; give a file name")
+        if not stat.S_ISREG(info.st_mode):
+            raise UnwritablePath(f"{option} {path}: exists and is not a regular file ({_kind(info.st_mode)})")
+        if not exists_ok:
+            raise UnwritablePath(f"{option} {path}: exists; not overwriting it (choose another path)")
+    recording = recording_holding(path.parent)
+    if recording is not None:
+        raise UnwritablePath(f"{option} {path}: lies inside the recorded session {recording}: a recording is never "
+                             "written into (choose a path outside it)")
+    parent = Path(os.path.abspath(path.parent))
+    existing = nearest_existing(parent)
+    if not existing.is_dir():
+        raise UnwritablePath(f"{option} {path}: {existing} is not a directory")
+    if existing != parent and not (will_create is not None and is_inside(Path(os.path.abspath(will_create)), parent)):
+        raise UnwritablePath(f"{option} {path}: directory {parent} does not exist")
+    reason = probe_writable(existing)
+    if reason is not None:
+        raise UnwritablePath(f"{option} {path}: cannot create a file in {existing}: {reason}")
+    return path
+
+
+__all__ = ["NAME_MAX", "NAME_RULE", "SESSION_MARKER", "OutsideRoot", "UnsafeName", "UnwritablePath", "check_name",
+           "check_output_file", "confined", "is_inside", "is_safe_name", "nearest_existing", "probe_writable",
+           "recording_holding", "symlinks_leaving"]

@@ -291,7 +291,8 @@ def test_manual_steps_are_prompts_the_runner_records_and_the_rig_never_prompts(t
 
 
 def test_a_stop_request_cuts_a_settle_short(tmp_path):
-    config = small_config(capture={"settle_s": 3000.0})  # 60 s at time_scale 50
+    # the longest settle a config allows (MAX_SETTLE_S, 60 s): 30 s at time_scale 2
+    config = small_config(capture={"settle_s": 60.0}, rig={"time_scale": 2.0})
     control = RunControl()
 
     def stop_soon_after_the_first_move(document):
@@ -304,7 +305,7 @@ def test_a_stop_request_cuts_a_settle_short(tmp_path):
     reader = SessionReader(tmp_path / "settle")
     (move,) = reader.events(kind="move")
     waited = reader.stops()[-1]["monotonic"] - move["monotonic"]
-    assert waited < 30.0  # the settle alone would have taken 60 s
+    assert waited < 15.0  # the settle alone would have taken 30 s
     assert not reader.events(kind="calibration_view")
 
 

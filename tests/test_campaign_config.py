@@ -72,7 +72,7 @@ def test_angle_defaults_to_parallel_and_toe_in_converts():
     (MINIMAL + "[captur]\nsettle_s = 1\n", "captur: unknown key; known: name, description, seed, rig"),
     ("[plan]\nbaseline_mm = [100, 'x']\ndistance_mm = [400]\n", "plan.baseline_mm[1]: 'x' is a string, not a number"),
     ("[plan]\nbaseline_mm = [100, 100]\ndistance_mm = [400]\n", "plan.baseline_mm: lists 100 more"),
-    ("[plan]\nbaseline_mm = [100]\ndistance_mm = [0]\n", "plan.distance_mm: value 0 outside (0, inf)"),
+    ("[plan]\nbaseline_mm = [100]\ndistance_mm = [0]\n", "plan.distance_mm: value 0 outside (0, 100000]"),
     ("[plan]\nbaseline_mm = []\ndistance_mm = [400]\n", "plan.baseline_mm: needs at least one value"),
     ("[plan]\nbaseline_mm = [100]\ndistance_mm = [400]\nalpha_deg = [180]\n", "plan.alpha_deg: value 180"),
     (MINIMAL + "toe_in_deg = [5]\n", "plan: give alpha_deg or toe_in_deg, not both"),

@@ -81,6 +81,14 @@ class ControlNotAccepted(CameraError):
 # --- settings -----------------------------------------------------------------------------------------------------
 
 
+#: Largest image side (px) a camera setting or a command accepts: 20000 x 20000 is a 400-megapixel frame, past any
+#: camera this bench drives; larger sizes only allocate memory.
+MAX_IMAGE_SIDE_PX = 20_000
+#: Longest exposure a camera setting accepts: UVC cameras expose at most 0.2-1 s (V4L2 exposure_time_absolute up to
+#: 2047-10000 in 100 us steps), and every frame waits for it.
+MAX_EXPOSURE_US = 1_000_000.0
+
+
 class CameraSettings(BaseModel):
     """Capture format and locked image controls.
 
@@ -92,13 +100,15 @@ class CameraSettings(BaseModel):
     do not agree on a physical scale for gain or focus.
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid", strict=True)  # no "30" or true as a number
+    # no "30" or true as a number; no NaN or infinity (a control set to inf overflows the driver's int)
+    model_config = ConfigDict(frozen=True, extra="forbid", strict=True, allow_inf_nan=False)
 
     pixel_format: str | None = Field(None, description="FourCC of the stream, e.g. 'MJPG' or 'YUYV'")
-    width_px: int | None = Field(None, gt=0)
-    height_px: int | None = Field(None, gt=0)
-    fps: float | None = Field(None, gt=0, description="frames per second")
-    exposure_us: float | None = Field(None, gt=0, description="exposure time, microseconds (V4L2 unit: 100 us)")
+    width_px: int | None = Field(None, gt=0, le=MAX_IMAGE_SIDE_PX)
+    height_px: int | None = Field(None, gt=0, le=MAX_IMAGE_SIDE_PX)
+    fps: float | None = Field(None, gt=0, le=1000, description="frames per second (UVC cameras: 5-120)")
+    exposure_us: float | None = Field(None, gt=0, le=MAX_EXPOSURE_US,
+                                      description="exposure time, microseconds (V4L2 unit: 100 us)")
     gain: float | None = Field(None, ge=0, description="V4L2 gain control value (device units)")
     white_balance_k: float | None = Field(None, gt=0, description="white-balance colour temperature, kelvin")
     focus: float | None = Field(None, ge=0, description="V4L2 absolute focus control value (device units)")

@@ -325,7 +325,7 @@ class CameraRegistry:
         lists what is there), ``AmbiguousCameraSpec`` when several cameras match.
         """
         spec = spec.strip()
-        if _VIDEO_INDEX.match(spec) or re.match(rf"^{re.escape(str(self.dev_root))}/video\d+$", spec):
+        if is_unstable_name(spec, dev_root=self.dev_root):
             raise self._unstable(spec, scan)
         kind, _, value = spec.partition(":")
         if spec.startswith("/"):
@@ -567,6 +567,27 @@ class CameraRegistry:
 
 
 # --- module helpers -----------------------------------------------------------------------------------------------
+
+
+def is_unstable_name(spec: str, *, dev_root: str | Path = "/dev") -> bool:
+    """True for a bare ``/dev/videoN``, ``videoN`` or index: a name :meth:`CameraRegistry.resolve` refuses. Pure (no
+    device is looked at), so a campaign plan refuses it offline, as ``run`` does."""
+    spec = spec.strip()
+    return bool(_VIDEO_INDEX.match(spec) or re.match(rf"^{re.escape(str(dev_root))}/video\d+$", spec))
+
+
+UNSTABLE_NAME_REASON = ("/dev/videoN numbers change across reboots and replugs (left and right could swap); use "
+                        "by-id:, serial: or usb-port: names from `stereo-bench devices`")
+
+
+def spec_key(spec: str) -> str:
+    """One spelling of a camera spec, for telling whether two name the same camera without looking at devices:
+    ``by-id:NAME`` and ``/dev/v4l/by-id/NAME`` (and ``by-path:``) are one name."""
+    spec = spec.strip()
+    kind, _, value = spec.partition(":")
+    if kind in ("by-id", "by-path") and value:
+        return f"/dev/v4l/{kind}/{value}"
+    return spec
 
 
 def _is_video_device(device: usb.core.Device) -> bool:

@@ -53,7 +53,6 @@ TOML layout (every table optional; what is missing keeps the default mapping)::
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -61,6 +60,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from drivers.files import InputFileError, read_toml
 from drivers.rig.errors import RigError
 
 QUANTITIES = (
@@ -70,6 +70,28 @@ MACHINE_AXES = ("X", "Y", "Z", "A", "B", "C")
 AxisName = Literal["X", "Y", "Z", "A", "B", "C", "fixed", "manual"]
 
 PARALLEL_ALPHA_DEG = 90.0
+#: The toe-in (deg, either way) at which a camera looks along the baseline: alpha 0 (or 180), the optical axis in
+#: line with the other camera. The BRIEF measures alpha between the baseline and the optical axis *on the target
+#: side*, so alpha lies in (0, 180) and a toe-in in (-90, 90); the default soft limits (toe-in 0..90) reach the end.
+MAX_TOE_IN_DEG = 90.0
+
+#: The fastest serial rate: Linux's highest standard termios rate (B4000000); pyserial raises OverflowError past
+#: 2**31 - 1. GRBL talks at 115200, grblHAL up to 921600 (native USB ignores the rate).
+MAX_BAUDRATE = 4_000_000
+#: How long opening the port may take to get an answer: the banner comes ~1.1 s after the open (an Arduino's
+#: bootloader, docs/RIG.md); a minute is over 50 times that.
+MAX_CONNECT_TIMEOUT_S = 60.0
+#: A homing cycle: ~8 s on the reference rig (``campaign plan``'s prediction), 10-15 s on real slides; an hour
+#: covers the slowest seek rates many times over.
+MAX_HOME_TIMEOUT_S = 3600.0
+#: One move: a day, as ``rig --timeout``: a 350 mm move at Grbl's slowest feed (1 mm/min) takes ~6 h. Beyond
+#: ``threading.TIMEOUT_MAX`` (~292 years) the wait itself overflowed (``home_timeout_s = inf``: OverflowError).
+MAX_MOVE_TIMEOUT_S = 86_400.0
+#: Grbl's slowest feed (MINIMUM_FEED_RATE in its config.h, 1 mm/min): its planner runs a slower one at that rate.
+MIN_FEED_PER_MIN = 1.0
+#: How far from machine zero a soft limit may put an axis (machine units, mm on GRBL): 100 m, past any bench's
+#: travel. A move's duration grows with it: soft limits of 1e9 mm planned 11,111 hours of motion.
+MAX_MACHINE_TRAVEL = 100_000.0
 
 
 class RigConfigError(RigError):
@@ -108,6 +130,34 @@ def alpha_from_toe_in(toe_in_deg: float) -> float:
     return PARALLEL_ALPHA_DEG - toe_in_deg
 
 
+def along_baseline(toe_in_deg: float) -> bool:
+    """True when a camera at ``toe_in_deg`` looks along the baseline or behind it (|toe-in| >= 90 deg, alpha
+    outside (0, 180)): its optical axis points at the other camera, or away from the target side, and no target
+    in front of the rig is on it. ``rig move`` asks for ``--yes``; a campaign plan refuses such an angle."""
+    return not abs(toe_in_deg) < MAX_TOE_IN_DEG
+
+
+#: Why each bounded field is bounded, said with its refusal; keyed by the end of the field's dotted path.
+BOUND_REASONS = {
+    "controller.baudrate": "Linux's fastest serial rate is 4,000,000 (GRBL talks at 115200)",
+    "controller.connect_timeout_s": "a controller answers ~1.1 s after its port opens",
+    "controller.home_timeout_s": "a homing cycle takes 10-15 s",
+    "controller.move_timeout_s": "a 350 mm move at Grbl's slowest feed (1 mm/min) takes ~6 h",
+    "feed_per_min": "Grbl runs a slower feed at its MINIMUM_FEED_RATE, 1 unit/min",
+}
+_BOUND_ERRORS = ("greater_than", "greater_than_equal", "less_than", "less_than_equal")
+
+
+def with_bound_reason(message: str, error: Mapping, where: str, reasons: Mapping[str, str]) -> str:
+    """``message`` of a pydantic ``error`` at dotted ``where``, with the bound's reason from ``reasons`` when it is a
+    bound that was crossed (``... less than or equal to 3600: a homing cycle takes 10-15 s``)."""
+    if error.get("type") in _BOUND_ERRORS:
+        for key, reason in reasons.items():
+            if where == key or where.endswith("." + key):
+                return f"{message}: {reason}"
+    return message
+
+
 class QuantityMapping(BaseModel):
     """How one physical quantity is set. ``offset``/``min``/``max``/``value`` are in the quantity's units."""
 
@@ -118,8 +168,9 @@ class QuantityMapping(BaseModel):
     scale: float = Field(1.0, allow_inf_nan=False, description="machine units per physical unit; may be negative")
     min: float | None = Field(None, allow_inf_nan=False, description="soft limit, physical units")
     max: float | None = Field(None, allow_inf_nan=False, description="soft limit, physical units")
-    feed_per_min: float | None = Field(None, gt=0, allow_inf_nan=False,
-                                       description="this axis' feed, machine units/min; None = rapid")
+    feed_per_min: float | None = Field(None, ge=MIN_FEED_PER_MIN, allow_inf_nan=False,
+                                       description="this axis' feed, machine units/min (at least Grbl's slowest, "
+                                                   "1); None = rapid")
     value: float | None = Field(None, allow_inf_nan=False, description="the value of a fixed quantity")
     tolerance: float = Field(0.02, ge=0, allow_inf_nan=False,
                              description="how far (physical units) the stopped position may be from the target")
@@ -136,6 +187,13 @@ class QuantityMapping(BaseModel):
             raise ValueError("a fixed quantity needs its value")
         if self.axis != "fixed" and self.value is not None:
             raise ValueError("value is only for axis = \"fixed\"")
+        if self.driven:
+            for end, value in (("min", self.min), ("max", self.max)):
+                machine = self.offset + self.scale * value  # type: ignore[operator]
+                if not abs(machine) <= MAX_MACHINE_TRAVEL:
+                    raise ValueError(f"{end} = {value:g} puts axis {self.axis} at {machine:g} machine units, beyond "
+                                     f"+-{MAX_MACHINE_TRAVEL:g} (100 m): no bench travels that far, and moves there "
+                                     "would take days")
         return self
 
     @property
@@ -144,15 +202,16 @@ class QuantityMapping(BaseModel):
 
 
 class ControllerSettings(BaseModel):
-    """Link and timing settings for the controller (seconds, bits per second, bytes)."""
+    """Link and timing settings for the controller (seconds, bits per second, bytes); each bound's reason is with
+    its constant above."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
-    baudrate: int = Field(115200, gt=0)
+    baudrate: int = Field(115200, gt=0, le=MAX_BAUDRATE)
     rx_buffer_size: int = Field(128, ge=16, description="GRBL's serial receive buffer; 1024 on most grblHAL")
-    connect_timeout_s: float = Field(5.0, gt=0)
-    home_timeout_s: float = Field(120.0, gt=0)
-    move_timeout_s: float = Field(120.0, gt=0)
+    connect_timeout_s: float = Field(5.0, gt=0, le=MAX_CONNECT_TIMEOUT_S, allow_inf_nan=False)
+    home_timeout_s: float = Field(120.0, gt=0, le=MAX_HOME_TIMEOUT_S, allow_inf_nan=False)
+    move_timeout_s: float = Field(120.0, gt=0, le=MAX_MOVE_TIMEOUT_S, allow_inf_nan=False)
     reset_on_open: bool = True
 
 
@@ -241,20 +300,14 @@ def _field_path(loc: tuple) -> str:
 
 
 def load_rig_config(path: str | Path) -> RigConfig:
-    """Read and validate a rig configuration TOML file. Errors name the file and the field."""
-    path = Path(path)
+    """Read and validate a rig configuration TOML file. Errors name the file and the field.
+
+    Read as every input file is (:func:`drivers.files.read_toml`: a regular file, bounded in size and nesting).
+    """
     try:
-        with path.open("rb") as f:
-            data = tomllib.load(f)
-    except FileNotFoundError:
-        raise RigConfigError(f"{path}: no such rig configuration file") from None
-    except OSError as error:
-        raise RigConfigError(f"{path}: cannot read: {error.strerror or error}") from None
-    except tomllib.TOMLDecodeError as error:
-        raise RigConfigError(f"{path}: invalid TOML: {error}") from None
-    except UnicodeDecodeError as error:
-        raise RigConfigError(f"{path}: not UTF-8 text (byte 0x{error.object[error.start]:02x} at offset "
-                             f"{error.start}): TOML files are UTF-8") from None
+        data = read_toml(path, what="rig configuration file")
+    except InputFileError as error:
+        raise RigConfigError(str(error)) from None
     return rig_config_from_dict(data, source=str(path))
 
 
@@ -264,7 +317,8 @@ def rig_config_from_dict(data: Mapping, *, source: str = "rig config") -> RigCon
     except ValidationError as error:
         first = error.errors()[0]
         where = _field_path(tuple(first.get("loc", ())))
-        message = first.get("msg", "invalid").removeprefix("Value error, ")
+        message = with_bound_reason(first.get("msg", "invalid").removeprefix("Value error, "), first, where,
+                                    BOUND_REASONS)
         more = f" (and {error.error_count() - 1} more)" if error.error_count() > 1 else ""
         raise RigConfigError(f"{source}: {where}: {message}{more}") from None
 

@@ -47,9 +47,11 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
 
-# strict: no string-to-number or bool-to-number coercion (an int is accepted for a float)
-_STRICT = ConfigDict(extra="forbid", frozen=True, strict=True)
-_Real = Annotated[float, Strict()]  # in a lax tuple (TOML gives a list): still no "1" or true as a number
+# strict: no string-to-number or bool-to-number coercion (an int is accepted for a float); no NaN or infinity
+_STRICT = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+# A thin-prism coefficient, in a lax tuple (TOML gives a list): still no "1" or true as a number, and finite (a NaN
+# there rendered frames nothing could be measured in); real lenses' are under 0.01, 1 is far past any.
+_Real = Annotated[float, Strict(), Field(allow_inf_nan=False, ge=-1, le=1)]
 
 
 def _f(default: float, description: str, **limits) -> Any:
@@ -312,7 +314,7 @@ class SimSettings(BaseModel):
         jpeg_quality = 95
     """
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
     profile: Literal["lab", "ideal"] = Field("lab", description="imperfections of the simulated bench: 'lab' (a "
                                                                 "bench as built, the default) or 'ideal'")

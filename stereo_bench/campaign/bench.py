@@ -316,6 +316,7 @@ class SimulatedPresenter:
 
 def hardware_bench(config: CampaignConfig, *, operators: Sequence[Operator], transcript: Path | None = None) -> Bench:
     """The real controller on ``rig.port`` and two V4L2 cameras bound by identity."""
+    from drivers.camera.base import CameraNotFound
     from drivers.camera.stereo import StereoCamera
     from drivers.camera.usb_identity import resolve_camera
     from drivers.camera.v4l2 import V4L2Camera
@@ -326,8 +327,13 @@ def hardware_bench(config: CampaignConfig, *, operators: Sequence[Operator], tra
     try:
         rig = _open_rig(stack, GrblRig(config.rig.port, config.rig.rig_config(), spy_log=transcript))
         settings = config.cameras.camera_settings()
-        left = V4L2Camera(resolve_camera(config.cameras.left).capture_node, settings, name="left")
-        right = V4L2Camera(resolve_camera(config.cameras.right).capture_node, settings, name="right")
+        left_node, right_node = (resolve_camera(spec).capture_node for spec in (config.cameras.left,
+                                                                                  config.cameras.right))
+        if left_node == right_node:  # two spellings of one camera (by-id: and usb-port:): the plan could not tell
+            raise CameraNotFound(f"cameras.left {config.cameras.left} and cameras.right {config.cameras.right} are "
+                                 f"one camera ({left_node}): a stereo pair needs two", device=left_node)
+        left = V4L2Camera(left_node, settings, name="left")
+        right = V4L2Camera(right_node, settings, name="right")
         cameras = stack.enter_context(StereoCamera(left, right, max_skew_s=config.cameras.max_skew_s))
     except BaseException:
         stack.close()

@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from collections import Counter
 from collections.abc import Mapping
 from importlib import resources
@@ -63,13 +62,17 @@ from pydantic import (
 )
 
 from drivers.camera.base import CameraSettings
+from drivers.files import InputFileError, parse_toml, read_toml
+from drivers.rig.config import BOUND_REASONS as RIG_BOUND_REASONS
 from drivers.rig.config import (
+    MAX_TOE_IN_DEG,
     ControllerSettings,
     QuantityMapping,
     RigConfig,
     RigConfigError,
     load_rig_config,
     rig_config_from_dict,
+    with_bound_reason,
 )
 from drivers.sim.profile import SimSettings
 from stereo_bench.geometry import (
@@ -80,7 +83,7 @@ from stereo_bench.geometry import (
     CameraModel,
 )
 from stereo_bench.targets import CharucoTarget, Checkerboard
-from stereo_bench.vision.calibrate import MIN_VIEWS
+from stereo_bench.vision.calibrate import MIN_BASELINE_MM, MIN_VIEWS
 from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL
 
 #: Relative standard uncertainty of a printed measured target's square when the config does not state it:
@@ -119,6 +122,49 @@ UNSUPPORTED_BENCHES = {
 # ends); at 10,000 a 350 mm move already lasts under a millisecond.
 TIME_SCALE_MIN, TIME_SCALE_MAX = 0.1, 10_000.0
 
+# Bounds on what scales a campaign's work, each checked where the config enters (costs: one core of the shared
+# 2-core machine, scripts/bench_input_bounds.py and its scripts/results/bench_input_bounds.json):
+#: [capture] frames_per_config: a 1080p stereo frame costs 0.2-0.25 s to render, detect and encode and ~1.9 MB of
+#: session; 1,000 is ~4 min and ~1.9 GB per configuration, where a measurement averages 3-20.
+MAX_FRAMES_PER_CONFIG = 1_000
+#: [capture] calibration_views (and ``model predict --calibration-views``): each view is a stereo frame, and the
+#: joint calibration grows faster than the views (12: 0.25 s, 50: 1.5 s, 200: 17 s, 500: ~3 min); a bench collects
+#: 10-50.
+MAX_CALIBRATION_VIEWS = 500
+#: [capture] board_retries: each retry is one more frame; a target not found 3 times is misplaced, not unlucky.
+MAX_BOARD_RETRIES = 20
+#: [capture] settle_s: the lab bench's heads ring for 0.24 s; a heavy camera on a long arm settles in seconds.
+#: A minute is 250 times the simulated ringing, and already 14 days of waiting over a 20,000-configuration plan.
+MAX_SETTLE_S = 60.0
+#: [cameras.optics] exposure_s (the simulated camera's, also the plan's frame time): UVC cameras expose at most
+#: 0.2-1 s (V4L2 exposure_time_absolute up to 2047-10000 in 100 us steps); every frame waits for it.
+MAX_EXPOSURE_S = 1.0
+#: [cameras.optics] width_px, height_px of the simulated camera: rendering grows with the pixels (a 1080p view
+#: 0.06 s, a 4K one 0.16 s, an 8192x4608 one 0.74 s); no UVC camera this bench drives goes past 4K (3840x2160).
+MAX_SIMULATED_SIDE_PX = 8192
+#: [cameras.optics] blur_px: ``render --blur``'s bound, for the same reason (50 px: 1.5-3.6 s a pair, 200 px: 18-48 s).
+MAX_BLUR_PX = 50.0
+#: [plan] baseline_mm: at least the smallest baseline a measurement accepts (|T| >= MIN_BASELINE_MM: two
+#: cameras' optical centres cannot be closer than their housings; 1e-300 ran into "T is zero"); at most 10 m
+#: (``--baseline``'s bound: a 10 m rig is no bench). Values outside the rig's soft limits are planned as such.
+MAX_BASELINE_MM = 10_000.0
+#: [plan] distance_mm: at most 100 m (``--distance``'s bound: at 100 m a 27 mm square is under 1 px).
+MAX_DISTANCE_MM = 100_000.0
+#: Why each bound above is where it is, said with its refusal (with the rig's, drivers.rig.config.BOUND_REASONS).
+BOUND_REASONS = {
+    **RIG_BOUND_REASONS,
+    "capture.frames_per_config": "a 1080p stereo frame costs ~0.2 s and ~1.9 MB of session; a measurement "
+                                 "averages 3-20",
+    "capture.calibration_views": "each view is a stereo frame, and 500 take ~3 min to calibrate; a bench "
+                                 "collects 10-50",
+    "capture.board_retries": "a target not found 3 times is misplaced",
+    "capture.settle_s": "the heads ring for 0.24 s; a heavy rig settles in seconds",
+    "cameras.optics.exposure_s": "UVC cameras expose at most 0.2-1 s",
+    "cameras.optics.width_px": "rendering grows with the pixels; no camera of this bench is past 4K",
+    "cameras.optics.height_px": "rendering grows with the pixels; no camera of this bench is past 4K",
+    "cameras.optics.blur_px": "render --blur's bound: no board is found at 50 px, and 200 px renders in 18-48 s",
+}
+
 
 class ConfigError(ValueError):
     """A campaign configuration that cannot be used: one line, ``FILE: dotted.field: what is wrong``."""
@@ -135,7 +181,11 @@ def _resolve(path: Path | None, info: ValidationInfo) -> Path | None:
     base = (info.context or {}).get("base_dir")
     if path is None:
         return path
-    return (path if path.is_absolute() or base is None else Path(base) / path).resolve()
+    given = path if path.is_absolute() or base is None else Path(base) / path
+    try:
+        return given.resolve()
+    except (RuntimeError, OSError) as error:  # a symlink loop: RuntimeError before Python 3.13, OSError (ELOOP) after
+        raise ValueError(f"{given}: cannot be resolved ({error})") from None
 
 
 # --------------------------------------------------------------------------------------------------
@@ -212,15 +262,20 @@ class OpticsConfig(BaseModel):
 
     model_config = _STRICT
 
-    focal_mm: float = Field(DEFAULT_FOCAL_MM, gt=0, allow_inf_nan=False, description="lens focal length, mm")
-    pixel_um: float = Field(DEFAULT_PIXEL_UM, gt=0, allow_inf_nan=False, description="pixel pitch, micrometres")
-    width_px: int = Field(DEFAULT_IMAGE_SIZE[0], gt=0)
-    height_px: int = Field(DEFAULT_IMAGE_SIZE[1], gt=0)
+    # focal and pixel: the CLI's --focal and --pixel ranges (a 1 m lens is a telescope; pixels are 1-30 um)
+    focal_mm: float = Field(DEFAULT_FOCAL_MM, gt=0, le=1000, allow_inf_nan=False, description="lens focal length, mm")
+    pixel_um: float = Field(DEFAULT_PIXEL_UM, gt=0, le=100, allow_inf_nan=False,
+                            description="pixel pitch, micrometres")
+    width_px: int = Field(DEFAULT_IMAGE_SIZE[0], ge=2, le=MAX_SIMULATED_SIDE_PX)
+    height_px: int = Field(DEFAULT_IMAGE_SIZE[1], ge=2, le=MAX_SIMULATED_SIDE_PX)
     dist: list[float] = Field(default_factory=lambda: list(DEFAULT_DIST),
                               description="OpenCV distortion coefficients (k1 k2 p1 p2 [k3 ...])")
-    noise_dn: float = Field(2.0, ge=0, allow_inf_nan=False, description="read noise, 8-bit DN (std)")
-    blur_px: float = Field(0.7, ge=0, allow_inf_nan=False, description="optical blur, Gaussian sigma, px")
-    exposure_s: float = Field(0.02, gt=0, allow_inf_nan=False, description="exposure time of a frame, s")
+    # an 8-bit pixel spans 255 DN: noise beyond it is no image
+    noise_dn: float = Field(2.0, ge=0, le=255, allow_inf_nan=False, description="read noise, 8-bit DN (std)")
+    blur_px: float = Field(0.7, ge=0, le=MAX_BLUR_PX, allow_inf_nan=False,
+                           description="optical blur, Gaussian sigma, px")
+    exposure_s: float = Field(0.02, gt=0, le=MAX_EXPOSURE_S, allow_inf_nan=False,
+                              description="exposure time of a frame, s")
 
     @field_validator("dist")
     @classmethod
@@ -351,12 +406,16 @@ class CaptureSection(BaseModel):
 
     model_config = _STRICT
 
-    settle_s: float = Field(0.3, ge=0, allow_inf_nan=False, description="wait after a move before capturing, s")
-    frames_per_config: int = Field(3, ge=1, description="stereo frames of the target measured per configuration")
-    calibration_views: int = Field(12, ge=1, description="calibration-board views per configuration (per-config)")
-    board_retries: int = Field(3, ge=0, description="re-captures of a measurement frame whose target is not "
-                                                         "detected (calibration views without the board are "
-                                                         "dropped by the calibration instead)")
+    settle_s: float = Field(0.3, ge=0, le=MAX_SETTLE_S, allow_inf_nan=False,
+                            description="wait after a move before capturing, s")
+    frames_per_config: int = Field(3, ge=1, le=MAX_FRAMES_PER_CONFIG,
+                                   description="stereo frames of the target measured per configuration")
+    calibration_views: int = Field(12, ge=1, le=MAX_CALIBRATION_VIEWS,
+                                   description="calibration-board views per configuration (per-config)")
+    board_retries: int = Field(3, ge=0, le=MAX_BOARD_RETRIES,
+                               description="re-captures of a measurement frame whose target is not detected "
+                                           "(calibration views without the board are dropped by the calibration "
+                                           "instead)")
     keep_frames: Literal["all", "measurement", "none"] = Field(
         "all", description="frames written to the session: all; measurement (calibration views are not kept: "
                            "their detections and the calibration are, and a replay calibrates from those); "
@@ -474,11 +533,19 @@ class ExtrinsicsSection(BaseModel):
         return self.mode == "nominal" and self.calib_dir is None
 
 
-# Open intervals each plan value must lie in.
+# The interval each plan value must lie in, and whether each end is allowed. The angles' ends are the rule
+# drivers.rig.config.along_baseline states (alpha 0 or 180: a camera looks along the baseline).
 _PLAN_BOUNDS = {
-    "baseline_mm": (0.0, math.inf), "distance_mm": (0.0, math.inf), "alpha_deg": (0.0, 180.0),
-    "toe_in_deg": (-90.0, 90.0),
+    "baseline_mm": (MIN_BASELINE_MM, MAX_BASELINE_MM, (True, True)),
+    "distance_mm": (0.0, MAX_DISTANCE_MM, (False, True)),
+    "alpha_deg": (0.0, 180.0, (False, False)),
+    "toe_in_deg": (-MAX_TOE_IN_DEG, MAX_TOE_IN_DEG, (False, False)),
 }
+_ALONG = ": a camera would look along (or behind) the baseline, at the other camera, not at the target"
+# Why a value beyond each end is refused, where the interval alone does not say it: (below, above).
+_WHY = {"baseline_mm": (f": below {MIN_BASELINE_MM:g} mm two cameras' optical centres would be closer than their "
+                        "housings allow (a measurement refuses |T| < 1 mm)", ""),
+        "alpha_deg": (_ALONG, _ALONG), "toe_in_deg": (_ALONG, _ALONG)}
 
 
 #: The most configurations one campaign plans: a plan of 10,000 takes ~3 s to check (scripts/bench_plan.py) and its
@@ -496,8 +563,9 @@ class PlanSection(BaseModel):
 
     model_config = _STRICT
 
-    baseline_mm: list[float] = Field(description="baselines B, mm (> 0)")
-    distance_mm: list[float] = Field(description="target distances Z from the baseline, mm (> 0)")
+    baseline_mm: list[float] = Field(description=f"baselines B, mm ({MIN_BASELINE_MM:g} to {MAX_BASELINE_MM:g})")
+    distance_mm: list[float] = Field(description=f"target distances Z from the baseline, mm (> 0, at most "
+                                                 f"{MAX_DISTANCE_MM:g})")
     alpha_deg: list[float] | None = Field(None, description="alphas, deg, in (0, 180); 90 = parallel rig")
     toe_in_deg: list[float] | None = Field(None, description="toe-ins, deg, in (-90, 90); 0 = parallel rig")
     tilt_deg: float = Field(0.0, gt=-90, lt=90, allow_inf_nan=False,
@@ -508,12 +576,16 @@ class PlanSection(BaseModel):
     def _check_list(cls, values: list[float] | None, info: ValidationInfo) -> list[float] | None:
         if values is None:
             return None
-        low, high = _PLAN_BOUNDS[info.field_name]
+        low, high, (low_in, high_in) = _PLAN_BOUNDS[info.field_name]
         if not values:
             raise ValueError("needs at least one value")
         for value in values:
-            if not (math.isfinite(value) and low < value < high):
-                raise ValueError(f"value {value:g} outside ({low:g}, {high:g})")
+            inside = (low <= value if low_in else low < value) and (value <= high if high_in else value < high)
+            if not (math.isfinite(value) and inside):
+                below, above = _WHY.get(info.field_name, ("", ""))
+                why = "" if not math.isfinite(value) else below if value <= low else above
+                raise ValueError(f"value {value:g} outside {'[' if low_in else '('}{low:g}, {high:g}"
+                                 f"{']' if high_in else ')'}{why}")
         repeated = [value for value, count in Counter(values).items() if count > 1]  # linear: 10,000 values in ms
         if repeated:
             raise ValueError(f"lists {min(repeated):g} more than once")
@@ -659,6 +731,7 @@ def _one_line(error: ValidationError, source: str) -> ConfigError:
     elif (coerced := strict_type_message(first)) is not None:
         message = coerced
     where = _dotted(loc)
+    message = with_bound_reason(message, first, where, BOUND_REASONS)
     more = f" (and {error.error_count() - 1} more)" if error.error_count() > 1 else ""
     # A cross-section check names its field at the start of its message.
     prefix = f"{where}: " if where != "(top level)" else ""
@@ -709,28 +782,22 @@ def _check_files(config: CampaignConfig, source: str) -> None:
         if not calib_dir.is_dir():
             raise ConfigError(f"{source}: extrinsics.calib_dir: no such directory: {calib_dir}")
         needed = ["intrinsics.yml"] + (["extrinsics.yml"] if config.extrinsics.mode == "fixed" else [])
-        missing = [name for name in needed if not (calib_dir / name).is_file()]
+        missing = [name for name in needed if not (calib_dir / name).exists()]  # not a file: the reader says
         if missing:
             raise ConfigError(f"{source}: extrinsics.calib_dir: {calib_dir} has no {', '.join(missing)}")
 
 
 def load_campaign(path: str | Path) -> CampaignConfig:
-    """Read and validate a campaign TOML file, and the files it names. Errors name the file and the field."""
+    """Read and validate a campaign TOML file, and the files it names. Errors name the file and the field.
+
+    The file is read as every user's input file is (:func:`drivers.files.read_toml`): a FIFO, a device, a file
+    over 1 MiB or TOML nested over 32 deep is refused in one line before ``tomllib`` sees it.
+    """
     path = Path(path)
     try:
-        with path.open("rb") as f:
-            data = tomllib.load(f)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such campaign file") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a directory, not a campaign file") from None
-    except OSError as error:
-        raise ConfigError(f"{path}: cannot read: {error.strerror or error}") from None
-    except tomllib.TOMLDecodeError as error:
-        raise ConfigError(f"{path}: invalid TOML: {error}") from None
-    except UnicodeDecodeError as error:
-        raise ConfigError(f"{path}: not UTF-8 text (byte 0x{error.object[error.start]:02x} at offset "
-                          f"{error.start}): TOML files are UTF-8") from None
+        data = read_toml(path, what="campaign file")
+    except InputFileError as error:
+        raise ConfigError(str(error)) from None
     config = campaign_from_dict(data, source=str(path), base_dir=path.parent)
     _check_files(config, str(path))
     return config
@@ -745,7 +812,7 @@ def preset_text(name: str) -> str:
 
 def load_preset(name: str) -> CampaignConfig:
     """A shipped preset (see :data:`PRESETS`), validated like a user's file."""
-    data = tomllib.loads(preset_text(name))
+    data = parse_toml(preset_text(name), f"preset {name}")
     return campaign_from_dict(data, source=f"preset {name}")
 
 

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.files import MAX_TOML_BYTES, read_regular_file
 from stereo_bench.campaign.analysis import AnalysisError, ConfigurationAnalysis, calibrate_configuration
 from stereo_bench.campaign.documents import (
     CalibrationEvent,
@@ -60,6 +61,7 @@ from stereo_bench.kinematics import (
     model_from_toml,
     model_toml,
 )
+from stereo_bench.vision.calibio import MAX_CALIBRATION_FILE_BYTES
 from stereo_bench.vision.calibrate import StereoCalibration
 
 MODEL_FILE = "kinematic_model.toml"
@@ -201,15 +203,19 @@ def session_sources(config) -> list[Draft]:
     if extrinsics.kinematic_file is not None:
         path = Path(extrinsics.kinematic_file)
         drafts.append(Draft(KinematicModelEvent, config_id=None, data={"source": "file", "path": str(path)},
-                            files={MODEL_FILE: path.read_bytes()}))
+                            files={MODEL_FILE: read_regular_file(
+                                path, what="kinematic model file", max_bytes=MAX_TOML_BYTES)}))
     if config.rig.config_file is not None:  # the rig's axis mapping and limits: a replay needs them too
         path = Path(config.rig.config_file)
         drafts.append(event_draft(RIG_CONFIG_KIND, config_id=None, data={"path": str(path)},
-                                  files={RIG_CONFIG_FILE: path.read_bytes()}))
+                                  files={RIG_CONFIG_FILE: read_regular_file(
+                                      path, what="rig configuration file", max_bytes=MAX_TOML_BYTES)}))
     if extrinsics.mode != "fixed" and extrinsics.calib_dir is not None:
         path = Path(extrinsics.calib_dir)
         drafts.append(Draft(IntrinsicsEvent, config_id=None, data={"source": "calib_dir", "path": str(path)},
-                            files={INTRINSICS_FILE: (path / INTRINSICS_FILE).read_bytes()}))
+                            files={INTRINSICS_FILE: read_regular_file(
+                                path / INTRINSICS_FILE, what="calibration file",
+                                max_bytes=MAX_CALIBRATION_FILE_BYTES)}))
     return drafts
 
 

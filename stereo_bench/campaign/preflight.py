@@ -3,6 +3,7 @@ call :func:`check_campaign`, so a plan that passes cannot fail ``run`` on what i
 
 Checked, each failure one :class:`~stereo_bench.campaign.config.ConfigError` line ``SOURCE: field: what``:
 
+- the cameras' names (V4L2): no ``/dev/videoN``, and not one camera as both sides (``run`` refuses both);
 - the bench: the rig and camera kinds make a bench (``CampaignConfig``'s own validator); with simulated cameras
   (the simulated bench and bring-up) every quantity the cameras render from (baseline, toe-ins, tilts) is driven
   by an axis or fixed: the renderer places the cameras where the controller reports the axes, so a ``manual``
@@ -34,11 +35,15 @@ def check_campaign(config: CampaignConfig, *, source: str = "campaign config") -
 
 
 def check_bench(config: CampaignConfig, *, source: str = "campaign config") -> None:
-    """The rig mapping fits the bench: simulated cameras cannot render a quantity set by hand."""
+    """The rig mapping fits the bench: simulated cameras cannot render a quantity set by hand; V4L2 cameras are
+    named stably and are two cameras."""
     try:
         rig_config = config.rig.rig_config()
     except RigConfigError as error:
         raise ConfigError(f"{source}: rig.config_file: {error}") from None
+    if config.cameras.kind == "v4l2":
+        check_camera_names(config, source=source)
+        return
     if config.cameras.kind != "simulated":
         return
     where = (f"rig.config_file ({config.rig.config_file}): quantities" if config.rig.config_file is not None
@@ -52,6 +57,21 @@ def check_bench(config: CampaignConfig, *, source: str = "campaign config") -> N
                 f"{source}: {where}.{quantity}: axis = \"manual\" cannot run on {bench}: the simulated cameras "
                 f"render from the axis positions the controller reports, and a manual {quantity} has none; drive "
                 f"it by an axis, or set axis = \"fixed\" with its value (only target_distance_mm can be manual)")
+
+
+def check_camera_names(config: CampaignConfig, *, source: str = "campaign config") -> None:
+    """The names ``run`` resolves the cameras by, checked without looking at a device: no ``/dev/videoN`` (its
+    number changes across reboots, :func:`drivers.camera.usb_identity.is_unstable_name`, which ``run`` refuses
+    too) and not one camera as both left and right (the pair would have no baseline)."""
+    from drivers.camera.usb_identity import UNSTABLE_NAME_REASON, is_unstable_name, spec_key
+
+    left, right = config.cameras.left or "", config.cameras.right or ""
+    for side, spec in (("left", left), ("right", right)):
+        if is_unstable_name(spec):
+            raise ConfigError(f"{source}: cameras.{side}: {spec.strip()}: {UNSTABLE_NAME_REASON}")
+    if spec_key(left) == spec_key(right):
+        raise ConfigError(f"{source}: cameras.right: {right.strip()} is also cameras.left: one camera cannot be both "
+                          "sides of a stereo pair; name the other camera (`stereo-bench devices` lists them)")
 
 
 def _image_size(config: CampaignConfig) -> tuple[tuple[int, int], str] | None:
@@ -103,4 +123,4 @@ def check_files(config: CampaignConfig, *, source: str = "campaign config") -> N
             raise ConfigError(f"{source}: extrinsics.kinematic_file: {error}") from None
 
 
-__all__ = ["RENDERED_QUANTITIES", "check_bench", "check_campaign", "check_files"]
+__all__ = ["RENDERED_QUANTITIES", "check_bench", "check_camera_names", "check_campaign", "check_files"]

@@ -52,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.files import InputFileError, read_regular_file
 from stereo_bench import atomic, paths
 from stereo_bench.campaign.documents import (
     DOCUMENT_TYPES,
@@ -158,9 +159,9 @@ def parse_stream(path: Path) -> ParsedStream:
     against its model), so a corrupt file is reported where its JSON breaks.
     """
     try:
-        data = path.read_bytes()
-    except OSError as error:
-        raise SessionError(f"{path}: cannot read ({error.strerror})") from None
+        data = read_regular_file(path, what="document stream", max_bytes=None)
+    except InputFileError as error:
+        raise SessionError(str(error)) from None
     documents: list[dict] = []
     torn = None
     needs_newline = False
@@ -388,7 +389,10 @@ class SessionReader:
         """The file a document refers to, refused unless it lies inside the session directory."""
         pure = self._relative(relative)
         root = self.directory.resolve()
-        target = (root / pure).resolve()
+        try:
+            target = (root / pure).resolve()
+        except (RuntimeError, OSError) as error:  # a symlink loop (RuntimeError before Python 3.13), a name too long
+            raise self._refuse(relative, f"cannot be resolved ({error})") from None
         if not paths.is_inside(root, target):
             raise self._refuse(relative, f"resolves to {target}, outside the session directory (a symlink?)")
         return target
@@ -426,11 +430,11 @@ class SessionReader:
         path = self._frame_file(relative)
         try:
             data = _read_no_follow(path) if path is not None else None
-        except OSError:
+        except InputFileError:
             data = None
         if data is None:
             path = self.path(relative)
-            data = _read_side_file(path)
+            data = _read_side_file(path, "frame")
         try:
             return decode_frame(data, str(path))
         except FrameError as error:
@@ -442,7 +446,10 @@ class SessionReader:
         directory = self._frame_directories.get(pure.parent)
         if directory is None:
             root = self.directory.resolve()
-            directory = (root / pure.parent).resolve()
+            try:
+                directory = (root / pure.parent).resolve()
+            except (RuntimeError, OSError):  # a symlink loop: path() says so
+                return None
             if not paths.is_inside(root, directory):
                 return None
             self._frame_directories[pure.parent] = directory
@@ -471,25 +478,20 @@ class SessionReader:
 
 # -- writing -----------------------------------------------------------------------------------------
 def _read_no_follow(path: Path) -> bytes:
-    """The bytes of ``path``; OSError if it is a symlink (ELOOP) or cannot be read.
+    """The bytes of ``path``; :class:`InputFileError` if it is a symlink (ELOOP), not a regular file (a FIFO is
+    never opened: a replay would wait for its writer for ever) or cannot be read.
 
     O_NOFOLLOW is POSIX, as the ``fcntl`` locks of this module are (resume opens the stream with it too).
     """
-    descriptor = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
-    try:  # closed here: open() does not close a descriptor it was given when it fails (a directory)
-        with open(descriptor, "rb", closefd=False) as file:
-            return file.read()
-    finally:
-        os.close(descriptor)
+    return read_regular_file(path, what="frame", max_bytes=None, follow_symlinks=False)
 
 
-def _read_side_file(path: Path) -> bytes:
+def _read_side_file(path: Path, what: str = "side file") -> bytes:
     try:
-        return path.read_bytes()
-    except FileNotFoundError:
-        raise SessionError(f"{path}: side file missing") from None
-    except OSError as error:
-        raise SessionError(f"{path}: cannot read ({error.strerror})") from None
+        return read_regular_file(path, what=what, max_bytes=None)
+    except InputFileError as error:
+        reason = "side file missing" if error.reason.startswith("no such") else error.reason
+        raise SessionError(f"{path}: {reason}") from None
 
 
 def first_difference(recorded: Any, now: Any, where: str) -> str | None:

@@ -155,6 +155,7 @@ def failure(error: BaseException) -> CliError | None:
 
     from drivers.camera.base import CameraError, CameraGone, CaptureFailed
     from drivers.camera.stereo import StereoSkewError
+    from drivers.files import InputFileError
     from drivers.replay import ReplayMismatch
     from drivers.rig.config import RigConfigError, RigError
     from drivers.rig.grbl import GrblConnectionError, GrblConnectionLost, GrblSettingsError
@@ -189,7 +190,7 @@ def failure(error: BaseException) -> CliError | None:
     if isinstance(error, ReplayMismatch):  # a recording that does not hold what its plan asks: damaged input
         return CliError(f"the recording cannot be replayed: {text}")
     if isinstance(error, ConfigError | SessionError | DocumentError | StoreError | ReportError | FrameError
-                  | CalibrationFileError | KinematicFileError | OperatorAbsent | ExecutorUnavailable
+                  | CalibrationFileError | KinematicFileError | InputFileError | OperatorAbsent | ExecutorUnavailable
                   | BoardNotFoundError | AmbiguousViewError | ImplausibleMeasurement | LiveServerError):
         return CliError(text)
     if isinstance(error, ValidationError):

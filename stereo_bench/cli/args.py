@@ -14,7 +14,9 @@ not 'nan'``).
   and ``1_000_000`` when they are whole numbers.
 - :func:`board_pattern`: checks ``COLSxROWS`` (at least 2x2, at most
   :data:`stereo_bench.targets.MAX_BOARD_CORNERS` corners) and returns the text as given.
-- :func:`output_dir`: an output directory path with no file in the way (returns the text).
+- :func:`output_dir`: an output directory path with no file in the way, where something can be created (returns
+  the text).
+- :func:`check_range`: a ``MIN MAX`` pair given in order (``--baseline-range 200 50`` is refused).
 - :func:`image_size`: ``WxH`` -> (width, height) px, each side 2 .. :data:`MAX_IMAGE_SIDE_PX`.
 - :func:`describe_range` for help texts.
 - Types for the quantities several commands take, so that each has one range everywhere: ``BASELINE_MM``,
@@ -35,12 +37,11 @@ import re
 from collections.abc import Callable
 from pathlib import Path
 
-from stereo_bench.campaign.config import TIME_SCALE_MAX, TIME_SCALE_MIN
+from drivers.camera.base import MAX_IMAGE_SIDE_PX  # 20000 x 20000: 400 megapixels, past any camera this bench drives
+from stereo_bench.campaign.config import MAX_BASELINE_MM, MAX_DISTANCE_MM, TIME_SCALE_MAX, TIME_SCALE_MIN
+from stereo_bench.cli import CliError
+from stereo_bench.paths import nearest_existing, probe_writable
 from stereo_bench.targets import MAX_BOARD_CORNERS, parse_pattern
-
-#: Largest image side a command accepts (px): 20000 x 20000 is a 400-megapixel frame, past any camera this
-#: bench drives; larger sizes only allocate memory.
-MAX_IMAGE_SIDE_PX = 20_000
 
 
 def _fmt(value: float) -> str:
@@ -115,20 +116,33 @@ def board_pattern(text: str) -> str:
 
 
 def output_dir(text: str) -> str:
-    """An argparse ``type`` for an output directory: refuses a path with a file in the way; returns ``text``.
+    """An argparse ``type`` for an output directory: refuses a path with a file in the way, or where nothing can be
+    created (a file is created and removed to tell: ``/proc``, a read-only mount, no permission); returns ``text``.
 
-    What else can go wrong on writing (no permission, a read-only or full disk) is said by the command's
-    error path when it happens, naming the file.
+    What else can go wrong on writing (a full disk) is said by the command's error path when it happens, naming
+    the file.
     """
     path = Path(text)
     if path.exists() and not path.is_dir():
         raise argparse.ArgumentTypeError(f"{text} exists and is not a directory")
-    for parent in path.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise argparse.ArgumentTypeError(f"{parent} is a file, so {text} cannot be a directory")
-            break
+    existing = nearest_existing(path)
+    if not existing.is_dir():
+        raise argparse.ArgumentTypeError(f"{existing} is a file, so {text} cannot be a directory")
+    reason = probe_writable(existing)  # e.g. under /proc, on a read-only mount: refused before anything runs
+    if reason is not None:
+        raise argparse.ArgumentTypeError(f"{text}: cannot create anything in {existing}: {reason}")
     return text
+
+
+def check_range(values: tuple[float, float] | list[float] | None, option: str) -> None:
+    """A ``MIN MAX`` (or ``NEAR FAR``) pair given in order, else :class:`~stereo_bench.cli.CliError` naming ``option``.
+
+    argparse checks each number; the order of the two is checked here (``--baseline-range 200 50`` is a typo, not
+    a range).
+    """
+    if values is not None and values[0] > values[1]:
+        raise CliError(f"{option} {_fmt(values[0])} {_fmt(values[1])}: the first value must not exceed the second "
+                       f"(did you mean {_fmt(values[1])} {_fmt(values[0])}?)")
 
 
 def image_size(text: str) -> tuple[int, int]:
@@ -145,8 +159,8 @@ def image_size(text: str) -> tuple[int, int]:
 # ---------------------------------------------------------------------------------------------- shared quantities
 # Each range with its reason; a command with a narrower physical range checks that itself.
 
-BASELINE_MM = finite_float(min=0, max=10_000, inclusive=(False, True), unit="mm")  # a 10 m rig is no bench
-DISTANCE_MM = finite_float(min=0, max=100_000, inclusive=(False, True), unit="mm")  # at 100 m a square is < 1 px
+BASELINE_MM = finite_float(min=0, max=MAX_BASELINE_MM, inclusive=(False, True), unit="mm")  # a 10 m rig is no bench
+DISTANCE_MM = finite_float(min=0, max=MAX_DISTANCE_MM, inclusive=(False, True), unit="mm")  # 100 m: a square < 1 px
 ALPHA_DEG = finite_float(min=0, max=180, inclusive=(False, False), unit="deg")  # between baseline and optical axis
 TOE_IN_DEG = finite_float(min=-90, max=90, inclusive=(False, False), unit="deg")  # alpha = 90 - toe-in in (0, 180)
 TILT_DEG = finite_float(min=-90, max=90, inclusive=(False, False), unit="deg")  # +-90: straight down or up
@@ -165,4 +179,4 @@ TIME_SCALE = finite_float(min=TIME_SCALE_MIN, max=TIME_SCALE_MAX, unit="x")
 
 __all__ = ["ALPHA_DEG", "BASELINE_MM", "DISTANCE_MM", "FOCAL_MM", "MAX_BOARD_CORNERS", "MAX_IMAGE_SIDE_PX",
            "PIXEL_SIGMA_PX", "PIXEL_UM", "SEED", "SQUARE_MM", "TILT_DEG", "TIME_SCALE", "TOE_IN_DEG", "WORKERS",
-           "board_pattern", "describe_range", "finite_float", "image_size", "int_in", "output_dir"]
+           "board_pattern", "check_range", "describe_range", "finite_float", "image_size", "int_in", "output_dir"]

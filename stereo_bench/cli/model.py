@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from stereo_bench import atomic
+from stereo_bench.campaign.config import MAX_CALIBRATION_VIEWS
 from stereo_bench.cli import CliError, json_ready, print_json
 from stereo_bench.cli.args import (
     ALPHA_DEG,
@@ -33,6 +34,7 @@ from stereo_bench.cli.args import (
     TOE_IN_DEG,
     WORKERS,
     board_pattern,
+    check_range,
     finite_float,
     image_size,
     int_in,
@@ -56,9 +58,9 @@ GRID_VALUE = finite_float()  # START STOP STEP of a grid; _range checks their or
 # per sample. A million gives the sigmas to 1/sqrt(2N) = 0.07 % in minutes; 1e9 would need 30 GB and days.
 MAX_MONTE_CARLO = 1_000_000
 MONTE_CARLO = int_in(min=2, max=MAX_MONTE_CARLO)
-# Planned calibration views: the predicted calibration error costs 3-5 ms per view per configuration (500
-# views: 1.5 s for one, scripts/bench_input_bounds.py); a bench collects 10-50.
-MAX_CALIBRATION_VIEWS = 500
+# Planned calibration views, the campaign's bound (campaign/config.py MAX_CALIBRATION_VIEWS): the predicted calibration
+# error costs 3-5 ms per view per configuration (500 views: 1.5 s for one, scripts/bench_input_bounds.py); a bench
+# collects 10-50.
 CALIBRATION_VIEWS = int_in(min=0, max=MAX_CALIBRATION_VIEWS)
 # Configurations of one surface or advice grid: 10-20 ms each on one core (load 6-16,
 # scripts/bench_input_bounds.py), so 100,000 is half an hour at most; a bigger grid is a typo in STEP.
@@ -111,6 +113,7 @@ def _add_calibration_options(parser: argparse.ArgumentParser) -> None:
 def _calibration_plan(args):
     from stereo_bench.errormodel.rigorous import CalibrationPlan
 
+    check_range(args.calibration_distance, "--calibration-distance")
     if args.calibration_views == 0:
         return None
     if args.calibration_views < 5:

@@ -41,7 +41,7 @@ from drivers.rig import (
     load_rig_config,
     wait_for_enter,
 )
-from drivers.rig.config import plan_move
+from drivers.rig.config import MAX_MOVE_TIMEOUT_S, along_baseline, alpha_from_toe_in, plan_move
 from drivers.rig.rig import physical_request
 from drivers.sim.grbl_emulator import (
     AXIS_LETTERS,
@@ -53,9 +53,11 @@ from drivers.sim.grbl_emulator import (
 )
 from stereo_bench.cli import CliError, failure, print_json, stop_on_signals
 from stereo_bench.cli.args import TIME_SCALE, finite_float
+from stereo_bench.paths import UnwritablePath, check_output_file
 
-# A bound on homing or one move: positive, and at most a day (a longer wait is no bound at all).
-TIMEOUT_S = finite_float(min=0, max=86_400, inclusive=(False, True), unit="s")
+# A bound on homing or one move: positive, and at most a day (a longer wait is no bound at all), as the rig config's
+# move_timeout_s (drivers/rig/config.py MAX_MOVE_TIMEOUT_S, where the reason is written).
+TIMEOUT_S = finite_float(min=0, max=MAX_MOVE_TIMEOUT_S, inclusive=(False, True), unit="s")
 # Move targets are checked against the rig config's soft limits before anything is sent; here only that they
 # are numbers.
 MOVE_VALUE = finite_float()
@@ -163,6 +165,9 @@ def _action_parsers() -> dict[str, _ActionParser]:
     move.add_argument("--toe-in-right", type=MOVE_VALUE, metavar="DEG", help="right camera's toe-in, deg")
     move.add_argument("--tilt", type=MOVE_VALUE, metavar="DEG", help="tilt of both cameras, deg (> 0 looks down)")
     move.add_argument("--target", type=MOVE_VALUE, metavar="MM", help="target distance Z from the baseline, mm")
+    move.add_argument("--yes", action="store_true",
+                      help="move even where a camera would look along (or behind) the baseline, at the other camera "
+                           "(alpha <= 0 or >= 180 deg, |toe-in| >= 90 deg)")
     parsers["status"].add_argument("--json", action="store_true", help="print one JSON object")
     return parsers
 
@@ -206,10 +211,25 @@ def _parse_action(parsers: dict[str, _ActionParser], name: str, argv: list[str],
     if name == "move":
         action.request = _move_request(options)
         try:
-            plan_move(config, physical_request(**action.request))
+            physical = physical_request(**action.request)
+            plan_move(config, physical)
         except RigError as error:
             raise _fail(error) from None
+        if not options.yes:
+            _refuse_along_baseline(physical)
     return action
+
+
+def _refuse_along_baseline(physical: dict[str, float | None]) -> None:
+    """A toe-in at or past 90 deg points a camera along the baseline (at the other camera) or behind it: refused
+    unless confirmed. Alpha is measured on the target side (BRIEF), in (0, 180); the default soft limits reach
+    toe-in 90, so the soft limits alone let ``--alpha 0`` through."""
+    for side in ("left", "right"):
+        toe_in = physical.get(f"toe_in_{side}_deg")
+        if toe_in is not None and along_baseline(toe_in):
+            raise CliError(f"move: alpha {alpha_from_toe_in(toe_in):g} deg (toe-in {toe_in:g} deg) turns the {side} "
+                           "camera to look along the baseline, at the other camera, not at a target in front of the "
+                           "rig (alpha lies in (0, 180) deg); add --yes to move there anyway")
 
 
 def _move_request(args) -> dict[str, float | None]:
@@ -255,16 +275,14 @@ def _fail(error: RigError, rig: GrblRig | None = None) -> CliError:
 
 
 def _check_spy_log(path: Path | None) -> None:
-    """A spy log that cannot be created fails before the port is opened (opening may reboot the controller)."""
+    """A spy log that cannot be created fails before the port is opened (opening may reboot the controller); one
+    that exists is appended to, if it is a regular file."""
     if path is None:
         return
-    if path.is_dir():
-        raise CliError(f"--spy-log {path}: is a directory; give a file name")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise CliError(f"--spy-log {path}: directory {parent} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise CliError(f"--spy-log {path}: directory {parent} is not writable")
+    try:
+        check_output_file(path, option="--spy-log", exists_ok=True)
+    except UnwritablePath as error:
+        raise CliError(str(error)) from None
 
 
 class _StderrWarnings(logging.Handler):

@@ -16,13 +16,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import time
 from pathlib import Path
 
 from stereo_bench.cli import EXIT_FAILED, EXIT_INTERRUPTED, STOP_SIGNALS, CliError, failure, hung_up
-from stereo_bench.cli.args import BASELINE_MM, DISTANCE_MM, TIME_SCALE, TOE_IN_DEG
+from stereo_bench.cli.args import BASELINE_MM, DISTANCE_MM, TIME_SCALE, TOE_IN_DEG, check_range, output_dir
+from stereo_bench.paths import UnwritablePath, check_output_file, is_inside
 
 
 class _Parser(argparse.ArgumentParser):
@@ -44,7 +46,8 @@ def parser() -> argparse.ArgumentParser:
                    help="toe-ins the model must cover, deg (default: the campaign's, else 0 20)")
     p.add_argument("--distance", type=DISTANCE_MM, metavar="MM",
                    help="where the calibration board is shown, mm (default: the middle of the campaign's distances)")
-    p.add_argument("--out", required=True, type=Path, metavar="DIR", help="session directory (never overwritten)")
+    p.add_argument("--out", required=True, type=lambda text: Path(output_dir(text)), metavar="DIR",
+                   help="session directory (never overwritten)")
     p.add_argument("--model", type=Path, metavar="FILE",
                    help="where to write the model (default OUT/kinematic_model.toml)")
     p.add_argument("--yes", action="store_true", help="simulated cameras: the simulator presents the boards")
@@ -56,23 +59,20 @@ def parser() -> argparse.ArgumentParser:
 
 def _config(args, port: str | None, rig_config: Path | None):
     """The campaign config of the design: the file's or preset's, extrinsics kinematic, the ranges applied."""
-    import tomllib
-
+    from drivers.files import InputFileError, parse_toml, read_toml
     from stereo_bench.campaign.config import campaign_from_dict, preset_text
 
     if args.config is not None and args.preset is not None:
         raise CliError("rig calibrate-kinematics: give --config FILE or --preset NAME, not both")
     try:
         if args.config is not None:
-            data = tomllib.loads(args.config.read_text(encoding="utf-8"))
+            data = read_toml(args.config, what="campaign file")
         elif args.preset is not None:
-            data = tomllib.loads(preset_text(args.preset))
+            data = parse_toml(preset_text(args.preset), f"preset {args.preset}")
         else:
             data = {}
-    except OSError as error:
-        raise CliError(f"--config {args.config}: cannot read: {error.strerror or error}") from None
-    except tomllib.TOMLDecodeError as error:
-        raise CliError(f"--config {args.config}: invalid TOML: {error}") from None
+    except InputFileError as error:
+        raise CliError(f"--config {error}") from None
     base = bool(data)
     plan = dict(data.get("plan") or {"distance_mm": [500.0]})
     if not base or args.baseline_range:
@@ -104,6 +104,22 @@ def _config(args, port: str | None, rig_config: Path | None):
     return campaign_from_dict(data, source=source, base_dir=args.config.parent if args.config is not None else None)
 
 
+def _model_path(args) -> Path:
+    """Where the model will be written, checked before the first move or presentation (the design is 9 visits of
+    boards presented by hand at a real rig: a path that cannot be written must fail now, not after them)."""
+    model_path = args.model or args.out / "kinematic_model.toml"
+    try:
+        check_output_file(model_path, option="--model", will_create=args.out)
+    except UnwritablePath as error:
+        raise CliError(str(error)) from None
+    out = Path(os.path.abspath(args.out))
+    if is_inside(out, Path(os.path.abspath(model_path))) and (
+            Path(os.path.abspath(model_path.parent)) != out or model_path.suffix != ".toml"):
+        raise CliError(f"--model {model_path}: lies inside the session --out {args.out} records; give a .toml file "
+                       "directly in it (the default kinematic_model.toml) or outside it")
+    return model_path
+
+
 def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
     """``rig calibrate-kinematics`` with its own options ``argv``; ``port``/``rig_config``: the rig group's."""
     from drivers.camera.base import CameraError
@@ -115,10 +131,10 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
     from stereo_bench.kinematics import save_model
 
     args = parser().parse_args(argv)
+    for option in ("baseline_range", "toe_in_range"):
+        check_range(getattr(args, option), "--" + option.replace("_", "-"))
     config = _config(args, port, rig_config)
-    model_path = args.model or args.out / "kinematic_model.toml"
-    if model_path.exists():
-        raise CliError(f"--model {model_path}: exists; not overwriting it (choose another path)")
+    model_path = _model_path(args)
     if args.yes and config.cameras.kind != "simulated":
         raise CliError("--yes lets the simulator present the boards, for simulated cameras only")
     full = CampaignPlan.of(config)

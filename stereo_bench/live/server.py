@@ -88,6 +88,28 @@ def static_files() -> dict[str, bytes]:
     return {name: (root / name).read_bytes() for name in STATIC_FILES}
 
 
+#: The longest request path served: Linux's PATH_MAX. The page's own URLs are under 300 characters (a session
+#: file: ``/session/frames/<config id, at most 100>/<name>``); a longer one is answered 414, never looked up.
+MAX_PATH_CHARS = 4096
+
+
+class BoundedPaths:
+    """ASGI middleware: a request whose path is over :data:`MAX_PATH_CHARS` gets 414 (URI Too Long) before any
+    route sees it (a route would stat a 100,000-character file name and fail with ENAMETOOLONG: a 500)."""
+
+    def __init__(self, app):
+        self.app = app
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] == "http" and len(scope.get("raw_path") or scope.get("path", "")) > MAX_PATH_CHARS:
+            from starlette.responses import PlainTextResponse
+
+            response = PlainTextResponse(f"URI too long (over {MAX_PATH_CHARS} characters)", status_code=414)
+            await response(scope, receive, send)
+            return
+        await self.app(scope, receive, send)
+
+
 class LiveApp:
     """The Starlette application around a page (a :class:`~stereo_bench.live.page.LivePage`-like object).
 
@@ -97,6 +119,7 @@ class LiveApp:
 
     def __init__(self, page, *, session_dir: Path | None):
         from starlette.applications import Starlette
+        from starlette.middleware import Middleware
         from starlette.routing import Route
 
         self.page = page
@@ -110,7 +133,7 @@ class LiveApp:
             Route("/api/events", self.events), Route("/preview/{side}.jpg", self.preview),
             Route("/session/{path:path}", self.session_file), Route("/api/control/{action}", self.control,
                                                                    methods=["POST"]),
-        ])
+        ], middleware=[Middleware(BoundedPaths)])
 
     # -- change notification (from any thread) ------------------------------------------------------------------
 
@@ -219,9 +242,12 @@ class LiveApp:
         relative = request.path_params["path"]
         try:
             path = SessionReader(self.session_dir).path(relative)
+            found = path.is_file()
         except SessionError as error:
             return Response(str(error).split(": ", 1)[-1], status_code=403)
-        if not path.is_file():
+        except (OSError, RuntimeError):  # a name too long for the file system, a symlink loop: not there
+            found = False
+        if not found:
             return Response("not found in the session", status_code=404)
         return FileResponse(path, headers={"Cache-Control": "no-store"})
 

@@ -22,9 +22,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from drivers.files import InputFileError, read_regular_file
 from stereo_bench import __version__
 from stereo_bench.atomic import write_text
-from stereo_bench.vision.calibrate import StereoCalibration, calibration_problems
+from stereo_bench.vision.calibrate import StereoCalibration, calibration_problems, camera_problems
 from stereo_bench.vision.covariance import CalibrationCovariance
 from stereo_bench.vision.rectify import Rectification
 
@@ -93,11 +94,27 @@ def write_calibration(
     return intrinsics, extrinsics
 
 
+#: The largest calibration file read: one with the whole covariance of a joint calibration is ~20 kB.
+MAX_CALIBRATION_FILE_BYTES = 16 << 20
+
+
 def _open(path: Path) -> cv2.FileStorage:
-    if not path.is_file():
-        raise CalibrationFileError(f"{path}: calibration file not found")
+    """The file as an OpenCV FileStorage, read as every input file is (:func:`drivers.files.read_regular_file`:
+    a FIFO or a device is refused, not opened) and parsed from memory."""
     try:
-        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        data = read_regular_file(path, what="calibration file", max_bytes=MAX_CALIBRATION_FILE_BYTES)
+    except InputFileError as error:
+        reason = "calibration file not found" if error.reason.startswith("no such") else error.reason
+        raise CalibrationFileError(f"{path}: {reason}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise CalibrationFileError(f"{path}: not a readable OpenCV YAML/XML file (not UTF-8 text at byte "
+                                   f"{error.start})") from None
+    if not text.strip():
+        raise CalibrationFileError(f"{path}: not a readable OpenCV YAML/XML file (empty)")
+    try:
+        storage = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except (cv2.error, SystemError) as error:  # OpenCV's parser error surfaces as SystemError in Python
         reason = getattr(error, "err", None) or getattr(error.__cause__, "err", None) or "parse error"
         raise CalibrationFileError(f"{path}: not a readable OpenCV YAML/XML file ({reason})") from None
@@ -186,13 +203,17 @@ def read_intrinsics(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarra
     path = _resolve(path, INTRINSICS_FILE)
     storage = _open(path)
     try:
-        return (
-            _matrix(storage, path, "M1", (3, 3)), _matrix(storage, path, "D1").reshape(1, -1),
-            _matrix(storage, path, "M2", (3, 3)), _matrix(storage, path, "D2").reshape(1, -1),
-            _image_size(storage),
-        )
+        K1, D1 = _matrix(storage, path, "M1", (3, 3)), _matrix(storage, path, "D1").reshape(1, -1)
+        K2, D2 = _matrix(storage, path, "M2", (3, 3)), _matrix(storage, path, "D2").reshape(1, -1)
+        size = _image_size(storage)
     finally:
         storage.release()
+    # Refused here, where the file is named, rather than measured into nothing later (a zero focal length).
+    problems = camera_problems(K1, D1, size, "M1, D1 (left camera)") + camera_problems(K2, D2, size,
+                                                                                        "M2, D2 (right camera)")
+    if problems:
+        raise CalibrationFileError(f"{path}: not usable intrinsics: {problems[0]}")
+    return K1, D1, K2, D2, size
 
 
 def read_calibration(calib_dir: str | Path, *, image_size: tuple[int, int] | None = None) -> StereoCalibration:
