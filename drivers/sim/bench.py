@@ -498,11 +498,12 @@ class SimulatedBench:
         pose = self._pose_of(values)
         if self.profile.mechanically_ideal and self.history is None:
             return _Snapshot(pose=pose, T_rig_cam={"left": pose.T_rig_left, "right": pose.T_rig_right})
-        now = self.reported_values() if self.history is not None else values
+        current = self.reported_values() if self.history is not None else values  # not under the history lock
         with self._history_lock:
             history = copy.deepcopy(self.history)
             if history is not None:  # the move's event will come: its direction, its landing draw (not yet made)
-                approach = {q: 1 if values[q] > now[q] else -1 for q in MOVED if abs(values[q] - now[q]) > 1e-9}
+                approach = {q: 1 if values[q] > current[q] else -1 for q in MOVED
+                            if abs(values[q] - current[q]) > 1e-9}
                 history.moved(values, end_s=0.0, approach=approach,
                               keys=self._landing_keys("move", values, approach, commit=False))
         state = pair_state(self.profile, values, history=history, now_s=math.inf)
