@@ -39,32 +39,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-# The small campaign of tests/campaigns.py on the lab bench, at two target distances: eight configurations,
-# two manual target placements, moves of the slide and both heads in both directions.
-PLAN = """
-name = "determinism"
-seed = 1
-[rig]
-time_scale = 50
-[cameras.optics]
-width_px = 960
-height_px = 540
-pixel_um = 6.0
-[calibration_board]
-cols = 9
-rows = 6
-square_mm = 25
-[capture]
-calibration_views = 6
-frames_per_config = 2
-settle_s = 0.1  # shorter than the lab heads' ringing (0.24 s): the captures see it
-[sim]
-profile = "lab"
-[plan]
-baseline_mm = [100, 150]
-distance_mm = [450, 550]
-alpha_deg = [90, 87]
-"""
+from tests.campaigns import LAB  # noqa: E402 - the repository's root is on the path from here on
+
+# The small campaign of tests/campaigns.py on the lab bench (settle 0.1 s: shorter than the heads' 0.24 s
+# ringing, so the captures see it), at two target distances: eight configurations, two manual target placements,
+# moves of the slide and both heads in both directions.
+PLAN = LAB.replace("distance_mm = [450]", "distance_mm = [450, 550]").replace('name = "small"', 'name = "determinism"')
 
 
 def outcome(session: Path) -> tuple[dict, dict]:
