@@ -488,6 +488,7 @@ class SimulatedBench:
 
     def _predicted_snapshot(self) -> _Snapshot | None:
         """The pair at rest where the queued moves end: what a trigger will see there once the ringing stopped."""
+        self._catch_up()
         planned = self.emulator.planned_physical_position()
         if planned is None:
             return None
@@ -627,6 +628,12 @@ class SimulatedBench:
             self._draws[count] += commit
         return keys
 
+    def _catch_up(self) -> None:
+        """Bring the emulator's model up to the clock's now, so that every motion that has ended (the clock stops at
+        its end; the emulator's thread may not have noticed yet) is in the history before the axes are read."""
+        if self.history is not None:
+            self.emulator.state  # noqa: B018 - the property advances the model
+
     def _on_motion(self, event: MotionEvent) -> None:
         """A motion ended (the emulator's thread, with its lock held): into the history, with its landing draws."""
         if self.history is None:
@@ -646,6 +653,7 @@ class SimulatedBench:
         if self.profile.mechanically_ideal and self.history is None:
             pose = self.rig_pose()
             return _Snapshot(pose=pose, T_rig_cam={"left": pose.T_rig_left, "right": pose.T_rig_right})
+        self._catch_up()
         values = self.reported_values()
         now = self.clock.now() if at_s is None else at_s
         pose = self._pose_of(values)
@@ -698,6 +706,7 @@ class SimulatedBench:
         Backlash still follows each axis' direction of approach. What a model of the rig can know:
         the landing errors are the rig's repeatability, different at every move.
         """
+        self._catch_up()
         values = self.reported_values()
         with self._history_lock:
             history = copy.deepcopy(self.history)
