@@ -65,7 +65,9 @@ class SyntheticRig:
     def move(self, axes: dict[str, float]) -> dict[str, int]:
         """Move to ``axes``; returns the directions of approach (as the runner infers them)."""
         self.time_s += 10.0
-        self.history.observe(axes, self.time_s, idle=True)
+        previous = getattr(self, "axes", None)
+        self.history.moved(axes, end_s=self.time_s, approach={
+            q: 1 if v > previous[q] else -1 for q, v in axes.items() if previous is not None and v != previous[q]})
         self.axes = dict(axes)
         return self.tracker.reached(axes)
 

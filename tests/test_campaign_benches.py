@@ -363,6 +363,9 @@ class _StagingBench:
     def warm_up(self, *targets) -> None:
         pass
 
+    def begin_configuration(self, config_id, *, targets, arrivals) -> None:
+        pass
+
     def stage(self, scenes, *, at, ahead) -> None:
         self.staged.append([kind for kind, *_ in scenes])
 

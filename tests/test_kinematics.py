@@ -45,12 +45,11 @@ def simulated_views(design, *, n_views: int, pixel_sigma: float, seed: int, hist
     """ConfigurationViews of a design visited in order from home, as the lab mechanics place the cameras."""
     rng = np.random.default_rng(seed)
     previous, approach, out, now = dict(HOME), {}, [], 0.0
-    history.observe(HOME, now)
     for config in design:
         values = config.axes()
         now += 10.0
-        history.observe(values, now)
-        history.observe(values, now + 1.0)  # at rest: the landing error is drawn
+        history.moved(values, end_s=now, approach={  # at rest: the landing error is drawn
+            q: 1 if v > previous[q] else -1 for q, v in values.items() if v != previous[q]})
         approach = approach_directions(previous, values, approach)
         previous = values
         state = pair_state(LAB, values, history=history, now_s=now + 5.0)
@@ -96,10 +95,7 @@ def true_pose(values: dict, approach: dict) -> np.ndarray:
         "slide": LAB.slide.model_copy(update={"repeatability_mm": 0.0}),
         "left_head": LAB.left_head.model_copy(update={"repeatability_deg": 0.0}),
         "right_head": LAB.right_head.model_copy(update={"repeatability_deg": 0.0})}))
-    start = {axis: values[axis] - approach.get(axis, 0) for axis in AXES}
-    history.observe(start, 0.0)
-    history.observe(values, 1.0)
-    history.observe(values, 2.0)
+    history.moved(values, end_s=1.0, approach={axis: approach[axis] for axis in AXES if approach.get(axis)})
     state = pair_state(LAB, values, history=history)
     return invert_transform(state.T_bench_right) @ state.T_bench_left
 

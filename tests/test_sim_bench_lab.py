@@ -13,7 +13,7 @@ from drivers.rig.grbl import GrblResetError
 from drivers.rig.rig import GrblRig
 from drivers.sim.bench import SimulatedBench, true_lens
 from drivers.sim.grbl_emulator import ResetMidMove
-from drivers.sim.mechanics import MoveHistory, pair_state
+from drivers.sim.mechanics import MoveHistory, pair_state, ringing_deg
 from drivers.sim.profile import IDEAL, LAB, BoardErrors, CameraErrors, SimProfile, SlideErrors
 from drivers.sim.render import BoardShape, Optics, StereoRenderer, calibration_board_poses
 from stereo_bench.geometry import CameraModel, RigPose, board_pose_facing_rig, invert_transform, transform_points
@@ -67,7 +67,7 @@ def test_the_frames_truth_reproduces_the_images(lab_bench):
     """Measured with the R, T a lab frame carries as truth (and the true lenses), the square is the printed one."""
     bench, rig = lab_bench
     rig.move_to(baseline_mm=100.0, alpha_left_deg=80.0, alpha_right_deg=82.0, target_distance_mm=450.0)
-    time.sleep(0.4 / 50)
+    bench.clock.advance(0.4)  # settled
     bench.place_target(BOARD, distance_mm=450.0, seed=1)
     (left, meta_left), (right, meta_right) = bench.render("left"), bench.render("right")
     truth = meta_left["truth"]
@@ -147,18 +147,27 @@ def test_bring_up_renders_the_lab_bench_at_rest_from_the_reported_pose():
 
 
 def test_frames_taken_while_the_heads_ring_carry_it_and_a_settled_one_does_not():
+    """The ringing a frame sees is on the bench clock: half an exposure after the move's exact end, then what a
+    settle advances it by, at any time scale (on the wall clock the two scales' frames would differ)."""
     profile = SimProfile(cameras=CameraErrors(vibration_yaw_deg=0.02, vibration_rock_deg=0.01))
-    time_scale = 2.0  # the ringing lasts 0.24 s of simulated time: 120 ms of real time here
-    with SimulatedBench(time_scale=time_scale, profile=profile, **cameras()) as bench:
-        with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
-            rig.home()
-            rig.move_to(baseline_mm=20.0)
-            at_once = bench.render("left")[1]["truth"]
-            time.sleep(0.3 / time_scale)
-            bench.show(BOARD, board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm))
-            settled = bench.render("left")[1]["truth"]
-    assert at_once["ringing_deg"] != 0.0 or at_once["rock_deg"] != 0.0
-    assert settled["ringing_deg"] == 0.0 and settled["rock_deg"] == 0.0
+    seen = {}
+    for time_scale in (2.0, 40.0):
+        with SimulatedBench(time_scale=time_scale, profile=profile, **cameras()) as bench:
+            with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+                rig.home()
+                rig.move_to(baseline_mm=20.0)
+                time.sleep(0.05)  # real time passes; the bench's does not
+                at_once = bench.render("left")[1]["truth"]
+                bench.clock.advance(0.3)  # a settle longer than the ringing (0.24 s)
+                bench.show(BOARD, board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm))
+                settled = bench.render("left")[1]["truth"]
+        seen[time_scale] = (at_once, settled)
+        since = 0.5 * bench.exposure_s  # the move ended when the frame's exposure began
+        assert at_once["ringing_deg"] == pytest.approx(ringing_deg(profile.cameras, 0.02, since)[0], abs=1e-12)
+        assert at_once["rock_deg"] == pytest.approx(ringing_deg(profile.cameras, 0.01, since)[0], abs=1e-12)
+        assert at_once["ringing_deg"] != 0.0
+        assert settled["ringing_deg"] == 0.0 and settled["rock_deg"] == 0.0
+    assert seen[2.0] == seen[40.0]
 
 
 def test_a_too_short_settle_shows_in_the_measured_square():
@@ -168,9 +177,7 @@ def test_a_too_short_settle_shows_in_the_measured_square():
     renderer = StereoRenderer(BOARD, cams["left"], cams["right"])
     values = {"baseline_mm": 100.0, "toe_in_left_deg": 0.0, "toe_in_right_deg": 0.0}
     history = MoveHistory(profile)
-    history.observe({**values, "baseline_mm": 90.0}, 0.0)
-    history.observe(values, 1.0)
-    history.observe(values, 1.001)
+    history.moved(values, end_s=1.0, approach={"baseline_mm": 1})  # from B = 90 mm
     rest = pair_state(profile, values)
     T_rl = invert_transform(rest.T_bench_right) @ rest.T_bench_left
     calib = calibration(cams["left"], cams["right"], T_rl[:3, :3], T_rl[:3, 3])
@@ -295,7 +302,7 @@ def test_the_calibration_board_is_shown_as_the_profile_has_it():
 def test_the_truth_without_landing_errors_differs_from_the_truth_by_the_moves_landing_alone(lab_bench):
     bench, rig = lab_bench
     rig.move_to(baseline_mm=140.0, alpha_left_deg=84.0, alpha_right_deg=86.0)
-    time.sleep(0.4 / 50)  # settled: the heads no longer ring (the truth would include it, the rest pose not)
+    bench.clock.advance(0.4)  # settled: the heads no longer ring (the truth would include it, the rest pose not)
     truth, knowable = bench.truth(), bench.truth_without_landing()
     assert truth["axes"]["ringing_deg"] == {"left": 0.0, "right": 0.0}
     history = truth["axes"]["history"]
@@ -326,6 +333,7 @@ def test_scenes_rendered_ahead_are_the_frames_a_render_at_the_trigger_gives(lab_
 
     bench, rig = lab_bench
     rig.move_to(baseline_mm=140.0, alpha_left_deg=84.0, alpha_right_deg=84.0, target_distance_mm=450.0)
+    bench.clock.advance(0.3)  # the settle: the heads stop ringing (on the bench clock)
     poses = [board_pose_facing_rig(distance_mm=distance, board_size_mm=BOARD.grid_size_mm, yaw_deg=yaw)
              for distance, yaw in ((400.0, 10.0), (470.0, -5.0))]
     bench.stage([("board", BOARD, pose, 50 + i) for i, pose in enumerate(poses)],
@@ -350,11 +358,12 @@ def test_a_frame_rendered_ahead_is_dropped_when_the_rig_stands_elsewhere_at_the_
 
     bench, rig = lab_bench
     rig.move_to(baseline_mm=160.0, alpha_left_deg=86.0, alpha_right_deg=86.0, target_distance_mm=450.0)
+    bench.clock.advance(0.3)
     pose = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm)
     bench.stage([("board", BOARD, pose, 61)], at=RigPose.symmetric(160.0, 86.0))
     _wait_rendered_ahead(bench, 1)
     rig.move_to(baseline_mm=161.0, alpha_left_deg=86.0, alpha_right_deg=86.0, target_distance_mm=450.0)
-    time.sleep(0.4 / 50)  # the ringing has stopped
+    bench.clock.advance(0.4)  # the ringing has stopped
     used = bench.prerendered_used
     with StereoCamera(*bench.cameras()) as cameras:
         bench.show(BOARD, pose, seed=61)
@@ -373,6 +382,7 @@ def test_nothing_is_rendered_ahead_before_the_move_to_where_the_scenes_need_the_
     time.sleep(0.2)
     assert bench.staged_rendered() == 0
     rig.move_to(baseline_mm=200.0, alpha_left_deg=85.0, alpha_right_deg=85.0, target_distance_mm=450.0)
+    bench.clock.advance(0.3)
     _wait_rendered_ahead(bench, 1)
     bench.stage([], at=RigPose.symmetric(200.0, 85.0))  # nothing left staged
 
@@ -401,7 +411,7 @@ def test_scenes_are_rendered_during_the_move_for_where_it_will_rest_and_served_b
                 time.sleep(0.005)
             moving.join()
         assert rendered_while_moving
-        time.sleep(0.5 / 5)  # the settle: the ringing has stopped
+        bench.clock.advance(0.5)  # the settle: the ringing has stopped
         with StereoCamera(*bench.cameras()) as cameras_:
             bench.show(BOARD, pose, seed=80)
             pair = cameras_.capture_pair()
@@ -450,7 +460,7 @@ def test_frames_rendered_for_a_wrong_prediction_are_rendered_again_once_the_rig_
         wrong.clear()
         bench.stage([("board", BOARD, pose, 90)], at=RigPose.symmetric(300.0, 87.0))
         rig.move_to(baseline_mm=300.0, alpha_left_deg=87.0, alpha_right_deg=87.0, target_distance_mm=450.0)
-        time.sleep(0.5 / 50)
+        bench.clock.advance(0.5)
         deadline = time.monotonic() + 30
         while not all(entry.checked for entry in bench._staged):
             assert time.monotonic() < deadline

@@ -120,9 +120,8 @@ def test_backlash_depends_on_the_direction_of_approach():
     seen = {}
     for start in (80.0, 120.0):  # reach B = 100 mm / toe-in 10 deg from below, then from above
         history = MoveHistory(profile)
-        history.observe(axes(start, start / 10), 0.0)
-        history.observe(axes(100.0, 10.0), 1.0)
-        history.observe(axes(100.0, 10.0), 1.1)  # at rest
+        direction = 1 if start < 100.0 else -1
+        history.moved(axes(100.0, 10.0), end_s=1.0, approach={"baseline_mm": direction, "toe_in_left_deg": direction})
         state = pair_state(profile, axes(100.0, 10.0), history=history)
         seen[start] = (state.separation_mm, state.pan_left_deg)
     assert seen[80.0] == pytest.approx((100.0 - 0.02, 10.0 - 0.015), abs=1e-12)  # trails the motor going up
@@ -136,8 +135,7 @@ def test_landing_errors_have_the_stated_scatter_are_seeded_and_differ_per_visit(
         history, out = MoveHistory(profile, seed=seed), []
         for visit in range(400):
             target = 100.0 if visit % 2 == 0 else 150.0
-            history.observe(axes(target, 0.0), 2.0 * visit)
-            history.observe(axes(target, 0.0), 2.0 * visit + 1.0)
+            history.moved(axes(target, 0.0), end_s=2.0 * visit, approach={"baseline_mm": 1 if target > 100 else -1})
             out.append(history.axes["baseline_mm"].landing)
         return out
 
@@ -162,9 +160,7 @@ def test_ringing_decays_and_is_stopped_by_friction():
 def test_a_move_excites_ringing_of_the_heads_it_moved():
     profile = SimProfile(cameras=CameraErrors(vibration_yaw_deg=0.02, vibration_rock_deg=0.01))
     history = MoveHistory(profile)
-    history.observe(axes(100.0, 0.0, 0.0), 0.0)
-    history.observe(axes(100.0, 5.0, 0.0), 1.0)  # only the left head moves
-    history.observe(axes(100.0, 5.0, 0.0), 1.001)
+    history.moved(axes(100.0, 5.0, 0.0), end_s=1.0, approach={"toe_in_left_deg": 1})  # only the left head moves
     state = pair_state(profile, axes(100.0, 5.0, 0.0), history=history, now_s=1.0)
     assert state.ringing_deg["left"] == pytest.approx(0.02) and state.ringing_deg["right"] == 0.0
     assert state.rock_deg == {"left": 0.0, "right": 0.0}  # rocking follows slide moves

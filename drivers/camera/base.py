@@ -148,7 +148,8 @@ class Frame:
     """One image and where it came from.
 
     ``image``: (H, W, 3) uint8 BGR, or (H, W) for monochrome sources.
-    ``timestamp_s``: when the frame was taken, seconds on the ``time.monotonic()`` clock.
+    ``timestamp_s``: when the frame was taken, seconds on the ``time.monotonic()`` clock (a simulated camera's:
+    on its simulator's clock, e.g. the simulated bench's bench clock, ``drivers/sim/clock.py``).
     ``sequence``: frames taken off this camera since it was opened, 1-based; gaps mean discarded frames.
     ``settings``: the settings in force (read back), ``source``: a human-readable device description.
     ``timestamp_source``: 'v4l2-buffer' (kernel buffer stamp), 'host' (stamped when grab returned) or 'simulated'.

@@ -14,11 +14,23 @@ Imperfections come from a :class:`~drivers.sim.profile.SimProfile` (default: the
 renders exactly what this bench rendered before profiles existed). They act downstream of what the
 emulator reports: the emulator says what the steppers were told, the cameras stand where the
 mechanics (:mod:`drivers.sim.mechanics`) really put them. Backlash, landing errors and the ringing
-after a move need the history of the axes: a watcher thread samples the emulator's position every
-``WATCH_PERIOD_S`` (real time) while the bench runs, and every frame samples it again. The ringing
-depends on the time between the end of a move and the frame, which follows the real clock (as at a
-real bench): frames taken while a head still rings are not bit-reproducible; once friction has
-stopped it (``vibration_stop_deg``; 0.24 s after a move on the ``lab`` profile) they are again.
+after a move need the history of the axes: the emulator reports every motion that ends (its
+:class:`~drivers.sim.grbl_emulator.MotionEvent`: the axes, the direction each arrived in, the exact end
+time of the motion model) and the bench keeps them in a :class:`~drivers.sim.mechanics.MoveHistory`.
+
+Time is the bench clock's (:mod:`drivers.sim.clock`), shared with the emulator: it runs only while
+the emulator has motion, a homing, a dwell or a boot pending and stops at that activity's exact
+end; otherwise it moves only by what the bench does: each trigger's exposure (``exposure_s``, after
+which the pair's frames are stamped) and the campaign's settle waits (``clock.advance``). The ringing
+a frame sees (the time since the last move ended, at mid-exposure) is therefore a function of the
+plan, never of the wall clock: not of ``time_scale``, a slow render, a late driver or a loaded machine.
+
+Random draws are keyed by what they are, not by the order they happen in: a landing error by the
+configuration at which the plan's rig arrived at that axis position and the index of that move there
+(:meth:`SimulatedBench.begin_configuration`), a manual target placement by the placement it belongs
+to (the first configuration of the plan's run of configurations at that distance). A campaign resumed
+after a crash therefore draws what an uninterrupted one drew. A bench that is not told (a test, a
+render) keys landings by position and visits, placements by distance and placements there.
 
 The mechanics take where the emulator's axes stand (``GrblEmulator.physical_position()``: whole motor
 steps, so step quantisation is in; once the controller is homed this is exactly what its step counters,
@@ -30,8 +42,7 @@ render from the positions the controller reports at each grab. The profile's sta
 still apply to that pose (pan axes off the optical centres, scale errors, slide direction, camera
 mounts; lenses, JPEG, boards, target placement), so the frames look like the ``lab`` bench's; the
 imperfections of *motion* (backlash, landing errors, ringing) do not: they need the axes' history,
-which only a watcher of an emulator sees (a real controller is read once per grab, not every
-millisecond).
+which only the emulator's motion events give (a real controller is read once per grab).
 
 Rendering ahead (:meth:`SimulatedBench.stage`): whoever places the boards may say which scenes come
 next and where the rig will stand for them. As soon as the emulator has the move there queued, the
@@ -56,6 +67,7 @@ import copy
 import math
 import threading
 import time
+import zlib
 from collections import Counter
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -67,8 +79,9 @@ from drivers.camera.base import CameraSettings
 from drivers.camera.synthetic import SyntheticCamera
 from drivers.rig.config import RigConfig, alpha_from_toe_in, to_physical
 from drivers.rig.motion import REFERENCE_HOMING_SEEK_RATE_PER_MIN, REFERENCE_HOMING_SETTLE_S
-from drivers.sim.grbl_emulator import AxisSpec, GrblEmulator, axis_specs_for_travel
-from drivers.sim.mechanics import MoveHistory, PairState, pair_state
+from drivers.sim.clock import BenchClock
+from drivers.sim.grbl_emulator import AxisSpec, GrblEmulator, MotionEvent, axis_specs_for_travel
+from drivers.sim.mechanics import MOVED, MoveHistory, PairState, pair_state, ringing_duration_s
 from drivers.sim.profile import IDEAL, BoardErrors, SimProfile
 from drivers.sim.render import BoardShape, Optics, StereoRenderer, _auto_px_per_square
 from stereo_bench.geometry import (
@@ -85,8 +98,6 @@ SIDES = ("left", "right")
 PREVIEW_FRAME_BASE = 1 << 40  # preview frames' noise streams start here, far from any captured frame's index
 
 
-# How often (real seconds) the watcher samples the emulator's axes while the bench runs.
-WATCH_PERIOD_S = 0.001
 # How often (real seconds) the renderer ahead looks whether the rig rests where a staged scene needs it.
 REST_POLL_S = 0.005
 # How close (mm, deg) the reported axes must be to a staged scene's rig pose to render it ahead (whole
@@ -109,6 +120,24 @@ class Scene:
     shape: BoardShape | None = None
     measured_target: bool = False
     placement: dict | None = None
+
+
+@dataclass(frozen=True)
+class MoveContext:
+    """What the rig is being moved for (:meth:`SimulatedBench.begin_configuration`), for the landing draws.
+
+    ``targets``: the configuration's commanded physical values; ``arrivals``: per quantity, the configuration
+    at which the plan's rig arrived at that value (the first of the plan's run of configurations that command
+    it), whose draw a move ending there repeats.
+    """
+
+    config_id: str
+    targets: dict[str, float]
+    arrivals: dict[str, str]
+
+
+def _crc(text: str) -> int:
+    return zlib.crc32(text.encode())
 
 
 @dataclass(frozen=True)
@@ -198,8 +227,9 @@ class SimulatedBench:
         left, right: camera intrinsics (default 1920x1080, f = 4 mm, 3 um pixels); the profile's
             lens terms are added to them (``left_model``/``right_model`` are the true lenses).
         optics: image formation (blur, noise, ...); the profile's ``jpeg_quality`` is applied on top.
-        time_scale: > 1 runs motion and exposures faster than real time.
-        exposure_s: simulated exposure + readout per frame (real-time seconds).
+        time_scale: > 1 runs motion and exposures faster than real time (the bench clock's pace: it changes no
+            simulated time, only how long it takes in real time).
+        exposure_s: exposure + readout per trigger (bench-clock seconds; ``exposure_s / time_scale`` real).
         profile: the bench's imperfections (default: the ideal bench).
         seed: seed of the profile's random draws (landing errors, target placements).
         pose_source: where the rig is, when a real controller drives it (bring-up: the cameras are not
@@ -225,6 +255,7 @@ class SimulatedBench:
         self.time_scale = time_scale
         self.exposure_s = exposure_s
         self.pose_source = pose_source
+        self.clock = BenchClock(time_scale)  # the emulator's and the cameras' time (drivers/sim/clock.py)
         # The emulated controller's travel ($13x) comes from the rig config's soft limits, in the machine space
         # a stock Grbl gives (negative from the homing switch); a config with positive machine targets gets
         # the HOMING_FORCE_SET_ORIGIN build that serves them (see docs/RIG.md).
@@ -233,14 +264,15 @@ class SimulatedBench:
             axes=self.rig_config.axes, axis_specs=axis_specs or specs, time_scale=time_scale,
             homing_enabled=homing_enabled, force_set_origin=force_set_origin,
             homing_seek_rate_per_min=REFERENCE_HOMING_SEEK_RATE_PER_MIN, homing_settle_s=REFERENCE_HOMING_SETTLE_S,
+            clock=self.clock, on_motion=self._on_motion,
         )
-        self._t0 = time.monotonic()  # bring-up's clock (real time) for the truth's time stamps
         self._scene = Scene()
         self._lock = threading.Lock()
         self._renderers: dict[Target, Future] = {}  # a StereoRenderer per target, built once
         self._renderers_lock = threading.Lock()
         self._preview_renderers: dict[tuple[Target, float], StereoRenderer] = {}
-        self._trigger_time = time.monotonic()
+        self._trigger_s = 0.0  # bench time the current trigger began
+        self._trigger_wall = time.monotonic()  # ... and the real time it began (paces the readout)
         self._trigger_used: set[str] = set(SIDES)  # the first grab starts a trigger
         self._prefetched: dict[str, Future] = {}
         self._previews = 0
@@ -257,12 +289,15 @@ class SimulatedBench:
         # What the operator would set by hand (the target distance unless it is motorised).
         self.manual_values: dict[str, float] = {}
         # The axes' history (backlash, landing errors, ringing), when the profile needs one and an emulator
-        # can be watched.
+        # reports the motions. Its lock is never held while the emulator is called: the emulator calls
+        # _on_motion with its own lock held.
         self.history = (MoveHistory(self.profile, self.seed)
                         if self.profile.moves_need_history and self.emulator is not None else None)
         self._history_lock = threading.Lock()
-        self._watch_stop = threading.Event()
-        self._watcher: threading.Thread | None = None
+        self._context: MoveContext | None = None
+        self._draws: Counter = Counter()  # landing draws made in the current context, per (quantity, kind)
+        self._homings = 0
+        self._stopping = threading.Event()
         self._placements: Counter = Counter()
         self._placed: tuple | None = None  # (target, distance) of the current manual placement
         self._placement: dict = {}
@@ -270,24 +305,17 @@ class SimulatedBench:
     # -- lifecycle ---------------------------------------------------------------------------------------------
 
     def start(self) -> SimulatedBench:
+        self._stopping.clear()
         if self.emulator is not None:
             self.emulator.start()
-        if self.history is not None:
-            self._observe()
-            self._watch_stop.clear()
-            self._watcher = threading.Thread(target=self._watch, name="sim-axis-watcher", daemon=True)
-            self._watcher.start()
         return self
 
     def stop(self) -> None:
-        self._watch_stop.set()
+        self._stopping.set()
         with self._lock:
             self._drop_staged(self._staged)
             self._staged = []
             self._stage_changed.notify_all()
-        if self._watcher is not None:
-            self._watcher.join()
-            self._watcher = None
         if self._ahead_thread is not None:
             self._ahead_thread.join()
             self._ahead_thread = None
@@ -309,6 +337,11 @@ class SimulatedBench:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+    @property
+    def ringing_s(self) -> float:
+        """How long (bench s) the heads ring after a move, on a bench that follows the axes' history (else 0)."""
+        return ringing_duration_s(self.profile.cameras) if self.history is not None else 0.0
 
     @property
     def tty_path(self) -> str:
@@ -341,16 +374,19 @@ class SimulatedBench:
                 del self._staged[: match + 1]
                 self._stage_changed.notify_all()
 
-    def place_target(self, target: Target, *, distance_mm: float, seed: int = 0) -> np.ndarray:
+    def place_target(self, target: Target, *, distance_mm: float, seed: int = 0,
+                     placement: str | None = None) -> np.ndarray:
         """The operator places the measured ``target`` facing the rig at ``distance_mm``; returns T_rig_board.
 
         The nominal pose is :func:`board_pose_facing_rig`'s. When the target distance is set by hand,
-        each placement (a new distance or target) stands off by a random distance and yaw error
-        (the profile's ``placement_*_sigma``), drawn once per placement: asking again for the same
-        distance (the next frame, a retry) keeps the target where it stands. The target is shown
-        with its print scale and bow. ``seed`` is the scene's noise seed, as for :meth:`show`.
+        each placement (a new distance, target or ``placement``) stands off by a random distance and yaw
+        error (the profile's ``placement_*_sigma``), drawn once per placement: asking again for the same
+        one (the next frame, a retry) keeps the target where it stands. ``placement`` names the placement
+        and keys its draw (the campaign: the first configuration of the plan's run at this distance); None
+        keys it by the distance and the placements made there so far. The target is shown with its print
+        scale and bow. ``seed`` is the scene's noise seed, as for :meth:`show`.
         """
-        key, placement, where = self._placement_for(target, distance_mm)
+        key, placement, where = self._placement_for(target, distance_mm, placement)
         if key != self._placed:
             self._placed, self._placement = key, placement
             if where is not None:
@@ -359,20 +395,26 @@ class SimulatedBench:
         self._set_scene(scene)
         return scene.T_rig_board
 
-    def _placement_for(self, target: Target, distance_mm: float) -> tuple[tuple, dict, int | None]:
+    def _placement_for(self, target: Target, distance_mm: float,
+                       name: str | None = None) -> tuple[tuple, dict, int | None]:
         """(key, placement, where) of placing ``target`` at ``distance_mm`` now, without placing it.
 
-        ``where`` is the placement counter a new placement draws from (None: no draw).
+        ``where`` is the placement counter a new placement draws from (None: no count; see :meth:`place_target`).
         """
         errors = self.profile.target
         manual = self.rig_config.quantities["target_distance_mm"].axis == "manual"
-        key = (target, float(distance_mm))
+        key = (target, float(distance_mm), name)
         if key == self._placed:
             return key, self._placement, None
         placement, where = {"distance_error_mm": 0.0, "yaw_error_deg": 0.0}, None
         if manual and (errors.placement_distance_sigma_mm > 0 or errors.placement_yaw_sigma_deg > 0):
-            where = int(round(distance_mm * 1000)) & 0xFFFFFFFF
-            rng = np.random.default_rng([self.seed & 0xFFFFFFFF, 0x91ACE, where, self._placements[where]])
+            at = int(round(distance_mm * 1000)) & 0xFFFFFFFF
+            if name is None:  # counted: the n-th placement at this distance
+                where = at
+                words = [self.seed & 0xFFFFFFFF, 0x91ACE, at, self._placements[at]]
+            else:  # named: the same placement whenever it is made
+                words = [self.seed & 0xFFFFFFFF, 0x91ACE, at, 0x9A3E, _crc(name)]
+            rng = np.random.default_rng(words)
             placement = {"distance_error_mm": float(rng.normal(0.0, errors.placement_distance_sigma_mm)),
                          "yaw_error_deg": float(rng.normal(0.0, errors.placement_yaw_sigma_deg))}
         return key, placement, where
@@ -393,7 +435,7 @@ class SimulatedBench:
         """Announce the scenes that will be shown next, in order, all captured with the rig at ``at``.
 
         Each scene is ``("board", target, T_rig_board, seed)`` (as :meth:`show` will be called) or
-        ``("target", target, distance_mm, seed)`` (as :meth:`place_target` will be called; the
+        ``("target", target, distance_mm, seed[, placement])`` (as :meth:`place_target` will be called; the
         placement the operator will make is drawn as that call will draw it). Replaces what was
         staged before. Once the rig rests at ``at``, the first frame pair of up to ``ahead`` scenes
         not yet shown is rendered in the background (see the module docstring). Does nothing in
@@ -403,12 +445,12 @@ class SimulatedBench:
             return
         placed, placement = self._placed, self._placement
         staged = []
-        for kind, target, where, seed in scenes:
+        for kind, target, where, seed, *name in scenes:
             if kind == "board":
                 scene = Scene(target=target, T_rig_board=np.array(where, dtype=np.float64), seed=int(seed),
                               shape=board_shape(self.profile.calibration_board))
             elif kind == "target":
-                key, new_placement, _ = self._placement_for(target, where)
+                key, new_placement, _ = self._placement_for(target, where, *name)
                 if key != placed:  # later frames at the same distance keep this placement
                     placed, placement = key, new_placement
                 scene = self._target_scene(target, where, placement, seed)
@@ -453,6 +495,7 @@ class SimulatedBench:
 
     def _predicted_snapshot(self) -> _Snapshot | None:
         """The pair at rest where the queued moves end: what a trigger will see there once the ringing stopped."""
+        self._catch_up()
         planned = self.emulator.planned_physical_position()
         if planned is None:
             return None
@@ -463,18 +506,21 @@ class SimulatedBench:
         pose = self._pose_of(values)
         if self.profile.mechanically_ideal and self.history is None:
             return _Snapshot(pose=pose, T_rig_cam={"left": pose.T_rig_left, "right": pose.T_rig_right})
+        current = self.reported_values() if self.history is not None else values  # not under the history lock
         with self._history_lock:
             history = copy.deepcopy(self.history)
-        if history is not None:  # the watcher will see the axes arrive there, then stand still
-            history.observe(values, math.inf, idle=False)
-            history.observe(values, math.inf, idle=True)
+            if history is not None:  # the move's event will come: its direction, its landing draw (not yet made)
+                approach = {q: 1 if values[q] > current[q] else -1 for q in MOVED
+                            if abs(values[q] - current[q]) > 1e-9}
+                history.moved(values, end_s=0.0, approach=approach,
+                              keys=self._landing_keys("move", values, approach, commit=False))
         state = pair_state(self.profile, values, history=history, now_s=math.inf)
         return _Snapshot(pose=pose, T_rig_cam={"left": state.T_bench_left, "right": state.T_bench_right},
                          state=state)
 
     def _render_ahead(self) -> None:
         """The thread that renders staged scenes for the state the rig will rest in, and checks it once it does."""
-        while not self._watch_stop.is_set():
+        while not self._stopping.is_set():
             with self._lock:
                 entries = [e for e in self._staged if not e.dropped]
                 unchecked = [e for e in entries if e.frames is not None and not e.checked]
@@ -554,33 +600,71 @@ class SimulatedBench:
 
     # -- the mechanics ---------------------------------------------------------------------------------------------
 
-    def _watch(self) -> None:
-        while not self._watch_stop.wait(WATCH_PERIOD_S):
-            try:
-                self._observe()
-            except Exception:  # noqa: BLE001 - the emulator stopping under the watcher ends it
-                if self.emulator is None or not self.emulator.running:
-                    return
-                raise
+    def begin_configuration(self, config_id: str, *, targets: dict[str, float], arrivals: dict[str, str]) -> None:
+        """The rig is about to be moved for ``config_id`` (a campaign's configuration or design visit).
 
-    def _observe(self, *, idle: bool = False) -> tuple[dict[str, float], float]:
-        """Sample the reported values into the history; returns them and the simulated time."""
+        ``targets``: its commanded physical values; ``arrivals``: per quantity, the configuration at which the
+        plan's rig arrived at that value (see :class:`MoveContext`). From now on a move that ends an axis at its
+        target draws the landing error of (seed, quantity, arrival, the index of that arrival here): the same
+        draw whether the rig came from the plan's previous configuration or from homing after a resume. Other
+        moves (a homing, a re-approach, a stop) draw by their kind and index within the configuration; a
+        homing by its index in the run.
+        """
         with self._history_lock:
-            now = self.emulator.sim_time() if self.emulator is not None else time.monotonic() - self._t0
-            values = self.reported_values()
-            if self.history is not None:
-                self.history.observe(values, now, idle=idle)
-            return values, now
+            self._context = MoveContext(config_id=config_id, targets=dict(targets), arrivals=dict(arrivals))
+            self._draws = Counter()
 
-    def _snapshot(self) -> _Snapshot:
-        """The reported and true pose of the pair at a trigger starting now."""
+    def _landing_keys(self, kind: str, end: dict[str, float], approach: dict[str, int], *,
+                      commit: bool) -> dict[str, tuple[int, ...]] | None:
+        """Per moved quantity the key of its landing draw (call with the history lock held); ``commit``: count it.
+        None without a context: the history keys the draws by position and visits."""
+        context, keys = self._context, {}
+        if context is None:
+            return None
+        if kind == "home":
+            index = self._homings
+            self._homings += commit
+            return {q: (0x40E, index) for q in approach}
+        for q in approach:
+            arrived = kind == "move" and q in context.targets and abs(end[q] - context.targets[q]) <= REST_TOLERANCE
+            count = (q, "arrive" if arrived else kind)
+            if arrived:
+                keys[q] = (0xA441, _crc(context.arrivals.get(q, context.config_id)), self._draws[count])
+            else:
+                keys[q] = (0x7A45, _crc(context.config_id), _crc(kind), self._draws[count])
+            self._draws[count] += commit
+        return keys
+
+    def _catch_up(self) -> None:
+        """Bring the emulator's model up to the clock's now, so that every motion that has ended (the clock stops at
+        its end; the emulator's thread may not have noticed yet) is in the history before the axes are read."""
+        if self.history is not None:
+            self.emulator.state  # noqa: B018 - the property advances the model
+
+    def _on_motion(self, event: MotionEvent) -> None:
+        """A motion ended (the emulator's thread, with its lock held): into the history, with its landing draws."""
+        if self.history is None:
+            return
+        end = to_physical(self.rig_config, event.end)
+        approach = {}
+        for quantity, axis in self.rig_config.driven.items():
+            if quantity in MOVED and event.approach.get(axis):
+                sign = 1 if self.rig_config.quantities[quantity].scale > 0 else -1
+                approach[quantity] = event.approach[axis] * sign
+        with self._history_lock:
+            keys = self._landing_keys(event.kind, end, approach, commit=True)
+            self.history.moved(end, end_s=event.end_s, approach=approach, keys=keys)
+
+    def _snapshot(self, at_s: float | None = None) -> _Snapshot:
+        """The reported and true pose of the pair at a trigger starting at bench time ``at_s`` (default: now)."""
         if self.profile.mechanically_ideal and self.history is None:
             pose = self.rig_pose()
             return _Snapshot(pose=pose, T_rig_cam={"left": pose.T_rig_left, "right": pose.T_rig_right})
-        idle = self.emulator.state == "Idle" if self.history is not None else False
-        values, now = self._observe(idle=idle)
+        self._catch_up()
+        values = self.reported_values()
+        now = self.clock.now() if at_s is None else at_s
         pose = self._pose_of(values)
-        # The frame sees the pair at mid-exposure (exposure_s is in simulated seconds).
+        # The frame sees the pair at mid-exposure (exposure_s is in bench seconds).
         at = now + 0.5 * self.exposure_s
         with self._history_lock:
             state = pair_state(self.profile, values, history=self.history, now_s=at)
@@ -629,7 +713,8 @@ class SimulatedBench:
         Backlash still follows each axis' direction of approach. What a model of the rig can know:
         the landing errors are the rig's repeatability, different at every move.
         """
-        values, _ = self._observe()
+        self._catch_up()
+        values = self.reported_values()
         with self._history_lock:
             history = copy.deepcopy(self.history)
         if history is not None:
@@ -709,7 +794,7 @@ class SimulatedBench:
             if prefetched is not None and not new_trigger:
                 job = prefetched
             else:
-                snapshot = self._snapshot()
+                snapshot = self._snapshot(self._trigger_s)
                 other = "right" if side == "left" else "left"
                 ahead = self._prerendered(snapshot) if new_trigger else None
                 if ahead is not None:  # rendered ahead for exactly this scene and state: claim both frames
@@ -808,17 +893,23 @@ class SimulatedBench:
         A grab starts a new trigger unless the other camera started one that this camera has not used
         yet, so the time spent rendering (which real sensors don't spend) never shows up as left-right
         skew. Purely logical, no timeout: a skew that depended on how long a render took would make
-        the frames (and so a resumed campaign) depend on the machine's speed.
+        the frames (and so a resumed campaign) depend on the machine's speed. A trigger starts at the bench
+        clock's now and takes ``exposure_s`` of it (exposure and readout).
         """
         new = side in self._trigger_used
         if new:
-            self._trigger_time, self._trigger_used = time.monotonic(), set()
+            self._trigger_s, self._trigger_wall, self._trigger_used = self.clock.now(), time.monotonic(), set()
+            self.clock.advance(self.exposure_s)
         self._trigger_used.add(side)
         return new
 
     def frame_clock(self) -> float:
-        """Timestamp (monotonic s) of the current capture: trigger time + exposure (when both frames are read out)."""
-        return self._trigger_time + self.exposure_s / self.time_scale
+        """Timestamp (bench-clock s) of the current capture: trigger + exposure (when both frames are read out)."""
+        return self._trigger_s + self.exposure_s
+
+    def frame_ready_at(self) -> float:
+        """When (``time.monotonic()`` s) the current capture is read out: paces the simulation in real time."""
+        return self._trigger_wall + self.exposure_s / self.time_scale
 
     def cameras(self, settings: CameraSettings | None = None) -> tuple[SyntheticCamera, SyntheticCamera]:
         """The left and right simulated cameras (not yet open)."""
@@ -830,6 +921,6 @@ class SimulatedBench:
         return tuple(
             SyntheticCamera(lambda side=side: self.render(side), name=f"sim-{side}", settings=settings,
                             exposure_s=self.exposure_s, time_scale=scale, clock=self.frame_clock,
-                            ready_at=self.frame_clock)
+                            ready_at=self.frame_ready_at)
             for side in SIDES
         )

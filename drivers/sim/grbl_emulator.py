@@ -59,6 +59,11 @@ behaviour mirrors. What it does:
   what is sent for ``boot_delay_s`` (1.1 s on the real board), then Grbl boots (MPos 0, Alarm with
   homing enabled). The pty runs in packet mode (TIOCPKT), and an open is seen as the input flush that
   pyserial makes when it opens a port (a program that flushes its input later would reboot it too).
+- Time is a :class:`~drivers.sim.clock.BenchClock` (shared with the simulated bench): it runs, paced by the
+  wall clock times ``time_scale``, only while a block moves, a homing, a dwell or a boot is pending, and stops at
+  the exact end of each (``t_start + duration``); a move commanded while idle starts at the frozen time. Every
+  motion that ends is reported to ``on_motion`` (:class:`MotionEvent`). Output pacing (the pause after an alarm,
+  scaled by ``time_scale``; :class:`Delay`) is on the wall clock: it spaces bytes on the line and moves nothing.
 - Injectable faults (see :class:`LostOk`, :class:`GarbledLine`, :class:`Delay`, :class:`AlarmMidMove`,
   :class:`ResetMidMove`, :class:`VanishMidMove`, :class:`HomingFail` and :meth:`GrblEmulator.vanish`).
 
@@ -88,10 +93,11 @@ import threading
 import time
 import tty
 from collections import deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
 from drivers.rig.motion import REFERENCE_AXIS_MOTION, path_limits, trapezoid
+from drivers.sim.clock import BenchClock
 
 AXIS_LETTERS = "XYZABC"
 RX_BUFFER_SIZE = 128
@@ -392,6 +398,32 @@ class _Stop:
         return {a: self.start[a] + self.direction[a] * d for a in self.start}
 
 
+@dataclass(frozen=True)
+class MotionEvent:
+    """One finished motion, as the emulator reports it to its listener (``GrblEmulator(on_motion=...)``).
+
+    ``kind``: ``"move"`` (a G0/G1/jog block run to its end), ``"stop"`` (a feed hold or jog cancel that ended
+    a block short), ``"abort"`` (motion cut off by an alarm, a reset or a reboot) or ``"home"`` (a homing
+    cycle). ``start``/``end``: where the axes stood (physical frame, see :meth:`GrblEmulator.physical_position`)
+    when it began and ended; ``start_s``/``end_s``: bench-clock times (``end_s`` is the motion model's end,
+    ``t_start + duration``, not when it was noticed). ``approach``: per axis that moved, the direction it
+    arrived in (+1 toward larger machine values, -1 toward smaller); after homing every axis, the direction of
+    its pull-off (away from its switch).
+    """
+
+    kind: str
+    start: dict[str, float]
+    end: dict[str, float]
+    start_s: float
+    end_s: float
+    approach: dict[str, int]
+
+
+def _approach_of(start: Mapping[str, float], end: Mapping[str, float]) -> dict[str, int]:
+    """Per axis that moved from ``start`` to ``end``, the sign of its motion."""
+    return {a: 1 if end[a] > start[a] else -1 for a in start if abs(end[a] - start[a]) > 1e-12}
+
+
 def _lround(value: float) -> int:
     """C's lround: to the nearest integer, halves away from zero (planner.c rounds targets to steps so)."""
     return int(math.copysign(math.floor(abs(value) + 0.5), value))
@@ -424,6 +456,11 @@ class GrblEmulator:
             default 0, so that MPos and the physical position agree until something moves them apart).
         reboot_on_open: reboot whenever a client opens the port (an Arduino's DTR auto-reset).
         boot_delay_s: simulated seconds from the open to the banner of such a reboot.
+        clock: the bench clock motion, homing, dwells and boots run on (:mod:`drivers.sim.clock`; default: one of
+            its own at ``time_scale``). Given, its ``time_scale`` is the emulator's.
+        on_motion: called with a :class:`MotionEvent` for every motion that ends (from the serving thread or
+            whichever thread brought the model up to date, with the emulator's lock held: it must not wait for a
+            lock that is held while the emulator is called).
     """
 
     def __init__(
@@ -433,7 +470,8 @@ class GrblEmulator:
         report_inches: bool = False, force_set_origin: bool = False, startup_lines: Iterable[str] = (),
         firmware: str = "grbl", rx_buffer_size: int | None = None, shuffle_fields: bool = False, seed: int = 0,
         faults: Iterable[Fault] = (), start_position: Mapping[str, float] | None = None,
-        reboot_on_open: bool = False, boot_delay_s: float = AUTO_RESET_BOOT_S,
+        reboot_on_open: bool = False, boot_delay_s: float = AUTO_RESET_BOOT_S, clock: BenchClock | None = None,
+        on_motion: Callable[[MotionEvent], None] | None = None,
     ):
         if not axes or axes != "".join(a for a in AXIS_LETTERS if a in axes) or len(set(axes)) != len(axes):
             raise ValueError(f"axes must be letters of {AXIS_LETTERS} in that order, not {axes!r}")
@@ -448,7 +486,10 @@ class GrblEmulator:
         specs = dict(DEFAULT_AXES)
         specs.update(axis_specs or {})
         self.specs = {a: specs[a] for a in axes}
-        self.time_scale = float(time_scale)
+        # Simulated time is the bench clock's: it runs only while something timed is pending (drivers/sim/clock.py).
+        self.clock = clock if clock is not None else BenchClock(time_scale)
+        self.time_scale = self.clock.time_scale
+        self.on_motion = on_motion
         self.homing_settle_s = homing_settle_s
         self.force_set_origin = force_set_origin
         self.firmware = firmware
@@ -485,9 +526,8 @@ class GrblEmulator:
         self.vanished = False
         self._vanish_requested = False
         self._client = False  # a program has the port open
-        self._booting_until: float | None = None  # real monotonic time an auto-reset boot ends
+        self._booting_until: float | None = None  # sim time an auto-reset boot ends
 
-        self._t0_real = time.monotonic()
         self._power_up()
         # Statistics for tests and benchmarks.
         self.max_rx_fill = 0
@@ -580,7 +620,6 @@ class GrblEmulator:
         self._wake_r, self._wake_w = os.pipe()
         self._stop.clear()
         with self._lock:
-            self._t0_real = time.monotonic()
             self._power_up()
             self._client = False
             self._banner()  # booted before anyone connects, like a real board: nobody hears it
@@ -706,7 +745,7 @@ class GrblEmulator:
             return self._homed
 
     def sim_time(self) -> float:
-        """Simulated seconds since start."""
+        """Simulated seconds: the bench clock's (frozen while nothing timed is pending)."""
         with self._lock:
             return self._sim_now()
 
@@ -745,7 +784,26 @@ class GrblEmulator:
         self._reply_prefix = ""
 
     def _sim_now(self) -> float:
-        return (time.monotonic() - self._t0_real) * self.time_scale
+        return self.clock.now()
+
+    def _schedule(self) -> None:
+        """Let the bench clock run to the next timed event (a block's end, a fault, a dwell, a boot), or freeze it."""
+        nxt = self._next_event_sim(self._sim_now())
+        if nxt is None:
+            self.clock.freeze()
+        else:
+            self.clock.run_until(nxt)
+
+    def _report_motion(self, kind: str, start: Mapping[str, float], end: Mapping[str, float], start_s: float,
+                       end_s: float, approach: Mapping[str, int] | None = None) -> None:
+        """Tell the listener that a motion ended (machine positions are turned physical by the caller)."""
+        approach = _approach_of(start, end) if approach is None else dict(approach)
+        if self.on_motion is not None and approach:
+            self.on_motion(MotionEvent(kind=kind, start=dict(start), end=dict(end), start_s=start_s, end_s=end_s,
+                                       approach=approach))
+
+    def _physical(self, machine: Mapping[str, float]) -> dict[str, float]:
+        return {a: machine[a] + self._offset[a] for a in self.axes}
 
     def _real_delay(self, sim_seconds: float) -> float:
         return max(0.0, sim_seconds / self.time_scale)
@@ -771,7 +829,11 @@ class GrblEmulator:
                 or (self._state == "Hold" and not self._hold_complete))
 
     def _advance(self, now: float) -> None:
-        """Bring motion, homing and dwells up to sim time ``now``; fire mid-move faults."""
+        """Bring motion, homing and dwells up to ``now``, fire mid-move faults; then run or freeze the clock."""
+        self._advance_model(now)
+        self._schedule()
+
+    def _advance_model(self, now: float) -> None:
         if self._booting_until is not None:
             return
         if self._homing_block is not None:
@@ -794,8 +856,11 @@ class GrblEmulator:
             end = block.t_start + block.duration
             if now < end:
                 break
+            start = self._physical(self._on_grid(block.start))
             self._position = self._on_grid(block.end)
             self._planner.popleft()
+            self._report_motion("stop" if isinstance(block, _Stop) else "move", start, self._physical(self._position),
+                                block.t_start, end)
             if isinstance(block, _Stop):
                 self._stop_complete(block)
                 if self._halted:
@@ -814,11 +879,13 @@ class GrblEmulator:
         """Fire a fault due during ``block``; True if one fired (the block is then gone)."""
         if block.t_start is None or block.duration <= 0 or isinstance(block, _Stop):
             return False
-        done = (now - block.t_start) / block.duration
         for fault in list(self._faults):
-            if isinstance(fault, (AlarmMidMove, ResetMidMove, VanishMidMove)) and done >= fault.fraction:
+            if not isinstance(fault, (AlarmMidMove, ResetMidMove, VanishMidMove)):
+                continue
+            # Compared as _next_event_sim computes it (the time the clock stops at): a ratio could round below.
+            at = block.t_start + fault.fraction * block.duration
+            if now >= at:
                 self._faults.remove(fault)
-                at = block.t_start + fault.fraction * block.duration
                 self._stop_motion_at(at)
                 if isinstance(fault, AlarmMidMove):
                     if fault.code in (1, 2):
@@ -840,20 +907,30 @@ class GrblEmulator:
         elif self._planner and self._planner[0].t_start is not None:
             block = self._planner[0]
             times.append(block.t_start + block.duration)
-            for fault in self._faults:
-                if isinstance(fault, (AlarmMidMove, ResetMidMove, VanishMidMove)):
+            for fault in self._faults:  # those _check_mid_move_faults fires (the clock stops at each)
+                if isinstance(fault, (AlarmMidMove, ResetMidMove, VanishMidMove)) and block.duration > 0 \
+                        and not isinstance(block, _Stop):
                     times.append(block.t_start + fault.fraction * block.duration)
         if self._dwell_end is not None:
             times.append(self._dwell_end)
+        if self._booting_until is not None:
+            times.append(self._booting_until)
         return min(times) if times else None
 
     def _stop_motion_at(self, when: float) -> None:
         """Freeze the axes where they are at sim time ``when`` and drop all queued motion."""
-        if self._homing_block is not None and self._homing_block.t_start is not None:
-            physical = self._homing_block.position_at(when - self._homing_block.t_start)
+        homing = self._homing_block if self._homing_block is not None and self._homing_block.t_start is not None \
+            else None
+        running = self._planner[0] if self._planner and self._planner[0].t_start is not None else None
+        if homing is not None:
+            physical = homing.position_at(when - homing.t_start)
             self._position = self._on_grid({a: physical[a] - self._offset[a] for a in self.axes})
+            self._report_motion("abort", homing.start, self._physical(self._position), homing.t_start, when)
         else:
             self._position = self._on_grid(self._current_position(when))
+            if running is not None:
+                self._report_motion("abort", self._physical(self._on_grid(running.start)),
+                                    self._physical(self._position), running.t_start, when)
         self._planner.clear()
         self._homing_block = None
         self._homing_fail = None
@@ -1064,11 +1141,9 @@ class GrblEmulator:
                     timeout = 0.1
                     nxt = self._next_event_sim(self._sim_now())
                     if nxt is not None:
-                        timeout = min(timeout, self._real_delay(nxt - self._sim_now()))
+                        timeout = min(timeout, self.clock.real_seconds_until(nxt))
                     if self._out:
                         timeout = min(timeout, max(0.0, self._out[0][0] - time.monotonic()))
-                    if self._booting_until is not None:
-                        timeout = min(timeout, max(0.0, self._booting_until - time.monotonic()))
                     master, wake, client = self._master, self._wake_r, self._client
                 if master is None or wake is None:
                     return
@@ -1115,12 +1190,13 @@ class GrblEmulator:
             raise
 
     def _tick(self) -> None:
-        if self._booting_until is not None and time.monotonic() >= self._booting_until:
+        if self._booting_until is not None and self._sim_now() >= self._booting_until:
             self._booting_until = None
             self._reboot()
         now = self._sim_now()
         self._advance(now)
         self._process_lines(now)
+        self._schedule()
         self._flush_output()
 
     def _port_opened(self) -> None:
@@ -1131,7 +1207,8 @@ class GrblEmulator:
             self._stop_motion_at(self._sim_now())
             self._out.clear()
             self._rx.clear()
-            self._booting_until = time.monotonic() + self._real_delay(self.boot_delay_s)
+            self._booting_until = self._sim_now() + self.boot_delay_s
+            self._schedule()
 
     def _receive(self, data: bytes) -> None:
         if self._booting_until is not None:
@@ -1168,6 +1245,7 @@ class GrblEmulator:
                 self._rx.append(byte)
                 self.max_rx_fill = max(self.max_rx_fill, len(self._rx))
         self._process_lines(self._sim_now())
+        self._schedule()
 
     def _process_lines(self, now: float) -> None:
         while not self._halted and self._booting_until is None:
@@ -1373,6 +1451,12 @@ class GrblEmulator:
         fail = self._homing_fail
         self._homing_block = None
         self._homing_fail = None
+        # The axes last moved in the pull-off, away from the switch (a failed cycle: toward it, stuck there).
+        seek = {a: -1 if self._home_negative(a) else 1 for a in self.axes}
+        start = {a: self._switch_physical(a) for a in self.axes} if fail is None else dict(block.start)
+        self._report_motion("home", start, dict(block.end), block.t_start, block.t_start + block.duration,
+                            approach={a: -seek[a] if fail is None and float(self.settings[27]) > 0 else seek[a]
+                                      for a in self.axes})
         if fail is None:
             self._position = {a: self._home_machine(a) for a in self.axes}
             self._offset = {a: block.end[a] - self._position[a] for a in self.axes}  # type: ignore[union-attr]

@@ -13,7 +13,8 @@ mechanical errors of a :class:`~drivers.sim.profile.SimProfile` (see that module
 part trails the motor by half the backlash. Landing errors are drawn once per move, at rest.
 
 :class:`MoveHistory` keeps, per quantity, the direction of approach, the landing error and when the
-last move ended (for the ringing); the bench feeds it what the emulator reports.
+last move ended (for the ringing); the bench feeds it every motion the emulator reports as ended
+(its motion events: exact end times on the bench clock, no sampling).
 
 The bench frame is the nominal rig frame of ``stereo_bench.geometry`` (origin midway between the
 nominal optical centres of the parallel rig, x toward the right camera, y down, z forward). This is
@@ -26,7 +27,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,7 +38,6 @@ from stereo_bench.geometry import make_transform, rotation_deg
 SIDES = ("left", "right")
 # The quantities whose motion the mechanics model (tilts are fixed on every rig this simulates).
 MOVED = ("baseline_mm", "toe_in_left_deg", "toe_in_right_deg")
-_MOVE_EPS = 1e-9  # a reported value that changes by less than this has not moved
 
 
 def rotation_about(axis: np.ndarray, deg: float) -> np.ndarray:
@@ -124,26 +124,34 @@ def ringing_deg(cameras: CameraErrors, amplitude_deg: float, since_s: float) -> 
     return angle, rate
 
 
+def ringing_duration_s(cameras: CameraErrors) -> float:
+    """How long after a move the heads ring (s): until friction stops the larger of the pan and rocking ringing."""
+    amplitude = max(cameras.vibration_yaw_deg, cameras.vibration_rock_deg)
+    if amplitude <= cameras.vibration_stop_deg:
+        return 0.0
+    return cameras.vibration_decay_s * math.log(amplitude / cameras.vibration_stop_deg)
+
+
 @dataclass
 class AxisHistory:
     """What the mechanics remember of one quantity's motion."""
 
-    value: float | None = None  # last reported value
+    value: float | None = None  # where the last move ended (reported value)
     approach: int = 0  # sign of the last motion (+1 toward larger values), 0 = never moved
-    moving: bool = False
-    last_change_s: float = -math.inf  # simulated time the reported value last changed
-    move_end_s: float = -math.inf  # simulated time the last completed move ended
-    landing: float = 0.0  # random landing error of the last completed move (mm or deg)
-    moves: int = 0
+    move_end_s: float = -math.inf  # bench-clock time the last move ended
+    landing: float = 0.0  # random landing error of the last move (mm or deg)
 
 
 class MoveHistory:
     """Per moved quantity: direction of approach, landing error and end time of the last move.
 
-    Fed with reported physical values (``observe``) by a watcher while the axes move and before every
-    frame. A move has ended when its value stops changing (or the controller is idle). Landing errors
-    are drawn from ``(seed, quantity, position, visits of that position)``, so a resumed campaign
-    draws the same errors for the same moves.
+    Fed with every motion that ends (:meth:`moved`; the bench passes on the emulator's motion events),
+    so end times are the motion model's, on the bench clock. Each landing error is drawn from
+    ``(seed, quantity, key)``, with a key the caller gives per quantity that names the move (the
+    simulated bench in a campaign: the configuration the axis arrived at in the plan and which move
+    there, see ``SimulatedBench.begin_configuration``), so that a resumed campaign draws the same
+    errors for the same moves however the moves before them went. Without keys, a move is named by
+    its position and the visits of that position so far (in the order they happen).
     """
 
     def __init__(self, profile: SimProfile, seed: int = 0):
@@ -151,7 +159,6 @@ class MoveHistory:
         self.seed = int(seed) & 0xFFFFFFFF
         self.axes = {q: AxisHistory() for q in MOVED}
         self._visits: Counter = Counter()
-        self._last_observed_s = -math.inf
 
     def _sigma(self, quantity: str) -> float:
         if quantity == "baseline_mm":
@@ -159,56 +166,43 @@ class MoveHistory:
         side = "left" if quantity == "toe_in_left_deg" else "right"
         return self.profile.head(side).repeatability_deg
 
-    def _land(self, quantity: str, axis: AxisHistory, end_s: float) -> None:
-        axis.moving = False
-        axis.move_end_s = end_s
-        axis.moves += 1
+    def landing_draw(self, quantity: str, key: Sequence[int]) -> float:
+        """The landing error (mm or deg) of the move ``key`` names: a pure function of (seed, quantity, key)."""
         sigma = self._sigma(quantity)
-        if sigma > 0.0:
-            position = int(round(float(axis.value) * 1e4)) & 0xFFFFFFFF
-            key = (quantity, position)
-            visit = self._visits[key]
-            self._visits[key] += 1
-            rng = np.random.default_rng([self.seed, 0x1A9D, MOVED.index(quantity), position, visit])
-            axis.landing = float(rng.normal(0.0, sigma))
-        else:
-            axis.landing = 0.0
+        if sigma <= 0.0:
+            return 0.0
+        rng = np.random.default_rng([self.seed, 0x1A9D, MOVED.index(quantity), *(int(k) & 0xFFFFFFFF for k in key)])
+        return float(rng.normal(0.0, sigma))
 
-    def observe(self, values: Mapping[str, float], now_s: float, *, idle: bool = False) -> None:
-        """Record reported values at simulated time ``now_s``; ``idle``: the controller says nothing moves."""
-        previous_s = self._last_observed_s
-        self._last_observed_s = now_s
-        for quantity, axis in self.axes.items():
-            if quantity not in values:
+    def moved(self, end: Mapping[str, float], *, end_s: float, approach: Mapping[str, int],
+              keys: Mapping[str, Sequence[int]] | None = None) -> None:
+        """A motion ended at bench time ``end_s`` with the quantities in ``approach`` (+1/-1: the direction each
+        arrived in) at ``end`` (reported values); ``keys[quantity]`` names the move for its landing draw
+        (None: by position and visits, see the class docstring)."""
+        for quantity, direction in approach.items():
+            axis = self.axes.get(quantity)
+            if axis is None or not direction:
                 continue
-            value = float(values[quantity])
-            if axis.value is None:
-                axis.value = value
-                continue
-            delta = value - axis.value
-            if abs(delta) > _MOVE_EPS:
-                axis.value = value
-                axis.approach = 1 if delta > 0 else -1
-                axis.moving = True
-                axis.landing = 0.0
-                axis.last_change_s = now_s
-                if idle:  # moved and stopped between two looks: it stopped after the earlier one
-                    self._land(quantity, axis, previous_s if math.isfinite(previous_s) else now_s)
-            elif axis.moving:
-                self._land(quantity, axis, axis.last_change_s)
+            axis.value = float(end[quantity])
+            axis.approach = 1 if direction > 0 else -1
+            axis.move_end_s = float(end_s)
+            if keys is None:
+                position = int(round(axis.value * 1e4)) & 0xFFFFFFFF
+                key = (position, self._visits[(quantity, position)])
+                self._visits[(quantity, position)] += 1
+            else:
+                key = keys[quantity]
+            axis.landing = self.landing_draw(quantity, key)
 
     def excited_since(self, side: str) -> tuple[float, float]:
-        """(simulated time the ``side`` head's pan ringing was last excited, time its rocking was)."""
+        """(bench time the ``side`` head's pan ringing was last excited, time its rocking was)."""
         slide = self.axes["baseline_mm"]
         pan = self.axes["toe_in_left_deg" if side == "left" else "toe_in_right_deg"]
-        def end(axis: AxisHistory) -> float:
-            return -math.inf if axis.moving else axis.move_end_s
-        return max(end(slide), end(pan)), end(slide)
+        return max(slide.move_end_s, pan.move_end_s), slide.move_end_s
 
     def snapshot(self) -> dict[str, dict]:
-        """JSON-ready: per quantity its approach, landing error, whether it moves and moves so far."""
-        return {q: {"approach": a.approach, "landing": a.landing, "moving": a.moving, "moves": a.moves}
-                for q, a in self.axes.items()}
+        """JSON-ready: per quantity its direction of approach and landing error."""
+        return {q: {"approach": a.approach, "landing": a.landing} for q, a in self.axes.items()}
 
 
 @dataclass(frozen=True)

@@ -43,12 +43,19 @@ PreviewGrab = Callable[[int | None], tuple[np.ndarray, np.ndarray, float]]
 
 
 class Clock:
-    """The bench's waits (settle times): divided by ``time_scale``, and cut short by a stop request."""
+    """The bench's waits (settle times): divided by ``time_scale``, and cut short by a stop request.
 
-    def __init__(self, time_scale: float = 1.0):
+    ``advance(seconds)``: a simulated bench's clock, moved on by each wait at once (drivers/sim/clock.py):
+    the time the simulation sees pass is the wait's, however long it really took; the real wait only paces.
+    """
+
+    def __init__(self, time_scale: float = 1.0, advance: Callable[[float], object] | None = None):
         self.time_scale = time_scale
+        self._advance = advance
 
     def wait(self, seconds: float, stop: threading.Event) -> None:
+        if self._advance is not None:
+            self._advance(seconds)
         real = seconds / self.time_scale if self.time_scale != math.inf else 0.0
         if real > 0:
             stop.wait(real)
@@ -65,6 +72,9 @@ class Bench:
     recorded beside the measurement and never used by it; None on real hardware.
     ``recorded_approach(config_id)``: a replay serves the directions the recorded moves came from (the
     runner infers them from the positions reported since homing, which a replay does not see).
+    ``approaches``: the runner re-approaches a configuration it did not come to from the plan's previous one (a
+    resume; ``campaign/approach.py``); a replay serves the recorded moves only. ``approach_rest_s``: how long the
+    rig rests after such an approach beyond the settle (a simulated bench: until its heads stop ringing).
     """
 
     kind: str  # "simulated", "bring-up", "hardware" or "replay"
@@ -79,6 +89,8 @@ class Bench:
     _stack: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
     truth: Callable[[str], dict | None] | None = None
     recorded_approach: Callable[[str], dict] | None = None
+    approaches: bool = True
+    approach_rest_s: float = 0.0
 
     def grab_preview(self, width_px: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """(left, right, dt_s) for a live preview; only with the cameras borrowed (``camera_gate.borrowed()``).
@@ -166,10 +178,12 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
     except BaseException:
         stack.close()
         raise
+    # Settles pass on the bench clock (the emulator's, the cameras'): the simulation is a function of the plan.
+    clock = Clock(sim.time_scale, advance=sim.clock.advance)
     return Bench(kind="bring-up" if bring_up else "simulated", rig=rig, cameras=cameras, presenter=presenter,
-                 operators=list(operators), clock=Clock(1.0 if bring_up else config.rig.time_scale),
-                 homes=config.rig.homing, preview=_simulated_preview(sim, stack), _stack=stack,
-                 truth=lambda config_id: sim.truth())
+                 operators=list(operators), clock=clock, homes=config.rig.homing,
+                 preview=_simulated_preview(sim, stack), _stack=stack, truth=lambda config_id: sim.truth(),
+                 approach_rest_s=sim.ringing_s)
 
 
 def _simulated_preview(sim, stack: contextlib.ExitStack) -> PreviewGrab:
@@ -223,13 +237,27 @@ class SimulatedPresenter:
         self._target_requests: Counter = Counter()
         self._planned: Future | None = None  # (n_views, poses or the error) of the current configuration
         self._planner = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-presenter") if stage_ahead else None
+        # The plan's order (begin_run): where its rig arrived at each value, which placement each target sees.
+        self._arrivals: dict[str, dict[str, str]] = {}
+        self._placements: dict[str, str] = {}
         bench.warm_up(calibration_board, target)
 
     def close(self) -> None:
         if self._planner is not None:
             self._planner.shutdown(wait=True, cancel_futures=True)
 
+    def begin_run(self, sequence: Sequence[Configuration | Visit]) -> None:
+        from stereo_bench.campaign.approach import arrivals, placements
+
+        self._arrivals, self._placements = arrivals(sequence), placements(sequence)
+
+    def _placement(self, configuration: Configuration) -> str | None:
+        return self._placements.get(configuration.config_id)
+
     def begin_configuration(self, configuration: Configuration) -> None:
+        # The bench keys its landing draws by the configuration the plan's rig arrived at each value for.
+        self.bench.begin_configuration(configuration.config_id, targets=configuration.move_request(),
+                                       arrivals=self._arrivals.get(configuration.config_id, {}))
         self._configuration = configuration
         self._target_requests = Counter()
         self._poses = []
@@ -247,7 +275,8 @@ class SimulatedPresenter:
             ("board", self.calibration_board, pose,
              scene_seed(self.seed, configuration.config_id, "calibration", index)) for index, pose in enumerate(poses)]
         scenes += [("target", self.target, configuration.distance_mm,
-                    scene_seed(self.seed, configuration.config_id, "target", index)) for index in range(n_frames)]
+                    scene_seed(self.seed, configuration.config_id, "target", index), self._placement(configuration))
+                   for index in range(n_frames)]
         self.bench.stage(scenes, at=configuration.rig_pose(), ahead=len(scenes))
         return n_views, poses
 
@@ -308,7 +337,8 @@ class SimulatedPresenter:
         kind = "target" if retry == 0 else f"target-retry{retry}"
         # The simulated operator places the target (the bench draws a placement error per placement).
         self.bench.place_target(self.target, distance_mm=configuration.distance_mm,
-                                seed=scene_seed(self.seed, configuration.config_id, kind, frame_index))
+                                seed=scene_seed(self.seed, configuration.config_id, kind, frame_index),
+                                placement=self._placement(configuration))
 
 
 # -- the real bench --------------------------------------------------------------------------------
@@ -366,6 +396,9 @@ class ReplayPresenter:
 
     def recorded_detections(self, index: int) -> tuple | None:
         return self.detections.get(f"{self.config_id}/{index}")
+
+    def begin_run(self, sequence: Sequence[Configuration | Visit]) -> None:
+        return None
 
     def begin_configuration(self, configuration: Configuration) -> None:
         self.config_id = configuration.config_id
@@ -454,7 +487,7 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     cameras = stack.enter_context(ReplayStereoCamera(load_pair, order=list(frames), ahead=8, workers=2))
     return Bench(kind="replay", rig=rig, cameras=cameras, presenter=ReplayPresenter(cameras, detections),
                  operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack,
-                 truth=truths.get if truths else None,
+                 truth=truths.get if truths else None, approaches=False,
                  recorded_approach=lambda config_id: approaches.get(config_id, {}))
 
 

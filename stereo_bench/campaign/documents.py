@@ -273,6 +273,16 @@ class RigData(BaseModel):
                           "unknown), from the positions it reported since homing; the kinematic model's backlash")
 
 
+class ApproachData(BaseModel):
+    """A move before a configuration's own, so that it arrives the way the uninterrupted run did
+    (``campaign/approach.py``); the configuration's ``move`` event follows."""
+
+    model_config = _STRICT
+    action: Literal["approach"] = "approach"
+    rig: RigReadingRecord
+    target: dict[str, float] = Field(description="the physical values moved to (quantities left alone are absent)")
+
+
 class ActionData(BaseModel):
     model_config = _STRICT
     action: str
@@ -602,6 +612,11 @@ class MoveEvent(EventDocument):
     data: RigData
 
 
+class ApproachEvent(EventDocument):
+    kind: Literal["approach"] = "approach"
+    data: ApproachData
+
+
 class RigRecoveredEvent(EventDocument):
     kind: Literal["rig_recovered"] = "rig_recovered"
     data: ActionData
@@ -706,7 +721,7 @@ class StopDocument(Document):
 #: plain EventDocument; the runner writes only these. A new kind is a class above and a line here.
 EVENT_MODELS: dict[str, type[EventDocument]] = {
     model.model_fields["kind"].default: model
-    for model in (HomeEvent, MoveEvent, RigRecoveredEvent, RigUnrecoverableEvent, CalibrationViewEvent,
+    for model in (HomeEvent, MoveEvent, ApproachEvent, RigRecoveredEvent, RigUnrecoverableEvent, CalibrationViewEvent,
                   MeasurementFrameEvent, TargetNotFoundEvent, CalibrationEvent, AnalysisEvent, TranscriptEvent,
                   PromptEvent, CalibrationViewDiscardedEvent, RunControlEvent, CalibrationDetectionsEvent,
                   TruthEvent, ControllerEvent, StructureEvent, KinematicModelEvent, IntrinsicsEvent)
@@ -731,6 +746,7 @@ AnyDocument = Annotated[
     | Annotated[ResultDocument, Tag("result")] | Annotated[StopDocument, Tag("stop")]
     | Annotated[EventDocument, Tag("event")]
     | Annotated[HomeEvent, Tag("event:home")] | Annotated[MoveEvent, Tag("event:move")]
+    | Annotated[ApproachEvent, Tag("event:approach")]
     | Annotated[RigRecoveredEvent, Tag("event:rig_recovered")]
     | Annotated[RigUnrecoverableEvent, Tag("event:rig_unrecoverable")]
     | Annotated[CalibrationViewEvent, Tag("event:calibration_view")]
@@ -870,11 +886,11 @@ def event_draft(kind: str, *, config_id: str | None = None, data: Any = None, **
 __all__ = [
     "ADDED_COLUMNS", "COMPARED_COLUMNS", "DOCUMENT_MODELS", "DOCUMENT_TYPES", "EVENT_MODELS", "EXIT_STATUSES",
     "READABLE_SCHEMA_VERSIONS", "REPORT_COLUMNS", "RESULT_COLUMNS", "SCHEMA_VERSION", "TOLERANCES", "AnalysisEvent",
-    "CalibrationDetectionsEvent", "CalibrationEvent", "CalibrationFiles", "CalibrationViewDiscardedEvent",
-    "CalibrationViewEvent", "ControllerEvent", "DetectionRecord", "Document", "DocumentError", "Draft",
-    "EventDocument", "HomeEvent", "IntrinsicsEvent", "KinematicModelEvent", "NumericEnvironment",
-    "MeasurementFrameEvent", "MoveEvent", "PromptEvent", "ResultDocument", "ResultRow", "ResumeDocument",
-    "RunControlEvent", "StartDocument", "StopDocument", "StructureEvent", "TargetNotFoundEvent", "TranscriptEvent",
-    "TruthEvent", "document_json", "columns_of", "column", "document_json_schema", "event_draft", "json_safe",
-    "nested", "parse_document", "result_row",
+    "ApproachEvent", "CalibrationDetectionsEvent", "CalibrationEvent", "CalibrationFiles",
+    "CalibrationViewDiscardedEvent", "CalibrationViewEvent", "ControllerEvent", "DetectionRecord", "Document",
+    "DocumentError", "Draft", "EventDocument", "HomeEvent", "IntrinsicsEvent", "KinematicModelEvent",
+    "MeasurementFrameEvent", "NumericEnvironment", "MoveEvent", "PromptEvent", "ResultDocument", "ResultRow",
+    "ResumeDocument", "RunControlEvent", "StartDocument", "StopDocument", "StructureEvent", "TargetNotFoundEvent",
+    "TranscriptEvent", "TruthEvent", "document_json", "columns_of", "column", "document_json_schema", "event_draft",
+    "json_safe", "nested", "parse_document", "result_row",
 ]

@@ -10,13 +10,14 @@ queues the next recorded pair.
 from __future__ import annotations
 
 import zlib
+from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
 
 from stereo_bench.campaign.coverage import Coverage
 from stereo_bench.campaign.operator import CAPTURE_NOW, CONTINUE, DISCARD_LAST_VIEW, Prompt
-from stereo_bench.campaign.plan import Configuration
+from stereo_bench.campaign.plan import Configuration, Visit
 from stereo_bench.targets import Target
 from stereo_bench.vision.detect import Detection
 
@@ -29,6 +30,9 @@ class Presenter(Protocol):
     """Puts boards in front of the cameras. A returned :class:`Prompt` is a step for the operator."""
 
     wants_detections: bool  # calibration_view_captured wants the views' detections (coverage feedback)
+
+    def begin_run(self, sequence: Sequence[Configuration | Visit]) -> None:
+        """The plan's moves in order (``approach.move_sequence``: every one, also those this run skips)."""
 
     def begin_configuration(self, configuration: Configuration) -> None:
         """The rig stands at ``configuration``: the measured target is at its distance from now on."""
@@ -71,6 +75,9 @@ class OperatorPresenter:
         self.coverage = Coverage(image_size, calibration_board)
         self._n_views = 0
         self._config_id: str | None = None
+
+    def begin_run(self, sequence: Sequence[Configuration | Visit]) -> None:
+        return None
 
     def begin_configuration(self, configuration: Configuration) -> None:
         self._config_id = configuration.config_id

@@ -43,8 +43,10 @@ from stereo_bench.campaign.analysis import (
     calibrate_configuration,
     measure_configuration,
 )
+from stereo_bench.campaign.approach import approach_moves, move_sequence
 from stereo_bench.campaign.documents import (
     AnalysisEvent,
+    ApproachEvent,
     CalibrationDetectionsEvent,
     CalibrationEvent,
     CalibrationFiles,
@@ -182,7 +184,15 @@ class CampaignRunner:
         self.target = config.target.build()
         quantities = config.rig.rig_config().quantities
         self._manual_quantities = {q for q, mapping in quantities.items() if mapping.axis == "manual"}
+        self._motor_limits = {q: (mapping.min, mapping.max) for q, mapping in quantities.items()
+                              if mapping.driven and q not in self._manual_quantities}
         self._homed = not bench.homes
+        # The plan's moves in order (all of them, also those a resume skips) and where this run stands in them:
+        # a move that does not follow the previous one of the plan is approached as the plan's was (approach.py).
+        self._sequence = move_sequence(steps)
+        self._sequence_index = {entry.config_id: i for i, entry in enumerate(self._sequence)}
+        self._last_index: int | None = None  # of the last move made; -1: at home; None: not known (not homed)
+        self._start: dict[str, float] | None = None  # where the plan's moves start from (homing leaves the rig)
         self._stop = threading.Event()
         self._running = threading.Event()  # cleared while paused
         self._running.set()
@@ -291,6 +301,7 @@ class CampaignRunner:
         """Execute the steps of every configuration not in ``skip``; returns the exit status."""
         abandon = False
         captured = None
+        self.bench.presenter.begin_run(self._sequence)
         try:
             try:
                 for config_id, group in group_steps(self.steps):
@@ -388,6 +399,7 @@ class CampaignRunner:
     def _home(self) -> None:
         reading = self.bench.rig.home()
         self._homed = True
+        self._homed_at(reading)
         self._approach.reached(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
                                                       "toe_in_right_deg": 0.0}))
         self._publish(Draft(HomeEvent, data={"rig": reading.to_dict()}))
@@ -403,6 +415,7 @@ class CampaignRunner:
             try:
                 if not self._homed:  # the first move homes first, so nothing moves when nothing is left to run
                     self._home()
+                self._approach_as_planned(configuration)
                 reading = self._move_once(request)
                 break
             except RigError as error:
@@ -413,6 +426,7 @@ class CampaignRunner:
                     continue
                 self._recover_rig(error, configuration)
                 raise ConfigurationFailed(f"rig: {error}") from None
+        self._last_index = self._sequence_index.get(configuration.config_id)
         request = configuration.move_request()
         axes = reported_axes(reading, {"baseline_mm": request["baseline_mm"],
                                        "toe_in_left_deg": request["toe_in_left_deg"],
@@ -423,6 +437,44 @@ class CampaignRunner:
         self._publish(Draft(MoveEvent, config_id=configuration.config_id,
                             data={"rig": reading.to_dict(), "approach": approach}))
         return axes, approach
+
+    def _homed_at(self, reading) -> None:
+        """Homing left the rig at ``reading``: where the plan's moves start from."""
+        self._last_index = -1
+        self._start = self._start or self._motor_position(reading, {})
+
+    def _motor_position(self, reading, fallback: dict) -> dict[str, float]:
+        """The motor-driven quantities a reading reports (a quantity it does not report: ``fallback``'s)."""
+        position = {}
+        for quantity in self._motor_limits:
+            value = getattr(reading, quantity, None)
+            value = fallback.get(quantity) if value is None else value
+            if value is not None:
+                position[quantity] = float(value)
+        return position
+
+    def _approach_as_planned(self, configuration: Configuration | Visit) -> None:
+        """Before a move that does not follow the plan's previous one (a resume: after homing), go where the plan's
+        rig came from, each axis from the side it arrived from, and rest (:func:`approach.approach_moves`): the
+        move to ``configuration`` is then the uninterrupted run's, and so is what backlash and ringing do to it.
+        Each approach move is recorded as an ``approach`` event (a replay serves only the ``move`` events)."""
+        index = self._sequence_index.get(configuration.config_id)
+        if not self.bench.approaches or not index or self._last_index == index - 1:
+            return  # the plan's first move comes from where the run starts, as this one does
+        commanded = [{q: v for q, v in entry.move_request().items() if q in self._motor_limits}
+                     for entry in self._sequence]
+        here = self._motor_position(self.bench.rig.read(), commanded[index])
+        self._start = self._start or here  # never homed: the plan's moves start where the rig stands
+        moves = approach_moves(commanded, index, here, start=self._start, limits=self._motor_limits)
+        for target in moves:
+            reading = self._move_once({q: target.get(q) for q in commanded[index]})
+            self._approach.reached(reported_axes(reading, {**commanded[index], **target}))
+            self._publish(Draft(ApproachEvent, config_id=configuration.config_id,
+                                data={"rig": reading.to_dict(), "target": target}))
+        if moves:  # rest as at the configuration the plan's rig came from: settled, no longer ringing
+            self.bench.clock.wait(self.config.capture.settle_s + self.bench.approach_rest_s, self._stop)
+            if self._stop.is_set():
+                raise StopRequested()
 
     def _move_once(self, request: dict):
         """One move; a pause requested meanwhile feed-holds it (see :meth:`request_pause`)."""
@@ -456,6 +508,7 @@ class CampaignRunner:
                 f"rig: {error} (at {configuration.config_id}); recovery ({', then '.join(steps)}) failed at the "
                 f"{step}" + ("" if same else f": {failure}")) from failure
         self._homed = True
+        self._homed_at(reading)
         self._approach.reached(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
                                                       "toe_in_right_deg": 0.0}))
         self._publish(Draft(RigRecoveredEvent, data={

@@ -20,6 +20,7 @@ from pathlib import Path
 from stereo_bench.campaign.coverage import Coverage
 from stereo_bench.campaign.documents import (
     AnalysisEvent,
+    ApproachEvent,
     CalibrationEvent,
     CalibrationViewDiscardedEvent,
     CalibrationViewEvent,
@@ -183,6 +184,10 @@ class LiveState:
 
     def _move(self, doc: MoveEvent) -> None:
         self._rig_reading(doc, "move")
+
+    def _approach(self, doc: ApproachEvent) -> None:
+        self._rig_reading(doc, "approach")
+        self.step = f"{doc.config_id}: approaching as the plan did (backlash)"
 
     def _running(self, config_id: str) -> None:
         previous = self.current
@@ -408,7 +413,8 @@ def _side(error, side: int) -> float | None:
 
 _HANDLERS: dict[type, Callable] = {
     StartDocument: LiveState._start, ResumeDocument: LiveState._resume, TranscriptEvent: LiveState._transcript,
-    HomeEvent: LiveState._home, MoveEvent: LiveState._move, CalibrationViewEvent: LiveState._calibration_view,
+    HomeEvent: LiveState._home, MoveEvent: LiveState._move, ApproachEvent: LiveState._approach,
+    CalibrationViewEvent: LiveState._calibration_view,
     CalibrationViewDiscardedEvent: LiveState._discarded, MeasurementFrameEvent: LiveState._measurement_frame,
     TargetNotFoundEvent: LiveState._target_not_found, PromptEvent: LiveState._prompt_answered,
     CalibrationEvent: LiveState._calibrated, AnalysisEvent: LiveState._analysis, ResultDocument: LiveState._result,
