@@ -395,7 +395,9 @@ def test_scenes_are_rendered_during_the_move_for_where_it_will_rest_and_served_b
 
     from drivers.camera.stereo import StereoCamera
 
-    with SimulatedBench(time_scale=5.0, profile=LAB, seed=5, **cameras()) as bench:
+    # The move must last long enough for the render-ahead thread to start while it runs, on a loaded machine too
+    # (at 5x it once ended before that thread was scheduled, in a full suite beside other work).
+    with SimulatedBench(time_scale=2.5, profile=LAB, seed=5, **cameras()) as bench:
         with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
             rig.home()
             rig.move_to(baseline_mm=60.0, alpha_left_deg=88.0, alpha_right_deg=88.0, target_distance_mm=450.0)
