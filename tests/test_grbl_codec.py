@@ -52,7 +52,8 @@ def test_status_report_substate_buffer_line_and_unknown_fields_kept():
     assert (report.planner_blocks_free, report.rx_bytes_free) == (15, 128)
     assert report.line_number == 42 and report.feed == 300.0
     assert report.accessories == "SFM"
-    assert report.extra == {"H": "1,7"}  # grblHAL's homed field: kept, not misread
+    assert report.homed is True and report.homed_mask == 7  # grblHAL's homed field (report.c)
+    assert report.extra == {}
 
 
 def test_six_axis_grblhal_report():
@@ -217,11 +218,18 @@ SETTINGS = b"".join(f"${n}={v}\r\n".encode() for n, v in [
     (102, "250.000"), (130, "350.000"), (131, "90.000"), (132, "90.000")])
 
 
+#: report.c report_ngc_parameters of Grbl 1.1h, three axes, nothing set.
+PARAMETERS = b"".join(b"[" + name + b":0.000,0.000,0.000]\r\n"
+                      for name in (b"G54", b"G55", b"G56", b"G57", b"G58", b"G59", b"G28", b"G30", b"G92")
+                      ) + b"[TLO:0.000]\r\n[PRB:0.000,0.000,0.000:0]\r\n"
+
+
 def _settings_script(settings: bytes = SETTINGS, startup: bytes = b"$N0=\r\n$N1=\r\n", opt: bytes = b"V,15,128"):
     return [
         (b"$I\n", b"[VER:1.1h.20190830:]\r\n[OPT:" + opt + b"]\r\nok\r\n"),
         (b"$$\n", settings + b"ok\r\n"),
         (b"$N\n", startup + b"ok\r\n"),
+        (b"$#\n", PARAMETERS + b"ok\r\n"),
     ]
 
 

@@ -55,6 +55,7 @@ from stereo_bench.campaign.documents import (
     MoveEvent,
     PromptEvent,
     ResultDocument,
+    RigPositionTrustedEvent,
     RigRecoveredEvent,
     RigUnrecoverableEvent,
     RunControlEvent,
@@ -175,6 +176,7 @@ class CampaignRunner:
         quantities = config.rig.rig_config().quantities
         self._manual_quantities = {q for q, mapping in quantities.items() if mapping.axis == "manual"}
         self._homed = not bench.homes
+        self._trusted = False  # [rig] homing = false: the position was taken as right (once, at the first move)
         self._stop = threading.Event()
         self._running = threading.Event()  # cleared while paused
         self._running.set()
@@ -374,6 +376,19 @@ class CampaignRunner:
                          manual_instruction(quantity, value), config_id=configuration.config_id,
                          quantity=quantity, value=value))
 
+    def _trust_position(self) -> None:
+        """``[rig] homing = false``: the user states the rig stands where its controller counts, as ``rig unlock
+        --trust-position`` does; recorded, since every move of the run rests on it. A rig that cannot be told
+        (a replay) has nothing to trust."""
+        trust = getattr(self.bench.rig, "trust_position", None)
+        self._trusted = True
+        if not callable(trust):
+            return
+        reading = trust()
+        self._publish(Draft(RigPositionTrustedEvent, data={
+            "rig": reading.to_dict(), "reason": "[rig] homing = false: the position the controller reports is taken "
+                                                "as right without homing"}))
+
     def _home(self) -> None:
         reading = self.bench.rig.home()
         self._homed = True
@@ -392,6 +407,8 @@ class CampaignRunner:
             try:
                 if not self._homed:  # the first move homes first, so nothing moves when nothing is left to run
                     self._home()
+                elif not self.bench.homes and not self._trusted:
+                    self._trust_position()
                 reading = self._move_once(request)
                 break
             except RigError as error:
