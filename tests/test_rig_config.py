@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from drivers.rig import GrblRig, Rig, RigError
+from drivers.rig import GrblAlarm, GrblRig, Rig, RigError
 from drivers.rig.config import (
     LimitError,
     MachineSpaceError,
@@ -290,6 +290,38 @@ def test_a_positive_mapping_is_warned_at_connect_and_its_moves_refused_before_se
                                                     r"\(\$130=350; soft limits would halt it with ALARM:2\)"):
             rig.move_to(baseline_mm=120.0)
         assert list(emulator.lines_received) == received and not emulator.halted  # no ALARM:2, nothing sent
+
+
+#: The mapping this project defaulted to before: alpha = 90 deg and B = 350 mm exactly on the homing switches.
+AT_THE_SWITCHES = {"quantities": {
+    "baseline_mm": {"axis": "X", "offset": -350, "min": 0, "max": 350},
+    "toe_in_left_deg": {"axis": "Y", "scale": -1.0, "min": 0, "max": 90},
+    "toe_in_right_deg": {"axis": "Z", "scale": -1.0, "min": 0, "max": 90},
+}}
+
+
+def test_with_hard_limits_a_mapping_onto_the_switches_is_warned_and_trips_alarm_1():
+    # limits.c: with $21=1 a target where the homing switch closes halts the controller with ALARM:1; the old
+    # default mapping put the first parallel configuration there, and neither the driver nor the emulator said so.
+    with GrblEmulator(time_scale=FAST, hard_limits=True) as emu, _rig(emu.tty_path,
+                                                                      rig_config_from_dict(AT_THE_SWITCHES)) as rig:
+        switch_warnings = [w for w in rig.warnings if "hard limits are on" in w]
+        assert len(switch_warnings) == 1
+        assert "baseline_mm = 350 mm maps to X0" in switch_warnings[0]
+        assert "toe_in_left_deg = 0 deg maps to Y0" in switch_warnings[0] and "$27=1" in switch_warnings[0]
+        rig.home(timeout_s=5.0)
+        with pytest.raises(GrblAlarm, match="ALARM:1"):
+            rig.move_to(baseline_mm=200.0, alpha_left_deg=90.0, alpha_right_deg=90.0)
+
+
+def test_with_hard_limits_the_default_mapping_stays_clear_of_the_switches():
+    with GrblEmulator(time_scale=FAST, hard_limits=True) as emu, _rig(emu.tty_path) as rig:
+        assert rig.warnings == []
+        rig.home(timeout_s=5.0)
+        for baseline, alpha in ((349.0, 90.0), (1.0, 2.0), (100.0, 90.0)):  # both ends of every range
+            reading = rig.move_to(baseline_mm=baseline, alpha_left_deg=alpha, alpha_right_deg=alpha)
+            assert (reading.baseline_mm, reading.alpha_left_deg, reading.state) == (baseline, alpha, "Idle")
+        assert not emu.halted
 
 
 def test_a_mapping_reaching_past_the_travel_is_warned_and_only_those_moves_refused(emulator):

@@ -123,3 +123,27 @@ def test_a_campaign_measures_with_a_rig_config_in_either_machine_space(text, tmp
             assert structure["baseline_mm"] == pytest.approx(100.0, abs=1e-6)
             assert structure["alpha_left_deg"] == pytest.approx(85.0, abs=1e-6)
             assert structure["alpha_right_deg"] == pytest.approx(85.0, abs=1e-6)
+
+
+@pytest.mark.slow  # a one-configuration campaign (seconds)
+def test_a_campaign_without_homing_trusts_the_position_and_records_it(tmp_path):
+    """``[rig] homing = false`` says the position the controller reports is right (as ``rig unlock
+    --trust-position``): the runner tells the driver so before the first move, and records it. The old runner
+    recorded nothing, and against a controller that booted at connect its first move would have been refused."""
+    plan = SMALL
+    edits = {"[rig]\n": "[rig]\nhoming = false\n", "baseline_mm = [100, 150]": "baseline_mm = [100]",
+             "alpha_deg = [90, 35]": "alpha_deg = [90]", "frames_per_config = 2": "frames_per_config = 1"}
+    for old, new in edits.items():
+        assert old in plan
+        plan = plan.replace(old, new)
+    (tmp_path / "plan.toml").write_text(plan)
+    out = tmp_path / "session"
+    assert main(["campaign", "run", str(tmp_path / "plan.toml"), "--out", str(out), "--yes", "--quiet"]) == 0
+    reader = SessionReader(out)
+    assert not list(reader.events(kind="home"))
+    (trusted,) = reader.events(kind="rig_position_trusted")
+    assert "homing = false" in trusted["data"]["reason"]
+    # The simulated rig powered up at machine 0: B = 350 mm, each head one pull-off (1 deg) beyond parallel.
+    assert trusted["data"]["rig"]["baseline_mm"] == 350.0 and trusted["data"]["rig"]["alpha_left_deg"] == 91.0
+    (row,) = results_csv(out)
+    assert row["status"] == "measured"

@@ -717,7 +717,7 @@ def soft_limit_space(settings: Mapping[int, float], options: str, axis: str, *,
         pulloff = float(settings.get(SETTING_HOMING_PULLOFF, 0.0)) if hard_limits_enabled(settings) else 0.0
         if set_origin:
             return (0.0, travel - pulloff) if homes_negative else (-travel + pulloff, 0.0)
-        return (-travel + pulloff, -pulloff)
+        return (-travel + pulloff, 0.0 - pulloff)  # 0.0 - 0.0 is 0.0, where -0.0 would print as "-0"
     return (0.0, travel) if set_origin and homes_negative else (-travel, 0.0)
 
 
