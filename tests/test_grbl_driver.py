@@ -770,7 +770,9 @@ def test_a_banner_3_s_late_is_a_boot():
     # the driver's own 2 s window is what is tested (3.5 s).
     with GrblEmulator(time_scale=1.0, homing_enabled=False, reboot_on_open=True, boot_delay_s=3.0) as emu:
         with GrblController(emu.tty_path, connect_timeout_s=6.0) as grbl:
-            assert grbl.info.boot_detected and emu.resets == 1
+            # The soft reset sent at 2 s went into the bootloader; its resend a second later may land just after the
+            # boot (a second banner, still before any status report).
+            assert grbl.info.boot_detected and emu.resets in (1, 2)
             with pytest.raises(GrblPositionUnknown, match="did not answer until it was reset"):
                 grbl.move_to({"X": -10.0})
 

@@ -18,18 +18,25 @@ What Grbl 1.1h does that the driver must know (its source is the specification):
 
 - Opening an Arduino's port resets it (DTR auto-reset): the banner comes ~1.1 s later and the step
   counters restart at 0 wherever the axes stand. :meth:`GrblController.open` listens before it acts:
-  a controller that answers ``?`` at once was running; one that prints its banner first has just
-  booted, and its position is unknown (``info.boot_detected``) until it is homed.
-- ``$I``, ``$$`` and ``$N`` are read at connect (:attr:`GrblController.info`): ``$13=1`` (inches) is
+  a controller that answers ``?`` at once was running; every banner that comes before the first status
+  report, however late, is a boot (``info.boot_detected``). After a boot - at open, late, or mid-run - the
+  position is unknown and motion is refused (:class:`GrblPositionUnknown`), whatever ``$22`` says, until
+  the rig is homed or :meth:`GrblController.trust_position` states that it is right.
+- ``$I``, ``$$``, ``$N`` and ``$#`` are read at connect (:attr:`GrblController.info`): ``$13=1`` (inches) is
   refused, a startup line that switches units or moves is warned about, the receive buffer size in
-  ``[OPT:]`` replaces a different configured one.
+  ``[OPT:]`` replaces a different configured one; a query answered ``error:N`` (a dialect without it) is
+  recorded in ``info.unsupported`` and the connect goes on.
 - A failed homing cycle (``ALARM:8``/``9``) resets Grbl: the ``$H`` line still gets a late ``ok`` and a
   banner follows (limits.c ``limits_go_home`` calls ``mc_reset``; system.c ``system_execute_line`` still
   returns STATUS_OK for ``$H``; main.c re-initialises). The driver keeps the ``$H`` outstanding for that ``ok`` and
   treats the banner as part of the failure; when the ALARM line is missing, the Alarm state after the
   ``ok`` tells.
 - After ``ALARM:1``/``ALARM:2`` Grbl answers nothing, not even ``?``, until a soft reset (protocol.c
-  ``protocol_exec_rt_system``, its critical-event loop): the driver says so instead of timing out.
+  ``protocol_exec_rt_system``, its critical-event loop): the driver says so instead of timing out. A
+  reset received before its ``[MSG:Reset to continue]`` is discarded: :meth:`GrblController.soft_reset`
+  waits for that message and resends once.
+- grblHAL (``info.dialect``): ``$21``/``$22`` are bitfields, its work envelope keeps a pull-off off each end
+  with hard limits on, and it checks soft limits on homed axes only (:func:`codec.soft_limit_space`).
 - ``~`` during ``Hold:1`` (still decelerating) is ignored (protocol.c ``protocol_exec_rt_system`` starts a
   cycle only from Idle or a hold with SUSPEND_HOLD_COMPLETE, and clears the request either way):
   :meth:`GrblController.resume` waits for ``Hold:0``.
@@ -1236,7 +1243,8 @@ class GrblController:
             self._position_unknown = None
             self._unexpected_reset = False
         if why is not None:
-            log.warning("%s: position trusted as it is, without homing (%s)", self.port_name, why)
+            # The caller asked for it and says so to the user; logged below warning level.
+            log.info("%s: position trusted as it is, without homing (%s)", self.port_name, why)
 
     def home(self, *, timeout: float = 120.0) -> GrblReading:
         """``$H``: run the homing cycle and wait for its ``ok`` (GRBL reports no status while homing).

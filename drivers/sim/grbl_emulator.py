@@ -17,15 +17,20 @@ behaviour mirrors. What it does:
   once, without ``ok``.
 - Settings (settings.c, report.c): ``$$`` lists defaults.h DEFAULTS_GENERIC overridden by the
   constructor's arguments, ``$x=value`` stores with the firmware's checks. Honoured: ``$10`` status
-  mask, ``$13`` report inches, ``$20`` soft limits, ``$22`` homing, ``$23`` homing direction mask,
-  ``$25`` seek rate, ``$27`` pull-off, ``$100``.. steps/unit, ``$110``.. max rates, ``$120``..
-  accelerations, ``$130``.. max travel. ``$I`` answers ``[VER:1.1h.20190830:]`` ``[OPT:V,15,128]``;
-  ``$N`` lists the two startup lines, ``$Nn=line`` stores one (executing it, as system.c does).
+  mask, ``$13`` report inches, ``$20`` soft limits, ``$21`` hard limits, ``$22`` homing, ``$23`` homing
+  direction mask, ``$24`` locate feed, ``$25`` seek rate, ``$26`` debounce, ``$27`` pull-off, ``$100``..
+  steps/unit, ``$110``.. max rates, ``$120``.. accelerations, ``$130``.. max travel. ``$I`` answers
+  ``[VER:1.1h.20190830:]`` ``[OPT:V,15,128]``; ``$N`` lists the two startup lines, ``$Nn=line`` stores one
+  in Idle (executing it, as system.c does; ``error:8`` in Alarm).
 - Positions are step counts (``sys_position``): a target is rounded to whole steps (planner.c
   ``plan_buffer_line``, ``lround``), MPos = steps / ``$10x``. Power-up and a reboot zero them wherever
   the axes stand (main.c); a soft reset keeps them. :meth:`physical_position` is where the axes really
   are, in the machine frame a successful homing establishes.
-- Homing (limits.c ``limits_go_home``): the switch is at the positive end of each axis (at the negative
+- Homing (motion_control.c ``mc_homing_cycle``, limits.c ``limits_go_home``): cycles of config.h (Z, then X
+  and Y; :func:`drivers.rig.motion.homing_cycles`), each a seek to the switches at ``$25`` (each axis stops
+  dead on its own), a pull-off of ``$27`` at ``$25``, a locate at ``$24`` and a last pull-off, each move
+  followed by the ``$26`` debounce: its time is the firmware's (:func:`drivers.rig.motion.homing_time_s`).
+  The switch is at the positive end of each axis (at the negative
   end with its ``$23`` bit set); after pull-off the axis is set to ``-$27`` (``-$13x + $27``): machine
   space is ``[-$13x, 0]``. A HOMING_FORCE_SET_ORIGIN build (``force_set_origin``, ``Z`` in ``[OPT:]``)
   sets 0 instead, and ``[0, $13x]`` on the axes whose ``$23`` bit is set; its switches are then one
@@ -34,7 +39,8 @@ behaviour mirrors. What it does:
   (``<Home|MPos:...>``, motion_control.c ``mc_homing_cycle``), or never if it fails. With homing
   enabled the controller boots in Alarm (``[MSG:'$H'|'$X' to unlock]``). After a successful ``$H`` the
   startup lines run (echoed ``>line:ok``) before the ``ok`` of the ``$H``.
-- Homing failure (:class:`HomingFail`): ``ALARM:8``/``ALARM:9``, then - Grbl has reset itself - the late
+- Homing failure (:class:`HomingFail`, in the first cycle; or a switch beyond the search):
+  ``ALARM:8``/``ALARM:9``, then - Grbl has reset itself - the late
   ``ok`` of the ``$H`` line and the banner with ``[MSG:'$H'|'$X' to unlock]`` (system.c ``$H`` still
   returns STATUS_OK, main.c re-initialises). The ALARM line can be left out (``alarm_line=False``),
   as was seen on the real firmware.
@@ -43,7 +49,11 @@ behaviour mirrors. What it does:
   ``[MSG:Reset to continue]``; then nothing is answered - not even ``?`` - until 0x18 (protocol.c
   ``protocol_exec_rt_system``, critical-event loop). After the reset the offending line is answered
   ``ok`` (its ``gc_execute_line`` still returns STATUS_OK), then the banner. A jog beyond travel is
-  ``error:15``. Check mode (``$C``) checks soft limits too.
+  ``error:15``. Check mode (``$C``) checks soft limits too. A reset received before
+  ``[MSG:Reset to continue]`` (during report_alarm_message's pause) is lost: protocol.c clears it.
+- Hard limits (``$21=1``, limits.c ``ISR(LIMIT_INT_vect)``): a homing switch that closes or opens during
+  motion (not homing, not in Alarm) stops the axes dead there with ``ALARM:1``, critical as above; a boot or
+  reset with a switch closed is Alarm with ``[MSG:Check Limits]`` (protocol.c, CHECK_LIMITS_AT_INIT).
 - Feed hold (protocol.c): ``!`` decelerates (``Hold:1``), then ``Hold:0``; ``~`` resumes only a
   completed hold (a ``~`` during ``Hold:1`` is ignored). ``!`` during a jog cancels it.
 - Soft reset (motion_control.c ``mc_reset``, main.c): ``ALARM:3`` if the axes were moving (including
@@ -53,6 +63,11 @@ behaviour mirrors. What it does:
   ``[MSG:Disabled]`` and ``ok``.
 - Every ``ALARM:N`` line is followed by a 0.5 s pause (report.c ``report_alarm_message``), in
   simulated time.
+- grblHAL (``firmware="grblhal"``, from grblHAL/core): its ``$I`` lines and ``[OPT:VNML+W,100,1024,3,0]``,
+  ``$22`` as a bitfield (``$22=1``: no homing lock, it boots Idle), soft limits on homed axes only within
+  its work envelope (machine_limits.c), a 100 ms alarm pause, ``|H:1`` on the report after homing, no late
+  ``ok`` after a failed homing, ``$481`` auto-reports; a 100-block planner and a 1024-byte buffer.
+- A dialect without some ``$`` queries (``unsupported_queries``): answered ``error:3``.
 - ``G20``/``G21``, ``G90``/``G91``, ``G53``, ``G0``/``G1`` (F in units/min), ``G4 P<s>`` (its ``ok``
   comes once the planner is empty, so it marks the end of motion), ``$X``, ``$J=``, ``$G``, ``$#``.
 - Arduino auto-reset (``reboot_on_open``): opening the port reboots the board; the bootloader swallows
@@ -63,12 +78,11 @@ behaviour mirrors. What it does:
   :class:`ResetMidMove`, :class:`VanishMidMove`, :class:`HomingFail` and :meth:`GrblEmulator.vanish`).
 
 Simplifications (the driver does not depend on them): blocks do not blend at junctions (each runs
-from rest to rest) and a feed hold decelerates within the current block; homing moves every axis at
-once at the seek rate, then a fixed settle time stands for the locate and pull-off phases; a
-motor never stalls at the end of its travel and there are no hard limit switches (``$21`` is stored,
-not acted on); a startup line's ``G4`` does not wait; arcs, probing, spindle, coolant, ``G10``/``G92``
-offsets, sleep and ``$RST`` are not modelled (their g-codes are refused with ``error:20``, ``$SLP``
-and ``$RST=`` with ``error:3``).
+from rest to rest) and a feed hold decelerates within the current block; a switch trips exactly at its
+position (no hysteresis); a motor never stalls at the end of its travel (only on a switch that never
+answers, HomingFail 9) and there are no switches at the far ends; a startup line's ``G4`` does not wait;
+arcs, probing, spindle, coolant, ``G10``/``G92`` offsets, sleep and ``$RST`` are not modelled (their g-codes
+are refused with ``error:20``, ``$SLP`` and ``$RST=`` with ``error:3``).
 Units are machine units (mm; a rotary axis in whatever unit its settings are given in).
 """
 
