@@ -400,3 +400,15 @@ def test_the_emulator_is_sized_for_any_mapping():
             rig.home(timeout_s=5.0)
             assert rig.move_to(baseline_mm=120.0, toe_in_left_deg=5.0).machine_position == {"X": 120.0, "Y": 5.0,
                                                                                              "Z": 0.0}
+
+
+def test_homing_approach_is_the_direction_of_the_last_pull_off():
+    # limits.c: the cycle ends pulling off the switch, toward - machine units (toward + on a $23 axis); the mapping's
+    # scale turns that into the physical direction the kinematic model's backlash correction needs.
+    specs = {"Y": AxisSpec(max_travel=90.0, home_negative=True)}
+    config = rig_config_from_dict({"quantities": {"toe_in_left_deg": {"axis": "Y", "offset": -89, "scale": 1.0,
+                                                                       "min": 0, "max": 88}}})
+    with GrblEmulator(time_scale=FAST, axis_specs=specs) as emu, _rig(emu.tty_path, config) as rig:
+        assert rig.homing_approach() == {"baseline_mm": -1, "toe_in_left_deg": 1, "toe_in_right_deg": 1}
+        home = rig.home(timeout_s=5.0)
+        assert home.toe_in_left_deg == 0.0 and emu.physical_position()["Y"] == -89.0  # -$131 + $27

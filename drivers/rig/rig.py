@@ -192,6 +192,23 @@ class GrblRig:
             timeout = self.config.controller.home_timeout_s if timeout_s is None else timeout_s
             return self._reading(self.controller.home(timeout=timeout))
 
+    def homing_approach(self) -> dict[str, int]:
+        """Per driven quantity the direction (+1 increasing, -1 decreasing, physical units) from which homing
+        leaves it: the last move of the cycle pulls off its switch (limits.c ``limits_go_home``), toward -
+        machine units on an axis homing toward + and toward + on a ``$23`` axis. The kinematic model's
+        backlash correction needs it for the first configurations visited at the homed position. Empty when
+        the settings were not read."""
+        info = self.controller.info
+        if not info.settings_read:
+            return {}
+        out = {}
+        for quantity, axis in self.config.driven.items():
+            homes_negative = codec.setting_bit(info.settings, codec.SETTING_HOMING_DIR_MASK,
+                                               codec.AXIS_LETTERS.index(axis))
+            machine = 1 if homes_negative else -1
+            out[quantity] = machine if self.config.quantities[quantity].scale > 0 else -machine
+        return out
+
     def unlock(self, *, trust_position: bool = False) -> RigReading:
         """Leave Alarm without homing (``$X``): only when the positions are known to be right. After a boot the
         position stays unknown (moves refused) unless ``trust_position`` states that it is right."""

@@ -392,8 +392,11 @@ class CampaignRunner:
     def _home(self) -> None:
         reading = self.bench.rig.home()
         self._homed = True
-        self._approach.reached(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
-                                                      "toe_in_right_deg": 0.0}))
+        # The cycle's last move pulls each axis off its switch: the direction the homed position was reached from.
+        directions = getattr(self.bench.rig, "homing_approach", None)
+        self._approach.homed(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
+                                                    "toe_in_right_deg": 0.0}),
+                             directions() if callable(directions) else {})
         self._publish(Draft(HomeEvent, data={"rig": reading.to_dict()}))
 
     def _move(self, configuration: Configuration | Visit) -> tuple[dict, dict]:
