@@ -212,7 +212,7 @@ def test_tilt_on_a_rig_without_tilt_axes_is_a_mapping_violation():
 def test_toe_in_beyond_the_pan_limits():
     (c,) = expand_plan(_config({"baseline_mm": [100], "distance_mm": [500], "toe_in_deg": [-5]},
                                extrinsics={"mode": "fixed", "calib_dir": "."}))
-    assert c.limit_violation == "toe_in_left_deg = -5 outside [0, 90]; toe_in_right_deg = -5 outside [0, 90]"
+    assert c.limit_violation == "toe_in_left_deg = -5 outside [0, 88]; toe_in_right_deg = -5 outside [0, 88]"
 
 
 # ---------------------------------------------------------------------------------------------- steps
@@ -297,16 +297,22 @@ def test_duration_of_paper_exp1_on_the_simulated_rig():
     configurations = expand_plan(config)
     steps = plan_steps(config, configurations)
     estimate = estimate_duration(config, configurations, steps)
-    # Homing: 350 mm at 3000 mm/min + 0.5 s. Motion: from the homing switch (X = 0, B = 350 mm in the default
-    # mapping) to B = 50 mm, 300 mm in 6.25 s (0.25 s ramps of 6.25 mm, 287.5 mm at 50 mm/s), then 20 baseline
-    # moves of 50 mm (1.25 s each); the baseline stays put when only Z changes (serpentine).
-    # 25 x (0.3 s settle + 15 frames x 0.02 s).
-    assert estimate.homing_s == pytest.approx(7.5)
-    assert estimate.motion_s == pytest.approx(6.25 + 20 * 1.25)
+    # Homing from machine 0, where the simulated rig powers up (on the switches): per cycle (Z, then X and Y; both
+    # at 30 mm/s, 180 mm/s^2: the slowest axis' $11x/$12x) no seek, a 1 mm pull-off (triangle, 2 x sqrt(1/180) =
+    # 0.149 s), a 1 mm locate at 200 mm/min (0.0185 s ramp, then 0.969 mm at 3.33 mm/s: 0.309 s), a pull-off, and
+    # four 0.1 s debounces: 1.0074 s a cycle. Motion: from where homing leaves the rig (X = -1, B = 349 mm) to
+    # B = 50 mm, 299 mm in 6.23 s (0.25 s ramps of 6.25 mm, 286.5 mm at 50 mm/s), then 20 baseline moves of 50 mm
+    # (1.25 s each); the baseline stays put when only Z changes (serpentine); alpha = 90 is where homing leaves
+    # the heads. 25 x (0.3 s settle + 15 frames x 0.02 s).
+    cycle = 2 * math.sqrt(1 / 180) + (30 / 9 / 180 + (1 - 0.5 * 180 * (30 / 9 / 180) ** 2) / (30 / 9)) \
+        + 2 * math.sqrt(1 / 180) + 4 * 0.1
+    assert estimate.homing_s == pytest.approx(2 * cycle) == pytest.approx(2.0148, abs=1e-4)
+    assert estimate.motion_s == pytest.approx(6.23 + 20 * 1.25)
     assert estimate.settle_s == pytest.approx(25 * 0.3)
     assert estimate.capture_s == pytest.approx(25 * 15 * 0.02)
     assert estimate.operator_s == 0.0 and estimate.flush_s == 0.0
-    assert predict_duration_s(config, configurations, steps) == pytest.approx(estimate.total_s) == pytest.approx(53.75)
+    assert predict_duration_s(config, configurations, steps) == pytest.approx(estimate.total_s) == pytest.approx(
+        2 * cycle + 6.23 + 25 + 7.5 + 7.5)
     assert any("no operator time" in a for a in estimate.assumptions)
 
 

@@ -52,7 +52,8 @@ def test_status_report_substate_buffer_line_and_unknown_fields_kept():
     assert (report.planner_blocks_free, report.rx_bytes_free) == (15, 128)
     assert report.line_number == 42 and report.feed == 300.0
     assert report.accessories == "SFM"
-    assert report.extra == {"H": "1,7"}  # grblHAL's homed field: kept, not misread
+    assert report.homed is True and report.homed_mask == 7  # grblHAL's homed field (report.c)
+    assert report.extra == {}
 
 
 def test_six_axis_grblhal_report():
@@ -126,6 +127,54 @@ def test_machine_space_follows_homing_direction_and_build():
     assert codec.soft_limit_space(settings, "VZ", "X") == (-200.0, 0.0)
     assert codec.soft_limit_space(settings, "VZ", "Y") == (0.0, 90.0)
     assert codec.soft_limit_space({**settings, 22: 0}, "V", "X") is None  # no homing: no fixed frame
+
+
+def test_grblhal_build_info_tags_with_spaces_and_the_extended_opt():
+    # report.c report_build_info: "[NVS STORAGE:...]" and "[DRIVER VERSION:...]" are feedback, not noise.
+    lines = ["[VER:1.1f.20231210:]", "[OPT:VNML+W,100,1024,3,0]", "[AXS:3:XYZ]", "[NEWOPT:ENUMS,RT+,HOME,TC,SED]",
+             "[FIRMWARE:grblHAL]", "[NVS STORAGE:*EEPROM]", "[DRIVER:Simulator]", "[DRIVER VERSION:260913]", "ok"]
+    assert codec.parse_response("[NVS STORAGE:*EEPROM]") == codec.Feedback("NVS STORAGE", "*EEPROM")
+    info = codec.parse_build_info(lines)
+    assert (info.options, info.planner_blocks, info.rx_buffer_size, info.axis_count, info.tool_count) == (
+        "VNML+W", 100, 1024, 3, 0)
+    assert info.firmware == "grblHAL" and info.tags["DRIVER VERSION"] == "260913" and info.tags["AXS"] == "3:XYZ"
+    assert not any(isinstance(codec.parse_response(line), codec.Unparsed) for line in lines)
+
+
+def test_grblhal_status_fields():
+    # report.c report_realtime_status: Alarm substate, FS with the measured rpm, A:, H:, TLR:, and flags without a
+    # value (|AR) on a full report.
+    report = codec.parse_status("<Alarm:11|MPos:0.000,0.000,0.000|FS:0,0,0|Pn:XZ|WCO:0.000,0.000,0.000|A:|H:0|"
+                                "TLR:0|FW:grblHAL|AR>")
+    assert (report.state, report.substate, report.feed, report.spindle) == ("Alarm", 11, 0.0, 0.0)
+    assert report.accessories == "" and report.homed is False and report.homed_mask is None
+    assert report.extra == {"TLR": "0", "FW": "grblHAL", "AR": ""}
+    for bad in ("<Idle|MPos|FS:0,0>", "<Idle|MPos:0,0,0|FS:0,0,0,0>", "<Idle|MPos:0,0,0|x y:1>"):
+        assert isinstance(codec.parse_response(bad), codec.Unparsed), bad
+
+
+def test_grblhal_bitfields_and_work_envelope():
+    # settings.c: $22 bit 0 enables homing (bit 2: homing required at startup, bit 3: set origin to 0); $21 bit 0
+    # hard limits. machine_limits.c limits_set_work_envelope: one pull-off off each end with hard limits.
+    settings = {21: 0, 22: 5, 23: 0b010, 27: 2.0, 130: 200.0, 131: 90.0}
+    assert codec.homing_enabled(settings) and not codec.hard_limits_enabled(settings)
+    assert codec.setting_bit(settings, 22, 2) and not codec.setting_bit(settings, 22, 3)
+    assert codec.soft_limit_space(settings, "VNM", "X", firmware="GrblHAL") == (-200.0, 0.0)
+    hard = {**settings, 21: 3}  # enable + strict mode
+    assert codec.soft_limit_space(hard, "VNM", "X", firmware="GrblHAL") == (-198.0, -2.0)
+    assert codec.soft_limit_space(hard, "VNMZ", "X", firmware="GrblHAL") == (-198.0, 0.0)
+    assert codec.soft_limit_space(hard, "VNMZ", "Y", firmware="GrblHAL") == (0.0, 88.0)  # $23 axis
+    assert codec.soft_limit_space(hard, "V", "X") == (-200.0, 0.0)  # Grbl 1.1h: hard limits change nothing
+    assert codec.soft_limit_space({**hard, 22: 4}, "VNM", "X", firmware="GrblHAL") is None  # bit 0 clear
+
+
+def test_switch_positions():
+    # limits.c limits_go_home: the switch is one pull-off beyond where homing leaves the axis.
+    settings = {22: 1, 23: 0b010, 27: 1.5, 130: 200.0, 131: 90.0}
+    assert codec.switch_position(settings, "V", "X") == 0.0
+    assert codec.switch_position(settings, "V", "Y") == -90.0  # homes toward -: its switch at -$131
+    assert codec.switch_position(settings, "VZ", "X") == 1.5 and codec.switch_position(settings, "VZ", "Y") == -1.5
+    assert codec.switch_position({**settings, 22: 0}, "V", "X") is None
 
 
 def test_startup_line_hazards():
@@ -217,11 +266,18 @@ SETTINGS = b"".join(f"${n}={v}\r\n".encode() for n, v in [
     (102, "250.000"), (130, "350.000"), (131, "90.000"), (132, "90.000")])
 
 
+#: report.c report_ngc_parameters of Grbl 1.1h, three axes, nothing set.
+PARAMETERS = b"".join(b"[" + name + b":0.000,0.000,0.000]\r\n"
+                      for name in (b"G54", b"G55", b"G56", b"G57", b"G58", b"G59", b"G28", b"G30", b"G92")
+                      ) + b"[TLO:0.000]\r\n[PRB:0.000,0.000,0.000:0]\r\n"
+
+
 def _settings_script(settings: bytes = SETTINGS, startup: bytes = b"$N0=\r\n$N1=\r\n", opt: bytes = b"V,15,128"):
     return [
         (b"$I\n", b"[VER:1.1h.20190830:]\r\n[OPT:" + opt + b"]\r\nok\r\n"),
         (b"$$\n", settings + b"ok\r\n"),
         (b"$N\n", startup + b"ok\r\n"),
+        (b"$#\n", PARAMETERS + b"ok\r\n"),
     ]
 
 

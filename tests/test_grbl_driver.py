@@ -24,6 +24,7 @@ from drivers.rig.grbl import (
     GrblError,
     GrblLocked,
     GrblMoveError,
+    GrblPositionUnknown,
     GrblResetError,
     GrblSettingsError,
     GrblTimeout,
@@ -356,12 +357,15 @@ def test_failed_homing_then_unlock_is_answered_by_its_own_ok(code):
             grbl.home(timeout=5.0)
         assert info.value.code == code
         assert grbl.stray_replies == 0 and grbl.locked and emu.resets == 1
-        with pytest.raises(GrblLocked, match="homing failed"):
+        with pytest.raises(GrblLocked, match=f"ALARM:{code} \\(Homing fail"):
             grbl.move_to({"X": -5.0})
         reading = grbl.unlock()  # the old driver returned on the stale 'ok' of $H here ...
         assert reading.state == "Idle"
-        # ... and then refused this move as "reset unexpectedly". (Where it goes is anyone's guess: the
-        # failed search left the step counters at whatever they counted.)
+        # ... the failed search left the step counters at whatever they counted: out of Alarm, the position is
+        # still unknown until the user says it is right.
+        with pytest.raises(GrblPositionUnknown, match="homing failed.*its position is unknown"):
+            grbl.move_to({"X": -5.0})
+        grbl.trust_position()
         assert grbl.move_to({"X": -5.0, "Y": -5.0, "Z": -5.0}).wait(5.0).state == "Idle"
 
 
@@ -444,7 +448,7 @@ def test_grblhal_reports_the_receive_bytes_its_ring_can_still_take():
         with _controller(emu, rx_buffer_size=1024) as grbl:
             grbl.home(timeout=5.0)
             reading = grbl.move_to({"X": -12.5}).wait(5.0)
-            assert reading.rx_bytes_free == 1023 and reading.planner_blocks_free == 15
+            assert reading.rx_bytes_free == 1023 and reading.planner_blocks_free == 100  # [OPT:VNML+W,100,1024,...]
 
 
 def test_a_buffer_size_other_than_configured_is_warned_and_the_controllers_used():
@@ -474,7 +478,7 @@ def test_homing_disabled_boots_idle_and_refuses_home():
 
 
 def test_homing_timeout_stops_the_cycle_with_a_reset():
-    with GrblEmulator(time_scale=1.0, homing_settle_s=60.0) as emu:
+    with GrblEmulator(time_scale=1.0, homing_debounce_ms=60_000) as emu:
         with _controller(emu) as grbl:
             t0 = time.monotonic()
             with pytest.raises(GrblTimeout, match="homing .* did not finish"):
@@ -486,7 +490,7 @@ def test_homing_timeout_stops_the_cycle_with_a_reset():
 
 
 def test_no_status_while_homing():
-    with GrblEmulator(time_scale=1.0, homing_settle_s=0.5) as emu, _controller(emu) as controller:
+    with GrblEmulator(time_scale=5.0) as emu, _controller(emu) as controller:
         errors = []
         homing = threading.Thread(target=lambda: controller.home(timeout=5.0))
         homing.start()
@@ -505,7 +509,7 @@ def _raw_homing(emu: GrblEmulator, until: bytes) -> list[str]:
     port = serial.Serial(emu.tty_path, 115200, timeout=0.02)
     try:
         port.write(b"$H\n")
-        time.sleep(0.05)  # well inside the cycle: its settle alone lasts 0.2 s real
+        time.sleep(0.05)  # well inside the cycle: its first debounce alone lasts 0.2 s real
         port.write(b"??")
         received, deadline = b"", time.monotonic() + 5.0
         while until not in received and time.monotonic() < deadline:
@@ -520,7 +524,7 @@ def _raw_homing(emu: GrblEmulator, until: bytes) -> list[str]:
 def test_a_status_asked_during_homing_is_answered_once_when_the_cycle_ends():
     # motion_control.c mc_homing_cycle: limits_go_home serves no real-time request; the protocol_execute_realtime
     # after it answers the '?' (one report for any number of them), still in Home, at the homed position.
-    with GrblEmulator(time_scale=5.0, homing_settle_s=1.0) as emu:
+    with GrblEmulator(time_scale=5.0, homing_debounce_ms=1000) as emu:
         lines = _raw_homing(emu, until=b"ok\r\n")
     reports = [line for line in lines if line.startswith("<")]
     assert len(reports) == 1 and reports[0].startswith("<Home|MPos:-1.000,-1.000,-1.000|")
@@ -529,7 +533,7 @@ def test_a_status_asked_during_homing_is_answered_once_when_the_cycle_ends():
 
 def test_a_status_asked_during_a_failed_homing_is_never_answered():
     # limits.c: the failed cycle's mc_reset reaches protocol_exec_rt_system's EXEC_RESET first; main.c clears the rest.
-    with GrblEmulator(time_scale=5.0, homing_settle_s=1.0, faults=[HomingFail(code=8)]) as emu:
+    with GrblEmulator(time_scale=5.0, homing_debounce_ms=1000, faults=[HomingFail(code=8)]) as emu:
         lines = _raw_homing(emu, until=b"to unlock]\r\n")
     assert "ALARM:8" in lines and "ok" in lines and "[MSG:'$H'|'$X' to unlock]" in lines
     assert not [line for line in lines if line.startswith("<")]
@@ -741,3 +745,125 @@ def test_closing_leaves_no_threads_running():
     time.sleep(0.05)
     left = {t.name for t in threading.enumerate()} - before
     assert not [n for n in left if n.startswith("grbl")]
+
+
+# ---------------------------------------------------------------------------------------------- position trust
+
+
+def test_a_boot_makes_the_position_unknown_even_with_homing_disabled():
+    # An Uno with $22=0 reboots on open: MPos restarts at 0 wherever the carriage stands. The old driver refused
+    # moves after a boot only when $22 was set, and so drove a rig from a position it could not know.
+    with GrblEmulator(time_scale=FAST, homing_enabled=False, reboot_on_open=True,
+                      start_position={"X": -50.0}) as emu, _controller(emu) as grbl:
+        assert grbl.info.boot_detected and not grbl.locked and grbl.status().state == "Idle"
+        with pytest.raises(GrblPositionUnknown, match="booted when the port was opened.*--trust-position"):
+            grbl.move_to({"X": -100.0})
+        assert emu.physical_position()["X"] == -50.0 and list(emu.lines_received)[-1] == "$#"  # nothing sent
+        grbl.unlock(trust_position=True)  # the user states the counters are right (here: 50 mm off)
+        grbl.move_to({"X": -100.0}).wait(5.0)
+        assert emu.physical_position()["X"] == -150.0
+
+
+def test_a_banner_3_s_late_is_a_boot():
+    # grblHAL's simulator boots in ~3 s, so do slow bootloaders: later than the driver's 2 s boot window. The old
+    # driver took that banner for the answer to its own soft reset and trusted the restarted counters. Real time:
+    # the driver's own 2 s window is what is tested (3.5 s).
+    with GrblEmulator(time_scale=1.0, homing_enabled=False, reboot_on_open=True, boot_delay_s=3.0) as emu:
+        with GrblController(emu.tty_path, connect_timeout_s=6.0) as grbl:
+            # The soft reset sent at 2 s went into the bootloader; its resend a second later may land just after the
+            # boot (a second banner, still before any status report).
+            assert grbl.info.boot_detected and emu.resets in (1, 2)
+            with pytest.raises(GrblPositionUnknown, match="did not answer until it was reset"):
+                grbl.move_to({"X": -10.0})
+
+
+def test_a_late_banner_while_only_looking_is_a_boot_too():
+    # reset_on_open=False (`rig status`, `resume`): the driver keeps asking '?' and the banner comes first.
+    with GrblEmulator(time_scale=10.0, reboot_on_open=True, boot_delay_s=3.0) as emu:
+        with _controller(emu, reset_on_open=False, boot_wait_s=0.1, connect_timeout_s=3.0) as grbl:
+            assert grbl.info.boot_detected and emu.resets == 1
+            assert grbl.position_unknown is not None and "booted when the port was opened" in grbl.position_unknown
+
+
+def test_a_soft_reset_0_2_s_after_alarm_2_recovers():
+    # report.c report_alarm_message waits 500 ms after ALARM:2, then protocol.c clears any reset received meanwhile:
+    # the old driver's at-once reset was lost and it timed out. Real time, so that 0.2 s is inside the pause.
+    with GrblEmulator(time_scale=1.0) as emu, _controller(emu) as grbl:
+        grbl.unlock()
+        with pytest.raises(GrblAlarm, match="ALARM:2"):
+            grbl.move_to({"X": 5.0}).wait(5.0)  # past the switch: Grbl halts (the controller class does not check)
+        time.sleep(0.2)
+        t0 = time.monotonic()
+        reading = grbl.soft_reset(timeout=3.0)
+        assert reading.state == "Alarm" and emu.resets == 2 and not emu.halted  # the connect's reset, then this
+        assert time.monotonic() - t0 < 1.0  # waited for [MSG:Reset to continue], ~0.3 s on
+
+
+def test_the_emulator_drops_a_reset_inside_the_alarm_pause():
+    with GrblEmulator(time_scale=1.0) as emu:
+        port = serial.Serial(emu.tty_path, 115200, timeout=0.02)
+        try:
+            port.write(b"$X\nG53 G0 X5\n")
+            received, deadline = b"", time.monotonic() + 2.0
+            while b"ALARM:2" not in received and time.monotonic() < deadline:
+                received += port.read(256)
+            time.sleep(0.2)
+            port.write(b"\x18")  # inside report_alarm_message's 500 ms: lost, as on the firmware
+            time.sleep(0.6)
+            received += port.read(512)
+            assert b"[MSG:Reset to continue]" in received and b"Grbl 1.1h" not in received and emu.halted
+            port.write(b"\x18")  # after the message: heard
+            time.sleep(0.2)
+            assert b"Grbl 1.1h" in port.read(512) and not emu.halted
+        finally:
+            port.close()
+
+
+def test_after_alarm_1_and_a_reset_the_refusal_names_the_alarm(emulator, homed):
+    emulator.inject(AlarmMidMove(code=1, fraction=0.5))
+    with pytest.raises(GrblAlarm, match="ALARM:1"):
+        homed.move_to({"X": -200.0}).wait(5.0)
+    homed.soft_reset(timeout=3.0)  # at once: the driver waits out the firmware's pause itself
+    with pytest.raises(GrblLocked, match=r"in Alarm after ALARM:1 \(Hard limit") as info:
+        homed.move_to({"X": -10.0})
+    assert "boot" not in str(info.value) and "reset unexpectedly" not in str(info.value)
+
+
+def test_queries_a_controller_refuses_are_recorded_as_unsupported():
+    # A dialect without $N (or $#) answers error:3: the old driver failed the connect, and so `rig home`.
+    with GrblEmulator(time_scale=FAST, unsupported_queries=("$N", "$#")) as emu, _controller(emu) as grbl:
+        assert grbl.info.unsupported == {"$N": "error:3", "$#": "error:3"}
+        assert grbl.info.settings_read and grbl.info.startup_lines == {}
+        assert grbl.home(timeout=5.0).machine_position == HOME
+
+
+def test_the_emulator_stores_a_startup_line_when_idle_as_grbl_does():
+    # system.c: "$Nx=line" is stored in Idle only ("Prevents motion during ALARM", error:8 in Alarm), after the
+    # line is executed to check it.
+    with GrblEmulator(time_scale=FAST) as emu, _controller(emu) as grbl:
+        with pytest.raises(GrblCommandError) as info:
+            grbl.send("$N0=G20")
+        assert info.value.code == 8
+        grbl.unlock()
+        assert grbl.send("$N0=G20") == [] and emu.startup_lines[0] == "G20"
+
+
+# ---------------------------------------------------------------------------------------------- hard limits
+
+
+def test_hard_limits_halt_at_the_switch_and_check_limits_after_the_reset():
+    # limits.c ISR(LIMIT_INT_vect): a switch that changes during motion is ALARM:1 at once; protocol.c
+    # CHECK_LIMITS_AT_INIT: a reset with a switch closed is Alarm with [MSG:Check Limits].
+    with GrblEmulator(time_scale=FAST, hard_limits=True) as emu, _controller(emu) as grbl:
+        grbl.home(timeout=5.0)
+        grbl.move_to({"X": -0.5}).wait(5.0)  # short of the switch at X = 0
+        with pytest.raises(GrblAlarm, match="ALARM:1"):
+            grbl.move_to({"X": 0.0}).wait(5.0)  # a target on the switch: soft limits accept it, the switch trips
+        assert emu.halted and emu.physical_position()["X"] == 0.0
+        assert grbl.soft_reset(timeout=3.0).state == "Alarm"
+        assert "Check Limits" in grbl.messages
+        grbl.unlock(trust_position=True)
+        with pytest.raises(GrblAlarm, match="ALARM:1"):  # leaving the switch changes the pin too (no force check)
+            grbl.move_to({"X": -5.0}).wait(5.0)
+        grbl.soft_reset(timeout=3.0)
+        assert grbl.home(timeout=5.0).machine_position == HOME  # homing disables hard limits for its cycle

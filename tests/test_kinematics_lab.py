@@ -68,11 +68,13 @@ def session():
                         right=_camera("right")) as bench:
         bench.warm_up(CALIBRATION_BOARD, TARGET)
         with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
-            home = rig.home()  # Grbl's machine space: homed at B = 349 mm, toe-ins 1 deg (the pull-off)
-            # The first design move's direction of approach is from there.
+            home = rig.home()  # Grbl's machine space: homed at B = 349 mm, toe-ins 0 (the pull-off off the switches)
+            # The first design move's direction of approach is from there; a design configuration at toe-in 0 is
+            # reached by the homing's last pull-off (toe-in increasing, B decreasing).
             previous = {"baseline_mm": home.baseline_mm, "toe_in_left_deg": home.toe_in_left_deg,
                         "toe_in_right_deg": home.toe_in_right_deg}
-            approach: dict = {}
+            approach: dict = rig.homing_approach()
+            assert approach == {"baseline_mm": -1, "toe_in_left_deg": 1, "toe_in_right_deg": 1}
             configurations = []
             for k, config in enumerate(kinematic_design((50.0, 250.0), (0.0, 20.0))):
                 _move(rig, bench, config.baseline_mm, config.toe_in_left_deg, config.toe_in_right_deg)

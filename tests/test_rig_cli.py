@@ -1,6 +1,6 @@
 """``stereo-bench rig`` in-process against a running emulator, and ``sim-controller`` as a real subprocess.
 
-The default rig mapping is stock Grbl's machine space: X = B - 350 mm, Y/Z = -toe-in.
+The default rig mapping is stock Grbl's machine space one pull-off inside it: X = B - 350 mm, Y/Z = -1 - toe-in.
 """
 
 from __future__ import annotations
@@ -42,8 +42,9 @@ def test_status_json_before_homing(emulator, capsys):
     for key in ("state", "baseline_mm", "toe_in_left_deg", "toe_in_right_deg", "alpha_left_deg", "alpha_right_deg"):
         assert key in data
     assert data["state"] == "Alarm" and data["locked"] is True and data["halted"] is False
-    assert data["alpha_left_deg"] == 90.0 and data["machine_position"] == {"X": 0.0, "Y": 0.0, "Z": 0.0}
-    assert data["baseline_mm"] == 350.0  # X = 0 is the homing switch: B = 350 mm in the default mapping
+    assert data["alpha_left_deg"] == 91.0 and data["machine_position"] == {"X": 0.0, "Y": 0.0, "Z": 0.0}
+    # Machine 0 is the homing switch: B = 350 mm, and each pan head one pull-off (1 deg) beyond parallel.
+    assert data["baseline_mm"] == 350.0
     assert data["controller"]["settings"]["$130"] == 350 and data["controller"]["boot_detected"] is False
     assert emulator.resets == 0  # looking does not reset the controller
 
@@ -56,9 +57,9 @@ def test_home_move_status(emulator, capsys):
 
     code, out, err = _run(capsys, "rig", "--port", port, "move", "--baseline", "120", "--alpha", "85")
     assert code == 0, err
-    assert "moving: X-230.000 Y-5.000 Z-5.000" in out
+    assert "moving: X-230.000 Y-6.000 Z-6.000" in out
     assert "stopped. Idle: B = 120.000 mm, toe-in L = 5.000 deg (alpha 85.000 deg)" in out
-    assert emulator.machine_position() == {"X": -230.0, "Y": -5.0, "Z": -5.0}  # returned only once stopped there
+    assert emulator.machine_position() == {"X": -230.0, "Y": -6.0, "Z": -6.0}  # returned only once stopped there
 
     code, out, err = _run(capsys, "rig", "--port", port, "move", "--toe-in-left", "2", "--toe-in-right", "3")
     assert code == 0, err
@@ -92,7 +93,7 @@ def test_refused_move_is_one_line_and_sends_nothing(emulator, capsys):
     code, out, err = _run(capsys, "rig", "--port", emulator.tty_path, "move", "--baseline", "400")
     assert code == 2
     assert _one_line_error(err) == (
-        "stereo-bench rig: error: move refused, outside soft limits: baseline_mm = 400 outside [0, 350]")
+        "stereo-bench rig: error: move refused, outside soft limits: baseline_mm = 400 outside [1, 349]")
     assert list(emulator.lines_received) == []  # the port was not even opened
 
 
@@ -197,7 +198,7 @@ def test_sim_controller_subprocess_and_status_json(tmp_path):
         status = _cli("rig", "--port", str(link), "status", "--json")
         assert status.returncode == 0, status.stderr
         data = json.loads(status.stdout)
-        assert data["state"] == "Alarm" and data["baseline_mm"] == 350.0 and data["alpha_right_deg"] == 90.0
+        assert data["state"] == "Alarm" and data["baseline_mm"] == 350.0 and data["alpha_right_deg"] == 91.0
     out, err = sim.outcome
     assert sim.returncode == 0, err
     assert "serving on /dev/pts/" in out and "GRBL emulator stopped" in out
@@ -216,7 +217,7 @@ def test_chained_actions_run_on_one_connection(emulator, capsys):
     assert lines[1].startswith("homed. Idle: B = 349.000 mm") and "stopped. Idle: B = 100.000 mm" in out
     data = json.loads(lines[-1])
     assert (data["baseline_mm"], data["alpha_left_deg"], data["state"]) == (100.0, 88.0, "Idle")
-    assert emulator.physical_position() == {"X": -250.0, "Y": -2.0, "Z": -2.0}
+    assert emulator.physical_position() == {"X": -250.0, "Y": -3.0, "Z": -3.0}
 
 
 def test_auto_reset_between_calls_is_named_and_chaining_works(capsys):
@@ -227,7 +228,7 @@ def test_auto_reset_between_calls_is_named_and_chaining_works(capsys):
         assert code == 0, err
         assert "warning:" in err and "booted when the port was opened" in err
         code, out, err = _run(capsys, "rig", "--port", port, "move", "--baseline", "30")
-        assert code == 1 and "moving" not in out
+        assert code == 2 and "moving" not in out  # refused before a byte was sent: the user's to fix
         error = [line for line in err.splitlines() if "error:" in line]
         assert len(error) == 1 and "booted when the port was opened" in error[0]
         assert "chain actions in one call" in error[0] and "shell" in error[0]
@@ -235,6 +236,37 @@ def test_auto_reset_between_calls_is_named_and_chaining_works(capsys):
         code, out, err = _run(capsys, "rig", "--port", port, "home", "move", "--baseline", "30")
         assert code == 0, err
         assert emu.physical_position()["X"] == -320.0 and "B = 30.000 mm" in out
+
+
+def test_auto_reset_with_homing_disabled_refuses_the_second_call(capsys):
+    # The issue's Uno with $22=0: each call reboots the board and restarts the counters at 0. The old driver then
+    # moved `--baseline 250` to machine -400, 50 mm past the end of a 350 mm slide, printing "B = 250.000 mm".
+    with GrblEmulator(time_scale=FAST, homing_enabled=False, reboot_on_open=True) as emu:
+        port = emu.tty_path
+        code, out, err = _run(capsys, "rig", "--port", port, "unlock", "--trust-position", "move", "--baseline", "300")
+        assert code == 0, err
+        assert "the position is trusted as it is" in out and emu.physical_position()["X"] == -50.0
+        code, out, err = _run(capsys, "rig", "--port", port, "move", "--baseline", "250")
+        assert code == 2 and "moving" not in out and "stopped." not in out
+        errors = [line for line in err.splitlines() if "error:" in line]  # the rest are the connect's warnings
+        assert len(errors) == 1 and "position is unknown" in errors[0] and "--trust-position" in errors[0]
+        assert "homing is disabled" in errors[0]  # so `home` is no remedy there
+        assert emu.physical_position()["X"] == -50.0  # nothing moved
+
+
+def test_resume_after_a_reboot_says_nothing_was_resumed(capsys):
+    with GrblEmulator(time_scale=FAST, reboot_on_open=True) as emu:
+        code, out, err = _run(capsys, "rig", "--port", emu.tty_path, "resume")
+    assert code == 1 and "stopped." not in out and "resuming" not in out
+    errors = [line for line in err.splitlines() if "error:" in line]
+    assert len(errors) == 1 and "nothing to resume: opening" in errors[0] and "rebooted the controller" in errors[0]
+
+
+def test_resume_with_nothing_held_says_so(emulator, capsys):
+    with GrblController(emulator.tty_path) as grbl:
+        grbl.unlock()
+    code, out, err = _run(capsys, "rig", "--port", emulator.tty_path, "resume")
+    assert code == 0 and out.startswith("nothing to resume: the controller is not holding (Idle)")
 
 
 def test_shell_runs_commands_until_quit(emulator, capsys, monkeypatch):
@@ -245,7 +277,7 @@ def test_shell_runs_commands_until_quit(emulator, capsys, monkeypatch):
     assert code == 0, err
     assert "homed. Idle" in out and "stopped. Idle: B = 100.000 mm, toe-in L = 3.000 deg" in out
     errors = err.splitlines()
-    assert errors == ["error: move refused, outside soft limits: baseline_mm = 999 outside [0, 350]",
+    assert errors == ["error: move refused, outside soft limits: baseline_mm = 999 outside [1, 349]",
                       "error: unknown action 'fly'; actions: home, unlock, move, status, resume, reset, shell"]
     # Piped input is not echoed: the prompts of the refused commands share the line of the next output.
     line = next(line for line in out.splitlines() if line.startswith("rig> rig> rig> {"))

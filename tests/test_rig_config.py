@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from drivers.rig import GrblRig, Rig, RigError
+from drivers.rig import GrblAlarm, GrblRig, Rig, RigError
 from drivers.rig.config import (
     LimitError,
     MachineSpaceError,
@@ -84,14 +84,16 @@ def _write(tmp_path, text: str):
 # ---------------------------------------------------------------------------------------------- config
 
 
-def test_default_mapping_is_grbls_machine_space():
-    # A stock Grbl 1.1h homes to its switches and counts negative from them: [-$13x, 0] (limits.c).
+def test_default_mapping_is_grbls_machine_space_one_pull_off_inside():
+    # A stock Grbl 1.1h homes to its switches and counts negative from them: [-$13x, 0] (limits.c). The default
+    # mapping keeps one pull-off ($27 = 1) off both ends ($130=350, $131=$132=90), so no target trips a switch
+    # with hard limits on; homing (-$27) leaves the heads parallel.
     config = RigConfig()
     assert config.driven == {"baseline_mm": "X", "toe_in_left_deg": "Y", "toe_in_right_deg": "Z"}
     assert config.axes == "XYZ"
-    assert config.machine_travel() == {"X": (-350.0, 0.0), "Y": (-90.0, 0.0), "Z": (-90.0, 0.0)}
-    assert to_machine(config, {"baseline_mm": 350.0, "toe_in_left_deg": 0.0}) == {"X": 0.0, "Y": 0.0}
-    assert to_physical(config, {"X": -250.0, "Y": -5.0, "Z": 0.0}) == {
+    assert config.machine_travel() == {"X": (-349.0, -1.0), "Y": (-89.0, -1.0), "Z": (-89.0, -1.0)}
+    assert to_machine(config, {"baseline_mm": 349.0, "toe_in_left_deg": 0.0}) == {"X": -1.0, "Y": -1.0}
+    assert to_physical(config, {"X": -250.0, "Y": -6.0, "Z": -1.0}) == {
         "baseline_mm": 100.0, "toe_in_left_deg": 5.0, "toe_in_right_deg": 0.0}
     assert config.quantities["tilt_left_deg"].axis == "fixed" and config.quantities["tilt_left_deg"].value == 0.0
     assert config.quantities["target_distance_mm"].axis == "manual"
@@ -145,26 +147,26 @@ def test_physical_machine_round_trip_with_offset_and_negative_scale():
     }})
     physical = {"baseline_mm": 25.0, "toe_in_left_deg": 3.0, "toe_in_right_deg": 7.5, "tilt_left_deg": 0.0}
     machine = to_machine(config, physical)
-    assert machine == {"X": 60.0, "Y": -3.0, "Z": 37.5}
+    assert machine == {"X": 60.0, "Y": -4.0, "Z": 37.5}  # Y: the default mapping, toe-in 0 at Y = -1
     back = to_physical(config, machine)
     assert back == {"baseline_mm": 25.0, "toe_in_left_deg": 3.0, "toe_in_right_deg": 7.5}
 
 
 def test_limits_name_every_violation():
     config = RigConfig()
-    check_limits(config, {"baseline_mm": 350.0, "toe_in_left_deg": 0.0})
+    check_limits(config, {"baseline_mm": 349.0, "toe_in_left_deg": 0.0})
     with pytest.raises(LimitError) as info:
-        check_limits(config, {"baseline_mm": 351.0, "toe_in_left_deg": -1.0, "toe_in_right_deg": 10.0})
+        check_limits(config, {"baseline_mm": 350.0, "toe_in_left_deg": -1.0, "toe_in_right_deg": 10.0})
     assert len(info.value.violations) == 2
-    assert "baseline_mm = 351 outside [0, 350]" in str(info.value)
-    assert "toe_in_left_deg = -1 outside [0, 90]" in str(info.value)
+    assert "baseline_mm = 350 outside [1, 349]" in str(info.value)
+    assert "toe_in_left_deg = -1 outside [0, 88]" in str(info.value)
 
 
 def test_plan_move_splits_driven_and_manual_and_refuses_fixed_changes():
     config = RigConfig()
     plan = plan_move(config, physical_request(baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=80.0,
                                               tilt_left_deg=0.0, target_distance_mm=400.0))
-    assert plan.machine_targets == {"X": -230.0, "Y": -5.0, "Z": -10.0}
+    assert plan.machine_targets == {"X": -230.0, "Y": -6.0, "Z": -11.0}
     assert plan.manual == {"target_distance_mm": 400.0}
     with pytest.raises(MoveRequestError, match="tilt_left_deg is fixed at 0"):
         plan_move(config, {"tilt_left_deg": 2.0})
@@ -206,7 +208,7 @@ def test_grbl_rig_moves_in_physical_units(emulator):
         assert reading.toe_in_right_deg == 6.0 and reading.alpha_right_deg == 84.0
         assert reading.tilt_left_deg == 0.0 and reading.sources["tilt_left_deg"] == "fixed"
         assert reading.target_distance_mm == 400.0 and reading.sources["target_distance_mm"] == "operator"
-        assert reading.machine_position == {"X": -230.0, "Y": -5.0, "Z": -6.0} == emulator.machine_position()
+        assert reading.machine_position == {"X": -230.0, "Y": -6.0, "Z": -7.0} == emulator.machine_position()
         assert prompts == ["move the target to Z = 400 mm, then press Enter"]
         # Same target again: nothing for the operator to do.
         rig.move_to(target_distance_mm=400.0, baseline_mm=100.0)
@@ -290,6 +292,38 @@ def test_a_positive_mapping_is_warned_at_connect_and_its_moves_refused_before_se
         assert list(emulator.lines_received) == received and not emulator.halted  # no ALARM:2, nothing sent
 
 
+#: The mapping this project defaulted to before: alpha = 90 deg and B = 350 mm exactly on the homing switches.
+AT_THE_SWITCHES = {"quantities": {
+    "baseline_mm": {"axis": "X", "offset": -350, "min": 0, "max": 350},
+    "toe_in_left_deg": {"axis": "Y", "scale": -1.0, "min": 0, "max": 90},
+    "toe_in_right_deg": {"axis": "Z", "scale": -1.0, "min": 0, "max": 90},
+}}
+
+
+def test_with_hard_limits_a_mapping_onto_the_switches_is_warned_and_trips_alarm_1():
+    # limits.c: with $21=1 a target where the homing switch closes halts the controller with ALARM:1; the old
+    # default mapping put the first parallel configuration there, and neither the driver nor the emulator said so.
+    with GrblEmulator(time_scale=FAST, hard_limits=True) as emu, _rig(emu.tty_path,
+                                                                      rig_config_from_dict(AT_THE_SWITCHES)) as rig:
+        switch_warnings = [w for w in rig.warnings if "hard limits are on" in w]
+        assert len(switch_warnings) == 1
+        assert "baseline_mm = 350 mm maps to X0" in switch_warnings[0]
+        assert "toe_in_left_deg = 0 deg maps to Y0" in switch_warnings[0] and "$27=1" in switch_warnings[0]
+        rig.home(timeout_s=5.0)
+        with pytest.raises(GrblAlarm, match="ALARM:1"):
+            rig.move_to(baseline_mm=200.0, alpha_left_deg=90.0, alpha_right_deg=90.0)
+
+
+def test_with_hard_limits_the_default_mapping_stays_clear_of_the_switches():
+    with GrblEmulator(time_scale=FAST, hard_limits=True) as emu, _rig(emu.tty_path) as rig:
+        assert rig.warnings == []
+        rig.home(timeout_s=5.0)
+        for baseline, alpha in ((349.0, 90.0), (1.0, 2.0), (100.0, 90.0)):  # both ends of every range
+            reading = rig.move_to(baseline_mm=baseline, alpha_left_deg=alpha, alpha_right_deg=alpha)
+            assert (reading.baseline_mm, reading.alpha_left_deg, reading.state) == (baseline, alpha, "Idle")
+        assert not emu.halted
+
+
 def test_a_mapping_reaching_past_the_travel_is_warned_and_only_those_moves_refused(emulator):
     config = rig_config_from_dict({"quantities": {"baseline_mm": {"axis": "X", "offset": -400, "min": 0, "max": 400}}})
     with _rig(emulator.tty_path, config) as rig:
@@ -366,3 +400,15 @@ def test_the_emulator_is_sized_for_any_mapping():
             rig.home(timeout_s=5.0)
             assert rig.move_to(baseline_mm=120.0, toe_in_left_deg=5.0).machine_position == {"X": 120.0, "Y": 5.0,
                                                                                              "Z": 0.0}
+
+
+def test_homing_approach_is_the_direction_of_the_last_pull_off():
+    # limits.c: the cycle ends pulling off the switch, toward - machine units (toward + on a $23 axis); the mapping's
+    # scale turns that into the physical direction the kinematic model's backlash correction needs.
+    specs = {"Y": AxisSpec(max_travel=90.0, home_negative=True)}
+    config = rig_config_from_dict({"quantities": {"toe_in_left_deg": {"axis": "Y", "offset": -89, "scale": 1.0,
+                                                                       "min": 0, "max": 88}}})
+    with GrblEmulator(time_scale=FAST, axis_specs=specs) as emu, _rig(emu.tty_path, config) as rig:
+        assert rig.homing_approach() == {"baseline_mm": -1, "toe_in_left_deg": 1, "toe_in_right_deg": 1}
+        home = rig.home(timeout_s=5.0)
+        assert home.toe_in_left_deg == 0.0 and emu.physical_position()["Y"] == -89.0  # -$131 + $27

@@ -48,17 +48,26 @@ def _controller(emu: GrblEmulator) -> GrblController:
 
 def test_a_force_set_origin_build_has_its_switches_one_pull_off_beyond_machine_zero():
     """limits.c with HOMING_FORCE_SET_ORIGIN: every homed axis is set to 0 where the pull-off left it, so the
-    physical frame (the homed machine frame) has the switch at -$27 (homing toward -) or +$27 (toward +)."""
+    physical frame (the homed machine frame) has the switch at -$27 (homing toward -) or +$27 (toward +).
+    A switch that never answers stalls its axis there (ALARM:9, in the first cycle: Z, config.h HOMING_CYCLE_0);
+    with hard limits on, a move onto a switch trips it (ALARM:1)."""
     specs = {"X": AxisSpec(max_travel=300.0, home_negative=True)}
-    with GrblEmulator(time_scale=FAST, axis_specs=specs, force_set_origin=True, homing_pulloff=2.0,
-                      faults=[HomingFail(code=8)]) as emu, _controller(emu) as grbl:
-        with pytest.raises(GrblAlarm, match="ALARM:8"):
+    with GrblEmulator(time_scale=FAST, axis_specs=specs, force_set_origin=True, homing_pulloff=2.0, hard_limits=True,
+                      soft_limits=False, faults=[HomingFail(code=9)]) as emu, _controller(emu) as grbl:
+        with pytest.raises(GrblAlarm, match="ALARM:9"):
             grbl.home(timeout=5.0)
-        assert emu.physical_position() == {"X": -2.0, "Y": 2.0, "Z": 2.0}  # stuck on the switches
+        assert emu.physical_position() == {"X": 0.0, "Y": 0.0, "Z": 2.0}  # Z stalled on its switch, +$27
+        grbl.soft_reset()  # [MSG:Check Limits]: Z stands on its switch (CHECK_LIMITS_AT_INIT)
+        assert "Check Limits" in grbl.messages
         assert grbl.home(timeout=5.0).machine_position == {"X": 0.0, "Y": 0.0, "Z": 0.0}
         assert emu.physical_position() == {"X": 0.0, "Y": 0.0, "Z": 0.0}
         grbl.move_to({"X": 120.0, "Y": -5.0}).wait(5.0)
         assert emu.physical_position() == emu.machine_position() == {"X": 120.0, "Y": -5.0, "Z": 0.0}
+        grbl.move_to({"X": -1.9}).wait(5.0)  # one pull-off below 0 is X's switch: short of it, nothing trips
+        # (soft limits are off: on, [0, $130] would refuse these targets with ALARM:2 first)
+        with pytest.raises(GrblAlarm, match="ALARM:1"):
+            grbl.move_to({"X": -2.0}).wait(5.0)
+        assert emu.halted and emu.physical_position()["X"] == -2.0
 
 
 @pytest.mark.parametrize("text", [*MAPPINGS.values(), SCALED], ids=[*MAPPINGS, "positive-scaled-offset"])
@@ -114,3 +123,27 @@ def test_a_campaign_measures_with_a_rig_config_in_either_machine_space(text, tmp
             assert structure["baseline_mm"] == pytest.approx(100.0, abs=1e-6)
             assert structure["alpha_left_deg"] == pytest.approx(85.0, abs=1e-6)
             assert structure["alpha_right_deg"] == pytest.approx(85.0, abs=1e-6)
+
+
+@pytest.mark.slow  # a one-configuration campaign (seconds)
+def test_a_campaign_without_homing_trusts_the_position_and_records_it(tmp_path):
+    """``[rig] homing = false`` says the position the controller reports is right (as ``rig unlock
+    --trust-position``): the runner tells the driver so before the first move, and records it. The old runner
+    recorded nothing, and against a controller that booted at connect its first move would have been refused."""
+    plan = SMALL
+    edits = {"[rig]\n": "[rig]\nhoming = false\n", "baseline_mm = [100, 150]": "baseline_mm = [100]",
+             "alpha_deg = [90, 35]": "alpha_deg = [90]", "frames_per_config = 2": "frames_per_config = 1"}
+    for old, new in edits.items():
+        assert old in plan
+        plan = plan.replace(old, new)
+    (tmp_path / "plan.toml").write_text(plan)
+    out = tmp_path / "session"
+    assert main(["campaign", "run", str(tmp_path / "plan.toml"), "--out", str(out), "--yes", "--quiet"]) == 0
+    reader = SessionReader(out)
+    assert not list(reader.events(kind="home"))
+    (trusted,) = reader.events(kind="rig_position_trusted")
+    assert "homing = false" in trusted["data"]["reason"]
+    # The simulated rig powered up at machine 0: B = 350 mm, each head one pull-off (1 deg) beyond parallel.
+    assert trusted["data"]["rig"]["baseline_mm"] == 350.0 and trusted["data"]["rig"]["alpha_left_deg"] == 91.0
+    (row,) = results_csv(out)
+    assert row["status"] == "measured"

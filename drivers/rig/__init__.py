@@ -34,6 +34,7 @@ from drivers.rig.grbl import (
     GrblError,
     GrblLocked,
     GrblMoveError,
+    GrblPositionUnknown,
     GrblReading,
     GrblResetError,
     GrblSettingsError,
@@ -44,8 +45,8 @@ from drivers.rig.rig import GrblRig, Rig, RigReading, manual_instruction, wait_f
 
 __all__ = [
     "ControllerInfo", "GrblAlarm", "GrblCommandError", "GrblConnectionError", "GrblConnectionLost", "GrblController",
-    "GrblError", "GrblLocked", "GrblMoveError", "GrblReading", "GrblResetError", "GrblRig", "GrblSettingsError",
-    "GrblTimeout", "LimitError", "MachineSpaceError", "MoveRequestError", "MoveStatus", "QuantityMapping", "Rig",
-    "RigConfig", "RigConfigError", "RigError", "RigReading", "load_rig_config", "manual_instruction",
-    "wait_for_enter",
+    "GrblError", "GrblLocked", "GrblMoveError", "GrblPositionUnknown", "GrblReading", "GrblResetError", "GrblRig",
+    "GrblSettingsError", "GrblTimeout", "LimitError", "MachineSpaceError", "MoveRequestError", "MoveStatus",
+    "QuantityMapping", "Rig", "RigConfig", "RigConfigError", "RigError", "RigReading", "load_rig_config",
+    "manual_instruction", "wait_for_enter",
 ]

@@ -254,6 +254,8 @@ class StatusReport:
     pins: str | None = None
     overrides: tuple[int, ...] | None = None
     accessories: str | None = None
+    homed: bool | None = None  # grblHAL's H: field (None: not in this report)
+    homed_mask: int | None = None
     extra: dict[str, str] = field(default_factory=dict)
     raw: str = ""
 
@@ -288,10 +290,14 @@ _FLOAT_RE = re.compile(rf"^{_FLOAT}$")
 _BANNER_RE = re.compile(r"^(Grbl|GrblHAL|grblHAL)\s+v?(\d+\.\d+[a-zA-Z]?)\s+\[(.*)\]\s*$")
 _ERROR_RE = re.compile(r"^error:(\d+)$")
 _ALARM_RE = re.compile(r"^ALARM:(\d+)$")
-_SETTING_RE = re.compile(r"^\$(\d+)=(\S*)$")
+_SETTING_RE = re.compile(r"^\$(\d+)=(.*)$")
 _STARTUP_LINE_RE = re.compile(r"^\$N(\d+)=(.*)$")
 _STARTUP_ECHO_RE = re.compile(r"^>(.*):(ok|error:\d+)$")
-_FEEDBACK_RE = re.compile(r"^\[([A-Za-z]+):(.*)\]$")
+# grblHAL's $I tags may hold spaces ("[NVS STORAGE:*EEPROM]", "[DRIVER VERSION:260913]": its report.c
+# report_build_info).
+_FEEDBACK_RE = re.compile(r"^\[([A-Za-z][A-Za-z0-9]*(?: [A-Za-z0-9]+)*):(.*)\]$")
+# A status field's name: letters (``MPos``), or grblHAL's ``$C`` (report.c report_realtime_status).
+_FIELD_NAME_RE = re.compile(r"^\$?[A-Za-z][A-Za-z0-9]*$")
 
 
 def _floats(text: str, *, name: str) -> tuple[float, ...]:
@@ -309,6 +315,10 @@ def _ints(text: str, *, name: str) -> tuple[int, ...]:
     if not all(re.fullmatch(r"-?\d+", p) for p in parts):
         raise ParseError(f"{name}: not a list of integers: {text!r}")
     return tuple(int(p) for p in parts)
+
+
+#: Status fields that always carry a value (report.c of Grbl 1.1h and grblHAL).
+_VALUED_FIELDS = frozenset({"MPos", "WPos", "WCO", "FS", "F", "Bf", "Ln", "Pn", "Ov", "A", "H"})
 
 
 def parse_status(line: str) -> StatusReport:
@@ -335,7 +345,8 @@ def parse_status(line: str) -> StatusReport:
     seen: set[str] = set()
     for item in fields[1:]:
         key, sep, value = item.partition(":")
-        if not sep or not key:
+        if not _FIELD_NAME_RE.match(key) or (not sep and key in _VALUED_FIELDS):
+            # grblHAL sends a few flags without a value (``|AR``, report.c); a known field always has one.
             raise ParseError(f"field without a name in {line!r}: {item!r}")
         if key in seen:
             raise ParseError(f"field {key} repeated in {line!r}")
@@ -348,9 +359,9 @@ def parse_status(line: str) -> StatusReport:
             values["wco"] = _floats(value, name=key)
         elif key == "FS":
             fs = _floats(value, name=key)
-            if len(fs) != 2:
+            if len(fs) not in (2, 3):  # grblHAL adds the spindle's measured rpm (report.c report_realtime_status)
                 raise ParseError(f"FS wants feed,speed in {line!r}")
-            values["feed"], values["spindle"] = fs
+            values["feed"], values["spindle"] = fs[:2]
         elif key == "F":
             (values["feed"],) = _floats(value, name=key)
         elif key == "Bf":
@@ -366,6 +377,12 @@ def parse_status(line: str) -> StatusReport:
             values["overrides"] = _ints(value, name=key)
         elif key == "A":
             values["accessories"] = value
+        elif key == "H":
+            # grblHAL: 1 when every axis of the homing cycles is homed, then (with single-axis homing) the mask.
+            flags = _ints(value, name=key)
+            values["homed"] = bool(flags[0])
+            if len(flags) > 1:
+                values["homed_mask"] = flags[1]
         else:
             extra[key] = value
     mpos, wpos, wco = values.get("mpos"), values.get("wpos"), values.get("wco")
@@ -566,10 +583,13 @@ def parse_setting_value(text: str) -> float:
 
 @dataclass(frozen=True)
 class BuildInfo:
-    """``$I``: ``[VER:1.1h.20190830:user text]`` and ``[OPT:V,15,128]`` (report.c ``report_build_info``).
+    """``$I`` (report.c ``report_build_info``): ``[VER:1.1h.20190830:user text]`` and ``[OPT:V,15,128]``.
 
-    ``options`` are the compile-time option letters (``Z`` = HOMING_FORCE_SET_ORIGIN, ...);
-    ``planner_blocks`` and ``rx_buffer_size`` the planner and serial receive buffer sizes.
+    ``options`` are the compile-time option letters (``Z`` = HOMING_FORCE_SET_ORIGIN, ``L`` = no homing
+    lock at power-up, ...); ``planner_blocks`` and ``rx_buffer_size`` the planner and serial receive buffer
+    sizes. grblHAL extends ``[OPT:]`` with the number of axes and of tools (``[OPT:VNML+W,100,1024,3,0]``) and
+    adds tagged lines (``[AXS:3:XYZ]``, ``[NEWOPT:...]``, ``[FIRMWARE:grblHAL]``, ``[NVS STORAGE:*EEPROM]``,
+    ``[DRIVER:Simulator]``, ``[DRIVER VERSION:...]``...), kept in ``tags`` by name.
     """
 
     version: str | None = None
@@ -577,11 +597,21 @@ class BuildInfo:
     options: str = ""
     planner_blocks: int | None = None
     rx_buffer_size: int | None = None
+    axis_count: int | None = None
+    tool_count: int | None = None
+    tags: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def firmware(self) -> str | None:
+        """``grblHAL`` when its ``[FIRMWARE:]`` line says so; None when no line names the firmware."""
+        return self.tags.get("FIRMWARE")
 
 
 def parse_build_info(lines: list[str]) -> BuildInfo:
     """The build information in the feedback lines of ``$I`` (other lines are ignored)."""
-    version, user_info, options, blocks, rx = None, "", "", None, None
+    version, user_info, options = None, "", ""
+    numbers: list[int | None] = [None, None, None, None]  # planner blocks, rx buffer, axes, tools
+    tags: dict[str, str] = {}
     for line in lines:
         message = parse_response(line)
         if not isinstance(message, Feedback):
@@ -591,12 +621,13 @@ def parse_build_info(lines: list[str]) -> BuildInfo:
         elif message.kind == "OPT":
             parts = message.text.split(",")
             options = parts[0]
-            if len(parts) > 1 and parts[1].strip().isdigit():
-                blocks = int(parts[1])
-            if len(parts) > 2 and parts[2].strip().isdigit():
-                rx = int(parts[2])
+            for index, part in enumerate(parts[1:5]):
+                numbers[index] = int(part) if part.strip().isdigit() else None
+        else:
+            tags[message.kind] = message.text
+    blocks, rx, axes, tools = numbers
     return BuildInfo(version=version, user_info=user_info, options=options, planner_blocks=blocks,
-                     rx_buffer_size=rx)
+                     rx_buffer_size=rx, axis_count=axes, tool_count=tools, tags=tags)
 
 
 def parse_settings(lines: list[str]) -> dict[int, float]:
@@ -644,20 +675,66 @@ def axis_setting(settings: Mapping[int, float], base: int, axis: str) -> float |
     return settings.get(base + AXIS_LETTERS.index(axis))
 
 
-def soft_limit_space(settings: Mapping[int, float], options: str, axis: str) -> tuple[float, float] | None:
-    """The machine coordinates (low, high) Grbl 1.1h gives ``axis`` once homed; None without homing ($22=0).
+def setting_bit(settings: Mapping[int, float], number: int, bit: int = 0) -> bool:
+    """One bit of a setting. grblHAL prints ``$21`` (hard limits) and ``$22`` (homing) as bitfields whose bit 0
+    enables the feature (settings.c: ``$22`` = enable, single-axis commands, homing required at startup, set
+    origin to 0, ...); Grbl 1.1h prints them as 0/1, so bit 0 reads both."""
+    return bool((int(settings.get(number, 0)) >> bit) & 1)
 
-    limits.c ``limits_go_home`` sets the homed axis to ``-$27`` (or ``-$13x + $27`` when its ``$23`` bit
-    is set): machine space is ``[-$13x, 0]``, and system.c ``system_check_travel_limits`` rejects any
+
+def homing_enabled(settings: Mapping[int, float]) -> bool:
+    return setting_bit(settings, SETTING_HOMING)
+
+
+def hard_limits_enabled(settings: Mapping[int, float]) -> bool:
+    return setting_bit(settings, SETTING_HARD_LIMITS)
+
+
+def soft_limit_space(settings: Mapping[int, float], options: str, axis: str, *,
+                     firmware: str = "Grbl") -> tuple[float, float] | None:
+    """The machine coordinates (low, high) the controller gives ``axis`` once homed; None without homing.
+
+    Grbl 1.1h: limits.c ``limits_go_home`` sets the homed axis to ``-$27`` (or ``-$13x + $27`` when its ``$23``
+    bit is set): machine space is ``[-$13x, 0]``, and system.c ``system_check_travel_limits`` rejects any
     target outside it when soft limits are on (``$20=1``: ALARM:2). Only a build with
     HOMING_FORCE_SET_ORIGIN (``Z`` in ``[OPT:]``) homes to 0 and counts positive, ``[0, $13x]``, on the
     axes whose ``$23`` bit is set.
+
+    grblHAL (``firmware="GrblHAL"``): machine_limits.c ``limits_set_work_envelope`` keeps one pull-off off
+    each end when hard limits are on (``$21`` bit 0), so that no target reaches a switch:
+    ``[-$13x + $27, -$27]``; with set-origin (``Z``): ``[-$13x + $27, 0]``, or ``[0, $13x - $27]`` on a
+    ``$23`` axis. Without hard limits the pull-off is 0.
     """
-    if not settings.get(SETTING_HOMING):
+    if not homing_enabled(settings):
         return None
     travel = axis_setting(settings, SETTING_MAX_TRAVEL, axis)
     if travel is None:
         return None
     index = AXIS_LETTERS.index(axis)
-    positive = OPTION_FORCE_SET_ORIGIN in options and (int(settings.get(SETTING_HOMING_DIR_MASK, 0)) >> index) & 1
-    return (0.0, travel) if positive else (-travel, 0.0)
+    homes_negative = bool((int(settings.get(SETTING_HOMING_DIR_MASK, 0)) >> index) & 1)
+    set_origin = OPTION_FORCE_SET_ORIGIN in options
+    if firmware.lower() == "grblhal":
+        pulloff = float(settings.get(SETTING_HOMING_PULLOFF, 0.0)) if hard_limits_enabled(settings) else 0.0
+        if set_origin:
+            return (0.0, travel - pulloff) if homes_negative else (-travel + pulloff, 0.0)
+        return (-travel + pulloff, 0.0 - pulloff)  # 0.0 - 0.0 is 0.0, where -0.0 would print as "-0"
+    return (0.0, travel) if set_origin and homes_negative else (-travel, 0.0)
+
+
+def switch_position(settings: Mapping[int, float], options: str, axis: str) -> float | None:
+    """Where ``axis``' homing switch trips, in machine coordinates of a homed controller; None without homing.
+
+    Homing pulls off ``$27`` from the switch and sets ``-$27`` (``-$13x + $27`` for a ``$23`` axis): the switch
+    is at 0 (at ``-$13x``). On a set-origin build (``Z``) homing sets 0 there, the switch one pull-off
+    beyond (limits.c ``limits_go_home``; grblHAL's ``limits_set_machine_positions``).
+    """
+    if not homing_enabled(settings):
+        return None
+    travel = axis_setting(settings, SETTING_MAX_TRAVEL, axis)
+    if travel is None:
+        return None
+    pulloff = float(settings.get(SETTING_HOMING_PULLOFF, 0.0))
+    homes_negative = bool((int(settings.get(SETTING_HOMING_DIR_MASK, 0)) >> AXIS_LETTERS.index(axis)) & 1)
+    if OPTION_FORCE_SET_ORIGIN in options:
+        return -pulloff if homes_negative else pulloff
+    return -travel if homes_negative else 0.0

@@ -16,10 +16,12 @@ Soft limits ``min``/``max`` are in physical units, and a move outside them is re
 sent. Everything below the config classes is a pure function.
 
 The default mapping matches a stock Grbl 1.1h, which homes each axis to its switch at the positive end
-and counts machine space negative from there, ``[-$13x, 0]`` (see docs/RIG.md): X = baseline with
-``offset = -350`` (B = 350 mm at the switch, X = 0; B = 0 at X = -350), Y/Z = left/right toe-in with
-``scale = -1`` (toe-in 0, parallel, at the switch; 90 deg at -90). A controller with other travel
-($13x) needs its own file, e.g. for ``$130=200``: baseline ``offset = -200``, ``max = 200``.
+and counts machine space negative from there, ``[-$13x, 0]`` (see docs/RIG.md), and keeps every target one
+pull-off (``$27`` = 1) off both ends, where a homing switch would trip with hard limits on: X = baseline
+with ``offset = -350`` (B = 350 mm at the switch, X = 0), B = 1..349 mm at X -349..-1; Y/Z = left/right
+toe-in with ``offset = -1``, ``scale = -1`` (the switch one pull-off beyond parallel; homing leaves the head
+parallel at -1), toe-in 0..88 deg at -1..-89. A controller with other travel ($13x) needs its own file, e.g.
+for ``$130=200``: baseline ``offset = -200``, ``min = 1``, ``max = 199``.
 
 TOML layout (every table optional; what is missing keeps the default mapping)::
 
@@ -216,15 +218,23 @@ class ControllerSettings(BaseModel):
 
 
 DEFAULT_BASELINE_TRAVEL_MM = 350.0
+DEFAULT_HEAD_TRAVEL_DEG = 90.0
+#: Grbl's default pull-off ($27): the default mapping keeps every target this far inside the travel.
+DEFAULT_PULLOFF = 1.0
 
 
 def _default_quantities() -> dict[str, QuantityMapping]:
-    # Stock Grbl machine space [-$13x, 0] after homing (limits.c): the switches mark B = 350 mm and toe-in 0.
+    # Stock Grbl machine space [-$13x, 0] after homing (limits.c), with $130=350, $131=$132=90 and $27=1. The
+    # baseline switch marks B = 350 mm (X = 0); each pan switch sits one pull-off beyond parallel (toe-in -1 deg at
+    # machine 0), so that homing (-$27) leaves the heads parallel. Every target stays one pull-off inside the
+    # travel, [-$13x + $27, -$27]: none reaches a switch, where hard limits ($21=1) would halt with ALARM:1, and
+    # grblHAL's work envelope with hard limits (machine_limits.c) is exactly that range.
+    head_max = DEFAULT_HEAD_TRAVEL_DEG - 2.0 * DEFAULT_PULLOFF
     return {
-        "baseline_mm": QuantityMapping(axis="X", offset=-DEFAULT_BASELINE_TRAVEL_MM, min=0.0,
-                                       max=DEFAULT_BASELINE_TRAVEL_MM),
-        "toe_in_left_deg": QuantityMapping(axis="Y", scale=-1.0, min=0.0, max=90.0),
-        "toe_in_right_deg": QuantityMapping(axis="Z", scale=-1.0, min=0.0, max=90.0),
+        "baseline_mm": QuantityMapping(axis="X", offset=-DEFAULT_BASELINE_TRAVEL_MM, min=DEFAULT_PULLOFF,
+                                       max=DEFAULT_BASELINE_TRAVEL_MM - DEFAULT_PULLOFF),
+        "toe_in_left_deg": QuantityMapping(axis="Y", offset=-DEFAULT_PULLOFF, scale=-1.0, min=0.0, max=head_max),
+        "toe_in_right_deg": QuantityMapping(axis="Z", offset=-DEFAULT_PULLOFF, scale=-1.0, min=0.0, max=head_max),
         "tilt_left_deg": QuantityMapping(axis="fixed", value=0.0),
         "tilt_right_deg": QuantityMapping(axis="fixed", value=0.0),
         "target_distance_mm": QuantityMapping(axis="manual"),
@@ -234,9 +244,9 @@ def _default_quantities() -> dict[str, QuantityMapping]:
 class RigConfig(BaseModel):
     """The whole rig: controller settings and the mapping of every physical quantity.
 
-    Quantities missing from a file keep their default mapping (X = baseline 0-350 mm at X -350..0, Y/Z =
-    left/right toe-in 0-90 deg at -0..-90, tilts fixed at 0, target distance manual): stock Grbl's
-    negative machine space.
+    Quantities missing from a file keep their default mapping (X = baseline 1-349 mm at X -349..-1, Y/Z =
+    left/right toe-in 0-88 deg at -1..-89, tilts fixed at 0, target distance manual): stock Grbl's negative
+    machine space with $130=350, $131=$132=90, one pull-off inside it.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True)

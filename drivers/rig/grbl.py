@@ -18,18 +18,25 @@ What Grbl 1.1h does that the driver must know (its source is the specification):
 
 - Opening an Arduino's port resets it (DTR auto-reset): the banner comes ~1.1 s later and the step
   counters restart at 0 wherever the axes stand. :meth:`GrblController.open` listens before it acts:
-  a controller that answers ``?`` at once was running; one that prints its banner first has just
-  booted, and its position is unknown (``info.boot_detected``) until it is homed.
-- ``$I``, ``$$`` and ``$N`` are read at connect (:attr:`GrblController.info`): ``$13=1`` (inches) is
+  a controller that answers ``?`` at once was running; every banner that comes before the first status
+  report, however late, is a boot (``info.boot_detected``). After a boot - at open, late, or mid-run - the
+  position is unknown and motion is refused (:class:`GrblPositionUnknown`), whatever ``$22`` says, until
+  the rig is homed or :meth:`GrblController.trust_position` states that it is right.
+- ``$I``, ``$$``, ``$N`` and ``$#`` are read at connect (:attr:`GrblController.info`): ``$13=1`` (inches) is
   refused, a startup line that switches units or moves is warned about, the receive buffer size in
-  ``[OPT:]`` replaces a different configured one.
+  ``[OPT:]`` replaces a different configured one; a query answered ``error:N`` (a dialect without it) is
+  recorded in ``info.unsupported`` and the connect goes on.
 - A failed homing cycle (``ALARM:8``/``9``) resets Grbl: the ``$H`` line still gets a late ``ok`` and a
   banner follows (limits.c ``limits_go_home`` calls ``mc_reset``; system.c ``system_execute_line`` still
   returns STATUS_OK for ``$H``; main.c re-initialises). The driver keeps the ``$H`` outstanding for that ``ok`` and
   treats the banner as part of the failure; when the ALARM line is missing, the Alarm state after the
   ``ok`` tells.
 - After ``ALARM:1``/``ALARM:2`` Grbl answers nothing, not even ``?``, until a soft reset (protocol.c
-  ``protocol_exec_rt_system``, its critical-event loop): the driver says so instead of timing out.
+  ``protocol_exec_rt_system``, its critical-event loop): the driver says so instead of timing out. A
+  reset received before its ``[MSG:Reset to continue]`` is discarded: :meth:`GrblController.soft_reset`
+  waits for that message and resends once.
+- grblHAL (``info.dialect``): ``$21``/``$22`` are bitfields, its work envelope keeps a pull-off off each end
+  with hard limits on, and it checks soft limits on homed axes only (:func:`codec.soft_limit_space`).
 - ``~`` during ``Hold:1`` (still decelerating) is ignored (protocol.c ``protocol_exec_rt_system`` starts a
   cycle only from Idle or a hold with SUSPEND_HOLD_COMPLETE, and clears the request either way):
   :meth:`GrblController.resume` waits for ``Hold:0``.
@@ -114,6 +121,21 @@ class GrblMoveError(GrblError):
     """Motion ended somewhere other than the target."""
 
 
+class GrblPositionUnknown(GrblLocked):
+    """The controller booted (at open, late, or mid-run) or failed a homing cycle: its step counters say nothing
+    about where the axes stand, so motion is refused until the rig is homed or the position is confirmed
+    (:meth:`GrblController.trust_position`)."""
+
+
+#: After ALARM:1/2 Grbl 1.1h pauses 500 ms (report.c ``report_alarm_message``), then says
+#: ``[MSG:Reset to continue]`` and drops any reset received meanwhile: a reset waits for that message, at most
+#: this long after the ALARM line (the pause, with room for a loaded host).
+CRITICAL_RESET_WAIT_S = 1.5
+#: A soft reset not answered by a banner within this long (or half its timeout) is sent once more (a reset the
+#: firmware dropped, or a bootloader swallowed).
+RESET_RESEND_AFTER_S = 1.0
+
+
 @dataclass(frozen=True)
 class GrblReading:
     """One status report, timestamped when it arrived. Positions in machine units, keyed by axis letter.
@@ -157,11 +179,13 @@ class GrblReading:
 
 @dataclass
 class ControllerInfo:
-    """What the controller said about itself at connect (``$I``, ``$$``, ``$N``, the banner), for the record.
+    """What the controller said about itself at connect (``$I``, ``$$``, ``$N``, ``$#``, the banner), for the record.
 
     ``settings`` maps setting numbers to values (``{100: 250.0, ...}``); ``startup_lines`` maps ``$N``
-    numbers to the stored lines; ``startup_executed`` lists the ``>line:result`` echoes seen; ``warnings``
-    are the one-line warnings issued at connect.
+    numbers to the stored lines; ``startup_executed`` lists the ``>line:result`` echoes seen; ``parameters``
+    are the ``$#`` lines (work offsets, G28/G30, TLO, probe); ``build_tags`` grblHAL's further ``$I`` lines by
+    tag; ``unsupported`` the queries the controller refused (``{"$N": "error:3"}``: a dialect without them);
+    ``warnings`` are the one-line warnings issued at connect.
     """
 
     firmware: str | None = None
@@ -170,12 +194,40 @@ class ControllerInfo:
     options: str = ""
     planner_blocks: int | None = None
     rx_buffer_size: int | None = None
+    axis_count: int | None = None
+    build_tags: dict[str, str] = field(default_factory=dict)
     settings: dict[int, float] = field(default_factory=dict)
     startup_lines: dict[int, str] = field(default_factory=dict)
     startup_executed: list[str] = field(default_factory=list)
+    parameters: list[str] = field(default_factory=list)
+    unsupported: dict[str, str] = field(default_factory=dict)
     boot_detected: bool = False
     settings_read: bool = False
     warnings: list[str] = field(default_factory=list)
+
+    @property
+    def dialect(self) -> str:
+        """``GrblHAL`` when its banner or ``[FIRMWARE:grblHAL]`` says so, else ``Grbl`` (1.1)."""
+        banner = (self.firmware or "").lower()
+        if banner.startswith("grblhal") or self.build_tags.get("FIRMWARE", "").lower() == "grblhal":
+            return "GrblHAL"
+        return "Grbl"
+
+    @property
+    def homing_enabled(self) -> bool:
+        return codec.homing_enabled(self.settings)
+
+    @property
+    def hard_limits(self) -> bool:
+        return codec.hard_limits_enabled(self.settings)
+
+    @property
+    def boots_locked(self) -> bool:
+        """Whether a boot with homing enabled lands in Alarm: Grbl's HOMING_INIT_LOCK, grblHAL's ``$22`` bit 2
+        ("homing on startup required"); ``L`` in ``[OPT:]`` says a build boots Idle (report.c)."""
+        if self.dialect == "GrblHAL":
+            return self.homing_enabled and codec.setting_bit(self.settings, codec.SETTING_HOMING, 2)
+        return self.homing_enabled and "L" not in self.options
 
     def setting(self, number: int) -> float | None:
         return self.settings.get(number)
@@ -185,16 +237,22 @@ class ControllerInfo:
 
     def machine_space(self, axis: str) -> tuple[float, float] | None:
         """The machine coordinates this axis can reach once homed (see :func:`codec.soft_limit_space`)."""
-        return codec.soft_limit_space(self.settings, self.options, axis)
+        return codec.soft_limit_space(self.settings, self.options, axis, firmware=self.dialect)
+
+    def switch_position(self, axis: str) -> float | None:
+        """Where this axis' homing switch trips, in machine coordinates (see :func:`codec.switch_position`)."""
+        return codec.switch_position(self.settings, self.options, axis)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: settings keyed ``"$100"``, startup lines as a list in ``$N`` order."""
         return {
-            "firmware": self.firmware, "build": self.build, "build_user_info": self.build_user_info,
-            "options": self.options, "planner_blocks": self.planner_blocks, "rx_buffer_size": self.rx_buffer_size,
+            "firmware": self.firmware, "dialect": self.dialect, "build": self.build,
+            "build_user_info": self.build_user_info, "options": self.options, "planner_blocks": self.planner_blocks,
+            "rx_buffer_size": self.rx_buffer_size, "axis_count": self.axis_count, "build_tags": dict(self.build_tags),
             "settings": {f"${n}": (int(v) if float(v).is_integer() else v) for n, v in sorted(self.settings.items())},
             "startup_lines": [self.startup_lines[n] for n in sorted(self.startup_lines)],
-            "startup_executed": list(self.startup_executed), "boot_detected": self.boot_detected,
+            "startup_executed": list(self.startup_executed), "parameters": list(self.parameters),
+            "unsupported": dict(self.unsupported), "boot_detected": self.boot_detected,
             "settings_read": self.settings_read, "warnings": list(self.warnings),
         }
 
@@ -421,6 +479,11 @@ class GrblController:
         self._banner_count = 0
         self._unexpected_reset = False
         self._position_unknown: str | None = None  # why the position cannot be trusted until homed
+        self._banners_before_status = 0  # banners before the first status report since open: boots
+        self._status_seen = False
+        self._homed_here = False  # homed through this connection since the last banner (grblHAL's soft limits)
+        self._critical_alarm_at: float | None = None  # monotonic time of the last ALARM:1/2 line
+        self._reset_to_continue = False  # [MSG:Reset to continue] seen since it: a reset is heard now
         self._move_sequence = 0
         self._last_move_line = ""
         self.info = ControllerInfo()
@@ -472,15 +535,9 @@ class GrblController:
         if self.pulse_dtr_on_open and hasattr(self.transport, "pulse_dtr"):
             self.transport.pulse_dtr()  # type: ignore[attr-defined]
         outcome = self._listen_for_boot(min(self.boot_wait_s, self.connect_timeout_s))
-        if outcome == "boot":
-            self.info.boot_detected = True
-            with self._cond:
-                self._position_unknown = (
-                    f"{self.port_name} booted when the port was opened (an Arduino's auto-reset?): its step "
-                    "counters restarted at 0 wherever the axes stand, so the rig's position is unknown")
-            self._warn(f"{self.port_name}: the controller booted when the port was opened (Arduino auto-reset?): "
-                       "machine position restarted at 0, the rig's position is unknown until it is homed")
-        elif self.reset_on_open:
+        reset_sent = False
+        if outcome != "boot" and self.reset_on_open:
+            reset_sent = outcome is None
             self._connect_by_reset(deadline)
         reading = self._last_reading
         if outcome != "running" or self.reset_on_open or reading is None or reading.machine_position is None:
@@ -492,6 +549,21 @@ class GrblController:
         with self._cond:
             # It answered, so any boot is over: a banner from now on is a real reset.
             self._banner_grace_until = 0.0
+            booted = self._banners_before_status > 0
+        if booted:
+            # Every banner before the first status report is a boot, however late it came (a slow bootloader,
+            # grblHAL's simulator ~3 s, a hub): the step counters restarted at 0 wherever the axes stand.
+            self.info.boot_detected = True
+            if reset_sent:
+                why = (f"{self.port_name} did not answer until it was reset and then printed its banner: it was "
+                       "booting (a slow boot) or halted, and its step counters may have restarted at 0")
+            else:
+                why = (f"{self.port_name} booted when the port was opened (an Arduino's auto-reset?): its step "
+                       "counters restarted at 0 wherever the axes stand")
+            with self._cond:
+                self._position_unknown = f"{why}, so the rig's position is unknown"
+            self._warn(f"{why}: the rig's position is unknown until it is homed (or the position is confirmed with "
+                       "`unlock --trust-position`)")
 
     def _silence_message(self, waited_s: float) -> str:
         return (f"no answer to '?' from {self.port_name} within {waited_s:g} s: a GRBL halted by a hard or soft "
@@ -530,19 +602,15 @@ class GrblController:
             next_retry = asked_at + self.status_retry_s
 
     def _connect_by_reset(self, deadline: float) -> None:
-        # An Arduino's bootloader may swallow the first reset byte; a second one, sent once the first
-        # has gone unanswered, covers that.
-        attempts = 2
-        for attempt in range(attempts):
-            remaining = deadline - time.monotonic()
-            try:
-                self.soft_reset(timeout=max(0.05, remaining / (attempts - attempt)), query_status=False)
-                return
-            except GrblTimeout:
-                if attempt == attempts - 1:
-                    raise GrblConnectionError(
-                        f"no GRBL banner from {self.port_name} within {self.connect_timeout_s:g} s of a soft reset: "
-                        f"is a GRBL controller on this port, at {self.baudrate} baud?") from None
+        # An Arduino's bootloader may swallow the first reset byte: soft_reset sends a second one, once the
+        # first has gone unanswered.
+        remaining = deadline - time.monotonic()
+        try:
+            self.soft_reset(timeout=max(0.05, remaining), query_status=False)
+        except GrblTimeout:
+            raise GrblConnectionError(
+                f"no GRBL banner from {self.port_name} within {self.connect_timeout_s:g} s of a soft reset: "
+                f"is a GRBL controller on this port, at {self.baudrate} baud?") from None
 
     def _read_info(self) -> None:
         """``$I``, ``$$``, ``$N``: what the controller is, how it is set up, what it runs at every reset."""
@@ -555,11 +623,18 @@ class GrblController:
                        "or Alarm); the rig config is not checked against them")
             return
         timeout = max(1.0, self.connect_timeout_s)
-        build = codec.parse_build_info(self.send("$I", timeout=timeout))
+        build = codec.parse_build_info(self._query("$I", timeout))
         info.build, info.build_user_info, info.options = build.version, build.user_info, build.options
         info.planner_blocks, info.rx_buffer_size = build.planner_blocks, build.rx_buffer_size
-        info.settings = codec.parse_settings(self.send("$$", timeout=timeout))
-        info.startup_lines = codec.parse_startup_lines(self.send("$N", timeout=timeout))
+        info.axis_count, info.build_tags = build.axis_count, dict(build.tags)
+        settings = self._query("$$", timeout)
+        info.startup_lines = codec.parse_startup_lines(self._query("$N", timeout))
+        info.parameters = [line for line in self._query("$#", timeout) if line.startswith("[")]
+        if "$$" in info.unsupported:
+            self._warn(f"{self.port_name}: the controller refused $$ ({info.unsupported['$$']}): its settings are "
+                       "unknown; the rig config is not checked against them")
+            return
+        info.settings = codec.parse_settings(settings)
         info.settings_read = True
         if info.settings.get(codec.SETTING_REPORT_INCHES):
             raise GrblSettingsError(
@@ -577,6 +652,17 @@ class GrblController:
                 self._warn(f"{self.port_name}: startup line $N{number}={line} runs after every reset and homing and "
                            f"{' and '.join(hazards)}; every move of this driver carries G21 G90, but clear it "
                            f"(send '$N{number}=') unless it is meant")
+
+    def _query(self, command: str, timeout: float) -> list[str]:
+        """An informational query at connect; one the controller refuses (``error:N``: another dialect) is
+        recorded in ``info.unsupported`` and answers nothing."""
+        try:
+            return self.send(command, timeout=timeout)
+        except GrblCommandError as error:
+            self.info.unsupported[command] = f"error:{error.code}"
+            log.info("%s answers %s with error:%d (%s): recorded as unsupported", self.port_name, command,
+                     error.code, error.meaning)
+            return []
 
     def _warn(self, message: str) -> None:
         self.info.warnings.append(message)
@@ -712,6 +798,7 @@ class GrblController:
                 elif message.text == codec.RESET_TO_CONTINUE_MESSAGE:
                     self._needs_reset = True
                     self._locked = True
+                    self._reset_to_continue = True
                 elif message.text == codec.CHECK_MODE_ENABLED_MESSAGE:
                     self._check_mode = True
                 elif message.text == codec.CHECK_MODE_DISABLED_MESSAGE:
@@ -740,6 +827,8 @@ class GrblController:
         if message.code in codec.CRITICAL_ALARMS:
             # [MSG:Reset to continue] follows, but a caller must not be able to act in between.
             self._needs_reset = True
+            self._critical_alarm_at = now_mono
+            self._reset_to_continue = False
         if self._homing and message.code in codec.HOMING_ALARMS:
             # limits.c: the failed cycle resets Grbl, but system.c still answers the $H line ('ok') before
             # main.c prints the banner again: keep the $H outstanding so that 'ok' is not taken for the
@@ -773,6 +862,7 @@ class GrblController:
         )
         self._last_reading = reading
         self._status_received += 1
+        self._status_seen = True
         if report.state == "Alarm":
             self._locked = True
         elif report.state in ("Idle", "Run", "Jog", "Hold", "Check"):
@@ -784,6 +874,11 @@ class GrblController:
     def _on_banner(self, banner: codec.Banner, now_mono: float) -> None:
         self._banner = banner
         self._banner_count += 1
+        if not self._status_seen:
+            self._banners_before_status += 1
+        self._homed_here = False
+        self._critical_alarm_at = None
+        self._reset_to_continue = False
         expected = (self._expecting_banner or now_mono < self._banner_grace_until or self._homing
                     or self._in_home)
         self._needs_reset = False
@@ -1058,19 +1153,45 @@ class GrblController:
         """0x18: stop at once, discard everything buffered, wait for the banner; return the state after it.
 
         Reset while moving loses position (GRBL raises ALARM:3); reset while idle keeps it. The only
-        thing a controller halted by ALARM:1/2 listens to.
+        thing a controller halted by ALARM:1/2 listens to, and only once it has said so: Grbl 1.1h prints
+        the ALARM line, waits 500 ms (report.c ``report_alarm_message``), prints ``[MSG:Reset to continue]``
+        and then clears any reset that came meanwhile (protocol.c ``protocol_exec_rt_system``). So right after
+        such an alarm this waits for that message (at most :data:`CRITICAL_RESET_WAIT_S` after the ALARM line)
+        before sending 0x18, and sends it once more if no banner answers within
+        :data:`RESET_RESEND_AFTER_S`.
         """
         self._usable_or_raise()
+        deadline = time.monotonic() + timeout
         with self._cond:
             count = self._banner_count
             self._expecting_banner = True
+            alarm_at = self._critical_alarm_at if self._needs_reset else None
+            if alarm_at is not None:
+                ready_by = min(deadline, alarm_at + CRITICAL_RESET_WAIT_S)
+                while not self._reset_to_continue and self._banner_count == count:
+                    self._usable_or_raise()
+                    remaining = ready_by - time.monotonic()
+                    if remaining <= 0:
+                        break  # the message was lost: the firmware's pause is over anyway
+                    self._cond.wait(remaining)
         try:
             self._write(codec.RT_SOFT_RESET)
-            self._wait_for_banner(count, time.monotonic() + timeout, what=f"a soft reset (within {timeout:g} s)")
+            first = min(deadline, time.monotonic() + min(RESET_RESEND_AFTER_S, timeout / 2.0))
+            try:
+                self._wait_for_banner(count, first, what=f"a soft reset (within {timeout:g} s)")
+            except GrblTimeout:
+                if time.monotonic() >= deadline:
+                    raise
+                # A reset the controller did not take (the 500 ms after an ALARM line, a bootloader): once more.
+                log.info("no banner from %s %g s after a soft reset: sending it again", self.port_name,
+                         RESET_RESEND_AFTER_S)
+                self._write(codec.RT_SOFT_RESET)
+                self._wait_for_banner(count, deadline, what=f"a soft reset, sent twice (within {timeout:g} s)")
         finally:
             with self._cond:
                 self._expecting_banner = False
-                # A second banner may follow closely (an Arduino booting after its DTR reset): not a fault.
+                # A second banner may follow closely (an Arduino booting after its DTR reset, the resent reset
+                # heard too): not a fault.
                 self._banner_grace_until = time.monotonic() + 0.25
         self._hold_requested = False
         return self.status(timeout=max(1.0, timeout)) if query_status else None
@@ -1086,12 +1207,20 @@ class GrblController:
                           "(soft reset), then home")
 
     def _lock_error(self) -> GrblLocked:
+        # The alarm first: after ALARM:1 and a reset the refusal must name the hard limit, not the banner.
+        if self._alarm is not None and (self._locked or self._unexpected_reset):
+            lost = self._alarm.code not in (2,)  # only a soft limit stops under control (its meaning says so)
+            remedy = "home ($H)" if lost else "home ($H), or unlock ($X) if the position was kept"
+            return GrblLocked(f"controller on {self.port_name} is in Alarm after ALARM:{self._alarm.code} "
+                              f"({self._alarm.meaning}): {remedy} before moving")
         if self._position_unknown is not None:
-            return GrblLocked(f"{self._position_unknown}: home the rig ($H) before moving")
-        if self._alarm is not None:
-            return GrblLocked(
-                f"controller is in Alarm after ALARM:{self._alarm.code} ({self._alarm.meaning}): "
-                "home ($H) or unlock ($X) before moving")
+            if self.info.settings_read and not self.info.homing_enabled:
+                remedy = ("homing is disabled ($22=0): confirm the position is right once the axes stand where the "
+                          "controller counts (`rig unlock --trust-position`), or enable homing")
+            else:
+                remedy = ("home the rig ($H) before moving, or confirm the position is right "
+                          "(`rig unlock --trust-position`)")
+            return GrblPositionUnknown(f"{self._position_unknown}: {remedy}")
         return GrblLocked(f"controller on {self.port_name} is in Alarm (homing required): "
                           "home ($H) or unlock ($X) before moving")
 
@@ -1101,10 +1230,21 @@ class GrblController:
             raise GrblError("homing in progress")
         if self._needs_reset:
             raise self._halted_error()
-        if self._locked or self._unexpected_reset:
+        # Whatever $22 says: after a boot the step counters count from wherever the axes stood.
+        if self._locked or self._unexpected_reset or self._position_unknown is not None:
             raise self._lock_error()
-        if self._position_unknown is not None and self.info.settings.get(codec.SETTING_HOMING):
-            raise self._lock_error()
+
+    def trust_position(self) -> None:
+        """The user states that the controller's position is right (the rig was not moved while it booted, or
+        stands where its machine 0 is): moves are no longer refused for a boot. Sends nothing; a controller in
+        Alarm still needs :meth:`unlock` (or use ``unlock(trust_position=True)``)."""
+        with self._cond:
+            why = self._position_unknown
+            self._position_unknown = None
+            self._unexpected_reset = False
+        if why is not None:
+            # The caller asked for it and says so to the user; logged below warning level.
+            log.info("%s: position trusted as it is, without homing (%s)", self.port_name, why)
 
     def home(self, *, timeout: float = 120.0) -> GrblReading:
         """``$H``: run the homing cycle and wait for its ``ok`` (GRBL reports no status while homing).
@@ -1179,6 +1319,7 @@ class GrblController:
             self._alarm = None
             self._unexpected_reset = False
             self._position_unknown = None
+            self._homed_here = True
         return reading
 
     def _homing_failed(self, why: str) -> None:
@@ -1198,15 +1339,22 @@ class GrblController:
         except GrblError as error:
             log.error("soft reset after a timeout failed on %s: %s", self.port_name, error)
 
-    def unlock(self, *, timeout: float = 5.0) -> GrblReading:
-        """``$X``: leave Alarm without homing. The position is then trusted as is: only when it is right."""
+    def unlock(self, *, timeout: float = 5.0, trust_position: bool = False) -> GrblReading:
+        """``$X``: leave Alarm without homing. The controller's position is then used as it is: only when it is
+        right. After a boot the driver still refuses moves (the step counters restarted at 0 wherever the axes
+        stood) unless ``trust_position`` says that position is right (see :meth:`trust_position`)."""
         self.send("$X", timeout=timeout)
         with self._cond:
             self._locked = False
             self._alarm = None
-            self._unexpected_reset = False
-            self._position_unknown = None
+        if trust_position:
+            self.trust_position()
         return self.status(timeout=timeout)
+
+    @property
+    def homed(self) -> bool:
+        """Homed through this connection since the controller last printed its banner."""
+        return self._homed_here
 
     def move_to(
         self, target: Mapping[str, float], *, feed_per_min: float | None = None, timeout_s: float = 120.0,
@@ -1271,6 +1419,6 @@ class GrblController:
 
 __all__ = [
     "ControllerInfo", "GrblAlarm", "GrblCommandError", "GrblConnectionError", "GrblConnectionLost", "GrblController",
-    "GrblError", "GrblLocked", "GrblMoveError", "GrblReading", "GrblResetError", "GrblSettingsError", "GrblTimeout",
-    "MoveStatus",
+    "GrblError", "GrblLocked", "GrblMoveError", "GrblPositionUnknown", "GrblReading", "GrblResetError",
+    "GrblSettingsError", "GrblTimeout", "MoveStatus",
 ]

@@ -38,9 +38,117 @@ REFERENCE_AXIS_MOTION: dict[str, AxisMotion] = {
 }
 
 
-#: The simulated rig's homing cycle: seek at this rate (units/min), then locate and pull off in a fixed time.
-REFERENCE_HOMING_SEEK_RATE_PER_MIN = 3000.0
-REFERENCE_HOMING_SETTLE_S = 0.5
+#: limits.c: the seek covers 1.5 x the cycle's longest travel ($13x), a locate 5 x the pull-off ($27).
+HOMING_SEARCH_SCALAR = 1.5
+HOMING_LOCATE_SCALAR = 5.0
+
+
+@dataclass(frozen=True)
+class HomingSettings:
+    """The homing cycle's settings (units/min, ms, units): ``$25`` seek rate, ``$24`` locate feed rate, ``$26``
+    debounce, ``$27`` pull-off, and N_HOMING_LOCATE_CYCLE (config.h; grblHAL's ``$43``)."""
+
+    seek_rate_per_min: float
+    feed_rate_per_min: float
+    debounce_ms: float
+    pulloff: float
+    locate_cycles: int = 1
+
+
+#: The simulated rig's homing settings; the plan's estimate assumes them for a real controller too (its $24-$27
+#: are not known offline). Grbl's defaults.h has $25=500 and $24=25: a slower real rig homes slower.
+REFERENCE_HOMING = HomingSettings(seek_rate_per_min=3000.0, feed_rate_per_min=200.0, debounce_ms=100.0,
+                                  pulloff=1.0)
+
+
+def homing_cycles(axes: str) -> list[str]:
+    """The axes each homing cycle moves together, in order: config.h HOMING_CYCLE_0 = Z, HOMING_CYCLE_1 = X and
+    Y (grblHAL's defaults, ``$44``/``$45``, are the same), then the other axes of a grblHAL board together (its
+    ``$46``, which a rig driving A/B/C must set). Axes the controller lacks are left out."""
+    cycles = ["Z", "XY", "ABC"]
+    return [kept for kept in ("".join(a for a in cycle if a in axes) for cycle in cycles) if kept]
+
+
+@dataclass(frozen=True)
+class HomingMove:
+    """One move of a homing cycle (limits.c ``limits_go_home``): every axis of the cycle starts together on one
+    planner block of ``search`` units per axis at the cycle's rate (vector feed rate x sqrt(n), so that each axis
+    moves at the rate, capped by ``$11x``, ramping at ``$12x``); an axis stops dead where it meets its switch
+    (``stop`` units along its way, approach moves), or at the block's end (pull-offs). Units per axis."""
+
+    search: float
+    speed: float  # units/s, per axis
+    accel: float  # units/s², per axis
+
+    @property
+    def profile(self) -> Trapezoid:
+        return trapezoid(self.search, self.speed, self.accel)
+
+    def time_to(self, distance: float) -> float:
+        """When an axis has covered ``distance`` (<= ``search``) along this move, s."""
+        return time_at_distance(self.profile, self.search, self.accel, distance)
+
+
+def homing_move(search: float, rate_per_min: float, *, max_rate_per_min: float, acceleration: float) -> HomingMove:
+    """The per-axis profile of a homing move (``max_rate_per_min`` and ``acceleration``: the lowest ``$11x``/``$12x``
+    of the cycle's axes, as the planner applies each axis' limit to the block; every axis has the same |delta|, so
+    the vector feed rate x sqrt(n) is ``rate_per_min`` per axis)."""
+    return HomingMove(search=search, speed=min(rate_per_min, max_rate_per_min) / 60.0, accel=acceleration)
+
+
+def distance_at_time(profile: Trapezoid, length: float, accel: float, tau: float) -> float:
+    """Distance covered ``tau`` s into a move of ``length`` with ``profile`` (ramping at ``accel``)."""
+    if tau <= 0.0:
+        return 0.0
+    if tau >= profile.duration_s:
+        return length
+    if tau < profile.t_acc_s:
+        return 0.5 * accel * tau * tau
+    d_acc = 0.5 * accel * profile.t_acc_s ** 2
+    if tau < profile.t_acc_s + profile.t_cruise_s:
+        return d_acc + profile.v_peak * (tau - profile.t_acc_s)
+    left = profile.duration_s - tau
+    return min(length, max(0.0, length - 0.5 * accel * left * left))
+
+
+def time_at_distance(profile: Trapezoid, length: float, accel: float, distance: float) -> float:
+    """When a move of ``length`` with ``profile`` (ramping at ``accel``) has covered ``distance``, s."""
+    d = min(max(distance, 0.0), length)
+    d_acc = 0.5 * accel * profile.t_acc_s ** 2
+    if d <= d_acc:
+        return math.sqrt(2.0 * d / accel)
+    if d <= length - d_acc:
+        return profile.t_acc_s + (d - d_acc) / profile.v_peak
+    left = length - d
+    return profile.duration_s - math.sqrt(2.0 * left / accel)
+
+
+def homing_time_s(to_switch: Mapping[str, float], *, max_travel: Mapping[str, float], homing: HomingSettings,
+                  max_rate_per_min: Mapping[str, float], acceleration: Mapping[str, float]) -> float:
+    """Duration (s) of a successful homing cycle (``$H``), as Grbl 1.1h and grblHAL run it.
+
+    ``to_switch``: axis letter -> distance (units) from where the axis stands to its homing switch;
+    ``max_travel``: ``$13x`` per axis (the seek's search is 1.5 x the cycle's longest). Per cycle
+    (:func:`homing_cycles`): seek to the switches at ``$25``, pull off ``$27`` at ``$25``, then
+    ``locate_cycles`` x (locate at ``$24``, pull off), each move followed by the ``$26`` debounce.
+    """
+    total = 0.0
+    debounce = homing.debounce_ms / 1000.0
+    for cycle in homing_cycles("".join(to_switch)):
+        rate = min(max_rate_per_min[a] for a in cycle)
+        accel = min(acceleration[a] for a in cycle)
+        search = HOMING_SEARCH_SCALAR * max(max_travel[a] for a in cycle)
+        seek = homing_move(search, homing.seek_rate_per_min, max_rate_per_min=rate, acceleration=accel)
+        pull = homing_move(homing.pulloff, homing.seek_rate_per_min, max_rate_per_min=rate,
+                           acceleration=accel)
+        locate = homing_move(HOMING_LOCATE_SCALAR * homing.pulloff, homing.feed_rate_per_min,
+                             max_rate_per_min=rate, acceleration=accel)
+        total += max(seek.time_to(to_switch[a]) for a in cycle) + debounce
+        pulloff_s = pull.profile.duration_s if homing.pulloff > 0 else 0.0
+        total += pulloff_s + debounce
+        for _ in range(homing.locate_cycles):
+            total += locate.time_to(homing.pulloff) + debounce + pulloff_s + debounce
+    return total
 
 
 @dataclass(frozen=True)

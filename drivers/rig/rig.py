@@ -121,8 +121,9 @@ class GrblRig:
     Args:
         port: a device path or pyserial URL, an open ``serial.SerialBase``, a :class:`Transport`, or an
             already-built :class:`GrblController`.
-        config: the axis mapping and limits (default: stock Grbl machine space, X = baseline 0-350 mm at
-            X -350..0, Y/Z = left/right toe-in 0-90 deg at -0..-90, tilts fixed at 0, target distance manual).
+        config: the axis mapping and limits (default: stock Grbl machine space one pull-off inside it, X =
+            baseline 1-349 mm at X -349..-1, Y/Z = left/right toe-in 0-88 deg at -1..-89, tilts fixed at 0, target
+            distance manual).
         prompt: ``prompt(message) -> None`` shows the operator what to do for a manual quantity and
             returns once it is done (e.g. after Enter). Without it, a move that needs a manual step is
             refused before anything moves.
@@ -191,10 +192,33 @@ class GrblRig:
             timeout = self.config.controller.home_timeout_s if timeout_s is None else timeout_s
             return self._reading(self.controller.home(timeout=timeout))
 
-    def unlock(self) -> RigReading:
-        """Leave Alarm without homing (``$X``): only when the positions are known to be right."""
+    def homing_approach(self) -> dict[str, int]:
+        """Per driven quantity the direction (+1 increasing, -1 decreasing, physical units) from which homing
+        leaves it: the last move of the cycle pulls off its switch (limits.c ``limits_go_home``), toward -
+        machine units on an axis homing toward + and toward + on a ``$23`` axis. The kinematic model's
+        backlash correction needs it for the first configurations visited at the homed position. Empty when
+        the settings were not read."""
+        info = self.controller.info
+        if not info.settings_read:
+            return {}
+        out = {}
+        for quantity, axis in self.config.driven.items():
+            homes_negative = codec.setting_bit(info.settings, codec.SETTING_HOMING_DIR_MASK,
+                                               codec.AXIS_LETTERS.index(axis))
+            machine = 1 if homes_negative else -1
+            out[quantity] = machine if self.config.quantities[quantity].scale > 0 else -machine
+        return out
+
+    def unlock(self, *, trust_position: bool = False) -> RigReading:
+        """Leave Alarm without homing (``$X``): only when the positions are known to be right. After a boot the
+        position stays unknown (moves refused) unless ``trust_position`` states that it is right."""
         with self._lock:
-            return self._reading(self.controller.unlock())
+            return self._reading(self.controller.unlock(trust_position=trust_position))
+
+    def trust_position(self) -> RigReading:
+        """The position the controller reports is right, without homing (a campaign with ``[rig] homing =
+        false``): leave Alarm (``$X``) and stop refusing moves for a boot. Returns the reading then."""
+        return self.unlock(trust_position=True)
 
     def read(self) -> RigReading:
         with self._lock:
@@ -255,7 +279,8 @@ class GrblRig:
         with self._lock:
             reading: GrblReading | None = None
             if plan.machine_targets:
-                refused = machine_space_violations(plan.machine_targets, self.controller.info)
+                refused = machine_space_violations(plan.machine_targets, self.controller.info,
+                                                   homed=self.controller.homed)
                 if refused:
                     raise MachineSpaceError(refused)
                 feed = self._feed_for(plan.machine_targets)
@@ -327,17 +352,21 @@ class GrblRig:
         )
 
 
-def machine_space_violations(targets: Mapping[str, float], info: Any) -> list[str]:
+def machine_space_violations(targets: Mapping[str, float], info: Any, *, homed: bool = True) -> list[str]:
     """One message per machine target the controller would not accept (empty when it would accept all).
 
     ``info`` is the controller's :class:`~drivers.rig.grbl.ControllerInfo`. Homed, Grbl's machine space is
     ``[-$13x, 0]`` (limits.c, system.c); with soft limits on (``$20=1``) a target outside it halts the
-    controller with ALARM:2, and without them it drives the axis past its homing switch. Targets are
-    compared as they go on the wire (3 decimals). Nothing is refused when homing is disabled
-    (``$22=0``): machine coordinates then mean nothing fixed.
+    controller with ALARM:2, and without them it drives the axis past its homing switch. grblHAL keeps one
+    pull-off off each end with hard limits on (machine_limits.c ``limits_set_work_envelope``) and checks soft
+    limits only on the axes it has homed (``check_travel_limits``): on an axis not homed (``homed`` False: the
+    position was trusted, not homed) this check is the only one. Targets are compared as they go on the wire
+    (3 decimals). Nothing is refused when homing is disabled (``$22=0``): machine coordinates then mean
+    nothing fixed.
     """
     problems = []
     soft = bool(info.settings.get(codec.SETTING_SOFT_LIMITS))
+    grblhal = info.dialect == "GrblHAL"
     for axis, value in targets.items():
         space = info.machine_space(axis)
         if space is None:
@@ -346,26 +375,35 @@ def machine_space_violations(targets: Mapping[str, float], info: Any) -> list[st
         low, high = space
         if not low <= sent <= high:
             number = codec.SETTING_MAX_TRAVEL + codec.AXIS_LETTERS.index(axis)
-            consequence = "soft limits would halt it with ALARM:2" if soft else "it would drive past the switch"
-            problems.append(f"{axis}={sent:g} is outside the controller's machine space {axis} {low:g}..{high:g} "
+            if grblhal and soft and not homed:
+                consequence = ("grblHAL checks soft limits only on homed axes and this one was not homed: it would "
+                               "drive past the switch")
+            elif soft:
+                consequence = "soft limits would halt it with ALARM:2"
+            else:
+                consequence = "it would drive past the switch"
+            where = "work envelope" if grblhal else "machine space"
+            problems.append(f"{axis}={sent:g} is outside the controller's {where} {axis} {low:g}..{high:g} "
                             f"(${number}={info.settings[number]:g}; {consequence})")
     return problems
 
 
 def config_warnings(config: RigConfig, info: Any, *, port: str = "controller") -> list[str]:
     """One warning line per conflict between a rig config and the controller's settings (``info``, a
-    :class:`~drivers.rig.grbl.ControllerInfo`): machine targets outside the machine space, a tolerance finer
-    than one step, homing disabled. Empty when the settings were not read."""
+    :class:`~drivers.rig.grbl.ControllerInfo`): machine targets outside the machine space, targets that reach a
+    homing switch with hard limits on, a tolerance finer than one step, homing disabled. Empty when the settings
+    were not read."""
     if not info.settings_read:
         return []
     warnings = []
-    if not info.settings.get(codec.SETTING_HOMING):
+    if not info.homing_enabled:
         warnings.append(f"{port}: homing is disabled ($22=0): machine positions count from wherever the axes "
                         "stood when the controller booted, so the rig config's mapping holds only if they stood "
                         "at machine 0 then; enable homing ($22=1) and soft limits ($20=1)")
     elif not info.settings.get(codec.SETTING_SOFT_LIMITS):
         warnings.append(f"{port}: soft limits are off ($20=0): the controller would not stop a move past its "
                         "travel; this driver refuses targets outside the machine space, other programs will not")
+    at_switch = []
     for quantity, axis in config.driven.items():
         mapping = config.quantities[quantity]
         low, high = sorted((mapping.offset + mapping.scale * mapping.min,  # type: ignore[operator]
@@ -382,6 +420,10 @@ def config_warnings(config: RigConfig, info: Any, *, port: str = "controller") -
                                 "refused; set offset/scale in the rig config (docs/RIG.md)")
             elif low < a or high > b:
                 warnings.append(f"{where}): moves of {quantity} beyond it will be refused")
+        if info.hard_limits:
+            reached = _switch_reached(config, quantity, info)
+            if reached is not None:
+                at_switch.append(reached)
         spu = info.steps_per_unit(axis)
         if spu:
             step = 1.0 / spu / abs(mapping.scale)
@@ -389,7 +431,34 @@ def config_warnings(config: RigConfig, info: Any, *, port: str = "controller") -
                 unit = "mm" if quantity.endswith("_mm") else "deg"
                 warnings.append(f"{quantity}: tolerance {mapping.tolerance:g} {unit} is finer than one step of axis "
                                 f"{axis} ({step:g} {unit} at $10{number}={spu:g}): using one step")
+    if at_switch:
+        pulloff = info.settings.get(codec.SETTING_HOMING_PULLOFF, 0.0)
+        warnings.append(f"{port}: hard limits are on ($21=1) and {'; '.join(at_switch)}: a move there trips the "
+                        f"switch and halts the controller with ALARM:1; keep every target at least the pull-off "
+                        f"($27={pulloff:g}) inside it (docs/RIG.md section 3)")
     return warnings
+
+
+def _switch_reached(config: RigConfig, quantity: str, info: Any) -> str | None:
+    """Where ``quantity``'s range comes closer to its axis' homing switch than the pull-off (``$27``, the point
+    homing proved clear of it), as text; None when it stays clear or the switch is not known."""
+    mapping = config.quantities[quantity]
+    axis = mapping.axis
+    switch = info.switch_position(axis)
+    if switch is None:
+        return None
+    pulloff = float(info.settings.get(codec.SETTING_HOMING_PULLOFF, 0.0))
+    ends = {value: mapping.offset + mapping.scale * value for value in (mapping.min, mapping.max)}  # type: ignore
+    homes_negative = codec.setting_bit(info.settings, codec.SETTING_HOMING_DIR_MASK, codec.AXIS_LETTERS.index(axis))
+    # The switch closes the side the axis homes to; clear of it means at least one pull-off short of it.
+    reaching = {value: target for value, target in ends.items()
+                if (target < switch + pulloff - 1e-9 if homes_negative else target > switch - pulloff + 1e-9)}
+    if not reaching:
+        return None
+    value, target = min(reaching.items(), key=lambda item: abs(item[1] - switch))  # the end nearest the switch
+    unit = "mm" if quantity.endswith("_mm") else "deg"
+    return (f"{quantity} = {value:g} {unit} maps to {axis}{target:g}, within {abs(target - switch):g} of the {axis} "
+            f"switch at {axis}{switch:g}")
 
 
 def physical_request(

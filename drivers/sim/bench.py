@@ -78,7 +78,7 @@ import numpy as np
 from drivers.camera.base import CameraSettings
 from drivers.camera.synthetic import SyntheticCamera
 from drivers.rig.config import RigConfig, alpha_from_toe_in, to_physical
-from drivers.rig.motion import REFERENCE_HOMING_SEEK_RATE_PER_MIN, REFERENCE_HOMING_SETTLE_S
+from drivers.rig.motion import REFERENCE_HOMING
 from drivers.sim.clock import BenchClock
 from drivers.sim.grbl_emulator import AxisSpec, GrblEmulator, MotionEvent, axis_specs_for_travel
 from drivers.sim.mechanics import MOVED, MoveHistory, PairState, pair_state, ringing_duration_s
@@ -259,11 +259,11 @@ class SimulatedBench:
         # The emulated controller's travel ($13x) comes from the rig config's soft limits, in the machine space
         # a stock Grbl gives (negative from the homing switch); a config with positive machine targets gets
         # the HOMING_FORCE_SET_ORIGIN build that serves them (see docs/RIG.md).
-        specs, force_set_origin = axis_specs_for_travel(self.rig_config.machine_travel())
+        specs, force_set_origin = axis_specs_for_travel(self.rig_config.machine_travel(),
+                                                        margin=REFERENCE_HOMING.pulloff)
         self.emulator = None if pose_source is not None else GrblEmulator(
             axes=self.rig_config.axes, axis_specs=axis_specs or specs, time_scale=time_scale,
-            homing_enabled=homing_enabled, force_set_origin=force_set_origin,
-            homing_seek_rate_per_min=REFERENCE_HOMING_SEEK_RATE_PER_MIN, homing_settle_s=REFERENCE_HOMING_SETTLE_S,
+            homing_enabled=homing_enabled, force_set_origin=force_set_origin,  # homing: the reference rig's
             clock=self.clock, on_motion=self._on_motion,
         )
         self._scene = Scene()

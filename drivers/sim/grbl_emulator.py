@@ -17,15 +17,20 @@ behaviour mirrors. What it does:
   once, without ``ok``.
 - Settings (settings.c, report.c): ``$$`` lists defaults.h DEFAULTS_GENERIC overridden by the
   constructor's arguments, ``$x=value`` stores with the firmware's checks. Honoured: ``$10`` status
-  mask, ``$13`` report inches, ``$20`` soft limits, ``$22`` homing, ``$23`` homing direction mask,
-  ``$25`` seek rate, ``$27`` pull-off, ``$100``.. steps/unit, ``$110``.. max rates, ``$120``..
-  accelerations, ``$130``.. max travel. ``$I`` answers ``[VER:1.1h.20190830:]`` ``[OPT:V,15,128]``;
-  ``$N`` lists the two startup lines, ``$Nn=line`` stores one (executing it, as system.c does).
+  mask, ``$13`` report inches, ``$20`` soft limits, ``$21`` hard limits, ``$22`` homing, ``$23`` homing
+  direction mask, ``$24`` locate feed, ``$25`` seek rate, ``$26`` debounce, ``$27`` pull-off, ``$100``..
+  steps/unit, ``$110``.. max rates, ``$120``.. accelerations, ``$130``.. max travel. ``$I`` answers
+  ``[VER:1.1h.20190830:]`` ``[OPT:V,15,128]``; ``$N`` lists the two startup lines, ``$Nn=line`` stores one
+  in Idle (executing it, as system.c does; ``error:8`` in Alarm).
 - Positions are step counts (``sys_position``): a target is rounded to whole steps (planner.c
   ``plan_buffer_line``, ``lround``), MPos = steps / ``$10x``. Power-up and a reboot zero them wherever
   the axes stand (main.c); a soft reset keeps them. :meth:`physical_position` is where the axes really
   are, in the machine frame a successful homing establishes.
-- Homing (limits.c ``limits_go_home``): the switch is at the positive end of each axis (at the negative
+- Homing (motion_control.c ``mc_homing_cycle``, limits.c ``limits_go_home``): cycles of config.h (Z, then X
+  and Y; :func:`drivers.rig.motion.homing_cycles`), each a seek to the switches at ``$25`` (each axis stops
+  dead on its own), a pull-off of ``$27`` at ``$25``, a locate at ``$24`` and a last pull-off, each move
+  followed by the ``$26`` debounce: its time is the firmware's (:func:`drivers.rig.motion.homing_time_s`).
+  The switch is at the positive end of each axis (at the negative
   end with its ``$23`` bit set); after pull-off the axis is set to ``-$27`` (``-$13x + $27``): machine
   space is ``[-$13x, 0]``. A HOMING_FORCE_SET_ORIGIN build (``force_set_origin``, ``Z`` in ``[OPT:]``)
   sets 0 instead, and ``[0, $13x]`` on the axes whose ``$23`` bit is set; its switches are then one
@@ -34,7 +39,8 @@ behaviour mirrors. What it does:
   (``<Home|MPos:...>``, motion_control.c ``mc_homing_cycle``), or never if it fails. With homing
   enabled the controller boots in Alarm (``[MSG:'$H'|'$X' to unlock]``). After a successful ``$H`` the
   startup lines run (echoed ``>line:ok``) before the ``ok`` of the ``$H``.
-- Homing failure (:class:`HomingFail`): ``ALARM:8``/``ALARM:9``, then - Grbl has reset itself - the late
+- Homing failure (:class:`HomingFail`, in the first cycle; or a switch beyond the search):
+  ``ALARM:8``/``ALARM:9``, then - Grbl has reset itself - the late
   ``ok`` of the ``$H`` line and the banner with ``[MSG:'$H'|'$X' to unlock]`` (system.c ``$H`` still
   returns STATUS_OK, main.c re-initialises). The ALARM line can be left out (``alarm_line=False``),
   as was seen on the real firmware.
@@ -43,7 +49,11 @@ behaviour mirrors. What it does:
   ``[MSG:Reset to continue]``; then nothing is answered - not even ``?`` - until 0x18 (protocol.c
   ``protocol_exec_rt_system``, critical-event loop). After the reset the offending line is answered
   ``ok`` (its ``gc_execute_line`` still returns STATUS_OK), then the banner. A jog beyond travel is
-  ``error:15``. Check mode (``$C``) checks soft limits too.
+  ``error:15``. Check mode (``$C``) checks soft limits too. A reset received before
+  ``[MSG:Reset to continue]`` (during report_alarm_message's pause) is lost: protocol.c clears it.
+- Hard limits (``$21=1``, limits.c ``ISR(LIMIT_INT_vect)``): a homing switch that closes or opens during
+  motion (not homing, not in Alarm) stops the axes dead there with ``ALARM:1``, critical as above; a boot or
+  reset with a switch closed is Alarm with ``[MSG:Check Limits]`` (protocol.c, CHECK_LIMITS_AT_INIT).
 - Feed hold (protocol.c): ``!`` decelerates (``Hold:1``), then ``Hold:0``; ``~`` resumes only a
   completed hold (a ``~`` during ``Hold:1`` is ignored). ``!`` during a jog cancels it.
 - Soft reset (motion_control.c ``mc_reset``, main.c): ``ALARM:3`` if the axes were moving (including
@@ -53,6 +63,11 @@ behaviour mirrors. What it does:
   ``[MSG:Disabled]`` and ``ok``.
 - Every ``ALARM:N`` line is followed by a 0.5 s pause (report.c ``report_alarm_message``), in
   simulated time.
+- grblHAL (``firmware="grblhal"``, from grblHAL/core): its ``$I`` lines and ``[OPT:VNML+W,100,1024,3,0]``,
+  ``$22`` as a bitfield (``$22=1``: no homing lock, it boots Idle), soft limits on homed axes only within
+  its work envelope (machine_limits.c), a 100 ms alarm pause, ``|H:1`` on the report after homing, no late
+  ``ok`` after a failed homing, ``$481`` auto-reports; a 100-block planner and a 1024-byte buffer.
+- A dialect without some ``$`` queries (``unsupported_queries``): answered ``error:3``.
 - ``G20``/``G21``, ``G90``/``G91``, ``G53``, ``G0``/``G1`` (F in units/min), ``G4 P<s>`` (its ``ok``
   comes once the planner is empty, so it marks the end of motion), ``$X``, ``$J=``, ``$G``, ``$#``.
 - Arduino auto-reset (``reboot_on_open``): opening the port reboots the board; the bootloader swallows
@@ -68,12 +83,11 @@ behaviour mirrors. What it does:
   :class:`ResetMidMove`, :class:`VanishMidMove`, :class:`HomingFail` and :meth:`GrblEmulator.vanish`).
 
 Simplifications (the driver does not depend on them): blocks do not blend at junctions (each runs
-from rest to rest) and a feed hold decelerates within the current block; homing moves every axis at
-once at the seek rate, then a fixed settle time stands for the locate and pull-off phases; a
-motor never stalls at the end of its travel and there are no hard limit switches (``$21`` is stored,
-not acted on); a startup line's ``G4`` does not wait; arcs, probing, spindle, coolant, ``G10``/``G92``
-offsets, sleep and ``$RST`` are not modelled (their g-codes are refused with ``error:20``, ``$SLP``
-and ``$RST=`` with ``error:3``).
+from rest to rest) and a feed hold decelerates within the current block; a switch trips exactly at its
+position (no hysteresis); a motor never stalls at the end of its travel (only on a switch that never
+answers, HomingFail 9) and there are no switches at the far ends; a startup line's ``G4`` does not wait;
+arcs, probing, spindle, coolant, ``G10``/``G92`` offsets, sleep and ``$RST`` are not modelled (their g-codes
+are refused with ``error:20``, ``$SLP`` and ``$RST=`` with ``error:3``).
 Units are machine units (mm; a rotary axis in whatever unit its settings are given in).
 """
 
@@ -96,12 +110,27 @@ from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
-from drivers.rig.motion import REFERENCE_AXIS_MOTION, path_limits, trapezoid
+from drivers.rig.motion import (
+    HOMING_LOCATE_SCALAR,
+    HOMING_SEARCH_SCALAR,
+    REFERENCE_AXIS_MOTION,
+    REFERENCE_HOMING,
+    HomingMove,
+    HomingSettings,
+    Trapezoid,
+    distance_at_time,
+    homing_cycles,
+    homing_move,
+    path_limits,
+    time_at_distance,
+    trapezoid,
+)
 from drivers.sim.clock import BenchClock
 
 AXIS_LETTERS = "XYZABC"
 RX_BUFFER_SIZE = 128
 PLANNER_BLOCKS = 15  # GRBL 1.1 on an Uno: 16-block ring buffer, one kept free ([OPT:...,15,...])
+GRBLHAL_PLANNER_BLOCKS = 100  # grblHAL's simulator: [OPT:VNML+W,100,1024,3,0]
 LINE_BUFFER_SIZE = 80
 N_STARTUP_LINES = 2  # config.h N_STARTUP_LINE
 MM_PER_INCH = 25.4
@@ -115,7 +144,10 @@ RESET_MESSAGE = "[MSG:Reset to continue]"
 HELP_MESSAGE = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"
 
 ALARM_REPORT_DELAY_S = 0.5  # report.c report_alarm_message: delay_ms(500) after every ALARM line
-HOMING_SEARCH_SCALAR = 1.5  # limits.c HOMING_AXIS_SEARCH_SCALAR: a failed search covers 1.5 x $13x
+GRBLHAL_ALARM_REPORT_DELAY_S = 0.1  # grblHAL report.c report_alarm_message: hal.delay_ms(100)
+CHECK_LIMITS_MESSAGE = "[MSG:Check Limits]"  # report.c MESSAGE_CHECK_LIMITS
+GRBLHAL_DRIVER = "Simulator"  # grblHAL/Simulator driver.c: hal.info
+GRBLHAL_DRIVER_VERSION = "260913"  # grblHAL/Simulator driver.c: hal.driver_version (the stored version)
 AUTO_RESET_BOOT_S = 1.1  # seen on the real board: the banner ~1.1 s after the port was opened
 CLIENT_POLL_S = 0.02  # how often to look for a client while nobody has the port open
 
@@ -157,15 +189,17 @@ DEFAULT_AXES: dict[str, AxisSpec] = {
 }
 
 
-def axis_specs_for_travel(travel: Mapping[str, tuple[float, float]],
-                          base: Mapping[str, AxisSpec] | None = None) -> tuple[dict[str, AxisSpec], bool]:
+def axis_specs_for_travel(travel: Mapping[str, tuple[float, float]], base: Mapping[str, AxisSpec] | None = None,
+                          *, margin: float = 0.0) -> tuple[dict[str, AxisSpec], bool]:
     """Axis settings whose machine space covers ``travel`` (axis -> (low, high), machine units).
 
     Returns the specs and whether they need a HOMING_FORCE_SET_ORIGIN build. A range at or below 0 is
-    what a stock Grbl gives once homed: ``$13x = -low``, homing toward +. A range at or above 0 exists
-    only on a HOMING_FORCE_SET_ORIGIN build, homing toward - (``$23`` bit set), ``$13x = high``. A range
-    across 0 fits no Grbl build: it gets ``$13x = high - low`` on the stock space, and its positive
-    targets meet the soft limits as they would on the real controller.
+    what a stock Grbl gives once homed: ``$13x = -low + margin``, homing toward +. A range at or above 0
+    exists only on a HOMING_FORCE_SET_ORIGIN build, homing toward - (``$23`` bit set), ``$13x = high +
+    margin``. A range across 0 fits no Grbl build: it gets ``$13x = high - low`` on the stock space, and its
+    positive targets meet the soft limits as they would on the real controller. ``margin`` (the pull-off,
+    ``$27``) keeps the far end as far from the end of travel as a config that keeps one pull-off off the
+    switch (the default mapping) is from the switch.
     """
     base = DEFAULT_AXES if base is None else base
     specs: dict[str, AxisSpec] = {}
@@ -173,9 +207,9 @@ def axis_specs_for_travel(travel: Mapping[str, tuple[float, float]],
     for axis, (low, high) in travel.items():
         spec = base.get(axis, AxisSpec())
         if high <= 0.0:
-            specs[axis] = replace(spec, max_travel=max(-low, 1e-3), home_negative=False)
+            specs[axis] = replace(spec, max_travel=max(-low + margin, 1e-3), home_negative=False)
         elif low >= 0.0:
-            specs[axis] = replace(spec, max_travel=max(high, 1e-3), home_negative=True)
+            specs[axis] = replace(spec, max_travel=max(high + margin, 1e-3), home_negative=True)
             force_origin = True
         else:
             specs[axis] = replace(spec, max_travel=high - low, home_negative=False)
@@ -340,6 +374,11 @@ class _Block:
         left = self.motion_duration - tau
         return min(self.length, max(0.0, self.length - 0.5 * self.accel * left * left))
 
+    def time_at(self, distance: float) -> float:
+        """Sim-seconds into the block at which it has covered ``distance`` along its path."""
+        profile = Trapezoid(t_acc_s=self._t_acc, t_cruise_s=self._t_cruise, v_peak=self._v_peak)
+        return time_at_distance(profile, self.length, self.accel, distance)
+
     def speed_at(self, tau: float) -> float:
         if tau <= 0.0 or tau >= self.motion_duration:
             return 0.0
@@ -388,6 +427,10 @@ class _Stop:
         t = min(max(tau, 0.0), self.motion_duration)
         return self.v0 * t - 0.5 * self.accel * t * t
 
+    def time_at(self, distance: float) -> float:
+        d = min(max(distance, 0.0), self.length)
+        return (self.v0 - math.sqrt(max(0.0, self.v0 * self.v0 - 2.0 * self.accel * d))) / self.accel
+
     def speed_at(self, tau: float) -> float:
         if tau <= 0.0 or tau >= self.motion_duration:
             return 0.0 if tau >= self.motion_duration else self.v0
@@ -424,6 +467,45 @@ def _approach_of(start: Mapping[str, float], end: Mapping[str, float]) -> dict[s
     return {a: 1 if end[a] > start[a] else -1 for a in start if abs(end[a] - start[a]) > 1e-12}
 
 
+@dataclass
+class _HomingPhase:
+    """One move of a homing cycle (limits.c ``limits_go_home``), in the physical frame: the cycle's axes start
+    together on one planner block of ``move.search`` per axis; each covers its own ``step`` (signed) and stops
+    dead there (its switch, met on a seek or locate), or the block runs to its end (a pull-off; a seek whose
+    switch never answers, ``run_full``). Then the ``$26`` debounce (``dwell_after``)."""
+
+    start: dict[str, float]  # every axis, physical
+    step: dict[str, float]  # per cycle axis: the signed distance it covers
+    move: HomingMove
+    mode: str  # "seek", "pulloff" or "locate"
+    cycle: str  # the axes of this cycle
+    run_full: bool = False
+    line: str = ""
+    kind: str = "home"
+    t_start: float | None = None
+    dwell_after: float = 0.0
+    duration: float = field(init=False)
+    motion_duration: float = field(init=False)
+    end: dict[str, float] = field(init=False)
+
+    def __post_init__(self) -> None:
+        full = self.move.profile.duration_s if self.move.search > 0 else 0.0
+        stops = [self.move.time_to(abs(d)) for d in self.step.values()]
+        self.motion_duration = full if self.run_full else max(stops, default=0.0)
+        self.duration = self.motion_duration + self.dwell_after
+        self.end = {a: self.start[a] + self.step.get(a, 0.0) for a in self.start}
+
+    def position_at(self, tau: float) -> dict[str, float]:
+        if self.move.search <= 0:
+            return dict(self.end)
+        covered = distance_at_time(self.move.profile, self.move.search, self.move.accel, tau)
+        return {a: self.start[a] + math.copysign(min(abs(self.step[a]), covered), self.step[a])
+                if a in self.step else self.start[a] for a in self.start}
+
+    def speed_at(self, tau: float) -> float:
+        return 0.0  # not reported: Grbl sends no status while homing
+
+
 def _lround(value: float) -> int:
     """C's lround: to the nearest integer, halves away from zero (planner.c rounds targets to steps so)."""
     return int(math.copysign(math.floor(abs(value) + 0.5), value))
@@ -440,9 +522,15 @@ class GrblEmulator:
         axes: axis letters, in GRBL order (``"XYZ"``, or ``"XYZABC"`` for a grblHAL-like 6-axis board).
         axis_specs: per-axis settings (defaults :data:`DEFAULT_AXES`: X 350 mm, Y and Z 90 deg of travel).
         time_scale: simulated seconds per real second (1 = real time; 20 = twenty times faster).
-        homing_enabled: ``$22``; with it the controller boots into Alarm and must be homed or unlocked.
+        homing_enabled: ``$22``; with it Grbl 1.1h boots into Alarm and must be homed or unlocked.
+        homing_init_lock: boot into Alarm with homing enabled; None: the firmware's default (Grbl 1.1h:
+            config.h HOMING_INIT_LOCK, yes; grblHAL's simulator: ``$22=1``, bit 2 "homing on startup required"
+            clear, so it boots Idle).
         soft_limits: ``$20``; needs homing enabled, as on GRBL.
-        homing_seek_rate_per_min: ``$25``, the speed of the homing search; plus ``homing_settle_s``.
+        hard_limits: ``$21``: a homing switch that closes or opens during motion halts with ALARM:1.
+        homing_seek_rate_per_min: ``$25``, the speed of the homing search and of the pull-offs.
+        homing_feed_rate_per_min: ``$24``, the speed of the locate move.
+        homing_debounce_ms: ``$26``, the pause after each homing move.
         homing_pulloff: ``$27``: where homing leaves an axis, from its switch.
         status_mask: ``$10``: bit 0 set reports MPos (else WPos), bit 1 adds ``Bf:``.
         report_inches: ``$13``: status reports in inches.
@@ -461,17 +549,24 @@ class GrblEmulator:
         on_motion: called with a :class:`MotionEvent` for every motion that ends (from the serving thread or
             whichever thread brought the model up to date, with the emulator's lock held: it must not wait for a
             lock that is held while the emulator is called).
+        report_interval_ms: grblHAL's ``$481``: with it, a status report every so many ms unasked (its
+            grbllib.c ``auto_realtime_report``); 0: only when asked.
+        unsupported_queries: ``$`` commands answered ``error:3`` (e.g. ``("$N",)``): a dialect that lacks them,
+            answered as system.c answers any ``$`` command it does not know.
     """
 
     def __init__(
         self, *, axes: str = "XYZ", axis_specs: Mapping[str, AxisSpec] | None = None, time_scale: float = 1.0,
-        homing_enabled: bool = True, soft_limits: bool = True, homing_seek_rate_per_min: float = 3000.0,
-        homing_settle_s: float = 0.5, homing_pulloff: float = 1.0, status_mask: int = 1,
-        report_inches: bool = False, force_set_origin: bool = False, startup_lines: Iterable[str] = (),
-        firmware: str = "grbl", rx_buffer_size: int | None = None, shuffle_fields: bool = False, seed: int = 0,
-        faults: Iterable[Fault] = (), start_position: Mapping[str, float] | None = None,
-        reboot_on_open: bool = False, boot_delay_s: float = AUTO_RESET_BOOT_S, clock: BenchClock | None = None,
-        on_motion: Callable[[MotionEvent], None] | None = None,
+        homing_enabled: bool = True, homing_init_lock: bool | None = None, soft_limits: bool = True,
+        hard_limits: bool = False, homing_seek_rate_per_min: float = REFERENCE_HOMING.seek_rate_per_min,
+        homing_feed_rate_per_min: float = REFERENCE_HOMING.feed_rate_per_min,
+        homing_debounce_ms: float = REFERENCE_HOMING.debounce_ms, homing_pulloff: float = REFERENCE_HOMING.pulloff,
+        status_mask: int = 1, report_inches: bool = False, force_set_origin: bool = False,
+        startup_lines: Iterable[str] = (), firmware: str = "grbl", rx_buffer_size: int | None = None,
+        shuffle_fields: bool = False, seed: int = 0, faults: Iterable[Fault] = (),
+        start_position: Mapping[str, float] | None = None, reboot_on_open: bool = False,
+        boot_delay_s: float = AUTO_RESET_BOOT_S, report_interval_ms: int = 0, unsupported_queries: Iterable[str] = (),
+        clock: BenchClock | None = None, on_motion: Callable[[MotionEvent], None] | None = None,
     ):
         if not axes or axes != "".join(a for a in AXIS_LETTERS if a in axes) or len(set(axes)) != len(axes):
             raise ValueError(f"axes must be letters of {AXIS_LETTERS} in that order, not {axes!r}")
@@ -490,9 +585,12 @@ class GrblEmulator:
         self.clock = clock if clock is not None else BenchClock(time_scale)
         self.time_scale = self.clock.time_scale
         self.on_motion = on_motion
-        self.homing_settle_s = homing_settle_s
         self.force_set_origin = force_set_origin
         self.firmware = firmware
+        grblhal = firmware == "grblhal"
+        self.homing_init_lock = (not grblhal) if homing_init_lock is None else bool(homing_init_lock)
+        self.planner_blocks = GRBLHAL_PLANNER_BLOCKS if grblhal else PLANNER_BLOCKS
+        self._alarm_delay_s = GRBLHAL_ALARM_REPORT_DELAY_S if grblhal else ALARM_REPORT_DELAY_S
         self.rx_buffer_size = rx_buffer_size or (1024 if firmware == "grblhal" else RX_BUFFER_SIZE)
         # serial.c: Grbl's ring buffer has RX_BUFFER_SIZE+1 slots (RX_RING_BUFFER), one always free, so it holds
         # all RX_BUFFER_SIZE bytes (and Bf: reports RX_BUFFER_SIZE free when empty). grblHAL's drivers' rings have
@@ -500,13 +598,22 @@ class GrblEmulator:
         # serial.c, e.g. the RP2040 driver's): they hold RX_BUFFER_SIZE - 1.
         self._rx_capacity = self.rx_buffer_size - (1 if firmware == "grblhal" else 0)
         self.shuffle_fields = shuffle_fields
+        self.unsupported_queries = frozenset(_clean_line(q) for q in unsupported_queries)
         self.reboot_on_open = reboot_on_open
         self.boot_delay_s = boot_delay_s
         self.startup_lines = lines + [""] * (N_STARTUP_LINES - len(lines))
         self.settings: dict[int, float] = dict(DEFAULT_SETTINGS)
-        self.settings.update({10: status_mask, 13: int(report_inches), 22: int(homing_enabled),
-                              20: int(soft_limits and homing_enabled), 25: homing_seek_rate_per_min,
+        homing_flags = int(homing_enabled)
+        if grblhal and homing_enabled:
+            # grblHAL's $22 is a bitfield (settings.c): bit 0 enable, bit 2 homing required at startup, bit 3 set
+            # machine origin to 0.
+            homing_flags |= (4 if self.homing_init_lock else 0) | (8 if force_set_origin else 0)
+        self.settings.update({10: status_mask, 13: int(report_inches), 22: homing_flags,
+                              20: int(soft_limits and homing_enabled), 21: int(hard_limits),
+                              24: homing_feed_rate_per_min, 25: homing_seek_rate_per_min, 26: homing_debounce_ms,
                               27: homing_pulloff})
+        if grblhal:
+            self.settings[481] = int(report_interval_ms)  # $481: auto-report interval, ms
         self.settings[23] = sum(1 << i for i, a in enumerate(axes) if self.specs[a].home_negative)
         for i, axis in enumerate(axes):
             spec = self.specs[axis]
@@ -541,7 +648,16 @@ class GrblEmulator:
 
     @property
     def homing_enabled(self) -> bool:
-        return bool(self.settings[22])
+        return bool(int(self.settings[22]) & 1)  # grblHAL's $22 is a bitfield; bit 0 enables homing
+
+    @property
+    def hard_limits(self) -> bool:
+        return bool(int(self.settings[21]) & 1)
+
+    def _homing_settings(self) -> HomingSettings:
+        """``$24`` ``$25`` ``$26`` ``$27`` as set now, and config.h N_HOMING_LOCATE_CYCLE (1)."""
+        return HomingSettings(seek_rate_per_min=float(self.settings[25]), feed_rate_per_min=float(self.settings[24]),
+                              debounce_ms=float(self.settings[26]), pulloff=float(self.settings[27]))
 
     @property
     def soft_limits(self) -> bool:
@@ -573,11 +689,22 @@ class GrblEmulator:
 
     def _machine_space(self, axis: str) -> tuple[float, float]:
         """system.c system_check_travel_limits: [-$13x, 0], or [0, $13x] on a HOMING_FORCE_SET_ORIGIN build
-        for an axis homing toward - ."""
+        for an axis homing toward - . grblHAL (machine_limits.c limits_set_work_envelope): one pull-off off
+        each end with hard limits on, [-$13x + $27, -$27] ([-$13x + $27, 0] or [0, $13x - $27] with set-origin)."""
         travel = self._max_travel(axis)
+        if self.firmware == "grblhal":
+            pulloff = float(self.settings[27]) if self.hard_limits else 0.0
+            if self.force_set_origin:
+                return (0.0, travel - pulloff) if self._home_negative(axis) else (-travel + pulloff, 0.0)
+            return -travel + pulloff, -pulloff
         if self.force_set_origin and self._home_negative(axis):
             return 0.0, travel
         return -travel, 0.0
+
+    def _switch_engaged(self, axis: str, physical: float) -> bool:
+        """limits.c limits_get_state for one axis: its homing switch is closed at or beyond the switch."""
+        switch = self._switch_physical(axis)
+        return physical <= switch + 1e-9 if self._home_negative(axis) else physical >= switch - 1e-9
 
     # The physical frame is the machine frame a successful homing sets up on this build (see
     # physical_position), so where homing leaves an axis and where its switch is follow the build: a
@@ -757,7 +884,8 @@ class GrblEmulator:
         self._offset = dict(self._start_position)  # physical = machine + offset
         self._wco = dict.fromkeys(self.axes, 0.0)
         self._homed = False
-        self._state = "Alarm" if self.homing_enabled else "Idle"  # config.h HOMING_INIT_LOCK
+        # config.h HOMING_INIT_LOCK; grblHAL: $22 bit 2 (machine_limits.c limits_homing_required)
+        self._state = "Alarm" if self.homing_enabled and self.homing_init_lock else "Idle"
         self._hold_complete = False
         # Output survives a soft reset (GRBL flushes its receive buffer, not its transmit buffer).
         self._out: deque[tuple[float, bytes]] = deque()
@@ -773,8 +901,13 @@ class GrblEmulator:
         self._rx = bytearray()
         self._current: tuple[str, dict] | None = None  # a line waiting for the planner, a dwell or a stop
         self._dwell_end: float | None = None
-        self._homing_block: _Block | None = None
+        self._homing_block: _HomingPhase | None = None  # the homing move under way
+        self._homing_phases: deque[_HomingPhase] = deque()  # the moves of the cycle still to come
         self._homing_fail: HomingFail | None = None
+        # When (time.monotonic, like the output it follows) a reset ends a critical halt (report_alarm_message).
+        self._reset_heard_from = 0.0
+        self._auto_report_at = self._next_auto_report()
+        self._report_homed = False  # grblHAL: the next status report carries H: (system_add_rt_report)
         # A '?' during homing, answered when the cycle ends; main.c clears it (sys_rt_exec_state) on a reset,
         # and a failed cycle resets before serving it (protocol_exec_rt_system returns at EXEC_RESET).
         self._status_after_homing = False
@@ -782,6 +915,13 @@ class GrblEmulator:
         self._wco_counter = 0
         self._ovr_counter = 0
         self._reply_prefix = ""
+
+    def _next_auto_report(self) -> float | None:
+        """grblHAL grbllib.c ``auto_realtime_report``: a report every ``$481`` ms when it is set. On the wall clock
+        (``time.monotonic``, paced like the output): a report is traffic, not motion, and must come while the
+        bench clock stands still too."""
+        interval = float(self.settings.get(481, 0)) if self.firmware == "grblhal" else 0.0
+        return time.monotonic() + self._real_delay(interval / 1000.0) if interval > 0 else None
 
     def _sim_now(self) -> float:
         return self.clock.now()
@@ -838,8 +978,14 @@ class GrblEmulator:
             return
         if self._homing_block is not None:
             block = self._homing_block
-            if now >= block.t_start + block.duration:  # type: ignore[operator]
-                self._finish_homing()
+            while now >= block.t_start + block.duration:  # type: ignore[operator]
+                if not self._homing_phases:
+                    self._finish_homing()
+                    break
+                # limits.c: the next move of the cycle starts once the last one and its debounce are over.
+                following = self._homing_phases.popleft()
+                following.t_start = block.t_start + block.duration  # type: ignore[operator]
+                self._homing_block = block = following
             return
         while self._planner:
             block = self._planner[0]
@@ -851,7 +997,7 @@ class GrblEmulator:
                         self._state = "Jog" if block.kind == "jog" else "Run"
                 else:
                     break
-            if self._check_mid_move_faults(block, now):
+            if self._check_mid_move_faults(block, now) or self._check_hard_limits(block, now):
                 break
             end = block.t_start + block.duration
             if now < end:
@@ -900,6 +1046,35 @@ class GrblEmulator:
                 return True
         return False
 
+    def _check_hard_limits(self, block: _Block | _Stop, now: float) -> bool:
+        """limits.c ``ISR(LIMIT_INT_vect)``: with ``$21=1`` a limit pin that changes during motion (a switch
+        closing, or opening as an axis leaves it) calls mc_reset and raises ALARM:1, the axes stopping dead
+        where they are. True if it fired (the block is then gone)."""
+        at = self._hard_limit_time(block)
+        if at is None or at > now:
+            return False
+        self._stop_motion_at(at)
+        self._halted_line = self._current[0] if self._current else None  # a line inside mc_line: answered at reset
+        self._current = None
+        self._raise_alarm(1)
+        return True
+
+    def _hard_limit_time(self, block: _Block | _Stop) -> float | None:
+        """The sim time at which ``block`` changes a switch's state, if hard limits are armed and it does."""
+        if not self.hard_limits or self._state == "Alarm" or block.t_start is None or block.length <= 0:
+            return None
+        first = None
+        for axis in self.axes:
+            offset = self._offset[axis]
+            begin, finish = block.start[axis] + offset, block.end[axis] + offset
+            if self._switch_engaged(axis, begin) == self._switch_engaged(axis, finish):
+                continue  # moves straight: it crosses its switch once at most
+            switch = self._switch_physical(axis)
+            fraction = (switch - begin) / (finish - begin)
+            tau = block.time_at(min(max(fraction, 0.0), 1.0) * block.length)
+            first = tau if first is None else min(first, tau)
+        return None if first is None else block.t_start + first
+
     def _next_event_sim(self, now: float) -> float | None:
         times = []
         if self._homing_block is not None:
@@ -911,6 +1086,9 @@ class GrblEmulator:
                 if isinstance(fault, (AlarmMidMove, ResetMidMove, VanishMidMove)) and block.duration > 0 \
                         and not isinstance(block, _Stop):
                     times.append(block.t_start + fault.fraction * block.duration)
+            tripped = self._hard_limit_time(block)
+            if tripped is not None:
+                times.append(tripped)
         if self._dwell_end is not None:
             times.append(self._dwell_end)
         if self._booting_until is not None:
@@ -923,8 +1101,7 @@ class GrblEmulator:
             else None
         running = self._planner[0] if self._planner and self._planner[0].t_start is not None else None
         if homing is not None:
-            physical = homing.position_at(when - homing.t_start)
-            self._position = self._on_grid({a: physical[a] - self._offset[a] for a in self.axes})
+            self._position = self._on_grid(self._homing_counters(when))
             self._report_motion("abort", homing.start, self._physical(self._position), homing.t_start, when)
         else:
             self._position = self._on_grid(self._current_position(when))
@@ -933,6 +1110,7 @@ class GrblEmulator:
                                     self._physical(self._position), running.t_start, when)
         self._planner.clear()
         self._homing_block = None
+        self._homing_phases.clear()
         self._homing_fail = None
         self._dwell_end = None
         self._current = None
@@ -1017,10 +1195,15 @@ class GrblEmulator:
             self._halted = True
             self._rx.clear()
             self._emit(RESET_MESSAGE, "msg")
+            # protocol.c protocol_exec_rt_system: the message comes after report_alarm_message's pause, then
+            # system_clear_exec_state_flag(EXEC_RESET): a reset received before it is lost.
+            # On the wall clock, as the pause itself: the bench clock stands still once the axes have stopped.
+            self._reset_heard_from = self._last_release
 
     def _alarm_pause(self) -> None:
-        """report.c report_alarm_message: delay_ms(500) after the ALARM line; nothing else goes out meanwhile."""
-        self._last_release = max(self._last_release, time.monotonic()) + self._real_delay(ALARM_REPORT_DELAY_S)
+        """report.c report_alarm_message: delay_ms(500) after the ALARM line (grblHAL: 100 ms); nothing else goes
+        out meanwhile."""
+        self._last_release = max(self._last_release, time.monotonic()) + self._real_delay(self._alarm_delay_s)
 
     def _soft_reset(self) -> None:
         """0x18: motion_control.c mc_reset, then main.c re-initialises (step counters kept)."""
@@ -1056,7 +1239,7 @@ class GrblEmulator:
         self._position = {a: 0.0 for a in self.axes}
         self._offset = physical
         self._homed = False
-        self._state = "Alarm" if self.homing_enabled else "Idle"
+        self._state = "Alarm" if self.homing_enabled and self.homing_init_lock else "Idle"
         self._hold_complete = False
         self._reset_common()
         self._banner()
@@ -1066,11 +1249,21 @@ class GrblEmulator:
         Alarm, or the startup lines otherwise."""
         self._emit("", "banner")
         self._emit(GRBLHAL_BANNER if self.firmware == "grblhal" else GRBL_BANNER, "banner")
+        if self.firmware == "grbl" and self.hard_limits and self._switches_engaged():
+            # protocol.c protocol_main_loop, CHECK_LIMITS_AT_INIT (on in the default config.h; grblHAL's
+            # DEFAULT_CHECK_LIMITS_AT_INIT is off): a closed switch at init is Alarm, said before the unlock line.
+            self._state = "Alarm"
+            self._emit(CHECK_LIMITS_MESSAGE, "msg")
         if self._state == "Alarm":
             self._emit(UNLOCK_MESSAGE, "msg")
         else:
             self._state = "Idle"
             self._run_startup_lines()
+
+    def _switches_engaged(self) -> str:
+        """The axes whose homing switch is closed now (limits.c limits_get_state)."""
+        machine = self._current_position(self._sim_now())
+        return "".join(a for a in self.axes if self._switch_engaged(a, machine[a] + self._offset[a]))
 
     def _run_startup_lines(self) -> None:
         """system.c system_execute_startup: each stored line through the g-code parser, echoed ``>line:result``."""
@@ -1144,6 +1337,8 @@ class GrblEmulator:
                         timeout = min(timeout, self.clock.real_seconds_until(nxt))
                     if self._out:
                         timeout = min(timeout, max(0.0, self._out[0][0] - time.monotonic()))
+                    if self._auto_report_at is not None:
+                        timeout = min(timeout, max(0.0, self._auto_report_at - time.monotonic()))
                     master, wake, client = self._master, self._wake_r, self._client
                 if master is None or wake is None:
                     return
@@ -1195,6 +1390,11 @@ class GrblEmulator:
             self._reboot()
         now = self._sim_now()
         self._advance(now)
+        if self._auto_report_at is not None and time.monotonic() >= self._auto_report_at:
+            # Served by protocol_exec_rt_system: not while homing (unless $10 bit 12), halted or booting.
+            if self._homing_block is None and not self._halted and self._booting_until is None:
+                self._emit(self._status_report(), "status")
+            self._auto_report_at = self._next_auto_report()
         self._process_lines(now)
         self._schedule()
         self._flush_output()
@@ -1217,9 +1417,10 @@ class GrblEmulator:
         self._advance(now)
         for byte in data:
             if self._halted:
-                if byte == 0x18:
+                if byte == 0x18 and time.monotonic() >= self._reset_heard_from:
                     self._soft_reset()
-                # The critical-event loop hears only a reset: '?', '!', '~' and lines go unanswered.
+                # The critical-event loop hears only a reset, and only once it has said so: '?', '!', '~', lines
+                # and a reset sent during report_alarm_message's pause go unanswered.
                 continue
             if byte == 0x18:
                 self._soft_reset()
@@ -1305,10 +1506,35 @@ class GrblEmulator:
         for base in (100, 110, 120, 130):
             for i in range(len(self.axes)):
                 rows.append(f"${base + i}={self.settings[base + i]:.3f}")
+        rows += [f"${number}={int(self.settings[number])}" for number in sorted(self.settings) if number > 133]
         return rows
+
+    def _build_info_lines(self) -> list[str]:
+        """report.c report_build_info. Grbl 1.1h's default build: ``V`` (VARIABLE_SPINDLE), ``Z`` with
+        HOMING_FORCE_SET_ORIGIN. grblHAL (its report.c, for the Simulator driver: a variable spindle, mist coolant
+        and a safety door, ``$22`` without "homing on startup required", WCO sync off): option letters in the
+        order the source writes them, the planner and receive buffers, the axes and tools; then the extended
+        lines. (The stored grblHAL simulator printed a ninth line this model has no source for.)"""
+        if self.firmware != "grblhal":
+            options = "V" + ("Z" if self.force_set_origin else "")
+            return [f"[VER:{GRBL_VERSION}:]", f"[OPT:{options},{self.planner_blocks},{self.rx_buffer_size}]"]
+        letters = "VNM" + ("Z" if self.force_set_origin else "") + ("" if self.homing_init_lock else "L") + "+W"
+        newopt = "ENUMS,RT+," + ("HOME," if self.homing_enabled else "") + "TC,SED"
+        return [
+            f"[VER:{GRBLHAL_VERSION}:]",
+            f"[OPT:{letters},{self.planner_blocks},{self.rx_buffer_size},{len(self.axes)},0]",
+            f"[AXS:{len(self.axes)}:{self.axes}]",
+            f"[NEWOPT:{newopt}]",
+            "[FIRMWARE:grblHAL]",
+            "[NVS STORAGE:*EEPROM]",
+            f"[DRIVER:{GRBLHAL_DRIVER}]",
+            f"[DRIVER VERSION:{GRBLHAL_DRIVER_VERSION}]",
+        ]
 
     def _system_command(self, line: str, text: str, now: float) -> str | None:
         """system.c system_execute_line."""
+        if text in self.unsupported_queries:
+            return "error:3"
         if text == "$":
             self._emit(HELP_MESSAGE, "feedback")
             return "ok"
@@ -1371,10 +1597,8 @@ class GrblEmulator:
         if command == "I":
             if text != "$I":
                 return "error:3"
-            version = GRBLHAL_VERSION if self.firmware == "grblhal" else GRBL_VERSION
-            options = "V" + ("Z" if self.force_set_origin else "")
-            self._emit(f"[VER:{version}:]", "feedback")
-            self._emit(f"[OPT:{options},{PLANNER_BLOCKS},{self.rx_buffer_size}]", "feedback")
+            for row in self._build_info_lines():
+                self._emit(row, "feedback")
             return "ok"
         if command == "N":
             if text == "$N":
@@ -1403,6 +1627,10 @@ class GrblEmulator:
         """settings.c settings_store_global_setting."""
         if value < 0.0:
             return "error:4"
+        if number == 481 and self.firmware == "grblhal":
+            self.settings[number] = int(value)  # the auto-report interval, ms
+            self._auto_report_at = self._next_auto_report()
+            return "ok"
         if number >= 100:
             base, index = 100 + (number - 100) // 10 * 10, (number - 100) % 10
             if base > 130 or index >= len(self.axes):
@@ -1416,35 +1644,88 @@ class GrblEmulator:
             return "error:6"
         if number == 20 and integer and not self.homing_enabled:
             return "error:10"
-        if number == 22 and not integer:
+        if number == 22 and not integer & 1:
             self.settings[20] = 0  # disabling homing disables soft limits
         self.settings[number] = value if number in _FLOAT_SETTINGS | _RPM_SETTINGS else integer
         return "ok"
 
     def _start_homing(self, line: str, now: float) -> None:
-        """limits.c limits_go_home, as one move of every axis at the seek rate plus a settle time."""
+        """motion_control.c mc_homing_cycle: limits.c limits_go_home for each cycle of config.h (HOMING_CYCLE_0 = Z,
+        then X and Y; :func:`drivers.rig.motion.homing_cycles`). Each cycle: seek the switches at ``$25``, pull off
+        ``$27``, locate at ``$24`` (N_HOMING_LOCATE_CYCLE = 1), pull off again; every move followed by the ``$26``
+        debounce. All moves are planned here (each starts where the last ends) and run as blocks."""
         fail = next((f for f in self._faults if isinstance(f, HomingFail)), None)
         if fail is not None:
             self._faults.remove(fail)
+        homing = self._homing_settings()
+        debounce = homing.debounce_ms / 1000.0
         here = {a: self._position[a] + self._offset[a] for a in self.axes}
-        rate = float(self.settings[25]) / 60.0
-        if fail is None:
-            target = {a: self._home_physical(a) for a in self.axes}
-            dwell = self.homing_settle_s
-        else:
-            target = {a: self._switch_physical(a) for a in self.axes}  # it gets stuck at the end of travel
-            dwell = self.homing_settle_s
-        far = max(abs(target[a] - here[a]) for a in self.axes)
-        if fail is not None and fail.code == 9:
-            search = HOMING_SEARCH_SCALAR * max(self._max_travel(a) for a in self.axes)
-            dwell = max(0.0, search - far) / rate
-        block = _Block(start=here, end=target, length=far, speed=rate, accel=1e12, kind="home", line=line,
-                       dwell_after=dwell)
-        block.t_start = now
-        self._homing_block = block
-        self._homing_fail = fail
+        phases: list[_HomingPhase] = []
+        self._homing_fail = None
+        for index, cycle in enumerate(homing_cycles(self.axes)):
+            rate = min(self._axis_setting(110, a) for a in cycle)
+            accel = min(self._axis_setting(120, a) for a in cycle)
+            toward = {a: -1.0 if self._home_negative(a) else 1.0 for a in cycle}
+            search = HOMING_SEARCH_SCALAR * max(self._max_travel(a) for a in cycle)
+            seek = homing_move(search, homing.seek_rate_per_min, max_rate_per_min=rate, acceleration=accel)
+            pull = homing_move(homing.pulloff, homing.seek_rate_per_min, max_rate_per_min=rate, acceleration=accel)
+            locate = homing_move(HOMING_LOCATE_SCALAR * homing.pulloff, homing.feed_rate_per_min,
+                                 max_rate_per_min=rate, acceleration=accel)
+
+            def add(move: HomingMove, mode: str, step: dict[str, float], *, run_full: bool = False,
+                    dwell: float = debounce, cycle: str = cycle) -> None:
+                phase = _HomingPhase(start=dict(here), step=step, move=move, mode=mode, cycle=cycle,
+                                     run_full=run_full, line=line, dwell_after=dwell)
+                phases.append(phase)
+                here.update(phase.end)
+
+            to_switch = {a: max(0.0, (self._switch_physical(a) - here[a]) * toward[a]) for a in cycle}
+            failing = fail if index == 0 else None
+            if failing is None and any(d > search for d in to_switch.values()):
+                failing = HomingFail(code=9)  # limits.c: the switch is beyond the search distance
+            if failing is not None and failing.code == 9:
+                # The switch never answers: the seek runs its whole search (the axis stalls at the switch, where the
+                # travel ends), then ALARM:9 without a debounce (the exit routine raises it at once).
+                add(seek, "seek", {a: toward[a] * to_switch[a] for a in cycle}, run_full=True, dwell=0.0)
+                self._homing_fail = failing
+                break
+            add(seek, "seek", {a: toward[a] * to_switch[a] for a in cycle})
+            if failing is not None:  # 8: the pull-off leaves the switch closed: ALARM:8 at the end of the move
+                add(pull, "pulloff", {a: -toward[a] * homing.pulloff for a in cycle}, run_full=True, dwell=0.0)
+                self._homing_fail = failing
+                break
+            add(pull, "pulloff", {a: -toward[a] * homing.pulloff for a in cycle}, run_full=True)
+            for _ in range(homing.locate_cycles):
+                back = {a: max(0.0, (self._switch_physical(a) - here[a]) * toward[a]) for a in cycle}
+                add(locate, "locate", {a: toward[a] * back[a] for a in cycle})
+                add(pull, "pulloff", {a: -toward[a] * homing.pulloff for a in cycle}, run_full=True)
+        first = phases[0]
+        first.t_start = now
+        self._homing_block = first
+        self._homing_phases = deque(phases[1:])
         self._state = "Home"
         self._current = (line, {})
+
+    def _homing_counters(self, when: float) -> dict[str, float]:
+        """The step counters during homing at sim time ``when`` (for an abort), making the offsets agree: axes of
+        finished cycles stand homed (limits.c sets them at the end of their cycle), those of the current cycle
+        count from 0 at the start of its current move, the others are untouched."""
+        block = self._homing_block
+        physical = block.position_at(when - block.t_start)  # type: ignore[union-attr, operator]
+        counters = dict(self._position)
+        done = self._homed_cycles(block)  # type: ignore[arg-type]
+        for a in self.axes:
+            if a in done:
+                counters[a] = self._home_machine(a)
+            elif a in block.cycle:  # type: ignore[union-attr]
+                counters[a] = physical[a] - block.start[a]  # type: ignore[union-attr]
+            self._offset[a] = physical[a] - counters[a]
+        return counters
+
+    def _homed_cycles(self, block: _HomingPhase) -> str:
+        """The axes whose cycle ended before the one ``block`` belongs to."""
+        cycles = homing_cycles(self.axes)
+        return "".join(cycles[: cycles.index(block.cycle)])
 
     def _finish_homing(self) -> None:
         block = self._homing_block
@@ -1461,6 +1742,7 @@ class GrblEmulator:
             self._position = {a: self._home_machine(a) for a in self.axes}
             self._offset = {a: block.end[a] - self._position[a] for a in self.axes}  # type: ignore[union-attr]
             self._homed = True
+            self._report_homed = True
             if self._status_after_homing:
                 # motion_control.c mc_homing_cycle: its protocol_execute_realtime serves a '?' that came during
                 # the cycle, once, still in Home (system.c sets Idle after it returns), at the homed position.
@@ -1471,15 +1753,18 @@ class GrblEmulator:
             self._run_startup_lines()  # system.c: after a successful $H, before its 'ok'
             self._finish_current("ok")
             return
-        # limits.c: each cycle restarts the counters of its axes at 0 and counts the search; a failure
-        # leaves whatever was counted.
-        counted = {}
+        # limits.c: each move restarts the counters of its cycle's axes at 0 and counts its steps (a stalled axis
+        # too); a failure leaves whatever was counted; the axes of cycles not run are untouched.
+        counted = dict(self._position)
+        done = self._homed_cycles(block)  # type: ignore[arg-type]
         for a in self.axes:
-            if fail.code == 9:
-                distance = HOMING_SEARCH_SCALAR * self._max_travel(a)
-            else:
-                distance = abs(block.end[a] - block.start[a])  # type: ignore[union-attr]
-            counted[a] = -distance if self._home_negative(a) else distance
+            if a in done:
+                counted[a] = self._home_machine(a)
+            elif a in block.cycle:  # type: ignore[union-attr]
+                if fail.code == 9:  # the seek's steps, all issued (toward the switch)
+                    counted[a] = block.move.search * (-1.0 if self._home_negative(a) else 1.0)  # type: ignore
+                else:  # the pull-off's
+                    counted[a] = block.step[a]  # type: ignore[union-attr]
         self._position = self._on_grid(counted)
         self._offset = {a: block.end[a] - self._position[a] for a in self.axes}  # type: ignore[union-attr]
         self._homed = False
@@ -1487,9 +1772,11 @@ class GrblEmulator:
         if fail.alarm_line:
             self._emit(f"ALARM:{fail.code}", "alarm")
             self._alarm_pause()
-        # mc_reset has aborted Grbl, yet system.c's $H returns STATUS_OK: the late 'ok', then main.c
-        # re-initialises (banner, [MSG:'$H'|'$X' to unlock]).
-        self._finish_current("ok")
+        if self.firmware == "grbl":
+            # mc_reset has aborted Grbl, yet system.c's $H returns STATUS_OK: the late 'ok', then main.c
+            # re-initialises (banner, [MSG:'$H'|'$X' to unlock]). grblHAL answers nothing for the line.
+            self._finish_current("ok")
+        self._current = None
         self._reset_common()
         self._banner()
 
@@ -1508,7 +1795,7 @@ class GrblEmulator:
                 self._finish_current("ok")
             return
         if words.get("block") is not None:
-            if len(self._planner) >= PLANNER_BLOCKS:
+            if len(self._planner) >= self.planner_blocks:
                 return
             self._planner.append(words["block"])
             self._current = None
@@ -1613,7 +1900,7 @@ class GrblEmulator:
         block = self._make_block(base, self._on_grid(target), feed, kind=f"G{self._modal['motion']}", line=line)
         if block.length <= 0:
             return "ok"
-        if len(self._planner) < PLANNER_BLOCKS:
+        if len(self._planner) < self.planner_blocks:
             self._planner.append(block)
             return "ok"
         self._current = (line, {"block": block})  # mc_line waits for planner space before answering
@@ -1660,7 +1947,7 @@ class GrblEmulator:
         block = self._make_block(base, self._on_grid(target), values["F"] * scale, kind="jog", line=line)
         if block.length <= 0:
             return "ok"
-        if len(self._planner) < PLANNER_BLOCKS:
+        if len(self._planner) < self.planner_blocks:
             self._planner.append(block)
             return "ok"
         self._current = (line, {"block": block})
@@ -1672,7 +1959,10 @@ class GrblEmulator:
         return dict(self._position)
 
     def _outside_travel(self, target: Mapping[str, float]) -> bool:
-        """system.c system_check_travel_limits (exact comparisons, as the firmware makes them)."""
+        """system.c system_check_travel_limits (exact comparisons, as the firmware makes them). grblHAL's
+        check_travel_limits (machine_limits.c) checks the homed axes only: none before a homing cycle."""
+        if self.firmware == "grblhal" and not self._homed:
+            return False
         for axis, value in target.items():
             low, high = self._machine_space(axis)
             if value > high or value < low:
@@ -1707,7 +1997,7 @@ class GrblEmulator:
         else:
             fields.append("WPos:" + ",".join(coord(pos[a] - self._wco[a]) for a in self.axes))
         if self.status_mask & 2:
-            fields.append(f"Bf:{PLANNER_BLOCKS - len(self._planner)},{self._rx_capacity - len(self._rx)}")
+            fields.append(f"Bf:{self.planner_blocks - len(self._planner)},{self._rx_capacity - len(self._rx)}")
         speed = 0.0
         if self._planner and self._planner[0].t_start is not None and self._state in ("Run", "Jog", "Hold"):
             block = self._planner[0]
@@ -1726,6 +2016,11 @@ class GrblEmulator:
         else:
             self._ovr_counter = (20 if busy else 10) - 1  # config.h REPORT_OVR_REFRESH_BUSY/IDLE_COUNT
             fields.append("Ov:100,100,100")
+        if self.firmware == "grblhal" and self._report_homed:
+            # report.c report_realtime_status: report.homed, flagged when a homing cycle ends, adds |H:1 (all the
+            # cycles' axes homed) to the next report.
+            self._report_homed = False
+            fields.append(f"H:{1 if self._homed else 0}")
         if self.shuffle_fields:
             self._rng.shuffle(fields)
         return "<" + "|".join([self._state_text(), *fields]) + ">"

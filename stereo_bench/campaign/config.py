@@ -302,7 +302,7 @@ class RigSection(BaseModel):
 
     The axis mapping and soft limits come from ``config_file`` (a RigConfig TOML), or from inline
     ``[rig.controller]`` / ``[rig.quantities.NAME]`` tables (same layout as that file), or default to
-    X = baseline 0-350 mm, Y/Z = left/right toe-in 0-90 deg, tilts fixed at 0, target distance manual.
+    X = baseline 1-349 mm, Y/Z = left/right toe-in 0-88 deg, tilts fixed at 0, target distance manual.
     """
 
     model_config = _STRICT
@@ -316,7 +316,9 @@ class RigSection(BaseModel):
         None, description="inline rig config: quantity -> axis mapping (missing quantities keep the default)")
     time_scale: float = Field(1.0, ge=TIME_SCALE_MIN, le=TIME_SCALE_MAX, allow_inf_nan=False,
                               description="simulated rig only: simulated seconds per real second")
-    homing: bool = Field(True, description="run the homing cycle ($H) before the first move")
+    homing: bool = Field(True, description="run the homing cycle ($H) before the first move; false states that the "
+                                           "position the controller reports is right as it is (as `rig unlock "
+                                           "--trust-position`; recorded in the session)")
 
     _rig_config: RigConfig | None = PrivateAttr(None)
 

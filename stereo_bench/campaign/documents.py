@@ -288,6 +288,14 @@ class ActionData(BaseModel):
     action: str
 
 
+class TrustData(BaseModel):
+    """The rig's position taken as right without homing (``[rig] homing = false``): where it stood, and why."""
+
+    model_config = _STRICT
+    rig: RigReadingRecord
+    reason: str
+
+
 class ErrorData(BaseModel):
     model_config = _STRICT
     error: str
@@ -622,6 +630,11 @@ class RigRecoveredEvent(EventDocument):
     data: ActionData
 
 
+class RigPositionTrustedEvent(EventDocument):
+    kind: Literal["rig_position_trusted"] = "rig_position_trusted"
+    data: TrustData
+
+
 class RigUnrecoverableEvent(EventDocument):
     kind: Literal["rig_unrecoverable"] = "rig_unrecoverable"
     data: ErrorData
@@ -721,7 +734,8 @@ class StopDocument(Document):
 #: plain EventDocument; the runner writes only these. A new kind is a class above and a line here.
 EVENT_MODELS: dict[str, type[EventDocument]] = {
     model.model_fields["kind"].default: model
-    for model in (HomeEvent, MoveEvent, ApproachEvent, RigRecoveredEvent, RigUnrecoverableEvent, CalibrationViewEvent,
+    for model in (HomeEvent, MoveEvent, ApproachEvent, RigRecoveredEvent, RigPositionTrustedEvent,
+                  RigUnrecoverableEvent, CalibrationViewEvent,
                   MeasurementFrameEvent, TargetNotFoundEvent, CalibrationEvent, AnalysisEvent, TranscriptEvent,
                   PromptEvent, CalibrationViewDiscardedEvent, RunControlEvent, CalibrationDetectionsEvent,
                   TruthEvent, ControllerEvent, StructureEvent, KinematicModelEvent, IntrinsicsEvent)
@@ -748,6 +762,7 @@ AnyDocument = Annotated[
     | Annotated[HomeEvent, Tag("event:home")] | Annotated[MoveEvent, Tag("event:move")]
     | Annotated[ApproachEvent, Tag("event:approach")]
     | Annotated[RigRecoveredEvent, Tag("event:rig_recovered")]
+    | Annotated[RigPositionTrustedEvent, Tag("event:rig_position_trusted")]
     | Annotated[RigUnrecoverableEvent, Tag("event:rig_unrecoverable")]
     | Annotated[CalibrationViewEvent, Tag("event:calibration_view")]
     | Annotated[MeasurementFrameEvent, Tag("event:measurement_frame")]

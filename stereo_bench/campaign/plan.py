@@ -55,8 +55,8 @@ from drivers.rig.codec import vector_feed
 from drivers.rig.config import QUANTITIES, LimitError, MoveRequestError, RigConfig, plan_move, to_machine
 from drivers.rig.motion import (
     REFERENCE_AXIS_MOTION,
-    REFERENCE_HOMING_SEEK_RATE_PER_MIN,
-    REFERENCE_HOMING_SETTLE_S,
+    REFERENCE_HOMING,
+    homing_time_s,
     move_time_s,
 )
 from stereo_bench.campaign.config import CampaignConfig
@@ -761,8 +761,11 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
       (:data:`drivers.rig.motion.REFERENCE_AXIS_MOTION`, which the simulated rig runs with; a real
       controller's $110-$125 are not known offline), timed by the model the emulator uses
       (:func:`drivers.rig.motion.move_time_s`).
-    - Homing (if enabled): the longest axis travel at the emulator's seek rate, plus its settle time.
-      On the simulated rig, homing and motion run ``time_scale`` times faster.
+    - Homing (if enabled): the firmware's sequence (:func:`homing_estimate_s`): per cycle (Z, then X and Y) a
+      seek to the switches, pull-off, locate and pull-off, each with its debounce, at the reference homing
+      settings (:data:`drivers.rig.motion.REFERENCE_HOMING`, the simulated rig's). The simulated rig powers up
+      at machine 0; a real rig may stand anywhere: the far end of the config's range is assumed (the worst
+      case). On the simulated rig, homing and motion run ``time_scale`` times faster.
     - Settle as configured. Frames: one exposure each on simulated cameras; max(exposure, 1/fps) on
       V4L2 (30 fps assumed when not set); a V4L2 flush discards ``buffer_count`` frames.
     - Operator: 30 s per prompt and 5 s per calibration view presented by hand, where a human does it:
@@ -789,8 +792,7 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
 
     homing = 0.0
     if config.rig.homing and travel:
-        longest = max(high - low for low, high in travel.values())
-        homing = (longest / (REFERENCE_HOMING_SEEK_RATE_PER_MIN / 60.0) + REFERENCE_HOMING_SETTLE_S) / speed_factor
+        homing = homing_estimate_s(travel, simulated=config.rig.kind == "simulated") / speed_factor
     motion = settle = flush = capture = operator = 0.0
     for step in steps:
         if isinstance(step, Move):
@@ -825,9 +827,38 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
                                                                    "placed by the simulator)")
          if human else "no operator time: rig and cameras simulated"),
         "computation (rendering, detection, calibration) not included",
-    )
+    ) + ((f"homing at the reference rig's $25={REFERENCE_HOMING.seek_rate_per_min:g}, "
+          f"$24={REFERENCE_HOMING.feed_rate_per_min:g} mm/min, $26={REFERENCE_HOMING.debounce_ms:g} ms, "
+          f"$27={REFERENCE_HOMING.pulloff:g}, from "
+          + ("machine 0 (where the simulated rig powers up)" if config.rig.kind == "simulated"
+             else "the far end of each axis' range (the longest seek)"),) if homing else ())
     return DurationEstimate(homing_s=homing, motion_s=motion, settle_s=settle, flush_s=flush, capture_s=capture,
                             operator_s=operator, assumptions=assumptions)
+
+
+def homing_estimate_s(travel: Mapping[str, tuple[float, float]], *, simulated: bool) -> float:
+    """How long ``$H`` takes (s, real time) on a rig whose config spans ``travel`` (axis -> (low, high) machine
+    units, :meth:`RigConfig.machine_travel`), by the firmware's sequence (:func:`drivers.rig.motion.homing_time_s`).
+
+    The controller is taken as the simulated bench sets it up (``$13x`` one pull-off beyond the range, the
+    reference axes and homing settings): a range at or below 0 homes toward + to a switch at machine 0; one at
+    or above 0 (a set-origin build) toward - to a switch one pull-off below 0. Where the axes stand first:
+    ``simulated``, machine 0, where the simulated rig powers up; else the end of the range farthest from the
+    switch (the longest seek).
+    """
+    pulloff = REFERENCE_HOMING.pulloff
+    to_switch: dict[str, float] = {}
+    max_travel: dict[str, float] = {}
+    for axis, (low, high) in travel.items():
+        if low >= 0.0 and high > 0.0:  # HOMING_FORCE_SET_ORIGIN: homes toward -, the switch at -$27
+            max_travel[axis] = high + pulloff
+            to_switch[axis] = pulloff if simulated else high + pulloff
+        else:
+            max_travel[axis] = (-low + pulloff) if high <= 0.0 else high - low
+            to_switch[axis] = 0.0 if simulated else max(0.0, -low)
+    return homing_time_s(to_switch, max_travel=max_travel, homing=REFERENCE_HOMING,
+                         max_rate_per_min={a: REFERENCE_AXIS_MOTION[a].max_rate_per_min for a in travel},
+                         acceleration={a: REFERENCE_AXIS_MOTION[a].acceleration for a in travel})
 
 
 def predict_duration_s(config: CampaignConfig, configurations: Sequence[Configuration],

@@ -59,6 +59,7 @@ from stereo_bench.campaign.documents import (
     MoveEvent,
     PromptEvent,
     ResultDocument,
+    RigPositionTrustedEvent,
     RigRecoveredEvent,
     RigUnrecoverableEvent,
     RunControlEvent,
@@ -193,6 +194,7 @@ class CampaignRunner:
         self._sequence_index = {entry.config_id: i for i, entry in enumerate(self._sequence)}
         self._last_index: int | None = None  # of the last move made; -1: at home; None: not known (not homed)
         self._start: dict[str, float] | None = None  # where the plan's moves start from (homing leaves the rig)
+        self._trusted = False  # [rig] homing = false: the position was taken as right (once, at the first move)
         self._stop = threading.Event()
         self._running = threading.Event()  # cleared while paused
         self._running.set()
@@ -396,12 +398,22 @@ class CampaignRunner:
                          manual_instruction(quantity, value), config_id=configuration.config_id,
                          quantity=quantity, value=value))
 
+    def _trust_position(self) -> None:
+        """``[rig] homing = false``: the user states the rig stands where its controller counts, as ``rig unlock
+        --trust-position`` does; recorded, since every move of the run rests on it. A rig that cannot be told
+        (a replay) has nothing to trust."""
+        trust = getattr(self.bench.rig, "trust_position", None)
+        self._trusted = True
+        if not callable(trust):
+            return
+        reading = trust()
+        self._publish(Draft(RigPositionTrustedEvent, data={
+            "rig": reading.to_dict(), "reason": "[rig] homing = false: the position the controller reports is taken "
+                                                "as right without homing"}))
+
     def _home(self) -> None:
         reading = self.bench.rig.home()
-        self._homed = True
         self._homed_at(reading)
-        self._approach.reached(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
-                                                      "toe_in_right_deg": 0.0}))
         self._publish(Draft(HomeEvent, data={"rig": reading.to_dict()}))
 
     def _move(self, configuration: Configuration | Visit) -> tuple[dict, dict]:
@@ -415,6 +427,8 @@ class CampaignRunner:
             try:
                 if not self._homed:  # the first move homes first, so nothing moves when nothing is left to run
                     self._home()
+                elif not self.bench.homes and not self._trusted:
+                    self._trust_position()
                 self._approach_as_planned(configuration)
                 reading = self._move_once(request)
                 break
@@ -439,7 +453,13 @@ class CampaignRunner:
         return axes, approach
 
     def _homed_at(self, reading) -> None:
-        """Homing left the rig at ``reading``: where the plan's moves start from."""
+        """Homing left the rig at ``reading``: where the plan's moves start from, and each axis' approach there."""
+        self._homed = True
+        # The cycle's last move pulls each axis off its switch: the direction the homed position was reached from.
+        directions = getattr(self.bench.rig, "homing_approach", None)
+        self._approach.homed(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
+                                                    "toe_in_right_deg": 0.0}),
+                             directions() if callable(directions) else {})
         self._last_index = -1
         self._start = self._start or self._motor_position(reading, {})
 
@@ -507,10 +527,7 @@ class CampaignRunner:
             raise RigUnrecoverable(
                 f"rig: {error} (at {configuration.config_id}); recovery ({', then '.join(steps)}) failed at the "
                 f"{step}" + ("" if same else f": {failure}")) from failure
-        self._homed = True
         self._homed_at(reading)
-        self._approach.reached(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
-                                                      "toe_in_right_deg": 0.0}))
         self._publish(Draft(RigRecoveredEvent, data={
             "action": f"{'soft reset, then ' if reset is not None else ''}homed after a failed move"}))
 

@@ -81,6 +81,15 @@ class ApproachTracker:
         self.previous: dict[str, float] | None = None
         self.approach: dict[str, int] = {}
 
+    def homed(self, axes: Mapping[str, float], directions: Mapping[str, int]) -> dict[str, int]:
+        """Record that homing left the rig at ``axes``, arriving from ``directions`` (its pull-off:
+        ``GrblRig.homing_approach``; an axis missing there keeps what it had)."""
+        approach = approach_directions(self.previous, axes, self.approach)
+        approach.update({axis: int(directions[axis]) for axis in AXES if axis in directions})
+        self.approach = approach
+        self.previous = {axis: float(axes[axis]) for axis in AXES}
+        return dict(self.approach)
+
     def reached(self, axes: Mapping[str, float]) -> dict[str, int]:
         """Record that the rig now stands at ``axes``; returns the directions it approached them from."""
         self.approach = approach_directions(self.previous, axes, self.approach)

@@ -175,11 +175,14 @@ def failure(error: BaseException) -> CliError | None:
 
     text = _one_line(error)
     if isinstance(error, RigError):
-        # What the user can fix (a refused move, a bad rig config, a port that is not there, unusable controller
-        # settings) is 2; the controller failing during work (alarm, timeout, lost connection, lock) is 1.
+        # What the user can fix (a refused move - outside the limits, or from a position not known since a boot -,
+        # a bad rig config, a port that is not there, unusable controller settings) is 2; the controller failing
+        # during work (alarm, timeout, lost connection, lock) is 1.
         from drivers.rig.config import LimitError, MoveRequestError
+        from drivers.rig.grbl import GrblPositionUnknown
 
-        user = (LimitError, MoveRequestError, RigConfigError, GrblSettingsError, GrblConnectionError)
+        user = (LimitError, MoveRequestError, RigConfigError, GrblSettingsError, GrblConnectionError,
+                GrblPositionUnknown)
         fault = isinstance(error, GrblConnectionLost) or not isinstance(error, user)
         return CliError(text, EXIT_FAILED if fault else EXIT_USAGE)
     if isinstance(error, CameraError):

@@ -80,6 +80,8 @@ def cmd_live(args: argparse.Namespace) -> int:
             if wants_move and not args.no_move:
                 if config.rig.homing:
                     bench.rig.home()
+                elif callable(getattr(bench.rig, "trust_position", None)):
+                    bench.rig.trust_position()  # [rig] homing = false: the position is right as it is (docs/RIG.md)
                 bench.rig.move_to(**request)
             if simulated:  # the measured target where the campaign would put it
                 bench.presenter.begin_configuration(configuration)

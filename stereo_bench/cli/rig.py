@@ -10,9 +10,13 @@ Actions given together run in order on one connection. That matters on an Arduin
 its port reboots it (DTR auto-reset), so each separate call starts from machine position 0 with the
 position unknown; chain the actions, use ``shell``, or disable the auto-reset (docs/RIG.md).
 
-Exit status: 0 done; 2 for what the user can fix (a refused move, a bad rig config or action, an
-unreachable port, unusable controller settings); 1 for a controller fault (alarm, timeout, lost
-connection); 130 interrupted.
+A controller that booted (at open, late, or mid-run) has restarted its step counters wherever the axes stand:
+moves are refused until the rig is homed or ``unlock --trust-position`` states that the position is right,
+whatever ``$22`` says.
+
+Exit status: 0 done; 2 for what the user can fix (a refused move - outside the limits, or from a position
+not known since a boot -, a bad rig config or action, an unreachable port, unusable controller settings);
+1 for a controller fault (alarm, timeout, lost connection, nothing to resume); 130 interrupted.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from pathlib import Path
 
 from drivers.rig import (
     GrblConnectionLost,
-    GrblLocked,
+    GrblPositionUnknown,
     GrblRig,
     RigConfig,
     RigConfigError,
@@ -42,6 +46,7 @@ from drivers.rig import (
     wait_for_enter,
 )
 from drivers.rig.config import MAX_MOVE_TIMEOUT_S, along_baseline, alpha_from_toe_in, plan_move
+from drivers.rig.motion import REFERENCE_HOMING
 from drivers.rig.rig import physical_request
 from drivers.sim.grbl_emulator import (
     AXIS_LETTERS,
@@ -72,7 +77,9 @@ _LOOKING = ("status", "resume", "shell")
 ACTIONS_HELP = """\
 actions (several run in order on one connection; ACTION --help for its options):
   home                  run the homing cycle ($H)
-  unlock                leave Alarm without homing ($X): only if the positions are right
+  unlock [--trust-position]
+                        leave Alarm without homing ($X); after a boot the position stays unknown (moves
+                        refused) unless --trust-position states that it is right
   move OPTIONS          move to a configuration; returns once the rig has stopped there
   status [--json]       where the rig is (no soft reset on connect)
   resume                continue a move held by Ctrl-C / feed hold (waits until the hold is complete)
@@ -82,7 +89,9 @@ actions (several run in order on one connection; ACTION --help for its options):
                         without --port; calibrate-kinematics --help for its options)
 
 Opening the port of an Arduino-based controller reboots it (DTR auto-reset) and its position is then
-unknown: chain actions in one call (`rig --port P home move --baseline 100 status`) or use `shell`."""
+unknown: chain actions in one call (`rig --port P home move --baseline 100 status`) or use `shell`. Every
+boot the driver sees (at open, late, or mid-run) makes the position unknown, whatever $22 says: moves are
+refused until `home`, or `unlock --trust-position` if the axes really stand where the controller counts."""
 
 
 def register(subparsers) -> None:
@@ -96,7 +105,8 @@ def register(subparsers) -> None:
                           "required except for calibrate-kinematics, which runs on the simulated bench without it")
     rig.add_argument("--rig-config", type=Path, metavar="FILE",
                      help="rig configuration TOML (axis mapping, limits); default: stock Grbl machine space, "
-                          "X = baseline 0-350 mm at X -350..0, Y/Z = left/right toe-in 0-90 deg at -0..-90")
+                          "X = baseline 1-349 mm at X -349..-1, Y/Z = left/right toe-in 0-88 deg at -1..-89 (one "
+                          "pull-off inside $130=350, $131=$132=90)")
     rig.add_argument("--timeout", type=TIMEOUT_S, metavar="S", help="bound on homing or a move, seconds (> 0)")
     rig.add_argument("--spy-log", type=Path, metavar="FILE", help="record every byte on the link as JSON lines")
     rig.add_argument("actions", nargs=argparse.REMAINDER, metavar="ACTION [OPTIONS] ...",
@@ -115,6 +125,8 @@ def register(subparsers) -> None:
     sim.add_argument("--time-scale", type=TIME_SCALE, default=1.0, metavar="X",
                      help="simulated seconds per real second, 0.1-10000 (default 1: real time)")
     sim.add_argument("--no-homing", action="store_true", help="homing disabled ($22=0): boot Idle, no soft limits")
+    sim.add_argument("--hard-limits", action="store_true",
+                     help="hard limits on ($21=1): a move that reaches a homing switch halts with ALARM:1")
     sim.add_argument("--reboot-on-open", action="store_true",
                      help="reboot whenever the port is opened, like an Arduino with DTR auto-reset")
     sim.add_argument("--startup-line", action="append", default=[], metavar="LINE",
@@ -147,7 +159,8 @@ class _ActionParser(argparse.ArgumentParser):
 def _action_parsers() -> dict[str, _ActionParser]:
     parsers = {}
     for name, text in (("home", "run the homing cycle ($H)"),
-                       ("unlock", "leave Alarm without homing ($X): only if the positions are right"),
+                       ("unlock", "leave Alarm without homing ($X); after a boot moves stay refused (the position "
+                                  "is unknown) unless --trust-position states that it is right"),
                        ("move", "move to a configuration; returns once the rig has stopped there"),
                        ("status", "where the rig is (does not reset the controller)"),
                        ("resume", "continue a held move: waits until the hold is complete, then '~'"),
@@ -169,6 +182,11 @@ def _action_parsers() -> dict[str, _ActionParser]:
                       help="move even where a camera would look along (or behind) the baseline, at the other camera "
                            "(alpha <= 0 or >= 180 deg, |toe-in| >= 90 deg)")
     parsers["status"].add_argument("--json", action="store_true", help="print one JSON object")
+    parsers["unlock"].add_argument(
+        "--trust-position", action="store_true",
+        help="the axes stand where the controller counts (they were not moved while it booted, or were homed "
+             "and it kept counting): moves are no longer refused for a boot. Wrong, and the rig moves to wrong "
+             "places, past its ends included")
     return parsers
 
 
@@ -267,10 +285,10 @@ def _config(args) -> RigConfig:
 def _fail(error: RigError, rig: GrblRig | None = None) -> CliError:
     """The one-line error and exit status of a rig failure (stereo_bench.cli.failure), with the auto-reset hint."""
     mapped = failure(error) or CliError(" ".join(str(error).split()), exit_code=EXIT_FAULT)
-    if isinstance(error, GrblLocked) and rig is not None and rig.controller.info.boot_detected:
-        return CliError(f"{mapped} (opening the port rebooted the controller: chain actions in one call, e.g. `rig "
-                        "--port P home move ...`, or use `rig --port P shell`; docs/RIG.md says how to disable the "
-                        "auto-reset)", exit_code=mapped.exit_code)
+    if isinstance(error, GrblPositionUnknown) and rig is not None and rig.controller.info.boot_detected:
+        return CliError(f"{mapped} (the controller booted at connect, as an Arduino does when its port opens: chain "
+                        "actions in one call, e.g. `rig --port P home move ...`, or use `rig --port P shell`; "
+                        "docs/RIG.md says how to disable the auto-reset)", exit_code=mapped.exit_code)
     return mapped
 
 
@@ -362,19 +380,41 @@ def _run(rig: GrblRig, action: _Action, args, *, interactive: bool) -> None:
             raise
         print(f"homed. {_describe(reading)}", flush=True)
     elif name == "unlock":
-        reading = rig.unlock()
-        print(f"unlocked: positions are trusted as they are. {_describe(reading)}", flush=True)
+        trust = action.options.trust_position
+        reading = rig.unlock(trust_position=trust)
+        if trust:
+            print(f"unlocked: the position is trusted as it is. {_describe(reading)}", flush=True)
+        elif rig.controller.position_unknown:
+            print(f"unlocked, but the position is unknown ({rig.controller.position_unknown}): home, or unlock "
+                  f"--trust-position if it is right. {_describe(reading)}", flush=True)
+        else:
+            print(f"unlocked: the position is used as it is. {_describe(reading)}", flush=True)
     elif name == "move":
         _move(rig, action, args, interactive=interactive)
     elif name == "status":
         _status(rig, args, as_json=action.options.json)
     elif name == "resume":
-        print("resuming ...", flush=True)
-        reading = rig.resume(timeout_s=args.timeout)
-        print(f"stopped. {_describe(reading)}", flush=True)
+        _resume(rig, args)
     elif name == "reset":
         reading = rig.reset()
         print(f"soft reset. {_describe(reading)}", flush=True)
+
+
+def _resume(rig: GrblRig, args) -> None:
+    """``resume``: continue a held move; say so when there is none (a reboot at connect drops a hold)."""
+    before = rig.read()
+    if not before.state.startswith("Hold"):
+        booted = rig.controller.info.boot_detected
+        why = (f"opening {args.port} rebooted the controller, which dropped any hold and its move"
+               if booted else f"the controller is not holding ({before.state})")
+        if before.state == "Idle" and not booted:
+            print(f"nothing to resume: {why}. {_describe(before)}", flush=True)
+            return
+        raise CliError(f"nothing to resume: {why}; home the rig and move again (docs/RIG.md section 4)",
+                       exit_code=EXIT_FAULT)
+    print("resuming ...", flush=True)
+    reading = rig.resume(timeout_s=args.timeout)
+    print(f"stopped. {_describe(reading)}", flush=True)
 
 
 def _move(rig: GrblRig, action: _Action, args, *, interactive: bool) -> None:
@@ -436,7 +476,7 @@ def _describe(reading: RigReading) -> str:
 
 
 SHELL_HELP = """\
-commands: home | unlock | move OPTIONS | status [--json] | resume | reset | help | quit
+commands: home | unlock [--trust-position] | move OPTIONS | status [--json] | resume | reset | help | quit
   move options: --baseline MM --alpha DEG --alpha-left/--alpha-right DEG --toe-in DEG
                 --toe-in-left/--toe-in-right DEG --tilt DEG --target MM   (move --help for details)
 Ctrl-C during a move holds the rig: `resume` continues, `reset` abandons. quit or Ctrl-D leaves."""
@@ -498,7 +538,7 @@ def _emulator_from_args(args) -> GrblEmulator:
     force_set_origin = args.force_set_origin
     if args.rig_config is not None:
         config = _config(args)
-        specs, needs_force = axis_specs_for_travel(config.machine_travel())
+        specs, needs_force = axis_specs_for_travel(config.machine_travel(), margin=REFERENCE_HOMING.pulloff)
         if needs_force and not force_set_origin:
             # A stock build: same travel, homing toward +; the driver will say which targets it refuses.
             specs = {axis: AxisSpec(max_travel=spec.max_travel, max_rate_per_min=spec.max_rate_per_min,
@@ -518,7 +558,8 @@ def _emulator_from_args(args) -> GrblEmulator:
             raise CliError(f"--fault: {error}") from None
     try:
         return GrblEmulator(axes=axes, axis_specs=specs, time_scale=args.time_scale,
-                            homing_enabled=not args.no_homing, firmware=args.firmware, faults=faults,
+                            homing_enabled=not args.no_homing, hard_limits=args.hard_limits,
+                            firmware=args.firmware, faults=faults,
                             reboot_on_open=args.reboot_on_open, startup_lines=args.startup_line,
                             force_set_origin=force_set_origin)
     except ValueError as error:
