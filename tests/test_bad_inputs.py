@@ -386,17 +386,51 @@ def test_a_long_url_is_414_or_404_never_500(tmp_path):
 # -- angles: a camera looking along the baseline ----------------------------------------------------------------
 
 
-def test_rig_move_to_alpha_0_asks_for_yes_before_the_port_is_opened(capfd):
-    code, line = _cli(capfd, "rig", "--port", "/dev/ttyNOPE9", "move", "--alpha", "0")
+# Heads whose soft limits reach toe-in 90 deg (alpha 0), one pull-off clear of a switch at machine 0 of a $131=91 axis:
+# the default rig config stops at toe-in 88 deg, where the soft limits alone refuse alpha 0.
+TOE_IN_90 = """
+[quantities.toe_in_left_deg]
+axis = "Y"
+offset = -1.0
+scale = -1.0
+min = 0.0
+max = 90.0
+
+[quantities.toe_in_right_deg]
+axis = "Z"
+offset = -1.0
+scale = -1.0
+min = 0.0
+max = 90.0
+"""
+
+
+def test_rig_move_to_alpha_0_asks_for_yes_before_the_port_is_opened(tmp_path, capfd):
+    rig_config = tmp_path / "rig.toml"
+    rig_config.write_text(TOE_IN_90)
+    code, line = _cli(capfd, "rig", "--port", "/dev/ttyNOPE9", "--rig-config", str(rig_config), "move", "--alpha", "0")
     assert code == 2 and "alpha 0 deg (toe-in 90 deg) turns the left camera to look along the baseline" in line
     assert "--yes" in line
-    code, line = _cli(capfd, "rig", "--port", "/dev/ttyNOPE9", "move", "--toe-in-right", "90")
+    code, line = _cli(capfd, "rig", "--port", "/dev/ttyNOPE9", "--rig-config", str(rig_config), "move",
+                      "--toe-in-right", "90")
     assert code == 2 and "right camera" in line
 
 
-def test_rig_move_to_alpha_0_with_yes_moves(capfd):
-    with GrblEmulator(time_scale=100.0) as emulator:
-        code = main(["rig", "--port", emulator.tty_path, "home", "move", "--alpha", "0", "--yes", "status"])
+def test_rig_move_to_alpha_0_is_refused_by_the_default_soft_limits(capfd):
+    code, line = _cli(capfd, "rig", "--port", "/dev/ttyNOPE9", "move", "--alpha", "0", "--yes")
+    assert code == 2 and "outside soft limits" in line and "toe_in_left_deg = 90 outside [0, 88]" in line
+
+
+def test_rig_move_to_alpha_0_with_yes_moves(tmp_path, capfd):
+    from drivers.rig.config import load_rig_config
+    from drivers.sim.grbl_emulator import axis_specs_for_travel
+
+    rig_config = tmp_path / "rig.toml"
+    rig_config.write_text(TOE_IN_90)
+    specs, _ = axis_specs_for_travel(load_rig_config(rig_config).machine_travel(), margin=1.0)
+    with GrblEmulator(time_scale=100.0, axis_specs=specs) as emulator:
+        code = main(["rig", "--port", emulator.tty_path, "--rig-config", str(rig_config), "home", "move", "--alpha",
+                     "0", "--yes", "status"])
     out, err = capfd.readouterr()
     assert code == 0, err
     assert "toe-in L = 90.000 deg" in out.splitlines()[-1]
