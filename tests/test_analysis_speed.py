@@ -15,11 +15,11 @@ import pytest
 
 from stereo_bench.campaign.config import RigTolerances
 from stereo_bench.campaign.session import SessionReader
-from stereo_bench.kinematics import (
+from stereo_bench.kinematics.model import _rvec_t
+from stereo_bench.kinematics.nominal import (
     _PER_CAMERA_DEVIATIONS,
     _SHARED_TOLERANCES,
     _as_built_camera,
-    _rvec_t,
     nominal_covariance,
 )
 from stereo_bench.vision.calibrate import StereoCalibration

@@ -21,6 +21,8 @@ LEAVES = {"stereo_bench", "stereo_bench.geometry", "stereo_bench.targets", "ster
 # stereo_bench's layers, lowest first: a module may import its own layer and the ones below it.
 LAYERS = [
     ("vision", {"stereo_bench.vision"}),
+    # the kinematic rig model: pure math on the conventions and vision's calibration; campaigns and the CLI use it
+    ("kinematics", {"stereo_bench.kinematics"}),
     ("models", {"stereo_bench.campaign", "stereo_bench.errormodel"}),
     ("report", {"stereo_bench.report"}),
     ("live", {"stereo_bench.live"}),  # the live page: a subscriber and operator of campaigns, served by the CLI
@@ -170,3 +172,24 @@ def test_the_campaign_config_takes_the_simulated_bench_profile_from_its_schema_m
     """[sim] is validated with the simulator's own schema, and that is all the config imports of drivers.sim."""
     assert {t for t in imports()["stereo_bench.campaign.config"] if t.startswith("drivers.sim")} == SIMULATOR_SCHEMAS
     assert imports()["drivers.sim.profile"] == set()
+
+
+def test_the_kinematic_model_is_a_layer_between_vision_and_the_campaign():
+    """kinematics may use vision (calibration, pixel locking) and the leaves; campaigns and the CLI use it."""
+    assert [name for name, _ in LAYERS].index("kinematics") == [name for name, _ in LAYERS].index("vision") + 1
+    planted = {module: set(targets) for module, targets in imports().items()}
+    planted["stereo_bench.kinematics.fit"].add("stereo_bench.campaign.config")
+    planted["stereo_bench.vision.calibrate"].add("stereo_bench.kinematics.model")
+    found = "\n".join(violations(planted))
+    assert "stereo_bench.kinematics.fit imports stereo_bench.campaign.config: kinematics must not import" in found
+    assert "stereo_bench.vision.calibrate imports stereo_bench.kinematics.model: vision must not import" in found
+    assert any(target.startswith("stereo_bench.kinematics") for target in imports()["stereo_bench.campaign.sources"])
+
+
+def test_the_kinematics_rooms_stand_on_its_model_alone():
+    """Inside the package each room imports only ``model`` of its siblings (the face, __init__, imports them all)."""
+    rooms = [m for m in modules() if m.startswith("stereo_bench.kinematics.")]
+    assert "stereo_bench.kinematics.model" in rooms and len(rooms) >= 5
+    for room in rooms:
+        siblings = {t for t in imports()[room] if t.startswith("stereo_bench.kinematics")}
+        assert siblings <= {"stereo_bench.kinematics.model"}, room
