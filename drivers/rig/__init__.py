@@ -2,7 +2,9 @@
 
 - :mod:`drivers.rig.transport`: bytes (pyserial port, spy recorder, scripted fake);
 - :mod:`drivers.rig.codec`: pure parse/encode of GRBL's lines, error and alarm tables;
-- :mod:`drivers.rig.grbl`: :class:`GrblController`, the protocol in machine units;
+- :mod:`drivers.rig.grbl`: :class:`GrblController`, the protocol in machine units (and its :class:`MoveStatus`);
+  :mod:`drivers.rig.grbl_reports`: what it reports (:class:`GrblReading`, :class:`ControllerInfo`: settings,
+  dialect); :mod:`drivers.rig.grbl_errors`: its failures;
 - :mod:`drivers.rig.config`: :class:`RigConfig`, the mapping of physical quantities to axes;
 - :mod:`drivers.rig.rig`: the :class:`Rig` protocol and :class:`GrblRig`, in mm and degrees.
 

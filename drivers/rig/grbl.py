@@ -1,7 +1,9 @@
 """GRBL 1.1 controller driver: typed commands in machine units over any :class:`Transport`.
 
 Layers: :mod:`drivers.rig.transport` moves bytes, :mod:`drivers.rig.codec` turns them into messages,
-and :class:`GrblController` (here) keeps the protocol's state:
+and :class:`GrblController` (here) keeps the protocol's state; what it reports is data in
+:mod:`drivers.rig.grbl_reports` (:class:`GrblReading`, :class:`ControllerInfo`), its failures are
+:mod:`drivers.rig.grbl_errors`' (all re-exported here):
 
 - a reader thread splits incoming bytes into lines and dispatches them: ``ok``/``error:N`` answer the
   oldest outstanding line (GRBL answers in order), ``<...>`` answers the oldest ``?``, ``ALARM:N`` and
@@ -57,74 +59,29 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO
 
 import serial
 
 from drivers.rig import codec
-from drivers.rig.errors import RigError
+from drivers.rig.grbl_errors import (
+    GrblAlarm,
+    GrblCommandError,
+    GrblConnectionError,
+    GrblConnectionLost,
+    GrblError,
+    GrblLocked,
+    GrblMoveError,
+    GrblPositionUnknown,
+    GrblResetError,
+    GrblSettingsError,
+    GrblTimeout,
+)
+from drivers.rig.grbl_reports import ControllerInfo, GrblReading
 from drivers.rig.transport import SerialTransport, SpyTransport, Transport, TransportError
 
 log = logging.getLogger(__name__)
-
-
-class GrblError(RigError):
-    """Base of the controller's failures."""
-
-
-class GrblCommandError(GrblError):
-    """A line answered with ``error:N``."""
-
-    def __init__(self, code: int, line: str):
-        self.code = code
-        self.meaning = codec.error_meaning(code)
-        self.line = line
-        super().__init__(f"GRBL error:{code} for {line!r}: {self.meaning}")
-
-
-class GrblAlarm(GrblError):
-    """The controller pushed ``ALARM:N``, or is halted by one."""
-
-    def __init__(self, code: int, context: str = ""):
-        self.code = code
-        self.meaning = codec.alarm_meaning(code)
-        super().__init__(f"GRBL ALARM:{code}: {self.meaning}" + (f" ({context})" if context else ""))
-
-
-class GrblLocked(GrblError):
-    """The controller is in Alarm state and refuses motion until homed (``$H``) or unlocked (``$X``)."""
-
-
-class GrblTimeout(GrblError, TimeoutError):
-    """Something the controller should have said did not come in time."""
-
-
-class GrblConnectionError(GrblError):
-    """The port cannot be opened, or does not speak GRBL."""
-
-
-class GrblConnectionLost(GrblConnectionError):
-    """The port went away (unplugged, emulator stopped) after the connection was made."""
-
-
-class GrblSettingsError(GrblError):
-    """The controller's settings make it unsafe to drive (e.g. ``$13=1``: positions reported in inches)."""
-
-
-class GrblResetError(GrblError):
-    """The controller reset (a banner arrived) while lines were outstanding; they were discarded."""
-
-
-class GrblMoveError(GrblError):
-    """Motion ended somewhere other than the target."""
-
-
-class GrblPositionUnknown(GrblLocked):
-    """The controller booted (at open, late, or mid-run) or failed a homing cycle: its step counters say nothing
-    about where the axes stand, so motion is refused until the rig is homed or the position is confirmed
-    (:meth:`GrblController.trust_position`)."""
 
 
 #: After ALARM:1/2 Grbl 1.1h pauses 500 ms (report.c ``report_alarm_message``), then says
@@ -134,127 +91,6 @@ CRITICAL_RESET_WAIT_S = 1.5
 #: A soft reset not answered by a banner within this long (or half its timeout) is sent once more (a reset the
 #: firmware dropped, or a bootloader swallowed).
 RESET_RESEND_AFTER_S = 1.0
-
-
-@dataclass(frozen=True)
-class GrblReading:
-    """One status report, timestamped when it arrived. Positions in machine units, keyed by axis letter.
-
-    ``machine_position`` is None only when the report gave WPos and no WCO has been seen yet.
-    """
-
-    state: str
-    substate: int | None
-    machine_position: dict[str, float] | None
-    work_position: dict[str, float] | None
-    feed_per_min: float | None
-    planner_blocks_free: int | None
-    rx_bytes_free: int | None
-    pins: str | None
-    timestamp: float  # time.time(), s
-    monotonic: float  # time.monotonic(), s
-    raw: str
-
-    @property
-    def full_state(self) -> str:
-        return self.state if self.substate is None else f"{self.state}:{self.substate}"
-
-    @property
-    def is_idle(self) -> bool:
-        return self.state == "Idle"
-
-    def to_dict(self) -> dict:
-        return {
-            "state": self.full_state, "machine_position": self.machine_position, "work_position": self.work_position,
-            "feed_per_min": self.feed_per_min, "pins": self.pins, "timestamp": self.timestamp, "raw": self.raw,
-        }
-
-    @staticmethod
-    def describe() -> dict:
-        return {
-            "machine_position": {"units": "machine units (mm for G21)", "source": "GRBL status report MPos/WPos+WCO"},
-            "timestamp": {"units": "s since the epoch", "source": "host clock when the report arrived"},
-        }
-
-
-@dataclass
-class ControllerInfo:
-    """What the controller said about itself at connect (``$I``, ``$$``, ``$N``, ``$#``, the banner), for the record.
-
-    ``settings`` maps setting numbers to values (``{100: 250.0, ...}``); ``startup_lines`` maps ``$N``
-    numbers to the stored lines; ``startup_executed`` lists the ``>line:result`` echoes seen; ``parameters``
-    are the ``$#`` lines (work offsets, G28/G30, TLO, probe); ``build_tags`` grblHAL's further ``$I`` lines by
-    tag; ``unsupported`` the queries the controller refused (``{"$N": "error:3"}``: a dialect without them);
-    ``warnings`` are the one-line warnings issued at connect.
-    """
-
-    firmware: str | None = None
-    build: str | None = None
-    build_user_info: str = ""
-    options: str = ""
-    planner_blocks: int | None = None
-    rx_buffer_size: int | None = None
-    axis_count: int | None = None
-    build_tags: dict[str, str] = field(default_factory=dict)
-    settings: dict[int, float] = field(default_factory=dict)
-    startup_lines: dict[int, str] = field(default_factory=dict)
-    startup_executed: list[str] = field(default_factory=list)
-    parameters: list[str] = field(default_factory=list)
-    unsupported: dict[str, str] = field(default_factory=dict)
-    boot_detected: bool = False
-    settings_read: bool = False
-    warnings: list[str] = field(default_factory=list)
-
-    @property
-    def dialect(self) -> str:
-        """``GrblHAL`` when its banner or ``[FIRMWARE:grblHAL]`` says so, else ``Grbl`` (1.1)."""
-        banner = (self.firmware or "").lower()
-        if banner.startswith("grblhal") or self.build_tags.get("FIRMWARE", "").lower() == "grblhal":
-            return "GrblHAL"
-        return "Grbl"
-
-    @property
-    def homing_enabled(self) -> bool:
-        return codec.homing_enabled(self.settings)
-
-    @property
-    def hard_limits(self) -> bool:
-        return codec.hard_limits_enabled(self.settings)
-
-    @property
-    def boots_locked(self) -> bool:
-        """Whether a boot with homing enabled lands in Alarm: Grbl's HOMING_INIT_LOCK, grblHAL's ``$22`` bit 2
-        ("homing on startup required"); ``L`` in ``[OPT:]`` says a build boots Idle (report.c)."""
-        if self.dialect == "GrblHAL":
-            return self.homing_enabled and codec.setting_bit(self.settings, codec.SETTING_HOMING, 2)
-        return self.homing_enabled and "L" not in self.options
-
-    def setting(self, number: int) -> float | None:
-        return self.settings.get(number)
-
-    def steps_per_unit(self, axis: str) -> float | None:
-        return codec.axis_setting(self.settings, codec.SETTING_STEPS_PER_UNIT, axis)
-
-    def machine_space(self, axis: str) -> tuple[float, float] | None:
-        """The machine coordinates this axis can reach once homed (see :func:`codec.soft_limit_space`)."""
-        return codec.soft_limit_space(self.settings, self.options, axis, firmware=self.dialect)
-
-    def switch_position(self, axis: str) -> float | None:
-        """Where this axis' homing switch trips, in machine coordinates (see :func:`codec.switch_position`)."""
-        return codec.switch_position(self.settings, self.options, axis)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready: settings keyed ``"$100"``, startup lines as a list in ``$N`` order."""
-        return {
-            "firmware": self.firmware, "dialect": self.dialect, "build": self.build,
-            "build_user_info": self.build_user_info, "options": self.options, "planner_blocks": self.planner_blocks,
-            "rx_buffer_size": self.rx_buffer_size, "axis_count": self.axis_count, "build_tags": dict(self.build_tags),
-            "settings": {f"${n}": (int(v) if float(v).is_integer() else v) for n, v in sorted(self.settings.items())},
-            "startup_lines": [self.startup_lines[n] for n in sorted(self.startup_lines)],
-            "startup_executed": list(self.startup_executed), "parameters": list(self.parameters),
-            "unsupported": dict(self.unsupported), "boot_detected": self.boot_detected,
-            "settings_read": self.settings_read, "warnings": list(self.warnings),
-        }
 
 
 class _Pending:
