@@ -32,7 +32,8 @@ from pathlib import Path
 import serial
 
 from drivers.rig.grbl import GrblController
-from drivers.sim.grbl_emulator import DEFAULT_AXES, GrblEmulator
+from drivers.sim.grbl.emulator import GrblEmulator
+from drivers.sim.grbl.firmware import DEFAULT_AXES
 
 STATUS_TARGET_MS = 2.0
 

@@ -34,7 +34,7 @@ import numpy as np
 import pytest
 
 from drivers.files import MAX_TOML_BYTES, MAX_TOML_NESTING, InputFileError, read_regular_file, toml_nesting
-from drivers.sim.grbl_emulator import GrblEmulator
+from drivers.sim.grbl.emulator import GrblEmulator
 from stereo_bench.campaign.session import SessionError, SessionReader
 from stereo_bench.cli import main
 from tests.test_session import record
@@ -423,7 +423,7 @@ def test_rig_move_to_alpha_0_is_refused_by_the_default_soft_limits(capfd):
 
 def test_rig_move_to_alpha_0_with_yes_moves(tmp_path, capfd):
     from drivers.rig.config import load_rig_config
-    from drivers.sim.grbl_emulator import axis_specs_for_travel
+    from drivers.sim.grbl.firmware import axis_specs_for_travel
 
     rig_config = tmp_path / "rig.toml"
     rig_config.write_text(TOE_IN_90)

@@ -17,7 +17,9 @@ from dataclasses import replace
 
 import pytest
 
-from drivers.sim.grbl_emulator import DEFAULT_AXES, AlarmMidMove, GrblEmulator, VanishMidMove
+from drivers.sim.grbl.emulator import GrblEmulator
+from drivers.sim.grbl.faults import AlarmMidMove, VanishMidMove
+from drivers.sim.grbl.firmware import DEFAULT_AXES
 from stereo_bench.campaign.config import load_campaign
 from stereo_bench.campaign.documents import MoveEvent
 from stereo_bench.campaign.execute import RunControl, replay_session, run_campaign

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from drivers.rig.motion import REFERENCE_AXIS_MOTION, move_time_s
-from drivers.sim.grbl_emulator import DEFAULT_AXES, GrblEmulator
+from drivers.sim.grbl.emulator import GrblEmulator
+from drivers.sim.grbl.firmware import DEFAULT_AXES
 from stereo_bench.campaign.config import campaign_from_dict, load_preset
 from stereo_bench.campaign.plan import (
     CaptureCalibration,

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.sim.grbl_emulator import GrblEmulator
+from drivers.sim.grbl.emulator import GrblEmulator
 from stereo_bench.cli import main
 from tests.campaigns import SMALL
 from tests.real_data import OPENCV_SAMPLE

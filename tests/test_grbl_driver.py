@@ -29,18 +29,18 @@ from drivers.rig.grbl import (
     GrblSettingsError,
     GrblTimeout,
 )
-from drivers.sim.grbl_emulator import (
+from drivers.sim.grbl.emulator import GrblEmulator
+from drivers.sim.grbl.faults import (
     AlarmMidMove,
-    AxisSpec,
     Delay,
     GarbledLine,
-    GrblEmulator,
     HomingFail,
     LostOk,
     ResetMidMove,
     VanishMidMove,
     parse_fault,
 )
+from drivers.sim.grbl.firmware import AxisSpec
 
 FAST = 50.0  # emulator time scale: a 100 mm move takes 2.25 s simulated, 45 ms real
 HOME = {"X": -1.0, "Y": -1.0, "Z": -1.0}  # limits.c: homed axes sit at -$27 (pull-off 1 mm)

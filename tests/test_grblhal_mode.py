@@ -17,7 +17,8 @@ import serial
 from drivers.rig import GrblRig
 from drivers.rig.config import MachineSpaceError, rig_config_from_dict
 from drivers.rig.grbl import GrblAlarm, GrblController, GrblPositionUnknown
-from drivers.sim.grbl_emulator import GrblEmulator, HomingFail
+from drivers.sim.grbl.emulator import GrblEmulator
+from drivers.sim.grbl.faults import HomingFail
 
 FAST = 50.0
 

@@ -14,7 +14,7 @@ import pytest
 from drivers.rig.config import RigConfig
 from drivers.rig.grbl import GrblController
 from drivers.rig.motion import REFERENCE_AXIS_MOTION, HomingSettings, homing_time_s
-from drivers.sim.grbl_emulator import GrblEmulator
+from drivers.sim.grbl.emulator import GrblEmulator
 from stereo_bench.campaign.plan import homing_estimate_s
 
 # Simulated seconds are measured around the driver's $H, so its round trips (a few ms real, more on a loaded host)

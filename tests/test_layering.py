@@ -140,7 +140,7 @@ def test_no_two_modules_import_each_other():
 def test_the_checker_sees_forbidden_imports():
     """The rules are not vacuous: planting the imports issue 8 found (and others) makes them fail."""
     planted = {module: set(targets) for module, targets in imports().items()}
-    planted["stereo_bench.campaign.plan"].add("drivers.sim.grbl_emulator")
+    planted["stereo_bench.campaign.plan"].add("drivers.sim.grbl.emulator")
     planted["stereo_bench.report.html"].add("stereo_bench.report.build")
     planted["drivers.rig.rig"].add("stereo_bench.campaign.config")
     planted["drivers.sim.render"].add("stereo_bench.vision.detect")
@@ -150,7 +150,7 @@ def test_the_checker_sees_forbidden_imports():
     planted["drivers.sim.profile"].add("stereo_bench.geometry")
     planted["stereo_bench.campaign.config"].add("drivers.sim.bench")
     found = "\n".join(violations(planted))
-    for edge in ("stereo_bench.campaign.plan imports drivers.sim.grbl_emulator",
+    for edge in ("stereo_bench.campaign.plan imports drivers.sim.grbl.emulator",
                  "drivers.rig.rig imports stereo_bench.campaign.config",
                  "drivers.sim.render imports stereo_bench.vision.detect",
                  "stereo_bench.vision.detect imports stereo_bench.campaign.plan",

@@ -17,7 +17,8 @@ import time
 import pytest
 
 from drivers.rig import GrblController, GrblRig
-from drivers.sim.grbl_emulator import AlarmMidMove, GrblEmulator
+from drivers.sim.grbl.emulator import GrblEmulator
+from drivers.sim.grbl.faults import AlarmMidMove
 from stereo_bench.cli import main
 
 FAST = 50.0

@@ -23,7 +23,8 @@ from drivers.rig.config import (
     to_physical,
 )
 from drivers.rig.rig import manual_instruction, physical_request
-from drivers.sim.grbl_emulator import AxisSpec, GrblEmulator, axis_specs_for_travel
+from drivers.sim.grbl.emulator import GrblEmulator
+from drivers.sim.grbl.firmware import AxisSpec, axis_specs_for_travel
 from stereo_bench.geometry import RigPose
 
 FAST = 50.0

@@ -12,7 +12,7 @@ from drivers.rig.config import QuantityMapping, RigConfig
 from drivers.rig.grbl import GrblResetError
 from drivers.rig.rig import GrblRig
 from drivers.sim.bench import SimulatedBench, true_lens
-from drivers.sim.grbl_emulator import ResetMidMove
+from drivers.sim.grbl.faults import ResetMidMove
 from drivers.sim.mechanics import MoveHistory, pair_state, ringing_deg
 from drivers.sim.profile import IDEAL, LAB, BoardErrors, CameraErrors, SimProfile, SlideErrors
 from drivers.sim.render import BoardShape, Optics, StereoRenderer, calibration_board_poses

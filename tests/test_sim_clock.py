@@ -11,7 +11,8 @@ from drivers.rig.motion import trapezoid
 from drivers.rig.rig import GrblRig
 from drivers.sim.bench import SimulatedBench
 from drivers.sim.clock import BenchClock
-from drivers.sim.grbl_emulator import DEFAULT_AXES, GrblEmulator
+from drivers.sim.grbl.emulator import GrblEmulator
+from drivers.sim.grbl.firmware import DEFAULT_AXES
 from drivers.sim.profile import LAB
 from stereo_bench.geometry import CameraModel
 from stereo_bench.targets import Checkerboard

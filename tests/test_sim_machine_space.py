@@ -18,7 +18,9 @@ from drivers.rig.config import RigConfig, rig_config_from_dict
 from drivers.rig.grbl import GrblAlarm, GrblController
 from drivers.rig.rig import GrblRig
 from drivers.sim.bench import SimulatedBench
-from drivers.sim.grbl_emulator import AxisSpec, GrblEmulator, HomingFail
+from drivers.sim.grbl.emulator import GrblEmulator
+from drivers.sim.grbl.faults import HomingFail
+from drivers.sim.grbl.firmware import AxisSpec
 from drivers.sim.mechanics import pair_state
 from drivers.sim.profile import LAB
 from stereo_bench.campaign.session import SessionReader

@@ -15,7 +15,7 @@ renders exactly what this bench rendered before profiles existed). They act down
 emulator reports: the emulator says what the steppers were told, the cameras stand where the
 mechanics (:mod:`drivers.sim.mechanics`) really put them. Backlash, landing errors and the ringing
 after a move need the history of the axes: the emulator reports every motion that ends (its
-:class:`~drivers.sim.grbl_emulator.MotionEvent`: the axes, the direction each arrived in, the exact end
+:class:`~drivers.sim.grbl.planner.MotionEvent`: the axes, the direction each arrived in, the exact end
 time of the motion model) and the bench keeps them in a :class:`~drivers.sim.mechanics.MoveHistory`.
 
 Time is the bench clock's (:mod:`drivers.sim.clock`), shared with the emulator: it runs only while
@@ -80,7 +80,9 @@ from drivers.camera.synthetic import SyntheticCamera
 from drivers.rig.config import RigConfig, alpha_from_toe_in, to_physical
 from drivers.rig.motion import REFERENCE_HOMING
 from drivers.sim.clock import BenchClock
-from drivers.sim.grbl_emulator import AxisSpec, GrblEmulator, MotionEvent, axis_specs_for_travel
+from drivers.sim.grbl.emulator import GrblEmulator
+from drivers.sim.grbl.firmware import AxisSpec, axis_specs_for_travel
+from drivers.sim.grbl.planner import MotionEvent
 from drivers.sim.mechanics import MOVED, MoveHistory, PairState, pair_state, ringing_duration_s
 from drivers.sim.profile import IDEAL, BoardErrors, SimProfile
 from drivers.sim.render import BoardShape, Optics, StereoRenderer, _auto_px_per_square

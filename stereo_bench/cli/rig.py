@@ -48,14 +48,9 @@ from drivers.rig import (
 from drivers.rig.config import MAX_MOVE_TIMEOUT_S, along_baseline, alpha_from_toe_in, plan_move
 from drivers.rig.motion import REFERENCE_HOMING
 from drivers.rig.rig import physical_request
-from drivers.sim.grbl_emulator import (
-    AXIS_LETTERS,
-    FAULT_HELP,
-    AxisSpec,
-    GrblEmulator,
-    axis_specs_for_travel,
-    parse_fault,
-)
+from drivers.sim.grbl.emulator import GrblEmulator
+from drivers.sim.grbl.faults import FAULT_HELP, parse_fault
+from drivers.sim.grbl.firmware import AXIS_LETTERS, AxisSpec, axis_specs_for_travel
 from stereo_bench.cli import CliError, failure, print_json, stop_on_signals
 from stereo_bench.cli.args import TIME_SCALE, finite_float
 from stereo_bench.paths import UnwritablePath, check_output_file
