@@ -1,4 +1,6 @@
-""":func:`predict` gives R, T at any axis positions with the covariance of (rvec, T) (rad, mm)
+"""Prediction from the kinematic model: R, T and their uncertainty at any axis positions.
+
+:func:`predict` gives R, T at any axis positions with the covariance of (rvec, T) (rad, mm)
 propagated from the parameters' covariance, the repeatability and (approach unknown) the backlash.
 """
 
