@@ -31,6 +31,7 @@ view's prompt, recorded as ``calibration_view_discarded``; its frames stay in th
 
 from __future__ import annotations
 
+import functools
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -315,13 +316,10 @@ class CampaignRunner:
                         self.bench.presenter.begin_configuration(configuration)
                     for step in group:
                         self._between_steps()
-                        if isinstance(step, Checkpoint):
-                            self._checkpoint(configuration, captured, failed)
-                        elif isinstance(step, VisitDone | PrepareExtrinsics):
-                            self._prepare_step(step, captured, failed)
-                        elif failed is None:
+                        # After a failure only the step that closes the group runs (it records the failure).
+                        if failed is None or step.closes_group:
                             try:
-                                self._execute(step, captured)
+                                self._execute(step, captured, failed)
                             except ConfigurationFailed as error:
                                 failed = str(error)
                         self._collect(block=False)
@@ -356,25 +354,50 @@ class CampaignRunner:
             return None
         return self.configurations.get(config_id) or self.visits[config_id]
 
-    def _execute(self, step, captured: Captured) -> None:
-        configuration = captured.configuration
-        if isinstance(step, Move):
-            captured.axes, captured.approach = self._move(configuration)
-        elif isinstance(step, PromptTarget):
-            self._set_by_hand(configuration, "target_distance_mm", step.distance_mm)
-        elif isinstance(step, PromptManual):
-            self._set_by_hand(configuration, step.quantity, step.value)
-        elif isinstance(step, Settle):
-            self.bench.clock.wait(step.seconds, self._stop)
-        elif isinstance(step, Flush):
-            self.bench.cameras.flush()
-        elif isinstance(step, CaptureCalibration):
-            self._capture_calibration(step.n_views, captured)
-        elif isinstance(step, CaptureMeasurement):
-            self._capture_measurement(step.n_frames, captured)
-            self._record_truth(captured)
-        else:
-            raise TypeError(f"unknown step {step!r}")
+    # One handler per step kind (plan.Step): a new kind is its class in plan.py and one handler here.
+    # ``failed`` is the reason its configuration failed so far (only steps that close a group see one).
+
+    @functools.singledispatchmethod
+    def _execute(self, step, captured: Captured, failed: str | None) -> None:
+        raise TypeError(f"unknown step {step!r}")
+
+    @_execute.register
+    def _(self, step: Move, captured: Captured, failed: str | None) -> None:
+        captured.axes, captured.approach = self._move(captured.configuration)
+
+    @_execute.register
+    def _(self, step: PromptTarget, captured: Captured, failed: str | None) -> None:
+        self._set_by_hand(captured.configuration, "target_distance_mm", step.distance_mm)
+
+    @_execute.register
+    def _(self, step: PromptManual, captured: Captured, failed: str | None) -> None:
+        self._set_by_hand(captured.configuration, step.quantity, step.value)
+
+    @_execute.register
+    def _(self, step: Settle, captured: Captured, failed: str | None) -> None:
+        self.bench.clock.wait(step.seconds, self._stop)
+
+    @_execute.register
+    def _(self, step: Flush, captured: Captured, failed: str | None) -> None:
+        self.bench.cameras.flush()
+
+    @_execute.register
+    def _(self, step: CaptureCalibration, captured: Captured, failed: str | None) -> None:
+        self._capture_calibration(step.n_views, captured)
+
+    @_execute.register
+    def _(self, step: CaptureMeasurement, captured: Captured, failed: str | None) -> None:
+        self._capture_measurement(step.n_frames, captured)
+        self._record_truth(captured)
+
+    @_execute.register
+    def _(self, step: Checkpoint, captured: Captured, failed: str | None) -> None:
+        self._checkpoint(captured.configuration, captured, failed)
+
+    @_execute.register(VisitDone)
+    @_execute.register(PrepareExtrinsics)
+    def _(self, step, captured: Captured, failed: str | None) -> None:
+        self._prepare_step(step, captured, failed)
 
     def _ask(self, prompt: Prompt) -> Answer:
         """Put an operator step to the operators (first answer wins) and record who did it, and how.
@@ -793,11 +816,8 @@ def _done(value) -> Future:
 
 
 def step_config_id(step) -> str | None:
-    """The configuration a step names, if it names one (moves and checkpoints do)."""
-    configuration = getattr(step, "configuration", None)
-    if configuration is not None:
-        return configuration.config_id
-    return getattr(step, "config_id", None)
+    """The configuration a step names, if it names one (moves and checkpoints do): its ``StepKind.config_id``."""
+    return step.config_id
 
 
 def group_steps(steps: list) -> list[tuple[str, list]]:
