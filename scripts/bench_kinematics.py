@@ -103,7 +103,7 @@ def main() -> None:
             t0 = time.perf_counter()
             for k, config in enumerate(kinematic_design((50.0, 250.0), (0.0, 20.0))):
                 rig.move_to(baseline_mm=config.baseline_mm, alpha_left_deg=config.alpha_left_deg,
-                            alpha_right_deg=config.alpha_right_deg)
+                            alpha_right_deg=config.alpha_right_deg).wait()
                 bench.clock.advance(SETTLE_S)  # the settle, on the bench clock
                 approach = approach_directions(previous, config.axes(), approach)
                 previous = config.axes()
@@ -128,7 +128,7 @@ def main() -> None:
             rows = []
             for baseline, toe_left, toe_right in UNSEEN:
                 rig.move_to(baseline_mm=baseline, alpha_left_deg=90.0 - toe_left, alpha_right_deg=90.0 - toe_right,
-                            target_distance_mm=500.0)
+                            target_distance_mm=500.0).wait()
                 bench.clock.advance(SETTLE_S)  # the settle, on the bench clock
                 values = {"baseline_mm": baseline, "toe_in_left_deg": toe_left, "toe_in_right_deg": toe_right}
                 approach = approach_directions(previous, values, approach)

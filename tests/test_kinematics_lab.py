@@ -50,7 +50,7 @@ def _camera(name: str) -> CameraModel:
 
 
 def _move(rig, bench, baseline, toe_left, toe_right, **extra) -> None:
-    rig.move_to(baseline_mm=baseline, alpha_left_deg=90.0 - toe_left, alpha_right_deg=90.0 - toe_right, **extra)
+    rig.move_to(baseline_mm=baseline, alpha_left_deg=90.0 - toe_left, alpha_right_deg=90.0 - toe_right, **extra).wait()
     bench.clock.advance(SETTLE_S)  # the settle, on the bench clock
 
 

@@ -32,7 +32,7 @@ def calibration_for(pose: RigPose, bench: SimulatedBench) -> StereoCalibration:
 def test_cameras_see_the_board_from_where_the_motors_are(bench):
     with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
         rig.home()
-        rig.move_to(baseline_mm=120.0, alpha_left_deg=80.0, alpha_right_deg=80.0, target_distance_mm=500.0)
+        rig.move_to(baseline_mm=120.0, alpha_left_deg=80.0, alpha_right_deg=80.0, target_distance_mm=500.0).wait()
         assert "500" in bench.last_prompt  # the target distance is manual: the operator was asked
         pose = bench.rig_pose()
         assert pose.baseline_mm == pytest.approx(120.0, abs=0.01)

@@ -266,9 +266,7 @@ class CampaignRunner:
         if self._stop.is_set():
             raise StopRequested()
         if self._feed_held:
-            resume = getattr(self.bench.rig, "resume", None)  # GrblRig: '~' once the hold is complete
-            if resume is not None:
-                resume()
+            self.bench.rig.resume()  # GrblRig: '~' once the hold is complete; the held move is then queued again
             self._feed_held = False
         self._publish(Draft(RunControlEvent, data={"action": "resume"}))
 
@@ -425,11 +423,10 @@ class CampaignRunner:
         """``[rig] homing = false``: the user states the rig stands where its controller counts, as ``rig unlock
         --trust-position`` does; recorded, since every move of the run rests on it. A rig that cannot be told
         (a replay) has nothing to trust."""
-        trust = getattr(self.bench.rig, "trust_position", None)
         self._trusted = True
-        if not callable(trust):
+        if not self.bench.rig.capabilities.trust_position:
             return
-        reading = trust()
+        reading = self.bench.rig.trust_position()
         self._publish(Draft(RigPositionTrustedEvent, data={
             "rig": reading.to_dict(), "reason": "[rig] homing = false: the position the controller reports is taken "
                                                 "as right without homing"}))
@@ -479,10 +476,9 @@ class CampaignRunner:
         """Homing left the rig at ``reading``: where the plan's moves start from, and each axis' approach there."""
         self._homed = True
         # The cycle's last move pulls each axis off its switch: the direction the homed position was reached from.
-        directions = getattr(self.bench.rig, "homing_approach", None)
         self._approach.homed(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
                                                     "toe_in_right_deg": 0.0}),
-                             directions() if callable(directions) else {})
+                             self.bench.rig.homing_approach())
         self._last_index = -1
         self._start = self._start or self._motor_position(reading, {})
 
@@ -520,11 +516,12 @@ class CampaignRunner:
                 raise StopRequested()
 
     def _move_once(self, request: dict):
-        """One move; a pause requested meanwhile feed-holds it (see :meth:`request_pause`)."""
+        """One move, waited on through its status; a pause requested meanwhile feed-holds it (the status then fails
+        and :meth:`_move` holds, resumes and queues the move again; see :meth:`request_pause`)."""
         with self._control_lock:
             self._moving = True
         try:
-            return self.bench.rig.move_to(**request)
+            return self.bench.rig.move_to(**request).wait()
         finally:
             with self._control_lock:
                 self._moving = False
@@ -536,12 +533,12 @@ class CampaignRunner:
         the reset, if the axes were moving) lost. A rig that cannot be recovered ends the run as failed
         (:class:`RigUnrecoverable`): every later configuration would need it."""
         rig = self.bench.rig
-        reset = getattr(rig, "reset", None)  # GrblRig.reset(); a rig without one (a replay's) is only homed
-        steps = (["soft reset"] if reset is not None else []) + ["homing"]
+        resets = rig.capabilities.reset  # GrblRig.reset(); a rig without one (a replay's) is only homed
+        steps = (["soft reset"] if resets else []) + ["homing"]
         step = steps[0]
         try:
-            if reset is not None:
-                reset()
+            if resets:
+                rig.reset()
             step = "homing"
             reading = rig.home()
         except Exception as failure:  # noqa: BLE001 - the campaign cannot go on without a working rig
@@ -552,7 +549,7 @@ class CampaignRunner:
                 f"{step}" + ("" if same else f": {failure}")) from failure
         self._homed_at(reading)
         self._publish(Draft(RigRecoveredEvent, data={
-            "action": f"{'soft reset, then ' if reset is not None else ''}homed after a failed move"}))
+            "action": f"{'soft reset, then ' if resets else ''}homed after a failed move"}))
 
     def _keeps_frames(self, model) -> bool:
         """Whether captures of this kind write their frames to the session (``[capture] keep_frames``)."""

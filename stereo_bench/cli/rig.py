@@ -423,7 +423,8 @@ def _move(rig: GrblRig, action: _Action, args, *, interactive: bool) -> None:
         print(f"moving: {text} (machine units) ...", flush=True)
 
     try:
-        reading = rig.move_to(timeout_s=args.timeout, on_moving=moving, **action.request)  # type: ignore[arg-type]
+        status = rig.move_to(timeout_s=args.timeout, on_moving=moving, **action.request)  # type: ignore[arg-type]
+        reading = status.wait()
     except KeyboardInterrupt:
         # The controller would carry on with the queued move: hold it before giving up.
         with contextlib.suppress(RigError):
