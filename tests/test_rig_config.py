@@ -24,6 +24,7 @@ from drivers.rig.config import (
 )
 from drivers.rig.rig import manual_instruction, physical_request
 from drivers.sim.grbl_emulator import AxisSpec, GrblEmulator, axis_specs_for_travel
+from stereo_bench.campaign.operator import OperatorDesk, SimulatedOperator, move_and_ask
 from stereo_bench.geometry import RigPose
 
 FAST = 50.0
@@ -197,11 +198,14 @@ def _rig(port, config=None, **kwargs) -> GrblRig:
 
 
 def test_grbl_rig_moves_in_physical_units(emulator):
-    prompts: list[str] = []
-    with _rig(emulator.tty_path, prompt=prompts.append) as rig:
+    operator = SimulatedOperator()  # the manual quantities go to the operators through a desk, as in a campaign
+    desk = OperatorDesk([operator])
+    with _rig(emulator.tty_path) as rig:
+        prompts = operator.prompts
         assert isinstance(rig, Rig)
         rig.home(timeout_s=5.0)
-        reading = rig.move_to(baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=84.0, target_distance_mm=400.0).wait()
+        reading = move_and_ask(rig, desk, baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=84.0,
+                               target_distance_mm=400.0)
         assert reading.state == "Idle"
         assert reading.baseline_mm == 120.0
         assert reading.toe_in_left_deg == 5.0 and reading.alpha_left_deg == 85.0
@@ -209,9 +213,9 @@ def test_grbl_rig_moves_in_physical_units(emulator):
         assert reading.tilt_left_deg == 0.0 and reading.sources["tilt_left_deg"] == "fixed"
         assert reading.target_distance_mm == 400.0 and reading.sources["target_distance_mm"] == "operator"
         assert reading.machine_position == {"X": -230.0, "Y": -6.0, "Z": -7.0} == emulator.machine_position()
-        assert prompts == ["move the target to Z = 400 mm, then press Enter"]
+        assert [p.message for p in prompts] == ["move the target to Z = 400 mm, then press Enter"]
         # Same target again: nothing for the operator to do.
-        rig.move_to(target_distance_mm=400.0, baseline_mm=100.0).wait()
+        move_and_ask(rig, desk, target_distance_mm=400.0, baseline_mm=100.0)
         assert len(prompts) == 1
         data = rig.read().to_dict()
         for key in ("state", "baseline_mm", "toe_in_left_deg", "toe_in_right_deg", "alpha_left_deg",

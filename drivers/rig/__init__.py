@@ -10,7 +10,7 @@
 Typical use::
 
     from drivers.rig import GrblRig, load_rig_config
-    with GrblRig("/dev/ttyUSB0", load_rig_config("rig.toml"), prompt=wait_for_enter) as rig:
+    with GrblRig("/dev/ttyUSB0", load_rig_config("rig.toml")) as rig:
         rig.home()
         status = rig.move_to(baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=85.0)  # queued: returns at once
         reading = status.wait()  # once the rig has stopped there
@@ -43,7 +43,7 @@ from drivers.rig.grbl import (
     GrblTimeout,
     MoveStatus,
 )
-from drivers.rig.rig import GrblRig, Rig, RigCapabilities, RigReading, manual_instruction, wait_for_enter
+from drivers.rig.rig import GrblRig, Rig, RigCapabilities, RigReading, manual_instruction
 from drivers.rig.status import RigStatus, StatusTimeout
 
 __all__ = [
@@ -51,5 +51,5 @@ __all__ = [
     "GrblError", "GrblLocked", "GrblMoveError", "GrblPositionUnknown", "GrblReading", "GrblResetError", "GrblRig",
     "GrblSettingsError", "GrblTimeout", "LimitError", "MachineSpaceError", "MoveRequestError", "MoveStatus",
     "QuantityMapping", "Rig", "RigCapabilities", "RigConfig", "RigConfigError", "RigError", "RigReading", "RigStatus",
-    "StatusTimeout", "load_rig_config", "manual_instruction", "wait_for_enter",
+    "StatusTimeout", "load_rig_config", "manual_instruction",
 ]

@@ -3,8 +3,10 @@
 A campaign asks for a baseline, toe-ins (or alphas), tilts and a target distance; :class:`GrblRig`
 turns that into one GRBL move through the :class:`~drivers.rig.config.RigConfig` mapping (refusing
 anything outside the soft limits, or outside the machine space the controller accepts, before a byte
-is sent), waits until the controller has stopped, prompts the operator for the manual quantities, and
-reads back where the rig is.
+is sent) and returns its :class:`~drivers.rig.status.RigStatus`, which finishes once the controller has
+stopped, with the reading there. The rig moves only its motors: a quantity set by hand is the operator's,
+asked through the campaign's ``OperatorDesk`` (the runner's prompt steps, ``rig move``), and
+:meth:`GrblRig.set_by_hand` records what the operator set.
 
 At :meth:`GrblRig.open` the config is checked against what the controller reported (``$$``): machine
 targets outside ``[-$13x, 0]`` (Grbl's machine space once homed), a tolerance finer than one step
@@ -16,7 +18,6 @@ Angles: toe-in t = 90 deg - alpha (0 = parallel). Lengths in mm, angles in degre
 from __future__ import annotations
 
 import math
-import sys
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
@@ -33,7 +34,6 @@ from drivers.rig.config import (
     MoveRequestError,
     RigConfig,
     RigConfigError,
-    RigError,
     alpha_from_toe_in,
     plan_move,
     to_physical,
@@ -42,8 +42,6 @@ from drivers.rig.config import (
 from drivers.rig.grbl import GrblController, GrblReading
 from drivers.rig.status import RigStatus
 from drivers.rig.transport import Transport
-
-PromptCallback = Callable[[str], None]
 
 
 @dataclass(frozen=True)
@@ -162,9 +160,6 @@ class GrblRig:
         config: the axis mapping and limits (default: stock Grbl machine space one pull-off inside it, X =
             baseline 1-349 mm at X -349..-1, Y/Z = left/right toe-in 0-88 deg at -1..-89, tilts fixed at 0, target
             distance manual).
-        prompt: ``prompt(message) -> None`` shows the operator what to do for a manual quantity and
-            returns once it is done (e.g. after Enter). Without it, a move that needs a manual step is
-            refused before anything moves.
         spy_log: record every byte on the link (see :class:`~drivers.rig.transport.SpyTransport`).
     """
 
@@ -172,7 +167,7 @@ class GrblRig:
 
     def __init__(
         self, port: str | serial.SerialBase | Transport | GrblController, config: RigConfig | None = None, *,
-        prompt: PromptCallback | None = None, spy_log: str | Path | IO[str] | None = None, **controller_options,
+        spy_log: str | Path | IO[str] | None = None, **controller_options,
     ):
         self.config = config or RigConfig()
         settings = self.config.controller
@@ -185,7 +180,6 @@ class GrblRig:
             )
             options.update(controller_options)
             self.controller = GrblController(port, **options)
-        self.prompt = prompt
         self._manual: dict[str, float] = {}
         self._lock = threading.RLock()
 
@@ -301,10 +295,11 @@ class GrblRig:
 
         ``alpha_*_deg`` is an alternative to ``toe_in_*_deg`` (t = 90 - alpha); giving both for one side
         is an error. Everything is validated before anything moves, and raised here: unknown/fixed quantities
-        (MoveRequestError), soft limits (LimitError), a needed operator prompt that is missing, a target the
-        controller refuses. Then the motors move (``on_moving(machine_targets)`` is called once the move is
-        queued) and the status finishes by itself (on a thread of its own) once the rig has stopped there and
-        the operator was prompted for the manual quantities; ``.wait()`` returns the reading then.
+        (MoveRequestError), soft limits (LimitError), a target the controller refuses, a manual quantity other
+        than what the operator last set (MoveRequestError: the operator sets it, see :meth:`manual_steps`). Then
+        the motors move (``on_moving(machine_targets)`` is called once the move is queued) and the status
+        finishes by itself (on a thread of its own) once the rig has stopped there; ``.wait()`` returns the
+        reading then.
         """
         request = physical_request(
             baseline_mm=baseline_mm, toe_in_left_deg=toe_in_left_deg, toe_in_right_deg=toe_in_right_deg,
@@ -313,9 +308,10 @@ class GrblRig:
         )
         plan = plan_move(self.config, request)
         manual_steps = {q: v for q, v in plan.manual.items() if not _same(self._manual.get(q), v)}
-        if manual_steps and self.prompt is None:
+        if manual_steps:
             names = ", ".join(manual_steps)
-            raise MoveRequestError(f"{names} is set by hand on this rig and no operator prompt is available")
+            raise MoveRequestError(f"{names} is set by hand on this rig and no operator prompt is available to "
+                                   "the rig: ask the operator (the campaign's OperatorDesk), then set_by_hand()")
         timeout = self.config.controller.move_timeout_s if timeout_s is None else timeout_s
         with self._lock:
             motion = None
@@ -334,14 +330,24 @@ class GrblRig:
         def finish() -> RigReading:
             with self._lock:  # one talker at a time, as before: a read() waits for the move's end
                 reading: GrblReading | None = motion.wait(timeout) if motion is not None else None
-                for quantity, value in manual_steps.items():
-                    self.prompt(manual_instruction(quantity, value))  # type: ignore[misc]
-                    self._manual[quantity] = value
                 if reading is None:
                     reading = self.controller.status(timeout=2.0)
                 return self._reading(reading)
 
         return RigStatus.running(finish)
+
+    def manual_steps(self, **request: float | None) -> dict[str, float]:
+        """The quantities of a move request (``move_to``'s keywords) set by hand on this rig whose value differs
+        from what the operator last set: what the operator has to do (then :meth:`set_by_hand`)."""
+        plan = plan_move(self.config, physical_request(**request))
+        return {q: v for q, v in plan.manual.items() if not _same(self._manual.get(q), v)}
+
+    def set_by_hand(self, quantity: str, value: float) -> None:
+        """The operator has set the manual ``quantity`` to ``value``: readings report it (source "operator")."""
+        if self.config.quantities[quantity].axis != "manual":
+            raise MoveRequestError(f"{quantity} is not set by hand on this rig")
+        with self._lock:
+            self._manual[quantity] = float(value)
 
     def move_to_pose(self, pose: Any, *, target_distance_mm: float | None = None,
                      timeout_s: float | None = None) -> RigStatus:
@@ -553,17 +559,7 @@ def manual_instruction(quantity: str, value: float) -> str:
     return f"{text}, then press Enter"
 
 
-def wait_for_enter(message: str, *, stream_in=None, stream_out=None) -> None:
-    """A terminal prompt for :class:`GrblRig`: print the instruction and wait for Enter."""
-    out = stream_out or sys.stderr
-    out.write(message + " ")
-    out.flush()
-    line = (stream_in or sys.stdin).readline()
-    if line == "":
-        raise RigError(f"no operator answer (end of input) to: {message}")
-
-
 __all__ = [
-    "GrblRig", "PromptCallback", "Rig", "RigCapabilities", "RigReading", "RigStatus", "config_warnings",
-    "machine_space_violations", "manual_instruction", "physical_request", "wait_for_enter",
+    "GrblRig", "Rig", "RigCapabilities", "RigReading", "RigStatus", "config_warnings",
+    "machine_space_violations", "manual_instruction", "physical_request",
 ]

@@ -68,7 +68,15 @@ from stereo_bench.campaign.documents import (
     TargetNotFoundEvent,
     TruthEvent,
 )
-from stereo_bench.campaign.operator import CONTINUE, DISCARD_LAST_VIEW, Answer, OperatorDesk, Prompt, StopRequested
+from stereo_bench.campaign.operator import (
+    CONTINUE,
+    DISCARD_LAST_VIEW,
+    Answer,
+    OperatorDesk,
+    Prompt,
+    StopRequested,
+    manual_prompt,
+)
 from stereo_bench.campaign.plan import (
     PREPARE_ID,
     CaptureCalibration,
@@ -413,11 +421,7 @@ class CampaignRunner:
         return answer
 
     def _set_by_hand(self, configuration: Configuration, quantity: str, value: float) -> None:
-        from drivers.rig.rig import manual_instruction
-
-        self._ask(Prompt("target" if quantity == "target_distance_mm" else "manual",
-                         manual_instruction(quantity, value), config_id=configuration.config_id,
-                         quantity=quantity, value=value))
+        self._ask(manual_prompt(quantity, value, config_id=configuration.config_id))
 
     def _trust_position(self) -> None:
         """``[rig] homing = false``: the user states the rig stands where its controller counts, as ``rig unlock
