@@ -17,7 +17,8 @@ import numpy as np
 
 from drivers.camera.base import CameraError, CameraSettings, Frame
 from drivers.camera.stereo import StereoFrame
-from drivers.rig.rig import RigReading
+from drivers.rig.rig import RigCapabilities, RigReading
+from drivers.rig.status import RigStatus
 
 
 class ReplayMismatch(RuntimeError):
@@ -25,7 +26,10 @@ class ReplayMismatch(RuntimeError):
 
 
 class ReplayRig:
-    """Serves recorded readings in order; each ``move_to`` must request what was recorded."""
+    """Serves recorded readings in order; each ``move_to`` must request what was recorded (its status is finished
+    at once). A recording has no controller to describe, reset or trust: its capabilities say so."""
+
+    capabilities = RigCapabilities()
 
     def __init__(self, readings: Iterable[Mapping[str, Any]], *, tolerance: float = 1e-6):
         self._readings = deque(dict(r) for r in readings)
@@ -55,7 +59,7 @@ class ReplayRig:
     def home(self, *, timeout_s: float | None = None) -> RigReading:
         return self.read()
 
-    def move_to(self, *, timeout_s: float | None = None, **request: float | None) -> RigReading:
+    def move_to(self, *, timeout_s: float | None = None, **request: float | None) -> RigStatus:
         if not self._readings:
             raise ReplayMismatch(f"replay: a move to {request} was not recorded")
         recorded = self._readings.popleft()
@@ -66,7 +70,7 @@ class ReplayRig:
                 raise ReplayMismatch(f"replay: move asks {quantity} = {value:g}, the recording holds "
                                      f"{recorded[quantity]:g}")
         self._last = self._reading(recorded)
-        return self._last
+        return RigStatus.finished(self._last)
 
     def read(self) -> RigReading:
         if self._last is not None:
@@ -77,6 +81,28 @@ class ReplayRig:
 
     def stop(self) -> None:
         return None
+
+    def resume(self, *, timeout_s: float | None = None) -> RigReading:
+        """Nothing was held: the recorded moves were served whole."""
+        return self.read()
+
+    def reset(self) -> RigReading:
+        """Nothing to reset (``capabilities.reset`` is False: a fault's recovery only homes)."""
+        return self.read()
+
+    def trust_position(self) -> RigReading:
+        """Nothing to trust (``capabilities.trust_position`` is False): the recorded readings are served."""
+        return self.read()
+
+    def homing_approach(self) -> dict[str, int]:
+        return {}
+
+    def controller_info(self) -> dict[str, Any]:
+        return {}
+
+    @property
+    def warnings(self) -> list[str]:
+        return []
 
 
 class ReplayStereoCamera:

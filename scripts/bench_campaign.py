@@ -419,7 +419,8 @@ def live_preview_rate(config, seconds: float = 5.0) -> dict:
     try:
         with open_bench(config, operators=[]) as bench:
             bench.rig.home()
-            bench.rig.move_to(**{q: v for q, v in configuration.move_request().items() if q != "target_distance_mm"})
+            bench.rig.move_to(
+                **{q: v for q, v in configuration.move_request().items() if q != "target_distance_mm"}).wait()
             bench.presenter.begin_configuration(configuration)
             bench.presenter.prepare_calibration(config.capture.calibration_views)
             bench.presenter.present_calibration_view(0)

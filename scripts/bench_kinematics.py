@@ -38,6 +38,7 @@ from drivers.sim.bench import SimulatedBench  # noqa: E402
 from drivers.sim.mechanics import kinematic_parameters  # noqa: E402
 from drivers.sim.profile import LAB  # noqa: E402
 from drivers.sim.render import calibration_board_poses  # noqa: E402
+from stereo_bench.campaign.operator import OperatorDesk, SimulatedOperator, move_and_ask
 from stereo_bench.geometry import CameraModel, RigPose  # noqa: E402
 from stereo_bench.kinematics import (  # noqa: E402
     NAMES,
@@ -61,6 +62,9 @@ UNSEEN = [(75.0, 5.0, 5.0), (125.0, 15.0, 10.0), (175.0, 10.0, 15.0), (225.0, 20
           (200.0, 5.0, 15.0), (150.0, 12.0, 8.0), (150.0, 0.0, 0.0), (150.0, 8.0, 8.0), (150.0, 16.0, 16.0)]
 PER_CONFIG = {(100.0, 0.0, 0.0), (150.0, 8.0, 8.0), (225.0, 20.0, 20.0)}
 KEYS = ("baseline_mm", "alpha_left_deg", "alpha_right_deg")
+
+#: Stands in for the operator at the manual steps (the target distance), as a campaign's simulator does.
+OPERATORS = OperatorDesk([SimulatedOperator()])
 
 
 def _calibration(K1, D1, K2, D2, R, T, size) -> StereoCalibration:
@@ -93,7 +97,7 @@ def main() -> None:
     started = time.perf_counter()
     with SimulatedBench(time_scale=TIME_SCALE, profile=LAB, seed=5, **cameras) as bench:
         bench.warm_up(CALIBRATION_BOARD, TARGET)
-        with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+        with GrblRig(bench.tty_path, bench.rig_config) as rig:
             home = rig.home()  # Grbl's machine space: homed at B = 349 mm, toe-ins 1 deg (the pull-off)
             # The first design move's direction of approach is from there.
             previous = {"baseline_mm": home.baseline_mm, "toe_in_left_deg": home.toe_in_left_deg,
@@ -103,7 +107,7 @@ def main() -> None:
             t0 = time.perf_counter()
             for k, config in enumerate(kinematic_design((50.0, 250.0), (0.0, 20.0))):
                 rig.move_to(baseline_mm=config.baseline_mm, alpha_left_deg=config.alpha_left_deg,
-                            alpha_right_deg=config.alpha_right_deg)
+                            alpha_right_deg=config.alpha_right_deg).wait()
                 bench.clock.advance(SETTLE_S)  # the settle, on the bench clock
                 approach = approach_directions(previous, config.axes(), approach)
                 previous = config.axes()
@@ -127,8 +131,8 @@ def main() -> None:
             K1, D1, K2, D2 = model.intrinsics()
             rows = []
             for baseline, toe_left, toe_right in UNSEEN:
-                rig.move_to(baseline_mm=baseline, alpha_left_deg=90.0 - toe_left, alpha_right_deg=90.0 - toe_right,
-                            target_distance_mm=500.0)
+                move_and_ask(rig, OPERATORS, baseline_mm=baseline, alpha_left_deg=90.0 - toe_left,
+                             alpha_right_deg=90.0 - toe_right, target_distance_mm=500.0)
                 bench.clock.advance(SETTLE_S)  # the settle, on the bench clock
                 values = {"baseline_mm": baseline, "toe_in_left_deg": toe_left, "toe_in_right_deg": toe_right}
                 approach = approach_directions(previous, values, approach)

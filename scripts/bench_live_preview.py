@@ -153,7 +153,8 @@ def main() -> None:
     try:
         with open_bench(config, operators=[]) as bench:
             bench.rig.home()
-            bench.rig.move_to(**{q: v for q, v in configuration.move_request().items() if q != "target_distance_mm"})
+            bench.rig.move_to(
+                **{q: v for q, v in configuration.move_request().items() if q != "target_distance_mm"}).wait()
             page.use_bench(bench)
             with bench.camera_gate.lent():
                 for scene in args.scenes:

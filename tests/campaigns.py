@@ -126,6 +126,7 @@ def act_at_move(number: int, action):
         def counted(**targets):
             moves.append(targets)
             result = move_to(**targets)
+            result.wait()  # the action comes once the move has ended (move_to returns its status at once)
             if len(moves) == number:
                 action()
             return result

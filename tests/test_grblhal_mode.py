@@ -88,11 +88,11 @@ def test_soft_limits_apply_to_homed_axes_only_so_the_driver_refuses_with_the_rig
             sent = list(emu.lines_received)
             with pytest.raises(MachineSpaceError, match="X=5 is outside the controller's work envelope X -350..0 "
                                                         r"\(\$130=350; grblHAL checks soft limits only on homed axes"):
-                rig.move_to(baseline_mm=355.0)
+                rig.move_to(baseline_mm=355.0).wait()
             assert list(emu.lines_received) == sent  # refused before a byte was sent
             rig.home()
             with pytest.raises(MachineSpaceError, match="soft limits would halt it with ALARM:2"):
-                rig.move_to(baseline_mm=355.0)
+                rig.move_to(baseline_mm=355.0).wait()
 
 
 def test_after_homing_the_envelope_keeps_a_pull_off_off_the_switches_with_hard_limits():

@@ -58,8 +58,8 @@ def test_small_baseline_move_and_back(serial_port):
         if not mapping.driven or start.baseline_mm is None:
             pytest.skip("the baseline is not motorised in this rig config")
         step = 1.0 if start.baseline_mm + 1.0 <= mapping.max else -1.0  # type: ignore[operator]
-        moved = rig.move_to(baseline_mm=start.baseline_mm + step, timeout_s=30.0)
+        moved = rig.move_to(baseline_mm=start.baseline_mm + step, timeout_s=30.0).wait()
         assert moved.state == "Idle"
         assert moved.baseline_mm == pytest.approx(start.baseline_mm + step, abs=mapping.tolerance)
-        back = rig.move_to(baseline_mm=start.baseline_mm, timeout_s=30.0)
+        back = rig.move_to(baseline_mm=start.baseline_mm, timeout_s=30.0).wait()
         assert back.baseline_mm == pytest.approx(start.baseline_mm, abs=mapping.tolerance)

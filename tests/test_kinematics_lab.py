@@ -17,6 +17,7 @@ from drivers.sim.bench import SimulatedBench
 from drivers.sim.mechanics import kinematic_parameters
 from drivers.sim.profile import LAB
 from drivers.sim.render import calibration_board_poses
+from stereo_bench.campaign.operator import OperatorDesk, SimulatedOperator, move_and_ask
 from stereo_bench.geometry import CameraModel, RigPose
 from stereo_bench.kinematics import (
     NAMES,
@@ -44,13 +45,17 @@ UNSEEN = [(75.0, 5.0, 5.0), (125.0, 15.0, 10.0), (175.0, 10.0, 15.0), (225.0, 20
           (200.0, 5.0, 15.0), (150.0, 12.0, 8.0), (150.0, 0.0, 0.0), (150.0, 8.0, 8.0), (150.0, 16.0, 16.0)]
 KEYS = ("baseline_mm", "alpha_left_deg", "alpha_right_deg")
 
+#: Stands in for the operator at the manual steps (the target distance), as a campaign's simulator does.
+OPERATORS = OperatorDesk([SimulatedOperator()])
+
 
 def _camera(name: str) -> CameraModel:
     return CameraModel.from_sensor(name=name, image_size=SIZE, pixel_um=PIXEL_UM)
 
 
 def _move(rig, bench, baseline, toe_left, toe_right, **extra) -> None:
-    rig.move_to(baseline_mm=baseline, alpha_left_deg=90.0 - toe_left, alpha_right_deg=90.0 - toe_right, **extra)
+    move_and_ask(rig, OPERATORS, baseline_mm=baseline, alpha_left_deg=90.0 - toe_left,
+                 alpha_right_deg=90.0 - toe_right, **extra)
     bench.clock.advance(SETTLE_S)  # the settle, on the bench clock
 
 
@@ -67,7 +72,7 @@ def session():
     with SimulatedBench(time_scale=TIME_SCALE, profile=LAB, seed=5, left=_camera("left"),
                         right=_camera("right")) as bench:
         bench.warm_up(CALIBRATION_BOARD, TARGET)
-        with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+        with GrblRig(bench.tty_path, bench.rig_config) as rig:
             home = rig.home()  # Grbl's machine space: homed at B = 349 mm, toe-ins 0 (the pull-off off the switches)
             # The first design move's direction of approach is from there; a design configuration at toe-in 0 is
             # reached by the homing's last pull-off (toe-in increasing, B decreasing).

@@ -25,6 +25,7 @@ from drivers.rig.config import (
 from drivers.rig.rig import manual_instruction, physical_request
 from drivers.sim.grbl.emulator import GrblEmulator
 from drivers.sim.grbl.firmware import AxisSpec, axis_specs_for_travel
+from stereo_bench.campaign.operator import OperatorDesk, SimulatedOperator, move_and_ask
 from stereo_bench.geometry import RigPose
 
 FAST = 50.0
@@ -198,11 +199,14 @@ def _rig(port, config=None, **kwargs) -> GrblRig:
 
 
 def test_grbl_rig_moves_in_physical_units(emulator):
-    prompts: list[str] = []
-    with _rig(emulator.tty_path, prompt=prompts.append) as rig:
+    operator = SimulatedOperator()  # the manual quantities go to the operators through a desk, as in a campaign
+    desk = OperatorDesk([operator])
+    with _rig(emulator.tty_path) as rig:
+        prompts = operator.prompts
         assert isinstance(rig, Rig)
         rig.home(timeout_s=5.0)
-        reading = rig.move_to(baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=84.0, target_distance_mm=400.0)
+        reading = move_and_ask(rig, desk, baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=84.0,
+                               target_distance_mm=400.0)
         assert reading.state == "Idle"
         assert reading.baseline_mm == 120.0
         assert reading.toe_in_left_deg == 5.0 and reading.alpha_left_deg == 85.0
@@ -210,9 +214,9 @@ def test_grbl_rig_moves_in_physical_units(emulator):
         assert reading.tilt_left_deg == 0.0 and reading.sources["tilt_left_deg"] == "fixed"
         assert reading.target_distance_mm == 400.0 and reading.sources["target_distance_mm"] == "operator"
         assert reading.machine_position == {"X": -230.0, "Y": -6.0, "Z": -7.0} == emulator.machine_position()
-        assert prompts == ["move the target to Z = 400 mm, then press Enter"]
+        assert [p.message for p in prompts] == ["move the target to Z = 400 mm, then press Enter"]
         # Same target again: nothing for the operator to do.
-        rig.move_to(target_distance_mm=400.0, baseline_mm=100.0)
+        move_and_ask(rig, desk, target_distance_mm=400.0, baseline_mm=100.0)
         assert len(prompts) == 1
         data = rig.read().to_dict()
         for key in ("state", "baseline_mm", "toe_in_left_deg", "toe_in_right_deg", "alpha_left_deg",
@@ -225,11 +229,11 @@ def test_refused_moves_send_nothing(emulator):
         rig.home(timeout_s=5.0)
         received = list(emulator.lines_received)
         with pytest.raises(LimitError, match="baseline_mm = 400"):
-            rig.move_to(baseline_mm=400.0)
+            rig.move_to(baseline_mm=400.0).wait()
         with pytest.raises(MoveRequestError, match="fixed"):
-            rig.move_to(tilt_left_deg=5.0)
+            rig.move_to(tilt_left_deg=5.0).wait()
         with pytest.raises(MoveRequestError, match="no operator prompt"):
-            rig.move_to(baseline_mm=10.0, target_distance_mm=500.0)
+            rig.move_to(baseline_mm=10.0, target_distance_mm=500.0).wait()
         assert list(emulator.lines_received) == received
         assert emulator.machine_position()["X"] == -1.0
 
@@ -237,7 +241,7 @@ def test_refused_moves_send_nothing(emulator):
 def test_move_to_pose_from_geometry(emulator):
     with _rig(emulator.tty_path) as rig:
         rig.home(timeout_s=5.0)
-        reading = rig.move_to_pose(RigPose.symmetric(150.0, alpha_deg=82.5))
+        reading = rig.move_to_pose(RigPose.symmetric(150.0, alpha_deg=82.5)).wait()
         assert reading.baseline_mm == 150.0 and reading.alpha_left_deg == reading.alpha_right_deg == 82.5
 
 
@@ -250,14 +254,14 @@ def test_six_axis_mapping_offsets_scales_and_feeds(tmp_path):
             assert rig.warnings == []
             rig.home(timeout_s=5.0)
             reading = rig.move_to(baseline_mm=100.0, toe_in_left_deg=4.0, toe_in_right_deg=4.0, tilt_left_deg=-2.0,
-                                  tilt_right_deg=3.0, target_distance_mm=600.0)
+                                  tilt_right_deg=3.0, target_distance_mm=600.0).wait()
             assert emu.machine_position() == {"X": -210.0, "Y": -4.0, "Z": -41.0, "A": -12.0, "B": -7.0,
                                               "C": -1100.0}
             assert reading.baseline_mm == 100.0 and reading.toe_in_right_deg == 4.0
             assert reading.tilt_right_deg == 3.0 and reading.target_distance_mm == 600.0
             assert reading.sources["target_distance_mm"] == "controller axis C"
             # A baseline-only move runs at the configured feed (a G1, not a rapid).
-            rig.move_to(baseline_mm=200.0)
+            rig.move_to(baseline_mm=200.0).wait()
             assert emu.lines_received[-2] == "G21 G90 G53 G1 X-110.000 F2400.0"
 
 
@@ -289,7 +293,7 @@ def test_a_positive_mapping_is_warned_at_connect_and_its_moves_refused_before_se
         received = list(emulator.lines_received)
         with pytest.raises(MachineSpaceError, match=r"X=120 is outside the controller's machine space X -350..0 "
                                                     r"\(\$130=350; soft limits would halt it with ALARM:2\)"):
-            rig.move_to(baseline_mm=120.0)
+            rig.move_to(baseline_mm=120.0).wait()
         assert list(emulator.lines_received) == received and not emulator.halted  # no ALARM:2, nothing sent
 
 
@@ -312,7 +316,7 @@ def test_with_hard_limits_a_mapping_onto_the_switches_is_warned_and_trips_alarm_
         assert "toe_in_left_deg = 0 deg maps to Y0" in switch_warnings[0] and "$27=1" in switch_warnings[0]
         rig.home(timeout_s=5.0)
         with pytest.raises(GrblAlarm, match="ALARM:1"):
-            rig.move_to(baseline_mm=200.0, alpha_left_deg=90.0, alpha_right_deg=90.0)
+            rig.move_to(baseline_mm=200.0, alpha_left_deg=90.0, alpha_right_deg=90.0).wait()
 
 
 def test_with_hard_limits_the_default_mapping_stays_clear_of_the_switches():
@@ -320,7 +324,7 @@ def test_with_hard_limits_the_default_mapping_stays_clear_of_the_switches():
         assert rig.warnings == []
         rig.home(timeout_s=5.0)
         for baseline, alpha in ((349.0, 90.0), (1.0, 2.0), (100.0, 90.0)):  # both ends of every range
-            reading = rig.move_to(baseline_mm=baseline, alpha_left_deg=alpha, alpha_right_deg=alpha)
+            reading = rig.move_to(baseline_mm=baseline, alpha_left_deg=alpha, alpha_right_deg=alpha).wait()
             assert (reading.baseline_mm, reading.alpha_left_deg, reading.state) == (baseline, alpha, "Idle")
         assert not emu.halted
 
@@ -331,9 +335,9 @@ def test_a_mapping_reaching_past_the_travel_is_warned_and_only_those_moves_refus
         assert rig.warnings == ["baseline_mm = 0..400 maps to X -400..0, but the controller's machine space is "
                                 "X -350..0 ($130=350): moves of baseline_mm beyond it will be refused"]
         rig.home(timeout_s=5.0)
-        assert rig.move_to(baseline_mm=100.0).machine_position["X"] == -300.0
+        assert rig.move_to(baseline_mm=100.0).wait().machine_position["X"] == -300.0
         with pytest.raises(MachineSpaceError, match="X=-360 is outside"):
-            rig.move_to(baseline_mm=40.0)
+            rig.move_to(baseline_mm=40.0).wait()
 
 
 def test_a_tolerance_finer_than_a_step_is_warned_and_a_step_used(emulator):
@@ -343,7 +347,7 @@ def test_a_tolerance_finer_than_a_step_is_warned_and_a_step_used(emulator):
                                 "$100=250): using one step"]
         rig.home(timeout_s=5.0)
         # X = -249.9985 is not on the 0.004 mm grid: the controller stops at -250.000 (0.0015 off).
-        reading = rig.move_to(baseline_mm=100.0015)
+        reading = rig.move_to(baseline_mm=100.0015).wait()
         assert reading.machine_position["X"] == -250.0
 
 
@@ -351,7 +355,7 @@ def test_homing_disabled_is_warned(tmp_path):
     with GrblEmulator(time_scale=FAST, homing_enabled=False) as emu, _rig(emu.tty_path) as rig:
         assert len(rig.warnings) == 1 and "homing is disabled ($22=0)" in rig.warnings[0]
         # No fixed machine frame: nothing is refused for lying outside one.
-        assert rig.move_to(baseline_mm=300.0).machine_position["X"] == -50.0
+        assert rig.move_to(baseline_mm=300.0).wait().machine_position["X"] == -50.0
 
 
 def test_controller_info_is_json_ready(emulator):
@@ -368,7 +372,7 @@ def test_grbl_rig_stop_resume_and_reset(emulator):
         resets = emulator.resets
         errors = []
         mover = threading.Thread(
-            target=lambda: errors.append(_catch(lambda: rig.move_to(baseline_mm=50.0))))
+            target=lambda: errors.append(_catch(lambda: rig.move_to(baseline_mm=50.0).wait())))
         mover.start()
         deadline = time.monotonic() + 5.0
         while emulator.state != "Run" and time.monotonic() < deadline:
@@ -399,7 +403,7 @@ def test_the_emulator_is_sized_for_any_mapping():
         with _rig(emu.tty_path, rig_config_from_dict(POSITIVE)) as rig:
             assert rig.warnings == []
             rig.home(timeout_s=5.0)
-            assert rig.move_to(baseline_mm=120.0, toe_in_left_deg=5.0).machine_position == {"X": 120.0, "Y": 5.0,
+            assert rig.move_to(baseline_mm=120.0, toe_in_left_deg=5.0).wait().machine_position == {"X": 120.0, "Y": 5.0,
                                                                                              "Z": 0.0}
 
 

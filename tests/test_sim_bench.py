@@ -8,12 +8,16 @@ import pytest
 from drivers.camera.stereo import StereoCamera
 from drivers.rig.rig import GrblRig
 from drivers.sim.bench import SimulatedBench
+from stereo_bench.campaign.operator import OperatorDesk, SimulatedOperator, move_and_ask
 from stereo_bench.geometry import RigPose, board_pose_facing_rig
 from stereo_bench.targets import Checkerboard
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.pipeline import ImplausibleMeasurement, measure_pair
 
 BOARD = Checkerboard(9, 6, 27.0)
+
+#: Stands in for the operator at the manual steps (the target distance), as a campaign's simulator does.
+OPERATORS = OperatorDesk([SimulatedOperator()])
 
 
 @pytest.fixture(scope="module")
@@ -30,10 +34,12 @@ def calibration_for(pose: RigPose, bench: SimulatedBench) -> StereoCalibration:
 
 
 def test_cameras_see_the_board_from_where_the_motors_are(bench):
-    with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+    with GrblRig(bench.tty_path, bench.rig_config) as rig:
         rig.home()
-        rig.move_to(baseline_mm=120.0, alpha_left_deg=80.0, alpha_right_deg=80.0, target_distance_mm=500.0)
-        assert "500" in bench.last_prompt  # the target distance is manual: the operator was asked
+        move_and_ask(rig, OPERATORS, baseline_mm=120.0, alpha_left_deg=80.0, alpha_right_deg=80.0,
+                     target_distance_mm=500.0)
+        last_prompt = OPERATORS.operators[0].prompts[-1].message
+        assert "500" in last_prompt  # the target distance is manual: the operator was asked
         pose = bench.rig_pose()
         assert pose.baseline_mm == pytest.approx(120.0, abs=0.01)
         assert pose.alpha_left_deg == pytest.approx(80.0, abs=0.01)

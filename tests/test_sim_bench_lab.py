@@ -16,6 +16,7 @@ from drivers.sim.grbl.faults import ResetMidMove
 from drivers.sim.mechanics import MoveHistory, pair_state, ringing_deg
 from drivers.sim.profile import IDEAL, LAB, BoardErrors, CameraErrors, SimProfile, SlideErrors
 from drivers.sim.render import BoardShape, Optics, StereoRenderer, calibration_board_poses
+from stereo_bench.campaign.operator import OperatorDesk, SimulatedOperator, move_and_ask
 from stereo_bench.geometry import CameraModel, RigPose, board_pose_facing_rig, invert_transform, transform_points
 from stereo_bench.targets import Checkerboard
 from stereo_bench.vision.calibrate import StereoCalibration, calibrate_mono
@@ -24,6 +25,9 @@ from stereo_bench.vision.pipeline import measure_pair
 
 BOARD = Checkerboard(9, 6, 27.0)
 HALF = {"image_size": (960, 540), "pixel_um": 6.0}  # the same field of view at a quarter of the pixels
+
+#: Stands in for the operator at the manual steps (the target distance), as a campaign's simulator does.
+OPERATORS = OperatorDesk([SimulatedOperator()])
 
 
 def cameras(**kwargs) -> dict:
@@ -40,7 +44,7 @@ def calibration(left: CameraModel, right: CameraModel, R, T) -> StereoCalibratio
 def lab_bench():
     with SimulatedBench(time_scale=50.0, profile=LAB, seed=3, **cameras()) as bench:
         bench.warm_up(BOARD)
-        with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+        with GrblRig(bench.tty_path, bench.rig_config) as rig:
             rig.home()
             yield bench, rig
 
@@ -49,9 +53,9 @@ def test_the_ideal_bench_renders_exactly_what_the_nominal_geometry_shows():
     """The ideal profile is today's bench: the frame the renderer draws at the commanded pose, bit for bit."""
     T_rig_board = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm)
     with SimulatedBench(time_scale=50.0, profile=IDEAL, **cameras()) as bench:
-        with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+        with GrblRig(bench.tty_path, bench.rig_config) as rig:
             rig.home()
-            rig.move_to(baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=80.0)
+            rig.move_to(baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=80.0).wait()
         bench.show(BOARD, T_rig_board, seed=7)
         images = {side: bench.render(side)[0] for side in ("left", "right")}
         pose = bench.rig_pose()
@@ -66,7 +70,7 @@ def test_the_ideal_bench_renders_exactly_what_the_nominal_geometry_shows():
 def test_the_frames_truth_reproduces_the_images(lab_bench):
     """Measured with the R, T a lab frame carries as truth (and the true lenses), the square is the printed one."""
     bench, rig = lab_bench
-    rig.move_to(baseline_mm=100.0, alpha_left_deg=80.0, alpha_right_deg=82.0, target_distance_mm=450.0)
+    move_and_ask(rig, OPERATORS, baseline_mm=100.0, alpha_left_deg=80.0, alpha_right_deg=82.0, target_distance_mm=450.0)
     bench.clock.advance(0.4)  # settled
     bench.place_target(BOARD, distance_mm=450.0, seed=1)
     (left, meta_left), (right, meta_right) = bench.render("left"), bench.render("right")
@@ -98,11 +102,11 @@ def test_backlash_through_the_controller_depends_on_the_approach():
     profile = SimProfile(slide=SlideErrors(backlash_mm=0.04))
     separations = []
     with SimulatedBench(time_scale=50.0, profile=profile, **cameras()) as bench:
-        with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+        with GrblRig(bench.tty_path, bench.rig_config) as rig:
             rig.home()
             for via in (60.0, 140.0):  # reach 100 mm from below, then from above
-                rig.move_to(baseline_mm=via)
-                rig.move_to(baseline_mm=100.0)
+                rig.move_to(baseline_mm=via).wait()
+                rig.move_to(baseline_mm=100.0).wait()
                 separations.append(bench.truth()["axes"]["separation_mm"])
     assert separations == pytest.approx([100.0 - 0.02, 100.0 + 0.02], abs=1e-9)
 
@@ -112,11 +116,11 @@ def test_the_mechanics_follow_where_the_motors_stand_when_the_step_counters_do_n
     axes stopped: the cameras stand where the axes are, through the mechanics (here a 0.1 % lead error)."""
     profile = SimProfile(slide=SlideErrors(scale_error=0.001))
     with SimulatedBench(time_scale=50.0, profile=profile, **cameras()) as bench:
-        with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+        with GrblRig(bench.tty_path, bench.rig_config) as rig:
             rig.home()
             bench.emulator.inject(ResetMidMove(fraction=0.5))
             with pytest.raises(GrblResetError):
-                rig.move_to(baseline_mm=100.0)
+                rig.move_to(baseline_mm=100.0).wait()
         assert bench.emulator.machine_position()["X"] == 0.0
         stood_mm = bench.emulator.physical_position()["X"] + 350.0
         assert 150.0 < stood_mm < 300.0  # halfway from 349 mm to 100 mm
@@ -153,9 +157,9 @@ def test_frames_taken_while_the_heads_ring_carry_it_and_a_settled_one_does_not()
     seen = {}
     for time_scale in (2.0, 40.0):
         with SimulatedBench(time_scale=time_scale, profile=profile, **cameras()) as bench:
-            with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+            with GrblRig(bench.tty_path, bench.rig_config) as rig:
                 rig.home()
-                rig.move_to(baseline_mm=20.0)
+                rig.move_to(baseline_mm=20.0).wait()
                 time.sleep(0.05)  # real time passes; the bench's does not
                 at_once = bench.render("left")[1]["truth"]
                 bench.clock.advance(0.3)  # a settle longer than the ringing (0.24 s)
@@ -301,7 +305,7 @@ def test_the_calibration_board_is_shown_as_the_profile_has_it():
 
 def test_the_truth_without_landing_errors_differs_from_the_truth_by_the_moves_landing_alone(lab_bench):
     bench, rig = lab_bench
-    rig.move_to(baseline_mm=140.0, alpha_left_deg=84.0, alpha_right_deg=86.0)
+    rig.move_to(baseline_mm=140.0, alpha_left_deg=84.0, alpha_right_deg=86.0).wait()
     bench.clock.advance(0.4)  # settled: the heads no longer ring (the truth would include it, the rest pose not)
     truth, knowable = bench.truth(), bench.truth_without_landing()
     assert truth["axes"]["ringing_deg"] == {"left": 0.0, "right": 0.0}
@@ -332,7 +336,7 @@ def test_scenes_rendered_ahead_are_the_frames_a_render_at_the_trigger_gives(lab_
     from drivers.camera.stereo import StereoCamera
 
     bench, rig = lab_bench
-    rig.move_to(baseline_mm=140.0, alpha_left_deg=84.0, alpha_right_deg=84.0, target_distance_mm=450.0)
+    move_and_ask(rig, OPERATORS, baseline_mm=140.0, alpha_left_deg=84.0, alpha_right_deg=84.0, target_distance_mm=450.0)
     bench.clock.advance(0.3)  # the settle: the heads stop ringing (on the bench clock)
     poses = [board_pose_facing_rig(distance_mm=distance, board_size_mm=BOARD.grid_size_mm, yaw_deg=yaw)
              for distance, yaw in ((400.0, 10.0), (470.0, -5.0))]
@@ -357,12 +361,12 @@ def test_a_frame_rendered_ahead_is_dropped_when_the_rig_stands_elsewhere_at_the_
     from drivers.camera.stereo import StereoCamera
 
     bench, rig = lab_bench
-    rig.move_to(baseline_mm=160.0, alpha_left_deg=86.0, alpha_right_deg=86.0, target_distance_mm=450.0)
+    move_and_ask(rig, OPERATORS, baseline_mm=160.0, alpha_left_deg=86.0, alpha_right_deg=86.0, target_distance_mm=450.0)
     bench.clock.advance(0.3)
     pose = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm)
     bench.stage([("board", BOARD, pose, 61)], at=RigPose.symmetric(160.0, 86.0))
     _wait_rendered_ahead(bench, 1)
-    rig.move_to(baseline_mm=161.0, alpha_left_deg=86.0, alpha_right_deg=86.0, target_distance_mm=450.0)
+    move_and_ask(rig, OPERATORS, baseline_mm=161.0, alpha_left_deg=86.0, alpha_right_deg=86.0, target_distance_mm=450.0)
     bench.clock.advance(0.4)  # the ringing has stopped
     used = bench.prerendered_used
     with StereoCamera(*bench.cameras()) as cameras:
@@ -376,12 +380,12 @@ def test_a_frame_rendered_ahead_is_dropped_when_the_rig_stands_elsewhere_at_the_
 
 def test_nothing_is_rendered_ahead_before_the_move_to_where_the_scenes_need_the_rig_is_queued(lab_bench):
     bench, rig = lab_bench
-    rig.move_to(baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=85.0, target_distance_mm=450.0)
+    move_and_ask(rig, OPERATORS, baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=85.0, target_distance_mm=450.0)
     pose = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm)
     bench.stage([("board", BOARD, pose, 70)], at=RigPose.symmetric(200.0, 85.0))
     time.sleep(0.2)
     assert bench.staged_rendered() == 0
-    rig.move_to(baseline_mm=200.0, alpha_left_deg=85.0, alpha_right_deg=85.0, target_distance_mm=450.0)
+    move_and_ask(rig, OPERATORS, baseline_mm=200.0, alpha_left_deg=85.0, alpha_right_deg=85.0, target_distance_mm=450.0)
     bench.clock.advance(0.3)
     _wait_rendered_ahead(bench, 1)
     bench.stage([], at=RigPose.symmetric(200.0, 85.0))  # nothing left staged
@@ -398,14 +402,15 @@ def test_scenes_are_rendered_during_the_move_for_where_it_will_rest_and_served_b
     # The move must last long enough for the render-ahead thread to start while it runs, on a loaded machine too
     # (at 5x it once ended before that thread was scheduled, in a full suite beside other work).
     with SimulatedBench(time_scale=2.5, profile=LAB, seed=5, **cameras()) as bench:
-        with GrblRig(bench.tty_path, bench.rig_config, prompt=bench.operator_prompt) as rig:
+        with GrblRig(bench.tty_path, bench.rig_config) as rig:
             rig.home()
-            rig.move_to(baseline_mm=60.0, alpha_left_deg=88.0, alpha_right_deg=88.0, target_distance_mm=450.0)
+            move_and_ask(rig, OPERATORS, baseline_mm=60.0, alpha_left_deg=88.0, alpha_right_deg=88.0,
+                         target_distance_mm=450.0)
             bench.warm_up(BOARD)
             pose = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm, yaw_deg=4.0)
             bench.stage([("board", BOARD, pose, 80)], at=RigPose.symmetric(220.0, 84.0))
-            moving = threading.Thread(target=rig.move_to, kwargs={
-                "baseline_mm": 220.0, "alpha_left_deg": 84.0, "alpha_right_deg": 84.0, "target_distance_mm": 450.0})
+            moving = threading.Thread(target=lambda: move_and_ask(rig, OPERATORS,
+                baseline_mm=220.0, alpha_left_deg=84.0, alpha_right_deg=84.0, target_distance_mm=450.0))
             moving.start()
             rendered_while_moving = False
             while moving.is_alive():
@@ -458,10 +463,12 @@ def test_frames_rendered_for_a_wrong_prediction_are_rendered_again_once_the_rig_
     # move is made again until a prediction was made during one.
     for _ in range(5):
         renders.clear()
-        rig.move_to(baseline_mm=40.0, alpha_left_deg=87.0, alpha_right_deg=87.0, target_distance_mm=450.0)
+        move_and_ask(rig, OPERATORS, baseline_mm=40.0, alpha_left_deg=87.0, alpha_right_deg=87.0,
+                     target_distance_mm=450.0)
         wrong.clear()
         bench.stage([("board", BOARD, pose, 90)], at=RigPose.symmetric(300.0, 87.0))
-        rig.move_to(baseline_mm=300.0, alpha_left_deg=87.0, alpha_right_deg=87.0, target_distance_mm=450.0)
+        move_and_ask(rig, OPERATORS, baseline_mm=300.0, alpha_left_deg=87.0, alpha_right_deg=87.0,
+                     target_distance_mm=450.0)
         bench.clock.advance(0.5)
         deadline = time.monotonic() + 30
         while not all(entry.checked for entry in bench._staged):

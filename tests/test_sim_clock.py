@@ -71,7 +71,7 @@ def test_a_move_starts_at_the_frozen_time_and_ends_exactly_when_the_motion_model
         homed_at = clock.now()
         time.sleep(0.05)  # real time passes: the bench's does not
         assert clock.now() == homed_at and not clock.running
-        rig.move_to(baseline_mm=100.0)
+        rig.move_to(baseline_mm=100.0).wait()
         time.sleep(0.05)
         assert clock.now() == events[-1].end_s
     home, move = events
@@ -106,24 +106,24 @@ def test_a_landing_is_keyed_by_where_the_plan_arrived_not_by_the_moves_before_it
         rig.home()
         first.begin_configuration("c2", targets={**TARGETS, "baseline_mm": 100.0},
                                   arrivals={q: "c2" for q in TARGETS})
-        rig.move_to(baseline_mm=100.0, toe_in_left_deg=3.0, toe_in_right_deg=3.0)
+        rig.move_to(baseline_mm=100.0, toe_in_left_deg=3.0, toe_in_right_deg=3.0).wait()
         first.begin_configuration("c3", targets=TARGETS, arrivals=arrivals)
-        rig.move_to(baseline_mm=150.0)  # the heads stay: their landing is c2's
+        rig.move_to(baseline_mm=150.0).wait()  # the heads stay: their landing is c2's
         direct = _landings(first)
     with _bench() as second, GrblRig(second.tty_path, second.rig_config) as rig:
         rig.home()
         second.begin_configuration("c0", targets={**TARGETS, "baseline_mm": 200.0}, arrivals={q: "c0" for q in TARGETS})
-        rig.move_to(baseline_mm=200.0, toe_in_left_deg=10.0, toe_in_right_deg=10.0)  # other moves first
+        rig.move_to(baseline_mm=200.0, toe_in_left_deg=10.0, toe_in_right_deg=10.0).wait()  # other moves first
         rig.home()  # as a resume does
         second.begin_configuration("c3", targets=TARGETS, arrivals=arrivals)
-        rig.move_to(baseline_mm=100.0)  # the re-approach: not an arrival at c3's targets
-        rig.move_to(baseline_mm=100.0, toe_in_left_deg=3.0, toe_in_right_deg=3.0)
-        rig.move_to(baseline_mm=150.0)
+        rig.move_to(baseline_mm=100.0).wait()  # the re-approach: not an arrival at c3's targets
+        rig.move_to(baseline_mm=100.0, toe_in_left_deg=3.0, toe_in_right_deg=3.0).wait()
+        rig.move_to(baseline_mm=150.0).wait()
         assert _landings(second) == direct
         second.begin_configuration("c9", targets={**TARGETS, "baseline_mm": 120.0},
                                    arrivals={**arrivals, "baseline_mm": "c9"})
-        rig.move_to(baseline_mm=120.0)
-        rig.move_to(baseline_mm=150.0)  # back at 150 mm, but not arriving at c9's target: a transit draw
+        rig.move_to(baseline_mm=120.0).wait()
+        rig.move_to(baseline_mm=150.0).wait()  # back at 150 mm, but not arriving at c9's target: a transit draw
         assert _landings(second)["baseline_mm"] != direct["baseline_mm"]
 
 

@@ -82,9 +82,10 @@ def test_the_lab_bench_stands_where_the_config_maps_the_controllers_position(tex
     commanded = {"baseline_mm": 100.0, "toe_in_left_deg": 5.0, "toe_in_right_deg": 4.0,
                  "tilt_left_deg": 0.0, "tilt_right_deg": 0.0}
     with SimulatedBench(rig_config=config, time_scale=FAST, profile=LAB, seed=3) as bench:
-        with GrblRig(bench.tty_path, config, prompt=bench.operator_prompt) as rig:
+        with GrblRig(bench.tty_path, config) as rig:
             rig.home()
-            reading = rig.move_to(**{q: commanded[q] for q in ("baseline_mm", "toe_in_left_deg", "toe_in_right_deg")})
+            reading = rig.move_to(
+                **{q: commanded[q] for q in ("baseline_mm", "toe_in_left_deg", "toe_in_right_deg")}).wait()
         assert reading.baseline_mm == pytest.approx(100.0, abs=1e-9)
         assert bench.reported_values() == pytest.approx(commanded, abs=1e-9)
         truth = bench.truth_without_landing()["structure"]

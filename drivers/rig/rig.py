@@ -3,8 +3,10 @@
 A campaign asks for a baseline, toe-ins (or alphas), tilts and a target distance; :class:`GrblRig`
 turns that into one GRBL move through the :class:`~drivers.rig.config.RigConfig` mapping (refusing
 anything outside the soft limits, or outside the machine space the controller accepts, before a byte
-is sent), waits until the controller has stopped, prompts the operator for the manual quantities, and
-reads back where the rig is.
+is sent) and returns its :class:`~drivers.rig.status.RigStatus`, which finishes once the controller has
+stopped, with the reading there. The rig moves only its motors: a quantity set by hand is the operator's,
+asked through the campaign's ``OperatorDesk`` (the runner's prompt steps, ``rig move``), and
+:meth:`GrblRig.set_by_hand` records what the operator set.
 
 At :meth:`GrblRig.open` the config is checked against what the controller reported (``$$``): machine
 targets outside ``[-$13x, 0]`` (Grbl's machine space once homed), a tolerance finer than one step
@@ -16,7 +18,6 @@ Angles: toe-in t = 90 deg - alpha (0 = parallel). Lengths in mm, angles in degre
 from __future__ import annotations
 
 import math
-import sys
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
@@ -33,16 +34,14 @@ from drivers.rig.config import (
     MoveRequestError,
     RigConfig,
     RigConfigError,
-    RigError,
     alpha_from_toe_in,
     plan_move,
     to_physical,
     toe_in_from_alpha,
 )
 from drivers.rig.grbl import GrblController, GrblReading
+from drivers.rig.status import RigStatus
 from drivers.rig.transport import Transport
-
-PromptCallback = Callable[[str], None]
 
 
 @dataclass(frozen=True)
@@ -89,9 +88,27 @@ class RigReading:
         return described
 
 
+@dataclass(frozen=True)
+class RigCapabilities:
+    """What a rig can do beyond moving, homing, reading, holding and resuming; each rig states it (the runner asks
+    this, never ``getattr``). A rig without one still has the method (it does nothing that needs recording)."""
+
+    #: A controller read at connect: :meth:`Rig.controller_info` and :attr:`Rig.warnings` are part of the recording.
+    controller: bool = False
+    #: A soft reset: the recovery after a fault resets before homing (without it, the rig is only homed).
+    reset: bool = False
+    #: It can be told that the position it reports is right without homing (``[rig] homing = false``).
+    trust_position: bool = False
+
+
 @runtime_checkable
 class Rig(Protocol):
-    """What the campaign runner needs from a stereo rig, whatever drives it (GRBL, a replay, a fake)."""
+    """What the campaign runner needs from a stereo rig, whatever drives it (GRBL, a replay, a fake).
+
+    ``move_to`` returns a :class:`~drivers.rig.status.RigStatus` at once (the request validated, the motion
+    queued); the move finishes by itself, ``status.wait()`` blocks until it has and returns the reading there."""
+
+    capabilities: RigCapabilities
 
     def open(self) -> Any: ...
 
@@ -105,14 +122,33 @@ class Rig(Protocol):
         toe_in_right_deg: float | None = None, tilt_left_deg: float | None = None,
         tilt_right_deg: float | None = None, target_distance_mm: float | None = None,
         timeout_s: float | None = None,
-    ) -> RigReading:
-        """Move (None = leave as is); return once stopped at the target, with the reading there."""
+    ) -> RigStatus:
+        """Move (None = leave as is): refused (raises) before anything moves, else the move's status."""
 
     def read(self) -> RigReading:
         """Where the rig is now."""
 
     def stop(self) -> None:
-        """Stop motion as soon as possible (a feed hold on GRBL)."""
+        """Stop motion as soon as possible (a feed hold on GRBL): the move's status then fails."""
+
+    def resume(self, *, timeout_s: float | None = None) -> RigReading:
+        """Continue after :meth:`stop`; return once the resumed motion has ended."""
+
+    def reset(self) -> RigReading:
+        """Soft reset (``capabilities.reset``): stop at once, discard queued moves, end a halt after an alarm."""
+
+    def trust_position(self) -> RigReading:
+        """The reported position is right without homing (``capabilities.trust_position``)."""
+
+    def homing_approach(self) -> dict[str, int]:
+        """Per driven quantity the direction (+1/-1) homing leaves it from; empty when not known."""
+
+    def controller_info(self) -> dict[str, Any]:
+        """The controller as read at connect, JSON-ready (``capabilities.controller``); empty without one."""
+
+    @property
+    def warnings(self) -> list[str]:
+        """Every warning about the controller's setup (empty without a controller)."""
 
 
 class GrblRig:
@@ -124,15 +160,14 @@ class GrblRig:
         config: the axis mapping and limits (default: stock Grbl machine space one pull-off inside it, X =
             baseline 1-349 mm at X -349..-1, Y/Z = left/right toe-in 0-88 deg at -1..-89, tilts fixed at 0, target
             distance manual).
-        prompt: ``prompt(message) -> None`` shows the operator what to do for a manual quantity and
-            returns once it is done (e.g. after Enter). Without it, a move that needs a manual step is
-            refused before anything moves.
         spy_log: record every byte on the link (see :class:`~drivers.rig.transport.SpyTransport`).
     """
 
+    capabilities = RigCapabilities(controller=True, reset=True, trust_position=True)
+
     def __init__(
         self, port: str | serial.SerialBase | Transport | GrblController, config: RigConfig | None = None, *,
-        prompt: PromptCallback | None = None, spy_log: str | Path | IO[str] | None = None, **controller_options,
+        spy_log: str | Path | IO[str] | None = None, **controller_options,
     ):
         self.config = config or RigConfig()
         settings = self.config.controller
@@ -145,7 +180,6 @@ class GrblRig:
             )
             options.update(controller_options)
             self.controller = GrblController(port, **options)
-        self.prompt = prompt
         self._manual: dict[str, float] = {}
         self._lock = threading.RLock()
 
@@ -256,14 +290,16 @@ class GrblRig:
         tilt_right_deg: float | None = None, target_distance_mm: float | None = None,
         alpha_left_deg: float | None = None, alpha_right_deg: float | None = None,
         timeout_s: float | None = None, on_moving: Callable[[dict[str, float]], None] | None = None,
-    ) -> RigReading:
-        """Move to a configuration (None = leave as is) and return once the rig has stopped there.
+    ) -> RigStatus:
+        """Move to a configuration (None = leave as is); return the move's status once it is queued.
 
         ``alpha_*_deg`` is an alternative to ``toe_in_*_deg`` (t = 90 - alpha); giving both for one side
-        is an error. Everything is validated before anything moves: unknown/fixed quantities
-        (MoveRequestError), soft limits (LimitError), a needed operator prompt that is missing. Then
-        the motors move (``on_moving(machine_targets)`` is called once the move is queued), then the
-        operator is prompted for the manual quantities.
+        is an error. Everything is validated before anything moves, and raised here: unknown/fixed quantities
+        (MoveRequestError), soft limits (LimitError), a target the controller refuses, a manual quantity other
+        than what the operator last set (MoveRequestError: the operator sets it, see :meth:`manual_steps`). Then
+        the motors move (``on_moving(machine_targets)`` is called once the move is queued) and the status
+        finishes by itself (on a thread of its own) once the rig has stopped there; ``.wait()`` returns the
+        reading then.
         """
         request = physical_request(
             baseline_mm=baseline_mm, toe_in_left_deg=toe_in_left_deg, toe_in_right_deg=toe_in_right_deg,
@@ -272,12 +308,13 @@ class GrblRig:
         )
         plan = plan_move(self.config, request)
         manual_steps = {q: v for q, v in plan.manual.items() if not _same(self._manual.get(q), v)}
-        if manual_steps and self.prompt is None:
+        if manual_steps:
             names = ", ".join(manual_steps)
-            raise MoveRequestError(f"{names} is set by hand on this rig and no operator prompt is available")
+            raise MoveRequestError(f"{names} is set by hand on this rig and no operator prompt is available to "
+                                   "the rig: ask the operator (the campaign's OperatorDesk), then set_by_hand()")
         timeout = self.config.controller.move_timeout_s if timeout_s is None else timeout_s
         with self._lock:
-            reading: GrblReading | None = None
+            motion = None
             if plan.machine_targets:
                 refused = machine_space_violations(plan.machine_targets, self.controller.info,
                                                    homed=self.controller.homed)
@@ -285,20 +322,35 @@ class GrblRig:
                     raise MachineSpaceError(refused)
                 feed = self._feed_for(plan.machine_targets)
                 tolerance = self._tolerances(plan.driven)
-                status = self.controller.move_to(
+                motion = self.controller.move_to(
                     plan.machine_targets, feed_per_min=feed, timeout_s=timeout, tolerance=tolerance)
                 if on_moving is not None:
                     on_moving(dict(plan.machine_targets))
-                reading = status.wait(timeout)
-            for quantity, value in manual_steps.items():
-                self.prompt(manual_instruction(quantity, value))  # type: ignore[misc]
-                self._manual[quantity] = value
-            if reading is None:
-                reading = self.controller.status(timeout=2.0)
-            return self._reading(reading)
+
+        def finish() -> RigReading:
+            with self._lock:  # one talker at a time, as before: a read() waits for the move's end
+                reading: GrblReading | None = motion.wait(timeout) if motion is not None else None
+                if reading is None:
+                    reading = self.controller.status(timeout=2.0)
+                return self._reading(reading)
+
+        return RigStatus.running(finish)
+
+    def manual_steps(self, **request: float | None) -> dict[str, float]:
+        """The quantities of a move request (``move_to``'s keywords) set by hand on this rig whose value differs
+        from what the operator last set: what the operator has to do (then :meth:`set_by_hand`)."""
+        plan = plan_move(self.config, physical_request(**request))
+        return {q: v for q, v in plan.manual.items() if not _same(self._manual.get(q), v)}
+
+    def set_by_hand(self, quantity: str, value: float) -> None:
+        """The operator has set the manual ``quantity`` to ``value``: readings report it (source "operator")."""
+        if self.config.quantities[quantity].axis != "manual":
+            raise MoveRequestError(f"{quantity} is not set by hand on this rig")
+        with self._lock:
+            self._manual[quantity] = float(value)
 
     def move_to_pose(self, pose: Any, *, target_distance_mm: float | None = None,
-                     timeout_s: float | None = None) -> RigReading:
+                     timeout_s: float | None = None) -> RigStatus:
         """Move to a pose object with ``baseline_mm``, ``alpha_left_deg``, ``alpha_right_deg`` and optionally
         ``tilt_left_deg``/``tilt_right_deg`` (e.g. ``stereo_bench.geometry.RigPose``; duck-typed so this
         package does not import the app)."""
@@ -507,17 +559,7 @@ def manual_instruction(quantity: str, value: float) -> str:
     return f"{text}, then press Enter"
 
 
-def wait_for_enter(message: str, *, stream_in=None, stream_out=None) -> None:
-    """A terminal prompt for :class:`GrblRig`: print the instruction and wait for Enter."""
-    out = stream_out or sys.stderr
-    out.write(message + " ")
-    out.flush()
-    line = (stream_in or sys.stdin).readline()
-    if line == "":
-        raise RigError(f"no operator answer (end of input) to: {message}")
-
-
 __all__ = [
-    "GrblRig", "PromptCallback", "Rig", "RigReading", "config_warnings", "machine_space_violations",
-    "manual_instruction", "physical_request", "wait_for_enter",
+    "GrblRig", "Rig", "RigCapabilities", "RigReading", "RigStatus", "config_warnings",
+    "machine_space_violations", "manual_instruction", "physical_request",
 ]

@@ -560,10 +560,6 @@ class SimulatedBench:
                 if not at_rest:
                     self._stage_changed.wait(REST_POLL_S)  # until the rig rests, to check the prediction
 
-    def operator_prompt(self, message: str) -> None:
-        """Stands in for the operator at a manual step: records the values the rig asked for."""
-        self.last_prompt = message
-
     def reported_values(self) -> dict[str, float]:
         """Physical values (``baseline_mm``, ``toe_in_*_deg``, ...) of the axes now: what the mechanics are told.
 

@@ -367,12 +367,11 @@ def recorded_config(session_dir: str | Path) -> CampaignConfig:
 
 def _record_connect(bus: DocumentBus, bench: Bench, config: CampaignConfig) -> None:
     """The rig controller as read at connect (build, settings, startup lines, warnings): part of the recording."""
-    info = getattr(bench.rig, "controller_info", None)
-    if not callable(info):
+    if not bench.rig.capabilities.controller:  # a replay's: no controller behind it
         return
     port = config.rig.port if config.rig.kind == "grbl" else "simulated (GRBL emulator on a pty)"
-    bus.publish(Draft(ControllerEvent, config_id=None, data={"port": port, "info": info(),
-                                                             "warnings": list(getattr(bench.rig, "warnings", []))}))
+    bus.publish(Draft(ControllerEvent, config_id=None, data={"port": port, "info": bench.rig.controller_info(),
+                                                             "warnings": list(bench.rig.warnings)}))
 
 
 # -- replay -------------------------------------------------------------------------------------------------------

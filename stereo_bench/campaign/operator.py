@@ -27,8 +27,9 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import IO, Protocol, runtime_checkable
+from typing import IO, Any, Protocol, runtime_checkable
 
+from drivers.rig.rig import manual_instruction, physical_request
 from stereo_bench.campaign.documents import PromptKind
 
 CONTINUE = "continue"
@@ -159,6 +160,30 @@ class OperatorDesk:
         return Answer(operator=ticket.answered_by, waited_s=ticket.answered_at - ticket.asked_at, action=ticket.action)
 
 
+def manual_prompt(quantity: str, value: float, *, config_id: str | None = None) -> Prompt:
+    """The one prompt for a quantity set by hand (the runner's PromptTarget/PromptManual steps, ``rig move``)."""
+    return Prompt("target" if quantity == "target_distance_mm" else "manual", manual_instruction(quantity, value),
+                  config_id=config_id, quantity=quantity, value=value)
+
+
+def move_and_ask(rig: Any, desk: OperatorDesk, *, stop: threading.Event | None = None, **request: Any) -> Any:
+    """Move a :class:`~drivers.rig.rig.GrblRig` and have the operators set what it sets by hand: the motors first
+    (``rig.move_to(**request)``, waited on), then one :func:`manual_prompt` per manual quantity whose value changes,
+    each recorded on the rig once answered (``rig.set_by_hand``). Returns the reading then. What ``rig move`` does;
+    a campaign has these prompts as steps of its plan instead.
+
+    Raises what the move raises (refused: before anything moves), OperatorAbsent, StopRequested.
+    """
+    options = {key: request.pop(key) for key in ("timeout_s", "on_moving") if key in request}
+    manual = rig.manual_steps(**request)
+    motors = {q: (None if q in manual else v) for q, v in physical_request(**request).items()}
+    reading = rig.move_to(**motors, **options).wait()
+    for quantity, value in manual.items():
+        desk.ask(manual_prompt(quantity, value), stop=stop or threading.Event())
+        rig.set_by_hand(quantity, value)
+    return rig.read() if manual else reading
+
+
 class SimulatedOperator:
     """Answers every prompt at once: on the simulated bench the presenter sets the scene (``--yes``)."""
 
@@ -169,6 +194,30 @@ class SimulatedOperator:
     def offer(self, ticket: Ticket) -> None:
         self.prompts.append(ticket.prompt)
         ticket.answer(self.name)
+
+    def withdraw(self, ticket: Ticket) -> None:
+        return None
+
+
+class LineOperator:
+    """The operator at a terminal for a desk of one (``rig move``, its shell): the prompt is printed and one line
+    read in :meth:`offer` itself. It blocks, unlike :class:`TerminalOperator`, so that nothing is left reading
+    standard input after the answer (the shell's next ``input()`` gets the next line); end of input gives up."""
+
+    name = "terminal"
+
+    def __init__(self, stream_in: IO[str] | None = None, stream_out: IO[str] | None = None):
+        self._in = stream_in
+        self._out = stream_out
+
+    def offer(self, ticket: Ticket) -> None:
+        out = self._out or sys.stderr
+        out.write(ticket.prompt.message + " ")
+        out.flush()
+        if (self._in or sys.stdin).readline() == "":
+            ticket.give_up(self.name, "no operator answer (end of input)")
+        else:
+            ticket.answer(self.name)
 
     def withdraw(self, ticket: Ticket) -> None:
         return None

@@ -540,9 +540,28 @@ def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration])
 # Steps
 
 
+class StepKind:
+    """What every step kind declares, so that nothing outside it lists the kinds (issue 21): the configuration it
+    names (``config_id``, None for one that names none: it belongs to the group before it), whether it still runs
+    once its configuration failed (``closes_group``: the checkpoints), its time under a :class:`DurationModel`
+    (``estimate``, each kind its own) and the calibration boards it needs presented (``present``). The runner
+    executes a step through one handler per kind (``CampaignRunner._execute``)."""
+
+    config_id: ClassVar[str | None] = None
+    closes_group: ClassVar[bool] = False
+
+    def estimate(self, model: DurationModel) -> None:
+        """Add this step's time to ``model`` (every kind says its own; see :func:`estimate_duration`)."""
+        raise NotImplementedError(f"{type(self).__name__} does not say how long it takes")
+
+    def present(self, tally: Presentations) -> None:
+        """Count the calibration board presentations this step needs (none by default)."""
+        return None
+
+
 @dataclass(frozen=True)
-class Move:
-    """Move the rig to a configuration (the motors; ``GrblRig.move_to`` then prompts for manual quantities)."""
+class Move(StepKind):
+    """Move the rig to a configuration (the motors; the manual quantities are the prompt steps that follow)."""
 
     configuration: Configuration
     kind: ClassVar[str] = "move"
@@ -551,9 +570,27 @@ class Move:
         c = self.configuration
         return {"step": self.kind, "config_id": c.config_id, "index": c.index, "request": c.move_request()}
 
+    @property
+    def config_id(self) -> str:
+        return self.configuration.config_id
+
+    def estimate(self, model: DurationModel) -> None:
+        """One straight GRBL move from where the previous one left the axes (see :func:`estimate_duration`)."""
+        request = self.configuration.move_request()
+        driven = {q: v for q, v in request.items() if model.rig_config.quantities[q].driven}
+        targets = to_machine(model.rig_config, driven)
+        deltas = {a: targets[a] - model.position[a] for a in targets}
+        feed = vector_feed(deltas, model.feeds)
+        model.motion_s += move_time_s(deltas, max_rate_per_min=model.rates, acceleration=model.accels,
+                                      feed_per_min=feed) / model.speed_factor
+        model.position.update(targets)
+
+    def present(self, tally: Presentations) -> None:
+        tally.in_visit = isinstance(self.configuration, Visit)
+
 
 @dataclass(frozen=True)
-class PromptTarget:
+class PromptTarget(StepKind):
     """The operator moves the target to ``distance_mm`` (the target distance is manual and changes here)."""
 
     distance_mm: float
@@ -562,9 +599,12 @@ class PromptTarget:
     def as_dict(self) -> dict[str, Any]:
         return {"step": self.kind, "distance_mm": self.distance_mm}
 
+    def estimate(self, model: DurationModel) -> None:
+        model.operator_s += OPERATOR_S_PER_PROMPT if model.real_scene else 0.0
+
 
 @dataclass(frozen=True)
-class PromptManual:
+class PromptManual(StepKind):
     """The operator sets another manual quantity (e.g. the baseline on a rig without a motorised slide)."""
 
     quantity: str
@@ -574,9 +614,12 @@ class PromptManual:
     def as_dict(self) -> dict[str, Any]:
         return {"step": self.kind, "quantity": self.quantity, "value": self.value}
 
+    def estimate(self, model: DurationModel) -> None:
+        model.operator_s += OPERATOR_S_PER_PROMPT if model.real_rig else 0.0
+
 
 @dataclass(frozen=True)
-class Settle:
+class Settle(StepKind):
     """Wait for the rig (and the operator's hands) to be still."""
 
     seconds: float
@@ -585,9 +628,12 @@ class Settle:
     def as_dict(self) -> dict[str, Any]:
         return {"step": self.kind, "seconds": self.seconds}
 
+    def estimate(self, model: DurationModel) -> None:
+        model.settle_s += self.seconds
+
 
 @dataclass(frozen=True)
-class Flush:
+class Flush(StepKind):
     """Discard the frames the cameras queued before and during the move."""
 
     kind: ClassVar[str] = "flush"
@@ -595,9 +641,12 @@ class Flush:
     def as_dict(self) -> dict[str, Any]:
         return {"step": self.kind}
 
+    def estimate(self, model: DurationModel) -> None:
+        model.flush_s += model.flush_frames * model.frame_s
+
 
 @dataclass(frozen=True)
-class CaptureCalibration:
+class CaptureCalibration(StepKind):
     """Capture ``n_views`` stereo views of the calibration board (R, T are estimated from them)."""
 
     n_views: int
@@ -606,9 +655,16 @@ class CaptureCalibration:
     def as_dict(self) -> dict[str, Any]:
         return {"step": self.kind, "n_views": self.n_views}
 
+    def estimate(self, model: DurationModel) -> None:
+        model.capture_s += self.n_views * model.frame_s
+        model.operator_s += self.n_views * OPERATOR_S_PER_CALIBRATION_VIEW if model.real_scene else 0.0
+
+    def present(self, tally: Presentations) -> None:
+        tally.add(self.n_views)
+
 
 @dataclass(frozen=True)
-class CaptureMeasurement:
+class CaptureMeasurement(StepKind):
     """Capture ``n_frames`` stereo frames of the target and measure the square."""
 
     n_frames: int
@@ -617,9 +673,12 @@ class CaptureMeasurement:
     def as_dict(self) -> dict[str, Any]:
         return {"step": self.kind, "n_frames": self.n_frames}
 
+    def estimate(self, model: DurationModel) -> None:
+        model.capture_s += self.n_frames * model.frame_s
+
 
 @dataclass(frozen=True)
-class Checkpoint:
+class Checkpoint(StepKind):
     """End of a configuration: everything before it is recorded, and a resumed run starts after it.
 
     ``skipped``: the configuration is not run (infeasible or outside the limits); ``reason`` says why.
@@ -629,13 +688,17 @@ class Checkpoint:
     skipped: bool = False
     reason: str | None = None
     kind: ClassVar[str] = "checkpoint"
+    closes_group: ClassVar[bool] = True
 
     def as_dict(self) -> dict[str, Any]:
         return {"step": self.kind, "config_id": self.config_id, "skipped": self.skipped, "reason": self.reason}
 
+    def estimate(self, model: DurationModel) -> None:
+        return None  # bookkeeping: no time
+
 
 @dataclass(frozen=True)
-class VisitDone:
+class VisitDone(StepKind):
     """End of a visit (:class:`Visit`): its calibration views are kept for :class:`PrepareExtrinsics`.
 
     ``skipped``: the visit is not run (the board does not fit, or outside the soft limits); ``reason`` says why.
@@ -645,9 +708,13 @@ class VisitDone:
     skipped: bool = False
     reason: str | None = None
     kind: ClassVar[str] = "visit_done"
+    closes_group: ClassVar[bool] = True
 
     def as_dict(self) -> dict[str, Any]:
         return {"step": self.kind, "config_id": self.config_id, "skipped": self.skipped, "reason": self.reason}
+
+    def estimate(self, model: DurationModel) -> None:
+        return None  # bookkeeping: no time
 
 
 #: The config_id of the PrepareExtrinsics step's group (not a configuration: nothing is measured there).
@@ -655,16 +722,20 @@ PREPARE_ID = "extrinsics-source"
 
 
 @dataclass(frozen=True)
-class PrepareExtrinsics:
+class PrepareExtrinsics(StepKind):
     """Fit the kinematic rig model to the design's views (``kinematic``), or calibrate the intrinsics
     (``intrinsics``), before the first measured configuration; recorded, and read back by a resume."""
 
     purpose: str
     config_id: str = PREPARE_ID
     kind: ClassVar[str] = "prepare_extrinsics"
+    closes_group: ClassVar[bool] = True
 
     def as_dict(self) -> dict[str, Any]:
         return {"step": self.kind, "config_id": self.config_id, "purpose": self.purpose}
+
+    def estimate(self, model: DurationModel) -> None:
+        return None  # computation (the fit, the calibration) is not counted
 
 
 Step = (Move | PromptTarget | PromptManual | Settle | Flush | CaptureCalibration | CaptureMeasurement | Checkpoint
@@ -751,6 +822,47 @@ def _frame_time_s(config: CampaignConfig) -> float:
     return max(period, (settings.exposure_us or 0.0) / 1e6)
 
 
+@dataclass
+class DurationModel:
+    """What a step's time depends on (the rig, the cameras, who does the manual steps), and the time counted so far
+    by component: each step kind adds its own (``StepKind.estimate``), in plan order; ``position`` is where the
+    last move left the axes (machine units)."""
+
+    rig_config: RigConfig
+    speed_factor: float
+    rates: dict[str, float]
+    accels: dict[str, float]
+    feeds: dict[str, float | None]
+    position: dict[str, float]
+    real_scene: bool  # boards and target are moved by hand
+    real_rig: bool  # a manual rig quantity is set by hand
+    frame_s: float
+    flush_frames: int
+    motion_s: float = 0.0
+    settle_s: float = 0.0
+    flush_s: float = 0.0
+    capture_s: float = 0.0
+    operator_s: float = 0.0
+
+    @classmethod
+    def of(cls, config: CampaignConfig) -> DurationModel:
+        """The model of ``config``'s bench, nothing counted yet, the axes where the emulator homes them."""
+        rig_config = config.rig.rig_config()
+        travel = rig_config.machine_travel()
+        if config.cameras.kind == "simulated":
+            flush_frames = 0
+        else:
+            flush_frames = config.cameras.camera_settings().buffer_count or ASSUMED_FLUSH_FRAMES
+        return cls(
+            rig_config=rig_config, speed_factor=config.rig.time_scale if config.rig.kind == "simulated" else 1.0,
+            rates={a: REFERENCE_AXIS_MOTION[a].max_rate_per_min for a in travel},
+            accels={a: REFERENCE_AXIS_MOTION[a].acceleration for a in travel},
+            feeds=rig_config.axis_feeds_per_min(),
+            position={a: min(max(0.0, low), high) for a, (low, high) in travel.items()},  # the emulator's home
+            real_scene=config.cameras.kind != "simulated", real_rig=config.rig.kind != "simulated",
+            frame_s=_frame_time_s(config), flush_frames=flush_frames)
+
+
 def estimate_duration(config: CampaignConfig, configurations: Sequence[Configuration],
                       steps: Sequence[Step]) -> DurationEstimate:
     """How long the campaign should take, step by step.
@@ -774,48 +886,18 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
     - Not included: computation (rendering, detection, calibration) and parking the rig at the end.
     """
     del configurations  # the steps carry what is needed; the argument keeps the documented signature
-    rig_config = config.rig.rig_config()
-    travel = rig_config.machine_travel()
-    speed_factor = config.rig.time_scale if config.rig.kind == "simulated" else 1.0
-    rates = {a: REFERENCE_AXIS_MOTION[a].max_rate_per_min for a in travel}
-    accels = {a: REFERENCE_AXIS_MOTION[a].acceleration for a in travel}
-    feeds = rig_config.axis_feeds_per_min()
-    position = {a: min(max(0.0, low), high) for a, (low, high) in travel.items()}  # the emulator's home
-    real_scene = config.cameras.kind != "simulated"  # boards and target are moved by hand
-    real_rig = config.rig.kind != "simulated"  # a manual rig quantity is set by hand
-    human = real_scene or real_rig
-    frame_s = _frame_time_s(config)
-    if config.cameras.kind == "simulated":
-        flush_frames = 0
-    else:
-        flush_frames = config.cameras.camera_settings().buffer_count or ASSUMED_FLUSH_FRAMES
+    model = DurationModel.of(config)
+    travel, speed_factor = model.rig_config.machine_travel(), model.speed_factor
+    real_scene, frame_s, flush_frames = model.real_scene, model.frame_s, model.flush_frames
+    human = real_scene or model.real_rig
 
     homing = 0.0
     if config.rig.homing and travel:
         homing = homing_estimate_s(travel, simulated=config.rig.kind == "simulated") / speed_factor
-    motion = settle = flush = capture = operator = 0.0
     for step in steps:
-        if isinstance(step, Move):
-            request = step.configuration.move_request()
-            driven = {q: v for q, v in request.items() if rig_config.quantities[q].driven}
-            targets = to_machine(rig_config, driven)
-            deltas = {a: targets[a] - position[a] for a in targets}
-            feed = vector_feed(deltas, feeds)
-            motion += move_time_s(deltas, max_rate_per_min=rates, acceleration=accels, feed_per_min=feed) / speed_factor
-            position.update(targets)
-        elif isinstance(step, PromptTarget):
-            operator += OPERATOR_S_PER_PROMPT if real_scene else 0.0
-        elif isinstance(step, PromptManual):
-            operator += OPERATOR_S_PER_PROMPT if real_rig else 0.0
-        elif isinstance(step, Settle):
-            settle += step.seconds
-        elif isinstance(step, Flush):
-            flush += flush_frames * frame_s
-        elif isinstance(step, CaptureCalibration):
-            capture += step.n_views * frame_s
-            operator += step.n_views * OPERATOR_S_PER_CALIBRATION_VIEW if real_scene else 0.0
-        elif isinstance(step, CaptureMeasurement):
-            capture += step.n_frames * frame_s
+        step.estimate(model)
+    motion, settle, flush, capture, operator = (model.motion_s, model.settle_s, model.flush_s, model.capture_s,
+                                                model.operator_s)
 
     assumptions = (
         "axis max rates and accelerations of the reference rig (the simulated rig's)"
@@ -874,15 +956,21 @@ def predict_duration_s(config: CampaignConfig, configurations: Sequence[Configur
 def calibration_presentations(steps: Sequence[Step]) -> dict[str, int]:
     """Board presentations the steps need: ``visits`` (design or intrinsics visits), ``configurations``
     (per-config calibration views at the measured configurations) and ``total``."""
-    out = {"visits": 0, "configurations": 0}
-    in_visit = False
+    tally = Presentations()
     for step in steps:
-        if isinstance(step, Move):
-            in_visit = isinstance(step.configuration, Visit)
-        elif isinstance(step, CaptureCalibration):
-            out["visits" if in_visit else "configurations"] += step.n_views
-    out["total"] = out["visits"] + out["configurations"]
-    return out
+        step.present(tally)
+    return {**tally.counts, "total": tally.counts["visits"] + tally.counts["configurations"]}
+
+
+@dataclass
+class Presentations:
+    """Board presentations counted so far (``StepKind.present``): at visits, or at measured configurations."""
+
+    in_visit: bool = False  # the last move went to a visit
+    counts: dict[str, int] = field(default_factory=lambda: {"visits": 0, "configurations": 0})
+
+    def add(self, n_views: int) -> None:
+        self.counts["visits" if self.in_visit else "configurations"] += n_views
 
 
 def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN_PX) -> dict[str, Any]:

@@ -31,6 +31,7 @@ view's prompt, recorded as ``calibration_view_discarded``; its frames stay in th
 
 from __future__ import annotations
 
+import functools
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -67,7 +68,15 @@ from stereo_bench.campaign.documents import (
     TargetNotFoundEvent,
     TruthEvent,
 )
-from stereo_bench.campaign.operator import CONTINUE, DISCARD_LAST_VIEW, Answer, OperatorDesk, Prompt, StopRequested
+from stereo_bench.campaign.operator import (
+    CONTINUE,
+    DISCARD_LAST_VIEW,
+    Answer,
+    OperatorDesk,
+    Prompt,
+    StopRequested,
+    manual_prompt,
+)
 from stereo_bench.campaign.plan import (
     PREPARE_ID,
     CaptureCalibration,
@@ -265,9 +274,7 @@ class CampaignRunner:
         if self._stop.is_set():
             raise StopRequested()
         if self._feed_held:
-            resume = getattr(self.bench.rig, "resume", None)  # GrblRig: '~' once the hold is complete
-            if resume is not None:
-                resume()
+            self.bench.rig.resume()  # GrblRig: '~' once the hold is complete; the held move is then queued again
             self._feed_held = False
         self._publish(Draft(RunControlEvent, data={"action": "resume"}))
 
@@ -315,13 +322,10 @@ class CampaignRunner:
                         self.bench.presenter.begin_configuration(configuration)
                     for step in group:
                         self._between_steps()
-                        if isinstance(step, Checkpoint):
-                            self._checkpoint(configuration, captured, failed)
-                        elif isinstance(step, VisitDone | PrepareExtrinsics):
-                            self._prepare_step(step, captured, failed)
-                        elif failed is None:
+                        # After a failure only the step that closes the group runs (it records the failure).
+                        if failed is None or step.closes_group:
                             try:
-                                self._execute(step, captured)
+                                self._execute(step, captured, failed)
                             except ConfigurationFailed as error:
                                 failed = str(error)
                         self._collect(block=False)
@@ -356,25 +360,50 @@ class CampaignRunner:
             return None
         return self.configurations.get(config_id) or self.visits[config_id]
 
-    def _execute(self, step, captured: Captured) -> None:
-        configuration = captured.configuration
-        if isinstance(step, Move):
-            captured.axes, captured.approach = self._move(configuration)
-        elif isinstance(step, PromptTarget):
-            self._set_by_hand(configuration, "target_distance_mm", step.distance_mm)
-        elif isinstance(step, PromptManual):
-            self._set_by_hand(configuration, step.quantity, step.value)
-        elif isinstance(step, Settle):
-            self.bench.clock.wait(step.seconds, self._stop)
-        elif isinstance(step, Flush):
-            self.bench.cameras.flush()
-        elif isinstance(step, CaptureCalibration):
-            self._capture_calibration(step.n_views, captured)
-        elif isinstance(step, CaptureMeasurement):
-            self._capture_measurement(step.n_frames, captured)
-            self._record_truth(captured)
-        else:
-            raise TypeError(f"unknown step {step!r}")
+    # One handler per step kind (plan.Step): a new kind is its class in plan.py and one handler here.
+    # ``failed`` is the reason its configuration failed so far (only steps that close a group see one).
+
+    @functools.singledispatchmethod
+    def _execute(self, step, captured: Captured, failed: str | None) -> None:
+        raise TypeError(f"unknown step {step!r}")
+
+    @_execute.register
+    def _(self, step: Move, captured: Captured, failed: str | None) -> None:
+        captured.axes, captured.approach = self._move(captured.configuration)
+
+    @_execute.register
+    def _(self, step: PromptTarget, captured: Captured, failed: str | None) -> None:
+        self._set_by_hand(captured.configuration, "target_distance_mm", step.distance_mm)
+
+    @_execute.register
+    def _(self, step: PromptManual, captured: Captured, failed: str | None) -> None:
+        self._set_by_hand(captured.configuration, step.quantity, step.value)
+
+    @_execute.register
+    def _(self, step: Settle, captured: Captured, failed: str | None) -> None:
+        self.bench.clock.wait(step.seconds, self._stop)
+
+    @_execute.register
+    def _(self, step: Flush, captured: Captured, failed: str | None) -> None:
+        self.bench.cameras.flush()
+
+    @_execute.register
+    def _(self, step: CaptureCalibration, captured: Captured, failed: str | None) -> None:
+        self._capture_calibration(step.n_views, captured)
+
+    @_execute.register
+    def _(self, step: CaptureMeasurement, captured: Captured, failed: str | None) -> None:
+        self._capture_measurement(step.n_frames, captured)
+        self._record_truth(captured)
+
+    @_execute.register
+    def _(self, step: Checkpoint, captured: Captured, failed: str | None) -> None:
+        self._checkpoint(captured.configuration, captured, failed)
+
+    @_execute.register(VisitDone)
+    @_execute.register(PrepareExtrinsics)
+    def _(self, step, captured: Captured, failed: str | None) -> None:
+        self._prepare_step(step, captured, failed)
 
     def _ask(self, prompt: Prompt) -> Answer:
         """Put an operator step to the operators (first answer wins) and record who did it, and how.
@@ -392,21 +421,16 @@ class CampaignRunner:
         return answer
 
     def _set_by_hand(self, configuration: Configuration, quantity: str, value: float) -> None:
-        from drivers.rig.rig import manual_instruction
-
-        self._ask(Prompt("target" if quantity == "target_distance_mm" else "manual",
-                         manual_instruction(quantity, value), config_id=configuration.config_id,
-                         quantity=quantity, value=value))
+        self._ask(manual_prompt(quantity, value, config_id=configuration.config_id))
 
     def _trust_position(self) -> None:
         """``[rig] homing = false``: the user states the rig stands where its controller counts, as ``rig unlock
         --trust-position`` does; recorded, since every move of the run rests on it. A rig that cannot be told
         (a replay) has nothing to trust."""
-        trust = getattr(self.bench.rig, "trust_position", None)
         self._trusted = True
-        if not callable(trust):
+        if not self.bench.rig.capabilities.trust_position:
             return
-        reading = trust()
+        reading = self.bench.rig.trust_position()
         self._publish(Draft(RigPositionTrustedEvent, data={
             "rig": reading.to_dict(), "reason": "[rig] homing = false: the position the controller reports is taken "
                                                 "as right without homing"}))
@@ -456,10 +480,9 @@ class CampaignRunner:
         """Homing left the rig at ``reading``: where the plan's moves start from, and each axis' approach there."""
         self._homed = True
         # The cycle's last move pulls each axis off its switch: the direction the homed position was reached from.
-        directions = getattr(self.bench.rig, "homing_approach", None)
         self._approach.homed(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
                                                     "toe_in_right_deg": 0.0}),
-                             directions() if callable(directions) else {})
+                             self.bench.rig.homing_approach())
         self._last_index = -1
         self._start = self._start or self._motor_position(reading, {})
 
@@ -497,11 +520,12 @@ class CampaignRunner:
                 raise StopRequested()
 
     def _move_once(self, request: dict):
-        """One move; a pause requested meanwhile feed-holds it (see :meth:`request_pause`)."""
+        """One move, waited on through its status; a pause requested meanwhile feed-holds it (the status then fails
+        and :meth:`_move` holds, resumes and queues the move again; see :meth:`request_pause`)."""
         with self._control_lock:
             self._moving = True
         try:
-            return self.bench.rig.move_to(**request)
+            return self.bench.rig.move_to(**request).wait()
         finally:
             with self._control_lock:
                 self._moving = False
@@ -513,12 +537,12 @@ class CampaignRunner:
         the reset, if the axes were moving) lost. A rig that cannot be recovered ends the run as failed
         (:class:`RigUnrecoverable`): every later configuration would need it."""
         rig = self.bench.rig
-        reset = getattr(rig, "reset", None)  # GrblRig.reset(); a rig without one (a replay's) is only homed
-        steps = (["soft reset"] if reset is not None else []) + ["homing"]
+        resets = rig.capabilities.reset  # GrblRig.reset(); a rig without one (a replay's) is only homed
+        steps = (["soft reset"] if resets else []) + ["homing"]
         step = steps[0]
         try:
-            if reset is not None:
-                reset()
+            if resets:
+                rig.reset()
             step = "homing"
             reading = rig.home()
         except Exception as failure:  # noqa: BLE001 - the campaign cannot go on without a working rig
@@ -529,7 +553,7 @@ class CampaignRunner:
                 f"{step}" + ("" if same else f": {failure}")) from failure
         self._homed_at(reading)
         self._publish(Draft(RigRecoveredEvent, data={
-            "action": f"{'soft reset, then ' if reset is not None else ''}homed after a failed move"}))
+            "action": f"{'soft reset, then ' if resets else ''}homed after a failed move"}))
 
     def _keeps_frames(self, model) -> bool:
         """Whether captures of this kind write their frames to the session (``[capture] keep_frames``)."""
@@ -793,11 +817,8 @@ def _done(value) -> Future:
 
 
 def step_config_id(step) -> str | None:
-    """The configuration a step names, if it names one (moves and checkpoints do)."""
-    configuration = getattr(step, "configuration", None)
-    if configuration is not None:
-        return configuration.config_id
-    return getattr(step, "config_id", None)
+    """The configuration a step names, if it names one (moves and checkpoints do): its ``StepKind.config_id``."""
+    return step.config_id
 
 
 def group_steps(steps: list) -> list[tuple[str, list]]:

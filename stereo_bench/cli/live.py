@@ -80,9 +80,9 @@ def cmd_live(args: argparse.Namespace) -> int:
             if wants_move and not args.no_move:
                 if config.rig.homing:
                     bench.rig.home()
-                elif callable(getattr(bench.rig, "trust_position", None)):
+                elif bench.rig.capabilities.trust_position:
                     bench.rig.trust_position()  # [rig] homing = false: the position is right as it is (docs/RIG.md)
-                bench.rig.move_to(**request)
+                bench.rig.move_to(**request).wait()
             if simulated:  # the measured target where the campaign would put it
                 bench.presenter.begin_configuration(configuration)
                 bench.presenter.present_target(0)

@@ -43,7 +43,6 @@ from drivers.rig import (
     RigError,
     RigReading,
     load_rig_config,
-    wait_for_enter,
 )
 from drivers.rig.config import MAX_MOVE_TIMEOUT_S, along_baseline, alpha_from_toe_in, plan_move
 from drivers.rig.motion import REFERENCE_HOMING
@@ -51,6 +50,7 @@ from drivers.rig.rig import physical_request
 from drivers.sim.grbl.emulator import GrblEmulator
 from drivers.sim.grbl.faults import FAULT_HELP, parse_fault
 from drivers.sim.grbl.firmware import AXIS_LETTERS, AxisSpec, axis_specs_for_travel
+from stereo_bench.campaign.operator import LineOperator, OperatorAbsent, OperatorDesk, move_and_ask
 from stereo_bench.cli import CliError, failure, print_json, stop_on_signals
 from stereo_bench.cli.args import TIME_SCALE, finite_float
 from stereo_bench.paths import UnwritablePath, check_output_file
@@ -336,7 +336,7 @@ def _cmd_rig(args) -> int:
     # One soft reset at connect flushes half-received lines; not when looking, resuming a hold or in the shell.
     options = {"reset_on_open": first == "reset" or (first not in _LOOKING and config.controller.reset_on_open)}
     with _warnings_to_stderr():
-        rig = GrblRig(args.port, config, prompt=wait_for_enter, spy_log=args.spy_log, **options)
+        rig = GrblRig(args.port, config, spy_log=args.spy_log, **options)
         try:
             rig.open()
         except RigError as error:
@@ -418,7 +418,11 @@ def _move(rig: GrblRig, action: _Action, args, *, interactive: bool) -> None:
         print(f"moving: {text} (machine units) ...", flush=True)
 
     try:
-        reading = rig.move_to(timeout_s=args.timeout, on_moving=moving, **action.request)  # type: ignore[arg-type]
+        # The motors, then the operator for what the rig sets by hand: the campaign's one prompt path (a desk).
+        reading = move_and_ask(rig, OperatorDesk([LineOperator()]), timeout_s=args.timeout, on_moving=moving,
+                               **action.request)
+    except OperatorAbsent as error:
+        raise CliError(f"move: {error}") from None
     except KeyboardInterrupt:
         # The controller would carry on with the queued move: hold it before giving up.
         with contextlib.suppress(RigError):
