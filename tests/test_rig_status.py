@@ -10,7 +10,7 @@ import pytest
 from drivers.replay import ReplayRig
 from drivers.rig import GrblRig, Rig, RigCapabilities, RigStatus, StatusTimeout
 from drivers.rig.config import MoveRequestError
-from drivers.sim.grbl_emulator import GrblEmulator
+from drivers.sim.grbl.emulator import GrblEmulator
 
 
 def test_a_status_finishes_by_itself_and_says_how():
