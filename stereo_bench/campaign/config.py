@@ -48,7 +48,7 @@ from collections import Counter
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 from pydantic import (
     BaseModel,
@@ -85,6 +85,9 @@ from stereo_bench.geometry import (
 from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision.calibrate import MIN_BASELINE_MM, MIN_VIEWS
 from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL
+
+if TYPE_CHECKING:
+    from stereo_bench.campaign.extrinsics import ExtrinsicsSource
 
 #: Relative standard uncertainty of a printed measured target's square when the config does not state it:
 #: an office laser/inkjet print is +-0.1 % in scale from the paper feed (rectangular: 0.1 % / sqrt(3)).
@@ -520,19 +523,19 @@ class ExtrinsicsSection(BaseModel):
 
     @model_validator(mode="after")
     def _check(self) -> ExtrinsicsSection:
-        if self.mode == "fixed" and self.calib_dir is None:
-            raise ValueError("mode = \"fixed\" needs calib_dir (a directory with intrinsics.yml and extrinsics.yml)")
+        self.source().check(self)
         return self
 
-    @property
-    def design_visits(self) -> bool:
-        """Kinematic extrinsics without a saved model: the plan starts with the design's calibration visits."""
-        return self.mode == "kinematic" and self.kinematic_file is None
+    def source(self) -> ExtrinsicsSource:
+        """The strategy object of ``mode`` (:mod:`stereo_bench.campaign.extrinsics`): what the plan, the runner and
+        the report ask instead of the name."""
+        from stereo_bench.campaign.extrinsics import extrinsics_source
 
-    @property
-    def intrinsics_visit(self) -> bool:
-        """Nominal extrinsics without a calibration directory: one calibration at the first configuration."""
-        return self.mode == "nominal" and self.calib_dir is None
+        return extrinsics_source(self.mode)
+
+
+#: The extrinsics sources' names, in the order the report lists them (one module each in campaign/extrinsics/).
+EXTRINSICS_MODES: tuple[str, ...] = get_args(ExtrinsicsSection.model_fields["mode"].annotation)
 
 
 # The interval each plan value must lie in, and whether each end is allowed. The angles' ends are the rule
@@ -640,7 +643,7 @@ class CampaignConfig(BaseModel):
             raise ValueError(f"rig.kind = \"{self.rig.kind}\" with cameras.kind = \"{self.cameras.kind}\" is not a "
                              f"bench: {UNSUPPORTED_BENCHES[self.rig.kind, self.cameras.kind]}")
         extrinsics = self.extrinsics
-        if ((extrinsics.mode == "per-config" or extrinsics.intrinsics_visit)
+        if (extrinsics.source().needs_calibration_views(extrinsics)
                 and self.capture.calibration_views < MIN_CALIBRATION_VIEWS):
             raise ValueError(f"capture.calibration_views: {extrinsics.mode} extrinsics need at least "
                              f"{MIN_CALIBRATION_VIEWS} calibration views, not {self.capture.calibration_views}")
@@ -783,7 +786,7 @@ def _check_files(config: CampaignConfig, source: str) -> None:
     if calib_dir is not None:
         if not calib_dir.is_dir():
             raise ConfigError(f"{source}: extrinsics.calib_dir: no such directory: {calib_dir}")
-        needed = ["intrinsics.yml"] + (["extrinsics.yml"] if config.extrinsics.mode == "fixed" else [])
+        needed = config.extrinsics.source().calib_dir_files()
         missing = [name for name in needed if not (calib_dir / name).exists()]  # not a file: the reader says
         if missing:
             raise ConfigError(f"{source}: extrinsics.calib_dir: {calib_dir} has no {', '.join(missing)}")
