@@ -196,7 +196,9 @@ def runner_options(config: CampaignConfig, *, reader: SessionReader | None = Non
     board = config.calibration_board
     optics = config.cameras.optics
     image_size = (optics.width_px, optics.height_px)
-    options = RunnerOptions(board_retries=config.capture.board_retries, intrinsics_mode=extrinsics.intrinsics,
+    options = RunnerOptions(board_retries=config.capture.board_retries,
+                            # the stereo calibration's mode (vision.calibrate: "joint" | "fixed")
+                            intrinsics_mode="fixed" if extrinsics.intrinsics_held else "joint",
                             calibration_board=f"{board.kind} {board.cols}x{board.rows} square {board.square_mm:g} mm",
                             extrinsics_mode=extrinsics.mode, visits=list(visits),
                             board_scale=BoardScale(target_u_rel=config.target.scale_u("target"),

@@ -76,7 +76,7 @@ RIG_CONFIG_KIND, RIG_CONFIG_FILE = "rig_config", "rig.toml"  # the copy of [rig]
 def session_sources(config) -> list[Draft]:
     """Documents recording the sources a run starts with from outside the session (a model file, the rig's
     ``config_file`` (a plain ``rig_config`` event with the file's copy), the intrinsics
-    of ``calib_dir`` in every mode that reads them: nominal, and ``intrinsics = "fixed"``), so a replay reads them
+    of ``calib_dir`` in every mode that reads them: nominal, and ``intrinsics = "held"``), so a replay reads them
     from inside it and replays after ``calib_dir`` has moved. (``fixed`` mode records its whole calibration.)"""
     extrinsics = config.extrinsics
     drafts = []
