@@ -206,7 +206,7 @@ def planned_captures(config: CampaignConfig, configuration: Configuration | Visi
     calibration views (per-config extrinsics) and its measurement frames."""
     if isinstance(configuration, Visit):
         return config.capture.calibration_views, 0
-    views = config.capture.calibration_views if config.extrinsics.mode == "per-config" else 0
+    views = config.capture.calibration_views if config.extrinsics.source().calibrates_each_configuration else 0
     return views, config.capture.frames_per_config
 
 

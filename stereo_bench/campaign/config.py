@@ -44,11 +44,12 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from collections import Counter
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 from pydantic import (
     BaseModel,
@@ -85,6 +86,9 @@ from stereo_bench.geometry import (
 from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision.calibrate import MIN_BASELINE_MM, MIN_VIEWS
 from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL
+
+if TYPE_CHECKING:
+    from stereo_bench.campaign.extrinsics import ExtrinsicsSource
 
 #: Relative standard uncertainty of a printed measured target's square when the config does not state it:
 #: an office laser/inkjet print is +-0.1 % in scale from the paper feed (rectangular: 0.1 % / sqrt(3)).
@@ -477,10 +481,12 @@ class ExtrinsicsSection(BaseModel):
     """Where the stereo extrinsics R, T come from.
 
     ``per-config`` (default): re-estimated at each configuration from views of the calibration board,
-    with the intrinsics refined jointly (``joint``, the default: scripts/bench_extrinsics_mode.py
-    measured abs(T) errors of 0.001 vs 0.002 mm, square errors equal) or kept fixed (``fixed``: from
-    ``calib_dir`` if given, else from mono calibrations of the same views). ``fixed``: R, T (and the
-    intrinsics) read from ``calib_dir`` (OpenCV stereo_calib layout: intrinsics.yml, extrinsics.yml).
+    with the intrinsics refined jointly (``intrinsics = "joint"``, the default: scripts/bench_extrinsics_mode.py
+    measured abs(T) errors of 0.001 vs 0.002 mm, square errors equal) or held, not refined (``"held"``: from
+    ``calib_dir`` if given, else from mono calibrations of the same views; ``"fixed"``, its spelling before
+    issue 21, is still accepted with a note: it read like ``mode = "fixed"``, which is R, T from a file).
+    ``fixed``: R, T (and the intrinsics) read from ``calib_dir`` (OpenCV stereo_calib layout: intrinsics.yml,
+    extrinsics.yml).
     ``kinematic``: R, T predicted at each configuration by the kinematic rig model
     (:mod:`stereo_bench.kinematics`) from the rig's reported axis positions and directions of approach; the
     model (with both cameras' intrinsics) is fitted once, in one joint adjustment, to calibration views at
@@ -494,7 +500,10 @@ class ExtrinsicsSection(BaseModel):
     model_config = _STRICT
 
     mode: Literal["per-config", "kinematic", "nominal", "fixed"] = "per-config"
-    intrinsics: Literal["joint", "fixed"] = "joint"
+    intrinsics: Literal["joint", "held", "fixed"] = Field(
+        "joint", description="per-config: the intrinsics refined jointly with R, T (joint) or held, not refined "
+                             "(held: calib_dir's, else the same views' mono calibrations); \"fixed\" is held's old "
+                             "spelling (mode \"fixed\" is R, T from calib_dir)")
     calib_dir: Path | None = Field(None, strict=False,
                                    description="calibration directory, relative to the campaign file")
     kinematic_file: Path | None = Field(
@@ -520,19 +529,24 @@ class ExtrinsicsSection(BaseModel):
 
     @model_validator(mode="after")
     def _check(self) -> ExtrinsicsSection:
-        if self.mode == "fixed" and self.calib_dir is None:
-            raise ValueError("mode = \"fixed\" needs calib_dir (a directory with intrinsics.yml and extrinsics.yml)")
+        self.source().check(self)
         return self
 
     @property
-    def design_visits(self) -> bool:
-        """Kinematic extrinsics without a saved model: the plan starts with the design's calibration visits."""
-        return self.mode == "kinematic" and self.kinematic_file is None
+    def intrinsics_held(self) -> bool:
+        """The stereo calibration holds the intrinsics (``held``, or its old spelling ``fixed``)."""
+        return self.intrinsics in ("held", "fixed")
 
-    @property
-    def intrinsics_visit(self) -> bool:
-        """Nominal extrinsics without a calibration directory: one calibration at the first configuration."""
-        return self.mode == "nominal" and self.calib_dir is None
+    def source(self) -> ExtrinsicsSource:
+        """The strategy object of ``mode`` (:mod:`stereo_bench.campaign.extrinsics`): what the plan, the runner and
+        the report ask instead of the name."""
+        from stereo_bench.campaign.extrinsics import extrinsics_source
+
+        return extrinsics_source(self.mode)
+
+
+#: The extrinsics sources' names, in the order the report lists them (one module each in campaign/extrinsics/).
+EXTRINSICS_MODES: tuple[str, ...] = get_args(ExtrinsicsSection.model_fields["mode"].annotation)
 
 
 # The interval each plan value must lie in, and whether each end is allowed. The angles' ends are the rule
@@ -640,7 +654,7 @@ class CampaignConfig(BaseModel):
             raise ValueError(f"rig.kind = \"{self.rig.kind}\" with cameras.kind = \"{self.cameras.kind}\" is not a "
                              f"bench: {UNSUPPORTED_BENCHES[self.rig.kind, self.cameras.kind]}")
         extrinsics = self.extrinsics
-        if ((extrinsics.mode == "per-config" or extrinsics.intrinsics_visit)
+        if (extrinsics.source().needs_calibration_views(extrinsics)
                 and self.capture.calibration_views < MIN_CALIBRATION_VIEWS):
             raise ValueError(f"capture.calibration_views: {extrinsics.mode} extrinsics need at least "
                              f"{MIN_CALIBRATION_VIEWS} calibration views, not {self.capture.calibration_views}")
@@ -742,11 +756,30 @@ def _one_line(error: ValidationError, source: str) -> ConfigError:
 
 def campaign_from_dict(data: Mapping[str, Any], *, source: str = "campaign config",
                        base_dir: str | Path | None = None) -> CampaignConfig:
-    """Validate a campaign config from parsed TOML. Relative paths resolve against ``base_dir``."""
+    """Validate a campaign config from parsed TOML. Relative paths resolve against ``base_dir``.
+
+    An old spelling (:data:`OLD_SPELLINGS`) is accepted, kept as written (the start document records what the
+    user wrote) and noted on stderr in one line, once per process."""
     try:
-        return CampaignConfig.model_validate(dict(data), context={"base_dir": base_dir})
+        config = CampaignConfig.model_validate(dict(data), context={"base_dir": base_dir})
     except ValidationError as error:
         raise _one_line(error, source) from None
+    _note_old_spellings(config, source)
+    return config
+
+
+#: Spellings a later issue renamed: (section, key, old value) -> the new value. Issue 21: ``[extrinsics]
+#: intrinsics = "fixed"`` (held, not refined) read like ``mode = "fixed"`` (R, T from a file).
+OLD_SPELLINGS: dict[tuple[str, str, str], str] = {("extrinsics", "intrinsics", "fixed"): "held"}
+_noted: set[tuple[str, str, str]] = set()
+
+
+def _note_old_spellings(config: CampaignConfig, source: str) -> None:
+    for (section, key, old), new in OLD_SPELLINGS.items():
+        if getattr(getattr(config, section), key) == old and (section, key, old) not in _noted:
+            _noted.add((section, key, old))
+            print(f"note: {source}: [{section}] {key} = \"{old}\" is now spelled \"{new}\" (the old spelling still "
+                  "works)", file=sys.stderr)
 
 
 # What a recorded config means by a section it lacks because the section did not exist yet: the bench
@@ -783,7 +816,7 @@ def _check_files(config: CampaignConfig, source: str) -> None:
     if calib_dir is not None:
         if not calib_dir.is_dir():
             raise ConfigError(f"{source}: extrinsics.calib_dir: no such directory: {calib_dir}")
-        needed = ["intrinsics.yml"] + (["extrinsics.yml"] if config.extrinsics.mode == "fixed" else [])
+        needed = config.extrinsics.source().calib_dir_files()
         missing = [name for name in needed if not (calib_dir / name).exists()]  # not a file: the reader says
         if missing:
             raise ConfigError(f"{source}: extrinsics.calib_dir: {calib_dir} has no {', '.join(missing)}")

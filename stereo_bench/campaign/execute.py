@@ -27,8 +27,6 @@ from stereo_bench import __version__, atomic, paths
 from stereo_bench.campaign.bench import Bench, open_bench, replay_bench
 from stereo_bench.campaign.config import CampaignConfig, recorded_campaign
 from stereo_bench.campaign.documents import (
-    CalibrationEvent,
-    CalibrationFiles,
     ControllerEvent,
     Draft,
     EventDocument,
@@ -189,22 +187,18 @@ def runner_options(config: CampaignConfig, *, reader: SessionReader | None = Non
                    visits: Sequence[Visit] = ()) -> RunnerOptions:
     """The runner's options from the config; ``reader``: a replay takes a fixed calibration, a model file's copy
     and nominal's ``calib_dir`` intrinsics from the recording, never from outside the session."""
-    from stereo_bench.campaign.extrinsics_run import intrinsics_from_dir, recorded_sources
+    from stereo_bench.campaign.extrinsics_run import recorded_sources
     from stereo_bench.kinematics import KinematicFileError, load_model
-    from stereo_bench.vision.calibio import (
-        INTRINSICS_FILE,
-        CalibrationFileError,
-        read_calibration,
-        read_intrinsics,
-        read_intrinsics_covariance,
-    )
+    from stereo_bench.vision.calibio import INTRINSICS_FILE, CalibrationFileError
     from stereo_bench.vision.uncertainty import BoardScale
 
     extrinsics = config.extrinsics
     board = config.calibration_board
     optics = config.cameras.optics
     image_size = (optics.width_px, optics.height_px)
-    options = RunnerOptions(board_retries=config.capture.board_retries, intrinsics_mode=extrinsics.intrinsics,
+    options = RunnerOptions(board_retries=config.capture.board_retries,
+                            # the stereo calibration's mode (vision.calibrate: "joint" | "fixed")
+                            intrinsics_mode="fixed" if extrinsics.intrinsics_held else "joint",
                             calibration_board=f"{board.kind} {board.cols}x{board.rows} square {board.square_mm:g} mm",
                             extrinsics_mode=extrinsics.mode, visits=list(visits),
                             board_scale=BoardScale(target_u_rel=config.target.scale_u("target"),
@@ -212,20 +206,11 @@ def runner_options(config: CampaignConfig, *, reader: SessionReader | None = Non
                             tolerances=extrinsics.tolerances.sigmas(),
                             repeatability=(extrinsics.repeatability_mm, extrinsics.repeatability_deg))
     try:
-        if extrinsics.mode == "fixed":
-            if reader is not None and reader.events(kind="calibration", config_id=None, attempt=None):
-                options.fixed_calibration = reader.calibration(None)  # what the recording used, from inside it
-            else:
-                options.fixed_calibration = read_calibration(extrinsics.calib_dir, image_size=image_size)
-        elif extrinsics.calib_dir is not None:
-            # a replay reads the recording's copy of calib_dir's intrinsics (sessions recorded before the copy
-            # was made for every mode: calib_dir itself)
-            source = _recorded_copy(reader, "intrinsics", INTRINSICS_FILE) if reader is not None else None
-            source = source or extrinsics.calib_dir
-            options.intrinsics = read_intrinsics(source)[:4]
-            options.intrinsics_covariance = read_intrinsics_covariance(source)
-            if extrinsics.mode == "nominal" and reader is None:
-                options.nominal_intrinsics = intrinsics_from_dir(extrinsics.calib_dir, image_size)
+        # a replay reads the recording's copy of calib_dir's intrinsics
+        copy = (_recorded_copy(reader, "intrinsics", INTRINSICS_FILE)
+                if reader is not None and extrinsics.calib_dir is not None else None)
+        extrinsics.source().load_calibration(options, extrinsics, reader=reader, intrinsics_copy=copy,
+                                             image_size=image_size)
     except CalibrationFileError as error:
         raise SessionError(f"extrinsics.calib_dir: {error}") from None
     if reader is not None:
@@ -251,9 +236,7 @@ def resume_sources(options: RunnerOptions, writer: SessionWriter, config: Campai
     optics = config.cameras.optics
     recorded = recorded_sources(writer.reader(), sources=("design",),
                                 image_size=(optics.width_px, optics.height_px))
-    purpose = visits[0].purpose
-    if (purpose == "kinematic" and recorded.kinematic_model is None) or (
-            purpose == "intrinsics" and recorded.nominal_intrinsics is None):
+    if not config.extrinsics.source().is_prepared(recorded):
         return set()
     options.kinematic_model = recorded.kinematic_model or options.kinematic_model
     options.nominal_intrinsics = recorded.nominal_intrinsics or options.nominal_intrinsics
@@ -320,9 +303,8 @@ def run_campaign(
                     runner = CampaignRunner(config, campaign.configurations, campaign.steps, bench=bench, bus=bus,
                                             options=options)
                     _record_connect(bus, bench, config)
-                    if config.extrinsics.mode == "fixed":  # the calibration used goes into the session
-                        bus.publish(Draft(CalibrationEvent, config_id=None, calibration=CalibrationFiles(
-                            options.fixed_calibration, None, board=f"fixed: {config.extrinsics.calib_dir}")))
+                    for draft in config.extrinsics.source().start_drafts(options, config.extrinsics):
+                        bus.publish(draft)  # fixed: the calibration used goes into the session
                     for draft in session_sources(config):  # a model file, calib_dir's intrinsics: copied in
                         bus.publish(draft)
                     control.attach(runner)

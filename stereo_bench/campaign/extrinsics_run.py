@@ -1,14 +1,11 @@
-"""The extrinsics source of a campaign run: prepared from the visits, read back for a resume or a replay, and
-applied at each configuration (the runner's steps call these; :mod:`stereo_bench.campaign.sources` is the math).
+"""The extrinsics source of a campaign run: what it prepared from the visits, recorded, and read back for a resume
+or a replay (each source's own steps are its strategy object, :mod:`stereo_bench.campaign.extrinsics`;
+:mod:`stereo_bench.campaign.sources` is the math).
 
-- :func:`prepare_source` (analysis thread, after the visits): fits the kinematic rig model to the design's
-  views in one joint adjustment (:func:`stereo_bench.kinematics.fit_kinematics`), or calibrates the
-  intrinsics ``nominal`` extrinsics use from one visit's views. What it made is recorded
-  (:meth:`Prepared.drafts`: the model's TOML as a ``kinematic_model`` event's side file, or a
-  ``calibration`` event of the visit).
-- :func:`used_source` / :func:`compare_sources`: the source a configuration is measured with and every
-  other one available there, on the same detections, with their uncertainty budgets; the result row's
-  columns and the ``structure`` event.
+- :class:`Prepared`: what a source's ``prepare`` (analysis thread, after the visits) made: the kinematic rig
+  model fitted to the design's views in one joint adjustment, or the intrinsics ``nominal`` extrinsics use
+  from one visit's views. It is recorded (:meth:`Prepared.drafts`: the model's TOML as a ``kinematic_model``
+  event's side file, or a ``calibration`` event of the visit).
 - :func:`session_sources` / :func:`recorded_sources`: what a run starts with (a model file, a calibration
   directory's intrinsics) and what a recording holds (a resume does not visit the design again; a replay
   takes a model file's copy from the session, never from outside it).
@@ -22,8 +19,6 @@ calibration a per-config run makes there, whose joint intrinsics carry their cov
 
 from __future__ import annotations
 
-import time
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from drivers.files import MAX_TOML_BYTES, read_regular_file
-from stereo_bench.campaign.analysis import AnalysisError, ConfigurationAnalysis, calibrate_configuration
+from stereo_bench.campaign.analysis import ConfigurationAnalysis
 from stereo_bench.campaign.documents import (
     CalibrationEvent,
     CalibrationFiles,
@@ -40,27 +35,7 @@ from stereo_bench.campaign.documents import (
     KinematicModelEvent,
     event_draft,
 )
-from stereo_bench.campaign.sources import (
-    Source,
-    StructureComparison,
-    assess,
-    calibrated_source,
-    compare,
-    fixed_source,
-    kinematic_source,
-    nominal_source,
-    result_columns,
-    structure_data,
-    truth_columns,
-)
-from stereo_bench.kinematics import (
-    ConfigurationViews,
-    KinematicFileError,
-    KinematicModel,
-    fit_kinematics,
-    model_from_toml,
-    model_toml,
-)
+from stereo_bench.kinematics import KinematicFileError, KinematicModel, model_from_toml, model_toml
 from stereo_bench.vision.calibio import MAX_CALIBRATION_FILE_BYTES
 from stereo_bench.vision.calibrate import StereoCalibration
 
@@ -91,101 +66,6 @@ class Prepared:
         return out
 
 
-def prepare_source(purpose: str, captures: Sequence, config, options) -> Prepared:
-    """Fit the kinematic model (``purpose`` kinematic) or calibrate the intrinsics (intrinsics) from the visits'
-    captures (:class:`~stereo_bench.campaign.runner.Captured`, each with its calibration pairs, reported axes
-    and approach). A failure is kept (``error``): every configuration then fails with it."""
-    board = config.calibration_board.build()
-    captured = [c for c in captures if c.calibration_pairs]
-    ids = [c.configuration.config_id for c in captured]
-    if purpose == "intrinsics":
-        if not captured:
-            return Prepared(error="no intrinsics for nominal extrinsics: the calibration visit captured nothing")
-        try:
-            analysis = calibrate_configuration(captured[0].calibration_pairs, board, mode="joint",
-                                               detections=captured[0].detections())
-        except AnalysisError as error:
-            return Prepared(error=f"no intrinsics for nominal extrinsics: calibration at {ids[0]} failed: {error}")
-        return Prepared(nominal_intrinsics=analysis.calib, calibration=(ids[0], analysis))
-
-    record: dict[str, Any] = {"source": "design", "visits_used": ids}
-    if not captured:
-        return Prepared(error="kinematic fit: no design visit captured views", record={**record, "error":
-                        "no design visit captured views"})
-    configurations = []
-    for capture in captured:
-        try:
-            views = capture.detections()  # made while capturing (or recorded, in a replay)
-        except AnalysisError as error:
-            return Prepared(error=f"kinematic fit failed: {error}", record={**record, "error": str(error)})
-        configurations.append(ConfigurationViews(axes=capture.axes, approach=capture.approach, views=views))
-    image = captured[0].calibration_pairs[0][0]
-    slide_mm, heads_deg = options.repeatability
-    started = time.perf_counter()
-    try:
-        fit = fit_kinematics(configurations, board.object_points, (int(image.shape[1]), int(image.shape[0])),
-                             intrinsics=options.intrinsics, refine_intrinsics=True, repeatability_mm=slide_mm,
-                             repeatability_left_deg=heads_deg, repeatability_right_deg=heads_deg)
-    except (ValueError, np.linalg.LinAlgError) as error:
-        return Prepared(error=f"kinematic fit failed: {error}", record={**record, "error": str(error)})
-    model = fit.model
-    record.update(n_views=model.fit.n_views, rms_px=model.fit.rms_px, fit_s=time.perf_counter() - started,
-                  views_dropped=[{"visit": ids[c], "view": i, "reason": why} for c, i, why in fit.views_dropped])
-    return Prepared(kinematic_model=model, record=record)
-
-
-# --------------------------------------------------------------------------------------------------
-# At a configuration
-
-
-def used_source(options, prepared: Prepared, configuration, captured) -> Source:
-    """The source a kinematic, nominal or fixed run measures ``configuration`` with; AnalysisError if it has none."""
-    mode = options.extrinsics_mode
-    if mode == "fixed":
-        return fixed_source(options.fixed_calibration, options.board_scale)
-    if mode == "kinematic":
-        if prepared.kinematic_model is None:
-            raise AnalysisError(prepared.error or "no kinematic rig model")
-        return kinematic_source(prepared.kinematic_model, captured.axes, captured.approach, options.board_scale)
-    if mode == "nominal":
-        if prepared.nominal_intrinsics is None:
-            raise AnalysisError(prepared.error or "no intrinsics for nominal extrinsics")
-        return _nominal(options, prepared.nominal_intrinsics, configuration)
-    raise ValueError(f"extrinsics mode {mode!r} is measured with its own calibration")
-
-
-def _nominal(options, intrinsics: StereoCalibration, configuration) -> Source:
-    return nominal_source(intrinsics, baseline_mm=configuration.baseline_mm, alpha_left_deg=configuration.alpha_deg,
-                          alpha_right_deg=configuration.alpha_deg, tilt_deg=configuration.tilt_deg,
-                          tolerances=options.tolerances, board_scale=options.board_scale)
-
-
-def compare_sources(options, prepared: Prepared, configuration, captured, analysis: ConfigurationAnalysis, target,
-                    *, used: Source | None) -> StructureComparison:
-    """The used source's budget and columns, and every other available source on the same detections.
-
-    Available: the kinematic model's prediction wherever a model is (kinematic mode, or ``kinematic_file``);
-    the nominal geometry with the used calibration's intrinsics; the calibrated R, T in per-config mode.
-    """
-    mode = options.extrinsics_mode
-    if used is None:  # per-config: the configuration's own calibration
-        used = calibrated_source(analysis.calib, options.board_scale)
-    others: list[Source] = []
-    model = prepared.kinematic_model
-    if mode != "kinematic" and model is not None and captured.axes is not None:
-        others.append(kinematic_source(model, captured.axes, captured.approach or {}, options.board_scale))
-    if mode != "nominal":
-        others.append(_nominal(options, used.calib, configuration))
-    results = {used.name: assess(used, analysis.frames, target)}
-    results.update(compare(others, [(f.left, f.right) for f in analysis.frames], target))
-    axes = captured.axes or {"baseline_mm": configuration.baseline_mm, "toe_in_left_deg": configuration.toe_in_deg,
-                             "toe_in_right_deg": configuration.toe_in_deg}
-    columns = {**result_columns(mode, results[used.name]), **truth_columns(captured.truth)}
-    return StructureComparison(columns=columns, data=structure_data(mode, results, axes=axes,
-                                                                    approach=captured.approach or {},
-                                                                    truth=captured.truth))
-
-
 # --------------------------------------------------------------------------------------------------
 # Before the run, and from a recording
 
@@ -196,7 +76,7 @@ RIG_CONFIG_KIND, RIG_CONFIG_FILE = "rig_config", "rig.toml"  # the copy of [rig]
 def session_sources(config) -> list[Draft]:
     """Documents recording the sources a run starts with from outside the session (a model file, the rig's
     ``config_file`` (a plain ``rig_config`` event with the file's copy), the intrinsics
-    of ``calib_dir`` in every mode that reads them: nominal, and ``intrinsics = "fixed"``), so a replay reads them
+    of ``calib_dir`` in every mode that reads them: nominal, and ``intrinsics = "held"``), so a replay reads them
     from inside it and replays after ``calib_dir`` has moved. (``fixed`` mode records its whole calibration.)"""
     extrinsics = config.extrinsics
     drafts = []
@@ -210,7 +90,7 @@ def session_sources(config) -> list[Draft]:
         drafts.append(event_draft(RIG_CONFIG_KIND, config_id=None, data={"path": str(path)},
                                   files={RIG_CONFIG_FILE: read_regular_file(
                                       path, what="rig configuration file", max_bytes=MAX_TOML_BYTES)}))
-    if extrinsics.mode != "fixed" and extrinsics.calib_dir is not None:
+    if extrinsics.calib_dir is not None and extrinsics.source().copies_calib_dir_intrinsics:
         path = Path(extrinsics.calib_dir)
         drafts.append(Draft(IntrinsicsEvent, config_id=None, data={"source": "calib_dir", "path": str(path)},
                             files={INTRINSICS_FILE: read_regular_file(
@@ -269,5 +149,4 @@ def intrinsics_from_dir(calib_dir: Path, image_size: tuple[int, int]) -> StereoC
     return _intrinsics_calibration(K1, D1, K2, D2, size or image_size, read_intrinsics_covariance(calib_dir))
 
 
-__all__ = ["Prepared", "compare_sources", "intrinsics_from_dir", "prepare_source", "recorded_sources",
-           "session_sources", "used_source"]
+__all__ = ["Prepared", "intrinsics_from_dir", "recorded_sources", "session_sources"]

@@ -355,7 +355,7 @@ def expand_plan(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN
     right = config.cameras.optics.camera_model("right")
     image_size = (config.cameras.optics.width_px, config.cameras.optics.height_px)
     rig_config = config.rig.rig_config()
-    per_config = config.extrinsics.mode == "per-config"
+    per_config = config.extrinsics.source().calibrates_each_configuration
     angles = plan.angles_deg()
     calibration_ranges: dict[tuple[float, float], tuple[float, float] | None] = {}
     computed: dict[float, tuple[list[float], list]] = {}  # alpha -> (sorted baselines, their ranges): hints
@@ -480,18 +480,18 @@ def design_ranges(configurations: Sequence[Configuration]) -> dict[str, tuple[fl
 
 
 def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration]) -> list[Visit]:
-    """The visits the extrinsics source needs before the measured configurations (none for most modes).
+    """The visits the extrinsics source needs before the measured configurations (none for most modes), as its
+    strategy object says (``visits``), each visit checked like a configuration (the calibration board must fit
+    both views somewhere, the move must pass the soft limits).
 
     ``kinematic`` without ``kinematic_file``: the design of :func:`stereo_bench.kinematics.kinematic_design`
-    over :func:`design_ranges`, each visit checked like a configuration (the calibration board must fit both
-    views somewhere, the move must pass the soft limits); the board is shown around the middle of the plan's
-    target distances. ``nominal`` without ``calib_dir``: the first runnable configuration at which the
-    calibration board fits, for one stereo calibration whose intrinsics every configuration uses.
+    over :func:`design_ranges`; the board is shown around the middle of the plan's target distances.
+    ``nominal`` without ``calib_dir``: the first runnable configuration at which the calibration board fits,
+    for one stereo calibration whose intrinsics every configuration uses.
     """
-    from stereo_bench.kinematics import kinematic_design
-
     extrinsics = config.extrinsics
-    if not (extrinsics.design_visits or extrinsics.intrinsics_visit):
+    source = extrinsics.source()
+    if source.visit_purpose(extrinsics) is None:
         return []
     ranges = design_ranges(configurations)
     if ranges is None:
@@ -516,24 +516,7 @@ def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration])
                       reason=reason)
         return dataclasses.replace(draft, limit_violation=_limit_violation(rig_config, draft.move_request()))
 
-    if extrinsics.intrinsics_visit:
-        candidates = [c for c in configurations if c.runnable]
-        first = None
-        for c in candidates:
-            first = visit(0, f"intrinsics-{c.config_id}", "intrinsics", c.baseline_mm, c.toe_in_deg, c.toe_in_deg,
-                          c.distance_mm)
-            if first.runnable:
-                break
-        return [first] if first is not None else []
-    distances = sorted(c.distance_mm for c in configurations if c.runnable)
-    distance = distances[len(distances) // 2]
-    visits = []
-    for k, design in enumerate(kinematic_design(ranges["baseline_mm"], ranges["toe_in_deg"], ranges["toe_in_deg"])):
-        config_id = (f"design-{k + 1}_B{format_id_value(design.baseline_mm)}_L{format_id_value(design.toe_in_left_deg)}"
-                     f"_R{format_id_value(design.toe_in_right_deg)}")
-        visits.append(visit(k, config_id, "kinematic", design.baseline_mm, design.toe_in_left_deg,
-                            design.toe_in_right_deg, distance))
-    return visits
+    return source.visits(extrinsics, configurations, ranges, visit=visit, format_id=format_id_value)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -756,6 +739,7 @@ def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration],
     rig_config = config.rig.rig_config()
     manual = [q for q in QUANTITIES if rig_config.quantities[q].axis == "manual"]
     last_manual: dict[str, float] = {}
+    calibrates_each_configuration = config.extrinsics.source().calibrates_each_configuration
     steps: list[Step] = []
     visits = plan_visits(config, configurations) if visits is None else visits
     for visit in visits:
@@ -780,7 +764,7 @@ def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration],
                 last_manual[quantity] = value
         steps.append(Settle(config.capture.settle_s))
         steps.append(Flush())
-        if config.extrinsics.mode == "per-config":
+        if calibrates_each_configuration:
             steps.append(CaptureCalibration(config.capture.calibration_views))
         steps.append(CaptureMeasurement(config.capture.frames_per_config))
         steps.append(Checkpoint(configuration.config_id))

@@ -88,12 +88,7 @@ def _image_size(config: CampaignConfig) -> tuple[tuple[int, int], str] | None:
 def check_files(config: CampaignConfig, *, source: str = "campaign config") -> None:
     """Read the calibration and model files the config names, as ``run`` will (a corrupt YAML fails here)."""
     from stereo_bench.kinematics import KinematicFileError, load_model
-    from stereo_bench.vision.calibio import (
-        CalibrationFileError,
-        read_calibration,
-        read_intrinsics,
-        read_intrinsics_covariance,
-    )
+    from stereo_bench.vision.calibio import CalibrationFileError
 
     extrinsics = config.extrinsics
     optics = config.cameras.optics
@@ -103,12 +98,7 @@ def check_files(config: CampaignConfig, *, source: str = "campaign config") -> N
         if not calib_dir.is_dir():
             raise ConfigError(f"{source}: extrinsics.calib_dir: no such directory: {calib_dir}")
         try:
-            if extrinsics.mode == "fixed":
-                calibration = read_calibration(calib_dir, image_size=image_size)
-                size = tuple(calibration.image_size)
-            else:
-                size = read_intrinsics(calib_dir)[4]
-                read_intrinsics_covariance(calib_dir)
+            size = extrinsics.source().read_calib_dir(calib_dir, image_size)
         except CalibrationFileError as error:
             raise ConfigError(f"{source}: extrinsics.calib_dir: {error}") from None
         given = _image_size(config)

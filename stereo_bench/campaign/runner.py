@@ -68,6 +68,7 @@ from stereo_bench.campaign.documents import (
     TargetNotFoundEvent,
     TruthEvent,
 )
+from stereo_bench.campaign.extrinsics import extrinsics_source
 from stereo_bench.campaign.operator import (
     CONTINUE,
     DISCARD_LAST_VIEW,
@@ -97,7 +98,6 @@ from stereo_bench.campaign.sources import ApproachTracker, reported_axes
 from stereo_bench.executors import background_threads
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.detect import AmbiguousViewError, detect
-from stereo_bench.vision.rectify import rectify
 from stereo_bench.vision.uncertainty import BoardScale
 
 __all__ = ["CampaignRunner", "ConfigurationFailed", "RigUnrecoverable", "RunnerOptions", "StopRequested", "group_steps"]
@@ -226,6 +226,7 @@ class CampaignRunner:
         self._approach = ApproachTracker()
         self._visit_captures: list[Captured] = []
         self._prepared: Future | None = None  # the extrinsics source prepared from the visits
+        self._extrinsics = extrinsics_source(options.extrinsics_mode)  # its strategy object
         self.kinematic_model = options.kinematic_model  # after the run: the model used (fitted or given)
 
     # -- control (thread- and signal-safe) ----------------------------------------------------------------------
@@ -631,8 +632,9 @@ class CampaignRunner:
         numbers); queued on the analysis pool before that configuration's ``_analyse``, which waits for it.
         The pool takes tasks in order, so a waiting ``_analyse`` never holds up the calibration it waits for.
         """
-        if self.options.extrinsics_mode == "per-config" and isinstance(captured.configuration, Configuration):
-            captured.calibration = self._analysis.submit(self._calibrate, captured)
+        if isinstance(captured.configuration, Configuration):
+            self._extrinsics.after_calibration_views(
+                captured, lambda: self._analysis.submit(self._calibrate, captured))
 
     def _calibrate(self, captured: Captured) -> ConfigurationAnalysis:
         options = self.options
@@ -692,14 +694,12 @@ class CampaignRunner:
     # -- the extrinsics source: visits, then one preparation (campaign/extrinsics_run.py) ------------------------
 
     def _prepare_step(self, step, captured: Captured, failed: str | None) -> None:
-        from stereo_bench.campaign.extrinsics_run import prepare_source
-
         if isinstance(step, VisitDone):
             if not step.skipped:
                 self._visit_captures.append(captured if failed is None else Captured(captured.configuration))
             return
         captures, self._visit_captures = self._visit_captures, []
-        self._prepared = self._analysis.submit(prepare_source, step.purpose, captures, self.config, self.options)
+        self._prepared = self._analysis.submit(self._extrinsics.prepare, captures, self.config, self.options)
         self._pending.append((Captured(None), self._prepared))
 
     def _source(self):
@@ -728,26 +728,19 @@ class CampaignRunner:
 
     def _analyse(self, captured: Captured) -> dict:
         """Runs on the analysis thread: no recording here, only computation."""
-        from stereo_bench.campaign.extrinsics_run import compare_sources, used_source
-
         configuration = captured.configuration
         options = self.options
         try:
-            if options.extrinsics_mode == "per-config":
-                started = captured.calibration
-                analysis = started.result() if started is not None else self._calibrate(captured)
-            else:
-                source = used_source(options, self._source(), configuration, captured)
-                analysis = ConfigurationAnalysis(calib=source.calib, rect=rectify(source.calib),
-                                                 calibrated=options.extrinsics_mode == "fixed")
+            analysis, source = self._extrinsics.analyse(options, self._source(), captured,
+                                                        calibrate=lambda: self._calibrate(captured))
             measure_configuration(analysis, captured.measurement_pairs, self.target,
                                   partial=configuration.fraction_in_both < 1.0,
                                   detections=captured.measurement_detections)
         except AnalysisError as error:
             return result_fields(configuration, status="failed", reason=str(error))
         row = result_fields(configuration, status="measured", measured=analysis.row())
-        comparison = compare_sources(options, self._source(), configuration, captured, analysis, self.target,
-                                     used=None if options.extrinsics_mode == "per-config" else source)
+        comparison = self._extrinsics.compare(options, self._source(), configuration, captured, analysis,
+                                              self.target, used=source)
         row.update(comparison.columns)
         row["_analysis"] = analysis
         row["_structure"] = comparison.data
@@ -768,7 +761,7 @@ class CampaignRunner:
             structure = row.pop("_structure", None)
             config_id = captured.configuration.config_id
             if analysis is not None:
-                if analysis.calibrated and self.options.extrinsics_mode == "per-config":
+                if analysis.calibrated and self._extrinsics.calibrates_each_configuration:
                     self._publish(Draft(CalibrationEvent, config_id=config_id, calibration=CalibrationFiles(
                         analysis.calib, analysis.rect, board=self.options.calibration_board)))
                 self._publish(Draft(AnalysisEvent, config_id=config_id, data=analysis.details()))

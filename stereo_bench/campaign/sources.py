@@ -51,8 +51,8 @@ from stereo_bench.vision.pipeline import PairMeasurement, measure_pair
 from stereo_bench.vision.rectify import rectify
 from stereo_bench.vision.uncertainty import BoardScale, UncertaintyBudget, configuration_budget
 
-#: The extrinsics source each ``[extrinsics] mode`` measures with.
-MODE_SOURCE = {"per-config": "calibrated", "kinematic": "kinematic", "nominal": "nominal", "fixed": "fixed"}
+#: The sources (the extrinsics source each ``[extrinsics] mode`` measures with: its strategy object's ``used``,
+#: :mod:`stereo_bench.campaign.extrinsics`).
 SOURCE_NAMES = ("calibrated", "kinematic", "nominal", "fixed")
 
 
@@ -323,15 +323,16 @@ def result_columns(mode: str, used: SourceResult) -> dict[str, Any]:
     return row
 
 
-def structure_data(mode: str, results: Mapping[str, SourceResult], *, axes: Mapping[str, float],
+def structure_data(mode: str, results: Mapping[str, SourceResult], *, used: str, axes: Mapping[str, float],
                    approach: Mapping[str, int], truth: Mapping[str, Any] | None) -> dict[str, Any]:
-    """The ``structure`` event's data: every source side by side with the truth (simulated sessions)."""
+    """The ``structure`` event's data: every source side by side with the truth (simulated sessions); ``used``:
+    the source ``mode`` measures with."""
     square_true = truth_columns(truth).get("square_true_mm")
     truth_record = None
     if truth:
         truth_record = {"R": truth.get("R"), "T": truth.get("T"), "structure": truth.get("structure"),
                         "square_true_mm": square_true}
-    return {"mode": mode, "used": MODE_SOURCE[mode], "axes": dict(axes), "approach": dict(approach),
+    return {"mode": mode, "used": used, "axes": dict(axes), "approach": dict(approach),
             "sources": {name: result.record(square_true_mm=square_true) for name, result in results.items()},
             "truth": truth_record}
 
@@ -345,7 +346,7 @@ class StructureComparison:
 
 
 __all__ = [
-    "MODE_SOURCE", "SOURCE_NAMES", "ApproachTracker", "Source", "SourceResult", "StructureComparison", "assess",
+    "SOURCE_NAMES", "ApproachTracker", "Source", "SourceResult", "StructureComparison", "assess",
     "budget_of", "budget_record", "calibrated_source", "compare", "fixed_source", "kinematic_source",
     "measure_with", "model_intrinsics_covariance", "nominal_source", "reported_axes", "result_columns",
     "structure_data", "truth_columns",

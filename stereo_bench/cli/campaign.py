@@ -85,7 +85,7 @@ def _plan_text(config: CampaignConfig, summary: dict[str, Any], *, source: str, 
         f"rig {config.rig.kind}, cameras {config.cameras.kind}, target {config.target.describe()}, "
         f"extrinsics {config.extrinsics.mode}"
         + (f" (calibration board {config.calibration_board.describe()})"
-           if config.extrinsics.mode == "per-config" else ""),
+           if config.extrinsics.source().calibrates_each_configuration else ""),
         f"in both = target corners at least {summary['margin_px']:g} px inside both images, predicted from "
         f"geometry; infeasible below {summary['min_corners_in_both']}",
         "",
@@ -121,18 +121,9 @@ def _plan_text(config: CampaignConfig, summary: dict[str, Any], *, source: str, 
 def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[str]:
     """Where R, T come from, the visits that prepare it (the kinematic design) and the board presentations."""
     mode = config.extrinsics.mode
+    extrinsics = config.extrinsics.source()
     counts = summary["calibration_presentations"]
-    source = {
-        "per-config": "calibrated at every configuration from its own views",
-        "kinematic": ("predicted by the kinematic rig model "
-                      + (f"read from {config.extrinsics.kinematic_file}" if config.extrinsics.kinematic_file
-                         else "fitted once to the design's views")),
-        "nominal": "the ideal geometry at the commanded B and alpha, intrinsics "
-                   + (f"from {config.extrinsics.calib_dir}" if config.extrinsics.calib_dir
-                      else "from one calibration at the first configuration"),
-        "fixed": f"read from {config.extrinsics.calib_dir}",
-    }[mode]
-    lines = ["", f"extrinsics {mode}: {source}"]
+    lines = ["", f"extrinsics {mode}: {extrinsics.describe(config.extrinsics)}"]
     design = summary["design"]
     if design:
         ranges = summary["design_ranges"]
@@ -147,7 +138,7 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
             status = where if visit["runnable"] else f"NOT RUN: {why}"
             lines.append(f"{'':>5}{visit['config_id']:<24} B {visit['baseline_mm']:>6g} mm  toe-in "
                          f"{visit['toe_in_left_deg']:g}/{visit['toe_in_right_deg']:g} deg  {status}")
-    per_configuration = "" if mode != "per-config" else " (one set per configuration)"
+    per_configuration = " (one set per configuration)" if extrinsics.calibrates_each_configuration else ""
     note = " (adding configurations adds none)" if counts["visits"] and not counts["configurations"] else ""
     lines.append(f"calibration board presentations: {counts['total']}: {counts['visits']} at visits{note}, "
                  f"{counts['configurations']} at the configurations{per_configuration}")

@@ -137,7 +137,9 @@ def register(subparsers) -> None:
     replay.add_argument("session", nargs="+", metavar="SESSION", help="recorded session directory")
     replay.add_argument("--out", type=output_dir, metavar="DIR",
                         help="record the replay as a new session here (several sessions: one subdirectory each)")
-    replay.add_argument("--intrinsics", choices=("joint", "fixed"), help="re-analyse with this stereo calibration mode")
+    replay.add_argument("--intrinsics", choices=("joint", "held", "fixed"),
+                        help="re-analyse with this stereo calibration mode (held: the intrinsics not refined; fixed: "
+                             "held's old spelling)")
     replay.add_argument("--json", action="store_true", help="print one JSON object")
     _add_executor_options(replay)
     replay.set_defaults(func=cmd_replay)

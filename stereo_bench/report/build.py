@@ -498,7 +498,7 @@ def _annotations(writer: _Writer, session: SessionReport, config: ConfigReport, 
         notes.append(detections.note)
     if not config.has_calibration_files:
         notes.append("rectified pair not shown: no calibration recorded for this configuration"
-                     + (" (extrinsics fixed from a file)" if session.config.extrinsics.mode == "fixed" else ""))
+                     + session.config.extrinsics.source().report_note)
         return
     try:
         calib = session.reader.calibration(config.config_id)

@@ -37,7 +37,8 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from stereo_bench.campaign.config import CampaignConfig, recorded_campaign
+from stereo_bench.campaign.config import EXTRINSICS_MODES, CampaignConfig, recorded_campaign
+from stereo_bench.campaign.extrinsics import SOURCES
 from stereo_bench.campaign.session import SessionError, SessionReader
 from stereo_bench.geometry import RigPose, stereo_structure
 from stereo_bench.report.tables import NOT_RUN, with_plan
@@ -56,10 +57,9 @@ EXTRINSICS_SOURCE_NAMES = {
     "kinematic": "kinematic model's prediction", "nominal": "nominal (commanded B, α)", "fixed": "fixed (a file)",
     "truth": "truth (simulator)",
 }
-#: The extrinsics modes a square can be measured with ([extrinsics] mode), in the report's order.
-EXTRINSICS_MODES = ("per-config", "kinematic", "nominal", "fixed")
-#: The source of extrinsics each mode measures with, and back.
-MODE_SOURCE = {"per-config": "calibrated", "kinematic": "kinematic", "nominal": "nominal", "fixed": "fixed"}
+#: The source of extrinsics each mode measures with (its strategy object's ``used``), and back; the modes a square
+#: can be measured with are EXTRINSICS_MODES ([extrinsics] mode, in the report's order).
+MODE_SOURCE = {mode: SOURCES[mode].used for mode in EXTRINSICS_MODES}
 SOURCE_MODE = {source: mode for mode, source in MODE_SOURCE.items()}
 #: A structure description: optical baseline |T|, each camera's alpha, the angle of R.
 STRUCTURE_KEYS = ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "rotation_deg")
@@ -407,7 +407,8 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
              and isinstance(meta.get("truth"), dict)]
     put("truth", _mean_structure([d for m in metas if (d := _described(m["truth"].get("structure")))]),
         "simulated frames' metadata")
-    if out.extrinsics["calibrated"] is None and out.mode == "per-config" and calibration is not None:
+    if (out.extrinsics["calibrated"] is None and out.mode in SOURCES and SOURCES[out.mode].calibrates_each_configuration
+            and calibration is not None):
         calib = calibration()
         if calib is not None:
             put("calibrated", stereo_structure(calib.R, calib.T), "calibration file")

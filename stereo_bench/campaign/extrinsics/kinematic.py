@@ -1,0 +1,86 @@
+"""``kinematic``: R, T predicted at each configuration by the kinematic rig model (:mod:`stereo_bench.kinematics`)
+from the rig's reported axes and directions of approach; the model (with both cameras' intrinsics) fitted once,
+in one joint adjustment, to the views of a design of visits the plan chooses, or read from ``kinematic_file``."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from stereo_bench.campaign.analysis import AnalysisError, ConfigurationAnalysis
+from stereo_bench.campaign.extrinsics.base import ExtrinsicsSource, measured_with, visit_captures
+from stereo_bench.campaign.extrinsics_run import Prepared
+from stereo_bench.campaign.sources import Source, kinematic_source
+from stereo_bench.kinematics import ConfigurationViews, fit_kinematics, kinematic_design
+
+
+class KinematicSource(ExtrinsicsSource):
+    name = "kinematic"
+    used = "kinematic"
+    compared_with = ("nominal",)
+
+    def visit_purpose(self, section: Any) -> str | None:
+        # without a saved model the plan starts with the design's calibration visits
+        return "kinematic" if section.kinematic_file is None else None
+
+    def describe(self, section: Any) -> str:
+        return ("predicted by the kinematic rig model "
+                + (f"read from {section.kinematic_file}" if section.kinematic_file
+                   else "fitted once to the design's views"))
+
+    def visits(self, section: Any, configurations: Sequence, ranges: dict, *, visit: Callable[..., Any],
+               format_id: Callable[[float], str]) -> list:
+        """The design of :func:`stereo_bench.kinematics.kinematic_design` over ``ranges``; the board is shown
+        around the middle of the plan's target distances."""
+        distances = sorted(c.distance_mm for c in configurations if c.runnable)
+        distance = distances[len(distances) // 2]
+        visits = []
+        for k, design in enumerate(kinematic_design(ranges["baseline_mm"], ranges["toe_in_deg"],
+                                                    ranges["toe_in_deg"])):
+            config_id = (f"design-{k + 1}_B{format_id(design.baseline_mm)}_L{format_id(design.toe_in_left_deg)}"
+                         f"_R{format_id(design.toe_in_right_deg)}")
+            visits.append(visit(k, config_id, "kinematic", design.baseline_mm, design.toe_in_left_deg,
+                                design.toe_in_right_deg, distance))
+        return visits
+
+    def prepare(self, captures: Sequence, config: Any, options: Any) -> Prepared:
+        """Fit the kinematic model to the design's views (:func:`stereo_bench.kinematics.fit_kinematics`)."""
+        board = config.calibration_board.build()
+        captured, ids = visit_captures(captures)
+        record: dict[str, Any] = {"source": "design", "visits_used": ids}
+        if not captured:
+            return Prepared(error="kinematic fit: no design visit captured views", record={**record, "error":
+                            "no design visit captured views"})
+        configurations = []
+        for capture in captured:
+            try:
+                views = capture.detections()  # made while capturing (or recorded, in a replay)
+            except AnalysisError as error:
+                return Prepared(error=f"kinematic fit failed: {error}", record={**record, "error": str(error)})
+            configurations.append(ConfigurationViews(axes=capture.axes, approach=capture.approach, views=views))
+        image = captured[0].calibration_pairs[0][0]
+        slide_mm, heads_deg = options.repeatability
+        started = time.perf_counter()
+        try:
+            fit = fit_kinematics(configurations, board.object_points, (int(image.shape[1]), int(image.shape[0])),
+                                 intrinsics=options.intrinsics, refine_intrinsics=True, repeatability_mm=slide_mm,
+                                 repeatability_left_deg=heads_deg, repeatability_right_deg=heads_deg)
+        except (ValueError, np.linalg.LinAlgError) as error:
+            return Prepared(error=f"kinematic fit failed: {error}", record={**record, "error": str(error)})
+        model = fit.model
+        record.update(n_views=model.fit.n_views, rms_px=model.fit.rms_px, fit_s=time.perf_counter() - started,
+                      views_dropped=[{"visit": ids[c], "view": i, "reason": why} for c, i, why in fit.views_dropped])
+        return Prepared(kinematic_model=model, record=record)
+
+    def is_prepared(self, recorded: Prepared) -> bool:
+        return recorded.kinematic_model is not None
+
+    def analyse(self, options: Any, prepared: Prepared, captured: Any, *,
+                calibrate: Callable[[], ConfigurationAnalysis]) -> tuple[ConfigurationAnalysis, Source | None]:
+        if prepared.kinematic_model is None:
+            raise AnalysisError(prepared.error or "no kinematic rig model")
+        source = kinematic_source(prepared.kinematic_model, captured.axes, captured.approach, options.board_scale)
+        return measured_with(source), source

@@ -1,0 +1,73 @@
+"""``nominal``: R, T of the ideal geometry at the commanded B and alphas (a user who trusts the rig's scales), the
+intrinsics from ``calib_dir`` if given, else from one stereo calibration at a visit of the first configuration;
+the uncertainty of R, T is the rig's stated ``tolerances``."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from stereo_bench.campaign.analysis import AnalysisError, ConfigurationAnalysis, calibrate_configuration
+from stereo_bench.campaign.extrinsics.base import ExtrinsicsSource, measured_with, nominal_at, visit_captures
+from stereo_bench.campaign.extrinsics_run import Prepared, intrinsics_from_dir
+from stereo_bench.campaign.sources import Source
+
+
+class NominalSource(ExtrinsicsSource):
+    name = "nominal"
+    used = "nominal"
+    compared_with = ("kinematic",)
+
+    def visit_purpose(self, section: Any) -> str | None:
+        # without a calibration directory: one calibration at the first configuration
+        return "intrinsics" if section.calib_dir is None else None
+
+    def needs_calibration_views(self, section: Any) -> bool:
+        return self.visit_purpose(section) is not None
+
+    def describe(self, section: Any) -> str:
+        return ("the ideal geometry at the commanded B and alpha, intrinsics "
+                + (f"from {section.calib_dir}" if section.calib_dir
+                   else "from one calibration at the first configuration"))
+
+    def visits(self, section: Any, configurations: Sequence, ranges: dict, *, visit: Callable[..., Any],
+               format_id: Callable[[float], str]) -> list:
+        """The first runnable configuration at which the calibration board fits."""
+        first = None
+        for c in (c for c in configurations if c.runnable):
+            first = visit(0, f"intrinsics-{c.config_id}", "intrinsics", c.baseline_mm, c.toe_in_deg, c.toe_in_deg,
+                          c.distance_mm)
+            if first.runnable:
+                break
+        return [first] if first is not None else []
+
+    def load_calibration(self, options: Any, section: Any, *, reader: Any, intrinsics_copy: Path | None,
+                         image_size: tuple[int, int]) -> None:
+        super().load_calibration(options, section, reader=reader, intrinsics_copy=intrinsics_copy,
+                                 image_size=image_size)
+        if section.calib_dir is not None and reader is None:  # a replay: the recorded copy (recorded_sources)
+            options.nominal_intrinsics = intrinsics_from_dir(section.calib_dir, image_size)
+
+    def prepare(self, captures: Sequence, config: Any, options: Any) -> Prepared:
+        """The intrinsics of one stereo calibration at the intrinsics visit."""
+        board = config.calibration_board.build()
+        captured, ids = visit_captures(captures)
+        if not captured:
+            return Prepared(error="no intrinsics for nominal extrinsics: the calibration visit captured nothing")
+        try:
+            analysis = calibrate_configuration(captured[0].calibration_pairs, board, mode="joint",
+                                               detections=captured[0].detections())
+        except AnalysisError as error:
+            return Prepared(error=f"no intrinsics for nominal extrinsics: calibration at {ids[0]} failed: {error}")
+        return Prepared(nominal_intrinsics=analysis.calib, calibration=(ids[0], analysis))
+
+    def is_prepared(self, recorded: Prepared) -> bool:
+        return recorded.nominal_intrinsics is not None
+
+    def analyse(self, options: Any, prepared: Prepared, captured: Any, *,
+                calibrate: Callable[[], ConfigurationAnalysis]) -> tuple[ConfigurationAnalysis, Source | None]:
+        if prepared.nominal_intrinsics is None:
+            raise AnalysisError(prepared.error or "no intrinsics for nominal extrinsics")
+        source = nominal_at(options, prepared.nominal_intrinsics, captured.configuration)
+        return measured_with(source), source
