@@ -58,7 +58,7 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import IO
 
@@ -79,6 +79,7 @@ from drivers.rig.grbl_errors import (
     GrblTimeout,
 )
 from drivers.rig.grbl_reports import ControllerInfo, GrblReading
+from drivers.rig.status import Outcome
 from drivers.rig.transport import SerialTransport, SpyTransport, Transport, TransportError
 
 log = logging.getLogger(__name__)
@@ -113,7 +114,7 @@ class _Pending:
         self.event.set()
 
 
-class MoveStatus:
+class MoveStatus(Outcome):
     """The result of :meth:`GrblController.move_to`, in the manner of ophyd's MoveStatus.
 
     The move is already queued on the controller; :meth:`wait` blocks until motion has ended (bounded by
@@ -130,41 +131,13 @@ class MoveStatus:
         self.sequence = sequence
         self.start = dict(start) if start else None
         self._pending = pending
-        self._lock = threading.Lock()  # guards the callbacks and the outcome
+        super().__init__()
         self._wait_lock = threading.Lock()  # one waiter talks to the controller; others wait on it
-        self._done = threading.Event()
-        self._reading: GrblReading | None = None
-        self._exception: BaseException | None = None
-        self._callbacks: list[Callable[[MoveStatus], None]] = []
         self.started_at = time.monotonic()
 
     @property
     def line(self) -> str:
         return self._pending.line
-
-    @property
-    def done(self) -> bool:
-        return self._done.is_set()
-
-    @property
-    def success(self) -> bool:
-        return self._done.is_set() and self._exception is None
-
-    @property
-    def reading(self) -> GrblReading | None:
-        return self._reading
-
-    @property
-    def exception(self) -> BaseException | None:
-        return self._exception
-
-    def add_callback(self, callback: Callable[[MoveStatus], None]) -> None:
-        """Call ``callback(status)`` once the move has finished (at once if it already has)."""
-        with self._lock:
-            if not self._done.is_set():
-                self._callbacks.append(callback)
-                return
-        callback(self)
 
     def wait(self, timeout: float | None = None) -> GrblReading:
         """Block until the controller has stopped at the target; return its final report.
@@ -188,14 +161,6 @@ class MoveStatus:
                 raise
             self._finish(reading, None)
             return reading
-
-    def _finish(self, reading: GrblReading | None, error: BaseException | None) -> None:
-        with self._lock:
-            self._reading, self._exception = reading, error
-            self._done.set()
-            callbacks, self._callbacks = self._callbacks, []
-        for callback in callbacks:
-            callback(self)
 
     def _check_position(self, reading: GrblReading) -> None:
         position = reading.machine_position

@@ -23,16 +23,63 @@ class StatusTimeout(RigError):
     """:meth:`RigStatus.wait` gave up before the action ended (the action itself goes on)."""
 
 
-class RigStatus:
-    """One rig action in progress (a move); finished by :meth:`set_finished` / :meth:`set_exception`, once."""
+class Outcome:
+    """How an action ended, once: ``done``, ``success``, ``reading``, ``exception`` and callbacks run when it does.
+    The part :class:`RigStatus` and the controller's :class:`~drivers.rig.grbl.MoveStatus` share; each says
+    itself how the action is waited for."""
 
-    def __init__(self, description: str = "move"):
-        self.description = description
-        self._lock = threading.Lock()
+    description = "move"
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()  # guards the callbacks and the outcome
         self._done = threading.Event()
         self._reading: Any = None
         self._exception: BaseException | None = None
-        self._callbacks: list[Callable[[RigStatus], None]] = []
+        self._callbacks: list[Callable[[Any], None]] = []
+
+    def _finish(self, reading: Any, error: BaseException | None) -> None:
+        with self._lock:
+            if self._done.is_set():
+                raise RuntimeError(f"the {self.description} has already finished")
+            self._reading, self._exception = reading, error
+            self._done.set()
+            callbacks, self._callbacks = self._callbacks, []
+        for callback in callbacks:
+            callback(self)
+
+    @property
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    @property
+    def success(self) -> bool:
+        return self._done.is_set() and self._exception is None
+
+    @property
+    def reading(self) -> Any:
+        """The reading where the action ended (a :class:`~drivers.rig.rig.RigReading` or the controller's
+        report); None until it has."""
+        return self._reading
+
+    @property
+    def exception(self) -> BaseException | None:
+        return self._exception
+
+    def add_callback(self, callback: Callable[[Any], None]) -> None:
+        """Call ``callback(status)`` once the action has ended (at once if it has)."""
+        with self._lock:
+            if not self._done.is_set():
+                self._callbacks.append(callback)
+                return
+        callback(self)
+
+
+class RigStatus(Outcome):
+    """One rig action in progress (a move); finished by :meth:`set_finished` / :meth:`set_exception`, once."""
+
+    def __init__(self, description: str = "move"):
+        super().__init__()
+        self.description = description
 
     # -- construction -----------------------------------------------------------------------------------------
 
@@ -66,43 +113,6 @@ class RigStatus:
     def set_exception(self, error: BaseException) -> None:
         self._finish(None, error)
 
-    def _finish(self, reading: Any, error: BaseException | None) -> None:
-        with self._lock:
-            if self._done.is_set():
-                raise RuntimeError(f"the {self.description} has already finished")
-            self._reading, self._exception = reading, error
-            self._done.set()
-            callbacks, self._callbacks = self._callbacks, []
-        for callback in callbacks:
-            callback(self)
-
-    # -- what it says ------------------------------------------------------------------------------------------
-
-    @property
-    def done(self) -> bool:
-        return self._done.is_set()
-
-    @property
-    def success(self) -> bool:
-        return self._done.is_set() and self._exception is None
-
-    @property
-    def reading(self) -> Any:
-        """The reading where the action ended (a :class:`~drivers.rig.rig.RigReading`); None until it has."""
-        return self._reading
-
-    @property
-    def exception(self) -> BaseException | None:
-        return self._exception
-
-    def add_callback(self, callback: Callable[[RigStatus], None]) -> None:
-        """Call ``callback(status)`` once the action has ended (at once if it has)."""
-        with self._lock:
-            if not self._done.is_set():
-                self._callbacks.append(callback)
-                return
-        callback(self)
-
     def wait(self, timeout: float | None = None) -> Any:
         """Block until the action has ended and return its reading, or raise its error.
 
@@ -119,4 +129,4 @@ class RigStatus:
         return f"RigStatus({self.description!r}, {state})"
 
 
-__all__ = ["RigStatus", "StatusTimeout"]
+__all__ = ["Outcome", "RigStatus", "StatusTimeout"]
