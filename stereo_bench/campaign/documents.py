@@ -23,7 +23,9 @@ version number and an upgrade step in :func:`parse_document`.
 
 from __future__ import annotations
 
+import functools
 import math
+import operator
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -599,8 +601,25 @@ class ResumeDocument(Document):
     numeric_environment: NumericEnvironment | None = Field(None, description="v2: this attempt's (as in start)")
 
 
+#: The typed event kinds, kind -> model, in the order their classes are defined below. A class that derives from
+#: :class:`EventDocument` and declares ``kind: Literal["..."]`` registers itself here (and so in :data:`AnyDocument`
+#: and the JSON Schema): a new kind is its class and nothing else. A kind not listed is read (and may be written,
+#: e.g. by other tools) as a plain EventDocument; the runner writes only these.
+EVENT_MODELS: dict[str, type[EventDocument]] = {}
+
+
 class EventDocument(Document):
     """An event: ``kind`` says what happened, ``data`` holds it, ``frames``/``files`` its side files."""
+
+    @classmethod
+    def __pydantic_init_subclass__(cls, **kwargs: Any) -> None:
+        super().__pydantic_init_subclass__(**kwargs)
+        kind = cls.model_fields["kind"].default
+        if "kind" not in cls.__dict__.get("__annotations__", {}) or not isinstance(kind, str):
+            return  # a subclass that does not name a kind of its own (e.g. a test's variant of a typed event)
+        if kind in EVENT_MODELS:
+            raise TypeError(f"event kind {kind!r} is already {EVENT_MODELS[kind].__name__}")
+        EVENT_MODELS[kind] = cls
 
     type: Literal["event"] = "event"
     kind: str
@@ -650,11 +669,6 @@ class MeasurementFrameEvent(EventDocument):
     data: CaptureData
 
 
-class CalibrationDetectionsEvent(EventDocument):
-    kind: Literal["calibration_detections"] = "calibration_detections"
-    data: CalibrationDetectionsData
-
-
 class TargetNotFoundEvent(EventDocument):
     kind: Literal["target_not_found"] = "target_not_found"
     data: TargetNotFoundData
@@ -690,6 +704,11 @@ class RunControlEvent(EventDocument):
     data: RunControlData
 
 
+class CalibrationDetectionsEvent(EventDocument):
+    kind: Literal["calibration_detections"] = "calibration_detections"
+    data: CalibrationDetectionsData
+
+
 class TruthEvent(EventDocument):
     kind: Literal["truth"] = "truth"
     data: TruthData
@@ -700,11 +719,6 @@ class ControllerEvent(EventDocument):
     data: ControllerData
 
 
-class IntrinsicsEvent(EventDocument):
-    kind: Literal["intrinsics"] = "intrinsics"
-    data: IntrinsicsData
-
-
 class StructureEvent(EventDocument):
     kind: Literal["structure"] = "structure"
     data: StructureData
@@ -713,6 +727,11 @@ class StructureEvent(EventDocument):
 class KinematicModelEvent(EventDocument):
     kind: Literal["kinematic_model"] = "kinematic_model"
     data: KinematicModelData
+
+
+class IntrinsicsEvent(EventDocument):
+    kind: Literal["intrinsics"] = "intrinsics"
+    data: IntrinsicsData
 
 
 class ResultDocument(Document):
@@ -730,16 +749,6 @@ class StopDocument(Document):
                                                          "session")
 
 
-#: The typed event kinds. A kind not listed is read (and may be written, e.g. by other tools) as a
-#: plain EventDocument; the runner writes only these. A new kind is a class above and a line here.
-EVENT_MODELS: dict[str, type[EventDocument]] = {
-    model.model_fields["kind"].default: model
-    for model in (HomeEvent, MoveEvent, ApproachEvent, RigRecoveredEvent, RigPositionTrustedEvent,
-                  RigUnrecoverableEvent, CalibrationViewEvent,
-                  MeasurementFrameEvent, TargetNotFoundEvent, CalibrationEvent, AnalysisEvent, TranscriptEvent,
-                  PromptEvent, CalibrationViewDiscardedEvent, RunControlEvent, CalibrationDetectionsEvent,
-                  TruthEvent, ControllerEvent, StructureEvent, KinematicModelEvent, IntrinsicsEvent)
-}
 DOCUMENT_MODELS: dict[str, type[Document]] = {
     "start": StartDocument, "resume": ResumeDocument, "event": EventDocument, "result": ResultDocument,
     "stop": StopDocument,
@@ -755,29 +764,17 @@ def _tag(value: Any) -> str:
     return str(kind)
 
 
-AnyDocument = Annotated[
-    Annotated[StartDocument, Tag("start")] | Annotated[ResumeDocument, Tag("resume")]
-    | Annotated[ResultDocument, Tag("result")] | Annotated[StopDocument, Tag("stop")]
-    | Annotated[EventDocument, Tag("event")]
-    | Annotated[HomeEvent, Tag("event:home")] | Annotated[MoveEvent, Tag("event:move")]
-    | Annotated[ApproachEvent, Tag("event:approach")]
-    | Annotated[RigRecoveredEvent, Tag("event:rig_recovered")]
-    | Annotated[RigPositionTrustedEvent, Tag("event:rig_position_trusted")]
-    | Annotated[RigUnrecoverableEvent, Tag("event:rig_unrecoverable")]
-    | Annotated[CalibrationViewEvent, Tag("event:calibration_view")]
-    | Annotated[MeasurementFrameEvent, Tag("event:measurement_frame")]
-    | Annotated[TargetNotFoundEvent, Tag("event:target_not_found")]
-    | Annotated[CalibrationEvent, Tag("event:calibration")] | Annotated[AnalysisEvent, Tag("event:analysis")]
-    | Annotated[TranscriptEvent, Tag("event:transcript")] | Annotated[PromptEvent, Tag("event:prompt")]
-    | Annotated[CalibrationViewDiscardedEvent, Tag("event:calibration_view_discarded")]
-    | Annotated[RunControlEvent, Tag("event:run_control")]
-    | Annotated[CalibrationDetectionsEvent, Tag("event:calibration_detections")]
-    | Annotated[TruthEvent, Tag("event:truth")] | Annotated[ControllerEvent, Tag("event:controller")]
-    | Annotated[StructureEvent, Tag("event:structure")]
-    | Annotated[KinematicModelEvent, Tag("event:kinematic_model")]
-    | Annotated[IntrinsicsEvent, Tag("event:intrinsics")],
-    Discriminator(_tag),
-]
+def _document_union() -> Any:
+    """Every document model tagged as :func:`_tag` names it: the documents, the plain event, then each typed kind."""
+    members = [Annotated[model, Tag(name)] for name, model in DOCUMENT_MODELS.items() if model is not EventDocument]
+    members.append(Annotated[EventDocument, Tag("event")])
+    members += [Annotated[model, Tag(f"event:{kind}")] for kind, model in EVENT_MODELS.items()]
+    return functools.reduce(operator.or_, members)
+
+
+#: Any document, discriminated by ``type`` (and an event's ``kind``): derived from :data:`DOCUMENT_MODELS` and
+#: :data:`EVENT_MODELS`, so a kind is listed once, by its class.
+AnyDocument = Annotated[_document_union(), Discriminator(_tag)]
 _ADAPTER: TypeAdapter = TypeAdapter(AnyDocument)
 
 
