@@ -584,6 +584,46 @@ class StartDocument(Document):
         None, description="v2: library versions, BLAS kernels and threads, CPU and vector extensions (absent: "
                           "recorded before it was kept)")
 
+    # The recorded config and plan stay as recorded (``config``, ``plan``, ``design``: a resume compares them byte
+    # for byte); readers read them typed, parsed once per document:
+    @functools.cached_property
+    def campaign(self) -> Any:
+        """The recorded config as a :class:`~stereo_bench.campaign.config.CampaignConfig`
+        (:func:`~stereo_bench.campaign.config.recorded_campaign`; raises pydantic's ``ValidationError``)."""
+        from stereo_bench.campaign.config import recorded_campaign
+
+        return recorded_campaign(self.config)
+
+    def campaign_with(self, sections: Mapping[str, Mapping[str, Any]]) -> Any:
+        """The recorded config with ``sections``' values laid over the recorded sections (a replay's pipeline
+        overrides, the recording's copy of a file), validated again (raises pydantic's ``ValidationError``)."""
+        from stereo_bench.campaign.config import recorded_campaign
+
+        config = dict(self.config)
+        for section, values in sections.items():
+            recorded = config.get(section)
+            config[section] = {**(recorded if isinstance(recorded, dict) else {}), **values}
+        return recorded_campaign(config)
+
+    @functools.cached_property
+    def configurations(self) -> list[Any]:
+        """The recorded plan as configurations (:class:`~stereo_bench.campaign.plan.Configuration`), in order."""
+        from stereo_bench.campaign.plan import Configuration
+
+        return [Configuration.from_dict(entry) for entry in self.plan]
+
+    @functools.cached_property
+    def visits(self) -> list[Any]:
+        """The recorded visits before the configurations (``design``, :class:`~stereo_bench.campaign.plan.Visit`)."""
+        from stereo_bench.campaign.plan import Visit
+
+        return [Visit.from_dict(entry) for entry in self.design or []]
+
+    @property
+    def config_ids(self) -> list[str]:
+        """The recorded plan's configuration ids, in order (without parsing the configurations)."""
+        return [entry["config_id"] for entry in self.plan if isinstance(entry.get("config_id"), str)]
+
 
 class ResumeDocument(Document):
     type: Literal["resume"] = "resume"

@@ -37,8 +37,17 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from stereo_bench.campaign.config import EXTRINSICS_MODES, CampaignConfig, recorded_campaign
+from stereo_bench.campaign.config import EXTRINSICS_MODES, CampaignConfig
+from stereo_bench.campaign.documents import (
+    AnalysisEvent,
+    CalibrationEvent,
+    EventDocument,
+    MeasurementFrameEvent,
+    StartDocument,
+    document_json,
+)
 from stereo_bench.campaign.extrinsics import SOURCES
+from stereo_bench.campaign.router import DocumentRouter, handles
 from stereo_bench.campaign.session import SessionError, SessionReader
 from stereo_bench.geometry import RigPose, stereo_structure
 from stereo_bench.report.tables import NOT_RUN, with_plan
@@ -169,7 +178,7 @@ class SessionReport:
     key: str  # file-name-safe and unique within the report, e.g. 's1-paper-exp1'
     directory: Path
     reader: SessionReader
-    start: dict
+    start: StartDocument
     config: CampaignConfig | None
     status: str  # exit status of the last attempt, or 'incomplete'
     configs: list[ConfigReport]
@@ -177,11 +186,11 @@ class SessionReport:
 
     @property
     def name(self) -> str:
-        return str((self.start.get("config") or {}).get("name") or self.directory.name)
+        return str(self.start.config.get("name") or self.directory.name)
 
     @property
     def description(self) -> str:
-        return str((self.start.get("config") or {}).get("description") or "")
+        return str(self.start.config.get("description") or "")
 
     @property
     def rows(self) -> list[dict]:
@@ -193,9 +202,9 @@ def safe_key(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_-]+", "-", text).strip("-") or "session"
 
 
-def _load_config(reader: SessionReader, start: dict) -> tuple[CampaignConfig | None, str | None]:
+def _load_config(reader: SessionReader, start: StartDocument) -> tuple[CampaignConfig | None, str | None]:
     try:
-        return recorded_campaign(start.get("config") or {}), None
+        return start.campaign, None
     except ValidationError as error:
         first = error.errors()[0]
         where = ".".join(str(part) for part in first.get("loc", ())) or "config"
@@ -207,44 +216,53 @@ def _strip_frame(frame: dict) -> dict:
     return {key: value for key, value in frame.items() if key not in ("lengths_mm", "pairs")}
 
 
+class _ConfigReader(DocumentRouter):
+    """What one configuration's events give its report (the events of the attempt that wrote its result)."""
+
+    def __init__(self, report: ConfigReport):
+        super().__init__()
+        self.report = report
+
+    @handles(AnalysisEvent)
+    def analysis(self, event: AnalysisEvent) -> None:
+        data = event.data
+        self.report.calibration = data.calibration
+        self.report.frames = [_strip_frame(f) for f in data.frames]
+        self.report.frames_failed = list(data.frames_failed)
+
+    @handles(MeasurementFrameEvent)
+    def measurement_frame(self, event: MeasurementFrameEvent) -> None:
+        if isinstance(event.frames.get("left"), str) and isinstance(event.frames.get("right"), str):
+            self.report.measurement_frames.append({"index": event.data.index, "left": event.frames["left"],
+                                                   "right": event.frames["right"]})
+
+    @handles(CalibrationEvent)
+    def calibration(self, event: CalibrationEvent) -> None:
+        self.report.has_calibration_files = True
+
+
 def read_session(directory: str | Path, key: str) -> SessionReport:
     """Read one session; raises :class:`SessionError` (naming the file) if it is missing or corrupt."""
     reader = SessionReader(directory).reload()
     start = reader.start()
-    if not isinstance(start.get("config"), dict) or not isinstance(start.get("plan"), list):
-        raise SessionError(f"{reader.documents_path} line 1: start document has no 'config' and 'plan'")
     warnings = list(reader.warnings)
     config, problem = _load_config(reader, start)
     if problem:
         warnings.append(problem)
-    plan = [entry for entry in start["plan"] if isinstance(entry, dict)]
+    plan = start.plan
     plan_by_id = {str(entry.get("config_id")): entry for entry in plan}
-    rows = with_plan(reader.results(), plan)
-    events: dict[str, list[dict]] = {}
+    rows = with_plan([row.stored() for row in reader.results()], plan)
+    events: dict[str, list[EventDocument]] = {}
     for event in reader.events():
-        if event.get("config_id") is not None:
-            events.setdefault(str(event["config_id"]), []).append(event)
+        if event.config_id is not None:
+            events.setdefault(event.config_id, []).append(event)
     configs = []
     for row in rows:
         report = ConfigReport(row=row, plan=plan_by_id.get(str(row.get("config_id"))), budget=budget_of(row))
-        for event in events.get(report.config_id, []):
-            kind = event.get("kind")
-            data = event.get("data") if isinstance(event.get("data"), dict) else {}
-            if kind == "analysis":
-                calibration = data.get("calibration")
-                report.calibration = calibration if isinstance(calibration, dict) else None
-                report.frames = [_strip_frame(f) for f in data.get("frames") or [] if isinstance(f, dict)]
-                report.frames_failed = [f for f in data.get("frames_failed") or [] if isinstance(f, dict)]
-            elif kind == "measurement_frame":
-                frames = event.get("frames") or {}
-                if isinstance(frames, dict) and isinstance(frames.get("left"), str) \
-                        and isinstance(frames.get("right"), str):
-                    report.measurement_frames.append({"index": data.get("index"), "left": frames["left"],
-                                                      "right": frames["right"]})
-            elif kind == "calibration":
-                report.has_calibration_files = True
-        report.structure = structure_of(row, events.get(report.config_id, []), config=config,
-                                        calibration=_calibration_loader(reader, report, warnings))
+        _ConfigReader(report).read(events.get(report.config_id, []))
+        # the structure's sources are read from the events' JSON (structure_of: the one place that knows them)
+        report.structure = structure_of(row, [document_json(e) for e in events.get(report.config_id, [])],
+                                        config=config, calibration=_calibration_loader(reader, report, warnings))
         configs.append(report)
     session = SessionReport(key=key, directory=Path(directory), reader=reader, start=start, config=config,
                             status=reader.status(), configs=configs, warnings=warnings)
