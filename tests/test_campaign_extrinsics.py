@@ -22,6 +22,7 @@ from stereo_bench.campaign.config import campaign_from_dict, load_preset
 from stereo_bench.campaign.execute import CampaignPlan, RunControl, replay_session, run_campaign
 from stereo_bench.campaign.operator import SimulatedOperator
 from stereo_bench.campaign.plan import PREPARE_ID, plan_summary
+from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.cli import main
 from stereo_bench.kinematics import load_model, model_from_toml
@@ -68,9 +69,9 @@ def _events(session, kind):
 
 def test_the_design_is_visited_fitted_once_and_the_model_recorded(kinematic_session):
     reader = SessionReader(kinematic_session)
-    design = reader.start().design
-    assert len(design) == 9 and {v["purpose"] for v in design} == {"kinematic"}
-    assert {(v["baseline_mm"], v["toe_in_left_deg"]) for v in design} >= {(80.0, 0.0), (200.0, 10.0)}
+    design = RecordedStart.of(reader.start()).visits
+    assert len(design) == 9 and {v.purpose for v in design} == {"kinematic"}
+    assert {(v.baseline_mm, v.toe_in_left_deg) for v in design} >= {(80.0, 0.0), (200.0, 10.0)}
     views = _events(kinematic_session, "calibration_view")
     assert len(views) == 9 * 4 and {e.config_id for e in views} == {v.config_id for v in design}
     # The measured configurations get no calibration views: the model predicts their R, T.
@@ -94,25 +95,25 @@ def test_kinematic_results_carry_mode_structure_truth_and_uncertainty(kinematic_
     for config_id, row in rows.items():
         assert row["status"] == "measured" and row["extrinsics_mode"] == "kinematic"
         structure, truth = structures[config_id], truths[config_id]
-        assert structure["used"] == "kinematic" and set(structure["sources"]) == {"kinematic", "nominal"}
-        kinematic = structure["sources"]["kinematic"]
+        assert structure.used == "kinematic" and set(structure.sources) == {"kinematic", "nominal"}
+        kinematic = structure.sources["kinematic"]
         # The columns are the used source's structure and the truth recorded at the measurement.
-        assert float(row["baseline_used_mm"]) == pytest.approx(kinematic["structure"]["baseline_mm"], abs=1e-9)
-        assert float(row["baseline_true_mm"]) == pytest.approx(truth["structure"]["baseline_mm"], abs=1e-9)
+        assert float(row["baseline_used_mm"]) == pytest.approx(kinematic.structure["baseline_mm"], abs=1e-9)
+        assert float(row["baseline_true_mm"]) == pytest.approx(truth.structure["baseline_mm"], abs=1e-9)
         assert float(row["square_true_mm"]) == pytest.approx(27.0 * 1.0008, abs=1e-9)
         # The prediction at a configuration the model was not fitted at, against the truth: within 4 of the
         # sigmas it states (parameters, landing repeatability, backlash).
         for key in ("baseline_mm", "alpha_left_deg", "alpha_right_deg"):
-            error = kinematic["structure"][key] - truth["structure"][key]
-            assert abs(error) <= 4 * kinematic["structure_sigma"][key], (config_id, key, error)
+            error = kinematic.structure[key] - truth.structure[key]
+            assert abs(error) <= 4 * kinematic.structure_sigma[key], (config_id, key, error)
         # The pan axes stand behind the optical centres: the true optical baseline is not the commanded B,
         # and the nominal geometry, which assumes it is, measures the square tenths of a mm off.
         assert abs(float(row["baseline_true_mm"]) - float(row["baseline_mm"])) > 1.0
-        assert abs(structure["sources"]["nominal"]["error_true_mm"]) > 0.3
+        assert abs(structure.sources["nominal"].error_true_mm) > 0.3
         u = float(row["u_combined_mm"])
         assert float(row["U_expanded_mm"]) == pytest.approx(2 * u)
         assert float(row["sigma_mm"]) < u  # sigma_mm stays the random noise component
-        assert abs(kinematic["error_true_mm"]) <= 4 * u
+        assert abs(kinematic.error_true_mm) <= 4 * u
         budget = json.loads(row["uncertainty"]) if isinstance(row["uncertainty"], str) else row["uncertainty"]
         assert budget["combined"] == pytest.approx(u) and budget["noise_random_mm"] == pytest.approx(
             float(row["sigma_mm"]))
@@ -120,8 +121,8 @@ def test_kinematic_results_carry_mode_structure_truth_and_uncertainty(kinematic_
 
 def test_the_controller_as_read_at_connect_is_recorded(kinematic_session):
     (controller,) = _events(kinematic_session, "controller")
-    assert controller["config_id"] is None
-    assert controller["data"]["info"]["build"].startswith("1.1") and "$100" in controller["data"]["info"]["settings"]
+    assert controller.config_id is None
+    assert controller.data.info["build"].startswith("1.1") and "$100" in controller.data.info["settings"]
 
 
 @pytest.mark.replay
@@ -132,7 +133,7 @@ def test_replay_refits_the_design_and_reproduces_every_number(kinematic_session,
     (model_event,) = again.events(kind="kinematic_model", attempt=None)
     original = _events(kinematic_session, "kinematic_model")[0]
     assert again.read_bytes(model_event.files["kinematic_model.toml"]) == \
-        SessionReader(kinematic_session).read_bytes(original["files"]["kinematic_model.toml"])
+        SessionReader(kinematic_session).read_bytes(original.files["kinematic_model.toml"])
     assert [e.data.structure for e in again.events(kind="truth")] == \
         [e.data.structure for e in _events(kinematic_session, "truth")]
 
@@ -188,12 +189,12 @@ def test_per_config_with_a_model_file_compares_all_sources_and_replays_from_insi
     assert row["extrinsics_mode"] == "per-config"
     assert float(row["baseline_used_mm"]) == pytest.approx(float(row["baseline_estimated_mm"]))
     (structure,) = _events(tmp_path / "s", "structure")
-    sources = structure["data"]["sources"]
+    sources = structure.data.sources
     assert set(sources) == {"calibrated", "kinematic", "nominal"}
-    assert sources["calibrated"]["uncertainty"]["structure"] == 0.0  # the rig did not move since its views
+    assert sources["calibrated"].uncertainty["structure"] == 0.0  # the rig did not move since its views
     # Same detections, three extrinsics: calibrated and kinematic agree to a few hundredths of a mm, nominal not.
-    assert abs(sources["calibrated"]["square_mean_mm"] - sources["kinematic"]["square_mean_mm"]) < 0.05
-    assert abs(sources["nominal"]["error_true_mm"]) > 0.3
+    assert abs(sources["calibrated"].square_mean_mm - sources["kinematic"].square_mean_mm) < 0.05
+    assert abs(sources["nominal"].error_true_mm) > 0.3
     model_file.unlink()  # a replay reads the session's copy, never the file the config named
     assert replay_session(tmp_path / "s").differences == []
 

@@ -41,7 +41,7 @@ def test_measurement_keeps_measurement_frames_and_the_calibration_views_detectio
     session = kept["measurement"]
     reader = SessionReader(session)
     views = reader.events(kind="calibration_view")
-    assert len(views) == 2 * 6 and all(view["frames"] == {} for view in views)
+    assert len(views) == 2 * 6 and all(view.frames == {} for view in views)
     detections = reader.events(kind="calibration_detections")
     assert sorted((d.config_id, d.data.index) for d in detections) == sorted(
         (v.config_id, v.data.index) for v in views)
@@ -51,7 +51,7 @@ def test_measurement_keeps_measurement_frames_and_the_calibration_views_detectio
                for d in detections for side in ("left", "right"))
     frames = reader.events(kind="measurement_frame")
     on_disk = sorted(p.relative_to(session).as_posix() for p in (session / "frames").rglob("*.png"))
-    assert on_disk == sorted(f["frames"][side] for f in frames for side in ("left", "right"))
+    assert on_disk == sorted(f.frames[side] for f in frames for side in ("left", "right"))
     assert list(session.rglob("extrinsics.yml"))  # the calibrations are kept
     assert numbers(session) == numbers(small_reference)  # what is kept changes no number
     summary = replay_session(session)

@@ -350,5 +350,5 @@ def test_replay_out_records_the_environment_of_the_replay(tmp_path):
     out = tmp_path / "replayed"
     assert main(["replay", str(SAMPLE_SESSION), "--out", str(out)]) == 0
     environment = SessionReader(out).start().numeric_environment
-    assert environment["blas"] == numeric_environment()["blas"]
+    assert environment.model_dump(mode="json")["blas"] == numeric_environment()["blas"]
     shutil.rmtree(out)

@@ -37,7 +37,7 @@ def lab_reference(tmp_path_factory) -> Path:
 
 def test_the_settle_is_shorter_than_the_ringing_so_the_frames_ring(lab_reference):
     """Not vacuous: the captures see the heads ring (on the wall clock, their phase would follow the machine's load)."""
-    assert any(event.data.left["meta"]["truth"]["ringing_deg"] != 0.0
+    assert any(event.data.left.meta["truth"]["ringing_deg"] != 0.0
                for event in SessionReader(lab_reference).events(kind="calibration_view"))
 
 

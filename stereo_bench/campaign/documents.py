@@ -585,40 +585,7 @@ class StartDocument(Document):
                           "recorded before it was kept)")
 
     # The recorded config and plan stay as recorded (``config``, ``plan``, ``design``: a resume compares them byte
-    # for byte); readers read them typed, parsed once per document:
-    @functools.cached_property
-    def campaign(self) -> Any:
-        """The recorded config as a :class:`~stereo_bench.campaign.config.CampaignConfig`
-        (:func:`~stereo_bench.campaign.config.recorded_campaign`; raises pydantic's ``ValidationError``)."""
-        from stereo_bench.campaign.config import recorded_campaign
-
-        return recorded_campaign(self.config)
-
-    def campaign_with(self, sections: Mapping[str, Mapping[str, Any]]) -> Any:
-        """The recorded config with ``sections``' values laid over the recorded sections (a replay's pipeline
-        overrides, the recording's copy of a file), validated again (raises pydantic's ``ValidationError``)."""
-        from stereo_bench.campaign.config import recorded_campaign
-
-        config = dict(self.config)
-        for section, values in sections.items():
-            recorded = config.get(section)
-            config[section] = {**(recorded if isinstance(recorded, dict) else {}), **values}
-        return recorded_campaign(config)
-
-    @functools.cached_property
-    def configurations(self) -> list[Any]:
-        """The recorded plan as configurations (:class:`~stereo_bench.campaign.plan.Configuration`), in order."""
-        from stereo_bench.campaign.plan import Configuration
-
-        return [Configuration.from_dict(entry) for entry in self.plan]
-
-    @functools.cached_property
-    def visits(self) -> list[Any]:
-        """The recorded visits before the configurations (``design``, :class:`~stereo_bench.campaign.plan.Visit`)."""
-        from stereo_bench.campaign.plan import Visit
-
-        return [Visit.from_dict(entry) for entry in self.design or []]
-
+    # for byte); readers read them typed through campaign/recorded.RecordedStart.
     @property
     def config_ids(self) -> list[str]:
         """The recorded plan's configuration ids, in order (without parsing the configurations)."""
@@ -639,6 +606,15 @@ class ResumeDocument(Document):
     plan_drift: str | None = Field(None, description="v2: where today's planner differs from the recorded plan "
                                                      "(the recorded plan is what runs)")
     numeric_environment: NumericEnvironment | None = Field(None, description="v2: this attempt's (as in start)")
+    # What a reader of the live stream needs to show a resumed run at once without reading the session from disk
+    # (the live page): the start's bench, its config and plan (checked equal to this attempt's), and the rows of
+    # the earlier attempts. Absent in resumes recorded before they were carried.
+    bench: BenchName | None = Field(None, description="v2: the start's bench")
+    config: dict[str, Any] | None = Field(None, description="v2: the start's campaign config (this attempt's: "
+                                                            "a resume with another is refused)")
+    plan: list[dict[str, Any]] | None = Field(None, description="v2: the start's plan (likewise)")
+    results: list[ResultRow] | None = Field(None, description="v2: the last row of each configuration recorded "
+                                                              "before this attempt, in order of first appearance")
 
 
 #: The typed event kinds, kind -> model, in the order their classes are defined below. A class that derives from

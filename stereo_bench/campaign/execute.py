@@ -45,6 +45,7 @@ from stereo_bench.campaign.environment import environment_differences, numeric_e
 from stereo_bench.campaign.extrinsics_run import RIG_CONFIG_FILE, RIG_CONFIG_KIND, session_sources
 from stereo_bench.campaign.operator import Operator, OperatorAbsent, SimulatedOperator, TerminalOperator
 from stereo_bench.campaign.plan import PREPARE_ID, Configuration, Step, Visit, expand_plan, plan_steps, plan_visits
+from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.reproduce import (
     SCALE_TOLERANCE,
     UNCERTAINTY_TOLERANCE,
@@ -97,7 +98,8 @@ class CampaignPlan:
     @classmethod
     def recorded(cls, config: CampaignConfig, start: StartDocument) -> CampaignPlan:
         """The plan a session's start document recorded (its configurations and visits), never today's re-planning."""
-        return cls.of(config, start.configurations, start.visits)
+        recorded = RecordedStart.of(start)
+        return cls.of(config, recorded.configurations, recorded.visits)
 
 
 def plan_drift(config: CampaignConfig, recorded_plan: list[dict]) -> str | None:
@@ -240,8 +242,8 @@ def resume_sources(options: RunnerOptions, writer: SessionWriter, config: Campai
     if not visits or writer.recorded_start is None:
         return set()
     optics = config.cameras.optics
-    recorded = recorded_sources(writer.reader(), sources=("design",),
-                                image_size=(optics.width_px, optics.height_px))
+    recorded = recorded_sources(writer.reader(), sources=("design",), image_size=(optics.width_px, optics.height_px),
+                                intrinsics_visits=[v.config_id for v in visits if v.purpose == "intrinsics"])
     if not config.extrinsics.source().is_prepared(recorded):
         return set()
     options.kinematic_model = recorded.kinematic_model or options.kinematic_model
@@ -345,7 +347,7 @@ def recorded_config(session_dir: str | Path) -> CampaignConfig:
     --resume`` continues with when no campaign file is given (SessionError, one line, if it cannot be read)."""
     reader = SessionReader(session_dir)
     try:
-        return reader.start().campaign
+        return RecordedStart.of(reader.start()).campaign
     except ValidationError as error:
         first = error.errors()[0]
         where = ".".join(str(part) for part in first.get("loc", ())) or "config"
@@ -437,7 +439,7 @@ def reproducibility(reader: SessionReader, config_ids: Iterable[str]) -> tuple[d
     calibration view's frames or, where those were not kept, its recorded detections.
     """
     config_ids = set(config_ids)
-    keep = reader.start().campaign.capture.keep_frames
+    keep = RecordedStart.of(reader.start()).campaign.capture.keep_frames
     detected = {(e.config_id, e.data.index) for e in reader.events(kind=CalibrationDetectionsEvent)}
     reasons: dict[str, str] = {}
     from_detections: set[str] = set()
@@ -476,12 +478,13 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     keep_freed_frame_memory()  # before the decoding threads start: they reuse each other's freed frames
     reader = SessionReader(session_dir)
     start = reader.start()
+    recorded_start = RecordedStart.of(start)
     rig_copy = _recorded_copy(reader, RIG_CONFIG_KIND, RIG_CONFIG_FILE)
     try:
         overrides: dict[str, dict] = {"rig": {"config_file": str(rig_copy)}} if rig_copy is not None else {}
         for section, values in (pipeline or {}).items():  # the copy, not where the file was; then the pipeline's
             overrides[section] = {**overrides.get(section, {}), **values}
-        config = start.campaign_with(overrides) if overrides else start.campaign
+        config = recorded_start.campaign_with(overrides) if overrides else recorded_start.campaign
     except ValidationError as error:
         first = error.errors()[0]
         where = ".".join(str(part) for part in first.get("loc", ())) or "config"

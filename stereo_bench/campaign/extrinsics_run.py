@@ -19,6 +19,7 @@ calibration a per-config run makes there, whose joint intrinsics carry their cov
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -99,14 +100,16 @@ def session_sources(config) -> list[Draft]:
     return drafts
 
 
-def recorded_sources(reader, *, sources: tuple[str, ...], image_size: tuple[int, int]) -> Prepared:
+def recorded_sources(reader, *, sources: tuple[str, ...], image_size: tuple[int, int],
+                     intrinsics_visits: Sequence[str] = ()) -> Prepared:
     """The kinematic model (from the ``kinematic_model`` events whose source is in ``sources``) and nominal's
     intrinsics (a ``calib_dir`` copy, or the calibration of an intrinsics visit) a recording holds.
 
     A resume takes ``("file", "design")`` (the design is not visited again); a replay ``("file",)`` (it fits
-    the design's recorded views again and must find the recorded model).
+    the design's recorded views again and must find the recorded model). ``intrinsics_visits``: the config ids
+    of the plan's intrinsics visits, whose recorded calibration (with ``"design"`` in ``sources``) is nominal's.
     """
-    from stereo_bench.campaign.documents import IntrinsicsEvent, KinematicModelEvent
+    from stereo_bench.campaign.documents import CalibrationEvent, IntrinsicsEvent, KinematicModelEvent
     from stereo_bench.campaign.session import SessionError
     from stereo_bench.vision.calibio import read_intrinsics, read_intrinsics_covariance
 
@@ -127,10 +130,9 @@ def recorded_sources(reader, *, sources: tuple[str, ...], image_size: tuple[int,
             prepared.nominal_intrinsics = _intrinsics_calibration(K1, D1, K2, D2, size or image_size,
                                                                   read_intrinsics_covariance(path))
     if "design" in sources:
-        for visit in reader.start().visits:
-            if visit.purpose == "intrinsics" and reader.events(kind="calibration", config_id=visit.config_id,
-                                                               attempt=None):
-                prepared.nominal_intrinsics = reader.calibration(visit.config_id)
+        for config_id in intrinsics_visits:
+            if reader.events(kind=CalibrationEvent, config_id=config_id, attempt=None):
+                prepared.nominal_intrinsics = reader.calibration(config_id)
     return prepared
 
 

@@ -938,6 +938,7 @@ class SessionWriter:
                 self._header("resume", self._next_seq), schema_version=SCHEMA_VERSION, uid=uuid.uuid4().hex,
                 start_uid=recorded.uid, previous_attempt=self._previous_attempt, host=host,
                 completed=sorted(self._completed), recovery=self.recovery,
+                bench=recorded.bench, config=recorded.config, plan=recorded.plan, results=self.reader().results(),
                 **({"plan_drift": plan_drift} if plan_drift else {}),
                 **({"numeric_environment": environment} if environment is not None else {}))
         self._reserve_seq()

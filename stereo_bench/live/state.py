@@ -39,6 +39,7 @@ from stereo_bench.campaign.documents import (
     TargetNotFoundEvent,
     TranscriptEvent,
 )
+from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.router import DocumentRouter, handles
 from stereo_bench.live.transcript import TranscriptTail
 
@@ -130,27 +131,36 @@ class LiveState(DocumentRouter):
         """A resumed session: the plan and the earlier results are in the session (not re-sent on the bus)."""
         self.run.update(status="running", attempt=doc.attempt)
         self._attempt_started = self.clock()
-        if self.session_dir is None:
-            return
-        from stereo_bench.campaign.session import SessionReader
+        if doc.config is not None and doc.plan is not None:  # the resume carries what the page shows
+            self.run.update(bench=doc.bench)
+            self._started_with(RecordedStart.of_resume(doc))
+            rows = doc.results or []
+        elif self.session_dir is not None:  # a resume recorded before it carried them: the session on disk
+            from stereo_bench.campaign.session import SessionReader
 
-        reader = SessionReader(self.session_dir)
-        start = reader.start()
-        self.run.update(bench=start.bench)
-        self._started(start)
-        for row in reader.results():
+            reader = SessionReader(self.session_dir)
+            start = reader.start()
+            self.run.update(bench=start.bench)
+            self._started(start)
+            rows = reader.results()
+        else:
+            return
+        for row in rows:
             self._result_row(row.stored())
         self._note(f"resumed (attempt {doc.attempt}): {len(doc.completed)} configurations already complete")
 
     def _started(self, start: StartDocument) -> None:
+        self._started_with(RecordedStart.of(start))
+
+    def _started_with(self, recorded: RecordedStart) -> None:
         """The recorded config and plan: the run's name, the plan, the calibration views to expect."""
         try:
-            config = start.campaign
+            config = recorded.campaign
         except ValueError:  # a config this version does not validate: no name, no views count, no ETA
             config = None
         if config is not None and config.name:
             self.run["name"] = config.name
-        self._set_plan(config, start.plan)
+        self._set_plan(config, recorded.plan)
         self.views_expected = int(config.capture.calibration_views or 0) if config is not None else 0
 
     def _set_plan(self, config, plan: list[dict]) -> None:

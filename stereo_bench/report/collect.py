@@ -47,6 +47,7 @@ from stereo_bench.campaign.documents import (
     document_json,
 )
 from stereo_bench.campaign.extrinsics import SOURCES
+from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.router import DocumentRouter, handles
 from stereo_bench.campaign.session import SessionError, SessionReader
 from stereo_bench.geometry import RigPose, stereo_structure
@@ -204,7 +205,7 @@ def safe_key(text: str) -> str:
 
 def _load_config(reader: SessionReader, start: StartDocument) -> tuple[CampaignConfig | None, str | None]:
     try:
-        return start.campaign, None
+        return RecordedStart.of(start).campaign, None
     except ValidationError as error:
         first = error.errors()[0]
         where = ".".join(str(part) for part in first.get("loc", ())) or "config"
