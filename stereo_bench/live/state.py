@@ -14,9 +14,10 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.coverage import Coverage
 from stereo_bench.campaign.documents import (
     AnalysisEvent,
@@ -39,6 +40,7 @@ from stereo_bench.campaign.documents import (
     TargetNotFoundEvent,
     TranscriptEvent,
 )
+from stereo_bench.campaign.plan import Configuration
 from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.router import DocumentRouter, handles
 from stereo_bench.live.transcript import TranscriptTail
@@ -51,21 +53,17 @@ PLAN_QUANTITIES = ("baseline_mm", "distance_mm", "alpha_deg", "tilt_deg")
 FINAL = ("measured", "failed", "infeasible", "limit")
 
 
-def varying_quantities(plan: list[dict]) -> list[str]:
+def varying_quantities(configurations: Sequence[Configuration]) -> list[str]:
     """The plan's quantities that take more than one value, most values first (the plot's x, then series)."""
-    counts = {q: len({entry.get(q) for entry in plan}) for q in PLAN_QUANTITIES}
+    counts = {q: len({getattr(c, q) for c in configurations}) for q in PLAN_QUANTITIES}
     return [q for q in sorted(counts, key=lambda q: -counts[q]) if counts[q] > 1]
 
 
-def configuration_estimates_s(config, plan: list[dict]) -> dict[str, float]:
-    """The plan's predicted duration per configuration (motion, settle, frames, operator; no computation);
-    ``config``: a :class:`~stereo_bench.campaign.config.CampaignConfig` (or its JSON)."""
-    from stereo_bench.campaign.config import CampaignConfig
-    from stereo_bench.campaign.plan import Configuration, estimate_duration, plan_steps
+def configuration_estimates_s(config: CampaignConfig, configurations: list[Configuration]) -> dict[str, float]:
+    """The plan's predicted duration per configuration (motion, settle, frames, operator; no computation)."""
+    from stereo_bench.campaign.plan import estimate_duration, plan_steps
     from stereo_bench.campaign.runner import group_steps
 
-    config = config if isinstance(config, CampaignConfig) else CampaignConfig.model_validate(config)
-    configurations = [Configuration.from_dict(entry) for entry in plan]
     steps = plan_steps(config, configurations)
     return {config_id: estimate_duration(config, configurations, group).total_s
             for config_id, group in group_steps(steps)}
@@ -160,16 +158,20 @@ class LiveState(DocumentRouter):
             config = None
         if config is not None and config.name:
             self.run["name"] = config.name
-        self._set_plan(config, recorded.plan)
+        try:
+            configurations = recorded.configurations
+        except (KeyError, TypeError, ValueError):  # a plan this version does not read: no plan, no ETA
+            configurations = []
+        self._set_plan(config, configurations)
         self.views_expected = int(config.capture.calibration_views or 0) if config is not None else 0
 
-    def _set_plan(self, config, plan: list[dict]) -> None:
-        self.plan = [{key: entry.get(key) for key in ("config_id", *PLAN_QUANTITIES, "toe_in_deg", "runnable",
-                                                        "feasible", "reason", "status")} for entry in plan]
-        self.varying = varying_quantities(plan)
-        self.status = {entry["config_id"]: "pending" for entry in plan}
+    def _set_plan(self, config: CampaignConfig | None, configurations: list[Configuration]) -> None:
+        self.plan = [{key: getattr(c, key) for key in ("config_id", *PLAN_QUANTITIES, "toe_in_deg", "runnable",
+                                                       "feasible", "reason", "status")} for c in configurations]
+        self.varying = varying_quantities(configurations)
+        self.status = {c.config_id: "pending" for c in configurations}
         try:
-            self.estimates_s = configuration_estimates_s(config, plan) if config is not None else {}
+            self.estimates_s = configuration_estimates_s(config, configurations) if config is not None else {}
         except Exception:  # noqa: BLE001 - e.g. a rig config file missing on this machine: no plan-based ETA
             self.estimates_s = {}
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,7 +45,8 @@ from stereo_bench.campaign.documents import (
     EventDocument,
     MeasurementFrameEvent,
     StartDocument,
-    document_json,
+    StructureEvent,
+    TruthEvent,
 )
 from stereo_bench.campaign.extrinsics import SOURCES
 from stereo_bench.campaign.recorded import RecordedStart
@@ -262,7 +264,7 @@ def read_session(directory: str | Path, key: str) -> SessionReport:
         report = ConfigReport(row=row, plan=plan_by_id.get(str(row.get("config_id"))), budget=budget_of(row))
         _ConfigReader(report).read(events.get(report.config_id, []))
         # the structure's sources are read from the events' JSON (structure_of: the one place that knows them)
-        report.structure = structure_of(row, [document_json(e) for e in events.get(report.config_id, [])],
+        report.structure = structure_of(row, events.get(report.config_id, []),
                                         config=config, calibration=_calibration_loader(reader, report, warnings))
         configs.append(report)
     session = SessionReport(key=key, directory=Path(directory), reader=reader, start=start, config=config,
@@ -358,13 +360,13 @@ def _dict(value: Any) -> dict:
     return value if isinstance(value, dict) else {}
 
 
-def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None = None,
+def structure_of(row: dict, events: Sequence[EventDocument], *, config: CampaignConfig | None = None,
                  calibration: Any = None) -> Structure:
     """The structure of one configuration from its result row and events (see :class:`Structure`).
 
     Args:
         row: the configuration's result row.
-        events: its event documents (dicts, the attempt that wrote the result).
+        events: its event documents (typed, the attempt that wrote the result).
         config: the session's campaign config (the target's nominal square, the extrinsics mode of a
             session that predates the ``extrinsics_mode`` column), or None.
         calibration: a callable returning the configuration's recorded ``StereoCalibration`` (or None):
@@ -376,15 +378,16 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
     simulated frames' metadata (mean over the measurement frames), the commanded B and α (nominal).
     """
     out = Structure()
-    documents = [_dict(e.get("data")) for e in events if e.get("kind") == STRUCTURE_EVENT]
-    document = documents[-1] if documents else {}
-    truths = [_dict(e.get("data")) for e in events if e.get("kind") == TRUTH_EVENT]
-    truth_event = truths[-1] if truths else {}
-    sources = _dict(document.get("sources"))
-    recorded_truth = _dict(document.get("truth"))
+    documents = [e.data for e in events if isinstance(e, StructureEvent)]
+    document = documents[-1] if documents else None
+    truths = [e.data for e in events if isinstance(e, TruthEvent)]
+    truth_event = truths[-1] if truths else None
+    sources = document.sources if document is not None else {}
+    recorded_truth = (document.truth if document is not None else None) or {}
 
     # The mode: the row's column, the structure event, the campaign config (sessions before issue 11).
-    for value, origin in ((row.get("extrinsics_mode"), "result row"), (document.get("mode"), "structure event")):
+    for value, origin in ((row.get("extrinsics_mode"), "result row"),
+                          (document.mode if document is not None else None, "structure event")):
         if isinstance(value, str) and value:
             out.mode, out.mode_origin = _mode_name(value), origin
             break
@@ -398,20 +401,19 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
 
     # Every source the structure event recorded: its structure (and sigma), its square and budget.
     for name, record in sources.items():
-        record = _dict(record)
         source, mode = _source_name(name), _mode_name(name)
-        put(source, _described(record.get("structure")), "structure event")
-        if isinstance(record.get("structure_sigma"), dict):
-            out.sigma[source] = {k: _finite(v) for k, v in record["structure_sigma"].items()}
-        if isinstance(record.get("note"), str) and record["note"]:
-            out.notes[source] = record["note"]
-        if (square := _finite(record.get("square_mean_mm"))) is not None:
+        put(source, _described(record.structure), "structure event")
+        if record.structure_sigma is not None:
+            out.sigma[source] = {k: _finite(v) for k, v in record.structure_sigma.items()}
+        if record.note:
+            out.notes[source] = record.note
+        if (square := _finite(record.square_mean_mm)) is not None:
             out.squares_mm[mode], out.squares_origin[mode] = square, "structure event"
-        if (budget := budget_from(_dict(record.get("uncertainty")))) is not None:
+        if (budget := budget_from(record.uncertainty or {})) is not None:
             out.budgets[mode] = budget
-    used_name = document.get("used")
-    if isinstance(used_name, str) and used_name in sources:
-        put("used", _described(_dict(sources[used_name]).get("structure")), "structure event")
+    used_name = document.used if document is not None else None
+    if used_name in sources:
+        put("used", _described(sources[used_name].structure), "structure event")
         if (sigma := out.sigma.get(_source_name(used_name))) is not None:
             out.sigma["used"] = sigma
     put("truth", _described(recorded_truth.get("structure")), "structure event")
@@ -420,10 +422,9 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
         "alpha_left_used_deg"), "alpha_right_deg": row.get("alpha_right_used_deg")}), "result row")
     put("truth", _described({"baseline_mm": row.get("baseline_true_mm"), "alpha_left_deg": row.get(
         "alpha_left_true_deg"), "alpha_right_deg": row.get("alpha_right_true_deg")}), "result row")
-    put("truth", _described(truth_event.get("structure")), "truth event")
-    metas = [meta for e in events if e.get("kind") == "measurement_frame"
-             and isinstance(meta := _dict(_dict(e.get("data")).get("left")).get("meta"), dict)
-             and isinstance(meta.get("truth"), dict)]
+    put("truth", _described(truth_event.structure if truth_event is not None else None), "truth event")
+    metas = [meta for e in events if isinstance(e, MeasurementFrameEvent)
+             and isinstance(meta := e.data.left.meta, dict) and isinstance(meta.get("truth"), dict)]
     put("truth", _mean_structure([d for m in metas if (d := _described(m["truth"].get("structure")))]),
         "simulated frames' metadata")
     if (out.extrinsics["calibrated"] is None and out.mode in SOURCES and SOURCES[out.mode].calibrates_each_configuration
@@ -450,7 +451,7 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
             out.budgets[out.mode] = budget
 
     # The true square: the row's, the structure and truth events', the frames' print scale x the nominal square.
-    target = _dict(truth_event.get("target"))
+    target = (truth_event.target if truth_event is not None else None) or {}
     scales = [s for m in metas if (s := _finite(_dict(m["truth"].get("board")).get("print_scale"))) is not None]
     nominal = config.target.square_mm if config is not None else None
     for value, origin in ((row.get("square_true_mm"), "result row"),
