@@ -278,7 +278,7 @@ def bench_profile(profile: str, keep: Path | None) -> dict:
         pairs = stereo_pairs(reader)
         # Homing as it happened (the estimate assumes a full travel; the emulator starts near home): from
         # the transcript event (the rig is open) to the home event.
-        homing_s = reader.events(kind="home")[0]["monotonic"] - reader.events(kind="transcript")[0]["monotonic"]
+        homing_s = reader.events(kind="home")[0].monotonic - reader.events(kind="transcript")[0].monotonic
         session_mb = sum(p.stat().st_size for p in session.rglob("*") if p.is_file()) / 1e6
         campaign_table = spans.by_label()
         replayed = bench_replay(session, pairs)
@@ -300,7 +300,7 @@ def bench_profile(profile: str, keep: Path | None) -> dict:
 
 
 def stereo_pairs(reader: SessionReader) -> int:
-    return sum(1 for e in reader.events() if e["kind"] in ("calibration_view", "measurement_frame"))
+    return sum(1 for e in reader.events() if e.kind in ("calibration_view", "measurement_frame"))
 
 
 def bench_replay(session: Path, pairs: int) -> dict:

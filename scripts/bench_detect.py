@@ -41,7 +41,7 @@ OPENCV_CALLS = ("findChessboardCorners", "checkChessboard", "cornerSubPix", "get
 
 def session_boards(session: Path) -> list[Checkerboard]:
     """The checkerboards a session's frames show (target, calibration board), from its start document."""
-    config = SessionReader(session).start()["config"]
+    config = SessionReader(session).start().config
     boards = []
     for key in ("target", "calibration_board"):
         spec = config[key]

@@ -54,7 +54,8 @@ def outcome(session: Path) -> tuple[dict, dict]:
     with open(session / "results.csv", newline="") as handle:
         rows = {row["config_id"]: {k: v for k, v in row.items() if k not in ("time", "attempt")}
                 for row in csv.DictReader(handle)}
-    truths = {event["config_id"]: {k: v for k, v in event["data"].items() if k != "sim_time_s"}
+    truths = {event.config_id: {k: v for k, v in event.data.model_dump(mode="json", exclude_unset=True).items()
+                               if k != "sim_time_s"}
               for event in SessionReader(session).events(kind="truth")}
     return rows, truths
 

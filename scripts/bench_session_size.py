@@ -48,7 +48,7 @@ def main() -> None:
             summary = run_campaign(campaign_from_dict(data), session, yes=True)
             campaign_s = time.monotonic() - started
             reader = SessionReader(session)
-            pairs = sum(1 for e in reader.events() if e["kind"] in ("calibration_view", "measurement_frame"))
+            pairs = sum(1 for e in reader.events() if e.kind in ("calibration_view", "measurement_frame"))
             started = time.monotonic()
             replay = replay_session(session)
             replay_s = time.monotonic() - started

@@ -104,12 +104,13 @@ def one_seed(job: tuple) -> dict:
             out["times_s"][mode] = time.perf_counter() - started
             reader = SessionReader(root / mode)
             if mode == "kinematic":
-                relative = [e for e in reader.events(kind="kinematic_model", attempt=None)][-1]["files"][
+                relative = reader.events(kind="kinematic_model", attempt=None)[-1].files[
                     "kinematic_model.toml"]
                 model_file = root / "kinematic_model.toml"
                 model_file.write_bytes(reader.read_bytes(relative))
-            structures = {e["config_id"]: e["data"] for e in reader.events(kind="structure")}
-            out["rows"][mode] = [{"row": row, "structure": structures.get(row["config_id"])}
+            structures = {e.config_id: e.data.model_dump(mode="json", exclude_unset=True)
+                          for e in reader.events(kind="structure")}
+            out["rows"][mode] = [{"row": row.stored(), "structure": structures.get(row.config_id)}
                                  for row in reader.results()]
     finally:
         if keep:

@@ -89,7 +89,7 @@ def recorded_outcome(session: Path, *, clock: bool = True) -> tuple[dict, dict]:
 
     rows = {row["config_id"]: {k: v for k, v in row.items() if k not in ("time", "attempt")}
             for row in results_csv(session)}
-    truths = {event["config_id"]: {k: v for k, v in event["data"].items() if clock or k != "sim_time_s"}
+    truths = {event.config_id: {k: v for k, v in event.data.model_dump().items() if clock or k != "sim_time_s"}
               for event in SessionReader(session).events(kind="truth")}
     return rows, truths
 

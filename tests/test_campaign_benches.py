@@ -58,10 +58,10 @@ def test_bring_up_mode_renders_from_the_positions_the_controller_reports(tmp_pat
         assert controller.machine_position()["X"] == -200.0  # B = 150 mm: a whole number of steps
     assert "campaign success" in capsys.readouterr().out
     reader = SessionReader(out)
-    assert reader.start()["bench"] == "bring-up"
-    reported = {e["config_id"]: e["data"]["rig"]["baseline_mm"] for e in reader.events(kind="move")}
+    assert reader.start().bench == "bring-up"
+    reported = {e.config_id: e.data.rig.baseline_mm for e in reader.events(kind="move")}
     assert reported == {"B100_Z450_A90": 98.0, "B150_Z450_A90": 150.0}
-    rows = {row["config_id"]: row for row in reader.results()}
+    rows = {row["config_id"]: row for row in [row.stored() for row in reader.results()]}
     for config_id, baseline in reported.items():
         # The stereo calibration finds the baseline the cameras were rendered at: the reported one.
         assert rows[config_id]["status"] == "measured" and abs(rows[config_id]["error_mm"]) < 0.05
@@ -138,7 +138,7 @@ def test_a_resume_refused_at_connect_keeps_the_session_and_says_how_to_resume(sm
     assert f"session {small_copy} stopped as failed; once fixed: stereo-bench campaign run --out {small_copy} " \
            "--resume --yes" in err[0]
     assert (small_copy / "documents.jsonl").read_bytes().startswith(before)
-    assert SessionReader(small_copy).stops()[-1]["exit_status"] == "failed"
+    assert SessionReader(small_copy).stops()[-1].exit_status == "failed"
 
 
 # -- a controller fault mid-campaign: soft reset, then home; a rig that cannot be recovered fails the campaign ------
@@ -154,12 +154,12 @@ def test_an_alarm_mid_move_is_reset_and_homed_away_and_the_campaign_goes_on(tmp_
         plan.write_text(plan.read_text().replace("alpha_deg = [90, 35]", "alpha_deg = [90]"))
         assert main(["campaign", "run", str(plan), "--out", str(out), "--yes", "--quiet"]) == 0
     reader = SessionReader(out)
-    rows = {row["config_id"]: row for row in reader.results()}
+    rows = {row["config_id"]: row for row in [row.stored() for row in reader.results()]}
     assert rows["B100_Z450_A90"]["status"] == "failed" and "ALARM:1: Hard limit" in rows["B100_Z450_A90"]["reason"]
     assert rows["B150_Z450_A90"]["status"] == "measured"
     (recovered,) = reader.events(kind="rig_recovered")
-    assert recovered["data"]["action"] == "soft reset, then homed after a failed move"
-    assert reader.stops()[-1]["exit_status"] == "success"
+    assert recovered.data.action == "soft reset, then homed after a failed move"
+    assert reader.stops()[-1].exit_status == "success"
     records = [json.loads(line) for line in next((out / "transcripts").glob("serial-*.jsonl")).read_text().splitlines()]
     sent = [r["data"] for r in records if r.get("dir") == "tx"]
     reset_at = sent.index("\x18")
@@ -195,8 +195,8 @@ def test_a_rig_that_cannot_be_recovered_fails_the_campaign_in_one_line_and_resum
     assert "campaign failed" in captured.out and "resume:" not in captured.out
     reader = SessionReader(out)
     stop = reader.stops()[-1]
-    assert stop["exit_status"] == "failed" and all(text in stop["reason"] for text in expected)
-    assert stop["resume_command"] == resume and reader.events(kind="rig_unrecoverable")
+    assert stop.exit_status == "failed" and all(text in stop.reason for text in expected)
+    assert stop.resume_command == resume and reader.events(kind="rig_unrecoverable")
     assert not reader.completed_config_ids()  # the configuration the fault struck runs again on resume
     with GrblEmulator(axes="XYZ", time_scale=50.0, homing_enabled=not without_homing) as controller:  # it is back
         port.unlink()
@@ -223,7 +223,7 @@ def test_fixed_extrinsics_measure_on_the_simulated_rig_and_replay_from_inside_th
     reader = SessionReader(out)
     assert not reader.events(kind="calibration_view")
     (used,) = reader.events(kind="calibration", config_id=None)
-    assert used["data"]["board"] == f"fixed: {calib_dir}"
+    assert used.data.board == f"fixed: {calib_dir}"
     shutil.rmtree(calib_dir)  # the replay reads the calibration the session recorded, nothing outside it
     replayed = replay_session(out)
     assert replayed.identical == replayed.compared == 2
@@ -280,13 +280,13 @@ def test_manual_steps_are_prompts_the_runner_records_and_the_rig_never_prompts(t
                           capture={"calibration_views": 6, "frames_per_config": 1, "settle_s": 0.1})
     summary = run_campaign(config, tmp_path / "manual", operators=[simulator])
     assert summary.counts() == {"measured": 2}
-    prompts = [e["data"] for e in SessionReader(tmp_path / "manual").events(kind="prompt")]
-    assert [(p["quantity"], p["value"]) for p in prompts] == [
+    prompts = [e.data for e in SessionReader(tmp_path / "manual").events(kind="prompt")]
+    assert [(p.quantity, p.value) for p in prompts] == [
         ("tilt_left_deg", 0.0), ("tilt_right_deg", 0.0), ("target_distance_mm", 450.0),
         ("target_distance_mm", 500.0)]
-    assert {p["answered_by"] for p in prompts} == {"simulator"} and len(simulator.prompts) == 4
+    assert {p.answered_by for p in prompts} == {"simulator"} and len(simulator.prompts) == 4
     moves = SessionReader(tmp_path / "manual").events(kind="move")
-    assert all(m["data"]["rig"]["sources"]["target_distance_mm"] == "unknown (manual)" for m in moves)
+    assert all(m.data.rig.sources["target_distance_mm"] == "unknown (manual)" for m in moves)
 
 
 # -- stopping ------------------------------------------------------------------------------------------------------
@@ -306,7 +306,7 @@ def test_a_stop_request_cuts_a_settle_short(tmp_path):
     assert summary.exit_status == "interrupted"
     reader = SessionReader(tmp_path / "settle")
     (move,) = reader.events(kind="move")
-    waited = reader.stops()[-1]["monotonic"] - move["monotonic"]
+    waited = reader.stops()[-1].monotonic - move.monotonic
     assert waited < 15.0  # the settle alone would have taken 30 s
     assert not reader.events(kind="calibration_view")
 
@@ -316,7 +316,7 @@ def test_nothing_moves_when_nothing_is_left_to_run(tmp_path, small_copy):
     summary = run_campaign(small_config(), small_copy, resume=True, yes=True)
     assert summary.exit_status == "success" and summary.skipped == 4 and summary.rows == []
     reader = SessionReader(small_copy)
-    assert not [e for e in reader.events(attempt=2) if e["kind"] in ("home", "move")]
+    assert not [e for e in reader.events(attempt=2) if e.kind in ("home", "move")]
     assert motion_commands(small_copy / "transcripts" / "serial-a2.jsonl") == []
     # A campaign whose every configuration is infeasible: recorded with the reasons, and nothing moves.
     out = tmp_path / "infeasible"
@@ -342,7 +342,7 @@ def test_pause_holds_the_run_at_a_step_boundary_until_resumed(tmp_path):
     reader = SessionReader(tmp_path / "paused")
     first_view = reader.events(kind="calibration_view")[0]
     (move,) = reader.events(kind="move")
-    assert first_view["monotonic"] - move["monotonic"] >= 0.5  # held until resumed
+    assert first_view.monotonic - move.monotonic >= 0.5  # held until resumed
 
 
 def test_the_runner_owns_prompting_grbl_rig_gets_no_prompt(tmp_path):

@@ -22,6 +22,7 @@ from stereo_bench.campaign.config import campaign_from_dict, load_preset
 from stereo_bench.campaign.execute import CampaignPlan, RunControl, replay_session, run_campaign
 from stereo_bench.campaign.operator import SimulatedOperator
 from stereo_bench.campaign.plan import PREPARE_ID, plan_summary
+from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.session import SessionReader
 from stereo_bench.cli import main
 from stereo_bench.kinematics import load_model, model_from_toml
@@ -68,51 +69,51 @@ def _events(session, kind):
 
 def test_the_design_is_visited_fitted_once_and_the_model_recorded(kinematic_session):
     reader = SessionReader(kinematic_session)
-    design = reader.start()["design"]
-    assert len(design) == 9 and {v["purpose"] for v in design} == {"kinematic"}
-    assert {(v["baseline_mm"], v["toe_in_left_deg"]) for v in design} >= {(80.0, 0.0), (200.0, 10.0)}
+    design = RecordedStart.of(reader.start()).visits
+    assert len(design) == 9 and {v.purpose for v in design} == {"kinematic"}
+    assert {(v.baseline_mm, v.toe_in_left_deg) for v in design} >= {(80.0, 0.0), (200.0, 10.0)}
     views = _events(kinematic_session, "calibration_view")
-    assert len(views) == 9 * 4 and {e["config_id"] for e in views} == {v["config_id"] for v in design}
+    assert len(views) == 9 * 4 and {e.config_id for e in views} == {v.config_id for v in design}
     # The measured configurations get no calibration views: the model predicts their R, T.
-    assert not [e for e in views if not e["config_id"].startswith("design-")]
+    assert not [e for e in views if not e.config_id.startswith("design-")]
     (model_event,) = _events(kinematic_session, "kinematic_model")
-    assert model_event["config_id"] is None and model_event["data"]["source"] == "design"
-    assert model_event["data"]["n_views"] == 36 and model_event["data"]["visits_used"] == [v["config_id"]
+    assert model_event.config_id is None and model_event.data.source == "design"
+    assert model_event.data.n_views == 36 and model_event.data.visits_used == [v.config_id
                                                                                        for v in design]
-    model = model_from_toml(reader.read_bytes(model_event["files"]["kinematic_model.toml"]).decode())
+    model = model_from_toml(reader.read_bytes(model_event.files["kinematic_model.toml"]).decode())
     assert model.fit.n_views == 36 and model.intrinsics_covariance_matrix().shape == (16, 16)
     # Every move records where the rig arrived from: the design approaches each axis from both sides.
-    moves = [e for e in _events(kinematic_session, "move") if e["config_id"].startswith("design-")]
-    assert {e["data"]["approach"]["baseline_mm"] for e in moves} == {1, -1}
+    moves = [e for e in _events(kinematic_session, "move") if e.config_id.startswith("design-")]
+    assert {e.data.approach["baseline_mm"] for e in moves} == {1, -1}
 
 
 def test_kinematic_results_carry_mode_structure_truth_and_uncertainty(kinematic_session):
     rows = {row["config_id"]: row for row in results_csv(kinematic_session)}
     assert set(rows) == {"B110_Z500_A87", "B170_Z500_A83"}
-    structures = {e["config_id"]: e["data"] for e in _events(kinematic_session, "structure")}
-    truths = {e["config_id"]: e["data"] for e in _events(kinematic_session, "truth")}
+    structures = {e.config_id: e.data for e in _events(kinematic_session, "structure")}
+    truths = {e.config_id: e.data for e in _events(kinematic_session, "truth")}
     for config_id, row in rows.items():
         assert row["status"] == "measured" and row["extrinsics_mode"] == "kinematic"
         structure, truth = structures[config_id], truths[config_id]
-        assert structure["used"] == "kinematic" and set(structure["sources"]) == {"kinematic", "nominal"}
-        kinematic = structure["sources"]["kinematic"]
+        assert structure.used == "kinematic" and set(structure.sources) == {"kinematic", "nominal"}
+        kinematic = structure.sources["kinematic"]
         # The columns are the used source's structure and the truth recorded at the measurement.
-        assert float(row["baseline_used_mm"]) == pytest.approx(kinematic["structure"]["baseline_mm"], abs=1e-9)
-        assert float(row["baseline_true_mm"]) == pytest.approx(truth["structure"]["baseline_mm"], abs=1e-9)
+        assert float(row["baseline_used_mm"]) == pytest.approx(kinematic.structure["baseline_mm"], abs=1e-9)
+        assert float(row["baseline_true_mm"]) == pytest.approx(truth.structure["baseline_mm"], abs=1e-9)
         assert float(row["square_true_mm"]) == pytest.approx(27.0 * 1.0008, abs=1e-9)
         # The prediction at a configuration the model was not fitted at, against the truth: within 4 of the
         # sigmas it states (parameters, landing repeatability, backlash).
         for key in ("baseline_mm", "alpha_left_deg", "alpha_right_deg"):
-            error = kinematic["structure"][key] - truth["structure"][key]
-            assert abs(error) <= 4 * kinematic["structure_sigma"][key], (config_id, key, error)
+            error = kinematic.structure[key] - truth.structure[key]
+            assert abs(error) <= 4 * kinematic.structure_sigma[key], (config_id, key, error)
         # The pan axes stand behind the optical centres: the true optical baseline is not the commanded B,
         # and the nominal geometry, which assumes it is, measures the square tenths of a mm off.
         assert abs(float(row["baseline_true_mm"]) - float(row["baseline_mm"])) > 1.0
-        assert abs(structure["sources"]["nominal"]["error_true_mm"]) > 0.3
+        assert abs(structure.sources["nominal"].error_true_mm) > 0.3
         u = float(row["u_combined_mm"])
         assert float(row["U_expanded_mm"]) == pytest.approx(2 * u)
         assert float(row["sigma_mm"]) < u  # sigma_mm stays the random noise component
-        assert abs(kinematic["error_true_mm"]) <= 4 * u
+        assert abs(kinematic.error_true_mm) <= 4 * u
         budget = json.loads(row["uncertainty"]) if isinstance(row["uncertainty"], str) else row["uncertainty"]
         assert budget["combined"] == pytest.approx(u) and budget["noise_random_mm"] == pytest.approx(
             float(row["sigma_mm"]))
@@ -120,8 +121,8 @@ def test_kinematic_results_carry_mode_structure_truth_and_uncertainty(kinematic_
 
 def test_the_controller_as_read_at_connect_is_recorded(kinematic_session):
     (controller,) = _events(kinematic_session, "controller")
-    assert controller["config_id"] is None
-    assert controller["data"]["info"]["build"].startswith("1.1") and "$100" in controller["data"]["info"]["settings"]
+    assert controller.config_id is None
+    assert controller.data.info["build"].startswith("1.1") and "$100" in controller.data.info["settings"]
 
 
 @pytest.mark.replay
@@ -131,10 +132,10 @@ def test_replay_refits_the_design_and_reproduces_every_number(kinematic_session,
     again = SessionReader(tmp_path / "replayed")
     (model_event,) = again.events(kind="kinematic_model", attempt=None)
     original = _events(kinematic_session, "kinematic_model")[0]
-    assert again.read_bytes(model_event["files"]["kinematic_model.toml"]) == \
-        SessionReader(kinematic_session).read_bytes(original["files"]["kinematic_model.toml"])
-    assert [e["data"]["structure"] for e in again.events(kind="truth")] == \
-        [e["data"]["structure"] for e in _events(kinematic_session, "truth")]
+    assert again.read_bytes(model_event.files["kinematic_model.toml"]) == \
+        SessionReader(kinematic_session).read_bytes(original.files["kinematic_model.toml"])
+    assert [e.data.structure for e in again.events(kind="truth")] == \
+        [e.data.structure for e in _events(kinematic_session, "truth")]
 
 
 @pytest.mark.replay
@@ -142,7 +143,7 @@ def test_replay_says_when_the_recorded_model_is_not_the_one_the_views_give(kinem
     copy = tmp_path / "copy"
     shutil.copytree(kinematic_session, copy)
     (model_event,) = _events(copy, "kinematic_model")
-    path = copy / model_event["files"]["kinematic_model.toml"]
+    path = copy / model_event.files["kinematic_model.toml"]
     text = path.read_text()
     path.write_text(text.replace("reference_baseline_mm = ", "reference_baseline_mm = 1", 1))
     summary = replay_session(copy)
@@ -169,16 +170,16 @@ def test_a_resume_after_the_fit_does_not_visit_the_design_again(tmp_path):
     assert second.exit_status == "success" and {r["status"] for r in second.rows} == {"measured"}
     reader = SessionReader(tmp_path / "s")
     assert not reader.events(kind="calibration_view", attempt=2)
-    assert not [e for e in reader.events(kind="move", attempt=2) if e["config_id"].startswith("design-")]
+    assert not [e for e in reader.events(kind="move", attempt=2) if e.config_id.startswith("design-")]
     assert len(reader.events(kind="kinematic_model", attempt=None)) == 1
-    assert {row["extrinsics_mode"] for row in reader.results()} == {"kinematic"}
+    assert {row.extrinsics_mode for row in reader.results()} == {"kinematic"}
     assert replay_session(tmp_path / "s").differences == []
 
 
 def test_per_config_with_a_model_file_compares_all_sources_and_replays_from_inside(kinematic_session, tmp_path):
     (model_event,) = _events(kinematic_session, "kinematic_model")
     model_file = tmp_path / "model.toml"
-    model_file.write_bytes(SessionReader(kinematic_session).read_bytes(model_event["files"]["kinematic_model.toml"]))
+    model_file.write_bytes(SessionReader(kinematic_session).read_bytes(model_event.files["kinematic_model.toml"]))
     config = lab_config(extrinsics={"mode": "per-config", "kinematic_file": str(model_file)},
                         capture={"calibration_views": 6},
                         plan={"baseline_mm": [110], "distance_mm": [500], "toe_in_deg": [3]})
@@ -188,12 +189,12 @@ def test_per_config_with_a_model_file_compares_all_sources_and_replays_from_insi
     assert row["extrinsics_mode"] == "per-config"
     assert float(row["baseline_used_mm"]) == pytest.approx(float(row["baseline_estimated_mm"]))
     (structure,) = _events(tmp_path / "s", "structure")
-    sources = structure["data"]["sources"]
+    sources = structure.data.sources
     assert set(sources) == {"calibrated", "kinematic", "nominal"}
-    assert sources["calibrated"]["uncertainty"]["structure"] == 0.0  # the rig did not move since its views
+    assert sources["calibrated"].uncertainty["structure"] == 0.0  # the rig did not move since its views
     # Same detections, three extrinsics: calibrated and kinematic agree to a few hundredths of a mm, nominal not.
-    assert abs(sources["calibrated"]["square_mean_mm"] - sources["kinematic"]["square_mean_mm"]) < 0.05
-    assert abs(sources["nominal"]["error_true_mm"]) > 0.3
+    assert abs(sources["calibrated"].square_mean_mm - sources["kinematic"].square_mean_mm) < 0.05
+    assert abs(sources["nominal"].error_true_mm) > 0.3
     model_file.unlink()  # a replay reads the session's copy, never the file the config named
     assert replay_session(tmp_path / "s").differences == []
 
@@ -205,7 +206,7 @@ def test_nominal_extrinsics_use_the_commanded_geometry_and_one_calibration(tmp_p
     summary = run_campaign(config, tmp_path / "s", yes=True, plan=plan)
     assert summary.exit_status == "success"
     reader = SessionReader(tmp_path / "s")
-    assert {e["config_id"] for e in reader.events(kind="calibration_view")} == {plan.visits[0].config_id}
+    assert {e.config_id for e in reader.events(kind="calibration_view")} == {plan.visits[0].config_id}
     rows = results_csv(tmp_path / "s")
     assert len(rows) == 4 and {r["extrinsics_mode"] for r in rows} == {"nominal"}
     for row in rows:
@@ -279,7 +280,7 @@ def test_rig_calibrate_kinematics_runs_only_the_design_and_writes_the_model(tmp_
     assert "slide_scale" in out and "kinematic_file" in out
     reader = SessionReader(tmp_path / "s")
     assert reader.results() == [] and len(reader.events(kind="calibration_view")) == 27
-    assert not [e for e in reader.events(kind="move") if not e["config_id"].startswith("design-")]
+    assert not [e for e in reader.events(kind="move") if not e.config_id.startswith("design-")]
     # Never overwritten; --port is needed by every other rig action.
     assert main(argv + ["--model", str(tmp_path / "s" / "kinematic_model.toml")]) == 2
     assert "not overwriting" in capsys.readouterr().err
@@ -298,6 +299,6 @@ def test_a_kinematic_session_that_kept_only_detections_of_its_design_views_repla
     summary = run_campaign(config, tmp_path / "s", yes=True, plan=_two_configurations(config))
     assert summary.exit_status == "success", summary.reason
     views = _events(tmp_path / "s", "calibration_view")
-    assert views and not any(e.get("frames") for e in views)
+    assert views and not any(e.frames for e in views)
     replayed = replay_session(tmp_path / "s", tmp_path / "replayed")
     assert replayed.differences == [] and replayed.identical == replayed.compared == 2

@@ -15,8 +15,8 @@ from tests.campaigns import numbers, small_config
 
 def _frames(session) -> dict[str, np.ndarray]:
     reader = SessionReader(session)
-    return {f"{event['config_id']}/{event['kind']}/{event['data']['index']}/{side}": reader.frame(relative)
-            for event in reader.events() if event.get("frames") for side, relative in event["frames"].items()}
+    return {f"{event.config_id}/{event.kind}/{event.data.index}/{side}": reader.frame(relative)
+            for event in reader.events() if event.frames for side, relative in event.frames.items()}
 
 
 @pytest.mark.slow

@@ -65,18 +65,18 @@ def test_campaign_records_a_complete_session_and_streams_every_document_as_json(
         assert int(by_id[config_id]["n_squares"]) == 2 * 93
     assert by_id["B100_Z450_A35"]["status"] == "infeasible" and "view" in by_id["B100_Z450_A35"]["reason"]
     reader = SessionReader(out)
-    kinds = [doc.get("kind") for doc in reader.events()]
+    kinds = [doc.kind for doc in reader.events()]
     assert kinds.count("calibration_view") == 2 * 6 and kinds.count("measurement_frame") == 2 * 2
     for event in reader.events(kind="measurement_frame"):
-        assert reader.frame(event["frames"]["left"]).shape == (540, 960)
+        assert reader.frame(event.frames["left"]).shape == (540, 960)
     # The target distance is set by hand: one prompt (Z = 450 once), answered by the simulator (--yes).
     (prompt,) = reader.events(kind="prompt")
-    assert prompt["data"]["quantity"] == "target_distance_mm" and prompt["data"]["value"] == 450.0
-    assert prompt["data"]["answered_by"] == "simulator" and "Z = 450 mm" in prompt["data"]["message"]
-    assert reader.start()["bench"] == "simulated"
+    assert prompt.data.quantity == "target_distance_mm" and prompt.data.value == 450.0
+    assert prompt.data.answered_by == "simulator" and "Z = 450 mm" in prompt.data.message
+    assert reader.start().bench == "simulated"
     assert (out / "calib").is_dir() and list((out / "calib").rglob("extrinsics.yml"))
     assert list((out / "transcripts").glob("serial-*.jsonl"))  # every byte to and from the controller
-    assert reader.stops()[-1]["exit_status"] == "success"
+    assert reader.stops()[-1].exit_status == "success"
 
 
 def test_an_existing_session_is_never_overwritten(plan_file, tmp_path, capsys):
@@ -147,8 +147,8 @@ def test_sigkill_mid_campaign_then_resume_gives_every_configuration_once_with_th
     resumed = subprocess.run(process.args + ["--resume"], capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr
     reader = SessionReader(out)
-    results = [doc for doc in reader.documents() if doc["type"] == "result"]
-    assert sorted(doc["config_id"] for doc in results) == sorted(set(doc["config_id"] for doc in results))
+    results = [doc for doc in reader.documents() if doc.type == "result"]
+    assert sorted(doc.config_id for doc in results) == sorted(set(doc.config_id for doc in results))
     assert numbers(out) == numbers(small_reference)
     assert reader.attempts() == [1, 2]
 
@@ -172,13 +172,13 @@ def test_sigterm_stops_like_ctrl_c_and_the_printed_command_resumes(long_settle_p
     stdout, stderr = process.communicate(timeout=60)
     assert process.returncode == 130, stderr
     stop = SessionReader(out).stops()[-1]
-    assert stop["exit_status"] == "interrupted" and stop["reason"] == "stopped by SIGTERM"
-    assert stop["resume_command"] == f"stereo-bench campaign run --out '{out}' --resume --yes"
-    assert f"resume:   {stop['resume_command']}\n" in stdout and "SIGTERM: stopping at the next safe point" in stderr
+    assert stop.exit_status == "interrupted" and stop.reason == "stopped by SIGTERM"
+    assert stop.resume_command == f"stereo-bench campaign run --out '{out}' --resume --yes"
+    assert f"resume:   {stop.resume_command}\n" in stdout and "SIGTERM: stopping at the next safe point" in stderr
     assert len(SessionReader(out).completed_config_ids()) == 3
-    resumed = _run_printed(stop["resume_command"], cwd=tmp_path)
+    resumed = _run_printed(stop.resume_command, cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr
-    assert SessionReader(out).start()["config"]["rig"]["time_scale"] == 40
+    assert SessionReader(out).start().config["rig"]["time_scale"] == 40
     assert numbers(out) == numbers(small_reference)
 
 
@@ -209,10 +209,10 @@ def test_sighup_of_a_closed_terminal_stops_like_ctrl_c_and_the_session_resumes(l
     assert process.wait(timeout=60) == 130
     stop = SessionReader(out).stops()[-1]
     # A progress line written between the hang-up and the signal fails first, and stops the run just the same.
-    assert stop["exit_status"] == "interrupted"
-    assert stop["reason"] in ("stopped by SIGHUP", "stopped: the terminal of stderr hung up")
+    assert stop.exit_status == "interrupted"
+    assert stop.reason in ("stopped by SIGHUP", "stopped: the terminal of stderr hung up")
     assert len(SessionReader(out).completed_config_ids()) == 3
-    resumed = _run_printed(stop["resume_command"])
+    resumed = _run_printed(stop.resume_command)
     assert resumed.returncode == 0, resumed.stderr
     assert numbers(out) == numbers(small_reference)
 
@@ -232,9 +232,9 @@ def test_a_closed_stdout_stops_the_run_at_a_safe_point_with_status_141(plan_file
     lines = stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("stereo-bench campaign: stdout closed (its reader went away)")
     stop = SessionReader(out).stops()[-1]
-    assert stop["exit_status"] == "interrupted" and stop["reason"] == "stopped: the reader of stdout went away"
-    assert lines[0].endswith(f"resume: {stop['resume_command']}")
-    resumed = _run_printed(stop["resume_command"])
+    assert stop.exit_status == "interrupted" and stop.reason == "stopped: the reader of stdout went away"
+    assert lines[0].endswith(f"resume: {stop.resume_command}")
+    resumed = _run_printed(stop.resume_command)
     assert resumed.returncode == 0, resumed.stderr
     assert numbers(out) == numbers(small_reference)
 
@@ -250,9 +250,9 @@ def test_ctrl_c_twice_records_interrupted_with_the_resume_command(long_settle_pl
     stdout, stderr = process.communicate(timeout=60)
     assert process.returncode == 130, stderr
     stop = SessionReader(out).stops()[-1]
-    assert stop["exit_status"] == "interrupted"
-    assert stop["resume_command"] == f"stereo-bench campaign run --out {out} --resume --yes"
-    assert f"resume:   {stop['resume_command']}" in stdout
+    assert stop.exit_status == "interrupted"
+    assert stop.resume_command == f"stereo-bench campaign run --out {out} --resume --yes"
+    assert f"resume:   {stop.resume_command}" in stdout
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
@@ -290,7 +290,7 @@ def test_a_second_interrupt_stops_at_once_and_the_session_still_resumes(tmp_path
                            resume_command="stereo-bench campaign run small.toml --out at-once --resume")
     assert summary.exit_status == "interrupted" and "second interrupt" in summary.reason
     stop = SessionReader(out).stops()[-1]
-    assert stop["exit_status"] == "interrupted" and stop["resume_command"].endswith("--resume")
+    assert stop.exit_status == "interrupted" and stop.resume_command.endswith("--resume")
     resumed = run_campaign(config, out, resume=True, yes=True)
     assert resumed.exit_status == "success" and len(SessionReader(out).completed_config_ids()) == 4
 
@@ -303,7 +303,7 @@ def test_stop_request_leaves_a_resumable_session_and_resume_runs_the_recorded_pl
                            resume_command="stereo-bench campaign run small.toml --out stopped --resume")
     assert summary.exit_status == "interrupted"
     stop = SessionReader(out).stops()[-1]
-    assert stop["exit_status"] == "interrupted" and stop["resume_command"].endswith("--resume")
+    assert stop.exit_status == "interrupted" and stop.resume_command.endswith("--resume")
     done = SessionReader(out).completed_config_ids()
     assert 1 <= len(done) < 4
     # Today's planner disagrees with the recorded plan (as after an upgrade): the recorded plan runs.
@@ -316,8 +316,8 @@ def test_stop_request_leaves_a_resumable_session_and_resume_runs_the_recorded_pl
     assert resumed.exit_status == "success" and resumed.skipped == len(done)
     assert "plan[0].feasible: recorded true, now false" in resumed.plan_drift
     reader = SessionReader(out)
-    assert len(reader.completed_config_ids()) == 4 and reader.resumes()[0]["plan_drift"] == resumed.plan_drift
-    assert {row["status"] for row in reader.results()} == {"measured", "infeasible"}
+    assert len(reader.completed_config_ids()) == 4 and reader.resumes()[0].plan_drift == resumed.plan_drift
+    assert {row.status for row in reader.results()} == {"measured", "infeasible"}
 
 
 @pytest.mark.replay
@@ -358,16 +358,16 @@ def test_replay_into_a_new_session_and_reanalysis(tmp_path, capsys):
     # The new session's numbers are the recording's within the replay tolerance (bit-identical on the
     # recording's kernels), and it records the numeric environment it was computed in.
     recorded, replayed = SessionReader(SAMPLE_SESSION), SessionReader(out)
-    context = RecordedContext.of(recorded_campaign(recorded.start()["config"]), recorded)
-    new_rows = {row["config_id"]: row for row in replayed.results()}
-    assert new_rows.keys() == {row["config_id"] for row in recorded.results()}
-    for row in recorded.results():
+    context = RecordedContext.of(recorded_campaign(recorded.start().config), recorded)
+    new_rows = {row["config_id"]: row for row in [row.stored() for row in replayed.results()]}
+    assert new_rows.keys() == {row.config_id for row in recorded.results()}
+    for row in [row.stored() for row in recorded.results()]:
         assert all(d.verdict != "differs" for d in compare_rows(row, new_rows[row["config_id"]], context)), row
-    assert replayed.start()["numeric_environment"]["numpy"] == np.__version__
-    assert SessionReader(out).start()["bench"] == "replay"
+    assert replayed.start().numeric_environment.numpy == np.__version__
+    assert SessionReader(out).start().bench == "replay"
     # Recorded before [sim] existed, on the ideal bench: the replay records that bench, not today's default.
-    assert "sim" not in SessionReader(SAMPLE_SESSION).start()["config"]
-    assert SessionReader(out).start()["config"]["sim"]["profile"] == "ideal"
+    assert "sim" not in SessionReader(SAMPLE_SESSION).start().config
+    assert SessionReader(out).start().config["sim"]["profile"] == "ideal"
     assert main(["replay", str(SAMPLE_SESSION), "--intrinsics", "fixed"]) == 2  # a re-analysis needs --out
     assert "--out" in capsys.readouterr().err
     fixed = tmp_path / "fixed"
@@ -377,7 +377,7 @@ def test_replay_into_a_new_session_and_reanalysis(tmp_path, capsys):
     reanalysed = {row["config_id"]: row for row in results_csv(fixed)}
     assert reanalysed.keys() == recorded.keys()
     reader = SessionReader(fixed)
-    assert reader.start()["config"]["extrinsics"]["intrinsics"] == "fixed"
+    assert reader.start().config["extrinsics"]["intrinsics"] == "fixed"
     for config_id, row in reanalysed.items():
         if recorded[config_id]["status"] != "measured":
             assert row["status"] == recorded[config_id]["status"]  # carried over
@@ -387,7 +387,7 @@ def test_replay_into_a_new_session_and_reanalysis(tmp_path, capsys):
         assert abs(float(row["error_mm"])) < 0.05
         assert row["rms_px"] != recorded[config_id]["rms_px"]
         (calibration,) = reader.events(config_id, kind="calibration")
-        assert calibration["data"]["mode"] == "fixed"
+        assert calibration.data.mode == "fixed"
 
 
 def test_a_reanalysis_that_measures_nothing_fails(tmp_path, capsys, monkeypatch):
@@ -461,9 +461,9 @@ def test_a_frame_without_the_target_is_captured_again_and_replays(tmp_path):
     assert summary.counts()["measured"] == 2
     reader = SessionReader(out)
     missed = reader.events(kind="target_not_found")
-    assert len(missed) == 1 and missed[0]["data"]["retry"] == 0 and missed[0]["data"]["missing"] == ["left", "right"]
-    first = [e["data"] for e in reader.events(config_id=missed[0]["config_id"], kind="measurement_frame")]
-    assert [(d["index"], d["retry"]) for d in first][:2] == [(0, 0), (0, 1)]
+    assert len(missed) == 1 and missed[0].data.retry == 0 and missed[0].data.missing == ["left", "right"]
+    first = [e.data for e in reader.events(config_id=missed[0].config_id, kind="measurement_frame")]
+    assert [(d.index, d.retry) for d in first][:2] == [(0, 0), (0, 1)]
     # The replay of this fresh session asks for the same re-capture and finds the same numbers.
     assert main(["replay", str(out)]) == 0
 

@@ -302,7 +302,7 @@ def test_a_plan_with_relative_paths_resumes_from_anywhere_and_replays_after_the_
     monkeypatch.chdir(tmp_path)
     assert main(["campaign", "run", "plans/fixed.toml", "--out", "s", "--yes", "--quiet"]) == 0
     start = SessionReader(tmp_path / "s").start()
-    assert start["config"]["extrinsics"]["calib_dir"] == str((plans / "cal").resolve())  # was "plans/cal"
+    assert start.config["extrinsics"]["calib_dir"] == str((plans / "cal").resolve())  # was "plans/cal"
     lines = (tmp_path / "s" / "documents.jsonl").read_text().splitlines(keepends=True)
     (tmp_path / "s" / "documents.jsonl").write_text("".join(lines[:-1]))  # interrupted before its stop
     monkeypatch.chdir(plans)

@@ -31,13 +31,14 @@ SAMPLE_SESSION = Path(__file__).resolve().parents[1] / "calib_data" / "sample_se
 
 def test_the_shipped_version_1_session_parses_into_typed_documents_and_back_unchanged():
     reader = SessionReader(SAMPLE_SESSION)
-    assert reader.start()["schema_version"] == 1 < SCHEMA_VERSION
-    typed = reader.parsed()
+    assert reader.start().schema_version == 1 < SCHEMA_VERSION
+    typed = reader.documents()
     assert isinstance(typed[0], StartDocument) and isinstance(typed[-1], StopDocument)
-    assert len(reader.parsed(MoveEvent)) == 2 and len(reader.parsed(CalibrationViewEvent)) == 14
-    for raw, document in zip(reader.documents(), typed, strict=True):
+    assert len(reader.documents(MoveEvent)) == 2 and len(reader.documents(CalibrationViewEvent)) == 14
+    recorded = [json.loads(line) for line in (SAMPLE_SESSION / "documents.jsonl").read_text().splitlines() if line]
+    for raw, document in zip(recorded, typed, strict=True):
         assert document_json(document) == raw  # nothing lost or added by the models
-    rows = [doc.row for doc in reader.parsed(ResultDocument)]
+    rows = [doc.row for doc in reader.documents(ResultDocument)]
     assert {row.status for row in rows} == {"measured", "infeasible"}
 
 
@@ -51,7 +52,7 @@ def test_a_document_that_breaks_its_schema_is_refused_on_write_naming_the_field(
         with pytest.raises(SessionError, match="exit_status 'finished' is not one of"):
             session.stop(exit_status="finished")
         session.stop(exit_status="success")
-    assert [doc["type"] for doc in SessionReader(tmp_path / "s").documents()] == ["start", "stop"]
+    assert [doc.type for doc in SessionReader(tmp_path / "s").documents()] == ["start", "stop"]
 
 
 def test_a_document_that_breaks_its_schema_is_refused_on_read_naming_file_line_and_field(tmp_path):

@@ -96,7 +96,7 @@ def test_libdeflates_crc32_is_zlibs(size):
 # -- SessionReader.frame: confined as SessionReader.path confines ----------------------------------------
 def frame_paths(out: Path) -> list[str]:
     reader = SessionReader(out)
-    return [relative for event in reader.events() if event.get("frames") for relative in event["frames"].values()]
+    return [relative for event in reader.events() if event.frames for relative in event.frames.values()]
 
 
 def test_a_frames_directory_is_resolved_once_per_reader_not_per_frame(tmp_path, monkeypatch):

@@ -86,10 +86,10 @@ def test_old_sessions_frames_read_exactly_as_written():
     """The sample session was recorded with the previous PNG setting: every frame reads back as
     OpenCV's own PNG reader sees it."""
     reader = SessionReader(SAMPLE_SESSION)
-    events = [event for event in reader.events() if event.get("frames")]
+    events = [event for event in reader.events() if event.frames]
     assert len(events) >= 10
     for event in events:
-        for relative in event["frames"].values():
+        for relative in event.frames.values():
             expected = cv2.imread(str(SAMPLE_SESSION / relative), cv2.IMREAD_UNCHANGED)
             np.testing.assert_array_equal(reader.frame(relative), expected)
 

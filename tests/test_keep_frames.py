@@ -41,17 +41,17 @@ def test_measurement_keeps_measurement_frames_and_the_calibration_views_detectio
     session = kept["measurement"]
     reader = SessionReader(session)
     views = reader.events(kind="calibration_view")
-    assert len(views) == 2 * 6 and all(view["frames"] == {} for view in views)
+    assert len(views) == 2 * 6 and all(view.frames == {} for view in views)
     detections = reader.events(kind="calibration_detections")
-    assert sorted((d["config_id"], d["data"]["index"]) for d in detections) == sorted(
-        (v["config_id"], v["data"]["index"]) for v in views)
-    assert all(len(d["data"][side]["ids"]) == 54 for d in detections for side in ("left", "right"))
+    assert sorted((d.config_id, d.data.index) for d in detections) == sorted(
+        (v.config_id, v.data.index) for v in views)
+    assert all(len(getattr(d.data, side).ids) == 54 for d in detections for side in ("left", "right"))
     # Recorded detections carry their corner noise (views whose frames are kept are detected without it).
-    assert all(len(d["data"][side]["sigma_px"]) == 54 and all(v > 0 for v in d["data"][side]["sigma_px"])
+    assert all(len(getattr(d.data, side).sigma_px) == 54 and all(v > 0 for v in getattr(d.data, side).sigma_px)
                for d in detections for side in ("left", "right"))
     frames = reader.events(kind="measurement_frame")
     on_disk = sorted(p.relative_to(session).as_posix() for p in (session / "frames").rglob("*.png"))
-    assert on_disk == sorted(f["frames"][side] for f in frames for side in ("left", "right"))
+    assert on_disk == sorted(f.frames[side] for f in frames for side in ("left", "right"))
     assert list(session.rglob("extrinsics.yml"))  # the calibrations are kept
     assert numbers(session) == numbers(small_reference)  # what is kept changes no number
     summary = replay_session(session)
@@ -116,10 +116,10 @@ def test_a_stop_at_once_while_detections_are_pending_still_leaves_a_session_that
     summary = run_campaign(config, out, yes=True, control=control, bench_factory=bench_interrupted)
     assert summary.exit_status == "interrupted"
     reader = SessionReader(out)
-    assert reader.stops()[-1]["exit_status"] == "interrupted"
-    detected = {(d["config_id"], d["data"]["index"]) for d in reader.events(kind="calibration_detections",
+    assert reader.stops()[-1].exit_status == "interrupted"
+    detected = {(d.config_id, d.data.index) for d in reader.events(kind="calibration_detections",
                                                                           attempt=None)}
-    views = {(v["config_id"], v["data"]["index"]) for v in reader.events(kind="calibration_view", attempt=None)}
+    views = {(v.config_id, v.data.index) for v in reader.events(kind="calibration_view", attempt=None)}
     assert detected <= views
     assert run_campaign(config, out, resume=True, yes=True).exit_status == "success"
     assert numbers(out) == numbers(small_reference)

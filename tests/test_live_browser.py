@@ -140,10 +140,10 @@ def test_a_campaign_followed_and_steered_from_the_live_page(tmp_path):
         process.communicate()
 
     reader = SessionReader(out)
-    assert reader.stops()[-1]["exit_status"] == "interrupted"
-    controls = [e["data"]["action"] for e in reader.events(kind="run_control")]
+    assert reader.stops()[-1].exit_status == "interrupted"
+    controls = [e.data.action for e in reader.events(kind="run_control")]
     assert controls == ["pause"]
-    answered = [e["data"]["answered_by"] for e in reader.events(kind="prompt")]
+    answered = [e.data.answered_by for e in reader.events(kind="prompt")]
     assert answered == ["live page", "live page"]
     done = reader.completed_config_ids()
     assert "B100_Z400_A90" in done and len(done) < 4

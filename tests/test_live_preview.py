@@ -244,4 +244,4 @@ def test_a_campaign_watched_live_records_what_one_without_a_page_records(tmp_pat
     recorded, reference = SessionReader(out), SessionReader(small_reference)
     for ours, theirs in zip(recorded.events(kind="calibration_view"), reference.events(kind="calibration_view"),
                             strict=True):
-        assert np.array_equal(recorded.frame(ours["frames"]["right"]), reference.frame(theirs["frames"]["right"]))
+        assert np.array_equal(recorded.frame(ours.frames["right"]), reference.frame(theirs.frames["right"]))

@@ -40,7 +40,7 @@ def client_of(page) -> httpx.Client:
 
 
 def feed(page, session) -> list:
-    documents = SessionReader(session).parsed()
+    documents = SessionReader(session).documents()
     for document in documents:
         page.state(document)
     return documents
@@ -65,8 +65,8 @@ def test_the_state_is_the_recorded_stream(page, small_reference):
     page.state.poll_transcript()
     state = client_of(page).get("/api/state").json()
     reader = SessionReader(small_reference)
-    rows = {row["config_id"]: row for row in reader.results()}
-    assert [r["config_id"] for r in state["results"]] == [c["config_id"] for c in reader.start()["plan"]]
+    rows = {row["config_id"]: row for row in [row.stored() for row in reader.results()]}
+    assert [r["config_id"] for r in state["results"]] == [c["config_id"] for c in reader.start().plan]
     for shown in state["results"]:
         assert shown["status"] == rows[shown["config_id"]]["status"]
         if shown["status"] == "measured":
@@ -74,12 +74,12 @@ def test_the_state_is_the_recorded_stream(page, small_reference):
     assert state["plan"]["counts"] == {"total": 4, "measured": 2, "failed": 0, "infeasible": 2, "remaining": 0}
     assert state["plan"]["varying"][0] in ("baseline_mm", "alpha_deg") and state["plan"]["eta_s"] == 0.0
     assert state["run"]["status"] == "success" and state["version"] >= len(documents)
-    last_move = reader.events(kind="move")[-1]["data"]["rig"]
-    assert state["rig"]["position"]["baseline_mm"] == pytest.approx(last_move["baseline_mm"], abs=1e-3)
+    last_move = reader.events(kind="move")[-1].data.rig
+    assert state["rig"]["position"]["baseline_mm"] == pytest.approx(last_move.baseline_mm, abs=1e-3)
     assert any(line.startswith("> $H") for line in state["rig"]["transcript"])  # the session's serial transcript
     per_view = state["calibration"]["per_view"]
-    analysis = reader.events(kind="analysis", config_id=state["calibration"]["config_id"])[-1]["data"]
-    assert [v["left_px"] for v in per_view] == [e[0] for e in analysis["calibration"]["per_view_rms_px"]]
+    analysis = reader.events(kind="analysis", config_id=state["calibration"]["config_id"])[-1].data
+    assert [v["left_px"] for v in per_view] == [e[0] for e in analysis.calibration["per_view_rms_px"]]
 
 
 def test_files_are_served_from_inside_the_session_only(page, small_reference, tmp_path):
@@ -219,13 +219,36 @@ def test_a_resumed_campaign_shows_the_plan_and_the_results_recorded_before(tmp_p
     out, control = tmp_path / "resumed", RunControl()
     assert run_campaign(small_config(), out, yes=True, control=control,
                         bench_factory=stop_at_move(control, 2)).exit_status == "interrupted"
-    before = {row["config_id"] for row in SessionReader(out).results()}
+    before = {row.config_id for row in SessionReader(out).results()}
     state = LiveState(session_dir=out)
     assert run_campaign(small_config(), out, resume=True, yes=True, subscribers=[state]).exit_status == "success"
     snapshot = state.snapshot()
     assert snapshot["run"]["attempt"] == 2 and snapshot["plan"]["counts"]["remaining"] == 0
     assert before <= {row["config_id"] for row in snapshot["results"]} and len(snapshot["results"]) == 4
     assert any("resumed (attempt 2)" in entry["text"] for entry in snapshot["log"])
+
+
+def test_the_resume_document_carries_what_a_page_shows_without_reading_the_session(tmp_path):
+    """A page that sees only the stream (no session directory) shows a resumed run's plan and earlier rows."""
+    from stereo_bench.campaign.execute import run_campaign
+    from stereo_bench.live.state import LiveState
+
+    out, control = tmp_path / "resumed", RunControl()
+    assert run_campaign(small_config(), out, yes=True, control=control,
+                        bench_factory=stop_at_move(control, 2)).exit_status == "interrupted"
+    before = SessionReader(out).results()
+    assert before  # the interruption came after a result: there is something to carry
+    state = LiveState(session_dir=None)
+    assert run_campaign(small_config(), out, resume=True, yes=True, subscribers=[state]).exit_status == "success"
+    reader = SessionReader(out)
+    (resume,) = reader.resumes()
+    start = reader.start()
+    assert (resume.config, resume.plan, resume.bench) == (start.config, start.plan, start.bench)
+    assert [row.stored() for row in resume.results] == [row.stored() for row in before]
+    snapshot = state.snapshot()
+    assert snapshot["run"]["bench"] == start.bench and snapshot["plan"]["counts"]["remaining"] == 0
+    assert len(state.plan) == 4
+    assert {row.config_id for row in before} <= {row["config_id"] for row in snapshot["results"]}
 
 
 def test_previews_reach_the_page_as_their_own_events_unthrottled_and_change_no_state():

@@ -61,13 +61,13 @@ def test_encoded_in_parallel_recorded_in_order_each_frame_on_disk_before_its_lin
 
     assert {name for name in encoded_on if name.startswith("frame-encoder")} and len(encoded_on) > 1
     events = SessionReader(out).events(kind="capture")
-    assert [event["data"]["index"] for event in events] == list(range(len(images)))
-    assert [event["seq"] for event in events] == sorted(event["seq"] for event in events)
+    assert [event.data["index"] for event in events] == list(range(len(images)))
+    assert [event.seq for event in events] == sorted(event.seq for event in events)
     assert len(lines_checked) == 2 * len(images)
     reader = SessionReader(out)
     for event, pair in zip(events, images, strict=True):
         for side, image in pair.items():
-            assert np.array_equal(reader.frame(event["frames"][side]), image)
+            assert np.array_equal(reader.frame(event.frames[side]), image)
 
 
 def test_a_frame_that_cannot_be_encoded_fails_its_document_when_recorded(tmp_path):
@@ -89,7 +89,7 @@ def test_without_encoders_frames_are_encoded_when_recorded(tmp_path):
         writer.record(draft)
         writer.stop(exit_status="success")
     reader = SessionReader(tmp_path / "session")
-    assert np.array_equal(reader.frame(reader.events(kind="capture")[0]["frames"]["left"]), image)
+    assert np.array_equal(reader.frame(reader.events(kind="capture")[0].frames["left"]), image)
 
 
 @pytest.mark.skipif(not hasattr(os, "getpriority") or not os.path.isdir("/proc/self/task"), reason="Linux only")
@@ -127,4 +127,4 @@ def test_a_prepared_draft_keeps_its_images_for_frame_subscribers(tmp_path):
         writer.stop(exit_status="success")
     assert len(seen) == 1 and seen[0] is image
     reader = SessionReader(tmp_path / "session")
-    assert np.array_equal(reader.frame(reader.events(kind="capture")[0]["frames"]["left"]), image)
+    assert np.array_equal(reader.frame(reader.events(kind="capture")[0].frames["left"]), image)

@@ -25,6 +25,7 @@ from stereo_bench.campaign.documents import (
     TOLERANCES,
     NumericEnvironment,
     StartDocument,
+    json_safe,
     parse_document,
 )
 from stereo_bench.campaign.environment import describe_differences, environment_differences, numeric_environment
@@ -275,7 +276,7 @@ def _edit_result(session: Path, config_id: str, column: str, delta: float) -> fl
 @pytest.mark.replay
 def test_a_session_records_its_numeric_environment_and_its_replay_finds_it_unchanged(small_reference, capsys):
     start = SessionReader(small_reference).start()
-    assert start["numeric_environment"]["blas"] == numeric_environment()["blas"]
+    assert json_safe(start.numeric_environment)["blas"] == numeric_environment()["blas"]
     assert main(["replay", str(small_reference)]) == 0
     out = capsys.readouterr().out
     assert "2 identical, 0 reproduced within tolerance, 0 differ" in out
@@ -348,6 +349,6 @@ def test_the_shipped_session_replays_and_names_its_largest_deviation(capsys):
 def test_replay_out_records_the_environment_of_the_replay(tmp_path):
     out = tmp_path / "replayed"
     assert main(["replay", str(SAMPLE_SESSION), "--out", str(out)]) == 0
-    environment = SessionReader(out).start()["numeric_environment"]
-    assert environment["blas"] == numeric_environment()["blas"]
+    environment = SessionReader(out).start().numeric_environment
+    assert environment.model_dump(mode="json")["blas"] == numeric_environment()["blas"]
     shutil.rmtree(out)

@@ -24,6 +24,7 @@ from report_sessions import (
 )
 from test_report import SAMPLE_SESSION, check_page, row, write_session
 
+from stereo_bench.campaign.documents import parse_document
 from stereo_bench.cli import main
 from stereo_bench.report import figures
 from stereo_bench.report.build import build_report, structural_points
@@ -63,12 +64,23 @@ def test_the_budget_is_read_with_unknown_components_kept_unknown():
     assert budget_of({"sigma_mm": 0.0002}) is None  # a row of an older session: no budget
 
 
+EYE, T, FRAME = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], [-100.0, 0.0, 0.0], {
+    "source": "sim", "shape": [480, 640], "dtype": "uint8"}
+
+
+def _event(kind: str, data: dict):
+    """A typed event document as a session reader yields it (the header's values do not matter here)."""
+    return parse_document({"type": "event", "seq": 0, "time": "2026-01-01T00:00:00.000000Z", "monotonic": 0.0,
+                           "attempt": 1, "config_id": "c", "kind": kind, "data": data})
+
+
 def test_the_structure_is_read_from_its_event_then_the_row_then_the_truth():
     e = expected(100.0, 500.0, 80.0, "kinematic")
     row_ = {"config_id": e.config_id, "baseline_mm": 100.0, "alpha_deg": 80.0, "tilt_deg": 0.0, "status": "measured",
             "square_mean_mm": 27.01, "extrinsics_mode": "kinematic", "baseline_used_mm": 96.2,
             "alpha_left_used_deg": 79.5, "alpha_right_used_deg": 80.2, "square_true_mm": 27.02}
-    truth = {"kind": "truth", "data": {"structure": e.truth, "target": {"kind": "target", "square_true_mm": 99.0}}}
+    truth = _event("truth", {"profile": "lab", "R": EYE, "T": T, "structure": e.truth,
+                             "target": {"kind": "target", "square_true_mm": 99.0}})
     out = structure_of(row_, [truth])
     assert out.mode == "kinematic" and out.mode_origin == "result row"
     assert out.extrinsics["used"] == {"baseline_mm": 96.2, "alpha_left_deg": 79.5, "alpha_right_deg": 80.2,
@@ -81,13 +93,14 @@ def test_the_structure_is_read_from_its_event_then_the_row_then_the_truth():
                                                        "alpha_right_deg": 80.0, "rotation_deg": 20.0})
     assert out.squares_mm == {"kinematic": 27.01} and out.extrinsics["calibrated"] is None
     # the structure event wins over the row and the truth event, and brings each source's square and budget
-    event = {"kind": "structure", "data": {
-        "mode": "kinematic", "used": "kinematic", "truth": {"structure": e.structures["calibrated"]},
-        "sources": {"kinematic": {"structure": e.structures["kinematic"], "square_mean_mm": 27.0123,
+    event = _event("structure", {
+        "mode": "kinematic", "used": "kinematic", "axes": {}, "truth": {"structure": e.structures["calibrated"]},
+        "sources": {"kinematic": {"R": EYE, "T": T, "structure": e.structures["kinematic"], "square_mean_mm": 27.0123,
                                   "structure_sigma": {"baseline_mm": 0.02}, "uncertainty": {"combined": 0.002}},
-                    "nominal": {"structure": e.nominal, "square_mean_mm": 28.1, "note": "tolerances only",
+                    "nominal": {"R": EYE, "T": T, "structure": e.nominal, "square_mean_mm": 28.1,
+                                "note": "tolerances only",
                                 "uncertainty": {"noise": 0.001, "calibration": None, "structure": 0.3,
-                                                "target": 0.001, "combined": 0.3, "k": 2.0}}}}}
+                                                "target": 0.001, "combined": 0.3, "k": 2.0}}}})
     out = structure_of(row_, [truth, event])
     assert out.extrinsics["used"] == e.structures["kinematic"] == out.extrinsics["kinematic"]
     assert out.extrinsics["truth"] == e.structures["calibrated"] and out.origin["truth"] == "structure event"
@@ -97,8 +110,8 @@ def test_the_structure_is_read_from_its_event_then_the_row_then_the_truth():
     assert out.budgets["kinematic"].combined == 0.002  # the row has no budget: the event's for the same source
     assert out.notes == {"nominal": "tolerances only"}
     # a simulated frame's metadata (sessions before the truth event): mean over the measurement frames
-    frames = [{"kind": "measurement_frame", "data": {"left": {"meta": {"truth": {
-        "structure": {**e.truth, "baseline_mm": baseline}, "board": {"print_scale": scale}}}}}}
+    frames = [_event("measurement_frame", {"index": 0, "left": {**FRAME, "meta": {"truth": {
+        "structure": {**e.truth, "baseline_mm": baseline}, "board": {"print_scale": scale}}}}, "right": FRAME})
         for baseline, scale in ((95.9, 1.001), (96.1, 1.003))]
     out = structure_of({**row_, "square_true_mm": None}, frames)
     assert out.extrinsics["truth"]["baseline_mm"] == pytest.approx(96.0)

@@ -92,19 +92,19 @@ def test_discard_last_view_and_capture_now_are_recorded_and_the_session_replays(
     reader = SessionReader(out)
     first = summary.rows[0]["config_id"]
     discards = reader.events(kind="calibration_view_discarded", config_id=first)
-    assert [(d["data"]["index"], d["data"]["answered_by"]) for d in discards] == [(1, "script"), (5, "script")]
+    assert [(d.data.index, d.data.answered_by) for d in discards] == [(1, "script"), (5, "script")]
     assert benches[0].presenter.discarded == [1, 5]
-    views = [e["data"]["index"] for e in reader.events(kind="calibration_view", config_id=first)]
+    views = [e.data.index for e in reader.events(kind="calibration_view", config_id=first)]
     assert views == [0, 1, 1, 2, 3, 4, 5, 5]  # every capture recorded, the discarded ones too
-    prompts = [p["data"] for p in reader.events(kind="prompt", config_id=first)]
-    view_prompts = [p for p in prompts if p["prompt"] == "calibration_view"]
-    assert view_prompts[0]["action"] == CAPTURE_NOW and "action" not in view_prompts[1]
-    assert view_prompts[2]["action"] == DISCARD_LAST_VIEW
-    assert [p["prompt"] for p in prompts].count("calibration_review") == 2
+    prompts = [p.data for p in reader.events(kind="prompt", config_id=first)]
+    view_prompts = [p for p in prompts if p.prompt == "calibration_view"]
+    assert view_prompts[0].action == CAPTURE_NOW and view_prompts[1].action is None
+    assert view_prompts[2].action == DISCARD_LAST_VIEW
+    assert [p.prompt for p in prompts].count("calibration_review") == 2
     # The same views were taken again (the simulator shows view i at the same pose with the same noise),
     # so the numbers are the reference's; and the replay serves the views that were kept.
     assert numbers(out) == numbers(small_reference)
-    assert reader.events(kind="calibration", config_id=first)[0]["data"]["views_used"] == list(range(6))
+    assert reader.events(kind="calibration", config_id=first)[0].data.views_used == list(range(6))
     assert main(["replay", str(out)]) == 0
 
 
@@ -137,15 +137,15 @@ def test_pause_mid_move_feed_holds_and_resume_finishes_the_move(tmp_path, small_
     summary = run_campaign(config, out, yes=True, control=control, bench_factory=factory)
     assert summary.exit_status == "success"
     reader = SessionReader(out)
-    controls = [e["data"] for e in reader.events(kind="run_control")]
-    assert controls == [{"action": "pause", "feed_hold": True}, {"action": "resume"}]
-    sent = [json.loads(line) for line in (out / reader.events(kind="transcript")[0]["files"]["serial"]).open()]
+    controls = [e.data for e in reader.events(kind="run_control")]
+    assert [(c.action, c.feed_hold) for c in controls] == [("pause", True), ("resume", False)]
+    sent = [json.loads(line) for line in (out / reader.events(kind="transcript")[0].files["serial"]).open()]
     realtime = [record["data"] for record in sent if record.get("dir") == "tx" and record["data"] in "!~"]
     assert realtime == ["!", "~"]  # one feed hold, one cycle start
     # The held move was finished: the rig reached B = 150 mm, and nothing recorded differs from the run
     # that was never paused.
-    second = reader.events(kind="move")[1]["data"]["rig"]
-    assert abs(second["baseline_mm"] - 150.0) < 0.01
+    second = reader.events(kind="move")[1].data.rig
+    assert abs(second.baseline_mm - 150.0) < 0.01
     assert numbers(out) == numbers(small_reference)
 
 
@@ -162,7 +162,7 @@ def test_stop_while_paused_leaves_a_resumable_session(tmp_path):
                            resume_command="resume me")
     assert summary.exit_status == "interrupted"
     reader = SessionReader(out)
-    assert reader.stops()[-1]["resume_command"] == "resume me" and not reader.completed_config_ids()
+    assert reader.stops()[-1].resume_command == "resume me" and not reader.completed_config_ids()
     resumed = run_campaign(small_config(), out, resume=True, yes=True)
     assert resumed.exit_status == "success"
 
@@ -200,7 +200,7 @@ def test_the_cameras_are_lent_only_while_the_operator_works_and_previews_change_
     reference = SessionReader(small_reference)
     for ours, theirs in zip(recorded.events(kind="calibration_view"), reference.events(kind="calibration_view"),
                             strict=True):
-        assert np.array_equal(recorded.frame(ours["frames"]["left"]), reference.frame(theirs["frames"]["left"]))
+        assert np.array_equal(recorded.frame(ours.frames["left"]), reference.frame(theirs.frames["left"]))
 
 
 def test_camera_gate_waits_for_a_borrowed_grab_before_taking_the_cameras_back():

@@ -11,6 +11,7 @@ import sqlite3
 import numpy as np
 import pytest
 
+from stereo_bench.campaign.documents import document_json
 from stereo_bench.campaign.session import (
     DOCUMENTS_FILE,
     SCHEMA_VERSION,
@@ -93,33 +94,33 @@ def test_round_trip_of_every_document_type(tmp_path):
     assert transcript == out / "transcripts" / "serial-a1.jsonl"
 
     reader = SessionReader(out)
-    types = [d["type"] for d in reader.documents()]
+    types = [d.type for d in reader.documents()]
     assert types == ["start", "event", "event", "event", "event", "result", "stop"]
     start = reader.start()
-    assert start["schema_version"] == SCHEMA_VERSION and start["attempt"] == 1 and len(start["uid"]) == 32
-    assert start["config"] == CONFIG and start["plan"] == PLAN and start["software"] == SOFTWARE
-    assert start["extra"] == {"operator": "anna"} and start["time"].endswith("Z")
-    seqs = [d["seq"] for d in reader.documents()]
+    assert start.schema_version == SCHEMA_VERSION and start.attempt == 1 and len(start.uid) == 32
+    assert start.config == CONFIG and start.plan == PLAN and start.software == SOFTWARE
+    assert start.extra == {"operator": "anna"} and start.time.endswith("Z")
+    seqs = [d.seq for d in reader.documents()]
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
-    assert [d["kind"] for d in reader.events()] == ["transcript", "capture", "calibration", "note"]
-    assert reader.events(kind="transcript")[0]["files"] == {"serial": "transcripts/serial-a1.jsonl"}
+    assert [d.kind for d in reader.events()] == ["transcript", "capture", "calibration", "note"]
+    assert reader.events(kind="transcript")[0].files == {"serial": "transcripts/serial-a1.jsonl"}
     capture = reader.events("c0", kind="capture")[0]
-    assert capture == json.loads(json.dumps(doc))
-    assert capture["data"] == {"dt_ms": 1.25, "bad": None, "pose": [[1.0, 0.0], [0.0, 1.0]]}
-    assert capture["frames"]["left"] == "frames/c0/a1/000002_left.png"
-    assert reader.read_bytes(capture["files"]["telemetry.json"]) == b'{"x": 1}'
+    assert document_json(capture) == json.loads(json.dumps(doc))
+    assert capture.data == {"dt_ms": 1.25, "bad": None, "pose": [[1.0, 0.0], [0.0, 1.0]]}
+    assert capture.frames["left"] == "frames/c0/a1/000002_left.png"
+    assert reader.read_bytes(capture.files["telemetry.json"]) == b'{"x": 1}'
     for name, image in frames(0).items():  # lossless, bit-exact, grey and BGR
-        back = reader.frame(capture["frames"][name])
+        back = reader.frame(capture.frames[name])
         assert back.dtype == image.dtype and back.shape == image.shape
         np.testing.assert_array_equal(back, image)
-    assert reader.events(kind="note")[0]["config_id"] is None
-    assert reader.events(kind="note")[0]["data"]["text"] == "line\nbreak"
+    assert reader.events(kind="note")[0].config_id is None
+    assert reader.events(kind="note")[0].data["text"] == "line\nbreak"
     assert files == {"intrinsics": "calib/c0/a1/intrinsics.yml", "extrinsics": "calib/c0/a1/extrinsics.yml"}
     loaded = reader.calibration("c0")
     np.testing.assert_allclose(loaded.T, calibration().T)
     assert "Q:" in (out / files["extrinsics"]).read_text()
-    assert reader.results()[0]["per_square"] == [27.0, 27.02]
-    assert reader.stops()[0]["exit_status"] == "success" and reader.status() == "success"
+    assert reader.results()[0].model_extra["per_square"] == [27.0, 27.02]
+    assert reader.stops()[0].exit_status == "success" and reader.status() == "success"
     assert reader.completed_config_ids() == {"c0"}
     assert reader.torn is None and reader.warnings == []
     for line in (out / DOCUMENTS_FILE).read_text().splitlines():  # strict JSON, one object a line
@@ -131,14 +132,14 @@ def test_results_csv_and_sqlite_agree_with_the_stream(tmp_path):
     out = record(tmp_path / "s")
     reader = SessionReader(out)
     with ResultStore(out / "results.sqlite") as store:
-        assert store.rows() == reader.results()
+        assert store.rows() == [row.stored() for row in reader.results()]
     with open(out / "results.csv", newline="") as handle:
         lines = list(csv.reader(handle))
     assert lines[0][: len(RESULT_COLUMNS)] == RESULT_COLUMNS
     assert lines[0][:12] == ["config_id", "baseline_mm", "distance_mm", "alpha_deg", "status", "square_mean_mm",
                              "square_std_mm", "n_squares", "error_mm", "sigma_mm", "rms_px", "epipolar_rms_px"]
     assert [line[0] for line in lines[1:]] == ["c0", "c1"]
-    assert all(row["attempt"] == 1 and row["time"] for row in reader.results())
+    assert all(row.attempt == 1 and row.time for row in reader.results())
 
 
 def test_layout_and_no_temporary_files(tmp_path):
@@ -196,7 +197,7 @@ def test_bad_input_records_nothing(tmp_path):
             session.event("capture", config_id="c0", data={"obj": object()}, frames=frames(0))
         with pytest.raises(SessionError, match="exit_status"):
             session.stop(exit_status="fine")
-    assert [d["type"] for d in SessionReader(out).documents()] == ["start"]
+    assert [d.type for d in SessionReader(out).documents()] == ["start"]
     assert not (out / "frames").exists() or not [p for p in (out / "frames").rglob("*") if p.is_file()]
 
 
@@ -206,7 +207,7 @@ def test_leaving_the_block_on_ctrl_c_records_an_interrupted_stop(tmp_path):
         session.start(config=CONFIG, plan=PLAN, software=SOFTWARE)
         raise KeyboardInterrupt
     stop = SessionReader(out).stops()[-1]
-    assert stop["exit_status"] == "interrupted" and "KeyboardInterrupt" in stop["reason"]
+    assert stop.exit_status == "interrupted" and "KeyboardInterrupt" in stop.reason
 
 
 # -- resume ------------------------------------------------------------------------------------------
@@ -227,22 +228,22 @@ def test_resume_continues_as_attempt_2_without_duplicates(tmp_path):
     reader = SessionReader(out)
     assert reader.attempts() == [1, 2]
     resume = reader.resumes()[0]
-    assert resume["previous_attempt"] == 1 and resume["completed"] == ["c0"]
-    assert resume["start_uid"] == reader.start()["uid"] and resume["software"]["stereo_bench"] == "newer"
+    assert resume.previous_attempt == 1 and resume.completed == ["c0"]
+    assert resume.start_uid == reader.start().uid and resume.software["stereo_bench"] == "newer"
     results = reader.results()
-    assert [r["config_id"] for r in results] == ["c0", "c1", "c2"]
-    assert [r["attempt"] for r in results] == [1, 2, 2] and results[1]["square_mean_mm"] == 26.98
+    assert [r.config_id for r in results] == ["c0", "c1", "c2"]
+    assert [r.attempt for r in results] == [1, 2, 2] and results[1].square_mean_mm == 26.98
     with ResultStore(out / "results.sqlite") as store:
-        assert store.rows() == results
+        assert store.rows() == [row.stored() for row in results]
     with sqlite3.connect(out / "results.sqlite") as db:
         assert db.execute("SELECT count(*), count(DISTINCT config_id) FROM results").fetchone() == (3, 3)
     assert len((out / "results.csv").read_text().splitlines()) == 4
     # the interrupted attempt's frames of c1 are kept; replay sees the attempt that produced the result
     assert (out / "frames/c1/a1/000004_left.png").is_file()
-    assert {e["attempt"] for e in reader.events("c1", attempt="last")} == {2}
-    assert {e["attempt"] for e in reader.events("c1", attempt=None)} == {1, 2}
-    assert {e["attempt"] for e in reader.events("c0")} == {1}
-    assert [s["exit_status"] for s in reader.stops()] == ["interrupted", "success"]
+    assert {e.attempt for e in reader.events("c1", attempt="last")} == {2}
+    assert {e.attempt for e in reader.events("c1", attempt=None)} == {1, 2}
+    assert {e.attempt for e in reader.events("c0")} == {1}
+    assert [s.exit_status for s in reader.stops()] == ["interrupted", "success"]
     assert reader.status() == "success"
 
 
@@ -262,7 +263,7 @@ def test_resume_of_a_stream_cut_before_its_start(tmp_path):
     SessionWriter(out).open().close()  # killed between open() and start()
     with SessionWriter(out, resume=True).open() as session:
         session.start(config=CONFIG, plan=PLAN, software=SOFTWARE)
-    assert SessionReader(out).start()["config"] == CONFIG
+    assert SessionReader(out).start().config == CONFIG
 
 
 # -- repair and corruption ---------------------------------------------------------------------------
@@ -284,7 +285,7 @@ def test_torn_last_line_is_tolerated_then_repaired_and_kept_aside(tmp_path):
     data = stream.read_bytes()
     assert data.startswith(good) and torn not in data
     reader = SessionReader(out)
-    assert reader.torn is None and reader.resumes()[0]["recovery"]["torn_line"]["kept_in"] == \
+    assert reader.torn is None and reader.resumes()[0].recovery["torn_line"]["kept_in"] == \
         "recovered/documents.jsonl.torn-a2.bin"
 
 
@@ -305,7 +306,7 @@ def test_a_complete_last_line_without_its_newline_is_kept(tmp_path):
     with SessionWriter(out, resume=True).open() as session:
         assert session.recovery == {"newline_added": True}
         session.start(config=CONFIG, plan=PLAN, software=SOFTWARE)
-    assert [d["type"] for d in SessionReader(out).documents()][-2:] == ["stop", "resume"]
+    assert [d.type for d in SessionReader(out).documents()][-2:] == ["stop", "resume"]
 
 
 def test_a_corrupt_middle_line_names_the_file_and_the_line(tmp_path):
@@ -357,7 +358,7 @@ def test_temporary_files_left_by_a_crash_are_removed_on_resume(tmp_path):
 # -- the results store after a crash -----------------------------------------------------------------
 def test_missing_store_is_rebuilt_from_the_stream(tmp_path):
     out = record(tmp_path / "s", stop=None)
-    expected = SessionReader(out).results()
+    expected = [row.stored() for row in SessionReader(out).results()]
     os.unlink(out / "results.sqlite")
     os.unlink(out / "results.csv")
     with SessionWriter(out, resume=True).open() as session:
@@ -374,7 +375,7 @@ def test_a_store_row_whose_document_never_landed_is_dropped_but_recorded(tmp_pat
         assert session.completed_config_ids() == {"c0"}
         assert [r["config_id"] for r in session.results()] == ["c0"]
         session.start(config=CONFIG, plan=PLAN, software=SOFTWARE)
-    rebuilt = SessionReader(out).resumes()[0]["recovery"]["store_rebuilt"]
+    rebuilt = SessionReader(out).resumes()[0].recovery["store_rebuilt"]
     assert [r["config_id"] for r in rebuilt["dropped_rows"]] == ["c1"]
     assert json.loads((out / rebuilt["dropped_rows_kept_in"]).read_text()) == rebuilt["dropped_rows"]
 
@@ -415,7 +416,7 @@ def test_a_symlink_leading_outside_is_refused(tmp_path):
 def test_a_missing_or_truncated_frame_is_named(tmp_path):
     out = record(tmp_path / "s")
     reader = SessionReader(out)
-    relative = reader.events("c0", kind="capture")[0]["frames"]["right"]
+    relative = reader.events("c0", kind="capture")[0].frames["right"]
     data = (out / relative).read_bytes()
     (out / relative).write_bytes(data[: len(data) // 2])
     with pytest.raises(SessionError, match="000001_right.png: not a complete PNG"):

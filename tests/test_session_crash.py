@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from stereo_bench.campaign.documents import ResultDocument
 from stereo_bench.campaign.session import DOCUMENTS_FILE, SessionReader
 from stereo_bench.campaign.store import ResultStore
 
@@ -153,21 +154,21 @@ def check_complete(out: Path, size: int) -> SessionReader:
     reader = SessionReader(out)
     assert reader.torn is None and reader.status() == "success"
     config_ids = [f"c{i}" for i in range(N_CONFIGS)]
-    result_docs = reader.documents("result")
-    assert sorted(doc["config_id"] for doc in result_docs) == config_ids, "a result lost or duplicated"
+    result_docs = reader.documents(ResultDocument)
+    assert sorted(doc.config_id for doc in result_docs) == config_ids, "a result lost or duplicated"
     results = reader.results()
-    assert [row["config_id"] for row in results] == config_ids
+    assert [row.config_id for row in results] == config_ids
     with ResultStore(out / "results.sqlite") as store:
-        assert store.rows() == results
+        assert store.rows() == [row.stored() for row in results]
     assert len((out / "results.csv").read_text().splitlines()) == N_CONFIGS + 1
     for event in reader.events(kind="capture", attempt=None):  # every frame any document references
-        expected = frames_for(event["config_id"], size)
-        for name, relative in event["frames"].items():
+        expected = frames_for(event.config_id, size)
+        for name, relative in event.frames.items():
             np.testing.assert_array_equal(reader.frame(relative), expected[name])
     for config_id in config_ids:  # replay's view: one capture per configuration, from the attempt of its result
         captures = reader.events(config_id, kind="capture")
         assert len(captures) == 1
-        assert captures[0]["attempt"] == next(d["attempt"] for d in result_docs if d["config_id"] == config_id)
+        assert captures[0].attempt == next(d.attempt for d in result_docs if d.config_id == config_id)
     assert not temp_files(out)
     return reader
 
@@ -209,7 +210,7 @@ def test_kill_mid_line_mid_frame_and_between_store_and_stream(writer_script, tmp
     run_to_end(writer_script, out, size=64)
     reader = check_complete(out, size=64)
     assert reader.attempts() == [1, 2, 3, 4]
-    recoveries = [doc["recovery"] for doc in reader.resumes()]
+    recoveries = [doc.recovery for doc in reader.resumes()]
     assert recoveries[0]["torn_line"]["line"] == 5
     assert any(path.startswith("frames/c2/a2/.") for path in recoveries[1]["removed_temp_files"])
     assert [row["config_id"] for row in recoveries[2]["store_rebuilt"]["dropped_rows"]] == ["c2"]
@@ -235,7 +236,7 @@ def test_kill_at_random_moments_then_resume(writer_script, tmp_path):
         data = (out / DOCUMENTS_FILE).read_bytes()
         snapshots.append(data[: len(data) - len(torn)])
         for event in reader.events(kind="capture", attempt=None):
-            for relative in event["frames"].values():
+            for relative in event.frames.values():
                 assert reader.frame(relative).shape[:2] == (size, size)
     run_to_end(writer_script, out, size=size)
     reader = check_complete(out, size=size)

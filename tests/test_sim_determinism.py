@@ -37,7 +37,7 @@ def lab_reference(tmp_path_factory) -> Path:
 
 def test_the_settle_is_shorter_than_the_ringing_so_the_frames_ring(lab_reference):
     """Not vacuous: the captures see the heads ring (on the wall clock, their phase would follow the machine's load)."""
-    assert any(event["data"]["left"]["meta"]["truth"]["ringing_deg"] != 0.0
+    assert any(event.data.left.meta["truth"]["ringing_deg"] != 0.0
                for event in SessionReader(lab_reference).events(kind="calibration_view"))
 
 
@@ -57,7 +57,7 @@ def test_a_run_stopped_mid_distance_and_resumed_records_what_an_uninterrupted_on
     assert summary.exit_status == "interrupted" and len(SessionReader(out).completed_config_ids()) == 3
     assert run_campaign(config, out, resume=True, yes=True).exit_status == "success"
     reader = SessionReader(out)
-    approaches = [event["data"]["target"] for event in reader.events(kind="approach", attempt=2)]
+    approaches = [event.data.target for event in reader.events(kind="approach", attempt=2)]
     assert approaches == [{"baseline_mm": 100.0},
                           {"baseline_mm": 150.0, "toe_in_left_deg": 3.0, "toe_in_right_deg": 3.0}]
     assert not reader.events(kind="approach", attempt=1)  # an uninterrupted run never re-approaches

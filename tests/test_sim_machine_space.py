@@ -122,7 +122,7 @@ def test_a_campaign_measures_with_a_rig_config_in_either_machine_space(text, tmp
     assert len(events) == 6 + 1
     for event in events:
         for side in ("left", "right"):
-            structure = event["data"][side]["meta"]["truth"]["structure"]
+            structure = getattr(event.data, side).meta["truth"]["structure"]
             assert structure["baseline_mm"] == pytest.approx(100.0, abs=1e-6)
             assert structure["alpha_left_deg"] == pytest.approx(85.0, abs=1e-6)
             assert structure["alpha_right_deg"] == pytest.approx(85.0, abs=1e-6)
@@ -145,8 +145,8 @@ def test_a_campaign_without_homing_trusts_the_position_and_records_it(tmp_path):
     reader = SessionReader(out)
     assert not list(reader.events(kind="home"))
     (trusted,) = reader.events(kind="rig_position_trusted")
-    assert "homing = false" in trusted["data"]["reason"]
+    assert "homing = false" in trusted.data.reason
     # The simulated rig powered up at machine 0: B = 350 mm, each head one pull-off (1 deg) beyond parallel.
-    assert trusted["data"]["rig"]["baseline_mm"] == 350.0 and trusted["data"]["rig"]["alpha_left_deg"] == 91.0
+    assert trusted.data.rig.baseline_mm == 350.0 and trusted.data.rig.alpha_left_deg == 91.0
     (row,) = results_csv(out)
     assert row["status"] == "measured"

@@ -121,7 +121,7 @@ def test_the_resume_command_resumes_the_recorded_bench_whatever_the_command_line
     assert _resume_command(args, Path("out")) == "stereo-bench campaign run --out out --resume --yes"
     resumed = config_from_args(None, None, session=small_reference)
     # What the session writer compares a resume's config with: equal, so it is never refused as a different config.
-    assert resumed.model_dump(mode="json") == SessionReader(small_reference).start()["config"]
+    assert resumed.model_dump(mode="json") == SessionReader(small_reference).start().config
     assert resumed.sim.resolve() == IDEAL
     assert config_from_args(None, None, session=small_reference, sim="lab").sim.resolve() != IDEAL  # then refused
 

@@ -444,41 +444,53 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     its recorded detections stand in for what the runner would detect in them.
     """
     from drivers.replay import ReplayRig, ReplayStereoCamera
-    from stereo_bench.campaign.documents import CalibrationDetectionsEvent
+    from stereo_bench.campaign.documents import (
+        CalibrationDetectionsEvent,
+        CalibrationViewEvent,
+        MeasurementFrameEvent,
+        MoveEvent,
+        TruthEvent,
+        json_safe,
+    )
+    from stereo_bench.campaign.router import DocumentRouter
 
-    frames: dict[str, dict] = {}  # key -> event, in recorded order (the order the replay will ask for them)
-    readings = []
+    # What goes down to drivers/replay.py (which does not import stereo_bench) goes as the JSON it was recorded as.
+    frames: dict[str, CalibrationViewEvent | MeasurementFrameEvent] = {}  # key -> event, in recorded order (the
+    readings = []                                                         # order the replay will ask for them)
     approaches: dict[str, dict] = {}
     truths: dict[str, dict] = {}
-    for event in reader.events():
-        config_id = event.get("config_id")
-        if config_id not in config_ids:
-            continue
-        data = event["data"]
-        if event["kind"] == "move":
-            readings.append(data["rig"])
-            approaches[config_id] = dict(data.get("approach") or {})
-        elif event["kind"] == "truth":
-            truths[config_id] = data
-        elif event["kind"] == "calibration_view":
-            frames[f"{config_id}/calibration_view/{data['index']}"] = event
-        elif event["kind"] == "measurement_frame":
-            frames[f"{config_id}/measurement_frame/{data['index']}/{data.get('retry', 0)}"] = event
     detections = {}
-    for event in reader.parsed(CalibrationDetectionsEvent):
-        if event.config_id in config_ids:
-            detections[f"{event.config_id}/{event.data.index}"] = tuple(
-                None if side is None else side.detection() for side in (event.data.left, event.data.right))
+
+    def move(event: MoveEvent) -> None:
+        readings.append(json_safe(event.data.rig))
+        approaches[event.config_id] = dict(event.data.approach or {})
+
+    def truth(event: TruthEvent) -> None:
+        truths[event.config_id] = json_safe(event.data)
+
+    def calibration_view(event: CalibrationViewEvent) -> None:
+        frames[f"{event.config_id}/calibration_view/{event.data.index}"] = event
+
+    def measurement_frame(event: MeasurementFrameEvent) -> None:
+        frames[f"{event.config_id}/measurement_frame/{event.data.index}/{event.data.retry or 0}"] = event
+
+    def calibration_detections(event: CalibrationDetectionsEvent) -> None:
+        detections[f"{event.config_id}/{event.data.index}"] = tuple(
+            None if side is None else side.detection() for side in (event.data.left, event.data.right))
+
+    router = (DocumentRouter().on(MoveEvent, move).on(TruthEvent, truth).on(CalibrationViewEvent, calibration_view)
+              .on(MeasurementFrameEvent, measurement_frame).on(CalibrationDetectionsEvent, calibration_detections))
+    router.read(event for event in reader.events() if event.config_id in config_ids)
 
     def load_pair(key: str):
         event = frames.get(key)
         if event is None:
             raise KeyError(f"{reader.directory}: recording holds no {key}")
-        kept = event.get("frames") or {}
+        kept, data = event.frames, json_safe(event.data)
         if "left" in kept and "right" in kept:
-            return reader.frame(kept["left"]), reader.frame(kept["right"]), event["data"]
+            return reader.frame(kept["left"]), reader.frame(kept["right"]), data
         if key.split("/")[1] == "calibration_view" and key.replace("/calibration_view", "", 1) in detections:
-            return _not_kept(event["data"]["left"]), _not_kept(event["data"]["right"]), event["data"]
+            return _not_kept(event.data.left), _not_kept(event.data.right), data
         raise KeyError(f"{reader.directory}: the frames of {key} were not kept")
 
     stack = contextlib.ExitStack()
@@ -491,9 +503,9 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
                  recorded_approach=lambda config_id: approaches.get(config_id, {}))
 
 
-def _not_kept(description: dict) -> np.ndarray:
-    """A black frame of the recorded shape and type: stands in for a frame that was not kept."""
-    return np.zeros(tuple(description.get("shape") or (0, 0)), dtype=np.dtype(description.get("dtype") or "uint8"))
+def _not_kept(description) -> np.ndarray:
+    """A black frame of the recorded shape and type (a ``FrameRecord``): stands in for a frame that was not kept."""
+    return np.zeros(tuple(description.shape or (0, 0)), dtype=np.dtype(description.dtype or "uint8"))
 
 
 __all__ = [

@@ -584,6 +584,13 @@ class StartDocument(Document):
         None, description="v2: library versions, BLAS kernels and threads, CPU and vector extensions (absent: "
                           "recorded before it was kept)")
 
+    # The recorded config and plan stay as recorded (``config``, ``plan``, ``design``: a resume compares them byte
+    # for byte); readers read them typed through campaign/recorded.RecordedStart.
+    @property
+    def config_ids(self) -> list[str]:
+        """The recorded plan's configuration ids, in order (without parsing the configurations)."""
+        return [entry["config_id"] for entry in self.plan if isinstance(entry.get("config_id"), str)]
+
 
 class ResumeDocument(Document):
     type: Literal["resume"] = "resume"
@@ -599,6 +606,15 @@ class ResumeDocument(Document):
     plan_drift: str | None = Field(None, description="v2: where today's planner differs from the recorded plan "
                                                      "(the recorded plan is what runs)")
     numeric_environment: NumericEnvironment | None = Field(None, description="v2: this attempt's (as in start)")
+    # What a reader of the live stream needs to show a resumed run at once without reading the session from disk
+    # (the live page): the start's bench, its config and plan (checked equal to this attempt's), and the rows of
+    # the earlier attempts. Absent in resumes recorded before they were carried.
+    bench: BenchName | None = Field(None, description="v2: the start's bench")
+    config: dict[str, Any] | None = Field(None, description="v2: the start's campaign config (this attempt's: "
+                                                            "a resume with another is refused)")
+    plan: list[dict[str, Any]] | None = Field(None, description="v2: the start's plan (likewise)")
+    results: list[ResultRow] | None = Field(None, description="v2: the last row of each configuration recorded "
+                                                              "before this attempt, in order of first appearance")
 
 
 #: The typed event kinds, kind -> model, in the order their classes are defined below. A class that derives from

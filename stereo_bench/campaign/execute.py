@@ -25,19 +25,27 @@ from pydantic import ValidationError
 
 from stereo_bench import __version__, atomic, paths
 from stereo_bench.campaign.bench import Bench, open_bench, replay_bench
-from stereo_bench.campaign.config import CampaignConfig, recorded_campaign
+from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.documents import (
+    CalibrationDetectionsEvent,
+    CalibrationViewEvent,
     ControllerEvent,
     Draft,
     EventDocument,
+    KinematicModelEvent,
+    MeasurementFrameEvent,
+    NumericEnvironment,
     ResultDocument,
+    ResultRow,
     StartDocument,
     StopDocument,
+    json_safe,
 )
 from stereo_bench.campaign.environment import environment_differences, numeric_environment
 from stereo_bench.campaign.extrinsics_run import RIG_CONFIG_FILE, RIG_CONFIG_KIND, session_sources
 from stereo_bench.campaign.operator import Operator, OperatorAbsent, SimulatedOperator, TerminalOperator
 from stereo_bench.campaign.plan import PREPARE_ID, Configuration, Step, Visit, expand_plan, plan_steps, plan_visits
+from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.reproduce import (
     SCALE_TOLERANCE,
     UNCERTAINTY_TOLERANCE,
@@ -88,10 +96,10 @@ class CampaignPlan:
         return cls([], steps, list(plan.visits))
 
     @classmethod
-    def recorded(cls, config: CampaignConfig, start: dict) -> CampaignPlan:
+    def recorded(cls, config: CampaignConfig, start: StartDocument) -> CampaignPlan:
         """The plan a session's start document recorded (its configurations and visits), never today's re-planning."""
-        return cls.of(config, [Configuration.from_dict(entry) for entry in start["plan"]],
-                      [Visit.from_dict(entry) for entry in start.get("design") or []])
+        recorded = RecordedStart.of(start)
+        return cls.of(config, recorded.configurations, recorded.visits)
 
 
 def plan_drift(config: CampaignConfig, recorded_plan: list[dict]) -> str | None:
@@ -177,7 +185,7 @@ def _recorded_copy(reader: SessionReader, kind: str, name: str) -> Path | None:
     """The recording's last copy of an outside file: side file ``name`` of a ``kind`` event (``rig_config``: the
     ``[rig] config_file``; ``intrinsics``: calib_dir's intrinsics.yml), if it holds one."""
     for event in reversed(reader.events(kind=kind, attempt=None)):
-        relative = (event.get("files") or {}).get(name)
+        relative = event.files.get(name)
         if relative:
             return reader.path(relative)
     return None
@@ -234,8 +242,8 @@ def resume_sources(options: RunnerOptions, writer: SessionWriter, config: Campai
     if not visits or writer.recorded_start is None:
         return set()
     optics = config.cameras.optics
-    recorded = recorded_sources(writer.reader(), sources=("design",),
-                                image_size=(optics.width_px, optics.height_px))
+    recorded = recorded_sources(writer.reader(), sources=("design",), image_size=(optics.width_px, optics.height_px),
+                                intrinsics_visits=[v.config_id for v in visits if v.purpose == "intrinsics"])
     if not config.extrinsics.source().is_prepared(recorded):
         return set()
     options.kinematic_model = recorded.kinematic_model or options.kinematic_model
@@ -272,9 +280,9 @@ def run_campaign(
     try:
         with writer:
             recorded = writer.recorded_start
-            if recorded is not None and isinstance(recorded.get("plan"), list):
+            if recorded is not None:
                 campaign = CampaignPlan.recorded(config, recorded)
-                summary.plan_drift = plan_drift(config, recorded["plan"])
+                summary.plan_drift = plan_drift(config, recorded.plan)
             else:
                 campaign = plan or CampaignPlan.of(config)
             bus = DocumentBus(writer)
@@ -339,7 +347,7 @@ def recorded_config(session_dir: str | Path) -> CampaignConfig:
     --resume`` continues with when no campaign file is given (SessionError, one line, if it cannot be read)."""
     reader = SessionReader(session_dir)
     try:
-        return recorded_campaign(reader.start()["config"])
+        return RecordedStart.of(reader.start()).campaign
     except ValidationError as error:
         first = error.errors()[0]
         where = ".".join(str(part) for part in first.get("loc", ())) or "config"
@@ -431,20 +439,19 @@ def reproducibility(reader: SessionReader, config_ids: Iterable[str]) -> tuple[d
     calibration view's frames or, where those were not kept, its recorded detections.
     """
     config_ids = set(config_ids)
-    keep = (reader.start().get("config") or {}).get("capture", {}).get("keep_frames", "all")
-    detected = {(e["config_id"], e["data"].get("index")) for e in reader.events(kind="calibration_detections")}
+    keep = RecordedStart.of(reader.start()).campaign.capture.keep_frames
+    detected = {(e.config_id, e.data.index) for e in reader.events(kind=CalibrationDetectionsEvent)}
     reasons: dict[str, str] = {}
     from_detections: set[str] = set()
-    for event in reader.events():
-        config_id, kind = event.get("config_id"), event.get("kind")
+    for event in reader.events(kind=CalibrationViewEvent | MeasurementFrameEvent):
+        config_id = event.config_id
         if config_id not in config_ids or config_id in reasons:
             continue
-        kept = event.get("frames") or {}
-        if kind not in ("measurement_frame", "calibration_view") or ("left" in kept and "right" in kept):
+        if "left" in event.frames and "right" in event.frames:
             continue
-        if kind == "measurement_frame":
+        if isinstance(event, MeasurementFrameEvent):
             reasons[config_id] = f"measurement frames not kept ([capture] keep_frames = \"{keep}\")"
-        elif (config_id, event["data"].get("index")) in detected:
+        elif (config_id, event.data.index) in detected:
             from_detections.add(config_id)
         else:
             reasons[config_id] = "a calibration view kept neither as frames nor as detections"
@@ -471,14 +478,13 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     keep_freed_frame_memory()  # before the decoding threads start: they reuse each other's freed frames
     reader = SessionReader(session_dir)
     start = reader.start()
-    recorded_config = dict(start["config"])
+    recorded_start = RecordedStart.of(start)
     rig_copy = _recorded_copy(reader, RIG_CONFIG_KIND, RIG_CONFIG_FILE)
-    if rig_copy is not None and isinstance(recorded_config.get("rig"), dict):  # the copy, not where the file was
-        recorded_config["rig"] = {**recorded_config["rig"], "config_file": str(rig_copy)}
-    for section, values in (pipeline or {}).items():
-        recorded_config[section] = {**recorded_config.get(section, {}), **values}
     try:
-        config = recorded_campaign(recorded_config)
+        overrides: dict[str, dict] = {"rig": {"config_file": str(rig_copy)}} if rig_copy is not None else {}
+        for section, values in (pipeline or {}).items():  # the copy, not where the file was; then the pipeline's
+            overrides[section] = {**overrides.get(section, {}), **values}
+        config = recorded_start.campaign_with(overrides) if overrides else recorded_start.campaign
     except ValidationError as error:
         first = error.errors()[0]
         where = ".".join(str(part) for part in first.get("loc", ())) or "config"
@@ -488,15 +494,15 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     configurations = campaign.configurations
     # Re-planning takes ~20 ms a configuration: while the frames replay, unless the new session's start needs it.
     drifting = ThreadPoolExecutor(max_workers=1, thread_name_prefix="plan-drift")
-    drift_future = drifting.submit(plan_drift, config, start["plan"])
+    drift_future = drifting.submit(plan_drift, config, start.plan)
     drifting.shutdown(wait=False)
     drift = drift_future.result() if out_dir is not None else None
-    recorded_rows = {row["config_id"]: row for row in reader.results()}
-    all_measured = {cid for cid, row in recorded_rows.items() if row.get("status") == "measured"}
+    recorded_rows = {row.config_id: row for row in reader.results()}
+    all_measured = {cid for cid, row in recorded_rows.items() if row.status == "measured"}
     not_reproducible, from_detections = reproducibility(reader, all_measured)
     measured = all_measured - set(not_reproducible)  # what is replayed
     # The visits run again (their recorded views fitted again) when the recording made its source from them.
-    viewed = {event.get("config_id") for event in reader.events(kind="calibration_view")}  # one pass over the stream
+    viewed = {event.config_id for event in reader.events(kind=CalibrationViewEvent)}  # one pass over the stream
     visited = {v.config_id for v in campaign.visits if v.config_id in viewed}
     if visited:
         visited.add(PREPARE_ID)
@@ -516,12 +522,12 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
         for subscriber in subscribers:
             bus.subscribe(subscriber)
         if out_dir is not None:
-            bus.publish(Draft(StartDocument, config=config.model_dump(mode="json"), plan=start["plan"],
+            bus.publish(Draft(StartDocument, config=config.model_dump(mode="json"), plan=start.plan,
                               software=software_versions(), bench="replay",
                               numeric_environment=numeric_environment(),
                               extra={"replay_of": str(Path(session_dir).resolve()),
                                      **({"plan_drift": drift} if drift else {})},
-                              **({"design": start["design"]} if start.get("design") else {})))
+                              **({"design": start.design} if start.design else {})))
         options = runner_options(config, reader=reader, visits=campaign.visits)
         # Nothing waits for hardware here: analyse two configurations at once (OpenCV's solvers run
         # single-threaded either way, so the numbers are those of one at a time).
@@ -541,7 +547,7 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
             for cid, row in recorded_rows.items():  # failed and infeasible configurations: as recorded
                 if cid not in all_measured:
                     bus.publish(Draft(ResultDocument, config_id=cid,
-                                      row={k: v for k, v in row.items() if not k.startswith("_")}))
+                                      row={k: v for k, v in row.stored().items() if not k.startswith("_")}))
             bus.publish(Draft(StopDocument, exit_status=status))
     drift = drift_future.result()
     new_rows = {row["config_id"]: row for row in collector.rows}
@@ -564,7 +570,7 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
         if new is None:
             differences.append(f"{cid}: not reproduced")
             continue
-        compared = compare_rows(recorded_rows[cid], new, context)
+        compared = compare_rows(recorded_rows[cid].stored(), new, context)  # both rows as stored
         deviations += compared
         outcome = verdict(compared)
         if outcome == "differs":
@@ -586,15 +592,17 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
                          warnings=_partial_recording(reader))
 
 
-def _recorded_environment(reader: SessionReader, rows: Sequence[dict]) -> dict | None:
+def _recorded_environment(reader: SessionReader, rows: Sequence[ResultRow]) -> dict | None:
     """The numeric environment of the attempt that recorded most of ``rows`` (start: attempt 1, a resume: its
-    own); None when that attempt recorded none (sessions recorded before it was kept)."""
-    by_attempt = {1: reader.start().get("numeric_environment")}
+    own), as recorded (JSON, compared with today's :func:`numeric_environment`); None when that attempt recorded
+    none (sessions recorded before it was kept)."""
+    by_attempt: dict[int, NumericEnvironment | None] = {1: reader.start().numeric_environment}
     for resume in reader.resumes():
-        by_attempt[resume.get("attempt")] = resume.get("numeric_environment")
-    attempts = [row.get("attempt") or 1 for row in rows]
+        by_attempt[resume.attempt] = resume.numeric_environment
+    attempts = [row.attempt or 1 for row in rows]
     attempt = max(set(attempts), key=attempts.count) if attempts else 1
-    return by_attempt.get(attempt)
+    environment = by_attempt.get(attempt)
+    return None if environment is None else json_safe(environment)
 
 
 def _partial_recording(reader: SessionReader) -> list[str]:
@@ -612,12 +620,12 @@ def _model_deviations(reader: SessionReader, model) -> tuple[list[Deviation], st
     from stereo_bench.campaign.extrinsics_run import MODEL_FILE
     from stereo_bench.kinematics import KinematicFileError, model_from_toml
 
-    recorded = [e for e in reader.events(kind="kinematic_model", attempt=None) if e["data"].get("source") == "design"]
+    recorded = [e for e in reader.events(kind=KinematicModelEvent, attempt=None) if e.data.source == "design"]
     if not recorded:
         return [], None, None
-    relative = (recorded[-1].get("files") or {}).get(MODEL_FILE)
+    relative = recorded[-1].files.get(MODEL_FILE)
     if model is None:
-        return [], (f"kinematic model: not fitted again ({recorded[-1]['data'].get('error') or 'no model'})"
+        return [], (f"kinematic model: not fitted again ({recorded[-1].data.error or 'no model'})"
                     if relative else None), None
     if relative is None:
         return [], "kinematic model: fitted again, but the recording holds no model file to compare it with", None
@@ -637,10 +645,10 @@ def _recorded_session_sources(reader: SessionReader) -> list[Draft]:
     for kind, model in (("kinematic_model", KinematicModelEvent), ("intrinsics", IntrinsicsEvent),
                         (RIG_CONFIG_KIND, EventDocument)):
         for event in reader.events(kind=kind, attempt=None):
-            if kind == "kinematic_model" and event["data"].get("source") != "file":
+            if isinstance(event, KinematicModelEvent) and event.data.source != "file":
                 continue
-            files = {name: reader.read_bytes(relative) for name, relative in (event.get("files") or {}).items()}
-            drafts.append(Draft(model, config_id=None, data=event["data"], files=files,
+            files = {name: reader.read_bytes(relative) for name, relative in event.files.items()}
+            drafts.append(Draft(model, config_id=None, data=event.data, files=files,
                                 **({"kind": kind} if model is EventDocument else {})))
     return drafts
 

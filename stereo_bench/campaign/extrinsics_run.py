@@ -19,6 +19,7 @@ calibration a per-config run makes there, whose joint intrinsics carry their cov
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -99,38 +100,39 @@ def session_sources(config) -> list[Draft]:
     return drafts
 
 
-def recorded_sources(reader, *, sources: tuple[str, ...], image_size: tuple[int, int]) -> Prepared:
+def recorded_sources(reader, *, sources: tuple[str, ...], image_size: tuple[int, int],
+                     intrinsics_visits: Sequence[str] = ()) -> Prepared:
     """The kinematic model (from the ``kinematic_model`` events whose source is in ``sources``) and nominal's
     intrinsics (a ``calib_dir`` copy, or the calibration of an intrinsics visit) a recording holds.
 
     A resume takes ``("file", "design")`` (the design is not visited again); a replay ``("file",)`` (it fits
-    the design's recorded views again and must find the recorded model).
+    the design's recorded views again and must find the recorded model). ``intrinsics_visits``: the config ids
+    of the plan's intrinsics visits, whose recorded calibration (with ``"design"`` in ``sources``) is nominal's.
     """
+    from stereo_bench.campaign.documents import CalibrationEvent, IntrinsicsEvent, KinematicModelEvent
     from stereo_bench.campaign.session import SessionError
     from stereo_bench.vision.calibio import read_intrinsics, read_intrinsics_covariance
 
     prepared = Prepared()
-    for event in reader.events(kind="kinematic_model", attempt=None):
-        relative = (event.get("files") or {}).get(MODEL_FILE)
-        if event["data"].get("source") in sources and relative:
+    for event in reader.events(kind=KinematicModelEvent, attempt=None):
+        relative = event.files.get(MODEL_FILE)
+        if event.data.source in sources and relative:
             try:
                 prepared.kinematic_model = model_from_toml(reader.read_bytes(relative).decode("utf-8"),
                                                            str(reader.path(relative)))
             except KinematicFileError as error:
                 raise SessionError(str(error)) from None
-    for event in reader.events(kind="intrinsics", attempt=None):
-        relative = (event.get("files") or {}).get(INTRINSICS_FILE)
+    for event in reader.events(kind=IntrinsicsEvent, attempt=None):
+        relative = event.files.get(INTRINSICS_FILE)
         if relative:
             path = reader.path(relative)
             K1, D1, K2, D2, size = read_intrinsics(path)
             prepared.nominal_intrinsics = _intrinsics_calibration(K1, D1, K2, D2, size or image_size,
                                                                   read_intrinsics_covariance(path))
     if "design" in sources:
-        start = reader.start()
-        visits = [v for v in start.get("design") or [] if v.get("purpose") == "intrinsics"]
-        for visit in visits:
-            if reader.events(kind="calibration", config_id=visit["config_id"], attempt=None):
-                prepared.nominal_intrinsics = reader.calibration(visit["config_id"])
+        for config_id in intrinsics_visits:
+            if reader.events(kind=CalibrationEvent, config_id=config_id, attempt=None):
+                prepared.nominal_intrinsics = reader.calibration(config_id)
     return prepared
 
 

@@ -69,18 +69,17 @@ class RecordedContext:
         :class:`~stereo_bench.campaign.session.SessionReader`; ``refitted_model``: the recorded kinematic
         model when the replay fitted it again (its rows then take the fit's resolution)."""
         heights: dict[str, float] = {}
-        for event in reader.events(kind="measurement_frame"):
-            data = event.get("data") or {}
-            shapes = [(data.get(side) or {}).get("shape") for side in ("left", "right")]
-            rows = [float(shape[0]) for shape in shapes if isinstance(shape, list) and shape]
-            if rows and event.get("config_id"):
-                heights[event["config_id"]] = max(rows + [heights.get(event["config_id"], 0.0)])
+        from stereo_bench.campaign.documents import MeasurementFrameEvent, StructureEvent
+
+        for event in reader.events(kind=MeasurementFrameEvent):
+            rows = [float(frame.shape[0]) for frame in (event.data.left, event.data.right) if frame.shape]
+            if rows and event.config_id:
+                heights[event.config_id] = max(rows + [heights.get(event.config_id, 0.0)])
         sigmas: dict[str, Mapping[str, float]] = {}
-        for event in reader.events(kind="structure"):
-            data = event.get("data") or {}
-            used = (data.get("sources") or {}).get(data.get("used")) or {}
-            if isinstance(used.get("structure_sigma"), dict) and event.get("config_id"):
-                sigmas[event["config_id"]] = used["structure_sigma"]
+        for event in reader.events(kind=StructureEvent):
+            used = event.data.sources.get(event.data.used)
+            if used is not None and used.structure_sigma is not None and event.config_id:
+                sigmas[event.config_id] = used.structure_sigma
         return cls(image_height_px=heights, default_image_height_px=float(config.cameras.optics.height_px),
                    target_corners=config.target.build().n_corners,
                    calibration_corners=config.calibration_board.build().n_corners, structure_sigma=sigmas,

@@ -44,11 +44,11 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -66,6 +66,7 @@ from stereo_bench.campaign.documents import (
     Draft,
     EventDocument,
     ResultDocument,
+    ResultRow,
     ResumeDocument,
     StartDocument,
     StopDocument,
@@ -76,6 +77,7 @@ from stereo_bench.campaign.documents import (
     parse_document,
     result_row,
 )
+from stereo_bench.campaign.router import DocumentRouter
 from stereo_bench.campaign.store import (
     CSV_FILE,
     STORE_FILE,
@@ -93,6 +95,9 @@ from stereo_bench.vision.rectify import Rectification
 DOCUMENTS_FILE = "documents.jsonl"
 RECOVERED_DIR = "recovered"
 SESSION_LEVEL = "_session"  # the directory of side files of events that belong to no configuration
+
+D = TypeVar("D", bound=Document)
+E = TypeVar("E", bound=EventDocument)
 
 _ATTEMPT_DIR = re.compile(r"a(\d+)(?:-\d+)?")
 _ATTEMPT_IN_NAME = re.compile(r"-a(\d+)(?:\.|$)")
@@ -266,8 +271,8 @@ class SessionReader:
     def __init__(self, directory: str | Path):
         self.directory = Path(directory)
         self.documents_path = self.directory / DOCUMENTS_FILE
-        self._documents: list[dict] | None = None
-        self._typed: list[Document] = []
+        self._documents: list[Document] | None = None
+        self._lines: dict[int, int] = {}  # id(document) -> its line, for messages
         self._torn: TornLine | None = None
         self._frame_directories: dict[PurePosixPath, Path] = {}  # see frame()
 
@@ -282,8 +287,9 @@ class SessionReader:
         except paths.OutsideRoot as error:
             raise SessionError(f"{self.documents_path}: refused: {error}") from None
         parsed = parse_stream(self.documents_path)
-        self._documents = parsed.documents
-        self._typed = parsed.typed
+        self._documents = parsed.typed
+        self._lines = {id(document): raw["_line"] for document, raw in zip(parsed.typed, parsed.documents,
+                                                                            strict=True)}
         self._torn = parsed.torn
         return self
 
@@ -293,11 +299,15 @@ class SessionReader:
         self._docs()
         return self._torn
 
-    def _docs(self) -> list[dict]:
+    def _docs(self) -> list[Document]:
         if self._documents is None:
             self.reload()
         assert self._documents is not None
         return self._documents
+
+    def line(self, document: Document) -> int | None:
+        """The line of ``documents.jsonl`` that holds ``document`` (one this reader read), for messages."""
+        return self._lines.get(id(document))
 
     @property
     def warnings(self) -> list[str]:
@@ -308,81 +318,83 @@ class SessionReader:
         return [f"{self.documents_path} line {torn.line}: torn last line ({len(torn.data)} bytes) "
                 "ignored: the writer was interrupted mid-write"]
 
-    # -- documents ---------------------------------------------------------------------------------
-    def documents(self, type: str | None = None) -> list[dict]:
-        """The documents as recorded (JSON objects), optionally of one type."""
-        return [_strip(doc) for doc in self._docs() if type is None or doc["type"] == type]
+    # -- documents: typed (stereo_bench.campaign.documents), in stream order ----------------------------
+    def documents(self, model: type[D] = Document) -> list[D]:
+        """The documents parsed into their models, optionally of one model (and its subclasses), e.g.
+        ``reader.documents(MoveEvent)``, ``reader.documents(ResumeDocument)``."""
+        return [doc for doc in self._docs() if isinstance(doc, model)]
 
-    def parsed(self, model: type[Document] = Document) -> list[Document]:
-        """The documents parsed into their models (:mod:`stereo_bench.campaign.documents`), optionally of one
-        model, e.g. ``reader.parsed(MoveEvent)``."""
-        self._docs()
-        return [doc for doc in self._typed if isinstance(doc, model)]
-
-    def start(self) -> dict:
+    def start(self) -> StartDocument:
         docs = self._docs()
         if not docs:
             raise SessionError(f"{self.documents_path}: no start document (the session stopped before it began)")
-        return _strip(docs[0])
+        start = docs[0]
+        assert isinstance(start, StartDocument)  # parse_stream refuses a stream that does not begin with one
+        return start
 
-    def resumes(self) -> list[dict]:
-        return self.documents("resume")
+    def resumes(self) -> list[ResumeDocument]:
+        return self.documents(ResumeDocument)
 
-    def stops(self) -> list[dict]:
-        return self.documents("stop")
+    def stops(self) -> list[StopDocument]:
+        return self.documents(StopDocument)
 
     def attempts(self) -> list[int]:
-        return [doc["attempt"] for doc in self._docs() if doc["type"] in ("start", "resume")]
+        return [doc.attempt for doc in self.documents() if isinstance(doc, StartDocument | ResumeDocument)]
 
     def status(self) -> str:
         """The exit status of the last attempt, or ``"incomplete"`` if it has no 'stop' (a crash)."""
         status = "incomplete"
         for doc in self._docs():
-            if doc["type"] in ("start", "resume"):
+            if isinstance(doc, StartDocument | ResumeDocument):
                 status = "incomplete"
-            elif doc["type"] == "stop":
-                status = str(doc.get("exit_status"))
+            elif isinstance(doc, StopDocument):
+                status = str(doc.exit_status)
         return status
 
     def events(
-        self, config_id: str | None = None, kind: str | None = None, attempt: int | str | None = "last",
-    ) -> list[dict]:
-        """Event documents, optionally of one configuration and/or kind.
+        self, config_id: str | None = None, kind: str | type[E] | None = None, attempt: int | str | None = "last",
+    ) -> list[E]:
+        """Event documents, optionally of one configuration and/or kind (its name or its model, e.g.
+        ``kind=MoveEvent``).
 
         ``attempt="last"``: per configuration, only the events of the attempt that produced its last
         result (or, without a result, of its last attempt) — what a replay should play back.
         ``attempt=None``: every attempt; an int: that attempt.
         """
         docs = self._docs()
-        events = [doc for doc in docs if doc["type"] == "event"
-                  and (config_id is None or doc.get("config_id") == config_id)]
+        events = [doc for doc in docs if isinstance(doc, EventDocument)
+                  and (config_id is None or doc.config_id == config_id)]
         if attempt == "last":
             chosen: dict[str | None, int] = {}
             for doc in events:
-                chosen[doc.get("config_id")] = max(chosen.get(doc.get("config_id"), 0), doc["attempt"])
+                chosen[doc.config_id] = max(chosen.get(doc.config_id, 0), doc.attempt)
             for doc in docs:
-                if doc["type"] == "result" and (config_id is None or doc["config_id"] == config_id):
-                    chosen[doc["config_id"]] = doc["attempt"]
-            events = [doc for doc in events if doc["attempt"] == chosen[doc.get("config_id")]]
+                if isinstance(doc, ResultDocument) and (config_id is None or doc.config_id == config_id):
+                    chosen[doc.config_id] = doc.attempt
+            events = [doc for doc in events if doc.attempt == chosen[doc.config_id]]
         elif attempt is not None:
-            events = [doc for doc in events if doc["attempt"] == attempt]
-        return [_strip(doc) for doc in events if kind is None or doc.get("kind") == kind]
+            events = [doc for doc in events if doc.attempt == attempt]
+        if kind is None or isinstance(kind, str):
+            return [doc for doc in events if kind is None or doc.kind == kind]
+        return [doc for doc in events if isinstance(doc, kind)]  # a model, or a union of models
 
     def transcripts(self) -> dict[str, list[str]]:
         """Relative paths of the recorded transcripts, by name, one per attempt in order."""
         out: dict[str, list[str]] = {}
-        for doc in self._docs():
-            if doc["type"] == "event" and doc.get("kind") == "transcript":
-                for name, relative in (doc.get("files") or {}).items():
-                    out.setdefault(name, []).append(relative)
+        for doc in self.documents(TranscriptEvent):
+            for name, relative in doc.files.items():
+                out.setdefault(name, []).append(relative)
         return out
 
-    def results(self) -> list[dict]:
+    def results(self) -> list[ResultRow]:
         """The last result row of each configuration, in order of first appearance."""
-        return [dict(row) for row in _last_results(self._docs())]
+        rows: dict[str, ResultRow] = {}
+        for doc in self.documents(ResultDocument):
+            rows[doc.config_id] = doc.row
+        return list(rows.values())
 
     def completed_config_ids(self) -> set[str]:
-        return _completed(self._docs())
+        return {doc.config_id for doc in self.documents(ResultDocument)}
 
     # -- side files --------------------------------------------------------------------------------
     def path(self, relative: str) -> Path:
@@ -457,14 +469,13 @@ class SessionReader:
 
     def calibration(self, config_id: str) -> StereoCalibration:
         """The calibration of ``config_id`` recorded last (its 'calibration' event)."""
-        events = [doc for doc in self._docs() if doc["type"] == "event" and doc.get("kind") == "calibration"
-                  and doc.get("config_id") == config_id]
+        events = self.events(config_id, CalibrationEvent, attempt=None)
+        events = [doc for doc in events if doc.config_id == config_id]
         if not events:
             raise SessionError(f"{self.documents_path}: no calibration recorded for configuration {config_id!r}")
-        files = events[-1].get("files") or {}
-        relative = files.get("intrinsics") if isinstance(files, dict) else None
+        relative = events[-1].files.get("intrinsics")
         if not isinstance(relative, str):
-            raise SessionError(f"{self.documents_path} line {events[-1]['_line']}: calibration event lists no "
+            raise SessionError(f"{self.documents_path} line {self.line(events[-1])}: calibration event lists no "
                                "'intrinsics' file")
         directory = PurePosixPath(relative).parent
         # read_calibration opens both files of the directory: each is checked, not only the one the event names
@@ -572,7 +583,7 @@ class SessionWriter:
         self._fd: int | None = None
         self._size = 0
         self._next_seq = 0
-        self._recorded_start: dict | None = None
+        self._recorded_start: StartDocument | None = None
         self._previous_attempt = 0
         self._completed: set[str] = set()
         self._started = False
@@ -584,6 +595,7 @@ class SessionWriter:
         self._began_stream = False  # this writer created documents.jsonl (a new session): discard() may remove it
         self._transcripts: dict[str, str] = {}
         self._pending_transcripts: list[str] = []
+        self._recorders = self._recorders_by_model()
 
     # -- lifecycle ---------------------------------------------------------------------------------
     def open(self) -> SessionWriter:
@@ -655,7 +667,7 @@ class SessionWriter:
             recovery["newline_added"] = True
         self._size = os.fstat(self._fd).st_size
         self._next_seq = 1 + max((doc["seq"] for doc in docs if isinstance(doc.get("seq"), int)), default=-1)
-        self._recorded_start = _strip(docs[0]) if docs else None
+        self._recorded_start = parsed.typed[0] if parsed.typed else None  # a StartDocument (parse_stream)
         self._completed = _completed(docs)
         removed = self._remove_temp_files()
         if removed:
@@ -845,20 +857,26 @@ class SessionWriter:
         A draft that does not follow its schema raises :class:`SessionError` before anything is written.
         """
         try:
-            if draft.model is StartDocument:
-                return self._record_start(draft)
-            self._require_started()
-            if draft.model is ResultDocument:
-                return [self._record_result(draft)]
-            if draft.model is StopDocument:
-                return [self._record_stop(draft)]
-            if draft.model is CalibrationEvent:
-                return [self._record_calibration(draft)]
-            if issubclass(draft.model, EventDocument):
-                return [self._record_event(draft)]
+            return self._recorders.handler(draft.model)(draft)
         except DocumentError as error:
             raise SessionError(f"cannot record: {error}") from None
-        raise SessionError(f"cannot record a {draft.model.__name__}: start, event, result or stop only")
+
+    def _recorders_by_model(self) -> DocumentRouter:
+        """How each draft is recorded, by its model (:meth:`record` routes ``draft.model`` through it)."""
+        def started(record: Callable[[Draft], Document]) -> Callable[[Draft], list[Document]]:
+            def after_start(draft: Draft) -> list[Document]:
+                self._require_started()
+                return [record(draft)]
+            return after_start
+
+        def refuse(draft: Draft) -> list[Document]:
+            self._require_started()
+            raise SessionError(f"cannot record a {draft.model.__name__}: start, event, result or stop only")
+
+        router = DocumentRouter().on(StartDocument, self._record_start).on(ResultDocument, started(self._record_result))
+        router.on(StopDocument, started(self._record_stop)).on(CalibrationEvent, started(self._record_calibration))
+        router.on(EventDocument, started(self._record_event)).default = refuse
+        return router
 
     def _write(self, document: Document) -> Document:
         self._append(document_json(document))
@@ -913,13 +931,14 @@ class SessionWriter:
                                              **({"recovery": self.recovery} if self.recovery else {}))
         else:
             for name, value in (("config", config), ("plan", plan)):
-                difference = first_difference(recorded.get(name), value, name)
+                difference = first_difference(getattr(recorded, name), value, name)
                 if difference:
                     raise SessionError(f"{self.documents_path}: cannot resume with a different {name}: {difference}")
             document = Draft(ResumeDocument, software=software, extra=extra).build(
                 self._header("resume", self._next_seq), schema_version=SCHEMA_VERSION, uid=uuid.uuid4().hex,
-                start_uid=recorded.get("uid"), previous_attempt=self._previous_attempt, host=host,
+                start_uid=recorded.uid, previous_attempt=self._previous_attempt, host=host,
                 completed=sorted(self._completed), recovery=self.recovery,
+                bench=recorded.bench, config=recorded.config, plan=recorded.plan, results=self.reader().results(),
                 **({"plan_drift": plan_drift} if plan_drift else {}),
                 **({"numeric_environment": environment} if environment is not None else {}))
         self._reserve_seq()
@@ -1100,9 +1119,9 @@ class SessionWriter:
         return set(self._completed)
 
     @property
-    def recorded_start(self) -> dict | None:
+    def recorded_start(self) -> StartDocument | None:
         """The start document of the session being resumed (None for a new session)."""
-        return None if self._recorded_start is None else dict(self._recorded_start)
+        return self._recorded_start
 
     def reader(self) -> SessionReader:
         """A reader of this session as recorded so far."""

@@ -197,7 +197,7 @@ class ResultStore:
         "dropped": [rows]}`` — a dropped row (in the store, not in the stream) is returned whole so the
         caller can record it; nothing disappears silently.
         """
-        rows = source.results() if hasattr(source, "results") else list(source)
+        rows = [row.stored() for row in source.results()] if hasattr(source, "results") else list(source)
         wanted: dict[str, dict[str, Any]] = {}
         for row in rows:
             clean = normalise_row(row)

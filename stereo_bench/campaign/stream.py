@@ -31,6 +31,7 @@ from stereo_bench.campaign.documents import (
     StopDocument,
     result_row,
 )
+from stereo_bench.campaign.router import DocumentRouter, handles
 from stereo_bench.campaign.session import encode_document, utc_now
 
 Subscriber = Callable[[Document], None]
@@ -64,26 +65,42 @@ class MemoryRecorder:
         return draft  # frames are not kept: nothing to encode
 
     def record(self, draft: Draft) -> list[Document]:
+        build = _MEMORY_RECORDERS.handler(draft.model)  # before a seq is taken: a model it cannot record takes none
         with self._lock:
             header = {"type": draft.type, "seq": self._seq, "time": utc_now(), "monotonic": time.monotonic(),
                       "attempt": self.attempt}
             self._seq += 1
-        if draft.model is StartDocument:
-            document = draft.build(header, schema_version=0, uid="memory", host={"hostname": "memory", "pid": 0})
-        elif draft.model is ResultDocument:
-            row = {"attempt": self.attempt, **result_row(draft.fields["row"]).stored()}
-            row.setdefault("time", header["time"])
-            document = draft.build(header, row=row)
-            self.rows[document.config_id] = document.row.stored()
-        elif draft.model is StopDocument:
-            document = draft.build(header, completed=len(self.rows))
-        elif draft.model is CalibrationEvent:
-            document = draft.build(header, data=draft.calibration.data())  # no files: nothing is written
-        elif issubclass(draft.model, EventDocument):
-            document = draft.build(header)  # frames and files are not kept
-        else:
-            raise TypeError(f"cannot record a {draft.model.__name__}")
-        return [document]
+        return [build(self, draft, header)]
+
+    def _start(self, draft: Draft, header: dict) -> Document:
+        return draft.build(header, schema_version=0, uid="memory", host={"hostname": "memory", "pid": 0})
+
+    def _result(self, draft: Draft, header: dict) -> Document:
+        row = {"attempt": self.attempt, **result_row(draft.fields["row"]).stored()}
+        row.setdefault("time", header["time"])
+        document = draft.build(header, row=row)
+        self.rows[document.config_id] = document.row.stored()
+        return document
+
+    def _stop(self, draft: Draft, header: dict) -> Document:
+        return draft.build(header, completed=len(self.rows))
+
+    def _calibration(self, draft: Draft, header: dict) -> Document:
+        return draft.build(header, data=draft.calibration.data())  # no files: nothing is written
+
+    def _event(self, draft: Draft, header: dict) -> Document:
+        return draft.build(header)  # frames and files are not kept
+
+
+def _cannot_record(recorder: MemoryRecorder, draft: Draft, header: dict) -> Document:
+    raise TypeError(f"cannot record a {draft.model.__name__}")
+
+
+#: How a MemoryRecorder records each draft, by its model (handlers take the recorder, the draft and its header).
+_MEMORY_RECORDERS = DocumentRouter()
+_MEMORY_RECORDERS.on(StartDocument, MemoryRecorder._start).on(ResultDocument, MemoryRecorder._result)
+_MEMORY_RECORDERS.on(StopDocument, MemoryRecorder._stop).on(CalibrationEvent, MemoryRecorder._calibration)
+_MEMORY_RECORDERS.on(EventDocument, MemoryRecorder._event).default = _cannot_record
 
 
 class DocumentBus:
@@ -140,13 +157,15 @@ class DocumentBus:
         return documents
 
 
-class JsonLines:
-    """A subscriber that writes each document as one JSON line (``campaign run --json``)."""
+class JsonLines(DocumentRouter):
+    """A subscriber that writes each document as one JSON line (``campaign run --json``): every model alike."""
 
     def __init__(self, stream: IO[str]):
+        super().__init__()
         self.stream = stream
 
-    def __call__(self, document: Document) -> None:
+    @handles(Document)
+    def line(self, document: Document) -> None:
         self.stream.write(encode_document(document).decode("utf-8"))
         self.stream.flush()
 

@@ -112,10 +112,16 @@ def _format_row(row: dict) -> str:
 
 
 class Progress:
-    """A subscriber: a progress bar over the configurations and one line per result (stderr)."""
+    """A subscriber: a progress bar over the configurations and one line per result (stderr); a document router."""
 
     def __init__(self, total: int, name: str, *, quiet: bool):
         from tqdm import tqdm
+
+        from stereo_bench.campaign.documents import MoveEvent, PromptEvent, ResultDocument, ResumeDocument
+        from stereo_bench.campaign.router import DocumentRouter
+
+        self._router = (DocumentRouter().on(ResumeDocument, self._resumed).on(MoveEvent, self._moved)
+                        .on(PromptEvent, self._prompted).on(ResultDocument, self._result))
 
         self._tqdm = tqdm
         self.quiet = quiet
@@ -125,19 +131,23 @@ class Progress:
                         desc=name, file=sys.stderr)
 
     def __call__(self, document) -> None:
-        from stereo_bench.campaign.documents import MoveEvent, PromptEvent, ResultDocument, ResumeDocument
+        self._router(document)
 
-        if isinstance(document, ResumeDocument):
-            self.bar.update(len(document.completed))
-        elif isinstance(document, MoveEvent):
-            rig = document.data.rig
-            self.bar.set_postfix_str(f"at {document.config_id}: B {rig.baseline_mm:g} mm")
-        elif isinstance(document, PromptEvent) and document.data.answered_by != "simulator":
+    def _resumed(self, document) -> None:
+        self.bar.update(len(document.completed))
+
+    def _moved(self, document) -> None:
+        rig = document.data.rig
+        self.bar.set_postfix_str(f"at {document.config_id}: B {rig.baseline_mm:g} mm")
+
+    def _prompted(self, document) -> None:
+        if document.data.answered_by != "simulator":
             self.bar.set_postfix_str(f"{document.data.prompt} done by {document.data.answered_by}")
-        elif isinstance(document, ResultDocument):
-            self.bar.update(1)
-            if not self.quiet:
-                self._tqdm.write(_format_row(document.row.stored()), file=sys.stderr)
+
+    def _result(self, document) -> None:
+        self.bar.update(1)
+        if not self.quiet:
+            self._tqdm.write(_format_row(document.row.stored()), file=sys.stderr)
 
     def write(self, text: str) -> None:
         self._tqdm.write(text, file=sys.stderr)

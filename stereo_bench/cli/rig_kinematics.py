@@ -124,6 +124,7 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
     """``rig calibrate-kinematics`` with its own options ``argv``; ``port``/``rig_config``: the rig group's."""
     from drivers.camera.base import CameraError
     from drivers.rig.config import RigError
+    from stereo_bench.campaign.documents import KinematicModelEvent
     from stereo_bench.campaign.execute import CampaignPlan, RunControl, run_campaign
     from stereo_bench.campaign.extrinsics_run import recorded_sources
     from stereo_bench.campaign.session import SessionReader
@@ -171,7 +172,7 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
     size = (optics.width_px, optics.height_px)
     model = recorded_sources(reader, sources=("design",), image_size=size).kinematic_model
     if model is None:
-        errors = [e["data"].get("error") for e in reader.events(kind="kinematic_model", attempt=None)]
+        errors = [e.data.error for e in reader.events(kind=KinematicModelEvent, attempt=None)]
         raise CliError(f"kinematic fit failed: {errors[-1] if errors else 'no model recorded'} (session {args.out})",
                        exit_code=1)
     save_model(model, model_path)

@@ -14,9 +14,10 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.coverage import Coverage
 from stereo_bench.campaign.documents import (
     AnalysisEvent,
@@ -39,6 +40,9 @@ from stereo_bench.campaign.documents import (
     TargetNotFoundEvent,
     TranscriptEvent,
 )
+from stereo_bench.campaign.plan import Configuration
+from stereo_bench.campaign.recorded import RecordedStart
+from stereo_bench.campaign.router import DocumentRouter, handles
 from stereo_bench.live.transcript import TranscriptTail
 
 #: Result columns the page shows (the uncertainty columns when a row has them).
@@ -49,31 +53,29 @@ PLAN_QUANTITIES = ("baseline_mm", "distance_mm", "alpha_deg", "tilt_deg")
 FINAL = ("measured", "failed", "infeasible", "limit")
 
 
-def varying_quantities(plan: list[dict]) -> list[str]:
+def varying_quantities(configurations: Sequence[Configuration]) -> list[str]:
     """The plan's quantities that take more than one value, most values first (the plot's x, then series)."""
-    counts = {q: len({entry.get(q) for entry in plan}) for q in PLAN_QUANTITIES}
+    counts = {q: len({getattr(c, q) for c in configurations}) for q in PLAN_QUANTITIES}
     return [q for q in sorted(counts, key=lambda q: -counts[q]) if counts[q] > 1]
 
 
-def configuration_estimates_s(config_json: dict, plan: list[dict]) -> dict[str, float]:
+def configuration_estimates_s(config: CampaignConfig, configurations: list[Configuration]) -> dict[str, float]:
     """The plan's predicted duration per configuration (motion, settle, frames, operator; no computation)."""
-    from stereo_bench.campaign.config import CampaignConfig
-    from stereo_bench.campaign.plan import Configuration, estimate_duration, plan_steps
+    from stereo_bench.campaign.plan import estimate_duration, plan_steps
     from stereo_bench.campaign.runner import group_steps
 
-    config = CampaignConfig.model_validate(config_json)
-    configurations = [Configuration.from_dict(entry) for entry in plan]
     steps = plan_steps(config, configurations)
     return {config_id: estimate_duration(config, configurations, group).total_s
             for config_id, group in group_steps(steps)}
 
 
-class LiveState:
-    """The page's state; call it with every document (a DocumentBus subscriber). Thread-safe."""
+class LiveState(DocumentRouter):
+    """The page's state; call it with every document (a DocumentBus subscriber, a router). Thread-safe."""
 
     def __init__(self, *, session_dir: Path | None = None, rig_config=None, boards: dict | None = None,
                  image_size: tuple[int, int] | None = None, name: str = "", on_change: Callable[[], None] = None,
                  clock: Callable[[], float] = time.monotonic):
+        super().__init__()
         self.session_dir = None if session_dir is None else Path(session_dir)
         self.boards = boards or {}
         self.image_size = image_size
@@ -112,47 +114,68 @@ class LiveState:
 
     def __call__(self, document: Document) -> None:
         with self._lock:
-            handler = _HANDLERS.get(type(document))
-            if handler is not None:
-                handler(self, document)
+            super().__call__(document)
             self.version += 1
         self.on_change()
 
+    @handles(StartDocument)
     def _start(self, doc: StartDocument) -> None:
-        self.run.update(name=doc.config.get("name", self.run["name"]), bench=doc.bench, status="running",
-                        attempt=doc.attempt)
-        self._set_plan(doc.config, doc.plan)
-        views = doc.config.get("capture", {}).get("calibration_views")
-        self.views_expected = int(views) if views else 0
+        self.run.update(bench=doc.bench, status="running", attempt=doc.attempt)
+        self._started(doc)
         self._attempt_started = self.clock()
 
+    @handles(ResumeDocument)
     def _resume(self, doc: ResumeDocument) -> None:
         """A resumed session: the plan and the earlier results are in the session (not re-sent on the bus)."""
         self.run.update(status="running", attempt=doc.attempt)
         self._attempt_started = self.clock()
-        if self.session_dir is None:
-            return
-        from stereo_bench.campaign.session import SessionReader
+        if doc.config is not None and doc.plan is not None:  # the resume carries what the page shows
+            self.run.update(bench=doc.bench)
+            self._started_with(RecordedStart.of_resume(doc))
+            rows = doc.results or []
+        elif self.session_dir is not None:  # a resume recorded before it carried them: the session on disk
+            from stereo_bench.campaign.session import SessionReader
 
-        reader = SessionReader(self.session_dir)
-        start = reader.start()
-        self.run.update(name=start["config"].get("name", self.run["name"]), bench=start.get("bench"))
-        self._set_plan(start["config"], start["plan"])
-        self.views_expected = int(start["config"].get("capture", {}).get("calibration_views") or 0)
-        for row in reader.results():
-            self._result_row(row)
+            reader = SessionReader(self.session_dir)
+            start = reader.start()
+            self.run.update(bench=start.bench)
+            self._started(start)
+            rows = reader.results()
+        else:
+            return
+        for row in rows:
+            self._result_row(row.stored())
         self._note(f"resumed (attempt {doc.attempt}): {len(doc.completed)} configurations already complete")
 
-    def _set_plan(self, config: dict, plan: list[dict]) -> None:
-        self.plan = [{key: entry.get(key) for key in ("config_id", *PLAN_QUANTITIES, "toe_in_deg", "runnable",
-                                                        "feasible", "reason", "status")} for entry in plan]
-        self.varying = varying_quantities(plan)
-        self.status = {entry["config_id"]: "pending" for entry in plan}
+    def _started(self, start: StartDocument) -> None:
+        self._started_with(RecordedStart.of(start))
+
+    def _started_with(self, recorded: RecordedStart) -> None:
+        """The recorded config and plan: the run's name, the plan, the calibration views to expect."""
         try:
-            self.estimates_s = configuration_estimates_s(config, plan)
+            config = recorded.campaign
+        except ValueError:  # a config this version does not validate: no name, no views count, no ETA
+            config = None
+        if config is not None and config.name:
+            self.run["name"] = config.name
+        try:
+            configurations = recorded.configurations
+        except (KeyError, TypeError, ValueError):  # a plan this version does not read: no plan, no ETA
+            configurations = []
+        self._set_plan(config, configurations)
+        self.views_expected = int(config.capture.calibration_views or 0) if config is not None else 0
+
+    def _set_plan(self, config: CampaignConfig | None, configurations: list[Configuration]) -> None:
+        self.plan = [{key: getattr(c, key) for key in ("config_id", *PLAN_QUANTITIES, "toe_in_deg", "runnable",
+                                                       "feasible", "reason", "status")} for c in configurations]
+        self.varying = varying_quantities(configurations)
+        self.status = {c.config_id: "pending" for c in configurations}
+        try:
+            self.estimates_s = configuration_estimates_s(config, configurations) if config is not None else {}
         except Exception:  # noqa: BLE001 - e.g. a rig config file missing on this machine: no plan-based ETA
             self.estimates_s = {}
 
+    @handles(TranscriptEvent)
     def _transcript(self, doc: TranscriptEvent) -> None:
         relative = doc.files.get(doc.data.name)
         if relative is None or self.session_dir is None:
@@ -179,12 +202,15 @@ class LiveState:
         else:
             self.step = "homed"
 
+    @handles(HomeEvent)
     def _home(self, doc: HomeEvent) -> None:
         self._rig_reading(doc, "home")
 
+    @handles(MoveEvent)
     def _move(self, doc: MoveEvent) -> None:
         self._rig_reading(doc, "move")
 
+    @handles(ApproachEvent)
     def _approach(self, doc: ApproachEvent) -> None:
         self._rig_reading(doc, "approach")
         self.step = f"{doc.config_id}: approaching as the plan did (backlash)"
@@ -197,6 +223,7 @@ class LiveState:
         if self.status.get(config_id) == "pending":
             self.status[config_id] = "running"
 
+    @handles(CalibrationViewEvent)
     def _calibration_view(self, doc: CalibrationViewEvent) -> None:
         config_id, index = doc.config_id, doc.data.index
         self._running(config_id)
@@ -211,6 +238,7 @@ class LiveState:
         board = self.boards.get("calibration")
         self.coverage = Coverage(self.image_size, board) if board is not None and self.image_size else None
 
+    @handles(CalibrationViewDiscardedEvent)
     def _discarded(self, doc: CalibrationViewDiscardedEvent) -> None:
         index = doc.data.index
         if self.coverage_config == doc.config_id:
@@ -222,15 +250,18 @@ class LiveState:
                 self.views_taken.reverse()
         self._note(f"{doc.config_id}: calibration view {index + 1} discarded by {doc.data.answered_by}")
 
+    @handles(MeasurementFrameEvent)
     def _measurement_frame(self, doc: MeasurementFrameEvent) -> None:
         self._running(doc.config_id)
         retry = f" (again, {doc.data.retry})" if doc.data.retry else ""
         self.step = f"{doc.config_id}: measurement frame {doc.data.index + 1}{retry}"
 
+    @handles(TargetNotFoundEvent)
     def _target_not_found(self, doc: TargetNotFoundEvent) -> None:
         self._note(f"{doc.config_id}: target not found in {' and '.join(doc.data.missing)} "
                    f"(frame {doc.data.index + 1}, capture {doc.data.retry + 1})", level="warn")
 
+    @handles(PromptEvent)
     def _prompt_answered(self, doc: PromptEvent) -> None:
         data = doc.data
         if data.quantity is not None and data.value is not None:  # set by hand: what the operator confirmed
@@ -239,6 +270,7 @@ class LiveState:
         if data.answered_by != "simulator":
             self._note(f"{data.prompt.replace('_', ' ')} done by {data.answered_by}{how} after {data.waited_s:.1f} s")
 
+    @handles(CalibrationEvent)
     def _calibrated(self, doc: CalibrationEvent) -> None:
         if doc.config_id is None:
             return
@@ -246,6 +278,7 @@ class LiveState:
                             "baseline_mm": doc.data.baseline_mm, "views_used": doc.data.views_used,
                             "per_view": [], "rejected": []}
 
+    @handles(AnalysisEvent)
     def _analysis(self, doc: AnalysisEvent) -> None:
         calibration = doc.data.calibration
         used = calibration.get("views_used") or []
@@ -259,6 +292,7 @@ class LiveState:
         entry["rejected"] = list(calibration.get("views_rejected") or [])
         entry["epipolar_rms_px"] = calibration.get("epipolar_rms_px")
 
+    @handles(ResultDocument)
     def _result(self, doc: ResultDocument) -> None:
         row = doc.row.stored()
         self._result_row(row)
@@ -274,17 +308,20 @@ class LiveState:
         if row.get("reason"):
             self.reasons[config_id] = row["reason"]
 
+    @handles(RunControlEvent)
     def _run_control(self, doc: RunControlEvent) -> None:
         self.paused = doc.data.action == "pause"
         self.run["status"] = "paused" if self.paused else "running"
         held = " (the move in progress feed-held)" if doc.data.feed_hold else ""
         self._note(f"{'paused' + held if self.paused else 'resumed'}")
 
+    @handles(RigRecoveredEvent, RigUnrecoverableEvent)
     def _rig_note(self, doc) -> None:
         text = doc.data.action if isinstance(doc, RigRecoveredEvent) else f"rig unrecoverable: {doc.data.error}"
         self.rig_events.append(text)
         self._note(text, level="warn" if isinstance(doc, RigRecoveredEvent) else "error")
 
+    @handles(StopDocument)
     def _stop(self, doc: StopDocument) -> None:
         self.run.update(status=doc.exit_status, reason=doc.reason, resume_command=doc.resume_command)
         self.paused = False
@@ -411,13 +448,3 @@ def _side(error, side: int) -> float | None:
     return error
 
 
-_HANDLERS: dict[type, Callable] = {
-    StartDocument: LiveState._start, ResumeDocument: LiveState._resume, TranscriptEvent: LiveState._transcript,
-    HomeEvent: LiveState._home, MoveEvent: LiveState._move, ApproachEvent: LiveState._approach,
-    CalibrationViewEvent: LiveState._calibration_view,
-    CalibrationViewDiscardedEvent: LiveState._discarded, MeasurementFrameEvent: LiveState._measurement_frame,
-    TargetNotFoundEvent: LiveState._target_not_found, PromptEvent: LiveState._prompt_answered,
-    CalibrationEvent: LiveState._calibrated, AnalysisEvent: LiveState._analysis, ResultDocument: LiveState._result,
-    RunControlEvent: LiveState._run_control, RigRecoveredEvent: LiveState._rig_note,
-    RigUnrecoverableEvent: LiveState._rig_note, StopDocument: LiveState._stop,
-}

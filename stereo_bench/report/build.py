@@ -676,7 +676,7 @@ def _build_into(tmp: Path, destination: Path, sessions: list[SessionReport], war
                                                     warnings=warnings, structural=structural))
         manifest = {
             "kind": REPORT_KIND, "stereo_bench": __version__, "generated": generated,
-            "sessions": [{"directory": str(s.directory), "name": s.name, "key": s.key, "uid": s.start.get("uid"),
+            "sessions": [{"directory": str(s.directory), "name": s.name, "key": s.key, "uid": s.start.uid,
                           "exit_status": s.status, "counts": status_counts(s.rows)} for s in sessions],
             "files": sorted(writer.files), "warnings": warnings,
         }

@@ -31,14 +31,26 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
 
-from stereo_bench.campaign.config import EXTRINSICS_MODES, CampaignConfig, recorded_campaign
+from stereo_bench.campaign.config import EXTRINSICS_MODES, CampaignConfig
+from stereo_bench.campaign.documents import (
+    AnalysisEvent,
+    CalibrationEvent,
+    EventDocument,
+    MeasurementFrameEvent,
+    StartDocument,
+    StructureEvent,
+    TruthEvent,
+)
 from stereo_bench.campaign.extrinsics import SOURCES
+from stereo_bench.campaign.recorded import RecordedStart
+from stereo_bench.campaign.router import DocumentRouter, handles
 from stereo_bench.campaign.session import SessionError, SessionReader
 from stereo_bench.geometry import RigPose, stereo_structure
 from stereo_bench.report.tables import NOT_RUN, with_plan
@@ -169,7 +181,7 @@ class SessionReport:
     key: str  # file-name-safe and unique within the report, e.g. 's1-paper-exp1'
     directory: Path
     reader: SessionReader
-    start: dict
+    start: StartDocument
     config: CampaignConfig | None
     status: str  # exit status of the last attempt, or 'incomplete'
     configs: list[ConfigReport]
@@ -177,11 +189,11 @@ class SessionReport:
 
     @property
     def name(self) -> str:
-        return str((self.start.get("config") or {}).get("name") or self.directory.name)
+        return str(self.start.config.get("name") or self.directory.name)
 
     @property
     def description(self) -> str:
-        return str((self.start.get("config") or {}).get("description") or "")
+        return str(self.start.config.get("description") or "")
 
     @property
     def rows(self) -> list[dict]:
@@ -193,9 +205,9 @@ def safe_key(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_-]+", "-", text).strip("-") or "session"
 
 
-def _load_config(reader: SessionReader, start: dict) -> tuple[CampaignConfig | None, str | None]:
+def _load_config(reader: SessionReader, start: StartDocument) -> tuple[CampaignConfig | None, str | None]:
     try:
-        return recorded_campaign(start.get("config") or {}), None
+        return RecordedStart.of(start).campaign, None
     except ValidationError as error:
         first = error.errors()[0]
         where = ".".join(str(part) for part in first.get("loc", ())) or "config"
@@ -207,44 +219,53 @@ def _strip_frame(frame: dict) -> dict:
     return {key: value for key, value in frame.items() if key not in ("lengths_mm", "pairs")}
 
 
+class _ConfigReader(DocumentRouter):
+    """What one configuration's events give its report (the events of the attempt that wrote its result)."""
+
+    def __init__(self, report: ConfigReport):
+        super().__init__()
+        self.report = report
+
+    @handles(AnalysisEvent)
+    def analysis(self, event: AnalysisEvent) -> None:
+        data = event.data
+        self.report.calibration = data.calibration
+        self.report.frames = [_strip_frame(f) for f in data.frames]
+        self.report.frames_failed = list(data.frames_failed)
+
+    @handles(MeasurementFrameEvent)
+    def measurement_frame(self, event: MeasurementFrameEvent) -> None:
+        if isinstance(event.frames.get("left"), str) and isinstance(event.frames.get("right"), str):
+            self.report.measurement_frames.append({"index": event.data.index, "left": event.frames["left"],
+                                                   "right": event.frames["right"]})
+
+    @handles(CalibrationEvent)
+    def calibration(self, event: CalibrationEvent) -> None:
+        self.report.has_calibration_files = True
+
+
 def read_session(directory: str | Path, key: str) -> SessionReport:
     """Read one session; raises :class:`SessionError` (naming the file) if it is missing or corrupt."""
     reader = SessionReader(directory).reload()
     start = reader.start()
-    if not isinstance(start.get("config"), dict) or not isinstance(start.get("plan"), list):
-        raise SessionError(f"{reader.documents_path} line 1: start document has no 'config' and 'plan'")
     warnings = list(reader.warnings)
     config, problem = _load_config(reader, start)
     if problem:
         warnings.append(problem)
-    plan = [entry for entry in start["plan"] if isinstance(entry, dict)]
+    plan = start.plan
     plan_by_id = {str(entry.get("config_id")): entry for entry in plan}
-    rows = with_plan(reader.results(), plan)
-    events: dict[str, list[dict]] = {}
+    rows = with_plan([row.stored() for row in reader.results()], plan)
+    events: dict[str, list[EventDocument]] = {}
     for event in reader.events():
-        if event.get("config_id") is not None:
-            events.setdefault(str(event["config_id"]), []).append(event)
+        if event.config_id is not None:
+            events.setdefault(event.config_id, []).append(event)
     configs = []
     for row in rows:
         report = ConfigReport(row=row, plan=plan_by_id.get(str(row.get("config_id"))), budget=budget_of(row))
-        for event in events.get(report.config_id, []):
-            kind = event.get("kind")
-            data = event.get("data") if isinstance(event.get("data"), dict) else {}
-            if kind == "analysis":
-                calibration = data.get("calibration")
-                report.calibration = calibration if isinstance(calibration, dict) else None
-                report.frames = [_strip_frame(f) for f in data.get("frames") or [] if isinstance(f, dict)]
-                report.frames_failed = [f for f in data.get("frames_failed") or [] if isinstance(f, dict)]
-            elif kind == "measurement_frame":
-                frames = event.get("frames") or {}
-                if isinstance(frames, dict) and isinstance(frames.get("left"), str) \
-                        and isinstance(frames.get("right"), str):
-                    report.measurement_frames.append({"index": data.get("index"), "left": frames["left"],
-                                                      "right": frames["right"]})
-            elif kind == "calibration":
-                report.has_calibration_files = True
-        report.structure = structure_of(row, events.get(report.config_id, []), config=config,
-                                        calibration=_calibration_loader(reader, report, warnings))
+        _ConfigReader(report).read(events.get(report.config_id, []))
+        # the structure's sources are read from the events' JSON (structure_of: the one place that knows them)
+        report.structure = structure_of(row, events.get(report.config_id, []),
+                                        config=config, calibration=_calibration_loader(reader, report, warnings))
         configs.append(report)
     session = SessionReport(key=key, directory=Path(directory), reader=reader, start=start, config=config,
                             status=reader.status(), configs=configs, warnings=warnings)
@@ -339,13 +360,13 @@ def _dict(value: Any) -> dict:
     return value if isinstance(value, dict) else {}
 
 
-def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None = None,
+def structure_of(row: dict, events: Sequence[EventDocument], *, config: CampaignConfig | None = None,
                  calibration: Any = None) -> Structure:
     """The structure of one configuration from its result row and events (see :class:`Structure`).
 
     Args:
         row: the configuration's result row.
-        events: its event documents (dicts, the attempt that wrote the result).
+        events: its event documents (typed, the attempt that wrote the result).
         config: the session's campaign config (the target's nominal square, the extrinsics mode of a
             session that predates the ``extrinsics_mode`` column), or None.
         calibration: a callable returning the configuration's recorded ``StereoCalibration`` (or None):
@@ -357,15 +378,16 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
     simulated frames' metadata (mean over the measurement frames), the commanded B and α (nominal).
     """
     out = Structure()
-    documents = [_dict(e.get("data")) for e in events if e.get("kind") == STRUCTURE_EVENT]
-    document = documents[-1] if documents else {}
-    truths = [_dict(e.get("data")) for e in events if e.get("kind") == TRUTH_EVENT]
-    truth_event = truths[-1] if truths else {}
-    sources = _dict(document.get("sources"))
-    recorded_truth = _dict(document.get("truth"))
+    documents = [e.data for e in events if isinstance(e, StructureEvent)]
+    document = documents[-1] if documents else None
+    truths = [e.data for e in events if isinstance(e, TruthEvent)]
+    truth_event = truths[-1] if truths else None
+    sources = document.sources if document is not None else {}
+    recorded_truth = (document.truth if document is not None else None) or {}
 
     # The mode: the row's column, the structure event, the campaign config (sessions before issue 11).
-    for value, origin in ((row.get("extrinsics_mode"), "result row"), (document.get("mode"), "structure event")):
+    for value, origin in ((row.get("extrinsics_mode"), "result row"),
+                          (document.mode if document is not None else None, "structure event")):
         if isinstance(value, str) and value:
             out.mode, out.mode_origin = _mode_name(value), origin
             break
@@ -379,20 +401,19 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
 
     # Every source the structure event recorded: its structure (and sigma), its square and budget.
     for name, record in sources.items():
-        record = _dict(record)
         source, mode = _source_name(name), _mode_name(name)
-        put(source, _described(record.get("structure")), "structure event")
-        if isinstance(record.get("structure_sigma"), dict):
-            out.sigma[source] = {k: _finite(v) for k, v in record["structure_sigma"].items()}
-        if isinstance(record.get("note"), str) and record["note"]:
-            out.notes[source] = record["note"]
-        if (square := _finite(record.get("square_mean_mm"))) is not None:
+        put(source, _described(record.structure), "structure event")
+        if record.structure_sigma is not None:
+            out.sigma[source] = {k: _finite(v) for k, v in record.structure_sigma.items()}
+        if record.note:
+            out.notes[source] = record.note
+        if (square := _finite(record.square_mean_mm)) is not None:
             out.squares_mm[mode], out.squares_origin[mode] = square, "structure event"
-        if (budget := budget_from(_dict(record.get("uncertainty")))) is not None:
+        if (budget := budget_from(record.uncertainty or {})) is not None:
             out.budgets[mode] = budget
-    used_name = document.get("used")
-    if isinstance(used_name, str) and used_name in sources:
-        put("used", _described(_dict(sources[used_name]).get("structure")), "structure event")
+    used_name = document.used if document is not None else None
+    if used_name in sources:
+        put("used", _described(sources[used_name].structure), "structure event")
         if (sigma := out.sigma.get(_source_name(used_name))) is not None:
             out.sigma["used"] = sigma
     put("truth", _described(recorded_truth.get("structure")), "structure event")
@@ -401,10 +422,9 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
         "alpha_left_used_deg"), "alpha_right_deg": row.get("alpha_right_used_deg")}), "result row")
     put("truth", _described({"baseline_mm": row.get("baseline_true_mm"), "alpha_left_deg": row.get(
         "alpha_left_true_deg"), "alpha_right_deg": row.get("alpha_right_true_deg")}), "result row")
-    put("truth", _described(truth_event.get("structure")), "truth event")
-    metas = [meta for e in events if e.get("kind") == "measurement_frame"
-             and isinstance(meta := _dict(_dict(e.get("data")).get("left")).get("meta"), dict)
-             and isinstance(meta.get("truth"), dict)]
+    put("truth", _described(truth_event.structure if truth_event is not None else None), "truth event")
+    metas = [meta for e in events if isinstance(e, MeasurementFrameEvent)
+             and isinstance(meta := e.data.left.meta, dict) and isinstance(meta.get("truth"), dict)]
     put("truth", _mean_structure([d for m in metas if (d := _described(m["truth"].get("structure")))]),
         "simulated frames' metadata")
     if (out.extrinsics["calibrated"] is None and out.mode in SOURCES and SOURCES[out.mode].calibrates_each_configuration
@@ -431,7 +451,7 @@ def structure_of(row: dict, events: list[dict], *, config: CampaignConfig | None
             out.budgets[out.mode] = budget
 
     # The true square: the row's, the structure and truth events', the frames' print scale x the nominal square.
-    target = _dict(truth_event.get("target"))
+    target = (truth_event.target if truth_event is not None else None) or {}
     scales = [s for m in metas if (s := _finite(_dict(m["truth"].get("board")).get("print_scale"))) is not None]
     nominal = config.target.square_mm if config is not None else None
     for value, origin in ((row.get("square_true_mm"), "result row"),

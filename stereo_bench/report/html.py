@@ -182,8 +182,8 @@ def _kv(items: Iterable[tuple[str, object]]) -> str:
 
 def _session_header(session: SessionReport, index: int) -> str:
     start = session.start
-    config = start.get("config") or {}
-    software = start.get("software") or {}
+    config = start.config
+    software = start.software
     target = config.get("target") or {}
     board = config.get("calibration_board") or {}
     capture = config.get("capture") or {}
@@ -193,7 +193,7 @@ def _session_header(session: SessionReport, index: int) -> str:
         f'<h2 id="{_e(session.key)}">Session {index}: {_e(session.name)} {_badge(session.status)}</h2>',
         f'<p class="muted">{_e(session.description)}</p>' if session.description else "",
         _kv([
-            ("directory", session.directory), ("started", start.get("time", "?")),
+            ("directory", session.directory), ("started", start.time),
             ("attempts", len(session.reader.attempts())),
             ("configurations", ", ".join(f"{n} {s}" for s, n in counts.items())),
             ("target", f"{target.get('kind', '?')} {target.get('cols', '?')}x{target.get('rows', '?')}, "
