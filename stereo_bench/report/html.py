@@ -182,12 +182,14 @@ def _kv(items: Iterable[tuple[str, object]]) -> str:
 
 def _session_header(session: SessionReport, index: int) -> str:
     start = session.start
-    config = start.config
-    software = start.software
-    target = config.get("target") or {}
-    board = config.get("calibration_board") or {}
-    capture = config.get("capture") or {}
-    optics = (config.get("cameras") or {}).get("optics") or {}
+    config = session.config  # None when the recorded config does not validate here: its values show as '?'
+
+    def of(section: str, *path: str) -> object:
+        value: object = getattr(config, section, None)
+        for name in path:
+            value = getattr(value, name, None)
+        return "?" if value is None else value
+
     counts = status_counts(session.rows)
     parts = [
         f'<h2 id="{_e(session.key)}">Session {index}: {_e(session.name)} {_badge(session.status)}</h2>',
@@ -196,16 +198,16 @@ def _session_header(session: SessionReport, index: int) -> str:
             ("directory", session.directory), ("started", start.time),
             ("attempts", len(session.reader.attempts())),
             ("configurations", ", ".join(f"{n} {s}" for s, n in counts.items())),
-            ("target", f"{target.get('kind', '?')} {target.get('cols', '?')}x{target.get('rows', '?')}, "
-                       f"{target.get('square_mm', '?')} mm squares"),
-            ("calibration board", f"{board.get('kind', '?')} {board.get('cols', '?')}x{board.get('rows', '?')}, "
-                                  f"{board.get('square_mm', '?')} mm"),
-            ("cameras", f"{(config.get('cameras') or {}).get('kind', '?')}, {optics.get('width_px', '?')}x"
-                        f"{optics.get('height_px', '?')} px, f {optics.get('focal_mm', '?')} mm, "
-                        f"pixel {optics.get('pixel_um', '?')} µm"),
-            ("capture", f"{capture.get('calibration_views', '?')} calibration views, "
-                        f"{capture.get('frames_per_config', '?')} frames per configuration"),
-            ("software", ", ".join(f"{k} {v}" for k, v in software.items())),
+            ("target", f"{of('target', 'kind')} {of('target', 'cols')}x{of('target', 'rows')}, "
+                       f"{of('target', 'square_mm')} mm squares"),
+            ("calibration board", f"{of('calibration_board', 'kind')} {of('calibration_board', 'cols')}x"
+                                  f"{of('calibration_board', 'rows')}, {of('calibration_board', 'square_mm')} mm"),
+            ("cameras", f"{of('cameras', 'kind')}, {of('cameras', 'optics', 'width_px')}x"
+                        f"{of('cameras', 'optics', 'height_px')} px, f {of('cameras', 'optics', 'focal_mm')} mm, "
+                        f"pixel {of('cameras', 'optics', 'pixel_um')} µm"),
+            ("capture", f"{of('capture', 'calibration_views')} calibration views, "
+                        f"{of('capture', 'frames_per_config')} frames per configuration"),
+            ("software", ", ".join(f"{k} {v}" for k, v in start.software.items())),
         ]),
     ]
     for warning in session.warnings:
