@@ -2,7 +2,7 @@
 
 The nominal geometry's covariance (the rig's stated tolerances) is checked against builds drawn from those
 tolerances and put together by drivers.sim.mechanics (a separate implementation of the chain); the budgets
-of every source against the scatter of their errors on the synthetic bench (tests/synthetic_bench.py: the
+of every source against the scatter of their errors on the synthetic rig (tests/synthetic_mechanics.py: the
 lab profile's mechanics, exact projections plus corner noise, no rendering), over 20 seeds x 5
 configurations spanning B, Z and alpha.
 """
@@ -30,7 +30,7 @@ from stereo_bench.kinematics import (
     save_model,
 )
 from stereo_bench.vision.calibrate import StereoCalibration
-from tests.synthetic_bench import CAMERA, EXACT_BOARDS, SyntheticRig, fit_design, measure, rms
+from tests.synthetic_mechanics import CAMERA, EXACT_BOARDS, SyntheticRig, fit_design, measure, rms
 
 TOLERANCES = RigTolerances().sigmas()
 CONFIGURATIONS = [(60.0, 400.0, 0.0), (110.0, 550.0, 9.0), (170.0, 700.0, 4.0), (140.0, 600.0, 12.0),

@@ -165,11 +165,11 @@ def test_a_number_that_is_not_a_number_differs():
 
 
 def fitted_model_file() -> str:
-    """A kinematic fit of the lab mechanics on exact projections (tests/synthetic_bench.py, ~2 s), as its
+    """A kinematic fit of the lab mechanics on exact projections (tests/synthetic_mechanics.py, ~2 s), as its
     model file: so that a fit in another process can be compared with it."""
     from drivers.sim.profile import LAB
     from stereo_bench.kinematics import model_toml
-    from tests.synthetic_bench import SyntheticRig, fit_design
+    from tests.synthetic_mechanics import SyntheticRig, fit_design
 
     return model_toml(fit_design(SyntheticRig(LAB, seed=5), ((60.0, 240.0), (0.0, 13.0)), views=2))
 

@@ -1,4 +1,4 @@
-"""A simulated bench without images, for the extrinsics sources: the simulator's own mechanics
+"""A simulated rig without images (SyntheticRig) for the extrinsics sources: the simulator's own mechanics
 (drivers.sim.mechanics: backlash, landing errors drawn per move, pan axes off the optical centres, the
 board's print scale) put the cameras; boards are projected exactly and seeded corner noise is added.
 
