@@ -22,15 +22,8 @@ from stereo_bench.campaign.documents import (
     TranscriptEvent,
 )
 from stereo_bench.campaign.session.errors import SessionError
-from stereo_bench.campaign.session.files import (
-    _read_no_follow,
-    _read_side_file,
-)
-from stereo_bench.campaign.session.jsonl import (
-    DOCUMENTS_FILE,
-    TornLine,
-    parse_stream,
-)
+from stereo_bench.campaign.session.files import _read_no_follow, _read_side_file
+from stereo_bench.campaign.session.jsonl import DOCUMENTS_FILE, TornLine, parse_stream
 from stereo_bench.frames import FrameError, decode_frame
 from stereo_bench.vision import calibio
 from stereo_bench.vision.calibrate import StereoCalibration

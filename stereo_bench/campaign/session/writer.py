@@ -40,11 +40,7 @@ from stereo_bench.campaign.documents import (
 )
 from stereo_bench.campaign.router import DocumentRouter
 from stereo_bench.campaign.session.errors import SessionError, _check_name
-from stereo_bench.campaign.session.files import (
-    RECOVERED_DIR,
-    SESSION_LEVEL,
-    _attempts_on_disk,
-)
+from stereo_bench.campaign.session.files import RECOVERED_DIR, SESSION_LEVEL, _attempts_on_disk
 from stereo_bench.campaign.session.jsonl import (
     DOCUMENTS_FILE,
     TornLine,
@@ -56,13 +52,7 @@ from stereo_bench.campaign.session.jsonl import (
     utc_now,
 )
 from stereo_bench.campaign.session.reader import SessionReader
-from stereo_bench.campaign.store import (
-    CSV_FILE,
-    STORE_FILE,
-    ResultStore,
-    StoreError,
-    order_rows,
-)
+from stereo_bench.campaign.store import CSV_FILE, STORE_FILE, ResultStore, StoreError, order_rows
 from stereo_bench.executors import background_threads
 from stereo_bench.frames import FRAME_EXTENSION, FrameError, encode_frame
 from stereo_bench.vision import calibio
