@@ -7,6 +7,7 @@ from pathlib import Path
 
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.plan import Visit
+from stereo_bench.campaign.preflight import Preflight
 from stereo_bench.campaign.runner import RunnerOptions
 from stereo_bench.campaign.session import SessionError, SessionReader
 
@@ -22,9 +23,11 @@ def _recorded_copy(reader: SessionReader, kind: str, name: str) -> Path | None:
 
 
 def runner_options(config: CampaignConfig, *, reader: SessionReader | None = None,
-                   visits: Sequence[Visit] = ()) -> RunnerOptions:
+                   visits: Sequence[Visit] = (), preflight: Preflight | None = None) -> RunnerOptions:
     """The runner's options from the config; ``reader``: a replay takes a fixed calibration, a model file's copy
-    and nominal's ``calib_dir`` intrinsics from the recording, never from outside the session."""
+    and nominal's ``calib_dir`` intrinsics from the recording, never from outside the session; ``preflight``: a
+    run takes what ``calib_dir`` and ``kinematic_file`` hold from what its preflight read, without reading them
+    again."""
     from stereo_bench.campaign.extrinsics_run import recorded_sources
     from stereo_bench.kinematics import KinematicFileError, load_model
     from stereo_bench.vision.calibio import INTRINSICS_FILE, CalibrationFileError
@@ -43,6 +46,11 @@ def runner_options(config: CampaignConfig, *, reader: SessionReader | None = Non
                                                    calibration_board_u_rel=board.scale_u("calibration_board")),
                             tolerances=extrinsics.tolerances.sigmas(),
                             repeatability=(extrinsics.repeatability_mm, extrinsics.repeatability_deg))
+    if preflight is not None and reader is None:
+        for name, value in preflight.calib_dir_options.items():
+            setattr(options, name, value)
+        options.kinematic_model = preflight.kinematic_model
+        return options
     try:
         # a replay reads the recording's copy of calib_dir's intrinsics
         copy = (_recorded_copy(reader, "intrinsics", INTRINSICS_FILE)

@@ -20,9 +20,9 @@ from stereo_bench.campaign.environment import numeric_environment
 from stereo_bench.campaign.execute.control import RunControl
 from stereo_bench.campaign.execute.options import runner_options
 from stereo_bench.campaign.execute.planned import CampaignPlan, plan_drift
-from stereo_bench.campaign.extrinsics_run import session_sources
 from stereo_bench.campaign.operator import Operator, SimulatedOperator, TerminalOperator
 from stereo_bench.campaign.plan import PREPARE_ID, Visit
+from stereo_bench.campaign.preflight import Preflight
 from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.runner import CampaignRunner, RunnerOptions
 from stereo_bench.campaign.session import SessionError, SessionReader, SessionWriter
@@ -78,6 +78,7 @@ def run_campaign(
     operators: Sequence[Operator] | None = None, subscribers: Iterable[Subscriber] = (),
     control: RunControl | None = None, plan: CampaignPlan | None = None, resume_command: str | None = None,
     bench_factory: Callable[..., Bench] = open_bench, frame_subscribers: Iterable[FrameSubscriber] = (),
+    preflight: Preflight | None = None,
 ) -> RunSummary:
     """Run (or resume) ``config`` into the session directory ``out_dir``.
 
@@ -85,10 +86,13 @@ def run_campaign(
     ``subscribers`` get every document as recorded (``frame_subscribers`` also the recorded frames' pixels:
     a live page's previews); ``control`` stops or pauses the run from outside.
     ``bench_factory(config, operators=..., transcript=...)`` opens the bench (default: the config's).
+    ``preflight``: ``config`` checked and its input files read (:func:`stereo_bench.campaign.preflight.preflight`,
+    which the CLI runs once); without it, the run checks and reads them itself.
     """
-    from stereo_bench.campaign.preflight import check_campaign
+    from stereo_bench.campaign.preflight import preflight as check
 
-    check_campaign(config)  # what `campaign plan` checks: before the session is written or anything moves
+    # what `campaign plan` checks: before the session is written or anything moves
+    checked = preflight if preflight is not None else check(config)
     control = control or RunControl()
     operators = list(operators) if operators is not None else default_operators(config, yes=yes)
     summary = RunSummary(session=Path(out_dir), exit_status="failed")
@@ -119,7 +123,7 @@ def run_campaign(
             summary.skipped = len(done)
             status, reason = "failed", None
             try:
-                options = runner_options(config, visits=campaign.visits)
+                options = runner_options(config, visits=campaign.visits, preflight=checked)
                 skip = set(done) | resume_sources(options, writer, config, campaign.visits)
                 if campaign.visits and all(c.config_id in done for c in campaign.configurations if c.runnable) and done:
                     skip |= {visit.config_id for visit in campaign.visits} | {PREPARE_ID}  # nothing left to measure
@@ -130,7 +134,7 @@ def run_campaign(
                     _record_connect(bus, bench, config)
                     for draft in config.extrinsics.source().start_drafts(options, config.extrinsics):
                         bus.publish(draft)  # fixed: the calibration used goes into the session
-                    for draft in session_sources(config):  # a model file, calib_dir's intrinsics: copied in
+                    for draft in checked.sources:  # a model file, calib_dir's intrinsics: copied in
                         bus.publish(draft)
                     control.attach(runner)
                     status = runner.run(skip=skip)
