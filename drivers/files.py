@@ -24,11 +24,14 @@ Lives in ``drivers`` because the rig configuration is read here; ``stereo_bench`
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import errno
 import os
 import re
 import stat
 import tomllib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -78,13 +81,47 @@ def _os_reason(error: OSError, what: str) -> str:
     return f"cannot read: {error.strerror or error}"
 
 
+#: The files read in the current :func:`read_once` scope (path, follow_symlinks) -> bytes; None outside one.
+_READ_ONCE: contextvars.ContextVar[dict[tuple[str, bool], bytes] | None] = contextvars.ContextVar(
+    "read_once", default=None)
+
+
+@contextlib.contextmanager
+def read_once() -> Iterator[None]:
+    """Within it, each file is read from disk once: a second :func:`read_regular_file` of the same path gets the
+    bytes the first read (still checked against its own ``max_bytes``). A campaign's preflight reads its input
+    files this way, so every parser of a file (a config validator, a preflight check, the run) sees the same
+    bytes, read once. Nested scopes share the outer one's reads; an error is never remembered."""
+    token = _READ_ONCE.set({}) if _READ_ONCE.get() is None else None
+    try:
+        yield
+    finally:
+        if token is not None:
+            _READ_ONCE.reset(token)
+
+
 def read_regular_file(path: str | os.PathLike, *, what: str = "file", max_bytes: int | None,
                       follow_symlinks: bool = True) -> bytes:
     """The bytes of ``path`` if it is a regular file of at most ``max_bytes`` (None: any size).
 
     ``follow_symlinks=False``: a symlink itself is refused (ELOOP), as ``O_NOFOLLOW`` refuses it.
     Raises :class:`InputFileError` naming ``path`` (``what`` says what it should be: "campaign file").
+    In a :func:`read_once` scope, a file already read there is not read again.
     """
+    read = _READ_ONCE.get()
+    if read is None:
+        return _read_from_disk(path, what=what, max_bytes=max_bytes, follow_symlinks=follow_symlinks)
+    key = (os.path.abspath(path), follow_symlinks)
+    if key not in read:
+        # complete: a read that succeeds is the whole file (at most its max_bytes)
+        read[key] = _read_from_disk(path, what=what, max_bytes=max_bytes, follow_symlinks=follow_symlinks)
+    data = read[key]
+    _check_size(path, len(data), max_bytes, what)
+    return data
+
+
+def _read_from_disk(path: str | os.PathLike, *, what: str, max_bytes: int | None, follow_symlinks: bool) -> bytes:
+    """:func:`read_regular_file`'s one read of the disk."""
     try:
         info = os.stat(path, follow_symlinks=follow_symlinks)
         if not follow_symlinks and stat.S_ISLNK(info.st_mode):
@@ -167,5 +204,5 @@ def read_toml(path: str | Path, *, what: str, max_bytes: int = MAX_TOML_BYTES) -
     return parse_toml(decode_utf8(read_regular_file(path, what=what, max_bytes=max_bytes), path), path)
 
 
-__all__ = ["MAX_TOML_BYTES", "MAX_TOML_NESTING", "InputFileError", "decode_utf8", "parse_toml", "read_regular_file",
-           "read_toml", "toml_nesting"]
+__all__ = ["MAX_TOML_BYTES", "MAX_TOML_NESTING", "InputFileError", "decode_utf8", "parse_toml", "read_once",
+           "read_regular_file", "read_toml", "toml_nesting"]

@@ -307,7 +307,7 @@ def test_stop_request_leaves_a_resumable_session_and_resume_runs_the_recorded_pl
     done = SessionReader(out).completed_config_ids()
     assert 1 <= len(done) < 4
     # Today's planner disagrees with the recorded plan (as after an upgrade): the recorded plan runs.
-    import stereo_bench.campaign.execute as execute
+    import stereo_bench.campaign.execute.planned as execute  # where plan_drift re-plans
 
     real_expand_plan = execute.expand_plan
     monkeypatch.setattr(execute, "expand_plan", lambda config: [
@@ -338,7 +338,7 @@ def test_replay_of_the_shipped_session_reproduces_its_results(capsys):
 @pytest.mark.replay
 def test_replay_runs_the_recorded_plan_and_reports_drift(monkeypatch):
     """A change in the feasibility code must not make a recorded session unreplayable."""
-    import stereo_bench.campaign.execute as execute
+    import stereo_bench.campaign.execute.planned as execute  # where plan_drift re-plans
 
     real_expand_plan = execute.expand_plan
     monkeypatch.setattr(execute, "expand_plan", lambda config: [

@@ -517,7 +517,7 @@ def test_campaign_on_a_full_disk_stops_resumable_and_says_how(capfd, monkeypatch
 
 
 def test_resume_on_a_read_only_disk_is_one_line(capfd, monkeypatch, small_copy):
-    import stereo_bench.campaign.session as session
+    import stereo_bench.campaign.session.writer as session  # where the stream is opened
 
     lines = (small_copy / "documents.jsonl").read_text().splitlines(keepends=True)
     (small_copy / "documents.jsonl").write_text("".join(lines[:-1]))  # no stop document: interrupted

@@ -163,7 +163,11 @@ def test_the_checker_sees_forbidden_imports():
 
 
 @pytest.mark.parametrize("module", ["stereo_bench.campaign.plan", "stereo_bench.campaign.runner",
-                                    "stereo_bench.campaign.execute", "stereo_bench.campaign.presenters"])
+                                    "stereo_bench.campaign.execute", "stereo_bench.campaign.presenters",
+                                    *(f"stereo_bench.campaign.plan.{name}" for name in (
+                                        "configurations", "duration", "feasibility", "steps", "summary", "timing")),
+                                    *(f"stereo_bench.campaign.execute.{name}" for name in (
+                                        "control", "options", "planned", "replay", "run"))])
 def test_the_campaign_reaches_the_simulators_only_through_the_bench_factory(module):
     assert not any(target.startswith("drivers.sim") for target in imports()[module])
 

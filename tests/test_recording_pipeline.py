@@ -11,9 +11,9 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from stereo_bench.campaign import session as session_module
 from stereo_bench.campaign.documents import event_draft
 from stereo_bench.campaign.session import SessionError, SessionReader, SessionWriter
+from stereo_bench.campaign.session import writer as session_module  # where frames are encoded
 from stereo_bench.campaign.stream import DocumentBus
 from stereo_bench.frames import decode_frame
 

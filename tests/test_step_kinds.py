@@ -1,5 +1,5 @@
 """Every step kind of a plan (plan.Step) declares what the plan's readers need and has one runner handler (issue 21):
-adding a kind is its class in plan.py and one handler in runner.py, no isinstance chain elsewhere."""
+adding a kind is its class in plan/steps.py and one handler in runner.py, no isinstance chain elsewhere."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ DISPATCHER = vars(CampaignRunner)["_execute"].dispatcher  # the runner's one tab
 
 
 def test_the_union_lists_every_step_kind_once():
-    # plan.py's own kinds: a test's throw-away subclass (below) may still stand in __subclasses__()
+    # plan/steps.py's own kinds: a test's throw-away subclass (below) may still stand in __subclasses__()
     declared = [kind for kind in StepKind.__subclasses__() if kind.__module__ == StepKind.__module__]
     assert len(KINDS) == len(set(KINDS)) == len(declared)
     assert set(KINDS) == set(declared)

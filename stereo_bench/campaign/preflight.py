@@ -17,15 +17,52 @@ Per configuration (not an error: the configuration is planned as infeasible and 
 feasibility rule of :func:`stereo_bench.campaign.plan.expand_plan`, which ``run`` uses too: enough target corners
 in both views, each view's target squares large enough for the corner detector
 (:func:`stereo_bench.vision.detect.min_detectable_square_px`), the calibration board placeable, the soft limits.
+
+:func:`preflight` runs these checks once and keeps what it read and resolved (:class:`Preflight`: the rig config,
+the kinematic model, what ``calib_dir`` gives the runner, the copies of the input files the session records), so
+that ``campaign run`` reads each input file once before the first move: the CLI runs it and hands it to
+:func:`~stereo_bench.campaign.execute.run_campaign`, which runs it itself only when not given one.
 """
 
 from __future__ import annotations
 
-from drivers.rig.config import RigConfigError
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+from drivers.files import read_once
+from drivers.rig.config import RigConfig, RigConfigError
 from stereo_bench.campaign.config import CampaignConfig, ConfigError
+from stereo_bench.campaign.documents import Draft
 
 #: The quantities simulated cameras render from: each must be driven by an axis or fixed.
 RENDERED_QUANTITIES = ("baseline_mm", "toe_in_left_deg", "toe_in_right_deg", "tilt_left_deg", "tilt_right_deg")
+
+
+@dataclass(frozen=True)
+class Preflight:
+    """A campaign config checked as ``run`` checks it before moving, and the inputs it names, read once: the rig
+    config (``rig.config_file``), the kinematic model (``extrinsics.kinematic_file``), what ``extrinsics.calib_dir``
+    sets in the runner's options (``calib_dir_options``: the intrinsics and their covariance, the fixed calibration,
+    nominal's intrinsics) and the documents that record the input files' copies in the session (``sources``)."""
+
+    config: CampaignConfig
+    rig_config: RigConfig
+    kinematic_model: Any = None
+    calib_dir_options: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
+    sources: tuple[Draft, ...] = ()
+
+
+def preflight(config: CampaignConfig, *, source: str = "campaign config") -> Preflight:
+    """Everything ``run`` checks before moving (:func:`check_campaign`), and what it read; raises ``ConfigError``."""
+    from stereo_bench.campaign.extrinsics_run import session_sources
+
+    with read_once():  # each input file read once, whichever checks and parsers read it
+        check_bench(config, source=source)
+        kinematic_model, calib_dir_options = _read_files(config, source=source)
+        sources = tuple(session_sources(config))
+    return Preflight(config=config, rig_config=config.rig.rig_config(), kinematic_model=kinematic_model,
+                     calib_dir_options=MappingProxyType(calib_dir_options), sources=sources)
 
 
 def check_campaign(config: CampaignConfig, *, source: str = "campaign config") -> None:
@@ -87,6 +124,16 @@ def _image_size(config: CampaignConfig) -> tuple[tuple[int, int], str] | None:
 
 def check_files(config: CampaignConfig, *, source: str = "campaign config") -> None:
     """Read the calibration and model files the config names, as ``run`` will (a corrupt YAML fails here)."""
+    _read_files(config, source=source, keep=False)
+
+
+class _CalibDirOptions:
+    """What a source's ``load_calibration`` sets from ``calib_dir`` (the runner's options take these attributes)."""
+
+
+def _read_files(config: CampaignConfig, *, source: str, keep: bool = True) -> tuple[Any, dict[str, Any]]:
+    """Check the files :func:`check_files` checks; ``keep``: also what the run takes from them (the kinematic
+    model, the options ``calib_dir`` sets), read here instead of at the run."""
     from stereo_bench.kinematics import KinematicFileError, load_model
     from stereo_bench.vision.calibio import CalibrationFileError
 
@@ -106,11 +153,25 @@ def check_files(config: CampaignConfig, *, source: str = "campaign config") -> N
             raise ConfigError(
                 f"{source}: extrinsics.calib_dir: {calib_dir} is a calibration of {size[0]}x{size[1]} images, the "
                 f"cameras give {given[0][0]}x{given[0][1]} ({given[1]})")
+    calib_dir_options: dict[str, Any] = {}
+    if calib_dir is not None and keep:
+        read = _CalibDirOptions()
+        try:
+            extrinsics.source().load_calibration(read, extrinsics, reader=None, intrinsics_copy=None,
+                                                 image_size=image_size)
+        except CalibrationFileError as error:
+            raise ConfigError(f"{source}: extrinsics.calib_dir: {error}") from None
+        calib_dir_options = vars(read)
+    model = None
     if extrinsics.kinematic_file is not None:
         try:
-            load_model(extrinsics.kinematic_file)
+            model = load_model(extrinsics.kinematic_file)
         except KinematicFileError as error:
             raise ConfigError(f"{source}: extrinsics.kinematic_file: {error}") from None
+    return model, calib_dir_options
 
 
-__all__ = ["RENDERED_QUANTITIES", "check_bench", "check_camera_names", "check_campaign", "check_files"]
+__all__ = [
+    "RENDERED_QUANTITIES", "Preflight", "check_bench", "check_camera_names", "check_campaign", "check_files",
+    "preflight",
+]

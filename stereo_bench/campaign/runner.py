@@ -361,7 +361,7 @@ class CampaignRunner:
             return None
         return self.configurations.get(config_id) or self.visits[config_id]
 
-    # One handler per step kind (plan.Step): a new kind is its class in plan.py and one handler here.
+    # One handler per step kind (plan.Step): a new kind is its class in plan/steps.py and one handler here.
     # ``failed`` is the reason its configuration failed so far (only steps that close a group see one).
 
     @functools.singledispatchmethod

@@ -44,11 +44,25 @@ def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: 
                      sim: str | None = None, session: Path | None = None):
     """The campaign config named by a file or a preset (exactly one) or, with neither, the one ``session`` recorded
     (``run --resume``); ``time_scale`` and the ``sim`` profile applied, and checked as ``run`` checks it before
-    moving (:func:`stereo_bench.campaign.preflight.check_campaign`); errors -> CliError, ConfigError or SessionError
-    (one line, exit status 2).
+    moving (:func:`preflight_from_args`); errors -> CliError, ConfigError or SessionError (one line, exit status 2).
 
     The one way the CLI loads a campaign (``campaign plan`` and ``campaign run``).
     """
+    return preflight_from_args(plan_file, preset, time_scale=time_scale, sim=sim, session=session).config
+
+
+def preflight_from_args(plan_file: Path | None, preset: str | None, *, time_scale: float | None = None,
+                        sim: str | None = None, session: Path | None = None):
+    """:func:`config_from_args`'s config with what its preflight read (:class:`stereo_bench.campaign.preflight.
+    Preflight`): ``campaign run`` hands it to ``run_campaign``, which then reads no input file again."""
+    from drivers.files import read_once
+
+    with read_once():  # the campaign file, the files it names: each read once, by the loader and the preflight
+        return _preflight_from_args(plan_file, preset, time_scale=time_scale, sim=sim, session=session)
+
+
+def _preflight_from_args(plan_file: Path | None, preset: str | None, *, time_scale: float | None,
+                         sim: str | None, session: Path | None):
     if plan_file is not None and preset is not None:
         raise CliError("give a campaign file or --preset NAME, not both")
     if plan_file is None and preset is None and session is None:
@@ -71,11 +85,10 @@ def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: 
         if config.cameras.kind != "simulated":
             raise CliError("--sim applies to simulated cameras only (the simulated bench or bring-up)")
         config = _override(config, "sim", "profile", sim, "--sim")
-    from stereo_bench.campaign.preflight import check_campaign
+    from stereo_bench.campaign.preflight import preflight
 
-    # What run checks before moving, checked for plan too (run_campaign checks again for callers of the API).
-    check_campaign(config, source=source)
-    return config
+    # What run checks before moving, checked for plan too; run_campaign takes it (it checks only when not given one).
+    return preflight(config, source=source)
 
 
 def _override(config, section: str, field: str, value, option: str):
@@ -252,8 +265,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     from stereo_bench.campaign.stream import JsonLines
 
     out = Path(args.out)
-    config = config_from_args(Path(args.plan) if args.plan else None, args.preset, time_scale=args.time_scale,
-                              sim=args.sim, session=out if args.resume else None)
+    checked = preflight_from_args(Path(args.plan) if args.plan else None, args.preset, time_scale=args.time_scale,
+                                  sim=args.sim, session=out if args.resume else None)
+    config = checked.config
     if args.yes and config.cameras.kind != "simulated":
         raise CliError("--yes lets the simulator do the manual steps, for simulated cameras only; at the real "
                        "bench the operator does them")
@@ -302,6 +316,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:
         summary = run_campaign(config, out, resume=args.resume, yes=args.yes, subscribers=subscribers,
                                control=control, plan=plan, resume_command=resume_command, operators=operators,
+                               preflight=checked,
                                frame_subscribers=frame_subscribers)
         signals["finished"] = True
         progress.close()

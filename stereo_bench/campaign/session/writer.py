@@ -1,63 +1,26 @@
-"""Session recording: a directory holding everything a campaign measured, replayable and resumable.
-
-Layout of a session directory ``SESSION``::
-
-    documents.jsonl                       the document stream: one JSON object per line, append-only
-    frames/<config_id>/a<attempt>/<seq>_<name>.png     lossless frames referenced by 'event' documents
-    files/<config_id>/a<attempt>/<seq>_<name>          other side files of events (telemetry, ...)
-    calib/<config_id>/a<attempt>/{intrinsics,extrinsics}.yml   OpenCV stereo_calib layout
-    transcripts/<name>-a<attempt>.jsonl   byte-level serial transcripts (the rig's spy log)
-    results.sqlite, results.csv           the results store and its export (rebuilt from the stream)
-    recovered/                            what a resume repaired: torn bytes, a corrupt store, kept aside
-
-The stream follows bluesky's document model: ``start`` (schema version, uid, config, plan, software,
-attempt) → ``event`` documents (``kind``, ``seq``, ``config_id``, ``data``, relative paths of side
-files) and ``result`` documents (one configuration's result row) → ``stop`` (exit status, reason).
-A resumed session appends a ``resume`` document instead of a second ``start``, and its attempt
-number goes up by one; side files are written under the attempt's own directories, so a re-run
-never overwrites what an interrupted one recorded.
-
-Durability: side files are written atomically (temporary file, fsync, rename, directory fsync)
-*before* the line that references them; each line is written with one ``write`` and fsynced.
-Frames may be encoded ahead, in parallel (:meth:`SessionWriter.prepare`, a small pool of encoder
-threads): only the CPU work moves; every file and line is still written by :meth:`SessionWriter.record`,
-one document at a time, in the order the documents are recorded. A
-crash therefore leaves at most one torn last line (repaired on resume, its bytes kept under
-``recovered/``), temporary files (removed on resume: they were never referenced) and complete but
-unreferenced side files (kept). A configuration is complete only when its ``result`` document is in
-the stream: the SQLite store is written first and reconciled with the stream on resume.
-
-Nothing is ever read or written outside the session directory because a document says so:
-:meth:`SessionReader.path` refuses absolute paths, ``..`` and symlinks that lead outside.
-"""
+"""Writing (or resuming) a session directory: :class:`SessionWriter`, durable and crash-consistent."""
 
 from __future__ import annotations
 
 import contextlib
-import datetime as _dt
 import fcntl
 import json
 import os
-import re
 import shutil
 import socket
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
-from pathlib import Path, PurePosixPath
-from typing import Any, TypeVar
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from drivers.files import InputFileError, read_regular_file
 from stereo_bench import atomic, paths
 from stereo_bench.campaign.documents import (
-    DOCUMENT_TYPES,
     EXIT_STATUSES,
-    READABLE_SCHEMA_VERSIONS,
     SCHEMA_VERSION,
     CalibrationEvent,
     CalibrationFiles,
@@ -66,7 +29,6 @@ from stereo_bench.campaign.documents import (
     Draft,
     EventDocument,
     ResultDocument,
-    ResultRow,
     ResumeDocument,
     StartDocument,
     StopDocument,
@@ -74,481 +36,28 @@ from stereo_bench.campaign.documents import (
     document_json,
     event_draft,
     json_safe,
-    parse_document,
     result_row,
 )
 from stereo_bench.campaign.router import DocumentRouter
-from stereo_bench.campaign.store import (
-    CSV_FILE,
-    STORE_FILE,
-    ResultStore,
-    StoreError,
-    normalise_row,
-    order_rows,
+from stereo_bench.campaign.session.errors import SessionError, _check_name
+from stereo_bench.campaign.session.files import RECOVERED_DIR, SESSION_LEVEL, _attempts_on_disk
+from stereo_bench.campaign.session.jsonl import (
+    DOCUMENTS_FILE,
+    TornLine,
+    _completed,
+    _last_results,
+    encode_document,
+    first_difference,
+    parse_stream,
+    utc_now,
 )
+from stereo_bench.campaign.session.reader import SessionReader
+from stereo_bench.campaign.store import CSV_FILE, STORE_FILE, ResultStore, StoreError, order_rows
 from stereo_bench.executors import background_threads
-from stereo_bench.frames import FRAME_EXTENSION, FrameError, decode_frame, encode_frame
+from stereo_bench.frames import FRAME_EXTENSION, FrameError, encode_frame
 from stereo_bench.vision import calibio
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.rectify import Rectification
-
-DOCUMENTS_FILE = "documents.jsonl"
-RECOVERED_DIR = "recovered"
-SESSION_LEVEL = "_session"  # the directory of side files of events that belong to no configuration
-
-D = TypeVar("D", bound=Document)
-E = TypeVar("E", bound=EventDocument)
-
-_ATTEMPT_DIR = re.compile(r"a(\d+)(?:-\d+)?")
-_ATTEMPT_IN_NAME = re.compile(r"-a(\d+)(?:\.|$)")
-
-
-class SessionError(ValueError):
-    """A session cannot be written or read as asked; one line naming the directory or file (and line)."""
-
-
-def utc_now() -> str:
-    """Current UTC time, ISO-8601 with microseconds and a ``Z``."""
-    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
-
-
-def _check_name(value: object, what: str) -> str:
-    """A config id, frame name or transcript name is one safe path component (:func:`stereo_bench.paths.check_name`)."""
-    try:
-        return paths.check_name(value, what)
-    except paths.UnsafeName as error:
-        raise SessionError(str(error)) from None
-
-
-def encode_document(doc: Mapping[str, Any] | Document) -> bytes:
-    """One document as one strict-JSON line (NaN → null, numpy → Python), newline-terminated."""
-    if isinstance(doc, Document):
-        doc = document_json(doc)
-    try:
-        clean = json_safe(doc, str(doc.get("type", "document")))
-        return (json.dumps(clean, allow_nan=False, ensure_ascii=False) + "\n").encode("utf-8")
-    except TypeError as error:
-        raise SessionError(f"cannot record {error}") from None
-    except UnicodeEncodeError as error:
-        raise SessionError(f"cannot record a {doc.get('type', 'document')} document: {error.reason}") from None
-
-
-# -- reading the stream ------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class TornLine:
-    """The incomplete last line of a stream that a crash cut short: where it starts, and its bytes."""
-
-    line: int
-    offset: int
-    data: bytes
-
-
-@dataclass
-class ParsedStream:
-    documents: list[dict]  # as recorded, each with its line number under '_line'
-    typed: list[Document]  # the same documents parsed into their models (stereo_bench.campaign.documents)
-    torn: TornLine | None
-    needs_newline: bool  # the last document is complete but its newline never made it to disk
-
-
-def _reject_constant(name: str) -> None:
-    raise ValueError(f"non-standard JSON constant {name}")
-
-
-def parse_stream(path: Path) -> ParsedStream:
-    """Parse ``documents.jsonl``: every line must be a JSON object that follows its document's schema.
-
-    A last line that does not parse (cut by a crash, or zeros after a power loss) is returned as
-    ``torn``; a bad line anywhere else raises :class:`SessionError` naming the file and the line.
-    Lines are first read as JSON, then checked in order (start first, schema version, each document
-    against its model), so a corrupt file is reported where its JSON breaks.
-    """
-    try:
-        data = read_regular_file(path, what="document stream", max_bytes=None)
-    except InputFileError as error:
-        raise SessionError(str(error)) from None
-    documents: list[dict] = []
-    torn = None
-    needs_newline = False
-    offset, line_no, size = 0, 0, len(data)
-    while offset < size:
-        end = data.find(b"\n", offset)
-        complete = end >= 0
-        raw = data[offset:end] if complete else data[offset:]
-        next_offset = end + 1 if complete else size
-        line_no += 1
-        is_last = next_offset >= size
-        if complete and not raw.strip():
-            offset = next_offset
-            continue
-        try:
-            doc = json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
-        except (UnicodeDecodeError, ValueError) as error:
-            if is_last:
-                torn = TornLine(line=line_no, offset=offset, data=bytes(data[offset:]))
-                break
-            reason = error.msg if isinstance(error, json.JSONDecodeError) else str(error)
-            raise SessionError(f"{path} line {line_no}: not JSON ({reason})") from None
-        if not isinstance(doc, dict) or not isinstance(doc.get("type"), str):
-            raise SessionError(f"{path} line {line_no}: not a session document (a JSON object with a 'type')")
-        doc["_line"] = line_no
-        documents.append(doc)
-        needs_newline = not complete
-        offset = next_offset
-    typed = _check_documents(path, documents)
-    return ParsedStream(documents, typed, torn, needs_newline)
-
-
-def _check_documents(path: Path, documents: list[dict]) -> list[Document]:
-    typed = []
-    for index, doc in enumerate(documents):
-        kind = doc["type"]
-        line = doc["_line"]
-        if index == 0 and kind != "start":
-            raise SessionError(f"{path} line {line}: the first document is {kind!r}, not 'start'")
-        if index > 0 and kind == "start":
-            raise SessionError(f"{path} line {line}: a second 'start' document (a resume writes 'resume')")
-        if kind in ("start", "resume"):
-            version = doc.get("schema_version")
-            if not isinstance(version, int):
-                raise SessionError(f"{path} line {line}: {kind} document has no integer 'schema_version'")
-            if version > SCHEMA_VERSION:
-                raise SessionError(
-                    f"{path} line {line}: written with schema version {version}; "
-                    f"this stereo-bench reads up to {SCHEMA_VERSION}: upgrade it"
-                )
-            if version not in READABLE_SCHEMA_VERSIONS:
-                raise SessionError(f"{path} line {line}: schema version {version} is not one this stereo-bench "
-                                   f"reads ({', '.join(map(str, READABLE_SCHEMA_VERSIONS))})")
-        if kind in ("event", "result") and not isinstance(doc.get("attempt"), int):
-            raise SessionError(f"{path} line {line}: {kind} document has no integer 'attempt'")
-        if kind == "result" and (not isinstance(doc.get("row"), dict) or not isinstance(doc.get("config_id"), str)):
-            raise SessionError(f"{path} line {line}: result document needs 'config_id' and a 'row' object")
-        _check_ids(path, doc)
-        try:
-            typed.append(parse_document(_strip(doc)))
-        except DocumentError as error:
-            raise SessionError(f"{path} line {line}: {error}") from None
-    return typed
-
-
-def _check_ids(path: Path, doc: dict) -> None:
-    """The configuration ids a document carries (its own, its plan's) follow the one name rule: a reader builds
-    file names from them (a report's images), so an id such as ``../x`` makes the session corrupt."""
-    ids = [doc.get("config_id")] if doc.get("config_id") is not None else []
-    if doc["type"] == "start" and isinstance(doc.get("plan"), list):
-        ids += [entry.get("config_id") for entry in doc["plan"] if isinstance(entry, dict) and "config_id" in entry]
-    for value in ids:
-        if not paths.is_safe_name(value):
-            raise SessionError(f"corrupt session {path} line {doc['_line']}: config_id {value!r} is not a valid name "
-                               f"({paths.NAME_RULE})")
-
-
-def _completed(documents: Iterable[dict]) -> set[str]:
-    return {doc["config_id"] for doc in documents if doc["type"] == "result"}
-
-
-def _last_results(documents: Iterable[dict]) -> list[dict]:
-    """The row of the last 'result' document of each configuration, in order of first appearance."""
-    rows: dict[str, dict] = {}
-    for doc in documents:
-        if doc["type"] == "result":
-            rows[doc["config_id"]] = doc["row"]
-    return list(rows.values())
-
-
-def _strip(doc: dict) -> dict:
-    return {key: value for key, value in doc.items() if key != "_line"}
-
-
-class SessionReader:
-    """Read a session directory: its documents, results, frames and calibrations.
-
-    Construction does no I/O; the stream is read at the first query (:meth:`reload` re-reads it).
-    A torn last line (a crash mid-write) is tolerated and reported in :attr:`torn`.
-    """
-
-    def __init__(self, directory: str | Path):
-        self.directory = Path(directory)
-        self.documents_path = self.directory / DOCUMENTS_FILE
-        self._documents: list[Document] | None = None
-        self._lines: dict[int, int] = {}  # id(document) -> its line, for messages
-        self._torn: TornLine | None = None
-        self._frame_directories: dict[PurePosixPath, Path] = {}  # see frame()
-
-    def reload(self) -> SessionReader:
-        self._frame_directories = {}
-        if not self.directory.is_dir():
-            raise SessionError(f"{self.directory}: session directory not found")
-        if not self.documents_path.is_file():
-            raise SessionError(f"{self.directory}: not a session (no {DOCUMENTS_FILE})")
-        try:
-            paths.confined(self.directory, DOCUMENTS_FILE)
-        except paths.OutsideRoot as error:
-            raise SessionError(f"{self.documents_path}: refused: {error}") from None
-        parsed = parse_stream(self.documents_path)
-        self._documents = parsed.typed
-        self._lines = {id(document): raw["_line"] for document, raw in zip(parsed.typed, parsed.documents,
-                                                                            strict=True)}
-        self._torn = parsed.torn
-        return self
-
-    @property
-    def torn(self) -> TornLine | None:
-        """The torn last line of the stream (a crash mid-write), if any; it is not among the documents."""
-        self._docs()
-        return self._torn
-
-    def _docs(self) -> list[Document]:
-        if self._documents is None:
-            self.reload()
-        assert self._documents is not None
-        return self._documents
-
-    def line(self, document: Document) -> int | None:
-        """The line of ``documents.jsonl`` that holds ``document`` (one this reader read), for messages."""
-        return self._lines.get(id(document))
-
-    @property
-    def warnings(self) -> list[str]:
-        """What a reader of this session should be told (a torn last line)."""
-        torn = self.torn
-        if torn is None:
-            return []
-        return [f"{self.documents_path} line {torn.line}: torn last line ({len(torn.data)} bytes) "
-                "ignored: the writer was interrupted mid-write"]
-
-    # -- documents: typed (stereo_bench.campaign.documents), in stream order ----------------------------
-    def documents(self, model: type[D] = Document) -> list[D]:
-        """The documents parsed into their models, optionally of one model (and its subclasses), e.g.
-        ``reader.documents(MoveEvent)``, ``reader.documents(ResumeDocument)``."""
-        return [doc for doc in self._docs() if isinstance(doc, model)]
-
-    def start(self) -> StartDocument:
-        docs = self._docs()
-        if not docs:
-            raise SessionError(f"{self.documents_path}: no start document (the session stopped before it began)")
-        start = docs[0]
-        assert isinstance(start, StartDocument)  # parse_stream refuses a stream that does not begin with one
-        return start
-
-    def resumes(self) -> list[ResumeDocument]:
-        return self.documents(ResumeDocument)
-
-    def stops(self) -> list[StopDocument]:
-        return self.documents(StopDocument)
-
-    def attempts(self) -> list[int]:
-        return [doc.attempt for doc in self.documents() if isinstance(doc, StartDocument | ResumeDocument)]
-
-    def status(self) -> str:
-        """The exit status of the last attempt, or ``"incomplete"`` if it has no 'stop' (a crash)."""
-        status = "incomplete"
-        for doc in self._docs():
-            if isinstance(doc, StartDocument | ResumeDocument):
-                status = "incomplete"
-            elif isinstance(doc, StopDocument):
-                status = str(doc.exit_status)
-        return status
-
-    def events(
-        self, config_id: str | None = None, kind: str | type[E] | None = None, attempt: int | str | None = "last",
-    ) -> list[E]:
-        """Event documents, optionally of one configuration and/or kind (its name or its model, e.g.
-        ``kind=MoveEvent``).
-
-        ``attempt="last"``: per configuration, only the events of the attempt that produced its last
-        result (or, without a result, of its last attempt) — what a replay should play back.
-        ``attempt=None``: every attempt; an int: that attempt.
-        """
-        docs = self._docs()
-        events = [doc for doc in docs if isinstance(doc, EventDocument)
-                  and (config_id is None or doc.config_id == config_id)]
-        if attempt == "last":
-            chosen: dict[str | None, int] = {}
-            for doc in events:
-                chosen[doc.config_id] = max(chosen.get(doc.config_id, 0), doc.attempt)
-            for doc in docs:
-                if isinstance(doc, ResultDocument) and (config_id is None or doc.config_id == config_id):
-                    chosen[doc.config_id] = doc.attempt
-            events = [doc for doc in events if doc.attempt == chosen[doc.config_id]]
-        elif attempt is not None:
-            events = [doc for doc in events if doc.attempt == attempt]
-        if kind is None or isinstance(kind, str):
-            return [doc for doc in events if kind is None or doc.kind == kind]
-        return [doc for doc in events if isinstance(doc, kind)]  # a model, or a union of models
-
-    def transcripts(self) -> dict[str, list[str]]:
-        """Relative paths of the recorded transcripts, by name, one per attempt in order."""
-        out: dict[str, list[str]] = {}
-        for doc in self.documents(TranscriptEvent):
-            for name, relative in doc.files.items():
-                out.setdefault(name, []).append(relative)
-        return out
-
-    def results(self) -> list[ResultRow]:
-        """The last result row of each configuration, in order of first appearance."""
-        rows: dict[str, ResultRow] = {}
-        for doc in self.documents(ResultDocument):
-            rows[doc.config_id] = doc.row
-        return list(rows.values())
-
-    def completed_config_ids(self) -> set[str]:
-        return {doc.config_id for doc in self.documents(ResultDocument)}
-
-    # -- side files --------------------------------------------------------------------------------
-    def path(self, relative: str) -> Path:
-        """The file a document refers to, refused unless it lies inside the session directory."""
-        pure = self._relative(relative)
-        root = self.directory.resolve()
-        try:
-            target = (root / pure).resolve()
-        except (RuntimeError, OSError) as error:  # a symlink loop (RuntimeError before Python 3.13), a name too long
-            raise self._refuse(relative, f"cannot be resolved ({error})") from None
-        if not paths.is_inside(root, target):
-            raise self._refuse(relative, f"resolves to {target}, outside the session directory (a symlink?)")
-        return target
-
-    def _refuse(self, relative: object, why: str) -> SessionError:
-        return SessionError(f"{self.directory}: path {relative!r} refused: {why}")
-
-    def _relative(self, relative: str) -> PurePosixPath:
-        """``relative`` as a path, refused unless it names a place under the session directory (symlinks aside)."""
-        if not isinstance(relative, str) or not relative:
-            raise self._refuse(relative, "not a non-empty string")
-        if "\x00" in relative or "\\" in relative:
-            raise self._refuse(relative, "contains a NUL or a backslash")
-        pure = PurePosixPath(relative)
-        if pure.is_absolute() or re.match(r"[A-Za-z]:", relative):
-            raise self._refuse(relative, "absolute path; session paths are relative to the session directory")
-        if ".." in pure.parts:
-            raise self._refuse(relative, "'..' leads outside the session directory")
-        return pure
-
-    def read_bytes(self, relative: str) -> bytes:
-        return _read_side_file(self.path(relative))
-
-    def frame(self, relative: str) -> np.ndarray:
-        """A recorded frame, exactly as written (grey (H, W) or BGR (H, W, 3)).
-
-        Confined as :meth:`path` confines, at a fraction of the cost (a replay reads every frame: resolving
-        both paths component by component took 0.06-0.3 ms a frame): the directory a frame lies in is
-        resolved and checked once per reader (:meth:`reload` forgets it), and the file is opened there
-        with O_NOFOLLOW, so a file that is a symlink is never followed on this fast path. Anything else
-        than a plain file opened there -- a symlink (inside the session: read, as :meth:`path` allows;
-        outside: refused), a missing or unreadable file, a directory that leads outside -- takes
-        :meth:`path` and its own read, so the outcome and message are those of :meth:`path` exactly.
-        """
-        path = self._frame_file(relative)
-        try:
-            data = _read_no_follow(path) if path is not None else None
-        except InputFileError:
-            data = None
-        if data is None:
-            path = self.path(relative)
-            data = _read_side_file(path, "frame")
-        try:
-            return decode_frame(data, str(path))
-        except FrameError as error:
-            raise SessionError(str(error)) from None
-
-    def _frame_file(self, relative: str) -> Path | None:
-        """The resolved path of ``relative`` if its directory is inside the session, else None (not an error)."""
-        pure = self._relative(relative)
-        directory = self._frame_directories.get(pure.parent)
-        if directory is None:
-            root = self.directory.resolve()
-            try:
-                directory = (root / pure.parent).resolve()
-            except (RuntimeError, OSError):  # a symlink loop: path() says so
-                return None
-            if not paths.is_inside(root, directory):
-                return None
-            self._frame_directories[pure.parent] = directory
-        return directory / pure.name
-
-    def calibration(self, config_id: str) -> StereoCalibration:
-        """The calibration of ``config_id`` recorded last (its 'calibration' event)."""
-        events = self.events(config_id, CalibrationEvent, attempt=None)
-        events = [doc for doc in events if doc.config_id == config_id]
-        if not events:
-            raise SessionError(f"{self.documents_path}: no calibration recorded for configuration {config_id!r}")
-        relative = events[-1].files.get("intrinsics")
-        if not isinstance(relative, str):
-            raise SessionError(f"{self.documents_path} line {self.line(events[-1])}: calibration event lists no "
-                               "'intrinsics' file")
-        directory = PurePosixPath(relative).parent
-        # read_calibration opens both files of the directory: each is checked, not only the one the event names
-        for name in (calibio.INTRINSICS_FILE, calibio.EXTRINSICS_FILE):
-            self.path(str(directory / name))
-        try:
-            return calibio.read_calibration(self.path(str(directory)))
-        except calibio.CalibrationFileError as error:
-            raise SessionError(str(error)) from None
-
-
-# -- writing -----------------------------------------------------------------------------------------
-def _read_no_follow(path: Path) -> bytes:
-    """The bytes of ``path``; :class:`InputFileError` if it is a symlink (ELOOP), not a regular file (a FIFO is
-    never opened: a replay would wait for its writer for ever) or cannot be read.
-
-    O_NOFOLLOW is POSIX, as the ``fcntl`` locks of this module are (resume opens the stream with it too).
-    """
-    return read_regular_file(path, what="frame", max_bytes=None, follow_symlinks=False)
-
-
-def _read_side_file(path: Path, what: str = "side file") -> bytes:
-    try:
-        return read_regular_file(path, what=what, max_bytes=None)
-    except InputFileError as error:
-        reason = "side file missing" if error.reason.startswith("no such") else error.reason
-        raise SessionError(f"{path}: {reason}") from None
-
-
-def first_difference(recorded: Any, now: Any, where: str) -> str | None:
-    """Where two JSON values first differ, as ``key.path: recorded X, now Y``; None if equal."""
-    def show(value: Any) -> str:
-        text = json.dumps(value, ensure_ascii=False)
-        return text if len(text) <= 60 else text[:57] + "..."
-
-    if isinstance(recorded, dict) and isinstance(now, dict):
-        for key in list(recorded) + [key for key in now if key not in recorded]:
-            if key not in now:
-                return f"{where}.{key}: recorded {show(recorded[key])}, now missing"
-            if key not in recorded:
-                return f"{where}.{key}: not recorded, now {show(now[key])}"
-            found = first_difference(recorded[key], now[key], f"{where}.{key}")
-            if found:
-                return found
-        return None
-    if isinstance(recorded, list) and isinstance(now, list):
-        for index, (a, b) in enumerate(zip(recorded, now, strict=False)):
-            found = first_difference(a, b, f"{where}[{index}]")
-            if found:
-                return found
-        if len(recorded) != len(now):
-            return f"{where}: recorded {len(recorded)} entries, now {len(now)}"
-        return None
-    if type(recorded) is not type(now) and not (isinstance(recorded, int | float) and isinstance(now, int | float)):
-        return f"{where}: recorded {show(recorded)}, now {show(now)}"
-    return None if recorded == now else f"{where}: recorded {show(recorded)}, now {show(now)}"
-
-
-def _attempts_on_disk(root: Path) -> int:
-    """The highest attempt number that any side-file directory or transcript of ``root`` uses."""
-    highest = 0
-    for area in ("frames", "files", "calib"):
-        for path in (root / area).glob("*/*"):
-            match = _ATTEMPT_DIR.fullmatch(path.name)
-            if match:
-                highest = max(highest, int(match.group(1)))
-    for area in ("transcripts", RECOVERED_DIR):
-        for path in (root / area).glob("*"):
-            match = _ATTEMPT_IN_NAME.search(path.name)
-            if match:
-                highest = max(highest, int(match.group(1)))
-    return highest
-
 
 # Frames encoded at once by a session writer (:meth:`SessionWriter.prepare`): a grey 1080p frame takes
 # ~16 ms of one core to encode and a stereo pair comes every ~20 ms at the bench, so one encoder
@@ -1132,8 +641,3 @@ class SessionWriter:
         assert self._store is not None
         return order_rows(self._store.rows(), self._plan_order)
 
-
-__all__ = [
-    "DOCUMENTS_FILE", "DOCUMENT_TYPES", "EXIT_STATUSES", "SCHEMA_VERSION", "SessionError", "SessionReader",
-    "SessionWriter", "TornLine", "encode_document", "first_difference", "normalise_row", "parse_stream",
-]

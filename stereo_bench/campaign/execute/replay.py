@@ -1,35 +1,23 @@
-"""Running a campaign and replaying one: config → plan → Bench + Runner → documents → subscribers.
-
-``run_campaign`` is what ``stereo-bench campaign run`` does; ``replay_session`` what ``stereo-bench
-replay`` does. Both put the same :class:`~stereo_bench.campaign.runner.CampaignRunner` to work on a
-:class:`~stereo_bench.campaign.bench.Bench` from one of its three factories (simulated, hardware,
-replay), publishing through a :class:`~stereo_bench.campaign.stream.DocumentBus` whose recorder is the
-session writer (or, for a replay that records nothing, memory). Callers watch a run by subscribing to
-its documents and steer it through a :class:`RunControl`; nothing reaches into the runner.
-"""
+"""Replaying a recorded session through the same runner: :func:`replay_session`, its reproducibility verdict and
+the replay-only helpers (:func:`replay_job` for ``stereo-bench replay``'s worker processes)."""
 
 from __future__ import annotations
 
 import contextlib
-import platform
 import shutil
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
-import numpy as np
 from pydantic import ValidationError
 
-from stereo_bench import __version__, atomic, paths
-from stereo_bench.campaign.bench import Bench, open_bench, replay_bench
-from stereo_bench.campaign.config import CampaignConfig
+from stereo_bench import atomic, paths
+from stereo_bench.campaign.bench import replay_bench
 from stereo_bench.campaign.documents import (
     CalibrationDetectionsEvent,
     CalibrationViewEvent,
-    ControllerEvent,
     Draft,
     EventDocument,
     KinematicModelEvent,
@@ -42,9 +30,11 @@ from stereo_bench.campaign.documents import (
     json_safe,
 )
 from stereo_bench.campaign.environment import environment_differences, numeric_environment
-from stereo_bench.campaign.extrinsics_run import RIG_CONFIG_FILE, RIG_CONFIG_KIND, session_sources
-from stereo_bench.campaign.operator import Operator, OperatorAbsent, SimulatedOperator, TerminalOperator
-from stereo_bench.campaign.plan import PREPARE_ID, Configuration, Step, Visit, expand_plan, plan_steps, plan_visits
+from stereo_bench.campaign.execute.options import _recorded_copy, runner_options
+from stereo_bench.campaign.execute.planned import CampaignPlan, plan_drift
+from stereo_bench.campaign.execute.run import software_versions
+from stereo_bench.campaign.extrinsics_run import RIG_CONFIG_FILE, RIG_CONFIG_KIND
+from stereo_bench.campaign.plan import PREPARE_ID
 from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.reproduce import (
     SCALE_TOLERANCE,
@@ -56,315 +46,11 @@ from stereo_bench.campaign.reproduce import (
     largest,
     verdict,
 )
-from stereo_bench.campaign.runner import CampaignRunner, RunnerOptions, group_steps
-from stereo_bench.campaign.session import SessionError, SessionReader, SessionWriter, first_difference
-from stereo_bench.campaign.stream import Collector, DocumentBus, FrameSubscriber, MemoryRecorder, Subscriber
+from stereo_bench.campaign.runner import CampaignRunner, group_steps
+from stereo_bench.campaign.session import SessionError, SessionReader, SessionWriter
+from stereo_bench.campaign.stream import Collector, DocumentBus, MemoryRecorder, Subscriber
 from stereo_bench.frames import keep_freed_frame_memory
 from stereo_bench.vision.calibrate import single_threaded_opencv
-
-__all__ = [
-    "CampaignPlan", "OperatorAbsent", "ReplaySummary", "RunControl", "RunSummary", "plan_drift", "recorded_config",
-    "replay_job", "replay_session", "reproducibility", "run_campaign", "runner_options", "software_versions",
-]
-
-
-def software_versions() -> dict:
-    return {"stereo_bench": __version__, "opencv": cv2.__version__, "numpy": np.__version__,
-            "python": platform.python_version()}
-
-
-@dataclass(frozen=True)
-class CampaignPlan:
-    """A config's configurations, the visits its extrinsics source needs first, and the steps, expanded once."""
-
-    configurations: list[Configuration]
-    steps: list[Step]
-    visits: list[Visit] = field(default_factory=list)
-
-    @classmethod
-    def of(cls, config: CampaignConfig, configurations: Sequence[Configuration] | None = None,
-           visits: Sequence[Visit] | None = None) -> CampaignPlan:
-        configurations = list(configurations) if configurations is not None else expand_plan(config)
-        visits = list(visits) if visits is not None else plan_visits(config, configurations)
-        return cls(configurations, plan_steps(config, configurations, visits), visits)
-
-    @classmethod
-    def design_only(cls, plan: CampaignPlan) -> CampaignPlan:
-        """Only the visits and the preparation of ``plan`` (``rig calibrate-kinematics``): nothing is measured."""
-        steps = [step for cid, group in group_steps(plan.steps) if cid not in {c.config_id for c in plan.configurations}
-                 for step in group]
-        return cls([], steps, list(plan.visits))
-
-    @classmethod
-    def recorded(cls, config: CampaignConfig, start: StartDocument) -> CampaignPlan:
-        """The plan a session's start document recorded (its configurations and visits), never today's re-planning."""
-        recorded = RecordedStart.of(start)
-        return cls.of(config, recorded.configurations, recorded.visits)
-
-
-def plan_drift(config: CampaignConfig, recorded_plan: list[dict]) -> str | None:
-    """Where today's planner differs from a recorded plan (None if it does not); the recorded plan is what runs."""
-    try:
-        today = [c.as_dict() for c in expand_plan(config)]
-    except Exception as error:  # noqa: BLE001 - e.g. a rig config file that is not on this machine
-        return f"not recomputed: {error}"
-    difference = first_difference(recorded_plan, today, "plan")
-    return None if difference is None else f"today's planner differs from the recorded plan: {difference}"
-
-
-class RunControl:
-    """Stop, pause and resume a run from outside it (signal handlers, a live page); safe before it starts.
-
-    Signal-safe: no locks; a request made before the runner exists is applied when it attaches.
-    """
-
-    def __init__(self):
-        self._runner: CampaignRunner | None = None
-        self.stop_reason: str | None = None
-        self._paused = False
-        self._watchers: list[Callable[[CampaignRunner | None], None]] = []
-
-    def watch(self, callback: Callable[[CampaignRunner | None], None]) -> None:
-        """``callback(runner)`` when a run attaches, ``callback(None)`` when it detaches (a live page takes
-        the bench's cameras for its previews from it)."""
-        self._watchers.append(callback)
-
-    def attach(self, runner: CampaignRunner) -> None:
-        self._runner = runner
-        for callback in self._watchers:
-            callback(runner)
-        if self._paused:
-            runner.request_pause()
-        if self.stop_reason is not None:
-            runner.request_stop(self.stop_reason)
-
-    def detach(self) -> None:
-        self._runner = None
-        for callback in self._watchers:
-            callback(None)
-
-    @property
-    def paused(self) -> bool:
-        return self._paused
-
-    def request_stop(self, reason: str = "stopped by the operator") -> None:
-        if self.stop_reason is None:
-            self.stop_reason = reason
-        runner = self._runner
-        if runner is not None:
-            runner.request_stop(reason)
-
-    def request_pause(self) -> None:
-        self._paused = True
-        if self._runner is not None:
-            self._runner.request_pause()
-
-    def request_resume(self) -> None:
-        self._paused = False
-        if self._runner is not None:
-            self._runner.request_resume()
-
-
-@dataclass
-class RunSummary:
-    session: Path
-    exit_status: str
-    rows: list[dict] = field(default_factory=list)
-    skipped: int = 0
-    plan_drift: str | None = None
-    reason: str | None = None
-
-    def counts(self) -> dict[str, int]:
-        counts: dict[str, int] = {}
-        for row in self.rows:
-            counts[row["status"]] = counts.get(row["status"], 0) + 1
-        return counts
-
-
-def _recorded_copy(reader: SessionReader, kind: str, name: str) -> Path | None:
-    """The recording's last copy of an outside file: side file ``name`` of a ``kind`` event (``rig_config``: the
-    ``[rig] config_file``; ``intrinsics``: calib_dir's intrinsics.yml), if it holds one."""
-    for event in reversed(reader.events(kind=kind, attempt=None)):
-        relative = event.files.get(name)
-        if relative:
-            return reader.path(relative)
-    return None
-
-
-def runner_options(config: CampaignConfig, *, reader: SessionReader | None = None,
-                   visits: Sequence[Visit] = ()) -> RunnerOptions:
-    """The runner's options from the config; ``reader``: a replay takes a fixed calibration, a model file's copy
-    and nominal's ``calib_dir`` intrinsics from the recording, never from outside the session."""
-    from stereo_bench.campaign.extrinsics_run import recorded_sources
-    from stereo_bench.kinematics import KinematicFileError, load_model
-    from stereo_bench.vision.calibio import INTRINSICS_FILE, CalibrationFileError
-    from stereo_bench.vision.uncertainty import BoardScale
-
-    extrinsics = config.extrinsics
-    board = config.calibration_board
-    optics = config.cameras.optics
-    image_size = (optics.width_px, optics.height_px)
-    options = RunnerOptions(board_retries=config.capture.board_retries,
-                            # the stereo calibration's mode (vision.calibrate: "joint" | "fixed")
-                            intrinsics_mode="fixed" if extrinsics.intrinsics_held else "joint",
-                            calibration_board=f"{board.kind} {board.cols}x{board.rows} square {board.square_mm:g} mm",
-                            extrinsics_mode=extrinsics.mode, visits=list(visits),
-                            board_scale=BoardScale(target_u_rel=config.target.scale_u("target"),
-                                                   calibration_board_u_rel=board.scale_u("calibration_board")),
-                            tolerances=extrinsics.tolerances.sigmas(),
-                            repeatability=(extrinsics.repeatability_mm, extrinsics.repeatability_deg))
-    try:
-        # a replay reads the recording's copy of calib_dir's intrinsics
-        copy = (_recorded_copy(reader, "intrinsics", INTRINSICS_FILE)
-                if reader is not None and extrinsics.calib_dir is not None else None)
-        extrinsics.source().load_calibration(options, extrinsics, reader=reader, intrinsics_copy=copy,
-                                             image_size=image_size)
-    except CalibrationFileError as error:
-        raise SessionError(f"extrinsics.calib_dir: {error}") from None
-    if reader is not None:
-        recorded = recorded_sources(reader, sources=("file",), image_size=image_size)
-        options.kinematic_model = recorded.kinematic_model
-        options.nominal_intrinsics = recorded.nominal_intrinsics or options.nominal_intrinsics
-    elif extrinsics.kinematic_file is not None:
-        try:
-            options.kinematic_model = load_model(extrinsics.kinematic_file)
-        except KinematicFileError as error:
-            raise SessionError(f"extrinsics.kinematic_file: {error}") from None
-    return options
-
-
-def resume_sources(options: RunnerOptions, writer: SessionWriter, config: CampaignConfig,
-                   visits: Sequence[Visit]) -> set[str]:
-    """A resume's extrinsics source from the earlier attempts (the fitted model, nominal's calibrated intrinsics):
-    the visits and the preparation to skip (all of them when it is recorded, none when it is not)."""
-    from stereo_bench.campaign.extrinsics_run import recorded_sources
-
-    if not visits or writer.recorded_start is None:
-        return set()
-    optics = config.cameras.optics
-    recorded = recorded_sources(writer.reader(), sources=("design",), image_size=(optics.width_px, optics.height_px),
-                                intrinsics_visits=[v.config_id for v in visits if v.purpose == "intrinsics"])
-    if not config.extrinsics.source().is_prepared(recorded):
-        return set()
-    options.kinematic_model = recorded.kinematic_model or options.kinematic_model
-    options.nominal_intrinsics = recorded.nominal_intrinsics or options.nominal_intrinsics
-    return {visit.config_id for visit in visits} | {PREPARE_ID}
-
-
-def default_operators(config: CampaignConfig, *, yes: bool) -> list[Operator]:
-    """``--yes`` on simulated cameras: the simulator does the manual steps; else the terminal."""
-    return [SimulatedOperator()] if yes and config.cameras.kind == "simulated" else [TerminalOperator()]
-
-
-def run_campaign(
-    config: CampaignConfig, out_dir: str | Path, *, resume: bool = False, yes: bool = False,
-    operators: Sequence[Operator] | None = None, subscribers: Iterable[Subscriber] = (),
-    control: RunControl | None = None, plan: CampaignPlan | None = None, resume_command: str | None = None,
-    bench_factory: Callable[..., Bench] = open_bench, frame_subscribers: Iterable[FrameSubscriber] = (),
-) -> RunSummary:
-    """Run (or resume) ``config`` into the session directory ``out_dir``.
-
-    A resume runs the *recorded* plan and records where today's planner differs (``plan_drift``).
-    ``subscribers`` get every document as recorded (``frame_subscribers`` also the recorded frames' pixels:
-    a live page's previews); ``control`` stops or pauses the run from outside.
-    ``bench_factory(config, operators=..., transcript=...)`` opens the bench (default: the config's).
-    """
-    from stereo_bench.campaign.preflight import check_campaign
-
-    check_campaign(config)  # what `campaign plan` checks: before the session is written or anything moves
-    control = control or RunControl()
-    operators = list(operators) if operators is not None else default_operators(config, yes=yes)
-    summary = RunSummary(session=Path(out_dir), exit_status="failed")
-    writer = SessionWriter(out_dir, resume=resume)
-    opened = False  # the bench: until it is open nothing has moved, and nothing but the start is recorded
-    try:
-        with writer:
-            recorded = writer.recorded_start
-            if recorded is not None:
-                campaign = CampaignPlan.recorded(config, recorded)
-                summary.plan_drift = plan_drift(config, recorded.plan)
-            else:
-                campaign = plan or CampaignPlan.of(config)
-            bus = DocumentBus(writer)
-            collector = Collector()
-            bus.subscribe(collector)
-            for subscriber in subscribers:
-                bus.subscribe(subscriber)
-            for frame_subscriber in frame_subscribers:
-                bus.subscribe_frames(frame_subscriber)
-            transcript = writer.transcript_path()  # registered first, so its event follows the start
-            bus.publish(Draft(StartDocument, config=config.model_dump(mode="json"),
-                              plan=[c.as_dict() for c in campaign.configurations], software=software_versions(),
-                              extra={}, bench=config.bench_kind, numeric_environment=numeric_environment(),
-                              **({"plan_drift": summary.plan_drift} if summary.plan_drift else {}),
-                              **({"design": [v.as_dict() for v in campaign.visits]} if campaign.visits else {})))
-            done = writer.completed_config_ids()
-            summary.skipped = len(done)
-            status, reason = "failed", None
-            try:
-                options = runner_options(config, visits=campaign.visits)
-                skip = set(done) | resume_sources(options, writer, config, campaign.visits)
-                if campaign.visits and all(c.config_id in done for c in campaign.configurations if c.runnable) and done:
-                    skip |= {visit.config_id for visit in campaign.visits} | {PREPARE_ID}  # nothing left to measure
-                with bench_factory(config, operators=operators, transcript=transcript) as bench:
-                    opened = True
-                    runner = CampaignRunner(config, campaign.configurations, campaign.steps, bench=bench, bus=bus,
-                                            options=options)
-                    _record_connect(bus, bench, config)
-                    for draft in config.extrinsics.source().start_drafts(options, config.extrinsics):
-                        bus.publish(draft)  # fixed: the calibration used goes into the session
-                    for draft in session_sources(config):  # a model file, calib_dir's intrinsics: copied in
-                        bus.publish(draft)
-                    control.attach(runner)
-                    status = runner.run(skip=skip)
-                    reason = runner.stop_reason if status != "success" else None  # a stop, or the rig unrecoverable
-            except KeyboardInterrupt:  # a second Ctrl-C while the bench opened or closed
-                status, reason = "interrupted", "stopped at once (second interrupt)"
-            except BaseException as error:
-                with contextlib.suppress(Exception):  # the original error is the one to report
-                    bus.publish(Draft(StopDocument, exit_status="failed", reason=f"{type(error).__name__}: {error}",
-                                      **({"resume_command": resume_command} if opened and resume_command else {})))
-                raise
-            finally:
-                control.detach()
-            bus.publish(Draft(StopDocument, exit_status=status, reason=reason,
-                              **({"resume_command": resume_command} if status != "success" and resume_command
-                                 else {})))
-    except BaseException:
-        if not opened and not resume:
-            # Refused before anything moved (a port that is not there, a controller that never answers): --out is
-            # left as it was, so the corrected command is accepted (a new session is never written over).
-            with contextlib.suppress(SessionError, OSError):  # not begun by this run (e.g. --out exists): kept
-                writer.discard()
-        raise
-    summary.exit_status, summary.reason = status, reason
-    summary.rows = collector.rows
-    return summary
-
-
-def recorded_config(session_dir: str | Path) -> CampaignConfig:
-    """The campaign config the session in ``session_dir`` recorded in its start document: what ``campaign run
-    --resume`` continues with when no campaign file is given (SessionError, one line, if it cannot be read)."""
-    reader = SessionReader(session_dir)
-    try:
-        return RecordedStart.of(reader.start()).campaign
-    except ValidationError as error:
-        first = error.errors()[0]
-        where = ".".join(str(part) for part in first.get("loc", ())) or "config"
-        raise SessionError(f"{reader.documents_path} line 1: the recorded campaign config does not validate "
-                           f"({where}: {first.get('msg')})") from None
-
-
-def _record_connect(bus: DocumentBus, bench: Bench, config: CampaignConfig) -> None:
-    """The rig controller as read at connect (build, settings, startup lines, warnings): part of the recording."""
-    if not bench.rig.capabilities.controller:  # a replay's: no controller behind it
-        return
-    port = config.rig.port if config.rig.kind == "grbl" else "simulated (GRBL emulator on a pty)"
-    bus.publish(Draft(ControllerEvent, config_id=None, data={"port": port, "info": bench.rig.controller_info(),
-                                                             "warnings": list(bench.rig.warnings)}))
-
-
-# -- replay -------------------------------------------------------------------------------------------------------
 
 
 @dataclass

@@ -1,0 +1,305 @@
+"""What a campaign visits: its configurations (:func:`expand_plan`, feasibility predicted) and the visits of its
+extrinsics source (:func:`plan_visits`: the kinematic design, a one-off intrinsics calibration)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any, ClassVar
+
+from drivers.rig.config import LimitError, MoveRequestError, RigConfig, plan_move
+from stereo_bench.campaign.config import CampaignConfig
+from stereo_bench.campaign.plan.feasibility import (
+    CALIBRATION_DISTANCES_MM,
+    FEASIBILITY_MARGIN_PX,
+    MIN_CORNERS_IN_BOTH,
+    Target,
+    _nearest_range,
+    _remember,
+    _why_too_few,
+    _why_too_small,
+    calibration_distance_range,
+    target_visibilities,
+)
+from stereo_bench.geometry import RigPose, alpha_from_toe_in
+from stereo_bench.vision.detect import min_detectable_square_px
+
+
+def format_id_value(value: float) -> str:
+    """A float as a filesystem-safe token keeping every digit: 100 -> '100', 87.5 -> '87p5', -5 -> 'm5'."""
+    text = repr(float(value))
+    if text.endswith(".0"):
+        text = text[:-2]
+    return text.replace("-", "m").replace("+", "").replace(".", "p")
+
+
+class _Runnable:
+    """What a planned configuration or visit says about whether it runs (``feasible``, ``reason``,
+    ``limit_violation``)."""
+
+    @property
+    def runnable(self) -> bool:
+        return self.feasible and self.limit_violation is None
+
+    @property
+    def skip_reason(self) -> str | None:
+        """Why it is not run (None if it is)."""
+        reasons = [r for r in (self.reason, self.limit_violation) if r]
+        return "; ".join(reasons) if reasons else None
+
+
+@dataclass(frozen=True)
+class Configuration(_Runnable):
+    """One (B, Z, alpha, tilt) of the campaign and its predicted feasibility.
+
+    ``feasible`` is geometric (target and, per-config, calibration board in both views; ``reason`` says
+    why not); a soft-limit or axis-mapping violation is ``limit_violation``. Only :attr:`runnable`
+    configurations are moved to. ``calibration_range_mm``: where the calibration board fits in both
+    views (per-config extrinsics only).
+    """
+
+    index: int
+    config_id: str
+    baseline_mm: float
+    distance_mm: float
+    alpha_deg: float
+    toe_in_deg: float
+    tilt_deg: float
+    fraction_in_both: float
+    feasible: bool
+    reason: str | None
+    limit_violation: str | None
+    corners_in_both: int = 0
+    n_corners: int = 0
+    calibration_range_mm: tuple[float, float] | None = None
+
+    @property
+    def status(self) -> str:
+        """'infeasible', 'partial' (feasible, some target corners outside a view) or 'feasible'."""
+        if not self.feasible:
+            return "infeasible"
+        return "partial" if self.corners_in_both < self.n_corners else "feasible"
+
+    def rig_pose(self) -> RigPose:
+        return RigPose.symmetric(self.baseline_mm, self.alpha_deg, self.tilt_deg)
+
+    def move_request(self) -> dict[str, float]:
+        """Quantity -> physical value, as :func:`drivers.rig.config.plan_move` and ``GrblRig.move_to`` take it."""
+        return {
+            "baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_deg, "toe_in_right_deg": self.toe_in_deg,
+            "tilt_left_deg": self.tilt_deg, "tilt_right_deg": self.tilt_deg, "target_distance_mm": self.distance_mm,
+        }
+
+    def as_dict(self) -> dict[str, Any]:
+        # Shallow (every field a number, string or tuple): dataclasses.asdict deep-copies, ~0.1 ms a configuration.
+        data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        data["calibration_range_mm"] = list(self.calibration_range_mm) if self.calibration_range_mm else None
+        data.update(status=self.status, runnable=self.runnable)
+        return data
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Configuration:
+        """The configuration a recorded plan entry (:meth:`as_dict`) describes: replay and resume run the
+        recorded plan, never today's re-planning of it."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        values = {key: value for key, value in data.items() if key in names}
+        if values.get("calibration_range_mm") is not None:
+            values["calibration_range_mm"] = tuple(values["calibration_range_mm"])
+        return cls(**values)
+
+
+def _limit_violation(rig_config: RigConfig, request: Mapping[str, float]) -> str | None:
+    try:
+        plan_move(rig_config, request)
+    except LimitError as error:
+        return "; ".join(error.violations)
+    except MoveRequestError as error:
+        return str(error)
+    return None
+
+
+def _calibration_reason(config: CampaignConfig, board: Target, *, baseline_mm: float, alpha_deg: float) -> str:
+    low, high = CALIBRATION_DISTANCES_MM
+    need = "whole" if board.min_calibration_fraction >= 1.0 else f"{board.min_calibration_fraction:.0%} of it"
+    return (f"calibration board ({config.calibration_board.describe()}) never {need} in both views fronto-parallel "
+            f"at {low:g}-{high:g} mm: the views overlap too little at B = {baseline_mm:g} mm, "
+            f"alpha = {alpha_deg:g} deg")
+
+
+def expand_plan(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN_PX) -> list[Configuration]:
+    """The ordered configurations of a campaign, each with its predicted feasibility and limit check.
+
+    The order keeps manual work and motion small: the target distance Z (set by hand by default) is
+    the outer loop, in the order written; then the baseline, then the angle, both serpentine (every
+    other pass runs backwards, so consecutive configurations differ by one step of one axis).
+    """
+    plan = config.plan
+    target = config.target.build()
+    calibration_board = config.calibration_board.build()
+    left = config.cameras.optics.camera_model("left")
+    right = config.cameras.optics.camera_model("right")
+    image_size = (config.cameras.optics.width_px, config.cameras.optics.height_px)
+    rig_config = config.rig.rig_config()
+    per_config = config.extrinsics.source().calibrates_each_configuration
+    angles = plan.angles_deg()
+    calibration_ranges: dict[tuple[float, float], tuple[float, float] | None] = {}
+    computed: dict[float, tuple[list[float], list]] = {}  # alpha -> (sorted baselines, their ranges): hints
+    configurations: list[Configuration] = []
+    sweep = 0
+    poses = {(baseline, alpha): RigPose.symmetric(baseline, alpha, plan.tilt_deg)
+             for baseline in plan.baseline_mm for alpha, _ in angles}
+    for z_index, distance in enumerate(plan.distance_mm):
+        visibility = dict(zip(poses, target_visibilities(target, list(poses.values()), distance_mm=distance,
+                                                          left=left, right=right, margin_px=margin_px), strict=True))
+        baselines = plan.baseline_mm if z_index % 2 == 0 else plan.baseline_mm[::-1]
+        for baseline in baselines:
+            ordered = angles if sweep % 2 == 0 else angles[::-1]
+            sweep += 1
+            for alpha, toe_in in ordered:
+                rig = poses[baseline, alpha]
+                vis = visibility[baseline, alpha]
+                reasons = []
+                if vis.in_both < MIN_CORNERS_IN_BOTH:
+                    reasons.append(_why_too_few(vis, alpha_deg=alpha))
+                else:  # the runner detects a view with fewer corners than the board's as partial: the same rule
+                    need = min_detectable_square_px(target, image_size, partial=vis.in_both < vis.n_corners)
+                    too_small = _why_too_small(vis, need, distance_mm=distance, target=target)
+                    if too_small:
+                        reasons.append(too_small)
+                calibration_range = None
+                if per_config:
+                    if (baseline, alpha) not in calibration_ranges:
+                        calibration_ranges[baseline, alpha] = calibration_distance_range(
+                            calibration_board, rig, left=left, right=right,
+                            hint=_nearest_range(computed.setdefault(alpha, ([], [])), baseline))
+                        _remember(computed[alpha], baseline, calibration_ranges[baseline, alpha])
+                    calibration_range = calibration_ranges[baseline, alpha]
+                    if calibration_range is None:
+                        reasons.append(_calibration_reason(config, calibration_board, baseline_mm=baseline,
+                                                           alpha_deg=alpha))
+                config_id = f"B{format_id_value(baseline)}_Z{format_id_value(distance)}_A{format_id_value(alpha)}"
+                if plan.tilt_deg:
+                    config_id += f"_T{format_id_value(plan.tilt_deg)}"
+                configuration = Configuration(
+                    index=len(configurations), config_id=config_id, baseline_mm=float(baseline),
+                    distance_mm=float(distance), alpha_deg=float(alpha), toe_in_deg=float(toe_in),
+                    tilt_deg=float(plan.tilt_deg), fraction_in_both=vis.fraction_in_both, feasible=not reasons,
+                    reason="; ".join(reasons) or None, limit_violation=None, corners_in_both=vis.in_both,
+                    n_corners=vis.n_corners, calibration_range_mm=calibration_range,
+                )
+                violation = _limit_violation(rig_config, configuration.move_request())
+                configurations.append(dataclasses.replace(configuration, limit_violation=violation))
+    ids = [c.config_id for c in configurations]
+    if len(set(ids)) != len(ids):  # distinct toe-ins whose alphas (90 - t) round to the same float
+        configurations = [dataclasses.replace(c, config_id=f"{c.config_id}_i{c.index}") for c in configurations]
+    return configurations
+
+
+# --------------------------------------------------------------------------------------------------
+# Visits: calibration views for the extrinsics source (kinematic design, one-off intrinsics)
+
+VISIT_PURPOSES = ("kinematic", "intrinsics")
+
+
+@dataclass(frozen=True)
+class Visit(_Runnable):
+    """A visit before the measured configurations: calibration views at commanded axes, no measurement.
+
+    ``purpose``: ``kinematic`` (a visit of the kinematic rig model's design) or ``intrinsics`` (the
+    one stereo calibration whose intrinsics ``nominal`` extrinsics use). Presenters and the runner use
+    it like a :class:`Configuration` (``config_id``, ``distance_mm``: where the calibration board is
+    shown, ``calibration_range_mm``, :meth:`rig_pose`, :meth:`move_request`).
+    """
+
+    index: int
+    config_id: str
+    purpose: str
+    baseline_mm: float
+    toe_in_left_deg: float
+    toe_in_right_deg: float
+    tilt_deg: float
+    distance_mm: float
+    calibration_range_mm: tuple[float, float] | None
+    feasible: bool
+    reason: str | None = None
+    limit_violation: str | None = None
+    fraction_in_both: ClassVar[float] = 1.0
+
+    def axes(self) -> dict[str, float]:
+        return {"baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_left_deg,
+                "toe_in_right_deg": self.toe_in_right_deg}
+
+    def rig_pose(self) -> RigPose:
+        return RigPose(self.baseline_mm, alpha_from_toe_in(self.toe_in_left_deg),
+                       alpha_from_toe_in(self.toe_in_right_deg), self.tilt_deg, self.tilt_deg)
+
+    def move_request(self) -> dict[str, float]:
+        return {"baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_left_deg,
+                "toe_in_right_deg": self.toe_in_right_deg, "tilt_left_deg": self.tilt_deg,
+                "tilt_right_deg": self.tilt_deg, "target_distance_mm": self.distance_mm}
+
+    def as_dict(self) -> dict[str, Any]:
+        data = asdict(self)
+        data["calibration_range_mm"] = list(self.calibration_range_mm) if self.calibration_range_mm else None
+        data["runnable"] = self.runnable
+        return data
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Visit:
+        """The visit a recorded ``start.design`` entry describes (resume and replay run the recorded visits)."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        values = {key: value for key, value in data.items() if key in names}
+        if values.get("calibration_range_mm") is not None:
+            values["calibration_range_mm"] = tuple(values["calibration_range_mm"])
+        return cls(**values)
+
+
+def design_ranges(configurations: Sequence[Configuration]) -> dict[str, tuple[float, float]] | None:
+    """(min, max) of B and of the toe-ins over the runnable configurations: what the design must span."""
+    runnable = [c for c in configurations if c.runnable]
+    if not runnable:
+        return None
+    baselines = [c.baseline_mm for c in runnable]
+    toe_ins = [c.toe_in_deg for c in runnable]
+    return {"baseline_mm": (min(baselines), max(baselines)), "toe_in_deg": (min(toe_ins), max(toe_ins))}
+
+
+def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration]) -> list[Visit]:
+    """The visits the extrinsics source needs before the measured configurations (none for most modes), as its
+    strategy object says (``visits``), each visit checked like a configuration (the calibration board must fit
+    both views somewhere, the move must pass the soft limits).
+
+    ``kinematic`` without ``kinematic_file``: the design of :func:`stereo_bench.kinematics.kinematic_design`
+    over :func:`design_ranges`; the board is shown around the middle of the plan's target distances.
+    ``nominal`` without ``calib_dir``: the first runnable configuration at which the calibration board fits,
+    for one stereo calibration whose intrinsics every configuration uses.
+    """
+    extrinsics = config.extrinsics
+    source = extrinsics.source()
+    if source.visit_purpose(extrinsics) is None:
+        return []
+    ranges = design_ranges(configurations)
+    if ranges is None:
+        return []
+    board = config.calibration_board.build()
+    left = config.cameras.optics.camera_model("left")
+    right = config.cameras.optics.camera_model("right")
+    rig_config = config.rig.rig_config()
+    tilt = float(config.plan.tilt_deg)
+
+    def visit(index: int, config_id: str, purpose: str, baseline: float, toe_left: float, toe_right: float,
+              distance: float) -> Visit:
+        pose = RigPose(baseline, alpha_from_toe_in(toe_left), alpha_from_toe_in(toe_right), tilt, tilt)
+        fits = calibration_distance_range(board, pose, left=left, right=right)
+        reason = None
+        if fits is None:
+            reason = (f"calibration board ({config.calibration_board.describe()}) never fits both views at "
+                      f"B = {baseline:g} mm, toe-ins {toe_left:g}/{toe_right:g} deg")
+        draft = Visit(index=index, config_id=config_id, purpose=purpose, baseline_mm=float(baseline),
+                      toe_in_left_deg=float(toe_left), toe_in_right_deg=float(toe_right), tilt_deg=tilt,
+                      distance_mm=float(distance), calibration_range_mm=fits, feasible=fits is not None,
+                      reason=reason)
+        return dataclasses.replace(draft, limit_violation=_limit_violation(rig_config, draft.move_request()))
+
+    return source.visits(extrinsics, configurations, ranges, visit=visit, format_id=format_id_value)
