@@ -53,16 +53,22 @@ def main(argv: list[str]) -> int:
             print(f"  {p:>12} {j['value']:10.3f} {j['sigma']:8.4f} {j['sigma_residuals']:9.4f} {j['scatter']:9.4f} "
                   f"{j['linearised_scatter']:10.4f} {j['scatter'] / j['sigma']:10.2f} "
                   f"{j['scatter'] / j['sigma_residuals']:11.2f}")
-        result[name] = {**figures, "rows": rows, "jackknife": loo["jackknife"],
+        a = loo["adequacy"]
+        if a is not None:
+            print(f"  adequacy (full calibration, {a['n_views']} held-out views): u_rel {a['u_rel']:.2e} "
+                  f"(held-out RMS {a['rms_rel']:.2e}, predicted {a['predicted_rel']:.2e}, bias {a['bias_rel']:+.2e}, "
+                  f"dof {a['dof']:.0f})")
+        result[name] = {**figures, "adequacy": a, "rows": rows, "jackknife": loo["jackknife"],
                         "opencv_errors_mm": loo["opencv_errors_mm"].tolist()}
     print()
-    print("| set | pairs | LOO RMS error mm (stereo-bench / OpenCV) | RMS(err/u_c) | within U | median U / median |err| "
-          "| sigma(abs T) jackknife / reported (residuals only) |")
+    print("| set | pairs | LOO RMS error mm (stereo-bench / OpenCV) | RMS(err/u_c) | within U "
+          "| median U / median |err| | sigma(abs T) jackknife / reported (residuals only) |")
     print("|---|---|---|---|---|---|---|")
     for name in names:
         f = result[name]
         print(f"| {name} | {f['pairs']} | {f['rms_error_mm']:.4f} / {f['opencv_rms_error_mm']:.4f} "
-              f"| {f['rms_normalised']:.2f} | {f['within_U']:.0%} | {f['inflation']:.1f} | {f['baseline_sigma_ratio']:.2f} ({f['baseline_sigma_ratio_residuals']:.2f}) |")
+              f"| {f['rms_normalised']:.2f} | {f['within_U']:.0%} | {f['inflation']:.1f} "
+              f"| {f['baseline_sigma_ratio']:.2f} ({f['baseline_sigma_ratio_residuals']:.2f}) |")
     elapsed = time.perf_counter() - start
     print(f"{elapsed:.0f} s; load average before {load_before[0]:.2f}, after {os.getloadavg()[0]:.2f}")
     out = RESULTS / "coverage_real.json"

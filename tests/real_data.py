@@ -170,6 +170,7 @@ def leave_one_out(name: str) -> dict:
                                       structure_covariance=np.zeros((6, 6)), structure_source="unmoved within the set")
         rows.append({"pair": held_out, "error_mm": budget.error_mm, "u_c_mm": budget.combined,
                      "U_mm": budget.expanded, **{f"u_{k}_mm": v for k, v in budget.components.items()},
+                     "u_adequacy_mm": budget.adequacy, "k": budget.k,
                      "noise_random_mm": budget.noise_random_mm, "noise_systematic_mm": budget.noise_systematic_mm,
                      "detector_bias_mm": budget.detector_bias_mm, "corner_systematic_px": budget.corner_systematic_px,
                      "systematic_model": budget.systematic_model, "dominant": budget.dominant,
@@ -189,7 +190,9 @@ def leave_one_out(name: str) -> dict:
                         "sigma": float(np.sqrt(cov.variance_of(g, names)[0])),
                         "sigma_residuals": float(np.sqrt(g @ cov.matrix[np.ix_(i, i)] @ g)),
                         "linearised_scatter": float(np.sqrt((n - 1) / n * np.sum((linear - linear.mean()) ** 2)))}
-    return {"rows": rows, "opencv_errors_mm": opencv_leave_one_out(name), "jackknife": jackknife, "calibration": full}
+    adequacy = full.adequacy.as_dict() if full.adequacy is not None else None
+    return {"rows": rows, "opencv_errors_mm": opencv_leave_one_out(name), "jackknife": jackknife, "calibration": full,
+            "adequacy": adequacy}
 
 
 def summary(result: dict) -> dict:
