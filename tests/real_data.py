@@ -145,6 +145,7 @@ def parameter(calib: StereoCalibration, name: str) -> float:
     return float(K[{"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}[what]])
 
 
+@cache
 def leave_one_out(name: str) -> dict:
     """Each pair the full calibration keeps, held out in turn (stereo-bench), with plain OpenCV beside it.
 
@@ -212,3 +213,41 @@ def summary(result: dict) -> dict:
         "baseline_sigma_ratio_residuals":
             result["jackknife"]["baseline"]["scatter"] / result["jackknife"]["baseline"]["sigma_residuals"],
     }
+
+
+def inconsistent_leave_one_out(name: str, views: tuple[int, ...], shift_px: float, *, adequacy: bool = True) -> dict:
+    """Leave-one-out on ``name`` with the right corners of ``views`` (positions among the usable pairs) moved
+    ``shift_px`` along x: pairs whose left and right images disagree (a board that moved between the two
+    exposures), kept by the calibration, the class of the issue's anamorphic webcam. ``adequacy`` False: the
+    budget without the model-adequacy component (as before it existed). Returns errors_mm, u_c_mm, U_mm per pair
+    and the full calibration's adequacy."""
+    from dataclasses import replace as _replace
+
+    from stereo_bench.vision.uncertainty import FrameCorners
+
+    s = SETS[name]
+    det = detections(name)
+    usable = [i for i, d in enumerate(det) if d[0] is not None and d[1] is not None]
+    corners = {}
+    for position, i in enumerate(usable):
+        ids, left, right = common_corners(*det[i])
+        corners[i] = (ids, left, right + np.array([shift_px, 0.0]) if position in views else right)
+    size = images(name)[0][0].shape[::-1]
+
+    def calibrate(keys):
+        return calibrate_stereo([s.board.object_points[corners[i][0]] for i in keys], [corners[i][1] for i in keys],
+                                [corners[i][2] for i in keys], size)
+
+    errors, u_c, U = [], [], []
+    for held_out in usable:
+        calib = calibrate([i for i in usable if i != held_out])
+        pair = measure_pair(images(name)[0][held_out], images(name)[1][held_out], calib, s.board,
+                            detections=det[held_out])
+        frame = _replace(FrameCorners.from_pair(pair), right_px=corners[held_out][2], triangulated=None)
+        budget = configuration_budget([frame], calib, s.board, board_scale=BoardScale(same_board=True),
+                                      structure_covariance=np.zeros((6, 6)), adequacy="calib" if adequacy else None)
+        errors.append(budget.error_mm)
+        u_c.append(budget.combined)
+        U.append(budget.expanded)
+    return {"errors_mm": np.array(errors), "u_c_mm": np.array(u_c), "U_mm": np.array(U),
+            "adequacy": calibrate(usable).adequacy}

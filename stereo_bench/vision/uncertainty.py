@@ -458,9 +458,15 @@ def square_sensitivities(
     one triangulation (OpenCV undistorts and triangulates point by point: the same bits).
     """
     square = _square_function(_frames(frames), target)
+    return _sensitivities(calib, square, names, square.of_points)
+
+
+def _sensitivities(calib: StereoCalibration, square: _Square, names: Sequence[str], reduce) -> np.ndarray:
+    """:func:`square_sensitivities` of a built square function; ``reduce(points (M, 3))`` -> a value or an array
+    of values (per frame: the gradient is then (P, F))."""
     left_norm = undistort_points(square.left, calib.K1, calib.D1)
     right_norm = undistort_points(square.right, calib.K2, calib.D2)
-    values = np.empty((len(names), 2))  # the square at +step and -step
+    values: list[list] = [[None, None] for _ in names]  # the square at +step and -step
     intrinsic: list[tuple[int, int, np.ndarray, np.ndarray]] = []
     for i, name in enumerate(names):
         step = parameter_step(name)
@@ -473,17 +479,14 @@ def square_sensitivities(
                 intrinsic.append((i, j, left_norm, undistort_points(square.right, moved["K2"], moved["D2"])))
             else:
                 points = triangulate_normalised(moved.get("R", calib.R), moved.get("T", calib.T), left_norm, right_norm)
-                values[i, j] = square.of_points(points)
+                values[i][j] = reduce(points)
     if intrinsic:
         points = triangulate_normalised(calib.R, calib.T, np.vstack([e[2] for e in intrinsic]),
                                         np.vstack([e[3] for e in intrinsic])).reshape(len(intrinsic), -1, 3)
         for (i, j, _, _), moved_points in zip(intrinsic, points, strict=True):
-            values[i, j] = square.of_points(moved_points)
-    gradient = np.empty(len(names))
-    for i, name in enumerate(names):
-        step = parameter_step(name)
-        gradient[i] = (values[i, 0] - values[i, 1]) / (2 * step)
-    return gradient
+            values[i][j] = reduce(moved_points)
+    return np.array([(np.asarray(plus, float) - np.asarray(minus, float)) / (2 * parameter_step(name))
+                     for (plus, minus), name in zip(values, names, strict=True)])
 
 
 @dataclass(frozen=True)
@@ -530,7 +533,7 @@ class _ObjectGrid:
     """The adjacent pairs of one view's board points (N, 3): pairs one grid pitch (the smallest spacing) apart."""
 
     def __init__(self, object_points: np.ndarray):
-        obj = np.asarray(object_points, float).reshape(-1, 3)
+        obj = self.points = np.asarray(object_points, float).reshape(-1, 3)
         distance = np.linalg.norm(obj[:, None] - obj[None], axis=2)
         self.square_mm = float(np.min(distance[distance > 0]))
         a, b = np.nonzero(np.triu(np.abs(distance - self.square_mm) < 1e-6 * self.square_mm, 1))
@@ -540,24 +543,15 @@ class _ObjectGrid:
         return self.pairs
 
 
-def shifted(calib: StereoCalibration, names: Sequence[str], delta: np.ndarray) -> StereoCalibration:
-    """``calib`` with the parameters ``names`` (covariance names) moved by ``delta`` (same order, their units)."""
-    fields: dict[str, np.ndarray] = {}
-    moved = calib
-    for name, d in zip(names, np.asarray(delta, float), strict=True):
-        fields.update(_perturbed_fields(moved, name, float(d)))
-        moved = replace(moved, **fields)
-    return moved
-
-
 def model_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray], left_points: Sequence[np.ndarray],
                    right_points: Sequence[np.ndarray]) -> ModelAdequacy | None:
     """The leave-one-view-out check of a stereo calibration on its own board (:class:`ModelAdequacy`).
 
     ``object_points``, ``left_points``, ``right_points``: per view (N_v, 3) mm and (N_v, 2) px, the views
     ``calib.covariance.view_deltas`` belong to (the views the fit used, in its order). Linearised: no refit,
-    a few triangulations per view (scripts/coverage_real.py: the one-step deltas equal refitting without the view
-    to 1-4 % in the scatter of abs(T), fx, cx). None without view deltas or with fewer than
+    the held-out square to first order in the view's change, sqrt-sum of a few triangulations per view
+    (scripts/coverage_real.py: the one-step deltas equal refitting without the view to 1-4 % in the scatter of
+    abs(T), fx, cx). None without view deltas or with fewer than
     :data:`MIN_ADEQUACY_VIEWS` views.
     """
     covariance = calib.covariance
@@ -566,23 +560,45 @@ def model_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray]
     if len(covariance.view_deltas) != len(object_points):
         raise ValueError("model_adequacy: one view per row of the covariance's view deltas")
     names = list(covariance.names)
-    errors, calibration, pixel = [], [], []
     sigma_px = covariance.sigma_px
-    for obj, left, right, delta in zip(object_points, left_points, right_points, covariance.view_deltas, strict=True):
+    # Every view's squares at once: one square function over all views' corners, reduced per view.
+    frames, a_idx, b_idx, weights, owner, nominal, offset = [], [], [], [], [], [], 0
+    for v, (obj, left, right) in enumerate(zip(object_points, left_points, right_points, strict=True)):
         grid = _ObjectGrid(obj)
-        frame = FrameCorners(ids=np.arange(len(np.asarray(obj).reshape(-1, 3))),
-                             left_px=np.asarray(left, float).reshape(-1, 2),
-                             right_px=np.asarray(right, float).reshape(-1, 2),
-                             sigma_mean_mm=float("nan"), pixel_sigma_px=(sigma_px, sigma_px))
-        held_out = shifted(calib, names, delta)
-        square = _square_function([frame], grid)
-        errors.append((square(held_out) - grid.square_mm) / grid.square_mm)
-        gradient = pixel_gradients(held_out, [frame], grid)[0]
-        g = square_sensitivities(held_out, [frame], grid, names)
-        pixel.append(float(np.sum(gradient**2)) / grid.square_mm**2)
-        calibration.append(covariance.variance_of(g, names)[0] / grid.square_mm**2)
-    errors_arr = np.array(errors)
-    n = len(errors_arr)
+        frames.append(FrameCorners(ids=np.arange(len(grid.points)), left_px=np.asarray(left, float).reshape(-1, 2),
+                                   right_px=np.asarray(right, float).reshape(-1, 2), sigma_mean_mm=float("nan"),
+                                   pixel_sigma_px=(sigma_px, sigma_px)))
+        a_idx.append(offset + grid.pairs[:, 0])
+        b_idx.append(offset + grid.pairs[:, 1])
+        weights.append(np.full(len(grid.pairs), 1.0 / len(grid.pairs)))
+        owner.append(np.full(len(grid.pairs), v))
+        nominal.append(grid.square_mm)
+        offset += len(grid.points)
+    square = _Square(np.vstack([f.left_px for f in frames]), np.vstack([f.right_px for f in frames]),
+                     np.concatenate(a_idx), np.concatenate(b_idx), np.concatenate(weights))
+    owner_arr, n = np.concatenate(owner), len(frames)
+
+    def per_view(points: np.ndarray) -> np.ndarray:
+        lengths = np.linalg.norm(points[square.a_idx] - points[square.b_idx], axis=1)
+        return np.bincount(owner_arr, weights=square.weights * lengths, minlength=n)
+
+    nominal_arr = np.array(nominal)
+    measured = per_view(triangulate(calib, square.left, square.right))
+    g = _sensitivities(calib, square, names, per_view).T  # (n, P)
+    # First order in each view's leave-one-out change, like the change itself (no refit, no re-triangulation).
+    errors = (measured + np.einsum("np,np->n", g, covariance.view_deltas) - nominal_arr) / nominal_arr
+    calibration = np.array([covariance.variance_of(g_v, names)[0] for g_v in g]) / nominal_arr**2
+    # The square's pixel gradient per corner: each view's own square (weights 1/K_v), through the triangulation.
+    points, jac = triangulate(calib, square.left, square.right), triangulation_jacobian(calib, square.left,
+                                                                                       square.right)
+    d = points[square.a_idx] - points[square.b_idx]
+    u = d / np.linalg.norm(d, axis=1)[:, None] * square.weights[:, None]
+    gradient = np.zeros((len(points), 4))
+    np.add.at(gradient, square.a_idx, np.einsum("kj,kjc->kc", u, jac[square.a_idx]))
+    np.add.at(gradient, square.b_idx, -np.einsum("kj,kjc->kc", u, jac[square.b_idx]))
+    corner_owner = np.concatenate([np.full(len(f.ids), v) for v, f in enumerate(frames)])
+    pixel = np.bincount(corner_owner, weights=np.sum(gradient**2, axis=1), minlength=n) / nominal_arr**2
+    errors_arr = np.asarray(errors)
     mean_square, mean_calibration, mean_pixel = float(np.mean(errors_arr**2)), float(np.mean(calibration)), \
         float(np.mean(pixel))
     mean_predicted = mean_calibration + sigma_px**2 * mean_pixel
