@@ -10,9 +10,8 @@ import pytest
 
 from stereo_bench.targets import Checkerboard
 from stereo_bench.vision.pipeline import calibrate_from_images, measure_pair
-from tests.real_data import OPENCV_SAMPLE, PRESENT_CJN
+from tests.real_data import OPENCV_SAMPLE, PRESENT_CJN, inconsistent_leave_one_out, leave_one_out, summary
 from tests.real_data import SETS as REAL_SETS
-from tests.real_data import inconsistent_leave_one_out, leave_one_out, summary
 
 SETS = {
     # name: (folder, left glob, right glob, board, published abs(T) mm)
@@ -151,3 +150,18 @@ def test_inconsistent_views_are_covered_by_the_adequacy_component():
     assert 0.7 <= rms_z(with_it) <= 1.3
     assert np.mean(np.abs(with_it["errors_mm"]) <= with_it["U_mm"]) >= 0.85
     assert with_it["adequacy"].u_rel >= 2 * clean["adequacy"].u_rel
+
+
+def test_the_adequacy_check_and_the_view_deltas_survive_the_calibration_files(tmp_path):
+    from stereo_bench.vision.calibio import read_calibration, recorded_board, write_calibration
+    from tests.real_data import full_calibration
+
+    calib, _ = full_calibration("smiler488_box")
+    assert calib.adequacy is not None and calib.adequacy.n_views == 20 and calib.adequacy.dof == 19
+    write_calibration(tmp_path, calib, board="checkerboard 8x5 square 15.0 mm")
+    back = read_calibration(tmp_path)
+    assert back.adequacy.u_rel == pytest.approx(calib.adequacy.u_rel, rel=1e-12)
+    assert back.adequacy.corner_px == pytest.approx(calib.adequacy.corner_px, rel=1e-12)
+    np.testing.assert_allclose(back.covariance.view_deltas, calib.covariance.view_deltas, rtol=1e-12)
+    assert back.covariance.sigma("left.fx") == pytest.approx(calib.covariance.sigma("left.fx"), rel=1e-9)
+    assert recorded_board(tmp_path) == ("checkerboard", "8x5", 15.0)

@@ -291,7 +291,9 @@ def cmd_measure(args: argparse.Namespace) -> int:
     from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL, BoardScale, configuration_budget
 
     try:
-        recorded = recorded_board(args.calib) if Path(args.calib).is_dir() else None
+        recorded = None
+        if (args.board is None or args.square is None) and Path(args.calib).is_dir():
+            recorded = recorded_board(args.calib)
     except CalibrationFileError as error:
         raise CliError(str(error)) from None
     board_source = {"board": "--board", "square": "--square"}
