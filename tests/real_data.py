@@ -21,7 +21,7 @@ from stereo_bench.vision.covariance import EXTRINSIC_NAMES
 from stereo_bench.vision.detect import common_corners, detect
 from stereo_bench.vision.pipeline import measure_pair
 from stereo_bench.vision.triangulate import triangulate
-from stereo_bench.vision.uncertainty import BoardScale, configuration_budget
+from stereo_bench.vision.uncertainty import BoardScale, configuration_budget, with_adequacy
 
 REAL = Path(__file__).resolve().parents[1] / "calib_data" / "real"
 OPENCV_SAMPLE = REAL / "opencv_sample"
@@ -127,14 +127,19 @@ def opencv_leave_one_out(name: str) -> np.ndarray:
     return np.array(errors)
 
 
+def _calibrate(object_points, left_points, right_points, image_size) -> StereoCalibration:
+    """The stereo calibration calibrate_from_images makes of these views, with its held-out check."""
+    calib = calibrate_stereo(object_points, left_points, right_points, image_size)
+    return with_adequacy(calib, object_points, left_points, right_points)
+
+
 @cache
 def full_calibration(name: str) -> tuple[StereoCalibration, list[int]]:
-    board = SETS[name].board
+    s = SETS[name]
     views = {i: common_corners(*d) for i, d in enumerate(detections(name)) if d[0] is not None and d[1] is not None}
     keys = sorted(views)
-    calib = calibrate_stereo([board.object_points[views[i][0]] for i in keys], [views[i][1] for i in keys],
-                             [views[i][2] for i in keys], images(name)[0][0].shape[::-1])
-    return calib, keys
+    return _calibrate([s.board.object_points[views[i][0]] for i in keys], [views[i][1] for i in keys],
+                      [views[i][2] for i in keys], images(name)[0][0].shape[::-1]), keys
 
 
 def parameter(calib: StereoCalibration, name: str) -> float:
@@ -163,8 +168,8 @@ def leave_one_out(name: str) -> dict:
     rows, loo_params = [], []
     for held_out in usable:
         keep = [i for i in usable if i != held_out]
-        calib = calibrate_stereo([s.board.object_points[views[i][0]] for i in keep], [views[i][1] for i in keep],
-                                 [views[i][2] for i in keep], size)
+        calib = _calibrate([s.board.object_points[views[i][0]] for i in keep], [views[i][1] for i in keep],
+                           [views[i][2] for i in keep], size)
         loo_params.append([parameter(calib, p) for p in ("baseline", *JACKKNIFE_INTRINSICS)])
         pair = measure_pair(left_images[held_out], right_images[held_out], calib, s.board, detections=det[held_out])
         budget = configuration_budget([pair], calib, s.board, board_scale=BoardScale(same_board=True),
@@ -235,8 +240,8 @@ def inconsistent_leave_one_out(name: str, views: tuple[int, ...], shift_px: floa
     size = images(name)[0][0].shape[::-1]
 
     def calibrate(keys):
-        return calibrate_stereo([s.board.object_points[corners[i][0]] for i in keys], [corners[i][1] for i in keys],
-                                [corners[i][2] for i in keys], size)
+        return _calibrate([s.board.object_points[corners[i][0]] for i in keys], [corners[i][1] for i in keys],
+                          [corners[i][2] for i in keys], size)
 
     errors, u_c, U = [], [], []
     for held_out in usable:

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import threading
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Literal
 
 import cv2
@@ -117,7 +117,8 @@ class StereoCalibration:
     # Of left.* right.* intrinsics, rvec.* (rad, rotation vector of R) and T.* (mm); None = unknown.
     covariance: CalibrationCovariance | None = None
     covariance_note: str = ""  # why the covariance is None
-    # The leave-one-view-out check on the calibration's own board (uncertainty.ModelAdequacy); None: not computed.
+    # The leave-one-view-out check on the calibration's own board (uncertainty.ModelAdequacy, set by
+    # uncertainty.with_adequacy, which pipeline.calibrate_from_images applies); None: not computed.
     adequacy: object | None = None
 
     @property
@@ -359,15 +360,8 @@ def calibrate_stereo(
         )
     except CovarianceUnavailable as error:
         note = str(error)
-    calib = StereoCalibration(
+    return StereoCalibration(
         K1=K1n, D1=D1n, K2=K2n, D2=D2n, R=R, T=T, image_size=tuple(image_size), rms_px=float(rms),
         per_view_rms_px=per_view, views_used=used, views_rejected=sorted(rejected, key=lambda r: r.index),
         mode=mode, E=E, F=F, covariance=cov, covariance_note=note,
     )
-    if cov is not None and cov.view_deltas is not None:
-        from stereo_bench.vision.uncertainty import model_adequacy  # it builds on this module
-
-        adequacy = model_adequacy(calib, [object_points[i] for i in used], [left_points[i] for i in used],
-                                  [right_points[i] for i in used])
-        calib = replace(calib, adequacy=adequacy)
-    return calib

@@ -69,6 +69,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -77,10 +78,12 @@ from stereo_bench.targets import Target
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.covariance import EXTRINSIC_NAMES, CalibrationCovariance
 from stereo_bench.vision.detect import common_corners
-from stereo_bench.vision.pipeline import PairMeasurement
 from stereo_bench.vision.rectify import undistort_points
 from stereo_bench.vision.triangulate import triangulate, triangulate_normalised, triangulation_jacobian
 
+#: A stereo_bench.vision.pipeline.PairMeasurement (``square``, ``left``, ``right``): not imported, the pipeline
+#: imports this module (it adds the calibration's held-out check, :func:`with_adequacy`).
+PairMeasurement = Any
 K_COVERAGE = 2.0
 #: Default relative standard uncertainty of a board's square (scale). 1e-4 is 2.7 um on the 27 mm
 #: square: the conservative end of what inspection reports of precision (glass, ceramic,
@@ -607,6 +610,19 @@ def model_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray]
                          rms_rel=float(math.sqrt(mean_square)), predicted_rel=float(math.sqrt(mean_predicted)),
                          bias_rel=float(np.mean(errors_arr)), corner_px=float(corner),
                          errors_rel=tuple(float(e) for e in errors_arr))
+
+
+def with_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray], left_points: Sequence[np.ndarray],
+                  right_points: Sequence[np.ndarray]) -> StereoCalibration:
+    """``calib`` with its :func:`model_adequacy` (``adequacy``), from the views it was given (indexed by
+    ``calib.views_used``, as :func:`~stereo_bench.vision.calibrate.calibrate_stereo` takes them); unchanged
+    without view deltas."""
+    covariance = calib.covariance
+    if covariance is None or covariance.view_deltas is None:
+        return calib
+    used = calib.views_used
+    return replace(calib, adequacy=model_adequacy(calib, [object_points[i] for i in used],
+                                                  [left_points[i] for i in used], [right_points[i] for i in used]))
 
 
 def independent_displacement_mm(frames: list[FrameCorners], gradients: list[np.ndarray], sigma_px: float) -> float:
