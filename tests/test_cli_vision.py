@@ -115,11 +115,16 @@ def test_measure_reports_the_uncertainty_budget(capsys, calib_dir):
     assert code == 0
     report = json.loads(out)
     u = report["uncertainty_mm"]
-    assert list(u) == ["noise", "calibration", "structure", "target", "combined", "expanded", "k"]
+    # "adequacy": the calibration's held-out check of its own board (issue 22), present when it was computed.
+    assert list(u) == ["noise", "calibration", "structure", "target", "adequacy", "combined", "expanded", "k"]
     assert u["structure"] is None and report["uncertainty"]["unknown"] == ["structure"]  # not zero: unknown
-    assert u["k"] == 2 and u["expanded"] == pytest.approx(2 * u["combined"])
+    # k: Student's t at the Welch-Satterthwaite degrees of freedom (the adequacy component's are 12: 13 views).
+    from stereo_bench.vision.uncertainty import coverage_factor
+    assert u["k"] == pytest.approx(coverage_factor(report["uncertainty"]["effective_dof"])) and 2 < u["k"] < 2.3
+    assert u["expanded"] == pytest.approx(u["k"] * u["combined"])
     assert u["calibration"] > 0 and u["noise"] >= report["uncertainty"]["noise_random_mm"] > 0
-    assert u["combined"] == pytest.approx(float(np.sqrt(u["noise"] ** 2 + u["calibration"] ** 2 + u["target"] ** 2)))
+    assert u["combined"] == pytest.approx(float(np.sqrt(u["noise"] ** 2 + u["calibration"] ** 2 + u["target"] ** 2
+                                                        + u["adequacy"] ** 2)))
     # Two boards, 1e-4 each (calibrate records its board's; measure's default): 30 mm x sqrt(2) x 1e-4.
     assert u["target"] == pytest.approx(30 * np.sqrt(2) * 1e-4)
     code, out, _ = run(capsys, *args, "--json", "--same-board")
@@ -127,7 +132,7 @@ def test_measure_reports_the_uncertainty_budget(capsys, calib_dir):
     code, out, _ = run(capsys, *args, "--json", "--board-scale-u", "1e-3")
     assert json.loads(out)["uncertainty_mm"]["target"] == pytest.approx(30 * np.hypot(1e-3, 1e-4))
     code, out, _ = run(capsys, *args)
-    assert code == 0 and f"+- {u['expanded']:.4f} mm (k=2)" in out and "structure unknown" in out
+    assert code == 0 and f"+- {u['expanded']:.4f} mm (k={u['k']:.3g})" in out and "structure unknown" in out
     code, _, err = run(capsys, *args, "--board-scale-u=-1")
     assert code == 2 and "--board-scale-u: must be" in err and len(err.strip().splitlines()) == 1
 
@@ -160,3 +165,27 @@ def test_calibrate_reports_parameter_sigmas(capsys, tmp_path):
     code, out, _ = run(capsys, *argv, "--out", str(tmp_path / "t"))
     assert code == 0 and "baseline |T| = 99.8" in out and f"+- {u['baseline_mm']:.3f} mm" in out
     assert "fx 534." in out and f"+- {u['left']['fx']:.2f}" in out
+
+
+def test_measure_takes_the_board_and_square_from_the_calibration(capsys, calib_dir):
+    # Issue 22: without --square, measure assumed 27 mm on a 30 mm calibration ("error -3 mm", exit 0).
+    left, right = OPENCV_SAMPLE / "left03.jpg", OPENCV_SAMPLE / "right03.jpg"
+    code, out, _ = run(capsys, "measure", "--calib", str(calib_dir), str(left), str(right), "--json")
+    assert code == 0
+    report = json.loads(out)
+    assert report["nominal_mm"] == 30 and abs(report["error_mm"]) < 0.3
+    assert report["board"]["pattern"] == "9x6" and report["board"]["square_from"].endswith("(recorded)")
+    code, out, _ = run(capsys, "measure", "--calib", str(calib_dir), "--square", "27", str(left), str(right),
+                       "--json")
+    assert code == 0 and json.loads(out)["nominal_mm"] == 27  # told otherwise
+    code, out, _ = run(capsys, "measure", "--calib", str(calib_dir), str(left), str(right))
+    assert code == 0 and "0.0000" not in out and " 0.000 px" not in out
+
+
+def test_fixed_or_significant_never_prints_zero_for_a_nonzero_value():
+    from stereo_bench.cli.vision import fixed_or_significant
+
+    assert fixed_or_significant(3.9e-05, 4) == "3.9e-05"
+    assert fixed_or_significant(0.1234, 4) == "0.1234"
+    assert fixed_or_significant(0.0, 4) == "0.0000"
+    assert fixed_or_significant(-2.1e-06, 3) == "-2.1e-06"

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import glob
 import json
+import math
 import os
 import re
 import sys
@@ -45,18 +47,40 @@ NOISE_DN = finite_float(min=0, max=255, unit="DN")  # 8-bit frames
 BLUR_PX = finite_float(min=0, max=50, unit="px")
 
 
-def add_target_options(parser: argparse.ArgumentParser, *, default_square_mm: float | None) -> None:
-    parser.add_argument("--board", required=True, metavar="COLSxROWS", type=board_pattern,
+def add_target_options(parser: argparse.ArgumentParser, *, default_square_mm: float | None,
+                       from_calibration: bool = False) -> None:
+    """``from_calibration``: --board and --square default to the board the calibration records (``measure``),
+    ``default_square_mm`` then only when it records none."""
+    recorded = " (default: the board the calibration records)" if from_calibration else ""
+    parser.add_argument("--board", required=not from_calibration, metavar="COLSxROWS", type=board_pattern,
                         help="checkerboard inner corners per row x per column, e.g. 9x6 "
-                             "(with --charuco: squares per row x per column)")
-    parser.add_argument("--square", type=SQUARE_MM, required=default_square_mm is None, default=default_square_mm,
-                        metavar="MM", help="square size in mm" + (f" (default {default_square_mm})"
-                                                                     if default_square_mm else ""))
+                             "(with --charuco: squares per row x per column)" + recorded)
+    square_default = ""
+    if from_calibration:
+        square_default = " (default: the calibration's recorded square" + (
+            f", else {default_square_mm:g})" if default_square_mm else ")")
+    elif default_square_mm:
+        square_default = f" (default {default_square_mm})"
+    parser.add_argument("--square", type=SQUARE_MM, required=default_square_mm is None and not from_calibration,
+                        default=None if from_calibration else default_square_mm,
+                        metavar="MM", help="square size in mm" + square_default)
     parser.add_argument("--charuco", action="store_true", help="the board is a ChArUco board (partial views count)")
     parser.add_argument("--marker", type=SQUARE_MM, metavar="MM",
                         help="ChArUco marker size in mm (default 0.75 x square)")
     parser.add_argument("--dictionary", default="DICT_5X5_1000", choices=sorted(ARUCO_DICTIONARIES),
                         metavar="DICT", help="ChArUco ArUco dictionary (default DICT_5X5_1000)")
+
+
+#: ``measure``'s square when neither --square nor the calibration says (files from OpenCV or ``render``).
+MEASURE_DEFAULT_SQUARE_MM = 27.0
+
+
+def fixed_or_significant(value: float, decimals: int) -> str:
+    """``value`` with ``decimals`` decimals, or two significant digits where those would print only zeros
+    ("0.0000" for 3.9e-05): a quantity is never shown as 0 when it is not."""
+    if value != 0 and math.isfinite(value) and abs(value) < 0.5 * 10.0**-decimals:
+        return format(value, ".2g")
+    return format(value, f".{decimals}f")
 
 
 def target_from_args(args: argparse.Namespace) -> Target:
@@ -224,6 +248,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         "image_size": list(calib.image_size), "out": str(out),
         "uncertainty": uncertainty, "uncertainty_note": calib.covariance_note or None,
         "board_scale_u_rel": args.board_scale_u,
+        "adequacy": None if calib.adequacy is None else calib.adequacy.as_dict(),
     }
     if args.json:
         print_json(report)
@@ -239,7 +264,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             print(f"{side:5s} " + " ".join(f"{k} {_pm(s[k], su.get(k), '.2f')}" for k in ("fx", "fy", "cx", "cy")))
         if uncertainty:
             print(f"uncertainties are standard (1 sigma), from the fit's residual corner noise "
-                  f"{uncertainty['sigma_px']:.3f} px")
+                  f"{uncertainty['sigma_px']:.3f} px, or the views' jackknife where that is significantly larger")
+        if calib.adequacy is not None:
+            a = calib.adequacy
+            print(f"model adequacy: the board's squares in {a.n_views} held-out views err {a.rms_rel:.2%} RMS "
+                  f"(mean {a.bias_rel:+.2%}), {a.predicted_rel:.2%} predicted: component {a.u_rel:.2%} of a length "
+                  f"({a.dof:.0f} degrees of freedom)")
         else:
             print(f"uncertainty unknown: {calib.covariance_note}")
         for r in report["views_rejected"]:
@@ -253,12 +283,31 @@ def cmd_measure(args: argparse.Namespace) -> int:
         CalibrationFileError,
         calibration_board_scale_u,
         read_calibration,
+        recorded_board,
         recorded_epipolar_rms_px,
     )
     from stereo_bench.vision.detect import AmbiguousViewError
     from stereo_bench.vision.pipeline import BoardNotFoundError, ImplausibleMeasurement, check_epipolar, measure_pair
     from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL, BoardScale, configuration_budget
 
+    try:
+        recorded = None
+        if (args.board is None or args.square is None) and Path(args.calib).is_dir():
+            recorded = recorded_board(args.calib)
+    except CalibrationFileError as error:
+        raise CliError(str(error)) from None
+    board_source = {"board": "--board", "square": "--square"}
+    if recorded is not None and (args.board is None or args.square is None):
+        kind, pattern, square = recorded
+        if args.board is None:
+            args.board, board_source["board"] = pattern, f"{args.calib} (recorded)"
+            args.charuco = args.charuco or kind == "charuco"
+        if args.square is None and (args.board == pattern):
+            args.square, board_source["square"] = square, f"{args.calib} (recorded)"
+    if args.board is None:
+        raise CliError(f"--board: {args.calib} does not record the calibration board (COLSxROWS): give --board")
+    if args.square is None:
+        args.square, board_source["square"] = MEASURE_DEFAULT_SQUARE_MM, "default"
     target = target_from_args(args)
     left, right = read_gray(args.left), read_gray(args.right)
     if left.shape != right.shape:
@@ -292,6 +341,8 @@ def cmd_measure(args: argparse.Namespace) -> int:
         raise CliError(f"{args.left}, {args.right} with {args.calib}: measurement refused: {error}") from None
     budget = configuration_budget([result], calib, target, board_scale=board_scale)
     report = {**result.as_dict(), "left": str(args.left), "right": str(args.right), "calib": str(args.calib),
+              "board": {"pattern": args.board, "square_mm": target.square_mm, "board_from": board_source["board"],
+                        "square_from": board_source["square"]},
               "uncertainty_mm": budget.as_dict(), "uncertainty": {
                   **budget.details(), "board_scale": {"target_u_rel": board_scale.target_u_rel,
                                                       "calibration_board_u_rel": board_scale.calibration_board_u_rel,
@@ -303,18 +354,20 @@ def cmd_measure(args: argparse.Namespace) -> int:
         print_json(report)
     else:
         sq = result.square
-        print(f"square: {sq.mean_mm:.4f} mm  (nominal {sq.nominal_mm:g}, error {sq.error_mm:+.4f} +- "
-              f"{budget.expanded:.4f} mm (k={budget.k:g}))")
-        parts = ", ".join(f"{name} {'unknown' if value is None else format(value, '.4f')}"
-                          for name, value in budget.components.items())
-        print(f"        uncertainty: {parts} -> u_c {budget.combined:.4f} mm, dominant: {budget.dominant}"
+        mm = functools.partial(fixed_or_significant, decimals=4)
+        print(f"square: {sq.mean_mm:.4f} mm  (nominal {sq.nominal_mm:g} from {board_source['square']}, error "
+              f"{'+' if sq.error_mm >= 0 else ''}{mm(sq.error_mm)} +- {mm(budget.expanded)} mm (k={budget.k:.3g}))")
+        components = {**budget.components, **({} if budget.adequacy is None else {"adequacy": budget.adequacy})}
+        parts = ", ".join(f"{name} {'unknown' if value is None else mm(value)}" for name, value in components.items())
+        print(f"        uncertainty: {parts} -> u_c {mm(budget.combined)} mm, dominant: {budget.dominant}"
               + (f"; not included: {', '.join(budget.unknown)}" if budget.unknown else ""))
-        print(f"        std {sq.std_mm:.4f} mm over n = {sq.n} adjacent pairs, sigma of mean {sq.sigma_mean_mm:.4f} mm")
+        print(f"        std {mm(sq.std_mm)} mm over n = {sq.n} adjacent pairs, sigma of mean {mm(sq.sigma_mean_mm)} mm")
         print(f"depth:  {sq.depth_mm:.1f} mm (left camera frame); corners in both views: {len(sq.ids)} "
               f"of {target.n_corners}")
         fit = result.planar_fit_rms_px
-        print(f"epipolar RMS {result.epipolar_rms_px:.3f} px; random corner noise {sq.pixel_sigma_px[0]:.3f} / "
-              f"{sq.pixel_sigma_px[1]:.3f} px, planar-fit RMS {fit[0]:.3f} / {fit[1]:.3f} px (left / right)")
+        px = functools.partial(fixed_or_significant, decimals=3)
+        print(f"epipolar RMS {px(result.epipolar_rms_px)} px; random corner noise {px(sq.pixel_sigma_px[0])} / "
+              f"{px(sq.pixel_sigma_px[1])} px, planar-fit RMS {px(fit[0])} / {px(fit[1])} px (left / right)")
     return 0
 
 
@@ -409,7 +462,7 @@ def register(subparsers) -> None:
     )
     measure.add_argument("--calib", required=True, metavar="CALIB_DIR", help="directory with intrinsics.yml and "
                                                                              "extrinsics.yml")
-    add_target_options(measure, default_square_mm=27.0)
+    add_target_options(measure, default_square_mm=MEASURE_DEFAULT_SQUARE_MM, from_calibration=True)
     measure.add_argument("left", metavar="LEFT", help=IMAGE_HELP)
     measure.add_argument("right", metavar="RIGHT", help=IMAGE_HELP)
     measure.add_argument("--pixel-sigma", type=PIXEL_SIGMA_PX, metavar="PX",

@@ -300,8 +300,15 @@ def _budget_section(page: SessionPage) -> str:
                      '<p class="missing">No configuration was measured: no uncertainty budget.</p>')
         return "".join(parts)
     has_true = any(c.structure and c.structure.square_true_mm is not None for c in with_budget)
+
+    def adequacy_of(config: ConfigReport) -> float | None:
+        # The model-adequacy component (issue 22): in the nested budget record when the calibration computed it.
+        record = config.row.get("uncertainty")
+        return _finite(record.get("adequacy")) if isinstance(record, dict) else None
+    has_adequacy = any(adequacy_of(c) is not None for c in with_budget)
     head = ("<tr><th class='label'>configuration</th><th class='label'>extrinsics</th><th>error</th>"
             + "".join(f"<th>{_e(name)}</th>" for name in BUDGET_COMPONENTS)
+            + ("<th>adequacy</th>" if has_adequacy else "")
             + "<th>u_c</th><th>U</th><th>k</th><th class='label'>dominant (share of u_c²)</th><th>error / u_c</th>"
             + ("<th>(measured − true) / u_c</th>" if has_true else "") + "</tr>")
     body = []
@@ -314,7 +321,8 @@ def _budget_section(page: SessionPage) -> str:
         first = (f"<td class='label'>{_config_link(session, config)}</td><td class='label'>{_e(mode)}</td>"
                  f"<td>{_num(row.get('error_mm'), signed=True)}</td>")
         if budget is None:
-            body.append(f"<tr>{first}<td colspan='{8 + has_true}' class='label unknown'>no budget recorded for this "
+            body.append(f"<tr>{first}<td colspan='{8 + has_true + has_adequacy}' class='label unknown'>no budget "
+                        "recorded for this "
                         "configuration</td></tr>")
             continue
         cells = []
@@ -326,6 +334,10 @@ def _budget_section(page: SessionPage) -> str:
             else:
                 css = " class='dominant'" if name == budget.dominant else ""
                 cells.append(f"<td{css}>{_num(value, places)}</td>")
+        if has_adequacy:
+            adequacy = adequacy_of(config)
+            cells.append("<td class='unknown' title='adequacy: not computed'>–</td>" if adequacy is None
+                         else f"<td>{_num(adequacy, places)}</td>")
         share = budget.share(budget.dominant) if budget.dominant else None
         dominant = f"{budget.dominant} ({share:.0%})" if budget.dominant and share is not None else "–"
         error = _finite(row.get("error_mm"))
@@ -359,7 +371,9 @@ def _budget_section(page: SessionPage) -> str:
     parts.append(
         f'<p class="small muted">{_e(summary)}{". " if summary else ""}Components: noise (image noise, random and '
         "systematic), calibration (from the calibration's covariance), structure (the extrinsics' source beyond the "
-        "calibration: the kinematic model, the rig's tolerances, its repeatability), target (the boards' scale). "
+        "calibration: the kinematic model, the rig's tolerances, its repeatability), target (the boards' scale)"
+        + (", adequacy (the calibration's own board measured in held-out views beyond its prediction)"
+           if has_adequacy else "") + ". "
         f"u_c combines the known ones; U = k·u_c. The dominant component is highlighted. “unknown”: the "
         f"component could not be evaluated and is not in u_c, so U{INCOMPLETE_MARK} is a lower bound. An error / u_c "
         "outside ±k is red: there, the stated uncertainty does not cover the error. "

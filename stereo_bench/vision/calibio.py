@@ -17,6 +17,7 @@ loads with the covariance None: unknown, not zero (``covariance_note`` says why)
 from __future__ import annotations
 
 import datetime as _dt
+import re
 from pathlib import Path
 
 import cv2
@@ -67,7 +68,23 @@ def _covariance_items(covariance: CalibrationCovariance | None, note: str) -> di
         "covariance_parameters": " ".join(covariance.names), "covariance": covariance.matrix,
         "covariance_sigma_px": float(covariance.sigma_px), "covariance_dof": int(covariance.dof),
         "pixel_locking_px": locking,
+        # (n_views, P) the views' linearised leave-one-out changes: the jackknife of CalibrationCovariance.variance_of
+        "covariance_view_deltas": covariance.view_deltas,
     }
+
+
+#: The model-adequacy keys of extrinsics.yml (uncertainty.ModelAdequacy's fields; absent when not computed).
+_ADEQUACY_KEYS = {"u_rel": "adequacy_u_rel", "dof": "adequacy_dof", "n_views": "adequacy_views",
+                  "rms_rel": "adequacy_rms_rel", "predicted_rel": "adequacy_predicted_rel",
+                  "bias_rel": "adequacy_bias_rel", "corner_px": "adequacy_corner_px"}
+
+
+def _adequacy_items(adequacy) -> dict[str, object]:
+    if adequacy is None:
+        return {}
+    values = adequacy.as_dict()
+    return {key: (int(values[name]) if name == "n_views" else float(values[name]))
+            for name, key in _ADEQUACY_KEYS.items()}
 
 
 def write_calibration(
@@ -90,7 +107,8 @@ def write_calibration(
                                 **_covariance_items(intrinsic_cov, calib.covariance_note)})
     rect_items = {} if rect is None else {"R1": rect.R1, "R2": rect.R2, "P1": rect.P1, "P2": rect.P2, "Q": rect.Q}
     _write_storage(extrinsics, {"R": calib.R, "T": np.asarray(calib.T).reshape(3, 1), **rect_items, **common,
-                                **_covariance_items(cov, calib.covariance_note)})
+                                **_covariance_items(cov, calib.covariance_note),
+                                **_adequacy_items(getattr(calib, "adequacy", None))})
     return intrinsics, extrinsics
 
 
@@ -163,10 +181,16 @@ def _covariance(storage: cv2.FileStorage, path: Path) -> tuple[CalibrationCovari
     if not storage.getNode("pixel_locking_px").empty():
         a_sin, a_cos = _matrix(storage, path, "pixel_locking_px", (2,))
         locking = (float(a_sin), float(a_cos))
+    deltas = None
+    if not storage.getNode("covariance_view_deltas").empty():
+        deltas = _matrix(storage, path, "covariance_view_deltas")
+        if deltas.ndim != 2 or deltas.shape[1] != len(names) or not np.all(np.isfinite(deltas)):
+            raise CalibrationFileError(f"{path}: key 'covariance_view_deltas' has shape {deltas.shape}, expected "
+                                       f"(views, {len(names)}) finite values")
     try:
         covariance = CalibrationCovariance(
             names, matrix, sigma_px=float("nan") if sigma_node.empty() else float(sigma_node.real()),
-            dof=0 if dof_node.empty() else int(dof_node.real()), pixel_locking_px=locking)
+            dof=0 if dof_node.empty() else int(dof_node.real()), pixel_locking_px=locking, view_deltas=deltas)
     except ValueError as error:
         raise CalibrationFileError(f"{path}: key 'covariance_parameters': {error}") from None
     return covariance, ""
@@ -236,17 +260,56 @@ def read_calibration(calib_dir: str | Path, *, image_size: tuple[int, int] | Non
         mode_node = storage.getNode("mode")
         mode = "given" if mode_node.empty() else mode_node.string()
         covariance, note = _covariance(storage, path)
+        adequacy = _adequacy(storage, path)
     finally:
         storage.release()
     size = stored_size or image_size
     if size is None:
         raise CalibrationFileError(f"{calib_dir}: files do not record the image size (image_width, image_height)")
     calib = StereoCalibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=size, rms_px=rms_px, mode=mode,
-                              covariance=covariance, covariance_note=note)
+                              covariance=covariance, covariance_note=note, adequacy=adequacy)
     problems = calibration_problems(calib)
     if problems:
         raise CalibrationFileError(f"{calib_dir}: not a usable stereo calibration: {problems[0]}")
     return calib
+
+
+def _adequacy(storage: cv2.FileStorage, path: Path):
+    """The calibration's leave-one-view-out check (uncertainty.ModelAdequacy) from its keys; None without them."""
+    from stereo_bench.vision.uncertainty import ModelAdequacy
+
+    if storage.getNode(_ADEQUACY_KEYS["u_rel"]).empty():
+        return None
+    values = {}
+    for name, key in _ADEQUACY_KEYS.items():
+        node = storage.getNode(key)
+        if node.empty() or not node.isReal() and not node.isInt():
+            raise CalibrationFileError(f"{path}: key {key!r} is missing or not a number (the adequacy_* keys go "
+                                       "together)")
+        values[name] = float(node.real())
+    if not all(np.isfinite(v) for k, v in values.items() if k != "corner_px") or values["u_rel"] < 0:
+        raise CalibrationFileError(f"{path}: key 'adequacy_u_rel' must be a finite number >= 0")
+    return ModelAdequacy.from_dict(values)
+
+
+def recorded_board(calib_dir: str | Path) -> tuple[str, str, float] | None:
+    """(kind, "COLSxROWS", square mm) of the board a calibration recorded (``board``: "checkerboard 8x5 square
+    15.0 mm", as ``calibrate`` writes it), or None when the file records none or in another form."""
+    path = _resolve(calib_dir, EXTRINSICS_FILE)
+    storage = _open(path)
+    try:
+        node = storage.getNode("board")
+        text = "" if node.empty() or not node.isString() else node.string()
+    finally:
+        storage.release()
+    match = re.fullmatch(r"\s*(\w+)\s+(\d+x\d+)\s+square\s+([0-9.eE+-]+)\s*mm\s*", text)
+    if not match:
+        return None
+    try:
+        square = float(match.group(3))
+    except ValueError:
+        return None
+    return (match.group(1), match.group(2), square) if np.isfinite(square) and square > 0 else None
 
 
 def recorded_epipolar_rms_px(calib_dir: str | Path) -> float | None:

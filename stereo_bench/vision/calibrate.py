@@ -117,6 +117,9 @@ class StereoCalibration:
     # Of left.* right.* intrinsics, rvec.* (rad, rotation vector of R) and T.* (mm); None = unknown.
     covariance: CalibrationCovariance | None = None
     covariance_note: str = ""  # why the covariance is None
+    # The leave-one-view-out check on the calibration's own board (uncertainty.ModelAdequacy, set by
+    # uncertainty.with_adequacy, which pipeline.calibrate_from_images applies); None: not computed.
+    adequacy: object | None = None
 
     @property
     def baseline_mm(self) -> float:

@@ -110,6 +110,13 @@ class ResidualMap:
         return np.sqrt(variance / n)
 
 
+#: The views' jackknife replaces the matrix's variance of a quantity when it exceeds it by more than this many
+#: standard errors of a variance (sqrt(2 / (n - 1)) relative): the rule corner_systematic_px uses for the residuals.
+JACKKNIFE_SIGNIFICANCE = 3.0
+#: Fewer views than this give the jackknife too few degrees of freedom to speak for a variance.
+MIN_JACKKNIFE_VIEWS = 8
+
+
 class CovarianceUnavailable(ValueError):
     """The covariance cannot be computed (unsupported flags, singular normal matrix); the message says why."""
 
@@ -133,6 +140,9 @@ class CalibrationCovariance:
     # model misses the corners (stereo_bench.vision.uncertainty uses it for the corner error beyond noise and
     # locking). None when not computed (a calibration read from a file, a prediction).
     residual_map: dict[str, ResidualMap] | None = None
+    # (n_views, P): per calibration view v the linearised leave-one-view-out change of every parameter,
+    # theta_(-v) - theta (:func:`view_deltas`); None when not computed (a file, a prediction, fixed intrinsics).
+    view_deltas: np.ndarray | None = None
 
     def __post_init__(self):
         matrix = np.asarray(self.matrix, float)
@@ -150,21 +160,48 @@ class CalibrationCovariance:
         return np.array([position[name] for name in names], int)
 
     def sigma(self, name: str) -> float:
-        i = self.index([name])[0]
-        return float(np.sqrt(max(self.matrix[i, i], 0.0)))
+        """Standard uncertainty of one parameter: :meth:`variance_of` its unit gradient."""
+        return float(np.sqrt(self.variance_of(np.ones(1), [name])[0]))
 
     def sigmas(self) -> dict[str, float]:
-        return {name: float(np.sqrt(max(v, 0.0))) for name, v in zip(self.names, np.diag(self.matrix), strict=True)}
+        return {name: self.sigma(name) for name in self.names}
+
+    def variance_of(self, gradient: np.ndarray, names: Sequence[str]) -> tuple[float, float, str]:
+        """(variance, degrees of freedom, source) of the scalar ``gradient @ parameters[names]``.
+
+        From the matrix (``"residuals"``: sigma^2 g^T S^-1 g, infinite degrees of freedom for this purpose:
+        the residual sigma's own are many thousands), unless the calibration's views scatter it
+        significantly more: the jackknife over the views (:attr:`view_deltas`),
+        var_J = (n-1)/n sum_v (g . d_v - mean)^2, with n - 1 degrees of freedom (``"views"``), when
+        var_J > var (1 + :data:`JACKKNIFE_SIGNIFICANCE` sqrt(2 / (n - 1))), i.e. more than that many
+        standard errors of a variance estimated from n - 1 degrees of freedom. The matrix assumes
+        independent corner errors; a per-view error the model does not fit (a bent or moving board, a lens
+        term it lacks, left and right not taken together) is correlated over a view's corners, which only
+        the scatter over views shows (real sets: abs(T) 1.7-2.2 and fx 2-5 times the matrix's sigma).
+        """
+        g = np.asarray(gradient, float).reshape(-1)
+        i = self.index(names)
+        variance = float(max(g @ self.matrix[np.ix_(i, i)] @ g, 0.0))
+        deltas = self.view_deltas
+        if deltas is None or len(deltas) < MIN_JACKKNIFE_VIEWS:
+            return variance, float("inf"), "residuals"
+        n = len(deltas)
+        values = deltas[:, i] @ g
+        jackknife = float((n - 1) / n * np.sum((values - values.mean()) ** 2))
+        if jackknife > variance * (1.0 + JACKKNIFE_SIGNIFICANCE * np.sqrt(2.0 / (n - 1))):
+            return jackknife, float(n - 1), "views"
+        return variance, float("inf"), "residuals"
 
     def subset(self, names: Sequence[str]) -> CalibrationCovariance:
         """The marginal covariance of ``names`` (in that order)."""
         i = self.index(names)
         return CalibrationCovariance(tuple(names), self.matrix[np.ix_(i, i)], self.sigma_px, self.dof,
-                                     self.pixel_locking_px, self.residual_map)
+                                     self.pixel_locking_px, self.residual_map,
+                                     None if self.view_deltas is None else self.view_deltas[:, i])
 
     def prefixed(self, prefix: str) -> CalibrationCovariance:
         return CalibrationCovariance(tuple(prefix + n for n in self.names), self.matrix, self.sigma_px, self.dof,
-                                     self.pixel_locking_px, self.residual_map)
+                                     self.pixel_locking_px, self.residual_map, self.view_deltas)
 
     def with_prefix(self, prefix: str) -> tuple[str, ...]:
         return tuple(n for n in self.names if n.startswith(prefix))
@@ -222,6 +259,7 @@ class _Solution:
     pixel_locking_px: tuple[float, float] | None
     assumed_sigma_px: float | None = None  # given instead of estimated from the residuals
     residual_map: dict[str, ResidualMap] | None = None
+    view_deltas: np.ndarray | None = None  # (n, P) linearised leave-one-view-out changes (view_deltas)
 
     @property
     def dof(self) -> int:
@@ -249,12 +287,13 @@ def _residual_maps(views: list[_View], image_size: tuple[int, int]) -> dict[str,
 
 
 def _solve(views: list[_View], *, locking: bool = True, jhat: bool = False,
-           image_size: tuple[int, int] | None = None) -> _Solution:
+           image_size: tuple[int, int] | None = None, leave_out: bool = False) -> _Solution:
     """Schur complement of the per-view poses; raises CovarianceUnavailable if the problem is singular.
 
     All views at once: each view's rows are zero-padded to the longest view's (zero rows add nothing
     to the normal equations), so the per-view algebra runs as a few batched numpy calls. ``jhat``:
-    also the pose-projected Jacobian (only estimates that depend on other estimates need it).
+    also the pose-projected Jacobian (only estimates that depend on other estimates need it). ``leave_out``:
+    also each view's linearised leave-one-out change of the parameters (:func:`view_deltas`).
     """
     sizes = [len(view.residual) for view in views]
     n, m, P = len(views), max(sizes), views[0].J_global.shape[1]
@@ -277,16 +316,42 @@ def _solve(views: list[_View], *, locking: bool = True, jhat: bool = False,
     if not np.all(np.isfinite(S_inv)) or np.any(np.diag(S_inv) <= 0):
         raise CovarianceUnavailable("the calibration parameters are not determined by these views")
     Jhat = None
-    if jhat:
+    deltas = None
+    if jhat or leave_out:
         projected = J_global - J_pose @ C_inv_Bt
-        Jhat = [projected[i, :size] for i, size in enumerate(sizes)]
+        Jhat = [projected[i, :size] for i, size in enumerate(sizes)] if jhat else None
+        if leave_out:
+            deltas = view_deltas(S, projected, [view.residual for view in views])
     residual = np.concatenate([view.residual for view in views])
     return _Solution(
         S_inv=S_inv, Jhat=Jhat, ssr=float(residual @ residual),
         n_rows=len(residual), n_parameters=P + 6 * n,
         pixel_locking_px=pixel_locking(np.concatenate([v.observed for v in views]), residual) if locking else None,
         residual_map=_residual_maps(views, image_size) if locking and image_size is not None else None,
+        view_deltas=deltas,
     )
+
+
+def view_deltas(S: np.ndarray, projected: np.ndarray, residuals: Sequence[np.ndarray]) -> np.ndarray | None:
+    """(n, P) per view v the linearised leave-one-view-out change of the parameters, theta_(-v) - theta.
+
+    ``S`` (P, P) the reduced normal matrix (poses eliminated), ``projected`` (n, m, P) each view's Jacobian
+    with its pose projected out (rows zero-padded), ``residuals`` per view (m_v,) projected - observed px.
+    At the optimum the views' reduced gradients g_v = Jhat_v^T r_v sum to zero, so without view v the gradient
+    is -g_v and one Gauss-Newton step moves the parameters by (S - S_v)^-1 g_v, S_v = Jhat_v^T Jhat_v (its own
+    pose leaves with it). Exact for a linear model; for a calibration it agrees with refitting without the view
+    (scripts/coverage_real.py compares them). None when a view's removal leaves S singular.
+    """
+    n, m, _ = projected.shape
+    padded = np.zeros((n, m))
+    for i, r in enumerate(residuals):
+        padded[i, :len(r)] = r
+    g = np.einsum("nmp,nm->np", projected, padded)
+    S_v = projected.transpose(0, 2, 1) @ projected
+    try:
+        return np.linalg.solve(S[None] - S_v, g[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        return None
 
 
 def pixel_locking(observed_px: np.ndarray, residual_px: np.ndarray) -> tuple[float, float] | None:
@@ -340,9 +405,9 @@ def mono_covariance(
     if not free:
         raise CovarianceUnavailable("all intrinsics were fixed: nothing was estimated")
     views = _mono_views(object_points, image_points, K, D, rvecs, tvecs, free, range(len(object_points)), "")
-    solution = _solve(views, image_size=image_size)
+    solution = _solve(views, image_size=image_size, leave_out=True)
     return CalibrationCovariance(free, solution.sigma_px**2 * solution.S_inv, solution.sigma_px, solution.dof,
-                                 solution.pixel_locking_px, solution.residual_map)
+                                 solution.pixel_locking_px, solution.residual_map, solution.view_deltas)
 
 
 @dataclass(frozen=True)
@@ -472,14 +537,15 @@ def stereo_covariance(
         ext_r = tuple(n[6:] for n in intrinsics_covariance.with_prefix("right."))
     views = _stereo_views(object_points, left_points, right_points, K1, D1, K2, D2, R, T, rvecs, tvecs,
                           free_l, free_r, ext_l, ext_r, view_indices)
-    solution = _solve(views, locking=sigma_px is None, jhat=fixed, image_size=image_size)
+    solution = _solve(views, locking=sigma_px is None, jhat=fixed, image_size=image_size,
+                      leave_out=sigma_px is None and not fixed)
     if sigma_px is not None:
         solution = replace(solution, assumed_sigma_px=float(sigma_px))
     sigma2 = solution.sigma_px**2
     names = tuple("left." + n for n in free_l) + tuple("right." + n for n in free_r) + EXTRINSIC_NAMES
     if not fixed:
         return CalibrationCovariance(names, sigma2 * solution.S_inv, solution.sigma_px, solution.dof,
-                                     solution.pixel_locking_px, solution.residual_map)
+                                     solution.pixel_locking_px, solution.residual_map, solution.view_deltas)
 
     ext_names = tuple("left." + n for n in ext_l) + tuple("right." + n for n in ext_r)
     # The intrinsics held fixed move the stereo solution: d(rvec, T) = S^-1 Jhat^T (dq - J_ext d(intrinsics)).
@@ -547,7 +613,6 @@ def extrinsic_sigmas(R: np.ndarray, T: np.ndarray, covariance: CalibrationCovari
     the angle's first-order sigma is meaningless: then the largest component's sigma is given).
     """
     T = np.asarray(T, float).reshape(3)
-    C_T = covariance.subset(EXTRINSIC_NAMES[3:]).matrix
     C_r = covariance.subset(EXTRINSIC_NAMES[:3]).matrix
     u = T / np.linalg.norm(T)
     rvec = cv2.Rodrigues(np.asarray(R, np.float64))[0].reshape(3)
@@ -558,6 +623,7 @@ def extrinsic_sigmas(R: np.ndarray, T: np.ndarray, covariance: CalibrationCovari
     else:
         rotation = float(np.sqrt(np.max(np.diag(C_r))))
     return {
-        "baseline_mm": float(np.sqrt(u @ C_T @ u)), "T_mm": np.sqrt(np.diag(C_T)).tolist(),
+        "baseline_mm": float(np.sqrt(covariance.variance_of(u, EXTRINSIC_NAMES[3:])[0])),
+        "T_mm": [covariance.sigma(n) for n in EXTRINSIC_NAMES[3:]],
         "rvec_deg": np.degrees(np.sqrt(np.diag(C_r))).tolist(), "rotation_deg": float(np.degrees(rotation)),
     }

@@ -23,6 +23,7 @@ from stereo_bench.vision.detect import Detection, common_corners, common_sigmas,
 from stereo_bench.vision.measure import SquareMeasurement, measure_square, planar_fit_rms_px
 from stereo_bench.vision.rectify import Rectification, epipolar_errors_px, rectify, rms
 from stereo_bench.vision.triangulate import camera_depths_mm, parallax_px
+from stereo_bench.vision.uncertainty import with_adequacy
 
 MIN_COMMON_CORNERS = 6
 
@@ -169,6 +170,7 @@ def calibrate_from_images(
                          f"(need {MIN_VIEWS})")
     calib = calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode,
                              intrinsics_covariance=intrinsics_covariance)
+    calib = with_adequacy(calib, objects, lefts, rights)  # the held-out check of the budget (docs/UNCERTAINTY.md)
     problems = calibration_problems(calib)
     if problems:
         raise ImplausibleCalibration(f"the calibration is not physically possible: {problems[0]}")

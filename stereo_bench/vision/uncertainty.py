@@ -69,6 +69,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -77,10 +78,12 @@ from stereo_bench.targets import Target
 from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.covariance import EXTRINSIC_NAMES, CalibrationCovariance
 from stereo_bench.vision.detect import common_corners
-from stereo_bench.vision.pipeline import PairMeasurement
 from stereo_bench.vision.rectify import undistort_points
 from stereo_bench.vision.triangulate import triangulate, triangulate_normalised, triangulation_jacobian
 
+#: A stereo_bench.vision.pipeline.PairMeasurement (``square``, ``left``, ``right``): not imported, the pipeline
+#: imports this module (it adds the calibration's held-out check, :func:`with_adequacy`).
+PairMeasurement = Any
 K_COVERAGE = 2.0
 #: Default relative standard uncertainty of a board's square (scale). 1e-4 is 2.7 um on the 27 mm
 #: square: the conservative end of what inspection reports of precision (glass, ceramic,
@@ -90,6 +93,34 @@ K_COVERAGE = 2.0
 #: value (``BoardScale``, ``--board-scale-u``), ideally measured.
 DEFAULT_BOARD_SCALE_U_REL = 1e-4
 COMPONENTS = ("noise", "calibration", "structure", "target")
+#: Fewer held-out views than this say too little about the model's adequacy: the component is not computed.
+MIN_ADEQUACY_VIEWS = 8
+#: Student's t for a 95.45 % two-sided interval (the k = 2 of a normal distribution) by degrees of freedom,
+#: JCGM 100:2008 Table G.2; between the rows linear in 1/nu.
+_T_9545 = ((1, 13.97), (2, 4.53), (3, 3.31), (4, 2.87), (5, 2.65), (6, 2.52), (7, 2.43), (8, 2.37), (9, 2.32),
+           (10, 2.28), (11, 2.25), (12, 2.23), (13, 2.21), (14, 2.20), (15, 2.18), (16, 2.17), (17, 2.16),
+           (18, 2.15), (19, 2.14), (20, 2.13), (25, 2.11), (30, 2.09), (35, 2.07), (40, 2.06), (45, 2.06),
+           (50, 2.05), (100, 2.025))
+
+
+def coverage_factor(dof: float) -> float:
+    """k for about 95 % coverage with ``dof`` effective degrees of freedom (2.0 at infinity; JCGM 100 G.2)."""
+    if not dof < 100:
+        return float(K_COVERAGE + (_T_9545[-1][1] - K_COVERAGE) * 100.0 / dof) if math.isfinite(dof) else K_COVERAGE
+    if dof <= 1:
+        return _T_9545[0][1]
+    for (n0, t0), (n1, t1) in zip(_T_9545[:-1], _T_9545[1:], strict=True):
+        if n0 <= dof <= n1:
+            w = (1 / dof - 1 / n0) / (1 / n1 - 1 / n0)
+            return float(t0 + w * (t1 - t0))
+    return K_COVERAGE
+
+
+def effective_dof(components: Sequence[tuple[float, float]]) -> float:
+    """Welch-Satterthwaite: nu_eff = u_c^4 / sum(u_i^4 / nu_i) over (u_i, nu_i) (nu_i inf: known exactly)."""
+    u_c2 = sum(u * u for u, _ in components)
+    denominator = sum(u**4 / nu for u, nu in components if math.isfinite(nu) and nu > 0 and u > 0)
+    return float(u_c2**2 / denominator) if denominator > 0 else float("inf")
 #: Relative standard uncertainty of the detector bias predicted from the calibration's fitted pixel
 #: locking (the amplitude transfers from the calibration views to the target only approximately).
 LOCKING_TRANSFER_U_REL = 0.5
@@ -430,9 +461,15 @@ def square_sensitivities(
     one triangulation (OpenCV undistorts and triangulates point by point: the same bits).
     """
     square = _square_function(_frames(frames), target)
+    return _sensitivities(calib, square, names, square.of_points)
+
+
+def _sensitivities(calib: StereoCalibration, square: _Square, names: Sequence[str], reduce) -> np.ndarray:
+    """:func:`square_sensitivities` of a built square function; ``reduce(points (M, 3))`` -> a value or an array
+    of values (per frame: the gradient is then (P, F))."""
     left_norm = undistort_points(square.left, calib.K1, calib.D1)
     right_norm = undistort_points(square.right, calib.K2, calib.D2)
-    values = np.empty((len(names), 2))  # the square at +step and -step
+    values: list[list] = [[None, None] for _ in names]  # the square at +step and -step
     intrinsic: list[tuple[int, int, np.ndarray, np.ndarray]] = []
     for i, name in enumerate(names):
         step = parameter_step(name)
@@ -445,17 +482,158 @@ def square_sensitivities(
                 intrinsic.append((i, j, left_norm, undistort_points(square.right, moved["K2"], moved["D2"])))
             else:
                 points = triangulate_normalised(moved.get("R", calib.R), moved.get("T", calib.T), left_norm, right_norm)
-                values[i, j] = square.of_points(points)
+                values[i][j] = reduce(points)
     if intrinsic:
         points = triangulate_normalised(calib.R, calib.T, np.vstack([e[2] for e in intrinsic]),
                                         np.vstack([e[3] for e in intrinsic])).reshape(len(intrinsic), -1, 3)
         for (i, j, _, _), moved_points in zip(intrinsic, points, strict=True):
-            values[i, j] = square.of_points(moved_points)
-    gradient = np.empty(len(names))
-    for i, name in enumerate(names):
-        step = parameter_step(name)
-        gradient[i] = (values[i, 0] - values[i, 1]) / (2 * step)
-    return gradient
+            values[i][j] = reduce(moved_points)
+    return np.array([(np.asarray(plus, float) - np.asarray(minus, float)) / (2 * parameter_step(name))
+                     for (plus, minus), name in zip(values, names, strict=True)])
+
+
+@dataclass(frozen=True)
+class ModelAdequacy:
+    """How well a calibration measures its own board in views it did not see (leave-one-view-out).
+
+    Per calibration view v the calibration without v (:attr:`CalibrationCovariance.view_deltas`) measures v's
+    squares: relative error r_v = (mean adjacent length - square) / square, predicted standard uncertainty p_v
+    from the fit's corner sigma (independent corners, p_v^2 = c_v^2 + sigma_fit^2 G_v^2: c_v the calibration's
+    part, G_v^2 the sum of the square's squared pixel gradients) and the calibration's covariance
+    (:meth:`variance_of`). ``u_rel`` = sqrt(max(mean r^2 - mean p^2, 0)) (a Type A estimate truncated at zero,
+    not tested for significance: a test would drop a real excess of few views): the relative error of a square
+    the model makes beyond what its noise predicts (bias and scatter together), with ``dof`` = n - 1.
+    ``corner_px``: the corner error per coordinate, independent from corner to corner, that the held-out squares
+    show, sqrt((mean r^2 - mean c^2) / mean G^2), at most sigma_fit (what exceeds it is ``u_rel``'s) and at
+    least 0: below sigma_fit when the residuals' excess is smooth across a board (neighbouring corners err
+    alike, so a square's two ends move together). ``rms_rel``, ``predicted_rel``, ``bias_rel`` (mean r) and
+    ``errors_rel`` (per view) are what it rests on.
+    """
+
+    u_rel: float
+    dof: float
+    n_views: int
+    rms_rel: float
+    predicted_rel: float
+    bias_rel: float
+    corner_px: float = float("nan")
+    errors_rel: tuple[float, ...] = ()
+
+    def as_dict(self) -> dict:
+        return {"u_rel": self.u_rel, "dof": self.dof, "n_views": self.n_views, "rms_rel": self.rms_rel,
+                "predicted_rel": self.predicted_rel, "bias_rel": self.bias_rel, "corner_px": self.corner_px,
+                "errors_rel": list(self.errors_rel)}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> ModelAdequacy:
+        return cls(u_rel=float(data["u_rel"]), dof=float(data["dof"]), n_views=int(data["n_views"]),
+                   rms_rel=float(data["rms_rel"]), predicted_rel=float(data["predicted_rel"]),
+                   bias_rel=float(data["bias_rel"]), corner_px=float(data.get("corner_px", float("nan"))),
+                   errors_rel=tuple(float(v) for v in data.get("errors_rel", ())))
+
+
+class _ObjectGrid:
+    """The adjacent pairs of one view's board points (N, 3): pairs one grid pitch (the smallest spacing) apart."""
+
+    def __init__(self, object_points: np.ndarray):
+        obj = self.points = np.asarray(object_points, float).reshape(-1, 3)
+        distance = np.linalg.norm(obj[:, None] - obj[None], axis=2)
+        self.square_mm = float(np.min(distance[distance > 0]))
+        a, b = np.nonzero(np.triu(np.abs(distance - self.square_mm) < 1e-6 * self.square_mm, 1))
+        self.pairs = np.column_stack([a, b])
+
+    def adjacent_pairs(self) -> np.ndarray:
+        return self.pairs
+
+
+def model_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray], left_points: Sequence[np.ndarray],
+                   right_points: Sequence[np.ndarray]) -> ModelAdequacy | None:
+    """The leave-one-view-out check of a stereo calibration on its own board (:class:`ModelAdequacy`).
+
+    ``object_points``, ``left_points``, ``right_points``: per view (N_v, 3) mm and (N_v, 2) px, the views
+    ``calib.covariance.view_deltas`` belong to (the views the fit used, in its order). Linearised: no refit,
+    the held-out square to first order in the view's change, sqrt-sum of a few triangulations per view
+    (scripts/coverage_real.py: the one-step deltas equal refitting without the view to 1-4 % in the scatter of
+    abs(T), fx, cx). None without view deltas or with fewer than
+    :data:`MIN_ADEQUACY_VIEWS` views.
+    """
+    covariance = calib.covariance
+    if covariance is None or covariance.view_deltas is None or len(object_points) < MIN_ADEQUACY_VIEWS:
+        return None
+    if len(covariance.view_deltas) != len(object_points):
+        raise ValueError("model_adequacy: one view per row of the covariance's view deltas")
+    names = list(covariance.names)
+    sigma_px = covariance.sigma_px
+    # Every view's squares at once: one square function over all views' corners, reduced per view.
+    frames, a_idx, b_idx, weights, owner, nominal, offset = [], [], [], [], [], [], 0
+    for v, (obj, left, right) in enumerate(zip(object_points, left_points, right_points, strict=True)):
+        grid = _ObjectGrid(obj)
+        frames.append(FrameCorners(ids=np.arange(len(grid.points)), left_px=np.asarray(left, float).reshape(-1, 2),
+                                   right_px=np.asarray(right, float).reshape(-1, 2), sigma_mean_mm=float("nan"),
+                                   pixel_sigma_px=(sigma_px, sigma_px)))
+        a_idx.append(offset + grid.pairs[:, 0])
+        b_idx.append(offset + grid.pairs[:, 1])
+        weights.append(np.full(len(grid.pairs), 1.0 / len(grid.pairs)))
+        owner.append(np.full(len(grid.pairs), v))
+        nominal.append(grid.square_mm)
+        offset += len(grid.points)
+    square = _Square(np.vstack([f.left_px for f in frames]), np.vstack([f.right_px for f in frames]),
+                     np.concatenate(a_idx), np.concatenate(b_idx), np.concatenate(weights))
+    owner_arr, n = np.concatenate(owner), len(frames)
+
+    def per_view(points: np.ndarray) -> np.ndarray:
+        lengths = np.linalg.norm(points[square.a_idx] - points[square.b_idx], axis=1)
+        return np.bincount(owner_arr, weights=square.weights * lengths, minlength=n)
+
+    nominal_arr = np.array(nominal)
+    measured = per_view(triangulate(calib, square.left, square.right))
+    g = _sensitivities(calib, square, names, per_view).T  # (n, P)
+    # First order in each view's leave-one-out change, like the change itself (no refit, no re-triangulation).
+    errors = (measured + np.einsum("np,np->n", g, covariance.view_deltas) - nominal_arr) / nominal_arr
+    calibration = np.array([covariance.variance_of(g_v, names)[0] for g_v in g]) / nominal_arr**2
+    # The square's pixel gradient per corner: each view's own square (weights 1/K_v), through the triangulation.
+    points, jac = triangulate(calib, square.left, square.right), triangulation_jacobian(calib, square.left,
+                                                                                       square.right)
+    d = points[square.a_idx] - points[square.b_idx]
+    u = d / np.linalg.norm(d, axis=1)[:, None] * square.weights[:, None]
+    gradient = np.zeros((len(points), 4))
+    np.add.at(gradient, square.a_idx, np.einsum("kj,kjc->kc", u, jac[square.a_idx]))
+    np.add.at(gradient, square.b_idx, -np.einsum("kj,kjc->kc", u, jac[square.b_idx]))
+    corner_owner = np.concatenate([np.full(len(f.ids), v) for v, f in enumerate(frames)])
+    pixel = np.bincount(corner_owner, weights=np.sum(gradient**2, axis=1), minlength=n) / nominal_arr**2
+    errors_arr = np.asarray(errors)
+    mean_square, mean_calibration, mean_pixel = float(np.mean(errors_arr**2)), float(np.mean(calibration)), \
+        float(np.mean(pixel))
+    mean_predicted = mean_calibration + sigma_px**2 * mean_pixel
+    corner = math.sqrt(min(max((mean_square - mean_calibration) / mean_pixel, 0.0), sigma_px**2))
+    return ModelAdequacy(u_rel=float(math.sqrt(max(mean_square - mean_predicted, 0.0))), dof=float(n - 1), n_views=n,
+                         rms_rel=float(math.sqrt(mean_square)), predicted_rel=float(math.sqrt(mean_predicted)),
+                         bias_rel=float(np.mean(errors_arr)), corner_px=float(corner),
+                         errors_rel=tuple(float(e) for e in errors_arr))
+
+
+def with_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray], left_points: Sequence[np.ndarray],
+                  right_points: Sequence[np.ndarray]) -> StereoCalibration:
+    """``calib`` with its :func:`model_adequacy` (``adequacy``), from the views it was given (indexed by
+    ``calib.views_used``, as :func:`~stereo_bench.vision.calibrate.calibrate_stereo` takes them); unchanged
+    without view deltas."""
+    covariance = calib.covariance
+    if covariance is None or covariance.view_deltas is None:
+        return calib
+    used = calib.views_used
+    return replace(calib, adequacy=model_adequacy(calib, [object_points[i] for i in used],
+                                                  [left_points[i] for i in used], [right_points[i] for i in used]))
+
+
+def independent_displacement_mm(frames: list[FrameCorners], gradients: list[np.ndarray], sigma_px: float) -> float:
+    """Standard uncertainty (mm) of the square from a corner error of ``sigma_px`` per coordinate independent from
+    corner to corner and the same in every frame of a static target (a corner's gradients add over the frames).
+    ``gradients``: :func:`pixel_gradients` of ``frames``."""
+    per_corner: dict[int, np.ndarray] = {}
+    for frame, gradient in zip(frames, gradients, strict=True):
+        for corner, g in zip(frame.ids, gradient, strict=True):
+            per_corner[int(corner)] = per_corner.get(int(corner), 0.0) + g
+    return float(sigma_px * math.sqrt(sum(float(np.sum(g**2)) for g in per_corner.values())))
 
 
 @dataclass(frozen=True)
@@ -481,10 +659,22 @@ class UncertaintyBudget:
     field_bias_mm: float = float("nan")  # the smooth part of that error where the corners are (residual map)
     systematic_model: str = ""  # how that error was counted: "residual map" or "coherent shift and magnification"
     pixel_locking_px: tuple[float, float] | None = None  # (a_sin, a_cos) from the calibration's residuals
+    # The model-adequacy component (mm): the calibration's held-out squares beyond their prediction (ModelAdequacy
+    # u_rel x the measured square); None: not computed (no leave-one-view-out check with the calibration).
+    adequacy: float | None = None
+    adequacy_dof: float = float("inf")
+    calibration_dof: float = float("inf")  # finite when the calibration's views' jackknife gave its variance
+    effective_dof: float = float("inf")  # Welch-Satterthwaite over the components; k is Student's t for it
 
     @property
     def components(self) -> dict[str, float | None]:
         return {name: getattr(self, name) for name in COMPONENTS}
+
+    def _known(self) -> dict[str, float]:
+        known = {name: value for name, value in self.components.items() if value is not None}
+        if self.adequacy is not None:
+            known["adequacy"] = self.adequacy
+        return known
 
     @property
     def unknown(self) -> list[str]:
@@ -492,7 +682,7 @@ class UncertaintyBudget:
 
     @property
     def combined(self) -> float:
-        return float(math.sqrt(sum(v * v for v in self.components.values() if v is not None)))
+        return float(math.sqrt(sum(v * v for v in self._known().values())))
 
     @property
     def expanded(self) -> float:
@@ -504,12 +694,14 @@ class UncertaintyBudget:
 
     @property
     def dominant(self) -> str:
-        known = {name: value for name, value in self.components.items() if value is not None}
+        known = self._known()
         return max(known, key=known.get)
 
     def as_dict(self) -> dict:
-        """The ``uncertainty_mm`` record: noise, calibration, structure, target, combined, expanded, k."""
-        return {**self.components, "combined": self.combined, "expanded": self.expanded, "k": self.k}
+        """The ``uncertainty_mm`` record: noise, calibration, structure, target, combined, expanded, k; and
+        ``adequacy`` only when the calibration's held-out check computed it."""
+        extra = {} if self.adequacy is None else {"adequacy": self.adequacy}
+        return {**self.components, **extra, "combined": self.combined, "expanded": self.expanded, "k": self.k}
 
     def details(self) -> dict:
         """What the components rest on (JSON-ready)."""
@@ -526,6 +718,10 @@ class UncertaintyBudget:
             # The measured square less the two predictable biases, for a caller that corrects them.
             "corrected_mm": self.measured_mm - self.noise_bias_mm - self.detector_bias_mm,
             "sensitivities": self.sensitivities,
+            # Degrees of freedom, only where one is finite (a component evaluated from few views).
+            **({} if math.isinf(self.effective_dof) else {
+                "effective_dof": self.effective_dof, "calibration_dof": self.calibration_dof,
+                "adequacy_dof": self.adequacy_dof}),
         }
 
 
@@ -533,8 +729,8 @@ def configuration_budget(
     frames: Sequence[PairMeasurement | FrameCorners], calib: StereoCalibration, target: Target, *,
     covariance: CalibrationCovariance | None | str = "calib", structure_covariance: np.ndarray | None = None,
     extrinsics_from_calibration: bool = True, structure_source: str = "", board_scale: BoardScale | None = None,
-    k: float = K_COVERAGE,
-    corner_systematic: float | None = None,
+    k: float | None = None,
+    corner_systematic: float | None = None, adequacy: ModelAdequacy | None | str = "calib",
 ) -> UncertaintyBudget:
     """The uncertainty budget of one configuration's measured square.
 
@@ -555,7 +751,13 @@ def configuration_budget(
             covers the intrinsics only.
         structure_source: a short description of that source, reported with the budget.
         board_scale: the boards' scale uncertainties (default :class:`BoardScale`()).
-        k: coverage factor of the expanded uncertainty.
+        k: coverage factor of the expanded uncertainty; None: Student's t (95.45 %) for the Welch-Satterthwaite
+            effective degrees of freedom (2 when every component's are infinite).
+        adequacy: the calibration's leave-one-view-out check (:class:`ModelAdequacy`); default
+            ``calib.adequacy``; None: not known (no adequacy component). With it, the corner error beyond
+            noise and locking that no residual map locates is counted independent from corner to corner
+            (its coherent part, if any, shows in the held-out squares and so in the adequacy component)
+            instead of bounded as a coherent shift and magnification.
         corner_systematic: the detector's systematic corner error per coordinate (px) beyond the
             pixel locking the calibration fitted, when known from elsewhere (a detector
             characterisation); None: :func:`corner_systematic_px` of the calibration's residuals.
@@ -566,6 +768,7 @@ def configuration_budget(
     if not frames:
         raise ValueError("no measurement frames: nothing to budget")
     board_scale = board_scale or BoardScale()
+    adequacy = getattr(calib, "adequacy", None) if isinstance(adequacy, str) else adequacy
     covariance = calib.covariance if isinstance(covariance, str) else covariance
     note = "" if covariance is not None else (calib.covariance_note or "the calibration has no covariance")
     names: list[str] = []
@@ -578,10 +781,11 @@ def configuration_budget(
     wanted = names + [n for n in EXTRINSIC_NAMES if structure_covariance is not None and n not in names]
     gradient = dict(zip(wanted, square_sensitivities(calib, frames, target, wanted), strict=True)) if wanted else {}
 
-    u_calibration = None
+    u_calibration, calibration_dof = None, float("inf")
     if covariance is not None:
         g = np.array([gradient[n] for n in names])
-        u_calibration = float(np.sqrt(max(g @ covariance.subset(names).matrix @ g, 0.0)))
+        variance, calibration_dof, _ = covariance.variance_of(g, names)
+        u_calibration = float(np.sqrt(variance))
     u_structure = None
     if structure_covariance is not None:
         g = np.array([gradient[n] for n in EXTRINSIC_NAMES])
@@ -590,9 +794,13 @@ def configuration_budget(
     random = float(np.sqrt(np.sum(sigmas**2)) / len(sigmas))
     memo: dict = {}  # each frame's points and Jacobian, shared by the noise bias and the pixel gradients
     bias = float(np.mean([noise_bias_mm(calib, f, target, memo=memo) for f in frames]))
+    random_px = float(np.sqrt(np.mean([np.mean(np.square(f.pixel_sigma_px)) for f in frames])))
     if corner_systematic is None:
-        random_px = float(np.sqrt(np.mean([np.mean(np.square(f.pixel_sigma_px)) for f in frames])))
         corner_systematic = corner_systematic_px(covariance, random_px)
+        if adequacy is not None and math.isfinite(adequacy.corner_px) and corner_systematic > 0:
+            # The corner error the held-out squares show (at most the fit's sigma), less the random part counted
+            # apart: what of the residuals' excess acts on a square as corner-to-corner error.
+            corner_systematic = min(corner_systematic, math.sqrt(max(adequacy.corner_px**2 - random_px**2, 0.0)))
     locking = None if covariance is None else covariance.pixel_locking_px
     detector_bias = rest = 0.0
     field_bias, systematic_model = float("nan"), ""
@@ -610,15 +818,27 @@ def configuration_budget(
             field_bias, u_field = mapped
             rest = float(math.sqrt(field_bias**2 + u_field**2))
             systematic_model = "residual map"
+        elif adequacy is not None and math.isfinite(adequacy.corner_px):
+            if gradients is None:
+                gradients = pixel_gradients(calib, frames, target, memo=memo)
+            rest = independent_displacement_mm(frames, gradients, corner_systematic)
+            systematic_model = "independent corners, from held-out views"
         else:
             rest = coherent_displacement_mm(calib, frames, target, corner_systematic)
             systematic_model = "coherent shift and magnification"
     systematic = float(math.sqrt(detector_bias**2 * (1.0 + LOCKING_TRANSFER_U_REL**2) + rest**2))
     measured = _square_function(frames, target)(calib)
+    u_noise = float(math.sqrt(random**2 + bias**2 + systematic**2))
+    u_adequacy = None if adequacy is None else float(adequacy.u_rel * abs(measured))
+    u_target = board_scale.u_mm(target.square_mm)
+    dof = effective_dof([(u_noise, math.inf), (u_calibration or 0.0, calibration_dof), (u_structure or 0.0, math.inf),
+                         (u_target, math.inf), (u_adequacy or 0.0, math.inf if adequacy is None else adequacy.dof)])
     return UncertaintyBudget(
         measured_mm=measured, nominal_mm=float(target.square_mm), n_frames=len(frames),
-        noise=float(math.sqrt(random**2 + bias**2 + systematic**2)), calibration=u_calibration,
-        structure=u_structure, target=board_scale.u_mm(target.square_mm), k=float(k),
+        noise=u_noise, calibration=u_calibration,
+        structure=u_structure, target=u_target, k=float(coverage_factor(dof) if k is None else k),
+        adequacy=u_adequacy, adequacy_dof=math.inf if adequacy is None else adequacy.dof,
+        calibration_dof=calibration_dof, effective_dof=dof,
         structure_source=structure_source, calibration_note=note, sensitivities=gradient, noise_random_mm=random,
         noise_bias_mm=bias, noise_systematic_mm=systematic, corner_systematic_px=float(corner_systematic),
         detector_bias_mm=detector_bias, pixel_locking_px=locking, field_bias_mm=field_bias,
