@@ -29,7 +29,9 @@ intrinsics given without one leave the covariance unknown (None, with the reason
 
 from __future__ import annotations
 
+import os
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Literal
@@ -50,10 +52,6 @@ OUTLIER_FACTOR = 3.0
 OUTLIER_FLOOR_PX = 1.0
 DEFAULT_FLAGS = cv2.CALIB_FIX_K3  # k3 is poorly constrained by a dozen views of a flat board
 CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-9)
-# The other lens models' fits for the held-out comparison, warm-started from the default model's solution: the
-# linearised leave-one-out corrects for an unfinished step (its gradient term), and 30 iterations gave the
-# same held-out figures to 5 digits as 200 on present_cjn (the chosen model is then refitted with CRITERIA).
-CANDIDATE_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-7)
 
 StereoMode = Literal["joint", "fixed"]
 
@@ -464,48 +462,60 @@ def calibrate_stereo_lens(
                                            intrinsics_covariance=intrinsics_covariance, covariance=covariance)
     if intrinsics is not None and lens_model == AUTO:
         return replace(base, lens_model=DEFAULT_MODEL if base.lens_model else "")
+    if lens_model != AUTO:
+        return replace(base, lens_model=first.name,
+                       lens_choice=Choice(first.name, lens_model, (), "named by the caller"))
     used = base.views_used
     objs = [object_points[i] for i in used]
     lefts, rights = [left_points[i] for i in used], [right_points[i] for i in used]
-    fits = {first.name: (base, rvecs, tvecs)}
-    if lens_model == AUTO:
-        for name in candidates or tuple(MODELS):
-            if name in fits:
-                continue
-            model = MODELS[name]
-            (K1, D1), (K2, D2) = _start(base.K1, base.D1, model), _start(base.K2, base.D2, model)
-            try:
-                fits[name] = _calibrate_stereo(objs, lefts, rights, image_size, intrinsics=(K1, D1, K2, D2),
-                                               mode="joint", flags=model.flags, max_rounds=0, covariance=False,
-                                               criteria=CANDIDATE_CRITERIA)
-            except (ValueError, cv2.error):
-                continue  # a model the solver cannot fit here is no candidate
-    results = []
     pairs = adjacency(objs)
-    for name, (calib, rv, tv) in fits.items():  # in fixed mode too the held-out fits are joint ones
+
+    def estimate(model, calib, rv, tv) -> HeldOut:
         try:
-            results.append(held_out(MODELS[name], objs, lefts, rights, calib.K1, calib.D1, calib.K2, calib.D2,
-                                    calib.R, calib.T, rv, tv, calib.rms_px, pairs))
+            return held_out(model, objs, lefts, rights, calib.K1, calib.D1, calib.K2, calib.D2, calib.R, calib.T,
+                            rv, tv, calib.rms_px, pairs)
         except (CovarianceUnavailable, np.linalg.LinAlgError) as error:
-            results.append(HeldOut(name, MODELS[name].n_free(np.asarray(calib.D1).size), calib.rms_px,
-                                   np.array([np.nan]), np.array([np.nan]), f"no held-out estimate: {error}"))
-    results.sort(key=lambda r: (r.n_free, list(MODELS).index(r.model)))
-    if lens_model == AUTO:
-        chosen, reason = choose(results)
-    else:
-        chosen, reason = lens_model, "named by the caller"
+            return HeldOut(model.name, model.n_free(np.asarray(calib.D1).size), calib.rms_px, np.array([np.nan]),
+                           np.array([np.nan]), f"no held-out estimate: {error}")
+
+    def candidate(name: str):
+        model = MODELS[name]
+        if name == first.name:
+            return name, (base, rvecs, tvecs), estimate(model, base, rvecs, tvecs)
+        (K1, D1), (K2, D2) = _start(base.K1, base.D1, model), _start(base.K2, base.D2, model)
+        try:
+            fit = _calibrate_stereo(objs, lefts, rights, image_size, intrinsics=(K1, D1, K2, D2), mode="joint",
+                                    flags=model.flags, max_rounds=0, covariance=False)
+        except (ValueError, cv2.error):
+            return name, None, None  # a model the solver cannot fit here is no candidate
+        return name, fit, estimate(model, *fit)
+
+    names = [first.name] + [n for n in (candidates or tuple(MODELS)) if n != first.name]
+    # Each solve on one OpenCV thread (deterministic), the candidates side by side on the cores.
+    with single_threaded_opencv(), ThreadPoolExecutor(max_workers=max(1, min(len(names), os.cpu_count() or 1))) as pool:
+        done = list(pool.map(candidate, names))
+    fits = {name: fit for name, fit, _ in done if fit is not None}
+    results = sorted((r for _, fit, r in done if fit is not None),
+                     key=lambda r: (r.n_free, list(MODELS).index(r.model)))
+    chosen, reason = choose(results)
     final = base
     if chosen != first.name:
         model = MODELS[chosen]
-        fit = fits[chosen][0]
-        if mode == "fixed":
+        fit, rv, tv = fits[chosen]
+        if mode == "fixed":  # the comparison was of joint fits; the calibration keeps the mode asked for
             final = calibrate_stereo(objs, lefts, rights, image_size, mode="fixed", flags=model.flags,
                                      covariance=covariance, max_rounds=0)
-        else:  # converged already: one more solve from the solution, with the covariance
-            final = calibrate_stereo(objs, lefts, rights, image_size, intrinsics=(fit.K1, fit.D1, fit.K2, fit.D2),
-                                     mode="joint", flags=model.flags, covariance=covariance, max_rounds=0)
-        final = replace(final, views_used=[used[i] for i in final.views_used], views_rejected=base.views_rejected,
-                        lens_model=chosen)
+        else:
+            final = replace(fit, covariance=None, covariance_note="not computed")
+            if covariance:
+                try:
+                    final = replace(final, covariance_note="", covariance=stereo_covariance(
+                        objs, lefts, rights, fit.K1, fit.D1, fit.K2, fit.D2, fit.R, fit.T, rv, tv,
+                        flags=covariance_flags(model.flags | cv2.CALIB_USE_INTRINSIC_GUESS),
+                        view_indices=list(range(len(objs))), image_size=tuple(image_size)))
+                except CovarianceUnavailable as error:
+                    final = replace(final, covariance_note=str(error))
+        final = replace(final, views_used=[used[i] for i in final.views_used], views_rejected=base.views_rejected)
     fov = max(diagonal_fov_deg(final.K1, image_size), diagonal_fov_deg(final.K2, image_size))
     choice = Choice(chosen, lens_model, tuple(results), reason, diagonal_fov_deg=fov)
     return replace(final, lens_model=chosen, lens_choice=choice)

@@ -27,7 +27,9 @@ adjacent-corner length triangulated with the moved calibration. One Jacobian per
 Choice rule (:func:`choose`): models are ordered simplest first (fewest free parameters); a richer model
 replaces the current choice only when its held-out mean squared reprojection error is lower by more than
 :data:`CHOICE_Z` standard errors of the paired per-view difference (the noise of the comparison: the
-complexity penalty), and its held-out square error is not worse by more than as many standard errors.
+complexity penalty), and its held-out square error is not worse by more than as many standard errors. The
+reprojection comparison is of log(per-view MSE) (views differ by factors, and one poor view would otherwise set
+the noise alone); the square's of per-view squared errors (mm^2).
 """
 
 from __future__ import annotations
@@ -53,6 +55,9 @@ FISHEYE_DIAGONAL_FOV_DEG = 120.0
 #: A held-out estimate is refused (the model dropped from the comparison) when a view's leverage makes
 #: (S - S_v) singular: its condition number above this.
 MAX_CONDITION = 1e14
+
+#: Fraction of the leave-one-out step the square's directional derivative is taken over (central differences).
+SQUARE_STEP = 0.01
 
 _NOT_RATIONAL = cv2.CALIB_FIX_K4 | cv2.CALIB_FIX_K5 | cv2.CALIB_FIX_K6
 
@@ -171,6 +176,16 @@ def _square_error_mm(K1, D1, K2, D2, R, T, left, right, a, b, length) -> float:
     return float(np.mean(np.linalg.norm(points[a] - points[b], axis=1) - length))
 
 
+def _moved_square_mm(delta, names_l, names_r, square_pixels, K1, D1, K2, D2, rvec0, T, left, right, a, b,
+                     length) -> float:
+    """A view's square error (mm) with the stereo parameters moved by ``delta`` (left, right intrinsics, rvec, T)."""
+    nl = len(names_l)
+    K1v, D1v = _apply(tuple(names_l), delta[:nl], K1, D1, square_pixels)
+    K2v, D2v = _apply(tuple(names_r), delta[nl:2 * nl], K2, D2, square_pixels)
+    Rv = cv2.Rodrigues(rvec0 + delta[2 * nl:2 * nl + 3])[0]
+    return _square_error_mm(K1v, D1v, K2v, D2v, Rv, T + delta[2 * nl + 3:], left, right, a, b, length)
+
+
 def held_out(model: LensModel, object_points, left_points, right_points, K1, D1, K2, D2, R, T, rvecs, tvecs,
              fit_rms_px: float, adjacency: dict | None = None) -> HeldOut:
     """Linearised leave-one-view-out of a joint stereo fit (module docstring); per view (N_i, 3) mm and
@@ -195,11 +210,11 @@ def held_out(model: LensModel, object_points, left_points, right_points, K1, D1,
     grads = [Jh.T @ v.residual for Jh, v in zip(solution.Jhat, views, strict=True)]
     g = np.sum(grads, axis=0)
     scale = np.sqrt(np.diag(S))
-    nl = len(names_l)
     reprojection, square = [], []
     note = ""
     rvec0 = cv2.Rodrigues(np.asarray(R, np.float64))[0].reshape(3)
     T = np.asarray(T, float).reshape(3)
+    K1, D1, K2, D2 = (np.asarray(x, float) for x in (K1, D1, K2, D2))
     for view, Jh, g_v, obj, left, right in zip(views, solution.Jhat, grads, object_points, left_points, right_points,
                                                strict=True):
         S_minus = (S - Jh.T @ Jh) / scale / scale[:, None]  # unit diagonal: px, unitless and rad alike
@@ -211,15 +226,14 @@ def held_out(model: LensModel, object_points, left_points, right_points, K1, D1,
         delta = -np.linalg.solve(S_minus, (g - g_v) / scale) / scale
         moved = view.residual + Jh @ delta
         reprojection.append(float(np.sqrt(2.0 * np.mean(moved**2))))  # per corner, as OpenCV's RMS
-        K1v, D1v = _apply(tuple(names_l), delta[:nl], np.asarray(K1, float), np.asarray(D1, float),
-                          model.square_pixels)
-        K2v, D2v = _apply(tuple(names_r), delta[nl:2 * nl], np.asarray(K2, float), np.asarray(D2, float),
-                          model.square_pixels)
-        Rv = cv2.Rodrigues(rvec0 + delta[2 * nl:2 * nl + 3])[0]
-        Tv = T + delta[2 * nl + 3:]
         a, b, length = adjacency[id(obj)] if adjacency and id(obj) in adjacency else _adjacent(obj)
-        square.append(_square_error_mm(K1v, D1v, K2v, D2v, Rv, Tv, np.asarray(left, float).reshape(-1, 2),
-                                       np.asarray(right, float).reshape(-1, 2), a, b, length))
+        left, right = np.asarray(left, float).reshape(-1, 2), np.asarray(right, float).reshape(-1, 2)
+
+        # Linear in delta like the residual: along a direction the views barely determine (the rational model's
+        # numerator against its denominator) delta is large and the lens moved by all of it is another lens.
+        at = [_moved_square_mm(step * delta, names_l, names_r, model.square_pixels, K1, D1, K2, D2, rvec0, T, left,
+                               right, a, b, length) for step in (0.0, SQUARE_STEP, -SQUARE_STEP)]
+        square.append(at[0] + (at[1] - at[2]) / (2 * SQUARE_STEP))
     return HeldOut(model.name, model.n_free(n_dist), float(fit_rms_px), np.array(reprojection), np.array(square),
                    note)
 
@@ -265,10 +279,12 @@ def choose(results: list[HeldOut]) -> tuple[str, str]:
     current = ordered[0]
     reason = f"{current.model}: the simplest candidate"
     for richer in ordered[1:]:
-        gain, se = _paired(current.reprojection_px**2, richer.reprojection_px**2)
+        # Per view the log of the held-out MSE ratio: views differ in their errors by factors (distance, tilt),
+        # and one poor view would otherwise decide the comparison's noise alone.
+        gain, se = _paired(np.log(current.reprojection_px**2), np.log(richer.reprojection_px**2))
         loss, se_sq = _paired(richer.square_error_mm**2, current.square_error_mm**2)
         if gain > CHOICE_Z * se and not loss > CHOICE_Z * se_sq:
-            reason = (f"{richer.model} over {current.model}: held-out MSE lower by {gain:.4g} px^2 "
-                      f"(> {CHOICE_Z:g} x {se:.2g})")
+            reason = (f"{richer.model} over {current.model}: held-out MSE lower by a factor {math.exp(gain):.3g} "
+                      f"(log ratio {gain:.3g} > {CHOICE_Z:g} x {se:.2g})")
             current = richer
     return current.model, reason
