@@ -234,6 +234,14 @@ def model_length(flags: int) -> int:
     return 8 if flags & cv2.CALIB_RATIONAL_MODEL else 5
 
 
+def _model_vector(D: np.ndarray, flags: int) -> np.ndarray:
+    """D as (1, k), cut to :func:`model_length` when the coefficients beyond it are all zero (given intrinsics of a
+    richer model keep theirs)."""
+    D = np.asarray(D, float).reshape(1, -1)
+    n = model_length(flags)
+    return D[:, :n] if D.shape[1] > n and not np.any(D[0, n:]) else D
+
+
 def covariance_flags(flags: int) -> int:
     """The flags the covariance is computed for: fx = fy (CALIB_FIX_ASPECT_RATIO) is linearised as fx and fy free,
     a model that contains the coupled one, so its covariance is a little larger (conservative), never smaller."""
@@ -289,7 +297,7 @@ def calibrate_mono(
     std = np.asarray(std_int, float).reshape(-1)
     names = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx",
              "ty"][:4 + np.asarray(dist).size]
-    dist = np.asarray(dist, float).reshape(1, -1)[:, :model_length(flags)]
+    dist = _model_vector(dist, flags)
     rvecs, tvecs = [np.asarray(r, float).reshape(3) for r in rvecs], [np.asarray(t, float).reshape(3) for t in tvecs]
     cov, note = None, "not computed"
     if covariance:
@@ -378,8 +386,7 @@ def _calibrate_stereo(
             rejected.append(RejectedView(used[position], f"stereo reprojection RMS {worst[position]:.3f} px > "
                                                          f"{threshold:.3f} px"))
         used = [index for position, index in enumerate(used) if position not in set(drop)]
-    n_dist = model_length(flags)
-    D1n, D2n = np.asarray(D1n).reshape(1, -1)[:, :n_dist], np.asarray(D2n).reshape(1, -1)[:, :n_dist]
+    D1n, D2n = _model_vector(D1n, flags), _model_vector(D2n, flags)
     T = np.asarray(T, float).reshape(3)
     cov, note = None, ""
     try:
