@@ -91,9 +91,11 @@ def calibrate_configuration(
     calibration_pairs: Sequence[tuple[np.ndarray, np.ndarray]], board: Target, *,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: str = "joint",
     intrinsics_covariance: CalibrationCovariance | None = None,
-    detections: Sequence[tuple[Detection | None, Detection | None]] | None = None,
+    detections: Sequence[tuple[Detection | None, Detection | None]] | None = None, lens_model: str | None = None,
 ) -> ConfigurationAnalysis:
     """Stereo calibration of one (B, alpha) from its calibration views; raises AnalysisError if it can't.
+
+    ``lens_model``: as :func:`~stereo_bench.vision.pipeline.calibrate_from_images` takes it.
 
     ``intrinsics_covariance``: of given ``intrinsics`` held fixed (without it the covariance is unknown).
     ``detections``: per view, the (left, right) detections already made while capturing (None: detect here).
@@ -102,7 +104,8 @@ def calibrate_configuration(
         result = calibrate_from_images([left for left, _ in calibration_pairs],
                                        [right for _, right in calibration_pairs], board, intrinsics=intrinsics,
                                        mode="fixed" if mode == "fixed" else "joint", thorough=False,
-                                       intrinsics_covariance=intrinsics_covariance, detections=detections)
+                                       intrinsics_covariance=intrinsics_covariance, detections=detections,
+                                       lens_model=lens_model)
     except (ValueError, np.linalg.LinAlgError) as error:
         raise AnalysisError(str(error)) from None
     return ConfigurationAnalysis(

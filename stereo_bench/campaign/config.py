@@ -506,6 +506,12 @@ class ExtrinsicsSection(BaseModel):
                              "spelling (mode \"fixed\" is R, T from calib_dir)")
     calib_dir: Path | None = Field(None, strict=False,
                                    description="calibration directory, relative to the campaign file")
+    lens_model: Literal["auto", "fixed-aspect", "opencv4", "opencv5", "thin-prism", "rational"] | None = Field(
+        None, description="the per-configuration calibrations' lens model (stereo_bench.vision.lensmodels; "
+                          "calibrate --lens-model): auto (chosen on held-out views) or a name. Default: auto for "
+                          "v4l2 cameras; for simulated cameras opencv4 without a comparison (the model their "
+                          "recorded numbers were calibrated with; their lens has square pixels and two radial "
+                          "terms, which auto fits as fixed-aspect, equivalently)")
     kinematic_file: Path | None = Field(
         None, strict=False,
         description="a saved kinematic rig model (TOML, stereo-bench rig calibrate-kinematics), relative to "
@@ -531,6 +537,13 @@ class ExtrinsicsSection(BaseModel):
     def _check(self) -> ExtrinsicsSection:
         self.source().check(self)
         return self
+
+    def lens_model_for(self, cameras_kind: str) -> str | None:
+        """The lens model per-configuration calibrations fit (``lens_model`` or its default for ``cameras_kind``);
+        None: the default flags without a comparison (:func:`~stereo_bench.vision.pipeline.calibrate_from_images`)."""
+        if self.lens_model is not None:
+            return self.lens_model
+        return "auto" if cameras_kind == "v4l2" else None
 
     @property
     def intrinsics_held(self) -> bool:

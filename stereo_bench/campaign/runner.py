@@ -641,7 +641,8 @@ class CampaignRunner:
         return calibrate_configuration(captured.calibration_pairs, self.calibration_board,
                                        intrinsics=options.intrinsics, mode=options.intrinsics_mode,
                                        intrinsics_covariance=options.intrinsics_covariance,
-                                       detections=captured.detections())
+                                       detections=captured.detections(),
+                                       lens_model=self.config.extrinsics.lens_model_for(self.config.cameras.kind))
 
     def _discard_calibration_view(self, index: int, captured: Captured, answer: Answer) -> None:
         """Drop kept view ``index`` (the last one) so that it is taken again; its frames stay recorded."""

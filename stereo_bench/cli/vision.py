@@ -36,6 +36,8 @@ from stereo_bench.cli.args import (
     output_dir,
 )
 from stereo_bench.targets import ARUCO_DICTIONARIES, CharucoTarget, Checkerboard, Target, parse_pattern
+from stereo_bench.vision.lensmodels import CHOICES as LENS_CHOICES
+from stereo_bench.vision.lensmodels import MODELS as LENS_MODELS
 
 IMAGE_HELP = "image file (PNG, JPEG, ...); colour images are converted to grey"
 
@@ -185,6 +187,13 @@ def _pm(value: float, sigma: float | None, spec: str) -> str:
     return format(value, spec) + ("" if sigma is None else " +- " + format(sigma, spec))
 
 
+def _lens_report(calib) -> dict:
+    """The calibration's lens model and, when it was chosen, the held-out comparison (``calibrate --json``)."""
+    if calib.lens_choice is None:
+        return {"chosen": calib.lens_model or None, "requested": None, "reason": None, "comparison": []}
+    return calib.lens_choice.as_dict()
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from stereo_bench.vision.calibio import (
         CalibrationFileError,
@@ -227,7 +236,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                        + ": a stereo calibration needs the left and the right camera's views")
     try:
         result = calibrate_from_images(left_images, right_images, target, intrinsics=intrinsics, mode=mode,
-                                       intrinsics_covariance=intrinsics_covariance)
+                                       intrinsics_covariance=intrinsics_covariance, lens_model=args.lens_model)
     except (ValueError, cv2.error) as error:
         raise CliError(f"calibration failed: {' '.join(str(error).split())}") from None
     calib = result.calib
@@ -249,6 +258,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         "uncertainty": uncertainty, "uncertainty_note": calib.covariance_note or None,
         "board_scale_u_rel": args.board_scale_u,
         "adequacy": None if calib.adequacy is None else calib.adequacy.as_dict(),
+        "lens_model": _lens_report(calib),
     }
     if args.json:
         print_json(report)
@@ -272,6 +282,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                   f"({a.dof:.0f} degrees of freedom)")
         else:
             print(f"uncertainty unknown: {calib.covariance_note}")
+        lens = report["lens_model"]
+        if lens["comparison"]:
+            print(f"lens model {lens['chosen']} ({lens['reason']}); held-out (linearised leave-one-pair-out):")
+            print(calib.lens_choice.table())
+        elif lens["chosen"]:
+            print(f"lens model {lens['chosen']}")
         for r in report["views_rejected"]:
             print(f"rejected pair {r['index']} ({Path(r['left']).name}, {Path(r['right']).name}): {r['reason']}")
         print(f"wrote {out / 'intrinsics.yml'} and {out / 'extrinsics.yml'}")
@@ -448,6 +464,12 @@ def register(subparsers) -> None:
     calibrate.add_argument("--mode", choices=("joint", "fixed"),
                            help="joint: refine intrinsics with R, T (default, measured more accurate); "
                                 "fixed: keep the intrinsics")
+    calibrate.add_argument(
+        "--lens-model", choices=LENS_CHOICES, default="auto", metavar="MODEL",
+        help="lens model: auto (default: every model below fitted and compared on held-out pairs, the simplest "
+             "one kept unless a richer one is better by more than the comparison's noise) or one of: "
+             + "; ".join(f"{m.name} ({m.description})" for m in LENS_MODELS.values())
+             + ". With --intrinsics, auto keeps the given model")
     calibrate.add_argument("--force", action="store_true", help="replace calibration files already in --out")
     calibrate.add_argument("--board-scale-u", type=BOARD_SCALE_U, default=1e-4, metavar="REL",
                            help="relative standard uncertainty of the calibration board's square, recorded for "

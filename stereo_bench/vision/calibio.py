@@ -12,6 +12,13 @@ pixel locking, sin and cos coefficients, when estimated). ``extrinsics.yml`` hol
 cameras' intrinsics, rvec, T and their correlations); ``intrinsics.yml`` the intrinsics' block, so
 that intrinsics reused alone (``--intrinsics``) keep their uncertainty. A file without these keys
 loads with the covariance None: unknown, not zero (``covariance_note`` says why).
+
+The lens model (:mod:`stereo_bench.vision.lensmodels`) is recorded in both files: ``lens_model`` (its name; the
+length of D1/D2 follows from it: 5, 8 or 12), and, when it was chosen from a comparison, ``lens_model_requested``
+("auto" or a name), ``lens_model_reason``, ``lens_model_choice_z``, ``lens_model_diagonal_fov_deg``,
+``lens_model_candidates`` (names, space-separated) and ``lens_model_comparison`` (one row per candidate: free
+intrinsics per camera, fit RMS px, held-out RMS px, held-out square RMS mm; NaN where no held-out estimate). A
+file without them (older, or OpenCV's) loads with ``lens_model`` "" (not recorded).
 """
 
 from __future__ import annotations
@@ -87,6 +94,60 @@ def _adequacy_items(adequacy) -> dict[str, object]:
             for name, key in _ADEQUACY_KEYS.items()}
 
 
+def _lens_items(calib: StereoCalibration) -> dict[str, object]:
+    if not calib.lens_model:
+        return {}
+    items: dict[str, object] = {"lens_model": calib.lens_model}
+    choice = calib.lens_choice
+    if choice is not None:
+        items.update({
+            "lens_model_requested": choice.requested, "lens_model_reason": choice.reason,
+            "lens_model_choice_z": float(choice.as_dict()["choice_z"]),
+            "lens_model_diagonal_fov_deg": float(choice.diagonal_fov_deg),
+            "lens_model_candidates": " ".join(h.model for h in choice.comparison),
+            "lens_model_comparison": np.array([[h.n_free, h.fit_rms_px, h.reprojection_rms_px, h.square_rms_mm]
+                                               for h in choice.comparison], float),
+        })
+    return items
+
+
+def recorded_lens_choice(calib_dir: str | Path) -> dict | None:
+    """The lens model and its comparison as a calibration recorded them (``lens_model*`` keys), or None.
+
+    ``{"chosen", "requested", "reason", "diagonal_fov_deg", "comparison": [{"model", "free_intrinsics_per_camera",
+    "fit_rms_px", "held_out_rms_px", "held_out_square_rms_mm"}, ...]}``; "requested" etc. None when only the
+    model's name was recorded.
+    """
+    path = _resolve(calib_dir, EXTRINSICS_FILE)
+    storage = _open(path)
+    try:
+        node = storage.getNode("lens_model")
+        if node.empty():
+            return None
+        result: dict = {"chosen": node.string(), "requested": None, "reason": None, "diagonal_fov_deg": None,
+                        "comparison": []}
+        for key, field in (("lens_model_requested", "requested"), ("lens_model_reason", "reason")):
+            if not storage.getNode(key).empty():
+                result[field] = storage.getNode(key).string()
+        if not storage.getNode("lens_model_diagonal_fov_deg").empty():
+            result["diagonal_fov_deg"] = float(storage.getNode("lens_model_diagonal_fov_deg").real())
+        names_node = storage.getNode("lens_model_candidates")
+        if not names_node.empty():
+            names = names_node.string().split()
+            table = storage.getNode("lens_model_comparison").mat()
+            table = np.zeros((0, 4)) if table is None else np.asarray(table, float).reshape(-1, 4)
+            if len(table) != len(names):
+                raise CalibrationFileError(f"{path}: key 'lens_model_comparison' has {len(table)} rows for the "
+                                           f"{len(names)} lens_model_candidates")
+            result["comparison"] = [
+                {"model": name, "free_intrinsics_per_camera": int(row[0]), "fit_rms_px": float(row[1]),
+                 "held_out_rms_px": float(row[2]), "held_out_square_rms_mm": float(row[3])}
+                for name, row in zip(names, table, strict=True)]
+        return result
+    finally:
+        storage.release()
+
+
 def write_calibration(
     out_dir: str | Path, calib: StereoCalibration, rect: Rectification | None = None, *, board: str = "",
     extra: dict[str, object] | None = None,
@@ -103,6 +164,7 @@ def write_calibration(
     extrinsics = out_dir / EXTRINSICS_FILE
     cov = calib.covariance
     intrinsic_cov = None if cov is None else cov.subset([n for n in cov.names if n.startswith(("left.", "right."))])
+    common.update(_lens_items(calib))
     _write_storage(intrinsics, {"M1": calib.K1, "D1": calib.D1, "M2": calib.K2, "D2": calib.D2, **common,
                                 **_covariance_items(intrinsic_cov, calib.covariance_note)})
     rect_items = {} if rect is None else {"R1": rect.R1, "R2": rect.R2, "P1": rect.P1, "P2": rect.P2, "Q": rect.Q}
@@ -261,13 +323,16 @@ def read_calibration(calib_dir: str | Path, *, image_size: tuple[int, int] | Non
         mode = "given" if mode_node.empty() else mode_node.string()
         covariance, note = _covariance(storage, path)
         adequacy = _adequacy(storage, path)
+        lens_node = storage.getNode("lens_model")
+        lens_model = "" if lens_node.empty() else lens_node.string()
     finally:
         storage.release()
     size = stored_size or image_size
     if size is None:
         raise CalibrationFileError(f"{calib_dir}: files do not record the image size (image_width, image_height)")
     calib = StereoCalibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=size, rms_px=rms_px, mode=mode,
-                              covariance=covariance, covariance_note=note, adequacy=adequacy)
+                              covariance=covariance, covariance_note=note, adequacy=adequacy,
+                              lens_model=lens_model)
     problems = calibration_problems(calib)
     if problems:
         raise CalibrationFileError(f"{calib_dir}: not a usable stereo calibration: {problems[0]}")

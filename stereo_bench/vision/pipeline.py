@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,6 +17,7 @@ from stereo_bench.vision.calibrate import (
     StereoCalibration,
     StereoMode,
     calibrate_stereo,
+    calibrate_stereo_lens,
     calibration_problems,
     camera_problems,
 )
@@ -115,11 +118,32 @@ class PairMeasurement:
         }
 
 
+#: Threads detecting calibration views (at most the cores there are).
+DETECTION_THREADS = 4
+
+
+def _detect_all(left_images: Sequence[np.ndarray], right_images: Sequence[np.ndarray], target: Target, *,
+                thorough: bool) -> list[tuple[Detection | None, Detection | None]]:
+    """Per pair the (left, right) detections, without corner-noise estimates, on a few threads."""
+    images = [image for pair in zip(left_images, right_images, strict=True) for image in pair]
+    workers = max(1, min(DETECTION_THREADS, os.cpu_count() or 1, len(images)))
+
+    def one(image: np.ndarray) -> Detection | None:
+        return detect(image, target, thorough=thorough, noise=False)
+
+    if workers == 1:
+        found = [one(image) for image in images]
+    else:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            found = list(pool.map(one, images))
+    return list(zip(found[0::2], found[1::2], strict=True))
+
+
 def calibrate_from_images(
     left_images: Sequence[np.ndarray], right_images: Sequence[np.ndarray], target: Target, *,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: StereoMode = "joint",
     thorough: bool = True, intrinsics_covariance: CalibrationCovariance | None = None,
-    detections: Sequence[tuple[Detection | None, Detection | None]] | None = None,
+    detections: Sequence[tuple[Detection | None, Detection | None]] | None = None, lens_model: str | None = None,
 ) -> CalibrationResult:
     """Stereo calibration from image pairs of a calibration target (pairs in matching order).
 
@@ -129,6 +153,13 @@ def calibrate_from_images(
     fixed intrinsics without it leave the calibration's covariance unknown. ``detections``: per pair,
     the (left, right) detections of these images (``detect(image, target, thorough=thorough)``), when
     the caller made them already (a campaign detects each view while the next ones are captured).
+    ``lens_model``: "auto" or a :data:`~stereo_bench.vision.lensmodels.MODELS` name
+    (:func:`~stereo_bench.vision.calibrate.calibrate_stereo_lens`); None fits the default flags without a
+    comparison, as before lens models were chosen.
+
+    Detection here skips the corner-noise estimate (``detect(..., noise=False)``: the fit takes the noise from
+    its own residuals) and runs on :data:`DETECTION_THREADS` threads (OpenCV's detectors release the GIL; the
+    corners do not depend on the thread).
 
     Raises:
         ValueError: fewer than ``MIN_VIEWS`` pairs show the board in both images, or the solver fails.
@@ -147,12 +178,10 @@ def calibrate_from_images(
             raise ImplausibleCalibration(f"the given intrinsics do not fit these images: {given[0]}")
     rejected: list[RejectedView] = []
     pair_index, objects, lefts, rights = [], [], [], []
-    for index, (left_image, right_image) in enumerate(zip(left_images, right_images, strict=True)):
-        if detections is not None:
-            left, right = detections[index]
-        else:
-            left = detect(left_image, target, thorough=thorough)
-            right = detect(right_image, target, thorough=thorough)
+    if detections is None:
+        detections = _detect_all(left_images, right_images, target, thorough=thorough)
+    for index in range(len(left_images)):
+        left, right = detections[index]
         missing = [side for side, d in (("left", left), ("right", right)) if d is None]
         if missing:
             rejected.append(RejectedView(index, f"board not found in the {' and '.join(missing)} image"))
@@ -168,8 +197,12 @@ def calibrate_from_images(
     if len(objects) < MIN_VIEWS:
         raise ValueError(f"calibration board found in only {len(objects)} of {len(left_images)} view pairs "
                          f"(need {MIN_VIEWS})")
-    calib = calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode,
-                             intrinsics_covariance=intrinsics_covariance)
+    if lens_model is None:
+        calib = calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode,
+                                 intrinsics_covariance=intrinsics_covariance)
+    else:
+        calib = calibrate_stereo_lens(objects, lefts, rights, tuple(image_size), lens_model=lens_model,
+                                      intrinsics=intrinsics, mode=mode, intrinsics_covariance=intrinsics_covariance)
     calib = with_adequacy(calib, objects, lefts, rights)  # the held-out check of the budget (docs/UNCERTAINTY.md)
     problems = calibration_problems(calib)
     if problems:
