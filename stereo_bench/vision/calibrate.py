@@ -117,6 +117,9 @@ class StereoCalibration:
     # Of left.* right.* intrinsics, rvec.* (rad, rotation vector of R) and T.* (mm); None = unknown.
     covariance: CalibrationCovariance | None = None
     covariance_note: str = ""  # why the covariance is None
+    # Each camera calibrated alone from the same views, when the fit did that first (the quality gates compare
+    # each view's residual with them: stereo_bench.vision.gates); None for given intrinsics or a loaded file.
+    mono: tuple[MonoCalibration, MonoCalibration] | None = None
 
     @property
     def baseline_mm(self) -> float:
@@ -361,4 +364,5 @@ def calibrate_stereo(
         K1=K1n, D1=D1n, K2=K2n, D2=D2n, R=R, T=T, image_size=tuple(image_size), rms_px=float(rms),
         per_view_rms_px=per_view, views_used=used, views_rejected=sorted(rejected, key=lambda r: r.index),
         mode=mode, E=E, F=F, covariance=cov, covariance_note=note,
+        mono=None if left is None else (left, right),
     )
