@@ -41,6 +41,7 @@ class ConfigurationAnalysis:
     frames: list[PairMeasurement] = field(default_factory=list)
     frames_failed: list[dict] = field(default_factory=list)
     calibrated: bool = True  # R, T calibrated from this configuration's views (False: kinematic, nominal, fixed)
+    calibration_gates: dict | None = None  # the quality gates' measurements (vision.gates.GateReport.as_dict)
 
     def row(self) -> dict:
         """The result columns of this configuration (status 'measured')."""
@@ -78,6 +79,7 @@ class ConfigurationAnalysis:
                 "views_used": self.calibration_views_used, "views_rejected": self.calibration_views_rejected,
                 "epipolar_rms_px": self.calibration_epipolar_rms_px,
                 "T_mm": None if self.calib is None else self.calib.T.tolist(),
+                "gates": self.calibration_gates,
             },
             "frames": [
                 {**f.as_dict(), "lengths_mm": f.square.lengths_mm.tolist(), "pairs": f.square.pairs.tolist()}
@@ -97,6 +99,9 @@ def calibrate_configuration(
 
     ``lens_model``: as :func:`~stereo_bench.vision.pipeline.calibrate_from_images` takes it.
 
+    A calibration the quality gates refuse (:mod:`stereo_bench.vision.gates`) fails the configuration with the
+    gate's line as its reason, as a physically impossible one does: nothing is measured with it.
+
     ``intrinsics_covariance``: of given ``intrinsics`` held fixed (without it the covariance is unknown).
     ``detections``: per view, the (left, right) detections already made while capturing (None: detect here).
     """
@@ -112,6 +117,7 @@ def calibrate_configuration(
         calib=result.calib, rect=result.rect, calibration_epipolar_rms_px=result.epipolar_rms_px,
         calibration_views_used=result.views_used,
         calibration_views_rejected=[r.as_dict() for r in result.views_rejected],
+        calibration_gates=None if result.gates is None else result.gates.as_dict(),
     )
 
 

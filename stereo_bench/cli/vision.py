@@ -201,6 +201,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         read_intrinsics_covariance,
         write_calibration,
     )
+    from stereo_bench.vision.gates import CalibrationRefused
     from stereo_bench.vision.pipeline import calibrate_from_images
 
     target = target_from_args(args)
@@ -236,14 +237,20 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                        + ": a stereo calibration needs the left and the right camera's views")
     try:
         result = calibrate_from_images(left_images, right_images, target, intrinsics=intrinsics, mode=mode,
-                                       intrinsics_covariance=intrinsics_covariance, lens_model=args.lens_model)
+                                       intrinsics_covariance=intrinsics_covariance, lens_model=args.lens_model,
+                                       accept_poor=args.accept_poor,
+                                       view_names=[f"{Path(a).name}, {Path(b).name}"
+                                                   for a, b in zip(left_paths, right_paths, strict=True)])
+    except CalibrationRefused as error:
+        raise CliError(str(error)) from None
     except (ValueError, cv2.error) as error:
         raise CliError(f"calibration failed: {' '.join(str(error).split())}") from None
     calib = result.calib
     make_out_dir(out)
     write_calibration(out, calib, result.rect, board=f"{target.kind} {args.board} square {target.square_mm} mm",
                       extra={"epipolar_rms_px": result.epipolar_rms_px, "views_used": len(result.views_used),
-                             "board_scale_u_rel": args.board_scale_u})
+                             "board_scale_u_rel": args.board_scale_u,
+                             **(result.gates.file_items() if result.gates else {})})
     uncertainty = calibration_uncertainty(calib)
     report = {
         "rms_px": calib.rms_px, "views_used": len(result.views_used),
@@ -259,6 +266,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         "board_scale_u_rel": args.board_scale_u,
         "adequacy": None if calib.adequacy is None else calib.adequacy.as_dict(),
         "lens_model": _lens_report(calib),
+        "gates": None if result.gates is None else result.gates.as_dict(),
     }
     if args.json:
         print_json(report)
@@ -275,13 +283,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if uncertainty:
             print(f"uncertainties are standard (1 sigma), from the fit's residual corner noise "
                   f"{uncertainty['sigma_px']:.3f} px, or the views' jackknife where that is significantly larger")
+        else:
+            print(f"uncertainty unknown: {calib.covariance_note}")
         if calib.adequacy is not None:
             a = calib.adequacy
             print(f"model adequacy: the board's squares in {a.n_views} held-out views err {a.rms_rel:.2%} RMS "
                   f"(mean {a.bias_rel:+.2%}), {a.predicted_rel:.2%} predicted: component {a.u_rel:.2%} of a length "
                   f"({a.dof:.0f} degrees of freedom)")
-        else:
-            print(f"uncertainty unknown: {calib.covariance_note}")
         lens = report["lens_model"]
         if lens["comparison"]:
             print(f"lens model {lens['chosen']} ({lens['reason']}); held-out (linearised leave-one-pair-out):")
@@ -290,6 +298,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             print(f"lens model {lens['chosen']}")
         for r in report["views_rejected"]:
             print(f"rejected pair {r['index']} ({Path(r['left']).name}, {Path(r['right']).name}): {r['reason']}")
+        for gate in (result.gates.results if result.gates else ()):
+            if gate.verdict == "fail":
+                print(f"quality gate {gate.name} FAILED (kept: --accept-poor): {gate.line}", file=sys.stderr)
         print(f"wrote {out / 'intrinsics.yml'} and {out / 'extrinsics.yml'}")
     return 0
 
@@ -474,6 +485,10 @@ def register(subparsers) -> None:
     calibrate.add_argument("--board-scale-u", type=BOARD_SCALE_U, default=1e-4, metavar="REL",
                            help="relative standard uncertainty of the calibration board's square, recorded for "
                                 "'measure' (default 1e-4)")
+    calibrate.add_argument("--accept-poor", action="store_true",
+                           help="write the calibration even when a quality gate refuses it (pairs not taken together, "
+                                "inconsistent views, blur, a bent board, left/right swapped: docs/CALIBRATION.md); "
+                                "the files record which gates failed. Without it a refusal exits with status 2")
     calibrate.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     calibrate.set_defaults(func=cmd_calibrate)
 

@@ -377,6 +377,28 @@ def recorded_board(calib_dir: str | Path) -> tuple[str, str, float] | None:
     return (match.group(1), match.group(2), square) if np.isfinite(square) and square > 0 else None
 
 
+def read_gates(calib_dir: str | Path) -> dict[str, dict] | None:
+    """The quality gates a calibration recorded (``gates_run``, ``gate_NAME_{value,threshold,unit,verdict,line}``:
+    :meth:`stereo_bench.vision.gates.GateReport.file_items`), by gate name; None for a file written before the
+    gates (or by another program): which gates it passed is unknown."""
+    path = _resolve(calib_dir, EXTRINSICS_FILE)
+    storage = _open(path)
+    try:
+        run = storage.getNode("gates_run")
+        if run.empty():
+            return None
+        gates = {}
+        for name in run.string().split():
+            entry = {}
+            for key in ("value", "threshold", "unit", "verdict", "line"):
+                node = storage.getNode(f"gate_{name}_{key}")
+                entry[key] = None if node.empty() else (node.real() if node.isReal() or node.isInt() else node.string())
+            gates[name] = entry
+        return gates
+    finally:
+        storage.release()
+
+
 def recorded_epipolar_rms_px(calib_dir: str | Path) -> float | None:
     """The rectified epipolar RMS (px) the calibration recorded of its own views, else its reprojection RMS.
 

@@ -130,6 +130,9 @@ class StereoCalibration:
     adequacy: object | None = None
     lens_model: str = ""  # the lens model fitted (stereo_bench.vision.lensmodels); "" = not recorded
     lens_choice: object | None = None  # lensmodels.Choice: how it was chosen and the held-out comparison
+    # Each camera calibrated alone from the same views, when the fit did that first (the quality gates compare
+    # each view's residual with them: stereo_bench.vision.gates); None for given intrinsics or a loaded file.
+    mono: tuple[MonoCalibration, MonoCalibration] | None = None
 
     @property
     def baseline_mm(self) -> float:
@@ -416,6 +419,7 @@ def _calibrate_stereo(
         K1=K1n, D1=D1n, K2=K2n, D2=D2n, R=R, T=T, image_size=tuple(image_size), rms_px=float(rms),
         per_view_rms_px=per_view, views_used=used, views_rejected=sorted(rejected, key=lambda r: r.index),
         mode=mode, E=E, F=F, covariance=cov, covariance_note=note, lens_model=model_of_flags(flags),
+        mono=None if left is None else (left, right),
     )
     return calib, [np.asarray(r, float).reshape(3) for r in rvecs], [np.asarray(t, float).reshape(3) for t in tvecs]
 
@@ -531,7 +535,9 @@ def calibrate_stereo_lens(
                         view_indices=list(range(len(objs))), image_size=tuple(image_size)))
                 except CovarianceUnavailable as error:
                     final = replace(final, covariance_note=str(error))
-        final = replace(final, views_used=[used[i] for i in final.views_used], views_rejected=base.views_rejected)
+        # Indices into the caller's views, as base's; the mono fits (the gates' reference) are base's, of those views.
+        final = replace(final, views_used=[used[i] for i in final.views_used], views_rejected=base.views_rejected,
+                        mono=base.mono)
     fov = max(diagonal_fov_deg(final.K1, image_size), diagonal_fov_deg(final.K2, image_size))
     choice = Choice(chosen, lens_model, tuple(results), reason, diagonal_fov_deg=fov)
     return replace(final, lens_model=chosen, lens_choice=choice)

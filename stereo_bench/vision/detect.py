@@ -179,18 +179,18 @@ def detect_checkerboard(
     """Whole-board detection: all ``board.n_corners`` corners, or None.
 
     ``CALIB_CB_FAST_CHECK`` occasionally rejects a real board (one of present_cjn's 29 views); with
-    ``thorough`` a miss is retried at 960 px and then with ``findChessboardCornersSB``, which is
-    bounded in time (20-40 ms on a 960-pixel image without a board) unlike the classic detector
-    without FAST_CHECK.
+    ``thorough`` a miss is retried along :data:`THOROUGH_CHAIN` (the classic detector at 960 px, then
+    ``findChessboardCornersSB``, which is bounded in time (20-40 ms on a 960-pixel image without a board)
+    unlike the classic detector without FAST_CHECK, at 960 px and at full resolution).
     """
     gray = to_gray(image)
     small, scale = _search_image(gray, search_width_px)
     found, corners = _find_chessboard_fast_checked(small, board.pattern_size)
     if not found and thorough:
-        small, scale = _search_image(gray, max(search_width_px, THOROUGH_SEARCH_WIDTH_PX))
-        found, corners = _find_chessboard_fast_checked(small, board.pattern_size)
-        if not found:
-            found, corners = cv2.findChessboardCornersSB(small, board.pattern_size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
+        for step in THOROUGH_CHAIN:
+            found, corners, scale = _thorough_step(gray, board, step, search_width_px)
+            if found:
+                break
     if not found:
         return None
     grid = refine_grid(gray, _to_full_resolution(corners, scale).reshape(board.rows, board.cols, 2))
@@ -199,6 +199,33 @@ def detect_checkerboard(
 
 
 _SEARCH_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+
+# The thorough search's fallbacks after the fast one missed, in order: (detector, search width px; 0 = full
+# resolution, flags). Measured on the real sets and on 1280x720 frames holding their boards as a hand-held print
+# in a room (scripts/compare_detect_opencv.py): SB with CALIB_CB_NORMALIZE_IMAGE misses boards whose frame is
+# mostly an even background (the histogram equalisation it asks for spreads that background's noise over the
+# whole grey range), SB without it finds them (4 of 60 present_cjn views at 1280x720: 20-40 ms each at 640-960
+# px); full resolution is last, for squares too small for the reduced image (SB: ~120-200 ms at 1280x720,
+# ~330 ms at 1080p, bounded even without a board).
+THOROUGH_CHAIN = (
+    ("classic", THOROUGH_SEARCH_WIDTH_PX, _SEARCH_FLAGS),
+    ("sb", THOROUGH_SEARCH_WIDTH_PX, 0),
+    ("sb", THOROUGH_SEARCH_WIDTH_PX, cv2.CALIB_CB_NORMALIZE_IMAGE),
+    ("sb", 0, 0),
+)
+
+
+def _thorough_step(gray: np.ndarray, board: Checkerboard, step: tuple[str, int, int],
+                   search_width_px: int) -> tuple[bool, np.ndarray | None, float]:
+    """(found, corners in the search image, its scale) of one :data:`THOROUGH_CHAIN` step."""
+    detector, width, flags = step
+    width = max(gray.shape) if width == 0 else max(search_width_px, width)
+    small, scale = _search_image(gray, width)
+    if detector == "classic":
+        found, corners = _find_chessboard_fast_checked(small, board.pattern_size)
+    else:
+        found, corners = cv2.findChessboardCornersSB(small, board.pattern_size, flags=flags)
+    return bool(found), corners, scale
 
 
 def _find_chessboard_fast_checked(small: np.ndarray, pattern_size: tuple[int, int]) -> tuple[bool, np.ndarray | None]:

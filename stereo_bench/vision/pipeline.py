@@ -23,6 +23,7 @@ from stereo_bench.vision.calibrate import (
 )
 from stereo_bench.vision.covariance import CalibrationCovariance
 from stereo_bench.vision.detect import Detection, common_corners, common_sigmas, detect
+from stereo_bench.vision.gates import CalibrationRefused, GateReport, GateView, gate_board_fit, run_gates
 from stereo_bench.vision.measure import SquareMeasurement, measure_square, planar_fit_rms_px
 from stereo_bench.vision.rectify import Rectification, epipolar_errors_px, rectify, rms
 from stereo_bench.vision.triangulate import camera_depths_mm, parallax_px
@@ -96,6 +97,7 @@ class CalibrationResult:
     epipolar_rms_px: float
     views_rejected: list[RejectedView]  # detection failures and calibration outliers, by pair index
     views_used: list[int]  # pair indices
+    gates: GateReport | None = None  # the quality gates' measurements (None: not run)
 
 
 @dataclass(frozen=True)
@@ -144,6 +146,7 @@ def calibrate_from_images(
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: StereoMode = "joint",
     thorough: bool = True, intrinsics_covariance: CalibrationCovariance | None = None,
     detections: Sequence[tuple[Detection | None, Detection | None]] | None = None, lens_model: str | None = None,
+    gates: bool = True, accept_poor: bool = False, view_names: Sequence[str] | None = None,
 ) -> CalibrationResult:
     """Stereo calibration from image pairs of a calibration target (pairs in matching order).
 
@@ -160,8 +163,11 @@ def calibrate_from_images(
     Detection here skips the corner-noise estimate (``detect(..., noise=False)``: the fit takes the noise from
     its own residuals) and runs on :data:`DETECTION_THREADS` threads (OpenCV's detectors release the GIL; the
     corners do not depend on the thread).
+    ``gates``: run the quality gates (:mod:`stereo_bench.vision.gates`) and refuse a calibration they fail,
+    unless ``accept_poor``; ``view_names`` (per pair, e.g. the file names) go into their lines.
 
     Raises:
+        CalibrationRefused (an ImplausibleCalibration): a quality gate failed (its line names the cause).
         ValueError: fewer than ``MIN_VIEWS`` pairs show the board in both images, or the solver fails.
         ImplausibleCalibration (a ValueError): given intrinsics that do not fit the images, or a result no
             stereo pair can have (:func:`~stereo_bench.vision.calibrate.calibration_problems`).
@@ -180,8 +186,10 @@ def calibrate_from_images(
     pair_index, objects, lefts, rights = [], [], [], []
     if detections is None:
         detections = _detect_all(left_images, right_images, target, thorough=thorough)
+    found: list[bool] = []  # per image, left and right of each pair in turn
     for index in range(len(left_images)):
         left, right = detections[index]
+        found += [left is not None, right is not None]
         missing = [side for side, d in (("left", left), ("right", right)) if d is None]
         if missing:
             rejected.append(RejectedView(index, f"board not found in the {' and '.join(missing)} image"))
@@ -194,6 +202,13 @@ def calibrate_from_images(
         objects.append(target.object_points[ids])
         lefts.append(left_px)
         rights.append(right_px)
+    report = None
+    if gates:
+        images = [image for pair in zip(left_images, right_images, strict=True) for image in pair]
+        board = gate_board_fit(target, found, images)
+        report = GateReport((board,), accept_poor)
+        if board.verdict == "fail" and (not accept_poor or len(objects) < MIN_VIEWS):
+            raise CalibrationRefused(GateReport((board,)))
     if len(objects) < MIN_VIEWS:
         raise ValueError(f"calibration board found in only {len(objects)} of {len(left_images)} view pairs "
                          f"(need {MIN_VIEWS})")
@@ -203,11 +218,24 @@ def calibrate_from_images(
     else:
         calib = calibrate_stereo_lens(objects, lefts, rights, tuple(image_size), lens_model=lens_model,
                                       intrinsics=intrinsics, mode=mode, intrinsics_covariance=intrinsics_covariance)
+    dropped = [(pair_index[r.index], r.reason) for r in calib.views_rejected]
+    if report is not None:
+        views = [GateView(index, objects[k], lefts[k], rights[k], left_images[index], right_images[index])
+                 for k, index in enumerate(pair_index)]
+        report = report.merged(run_gates(calib, views, target, dropped=dropped, names=view_names,
+                                         accept_poor=accept_poor))
+        if report.refused:
+            raise CalibrationRefused(report)
+        dropped = [(index, f"{why}: {report.view_diagnoses[index]}" if index in report.view_diagnoses else why)
+                   for index, why in dropped]
     calib = with_adequacy(calib, objects, lefts, rights)  # the held-out check of the budget (docs/UNCERTAINTY.md)
     problems = calibration_problems(calib)
     if problems:
+        if report is not None and report.failed:  # kept with --accept-poor: the gates name the cause
+            raise ImplausibleCalibration(f"the calibration is not physically possible ({problems[0]}), because: "
+                                         f"{report.refusal_line()}")
         raise ImplausibleCalibration(f"the calibration is not physically possible: {problems[0]}")
-    rejected += [RejectedView(pair_index[r.index], r.reason) for r in calib.views_rejected]
+    rejected += [RejectedView(index, why) for index, why in dropped]
     used = [pair_index[i] for i in calib.views_used]
     rect = rectify(calib)
     epipolar = np.concatenate([
@@ -215,7 +243,7 @@ def calibrate_from_images(
     ])
     return CalibrationResult(
         calib=calib, rect=rect, epipolar_rms_px=rms(epipolar),
-        views_rejected=sorted(rejected, key=lambda r: r.index), views_used=used,
+        views_rejected=sorted(rejected, key=lambda r: r.index), views_used=used, gates=report,
     )
 
 
