@@ -35,6 +35,13 @@ parallel rig):
   target stands at its nominal distance and yaw plus a random placement error drawn once per
   placement.
 
+- Cameras (issue 22): frames pass through JPEG (MJPG), the sensor adds noise at its gain (read noise and
+  shot noise), the lens defocuses, the pattern's image scatters by ``corner_noise_px`` per view (what real
+  corners scatter by beyond their image noise), a rolling shutter (``line_time_us``) shears the image of a
+  ringing camera; an unsynchronised pair (``synchronised = false``) exposes its right frame a random skew
+  after the left one while the hand-held calibration board moves. Every lab figure is measured on one of
+  the real sets (docs/SIMULATED_BENCH.md, ``scripts/bench_lab_profile.py --real``).
+
 Random draws (landing errors, placements) come from the campaign seed and what is being done (axis,
 position, how often that position was visited; distance and placement count), so a campaign that
 resumes draws what one that never stopped would have.

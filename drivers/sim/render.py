@@ -454,8 +454,7 @@ class _CameraRaster:
         s = self.s
         map_x, map_y = self.map_x[y0 * s : y1 * s, x0 * s : x1 * s], self.map_y[y0 * s : y1 * s, x0 * s : x1 * s]
         if displacement is not None:
-            dx, dy = displacement.field(y0 * s, y1 * s, x0 * s, x1 * s, s)
-            map_x, map_y = map_x - dx, map_y - dy  # content moved by +d: each sample looks d back (canvas px)
+            map_x, map_y = displacement.moved(map_x, map_y, y0 * s, x0 * s, s)
         fine = cv2.remap(self.canvas, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         if s == 1:
             return fine
@@ -896,25 +895,27 @@ class _Displacement:
                  nodes: np.ndarray | None = None, step: int = 16):
         self.shear, self.centre_row, self.nodes, self.step = shear, float(centre_row), nodes, int(step)
 
-    def field(self, y0: int, y1: int, x0: int, x1: int, s: int) -> tuple[np.ndarray, np.ndarray]:
-        """(dy0.., (y1-y0, x1-x0)) float32 dx, dy in canvas px (s per sensor px) for supersamples y0:y1, x0:x1."""
-        h, w = y1 - y0, x1 - x0
-        dx = np.zeros((h, w), np.float32)
-        dy = np.zeros((h, w), np.float32)
+    def moved(self, map_x: np.ndarray, map_y: np.ndarray, y0: int, x0: int, s: int) -> tuple[np.ndarray, np.ndarray]:
+        """``map_x``, ``map_y`` (canvas px, s per sensor px) of the supersamples from (y0, x0) on, each looking
+        back by the displacement (content moved by +d: a sample sees what stood d before it)."""
+        h, w = map_x.shape
         if self.nodes is not None:
             f = self.step * s
-            k0, k1 = y0 // f, min(self.nodes.shape[0] - 1, -(-y1 // f) + 1)
-            j0, j1 = x0 // f, min(self.nodes.shape[1] - 1, -(-x1 // f) + 1)
-            sub = np.ascontiguousarray(self.nodes[k0 : k1 + 1, j0 : j1 + 1] * np.float32(s))
-            up = cv2.resize(sub, (sub.shape[1] * f, sub.shape[0] * f), interpolation=cv2.INTER_LINEAR)
-            up = up[y0 - k0 * f : y0 - k0 * f + h, x0 - j0 * f : x0 - j0 * f + w]
-            dx += up[..., 0]
-            dy += up[..., 1]
+            k0, k1 = y0 // f, min(self.nodes.shape[0] - 1, -(-(y0 + h) // f) + 1)
+            j0, j1 = x0 // f, min(self.nodes.shape[1] - 1, -(-(x0 + w) // f) + 1)
+            oy, ox = y0 - k0 * f, x0 - j0 * f
+            size = ((j1 - j0 + 1) * f, (k1 - k0 + 1) * f)
+            maps = []
+            for c, base in enumerate((map_x, map_y)):
+                sub = np.ascontiguousarray(self.nodes[k0 : k1 + 1, j0 : j1 + 1, c] * np.float32(s))
+                up = cv2.resize(sub, size, interpolation=cv2.INTER_LINEAR)
+                maps.append(cv2.subtract(base, up[oy : oy + h, ox : ox + w]))
+            map_x, map_y = maps
         if self.shear is not None:
-            rows = ((np.arange(y0, y1, dtype=np.float32) - (s - 1) / 2) / s - np.float32(self.centre_row))[:, None]
-            dx += np.float32(self.shear[0] * s) * rows
-            dy += np.float32(self.shear[1] * s) * rows
-        return dx, dy
+            rows = ((np.arange(y0, y0 + h, dtype=np.float32) - (s - 1) / 2) / s - np.float32(self.centre_row))[:, None]
+            map_x = map_x - np.float32(self.shear[0] * s) * rows
+            map_y = map_y - np.float32(self.shear[1] * s) * rows
+        return map_x, map_y
 
 
 class _BentBoard:
