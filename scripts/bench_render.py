@@ -4,7 +4,11 @@ Times ``StereoRenderer.render_view`` (median of ``--runs`` renders, after one wa
 checkerboard and a ChArUco board, near and far, plus a frame-filling board (the worst case: the
 whole frame is warped, remapped and integrated). Prints a table and writes JSON.
 
-    .venv/bin/python scripts/bench_render.py [--runs 30] [--supersample 2] [--out bench_render.json]
+    .venv/bin/python scripts/bench_render.py [--runs 30] [--supersample 2] [--profile ideal|lab]
+        [--out bench_render.json]
+
+``--profile lab`` renders as the lab bench's cameras do (drivers.sim.profile.LAB: its lenses, JPEG, sensor
+noise and gain, defocus and corner noise; the boards flat): what every lab campaign's render costs.
 
 The target is <= 50 ms per view on the 2-core reference machine. The one-time set-up (distortion
 maps, background, texture pyramid) is reported separately.
@@ -26,8 +30,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from drivers.sim.bench import camera_optics, true_lens  # noqa: E402
+from drivers.sim.profile import PROFILES  # noqa: E402
 from drivers.sim.render import Optics, StereoRenderer  # noqa: E402
-from stereo_bench.geometry import RigPose, board_pose_facing_rig, invert_transform  # noqa: E402
+from stereo_bench.geometry import CameraModel, RigPose, board_pose_facing_rig, invert_transform  # noqa: E402
 from stereo_bench.targets import CharucoTarget, Checkerboard  # noqa: E402
 
 TARGET_MS = 50.0
@@ -71,12 +77,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=30, help="timed renders per case (>= 20; default 30)")
     parser.add_argument("--supersample", type=int, default=Optics().supersample, help="anti-aliasing factor")
+    parser.add_argument("--profile", choices=sorted(PROFILES), default="ideal",
+                        help="render as this simulated bench's cameras do (default ideal: the renderer's defaults)")
     parser.add_argument("--out", type=Path, default=Path("bench_render.json"), help="JSON results file")
     args = parser.parse_args(argv)
     if args.runs < 20:
         parser.error("--runs must be at least 20")
 
-    optics = Optics(supersample=args.supersample)
+    cams = PROFILES[args.profile].cameras
+    optics = camera_optics(Optics(supersample=args.supersample, jpeg_quality=cams.jpeg_quality), cams)
+    lenses = {side: true_lens(CameraModel.from_sensor(name=side), *cams.lens_terms(side)) for side in ("left", "right")}
     rig = RigPose.symmetric(100.0, 90.0)
     rng = np.random.default_rng(0)
     rows = []
@@ -84,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     reference_before = reference_ms()
     for target_name, target in TARGETS.items():
         start = time.perf_counter()
-        renderer = StereoRenderer(target, optics=optics)
+        renderer = StereoRenderer(target, lenses["left"], lenses["right"], optics=optics)
         setup_s = time.perf_counter() - start
         for case, distance, yaw, pitch in CASES:
             T_rig_board = board_pose_facing_rig(distance_mm=distance, board_size_mm=target.grid_size_mm,
@@ -101,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     load_after = os.getloadavg()
     reference_after = reference_ms()
 
-    print(f"render_view, 1920x1080, supersample {args.supersample}, median of {args.runs} "
+    print(f"render_view ({args.profile} cameras), 1920x1080, supersample {args.supersample}, median of {args.runs} "
           f"(OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {os.cpu_count()} cores, "
           f"load avg {load_before[0]:.2f} -> {load_after[0]:.2f}; reference warp {reference_before:.1f} -> "
           f"{reference_after:.1f} ms, ~8 ms when idle)")
@@ -117,7 +127,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"worst median {worst:.1f} ms: {verdict} the {TARGET_MS:.0f} ms target")
 
     result = {
-        "benchmark": "render_view", "image_size": [1920, 1080], "supersample": args.supersample,
+        "benchmark": "render_view", "profile": args.profile, "image_size": [1920, 1080],
+        "supersample": args.supersample,
         "target_ms": TARGET_MS, "worst_median_ms": worst, "meets_target": worst <= TARGET_MS,
         "opencv": cv2.__version__, "numpy": np.__version__, "python": platform.python_version(),
         "cv2_threads": cv2.getNumThreads(), "cpu_count": os.cpu_count(),

@@ -67,9 +67,20 @@ def test_the_ideal_bench_renders_exactly_what_the_nominal_geometry_shows():
             np.testing.assert_array_equal(images[side], view.image)
 
 
-def test_the_frames_truth_reproduces_the_images(lab_bench):
-    """Measured with the R, T a lab frame carries as truth (and the true lenses), the square is the printed one."""
-    bench, rig = lab_bench
+def test_the_frames_truth_reproduces_the_images():
+    """Measured with the R, T a lab frame carries as truth (and the true lenses), the square is the printed one.
+
+    The pattern's random jitter (``cameras.corner_noise_px``, 0.2 px: the real sets' corner scatter) is off
+    here: it scatters one frame's mean square by ~0.016 mm, while this test is about the geometry the truth
+    carries (JPEG, sensor noise, blur and everything else of the lab bench stay on)."""
+    profile = LAB.model_copy(update={"cameras": LAB.cameras.model_copy(update={"corner_noise_px": 0.0})})
+    with SimulatedBench(time_scale=50.0, profile=profile, seed=3, **cameras()) as bench, \
+            GrblRig(bench.tty_path, bench.rig_config) as rig:
+        rig.home()
+        _the_frames_truth_reproduces_the_images(bench, rig)
+
+
+def _the_frames_truth_reproduces_the_images(bench, rig):
     move_and_ask(rig, OPERATORS, baseline_mm=100.0, alpha_left_deg=80.0, alpha_right_deg=82.0, target_distance_mm=450.0)
     bench.clock.advance(0.4)  # settled
     bench.place_target(BOARD, distance_mm=450.0, seed=1)

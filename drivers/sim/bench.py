@@ -55,6 +55,12 @@ state and frames rendered for a wrong one are rendered again. A prerendered fram
 the scene shown and the pair's state at the trigger are exactly those it was rendered for, so it is
 bit for bit the frame a render at the trigger would give; otherwise the frame is rendered there.
 
+Unsynchronised cameras (``cameras.synchronised = false``): the right frame of each pair is exposed a random
+skew after the left one (:func:`board_at_exposure`), while a hand-held calibration board moves; the frames'
+truth carries the board as each camera saw it and the skew (``truth.board.capture_skew_s``). Their time
+stamps stay the one trigger's (the campaign's left-right time check sees nothing: what a pair of webcams
+whose clocks are read by the host at retrieval, not at exposure, reports).
+
 The bench knows the truth at every frame: the true camera poses, R and T of the pair
 (X_right = R X_left + T), the board's true pose, scale and bow. ``truth()`` returns it for the
 current state; every frame carries it in its metadata (``meta["truth"]``).
@@ -84,7 +90,7 @@ from drivers.sim.grbl.emulator import GrblEmulator
 from drivers.sim.grbl.firmware import AxisSpec, axis_specs_for_travel
 from drivers.sim.grbl.planner import MotionEvent
 from drivers.sim.mechanics import MOVED, MoveHistory, PairState, pair_state, ringing_duration_s
-from drivers.sim.profile import IDEAL, BoardErrors, SimProfile
+from drivers.sim.profile import IDEAL, BoardErrors, CameraErrors, SimProfile
 from drivers.sim.render import BoardShape, Optics, StereoRenderer, _auto_px_per_square
 from stereo_bench.geometry import (
     CameraModel,
@@ -213,6 +219,45 @@ def true_lens(camera: CameraModel, high_order: float, prism: tuple[float, float,
     return CameraModel(K=camera.K, dist=dist, image_size=camera.image_size, name=camera.name)
 
 
+def camera_optics(optics: Optics, cams: CameraErrors) -> Optics:
+    """``optics`` with the profile's sensor and lens imperfections (unchanged, the same object, when there are none).
+
+    Defocus adds in quadrature to the optics' blur, the gain's extra read noise to its read noise; shot noise,
+    corner noise and the rolling shutter's row time are the profile's.
+    """
+    if not (cams.defocus_sigma_px or cams.extra_read_noise_dn or cams.shot_noise_gain or cams.corner_noise_px
+            or cams.line_time_us):
+        return optics
+    return replace(optics, blur_sigma_px=math.hypot(optics.blur_sigma_px, cams.defocus_sigma_px),
+                   noise_sigma_dn=math.hypot(optics.noise_sigma_dn, cams.extra_read_noise_dn),
+                   shot_noise_gain=optics.shot_noise_gain + cams.shot_noise_gain, jitter_px=cams.corner_noise_px,
+                   jitter_scale_px=cams.corner_noise_scale_px, line_time_s=cams.line_time_us * 1e-6)
+
+
+def board_at_exposure(profile: SimProfile, T_rig_board: np.ndarray, *, seed: int, index: int, side: str,
+                      measured_target: bool = False) -> tuple[np.ndarray, float | None]:
+    """(T_rig_board 4x4 mm, skew s) of a board shown at ``T_rig_board`` as the ``side`` camera's ``index``-th
+    frame of a scene with noise seed ``seed`` sees it.
+
+    On a synchronised pair (and for the measured target, which stands) the scene's pose, skew None. An
+    unsynchronised pair (``cameras.synchronised = false``) exposes the right frame ``skew`` after the left one,
+    drawn per frame pair from N(0, ``capture_skew_sigma_ms``) keyed by (seed, frame index); the hand-held
+    calibration board moves meanwhile at ``calibration_board.hand_held_speed_mm_s`` in a direction drawn per
+    scene (a hand's drift, straight over a few ms). The left frame sees the scene's pose.
+    """
+    cams, speed = profile.cameras, profile.calibration_board.hand_held_speed_mm_s
+    if cams.synchronised or measured_target:
+        return T_rig_board, None
+    skew = float(np.random.default_rng([seed & 0xFFFFFFFF, 0x5E3, index]).normal(
+        0.0, cams.capture_skew_sigma_ms * 1e-3))
+    if side == "left" or speed == 0.0:
+        return T_rig_board, skew
+    direction = np.random.default_rng([seed & 0xFFFFFFFF, 0x4A4D]).normal(size=3)
+    moved = np.array(T_rig_board, dtype=np.float64)
+    moved[:3, 3] += speed * skew * direction / np.linalg.norm(direction)
+    return moved, skew
+
+
 def board_shape(errors: BoardErrors) -> BoardShape | None:
     """The render shape of a board with these errors (None: flat and to scale)."""
     if errors.flat_and_true:
@@ -228,7 +273,8 @@ class SimulatedBench:
             machine space).
         left, right: camera intrinsics (default 1920x1080, f = 4 mm, 3 um pixels); the profile's
             lens terms are added to them (``left_model``/``right_model`` are the true lenses).
-        optics: image formation (blur, noise, ...); the profile's ``jpeg_quality`` is applied on top.
+        optics: image formation (blur, noise, ...); the profile's cameras are applied on top (``jpeg_quality``,
+            and :func:`camera_optics`: defocus, sensor noise and gain, corner noise, rolling shutter).
         time_scale: > 1 runs motion and exposures faster than real time (the bench clock's pace: it changes no
             simulated time, only how long it takes in real time).
         exposure_s: exposure + readout per trigger (bench-clock seconds; ``exposure_s / time_scale`` real).
@@ -254,6 +300,7 @@ class SimulatedBench:
         self.optics = optics or Optics()
         if cams.jpeg_quality is not None:
             self.optics = replace(self.optics, jpeg_quality=cams.jpeg_quality)
+        self.optics = camera_optics(self.optics, cams)
         self.time_scale = time_scale
         self.exposure_s = exposure_s
         self.pose_source = pose_source
@@ -841,7 +888,8 @@ class SimulatedBench:
         key = (target, scale)
         with self._renderers_lock:
             if key not in self._preview_renderers:
-                optics = replace(self.optics, blur_sigma_px=self.optics.blur_sigma_px * scale)
+                optics = replace(self.optics, blur_sigma_px=self.optics.blur_sigma_px * scale,
+                                 jitter_px=self.optics.jitter_px * scale)
                 texels = max(32, round(_auto_px_per_square(target) * scale))  # as fine, in preview pixels
                 self._preview_renderers[key] = StereoRenderer(
                     target, _scaled_camera(self.left_model, scale), _scaled_camera(self.right_model, scale),
@@ -868,14 +916,22 @@ class SimulatedBench:
             T_cam_board = np.eye(4)
             T_cam_board[2, 3] = -1000.0
         else:
-            T_cam_board = np.linalg.inv(T_rig_cam) @ scene.T_rig_board
+            T_rig_board, skew_s = board_at_exposure(self.profile, scene.T_rig_board, seed=scene.seed, index=index,
+                                                    side=side, measured_target=scene.measured_target)
+            T_cam_board = np.linalg.inv(T_rig_cam) @ T_rig_board
             shape = scene.shape or BoardShape()
             board = {"T_cam_board": T_cam_board[:3].tolist(), "print_scale": shape.scale, "bow_mm": shape.bow_mm}
+            if skew_s is not None:
+                board["capture_skew_s"] = skew_s
         renderer, smear_px = self._renderer(target), snapshot.smear_px[side]
+        # The image's velocity during the readout (a rolling shutter shears it): the ringing's, as its smear.
+        velocity = None if smear_px is None else (smear_px[0] / self.exposure_s, smear_px[1] / self.exposure_s)
         if scale != 1.0:  # a preview's smaller image: the same view, every length in its pixels
             renderer = self._preview_renderer(target, scale)
             smear_px = None if smear_px is None else (smear_px[0] * scale, smear_px[1] * scale)
-        view = renderer.render_view(side, T_cam_board, rng, shape=scene.shape, smear_px=smear_px)
+            velocity = None if velocity is None else (velocity[0] * scale, velocity[1] * scale)
+        view = renderer.render_view(side, T_cam_board, rng, shape=scene.shape, smear_px=smear_px,
+                                    velocity_px_s=velocity)
         truth = {"T_bench_cam": T_rig_cam[:3].tolist(), **self._pair_truth(snapshot), "board": board}
         if snapshot.state is not None:
             truth["ringing_deg"] = snapshot.state.ringing_deg[side]

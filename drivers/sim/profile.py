@@ -35,6 +35,13 @@ parallel rig):
   target stands at its nominal distance and yaw plus a random placement error drawn once per
   placement.
 
+- Cameras (issue 22): frames pass through JPEG (MJPG), the sensor adds noise at its gain (read noise and
+  shot noise), the lens defocuses, the pattern's image scatters by ``corner_noise_px`` per view (what real
+  corners scatter by beyond their image noise), a rolling shutter (``line_time_us``) shears the image of a
+  ringing camera; an unsynchronised pair (``synchronised = false``) exposes its right frame a random skew
+  after the left one while the hand-held calibration board moves. Every lab figure is measured on one of
+  the real sets (docs/SIMULATED_BENCH.md, ``scripts/bench_lab_profile.py --real``).
+
 Random draws (landing errors, placements) come from the campaign seed and what is being done (axis,
 position, how often that position was visited; distance and placement count), so a campaign that
 resumes draws what one that never stopped would have.
@@ -111,6 +118,9 @@ class BoardErrors(BaseModel):
     placement_distance_sigma_mm: float = _f(0.0, "std of the operator's distance error per manual placement, mm",
                                             ge=0, le=100)
     placement_yaw_sigma_deg: float = _f(0.0, "std of the operator's yaw error per manual placement, deg", ge=0, le=20)
+    hand_held_speed_mm_s: float = _f(0.0, "speed of a hand-held board while the pair captures it, mm/s: it moves "
+                                          "between the two exposures of an unsynchronised pair "
+                                          "(cameras.synchronised = false); calibration board only", ge=0, le=2000)
 
     @property
     def flat_and_true(self) -> bool:
@@ -140,6 +150,23 @@ class CameraErrors(BaseModel):
     vibration_decay_s: float = _f(0.08, "time constant of the exponential envelope, s", gt=0, le=10)
     vibration_stop_deg: float = _f(0.001, "friction stops the oscillation once its envelope is below this, deg",
                                    ge=0, le=1)
+    defocus_sigma_px: float = _f(0.0, "defocus and lens blur beyond the optics' blur, Gaussian sigma in px (added "
+                                      "in quadrature)", ge=0, le=20)
+    extra_read_noise_dn: float = _f(0.0, "sensor noise at the camera's gain beyond the optics' read noise, 8-bit DN "
+                                         "std (added in quadrature)", ge=0, le=50)
+    shot_noise_gain: float = _f(0.0, "shot-noise variance per DN of signal (DN^2 / DN) at the camera's gain",
+                                ge=0, le=10)
+    corner_noise_px: float = _f(0.0, "random displacement of the pattern's image per view, std (px) of each "
+                                     "coordinate at nodes corner_noise_scale_px apart: the corner scatter real "
+                                     "cameras show beyond their image noise", ge=0, le=10)
+    corner_noise_scale_px: int = Field(16, ge=2, le=1024, description="node spacing of the corner-noise field, px")
+    line_time_us: float = _f(0.0, "rolling shutter: each row is exposed this much after the one above it, us "
+                                  "(0: global shutter); shears the image of a ringing camera", ge=0, le=1000)
+    synchronised: bool = Field(True, description="the pair exposes on one trigger (a stereo head); false: two "
+                                                 "free-running UVC cameras, each pair's right exposure off the left "
+                                                 "one's by a random skew")
+    capture_skew_sigma_ms: float = _f(0.0, "std of the left-right exposure skew of an unsynchronised pair, ms",
+                                      ge=0, le=1000)
 
     @property
     def vibrates(self) -> bool:
@@ -167,6 +194,9 @@ class SimProfile(BaseModel):
 
     @model_validator(mode="after")
     def _check(self) -> SimProfile:
+        if self.target.hand_held_speed_mm_s:
+            raise ValueError("target: hand_held_speed_mm_s applies to the calibration board only (the measured "
+                             "target stands where the operator placed it)")
         if self.calibration_board.placement_distance_sigma_mm or self.calibration_board.placement_yaw_sigma_deg:
             raise ValueError("calibration_board: placement errors apply to the manually placed target only "
                              "(calibration views are free poses, estimated per view)")
@@ -220,11 +250,13 @@ LAB = SimProfile(
     ),
     target=BoardErrors(print_scale_error=8.0e-4, bow_mm=0.6, placement_distance_sigma_mm=2.0,
                        placement_yaw_sigma_deg=1.0),
-    calibration_board=BoardErrors(),
+    calibration_board=BoardErrors(hand_held_speed_mm_s=50.0),
     cameras=CameraErrors(
-        jpeg_quality=85, radial_high_order_left=0.6, radial_high_order_right=0.45,
+        jpeg_quality=50, radial_high_order_left=0.6, radial_high_order_right=0.45,
         vibration_yaw_deg=0.02, vibration_rock_deg=0.01, vibration_frequency_hz=15.0, vibration_decay_s=0.08,
-        vibration_stop_deg=0.001,
+        vibration_stop_deg=0.001, defocus_sigma_px=0.57, extra_read_noise_dn=1.5, shot_noise_gain=0.03,
+        corner_noise_px=0.2, corner_noise_scale_px=16, line_time_us=29.0, synchronised=True,
+        capture_skew_sigma_ms=6.2,
     ),
 )
 
@@ -270,13 +302,18 @@ LAB_JUSTIFICATIONS: dict[str, str] = {
     "target.bow_mm": "A3 print laminated on 5 mm foam board: 0.5-1 mm out of flat over 300 mm",
     "target.placement_distance_sigma_mm": "operator sets the distance with a tape measure: ~2 mm",
     "target.placement_yaw_sigma_deg": "target squared to the rig by eye: ~1 deg",
+    "target.hand_held_speed_mm_s": "0: the measured target stands where the operator placed it",
     "calibration_board.print_scale_error": "the calibration board is the bench's length reference (rigid, "
                                            "certified to ~0.01 mm): taken as exact",
     "calibration_board.bow_mm": "rigid (aluminium/glass) calibration board: flat to <0.05 mm, taken as flat",
     "calibration_board.placement_distance_sigma_mm": "calibration views are free poses, estimated per view",
     "calibration_board.placement_yaw_sigma_deg": "calibration views are free poses, estimated per view",
-    "cameras.jpeg_quality": "UVC cameras deliver 1080p30 as MJPG at ~200-400 kB per frame, about libjpeg "
-                            "quality 80-90",
+    "calibration_board.hand_held_speed_mm_s": "caliscope_charuco_2cam (hand-held ChArUco, two webcams): median "
+                                              "board speed between consecutive frames 46 / 57 mm/s (cam 0 / 1, "
+                                              "p90 97 / 109); used only by unsynchronised captures",
+    "cameras.jpeg_quality": "opencv_sample: its JPEGs' luma quantisation table is libjpeg quality 50 (present_cjn's "
+                            "95 is OpenCV's imwrite default, not the camera's); with the noise below it gives "
+                            "opencv_sample's flat-square noise",
     "cameras.radial_high_order_left": "cheap M12 lens: stereo_bench's calibration fits its views to 0.006 px but "
                                       "misses the lens by 0.4 px RMS, 2.6 px at the image corners (measured, 1080p)",
     "cameras.radial_high_order_right": "as radial_high_order_left, a different lens",
@@ -290,6 +327,26 @@ LAB_JUSTIFICATIONS: dict[str, str] = {
     "cameras.vibration_frequency_hz": "first mode of a small pan-tilt head with a camera: 10-20 Hz",
     "cameras.vibration_decay_s": "damping ratio ~0.13 at 15 Hz: rings for a fraction of a second",
     "cameras.vibration_stop_deg": "bearing and belt friction stop the last ~0.001 deg (3.6 arcsec) dead",
+    "cameras.defocus_sigma_px": "opencv_sample: median edge width (sigma of the gradient across the squares' edges) "
+                                "1.24 / 1.25 px (left / right); the lab's frames measured the same way: 1.03 px "
+                                "before, 1.20 px with 0.57 px in quadrature with the optics' 0.7 px",
+    "cameras.extra_read_noise_dn": "opencv_sample: noise inside its squares after JPEG (plane removed) 1.05 / 1.75 DN "
+                                   "dark / light (left); the lab's frames at quality 50 measured the same way: "
+                                   "1.03 / 1.64 DN with 2.5 DN read noise (the optics' 2.0 and 1.5 in quadrature)",
+    "cameras.shot_noise_gain": "opencv_sample: the light squares' noise above the dark ones' (1.75 vs 1.05 DN after "
+                               "JPEG): 0.03 DN^2 / DN before JPEG reproduces it",
+    "cameras.corner_noise_px": "opencv_sample: stereo calibration RMS 0.217 px (mono 0.195 / 0.207), its image noise "
+                               "explains ~0.05 px (the lab's frames with its noise, blur and JPEG: 0.045 px); "
+                               "0.2 px at the field's nodes gives the lab bench 0.21 px",
+    "cameras.corner_noise_scale_px": "below the corner spacing of every view (>= 25 px): neighbouring corners "
+                                     "move nearly independently, as the real sets' residuals do (per-view RMS "
+                                     "uniform: median 0.196 / 0.208 px against 0.195 / 0.207 overall, opencv_sample)",
+    "cameras.line_time_us": "not measurable from the sets (no known motion during a frame): a 1080p30 UVC sensor "
+                            "reads 1080 rows in ~31 ms of its 33 ms frame: 29 us a row",
+    "cameras.synchronised": "the lab bench is a stereo head on one trigger; false gives two free-running webcams "
+                            "(caliscope_charuco_2cam's kind)",
+    "cameras.capture_skew_sigma_ms": "caliscope_charuco_2cam's timestamps.csv: cam 1 - cam 0 per synchronised "
+                                     "frame, 111 frames: mean +1.2 ms, std 6.2 ms, |max| 36 ms, p95 13 ms",
 }
 
 PROFILES: dict[str, SimProfile] = {"ideal": IDEAL, "lab": LAB}

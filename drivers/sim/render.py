@@ -14,6 +14,10 @@ Image formation, per view (every step an OpenCV call on whole images, no per-pix
 2. **Lens distortion.** Each supersample looks up the ideal canvas at ``undistort(p)``: a float
    remap map computed once per camera (exact ``cv2.undistortPoints`` with iteration criteria on an
    8 px grid, Catmull-Rom interpolated; error < 1e-4 px).
+   A rolling shutter's shear (``line_time_s`` times the image's velocity, per row) and the
+   pattern's random jitter (``jitter_px``: a field of random displacements ``jitter_scale_px``
+   apart, bilinear between them, drawn per view) move the samples' lookups in the same remap, on
+   the board's rows and columns only (no extra pass over the frame).
 3. **Pixel integration.** ``cv2.resize(INTER_AREA)`` by the integer ``supersample`` factor: each
    pixel is the mean of its s x s samples, a box filter over the pixel area.
 4. **Optics and sensor.** Gaussian optical blur (``blur_sigma_px``, less the share the texture
@@ -114,6 +118,14 @@ class Optics:
         jpeg_quality: None (default): the 8-bit frame as the sensor gives it. An integer 1..100: the
             frame passes through JPEG at this libjpeg quality, as UVC cameras deliver 1080p (MJPG).
             The luma channel only: the pipeline works on grey images.
+        jitter_px: the pattern's random image displacement per view (std in sensor px of each coordinate
+            at the nodes of a field ``jitter_scale_px`` apart, linearly interpolated between them): the
+            corner scatter real cameras show beyond what their image noise explains. 0 (default): none,
+            and no random draw (frames bit-identical to a renderer without it).
+        jitter_scale_px: node spacing of that field (sensor px): corners further apart than this move
+            nearly independently.
+        line_time_s: rolling shutter: each sensor row is exposed this much later than the one above (s);
+            it matters only for image motion (``render_view(..., velocity_px_s=...)``). 0: global shutter.
     """
 
     blur_sigma_px: float = 0.7
@@ -128,11 +140,15 @@ class Optics:
     wall_texture_dn: float = 3.0
     back_dn: float = 70.0
     jpeg_quality: int | None = None
+    jitter_px: float = 0.0
+    jitter_scale_px: int = 16
+    line_time_s: float = 0.0
 
     def __post_init__(self):
         if not (isinstance(self.supersample, int) and 1 <= self.supersample <= 4):
             raise ValueError(f"supersample must be an integer 1..4, not {self.supersample!r}")
-        for name in ("blur_sigma_px", "noise_sigma_dn", "shot_noise_gain", "wall_texture_dn"):
+        for name in ("blur_sigma_px", "noise_sigma_dn", "shot_noise_gain", "wall_texture_dn", "jitter_px",
+                     "line_time_s"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, not {getattr(self, name)}")
         for name in ("black_dn", "white_dn", "wall_dn", "back_dn"):
@@ -140,6 +156,8 @@ class Optics:
                 raise ValueError(f"{name} must lie in 0..255 DN, not {getattr(self, name)}")
         if not 0.0 <= self.vignetting < 1.0:
             raise ValueError(f"vignetting must lie in [0, 1), not {self.vignetting}")
+        if not (isinstance(self.jitter_scale_px, int) and 2 <= self.jitter_scale_px <= 1024):
+            raise ValueError(f"jitter_scale_px must be an integer 2..1024, not {self.jitter_scale_px!r}")
         if self.jpeg_quality is not None and not (isinstance(self.jpeg_quality, int) and 1 <= self.jpeg_quality <= 100):
             raise ValueError(f"jpeg_quality must be None or an integer 1..100, not {self.jpeg_quality!r}")
 
@@ -428,13 +446,16 @@ class _CameraRaster:
         gain = 1.0 - optics.vignetting * ((xx - cx) ** 2 + (yy - cy) ** 2) / r2_corner
         self.gain = (gain / _FIXED).astype(np.float32)
 
-    def _sample(self, y0: int, y1: int, x0: int, x1: int) -> np.ndarray:
-        """Sensor rows y0:y1, columns x0:x1 (1x px) of the current canvas: distort, then integrate."""
+    def _sample(self, y0: int, y1: int, x0: int, x1: int, displacement: _Displacement | None = None) -> np.ndarray:
+        """Sensor rows y0:y1, columns x0:x1 (1x px) of the current canvas: distort, then integrate.
+
+        ``displacement``: the image content moved by that field (sensor px) before integration.
+        """
         s = self.s
-        fine = cv2.remap(
-            self.canvas, self.map_x[y0 * s : y1 * s, x0 * s : x1 * s], self.map_y[y0 * s : y1 * s, x0 * s : x1 * s],
-            cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE,
-        )
+        map_x, map_y = self.map_x[y0 * s : y1 * s, x0 * s : x1 * s], self.map_y[y0 * s : y1 * s, x0 * s : x1 * s]
+        if displacement is not None:
+            map_x, map_y = displacement.moved(map_x, map_y, y0 * s, x0 * s, s)
+        fine = cv2.remap(self.canvas, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         if s == 1:
             return fine
         return cv2.resize(fine, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
@@ -454,7 +475,8 @@ class _CameraRaster:
                 int(cols[0]) * _BLOCK, min(w, (int(cols[-1]) + 1) * _BLOCK))
 
     def render(self, mip: _Mip, H_ideal_board: np.ndarray, depths_ok: bool,
-               displace: _BentBoard | None = None) -> tuple[np.ndarray, float]:
+               displace: _BentBoard | None = None, displacement: _Displacement | None = None,
+               ) -> tuple[np.ndarray, float]:
         """(H, W) uint16 (DN * 256) frame before blur and noise, with the board drawn by ``H_ideal_board``.
 
         Also returns the blur (Gaussian sigma, sensor px) the texture pre-filter already gave the
@@ -465,6 +487,7 @@ class _CameraRaster:
         in front of the camera. ``depths_ok`` says the whole print is in front of the camera.
         ``displace`` (a bent board, ``depths_ok`` only): maps ideal points to where the flat print
         shows what the bent one shows there; the board is then drawn through a dense remap.
+        ``displacement``: moves the drawn board's image (rolling shutter, corner jitter), see :class:`_Displacement`.
         """
         frame = self.background_frame.copy()
         bbox = self._board_bbox(mip, H_ideal_board, depths_ok)
@@ -505,7 +528,7 @@ class _CameraRaster:
                 else:
                     self._warp_clipped(source, H_roi, patch)
                 y0, y1, x0, x1 = roi
-                frame[y0:y1, x0:x1] = self._sample(y0, y1, x0, x1)
+                frame[y0:y1, x0:x1] = self._sample(y0, y1, x0, x1, displacement)
             finally:
                 patch[...] = self.background[cy0:cy1, cx0:cx1]
         return frame, texture_sigma_px
@@ -717,13 +740,19 @@ class StereoRenderer:
         return corners_px, valid & camera.in_image(corners_px) & board_faces_camera(T_cam_board)
 
     def render_view(self, side: str, T_cam_board: np.ndarray, rng: np.random.Generator, *,
-                    shape: BoardShape | None = None, smear_px: tuple[float, float] | None = None) -> RenderedView:
+                    shape: BoardShape | None = None, smear_px: tuple[float, float] | None = None,
+                    velocity_px_s: tuple[float, float] | None = None) -> RenderedView:
         """Render the ``side`` ('left' or 'right') camera's frame of the target at ``T_cam_board`` (4x4, mm).
 
         ``rng`` drives the sensor noise only (one draw per call), so a seeded generator reproduces
         the frame exactly. ``shape``: the print as it really is (scale, bow; None: flat and to
         scale). ``smear_px``: (dx, dy) image motion during the exposure (a camera still ringing after
-        a move), integrated as a uniform smear along that segment; None: none.
+        a move), integrated as a uniform smear along that segment; None: none. ``velocity_px_s``: the
+        image's velocity (px/s) during the readout, which a rolling shutter (``optics.line_time_s``)
+        turns into a shear of the board's image; None: still.
+
+        With ``optics.jitter_px`` > 0 the board's image is also displaced by a random field drawn from
+        ``rng`` (first, then the sensor noise): the corner scatter of a real camera beyond its image noise.
         """
         camera = self.camera(side)
         raster = self._rasters[side]
@@ -755,9 +784,27 @@ class StereoRenderer:
             # reaches behind the camera or is seen from behind is drawn flat.
             bent = shape is not None and shape.bow_mm != 0.0 and facing and depths_ok
             displace = _BentBoard(shape, self.target, camera.K, T_cam_board, H_ideal_board) if bent else None
-            frame, texture_sigma_px = raster.render(mip, H_ideal_board, depths_ok=depths_ok, displace=displace)
+            frame, texture_sigma_px = raster.render(mip, H_ideal_board, depths_ok=depths_ok, displace=displace,
+                                                    displacement=self._displacement(camera, rng, velocity_px_s))
         image = self._sensor(frame, raster, rng, texture_sigma_px, smear_px=smear_px)
         return RenderedView(image=image, corners_px=corners_px, visible=visible, T_cam_board=T_cam_board)
+
+    def _displacement(self, camera: CameraModel, rng: np.random.Generator,
+                      velocity_px_s: tuple[float, float] | None) -> _Displacement | None:
+        """The view's rolling-shutter shear and corner jitter (None without either: no draw from ``rng``)."""
+        o = self.optics
+        shear = None
+        if velocity_px_s is not None and o.line_time_s > 0.0 and any(velocity_px_s):
+            shear = (velocity_px_s[0] * o.line_time_s, velocity_px_s[1] * o.line_time_s)
+        nodes = None
+        if o.jitter_px > 0.0:
+            w, h = camera.image_size
+            shape = (h // o.jitter_scale_px + 3, w // o.jitter_scale_px + 3, 2)
+            nodes = (rng.standard_normal(shape) * o.jitter_px).astype(np.float32)
+        if shear is None and nodes is None:
+            return None
+        return _Displacement(shear=shear, centre_row=(camera.image_size[1] - 1) / 2.0, nodes=nodes,
+                             step=o.jitter_scale_px)
 
     def render_pair(self, rig: RigPose, T_rig_board: np.ndarray, rng: np.random.Generator) -> RenderedPair:
         """Both views of the target at ``T_rig_board`` (4x4, mm) with the rig's true geometry."""
@@ -832,6 +879,43 @@ def jpeg_roundtrip(image: np.ndarray, quality: int) -> np.ndarray:
     if not ok:
         raise RuntimeError("JPEG encoding failed")
     return cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+
+
+class _Displacement:
+    """A displacement of the image content over the sensor (px): rolling shutter and corner jitter.
+
+    ``shear``: (vx, vy) px per row: row y is exposed ``(y - cy) * line_time`` after the middle row while
+    the image moves at velocity v, so its content stands ``shear * (y - cy)`` px further along v.
+    ``nodes``: (ny, nx, 2) random displacements (px) at sensor positions (k * step, j * step), interpolated
+    bilinearly (cv2.resize by the integer factor step * s: its node k lands on supersample k * step * s +
+    (step * s - 1) / 2, a fixed offset of the random field, the same for every view).
+    """
+
+    def __init__(self, *, shear: tuple[float, float] | None = None, centre_row: float = 0.0,
+                 nodes: np.ndarray | None = None, step: int = 16):
+        self.shear, self.centre_row, self.nodes, self.step = shear, float(centre_row), nodes, int(step)
+
+    def moved(self, map_x: np.ndarray, map_y: np.ndarray, y0: int, x0: int, s: int) -> tuple[np.ndarray, np.ndarray]:
+        """``map_x``, ``map_y`` (canvas px, s per sensor px) of the supersamples from (y0, x0) on, each looking
+        back by the displacement (content moved by +d: a sample sees what stood d before it)."""
+        h, w = map_x.shape
+        if self.nodes is not None:
+            f = self.step * s
+            k0, k1 = y0 // f, min(self.nodes.shape[0] - 1, -(-(y0 + h) // f) + 1)
+            j0, j1 = x0 // f, min(self.nodes.shape[1] - 1, -(-(x0 + w) // f) + 1)
+            oy, ox = y0 - k0 * f, x0 - j0 * f
+            size = ((j1 - j0 + 1) * f, (k1 - k0 + 1) * f)
+            maps = []
+            for c, base in enumerate((map_x, map_y)):
+                sub = np.ascontiguousarray(self.nodes[k0 : k1 + 1, j0 : j1 + 1, c] * np.float32(s))
+                up = cv2.resize(sub, size, interpolation=cv2.INTER_LINEAR)
+                maps.append(cv2.subtract(base, up[oy : oy + h, ox : ox + w]))
+            map_x, map_y = maps
+        if self.shear is not None:
+            rows = ((np.arange(y0, y0 + h, dtype=np.float32) - (s - 1) / 2) / s - np.float32(self.centre_row))[:, None]
+            map_x = map_x - np.float32(self.shear[0] * s) * rows
+            map_y = map_y - np.float32(self.shear[1] * s) * rows
+        return map_x, map_y
 
 
 class _BentBoard:
