@@ -189,7 +189,7 @@ def instrument_campaign(spans: Spans) -> None:
     """The activities of a live campaign (see the module docstring)."""
     from drivers.camera.synthetic import SyntheticCamera
     from drivers.rig.rig import GrblRig
-    from drivers.sim.bench import SimulatedBench
+    from drivers.sim.bench import BenchSimulator
     from drivers.sim.render import StereoRenderer
     from stereo_bench.campaign import session
     from stereo_bench.campaign.bench import Clock
@@ -199,9 +199,9 @@ def instrument_campaign(spans: Spans) -> None:
     spans.wrap(Clock, "wait", "settle (hardware)")
     spans.wrap(SyntheticCamera, "grab", "exposure wait (hardware)")  # what is left of a grab once the render is out
     spans.wrap(StereoRenderer, "render_view", "render")
-    spans.wrap(SimulatedBench, "render", "render (snapshot, other camera's)")
-    if hasattr(SimulatedBench, "_prerendered"):  # pairs served from a render ahead (SimulatedBench.stage)
-        spans.count(SimulatedBench, "_prerendered", "pairs rendered ahead")
+    spans.wrap(BenchSimulator, "render", "render (snapshot, other camera's)")
+    if hasattr(BenchSimulator, "_prerendered"):  # pairs served from a render ahead (BenchSimulator.stage)
+        spans.count(BenchSimulator, "_prerendered", "pairs rendered ahead")
     spans.wrap(StereoRenderer, "__init__", "renderer setup")
     spans.wrap(session, "encode_frame", "encode")
     spans.wrap(session.SessionWriter, "record", "record/fsync")  # minus the encoding inside it

@@ -34,7 +34,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from drivers.rig.rig import GrblRig  # noqa: E402
-from drivers.sim.bench import SimulatedBench  # noqa: E402
+from drivers.sim.bench import BenchSimulator  # noqa: E402
 from drivers.sim.mechanics import kinematic_parameters  # noqa: E402
 from drivers.sim.profile import LAB  # noqa: E402
 from drivers.sim.render import calibration_board_poses  # noqa: E402
@@ -95,7 +95,7 @@ def main() -> None:
     load_before = os.getloadavg()
     rng = np.random.default_rng(1)
     started = time.perf_counter()
-    with SimulatedBench(time_scale=TIME_SCALE, profile=LAB, seed=5, **cameras) as bench:
+    with BenchSimulator(time_scale=TIME_SCALE, profile=LAB, seed=5, **cameras) as bench:
         bench.warm_up(CALIBRATION_BOARD, TARGET)
         with GrblRig(bench.tty_path, bench.rig_config) as rig:
             home = rig.home()  # Grbl's machine space: homed at B = 349 mm, toe-ins 1 deg (the pull-off)

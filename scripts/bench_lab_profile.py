@@ -39,7 +39,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from drivers.sim.bench import SimulatedBench, board_shape, camera_optics, true_lens  # noqa: E402
+from drivers.sim.bench import BenchSimulator, board_shape, camera_optics, true_lens  # noqa: E402
 from drivers.sim.mechanics import pair_state  # noqa: E402
 from drivers.sim.profile import LAB, CameraErrors, SimProfile  # noqa: E402
 from drivers.sim.render import Optics, StereoRenderer, calibration_board_poses  # noqa: E402
@@ -314,7 +314,7 @@ def lab_calibration(profile: SimProfile, seed: int, *, views: int = 12, baseline
     from stereo_bench.vision.calibrate import calibrate_mono, calibrate_stereo
     from stereo_bench.vision.detect import detect
 
-    bench = SimulatedBench(profile=profile, seed=seed)  # not started: its optics, lenses and profile only
+    bench = BenchSimulator(profile=profile, seed=seed)  # not started: its optics, lenses and profile only
     left, right = bench.left_model, bench.right_model
     state = pair_state(profile, {"baseline_mm": baseline_mm, "toe_in_left_deg": 0.0, "toe_in_right_deg": 0.0})
     poses = calibration_board_poses(RigPose.symmetric(baseline_mm, 90.0), CALIBRATION_BOARD, n_views=views,

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from drivers.rig.rig import GrblRig
-from drivers.sim.bench import SimulatedBench
+from drivers.sim.bench import BenchSimulator
 from drivers.sim.mechanics import kinematic_parameters
 from drivers.sim.profile import LAB
 from drivers.sim.render import calibration_board_poses
@@ -78,7 +78,7 @@ PROFILE = LAB.model_copy(update={"cameras": LAB.cameras.model_copy(update={"corn
 def session():
     """Fit on the design, then visit the unseen configurations: per configuration what the tests compare."""
     rng = np.random.default_rng(1)
-    with SimulatedBench(time_scale=TIME_SCALE, profile=PROFILE, seed=5, left=_camera("left"),
+    with BenchSimulator(time_scale=TIME_SCALE, profile=PROFILE, seed=5, left=_camera("left"),
                         right=_camera("right")) as bench:
         bench.warm_up(CALIBRATION_BOARD, TARGET)
         with GrblRig(bench.tty_path, bench.rig_config) as rig:

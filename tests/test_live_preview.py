@@ -166,11 +166,11 @@ def test_a_captured_pair_older_than_the_live_preview_shown_is_not_shown():
 
 
 def test_the_simulated_bench_renders_a_preview_at_the_preview_width():
-    from drivers.sim.bench import SimulatedBench
+    from drivers.sim.bench import BenchSimulator
     from stereo_bench.geometry import CameraModel, board_pose_facing_rig
 
     camera = CameraModel.from_sensor()  # 1920 x 1080
-    with SimulatedBench(left=camera, right=camera) as sim:
+    with BenchSimulator(left=camera, right=camera) as sim:
         sim.show(TARGET, board_pose_facing_rig(distance_mm=600.0, board_size_mm=TARGET.grid_size_mm))
         full, small = sim.preview("left"), sim.preview("left", width_px=640)
         frames_rendered = dict(sim._scene.frames_rendered)

@@ -7,7 +7,7 @@ import pytest
 
 from drivers.camera.stereo import StereoCamera
 from drivers.rig.rig import GrblRig
-from drivers.sim.bench import SimulatedBench
+from drivers.sim.bench import BenchSimulator
 from stereo_bench.campaign.operator import OperatorDesk, SimulatedOperator, move_and_ask
 from stereo_bench.geometry import RigPose, board_pose_facing_rig
 from stereo_bench.targets import Checkerboard
@@ -22,11 +22,11 @@ OPERATORS = OperatorDesk([SimulatedOperator()])
 
 @pytest.fixture(scope="module")
 def bench():
-    with SimulatedBench(time_scale=50.0) as bench:
+    with BenchSimulator(time_scale=50.0) as bench:
         yield bench
 
 
-def calibration_for(pose: RigPose, bench: SimulatedBench) -> StereoCalibration:
+def calibration_for(pose: RigPose, bench: BenchSimulator) -> StereoCalibration:
     R, T = pose.stereo_extrinsics()
     camera = bench.left_model
     D = camera.dist.reshape(1, -1)

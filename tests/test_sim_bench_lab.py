@@ -11,7 +11,7 @@ import pytest
 from drivers.rig.config import QuantityMapping, RigConfig
 from drivers.rig.grbl import GrblResetError
 from drivers.rig.rig import GrblRig
-from drivers.sim.bench import SimulatedBench, true_lens
+from drivers.sim.bench import BenchSimulator, true_lens
 from drivers.sim.grbl.faults import ResetMidMove
 from drivers.sim.mechanics import MoveHistory, pair_state, ringing_deg
 from drivers.sim.profile import IDEAL, LAB, BoardErrors, CameraErrors, SimProfile, SlideErrors
@@ -42,7 +42,7 @@ def calibration(left: CameraModel, right: CameraModel, R, T) -> StereoCalibratio
 
 @pytest.fixture(scope="module")
 def lab_bench():
-    with SimulatedBench(time_scale=50.0, profile=LAB, seed=3, **cameras()) as bench:
+    with BenchSimulator(time_scale=50.0, profile=LAB, seed=3, **cameras()) as bench:
         bench.warm_up(BOARD)
         with GrblRig(bench.tty_path, bench.rig_config) as rig:
             rig.home()
@@ -52,7 +52,7 @@ def lab_bench():
 def test_the_ideal_bench_renders_exactly_what_the_nominal_geometry_shows():
     """The ideal profile is today's bench: the frame the renderer draws at the commanded pose, bit for bit."""
     T_rig_board = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm)
-    with SimulatedBench(time_scale=50.0, profile=IDEAL, **cameras()) as bench:
+    with BenchSimulator(time_scale=50.0, profile=IDEAL, **cameras()) as bench:
         with GrblRig(bench.tty_path, bench.rig_config) as rig:
             rig.home()
             rig.move_to(baseline_mm=120.0, alpha_left_deg=85.0, alpha_right_deg=80.0).wait()
@@ -74,7 +74,7 @@ def test_the_frames_truth_reproduces_the_images():
     here: it scatters one frame's mean square by ~0.016 mm, while this test is about the geometry the truth
     carries (JPEG, sensor noise, blur and everything else of the lab bench stay on)."""
     profile = LAB.model_copy(update={"cameras": LAB.cameras.model_copy(update={"corner_noise_px": 0.0})})
-    with SimulatedBench(time_scale=50.0, profile=profile, seed=3, **cameras()) as bench, \
+    with BenchSimulator(time_scale=50.0, profile=profile, seed=3, **cameras()) as bench, \
             GrblRig(bench.tty_path, bench.rig_config) as rig:
         rig.home()
         _the_frames_truth_reproduces_the_images(bench, rig)
@@ -112,7 +112,7 @@ def test_truth_is_json_and_consistent(lab_bench):
 def test_backlash_through_the_controller_depends_on_the_approach():
     profile = SimProfile(slide=SlideErrors(backlash_mm=0.04))
     separations = []
-    with SimulatedBench(time_scale=50.0, profile=profile, **cameras()) as bench:
+    with BenchSimulator(time_scale=50.0, profile=profile, **cameras()) as bench:
         with GrblRig(bench.tty_path, bench.rig_config) as rig:
             rig.home()
             for via in (60.0, 140.0):  # reach 100 mm from below, then from above
@@ -126,7 +126,7 @@ def test_the_mechanics_follow_where_the_motors_stand_when_the_step_counters_do_n
     """A reboot mid-move restarts Grbl's step counters at 0 (B = 350 mm by the default mapping) wherever the
     axes stopped: the cameras stand where the axes are, through the mechanics (here a 0.1 % lead error)."""
     profile = SimProfile(slide=SlideErrors(scale_error=0.001))
-    with SimulatedBench(time_scale=50.0, profile=profile, **cameras()) as bench:
+    with BenchSimulator(time_scale=50.0, profile=profile, **cameras()) as bench:
         with GrblRig(bench.tty_path, bench.rig_config) as rig:
             rig.home()
             bench.emulator.inject(ResetMidMove(fraction=0.5))
@@ -144,7 +144,7 @@ def test_bring_up_renders_the_lab_bench_at_rest_from_the_reported_pose():
     (backlash, landing, ringing) need the axes' history and are left out."""
     reported = RigPose(150.0, 85.0, 80.0)
     T_rig_board = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm)
-    with SimulatedBench(profile=LAB, seed=3, pose_source=lambda: reported, **cameras()) as bench:
+    with BenchSimulator(profile=LAB, seed=3, pose_source=lambda: reported, **cameras()) as bench:
         assert bench.emulator is None and bench.history is None
         assert bench.rig_pose() == reported
         at_rest = pair_state(LAB, bench.reported_values())
@@ -167,7 +167,7 @@ def test_frames_taken_while_the_heads_ring_carry_it_and_a_settled_one_does_not()
     profile = SimProfile(cameras=CameraErrors(vibration_yaw_deg=0.02, vibration_rock_deg=0.01))
     seen = {}
     for time_scale in (2.0, 40.0):
-        with SimulatedBench(time_scale=time_scale, profile=profile, **cameras()) as bench:
+        with BenchSimulator(time_scale=time_scale, profile=profile, **cameras()) as bench:
             with GrblRig(bench.tty_path, bench.rig_config) as rig:
                 rig.home()
                 rig.move_to(baseline_mm=20.0).wait()
@@ -226,7 +226,7 @@ def test_the_target_is_placed_once_per_manual_placement(lab_bench):
 
 def test_a_motorised_target_distance_has_no_placement_error():
     quantities = {"target_distance_mm": QuantityMapping(axis="C", min=200.0, max=1500.0)}
-    with SimulatedBench(rig_config=RigConfig(quantities=quantities), profile=LAB, **cameras()) as bench:
+    with BenchSimulator(rig_config=RigConfig(quantities=quantities), profile=LAB, **cameras()) as bench:
         placed = bench.place_target(BOARD, distance_mm=500.0)
     np.testing.assert_array_equal(placed, board_pose_facing_rig(distance_mm=500.0, board_size_mm=BOARD.grid_size_mm))
 
@@ -308,7 +308,7 @@ def test_the_lens_term_is_not_absorbed_by_the_5_coefficient_calibration():
 
 def test_the_calibration_board_is_shown_as_the_profile_has_it():
     profile = SimProfile(calibration_board=BoardErrors(bow_mm=1.0))
-    with SimulatedBench(profile=profile, **cameras()) as bench:
+    with BenchSimulator(profile=profile, **cameras()) as bench:
         bench.show(BOARD, board_pose_facing_rig(distance_mm=500.0, board_size_mm=BOARD.grid_size_mm))
         target = bench.truth()["target"]
     assert target["kind"] == "calibration_board" and target["bow_mm"] == 1.0 and target["print_scale"] == 1.0
@@ -328,12 +328,12 @@ def test_the_truth_without_landing_errors_differs_from_the_truth_by_the_moves_la
     difference = truth["structure"]["baseline_mm"] - knowable["structure"]["baseline_mm"]
     assert abs(difference - history["baseline_mm"]["landing"]) <= 25.0 * heads_rad + 1e-9
     assert abs(truth["structure"]["alpha_left_deg"] - knowable["structure"]["alpha_left_deg"]) < 5 * 0.002
-    with SimulatedBench(profile=IDEAL, **cameras()) as ideal:
+    with BenchSimulator(profile=IDEAL, **cameras()) as ideal:
         assert ideal.truth_without_landing() == {key: value for key, value in ideal.truth().items()
                                                  if key in ("R", "T", "structure")}
 
 
-def _wait_rendered_ahead(bench: SimulatedBench, n: int, timeout_s: float = 60.0) -> None:
+def _wait_rendered_ahead(bench: BenchSimulator, n: int, timeout_s: float = 60.0) -> None:
     """Until ``n`` staged scenes are rendered and checked against the rig at rest: a trigger before that (a
     loaded machine, the heads still ringing) renders anew, and the test would depend on the timing."""
     deadline = time.monotonic() + timeout_s
@@ -412,7 +412,7 @@ def test_scenes_are_rendered_during_the_move_for_where_it_will_rest_and_served_b
 
     # The move must last long enough for the render-ahead thread to start while it runs, on a loaded machine too
     # (at 5x it once ended before that thread was scheduled, in a full suite beside other work).
-    with SimulatedBench(time_scale=2.5, profile=LAB, seed=5, **cameras()) as bench:
+    with BenchSimulator(time_scale=2.5, profile=LAB, seed=5, **cameras()) as bench:
         with GrblRig(bench.tty_path, bench.rig_config) as rig:
             rig.home()
             move_and_ask(rig, OPERATORS, baseline_mm=60.0, alpha_left_deg=88.0, alpha_right_deg=88.0,

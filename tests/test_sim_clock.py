@@ -9,7 +9,7 @@ import pytest
 
 from drivers.rig.motion import trapezoid
 from drivers.rig.rig import GrblRig
-from drivers.sim.bench import SimulatedBench
+from drivers.sim.bench import BenchSimulator
 from drivers.sim.clock import BenchClock
 from drivers.sim.grbl.emulator import GrblEmulator
 from drivers.sim.grbl.firmware import DEFAULT_AXES
@@ -86,15 +86,15 @@ def test_a_move_starts_at_the_frozen_time_and_ends_exactly_when_the_motion_model
 HALF = {"image_size": (960, 540), "pixel_um": 6.0}
 
 
-def _bench(seed: int = 3) -> SimulatedBench:
-    return SimulatedBench(time_scale=50.0, profile=LAB, seed=seed, left=CameraModel.from_sensor(name="left", **HALF),
+def _bench(seed: int = 3) -> BenchSimulator:
+    return BenchSimulator(time_scale=50.0, profile=LAB, seed=seed, left=CameraModel.from_sensor(name="left", **HALF),
                           right=CameraModel.from_sensor(name="right", **HALF))
 
 
 TARGETS = {"baseline_mm": 150.0, "toe_in_left_deg": 3.0, "toe_in_right_deg": 3.0}
 
 
-def _landings(bench: SimulatedBench) -> dict[str, float]:
+def _landings(bench: BenchSimulator) -> dict[str, float]:
     return {q: entry["landing"] for q, entry in bench.history.snapshot().items()}
 
 

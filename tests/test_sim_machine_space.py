@@ -17,7 +17,7 @@ import pytest
 from drivers.rig.config import RigConfig, rig_config_from_dict
 from drivers.rig.grbl import GrblAlarm, GrblController
 from drivers.rig.rig import GrblRig
-from drivers.sim.bench import SimulatedBench
+from drivers.sim.bench import BenchSimulator
 from drivers.sim.grbl.emulator import GrblEmulator
 from drivers.sim.grbl.faults import HomingFail
 from drivers.sim.grbl.firmware import AxisSpec
@@ -81,7 +81,7 @@ def test_the_lab_bench_stands_where_the_config_maps_the_controllers_position(tex
     config = _config(text)
     commanded = {"baseline_mm": 100.0, "toe_in_left_deg": 5.0, "toe_in_right_deg": 4.0,
                  "tilt_left_deg": 0.0, "tilt_right_deg": 0.0}
-    with SimulatedBench(rig_config=config, time_scale=FAST, profile=LAB, seed=3) as bench:
+    with BenchSimulator(rig_config=config, time_scale=FAST, profile=LAB, seed=3) as bench:
         with GrblRig(bench.tty_path, config) as rig:
             rig.home()
             reading = rig.move_to(

@@ -27,7 +27,7 @@ plan, never of the wall clock: not of ``time_scale``, a slow render, a late driv
 
 Random draws are keyed by what they are, not by the order they happen in: a landing error by the
 configuration at which the plan's rig arrived at that axis position and the index of that move there
-(:meth:`SimulatedBench.begin_configuration`), a manual target placement by the placement it belongs
+(:meth:`BenchSimulator.begin_configuration`), a manual target placement by the placement it belongs
 to (the first configuration of the plan's run of configurations at that distance). A campaign resumed
 after a crash therefore draws what an uninterrupted one drew. A bench that is not told (a test, a
 render) keys landings by position and visits, placements by distance and placements there.
@@ -44,7 +44,7 @@ mounts; lenses, JPEG, boards, target placement), so the frames look like the ``l
 imperfections of *motion* (backlash, landing errors, ringing) do not: they need the axes' history,
 which only the emulator's motion events give (a real controller is read once per grab).
 
-Rendering ahead (:meth:`SimulatedBench.stage`): whoever places the boards may say which scenes come
+Rendering ahead (:meth:`BenchSimulator.stage`): whoever places the boards may say which scenes come
 next and where the rig will stand for them. As soon as the emulator has the move there queued, the
 bench predicts the pair's state at rest there (the end of the planned move in whole steps; on a
 bench with motion errors, the history fed that move: its backlash and landing draws, no ringing)
@@ -132,7 +132,7 @@ class Scene:
 
 @dataclass(frozen=True)
 class MoveContext:
-    """What the rig is being moved for (:meth:`SimulatedBench.begin_configuration`), for the landing draws.
+    """What the rig is being moved for (:meth:`BenchSimulator.begin_configuration`), for the landing draws.
 
     ``targets``: the configuration's commanded physical values; ``arrivals``: per quantity, the configuration
     at which the plan's rig arrived at that value (the first of the plan's run of configurations that command
@@ -180,7 +180,7 @@ def _same_scene(a: Scene, b: Scene) -> bool:
 
 @dataclass(eq=False)  # compared by identity: scenes hold arrays
 class _Staged:
-    """A scene announced ahead (:meth:`SimulatedBench.stage`) and, once rendered, its first frame pair."""
+    """A scene announced ahead (:meth:`BenchSimulator.stage`) and, once rendered, its first frame pair."""
 
     scene: Scene
     at: RigPose  # where the rig will stand when the scene is captured
@@ -265,7 +265,7 @@ def board_shape(errors: BoardErrors) -> BoardShape | None:
     return BoardShape(scale=1.0 + errors.print_scale_error, bow_mm=errors.bow_mm)
 
 
-class SimulatedBench:
+class BenchSimulator:
     """Emulator + scene + two rendering cameras; ``start()``/``stop()`` or a context manager.
 
     Args:
@@ -353,7 +353,7 @@ class SimulatedBench:
 
     # -- lifecycle ---------------------------------------------------------------------------------------------
 
-    def start(self) -> SimulatedBench:
+    def start(self) -> BenchSimulator:
         self._stopping.clear()
         if self.emulator is not None:
             self.emulator.start()
@@ -381,7 +381,7 @@ class SimulatedBench:
         if self.emulator is not None:
             self.emulator.stop()
 
-    def __enter__(self) -> SimulatedBench:
+    def __enter__(self) -> BenchSimulator:
         return self.start()
 
     def __exit__(self, *exc) -> None:

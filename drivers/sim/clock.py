@@ -2,7 +2,7 @@
 
     clock = BenchClock(time_scale=50.0)
     emulator = GrblEmulator(clock=clock)        # motion, homing, dwells and boots run on it
-    bench = SimulatedBench(clock=clock, ...)     # exposures advance it; ringing is read on it
+    bench = BenchSimulator(clock=clock, ...)     # exposures advance it; ringing is read on it
     clock.advance(0.1)                           # the runner's settle: 0.1 s pass at once
 
 Everything the simulated bench records that depends on time (how far a head still rings when a frame

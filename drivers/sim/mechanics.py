@@ -149,7 +149,7 @@ class MoveHistory:
     so end times are the motion model's, on the bench clock. Each landing error is drawn from
     ``(seed, quantity, key)``, with a key the caller gives per quantity that names the move (the
     simulated bench in a campaign: the configuration the axis arrived at in the plan and which move
-    there, see ``SimulatedBench.begin_configuration``), so that a resumed campaign draws the same
+    there, see ``BenchSimulator.begin_configuration``), so that a resumed campaign draws the same
     errors for the same moves however the moves before them went. Without keys, a move is named by
     its position and the visits of that position so far (in the order they happen).
     """

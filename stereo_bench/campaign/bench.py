@@ -149,7 +149,7 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
     """
     from drivers.camera.stereo import StereoCamera
     from drivers.rig.rig import GrblRig
-    from drivers.sim.bench import SimulatedBench
+    from drivers.sim.bench import BenchSimulator
     from drivers.sim.render import Optics
 
     rig_config = config.rig.rig_config()
@@ -158,7 +158,7 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
     stack = contextlib.ExitStack()
     try:
         rig_holder: list = []
-        sim = stack.enter_context(SimulatedBench(
+        sim = stack.enter_context(BenchSimulator(
             rig_config=rig_config, left=optics.camera_model("left"), right=optics.camera_model("right"),
             optics=Optics(noise_sigma_dn=optics.noise_dn, blur_sigma_px=optics.blur_px),
             time_scale=1.0 if bring_up else config.rig.time_scale, exposure_s=optics.exposure_s,
@@ -211,12 +211,12 @@ def planned_captures(config: CampaignConfig, configuration: Configuration | Visi
 
 
 class SimulatedPresenter:
-    """Places boards in a :class:`drivers.sim.bench.SimulatedBench` scene.
+    """Places boards in a :class:`drivers.sim.bench.BenchSimulator` scene.
 
     ``stage_ahead``: given a configuration or design visit, the (calibration views, measurement frames) it
     will capture (:func:`planned_captures`). At the start of each (before the rig moves) the presenter then
     draws the calibration board's poses on a background thread and stages every scene it will show with the bench
-    (:meth:`~drivers.sim.bench.SimulatedBench.stage`), which renders them ahead once the rig rests
+    (:meth:`~drivers.sim.bench.BenchSimulator.stage`), which renders them ahead once the rig rests
     there; the frames are exactly those a render at the trigger gives. None: nothing ahead.
     """
 

@@ -393,7 +393,7 @@ class TranscriptData(BaseModel):
 
 
 class TruthData(BaseModel):
-    """The simulated bench's ground truth at a configuration's measurement (``SimulatedBench.truth()``);
+    """The simulated bench's ground truth at a configuration's measurement (``BenchSimulator.truth()``);
     never used by the measurement. Keys not listed here (the profile's values, camera poses, lenses) are kept."""
 
     model_config = _OPEN

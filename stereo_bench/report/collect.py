@@ -22,7 +22,7 @@ change of the recorded shape is a change of one function:
   (with its own budget), as a :class:`Structure`. It reads the ``structure`` event (data: ``mode``,
   ``used``, ``sources``: calibrated | kinematic | nominal | fixed -> {``structure``,
   ``structure_sigma``, ``square_mean_mm``, ``uncertainty``, ``note``}, ``truth``: {``structure``,
-  ``square_true_mm``}), the ``truth`` event (``SimulatedBench.truth()``) and the result row's columns,
+  ``square_true_mm``}), the ``truth`` event (``BenchSimulator.truth()``) and the result row's columns,
   and falls back on what older sessions hold (the calibration files, the truth in simulated frames'
   metadata, the commanded geometry); every value says where it came from.
 """
