@@ -74,6 +74,9 @@ class Spans:
         if isinstance(original, staticmethod):
             raise TypeError(f"{owner}.{name}: static methods are not wrapped")
         spans = self
+        # A singledispatchmethod (the runner's step dispatcher) is a descriptor, not a callable: call it bound.
+        call = ((lambda *args, **kwargs: original.__get__(args[0], owner)(*args[1:], **kwargs))
+                if isinstance(original, functools.singledispatchmethod) else original)
 
         @functools.wraps(original)
         def timed(*args, **kwargs):
@@ -82,7 +85,7 @@ class Spans:
             stack.append(child)
             wall0, cpu0 = time.monotonic(), time.thread_time()
             try:
-                return original(*args, **kwargs)
+                return call(*args, **kwargs)
             finally:
                 wall, cpu = time.monotonic() - wall0, time.thread_time() - cpu0
                 stack.pop()
@@ -189,13 +192,15 @@ def instrument_campaign(spans: Spans) -> None:
     """The activities of a live campaign (see the module docstring)."""
     from drivers.camera.synthetic import SyntheticCamera
     from drivers.rig.rig import GrblRig
+    from drivers.rig.status import RigStatus
     from drivers.sim.bench import BenchSimulator
     from drivers.sim.render import StereoRenderer
     from stereo_bench.campaign import session
     from stereo_bench.campaign.bench import Clock
 
     spans.wrap(GrblRig, "home", "homing (hardware)")
-    spans.wrap(GrblRig, "move_to", "motion (hardware)")
+    # move_to only queues the move and returns its status; the motion is the time spent waiting on that status
+    spans.wrap(RigStatus, "wait", "motion (hardware)")
     spans.wrap(Clock, "wait", "settle (hardware)")
     spans.wrap(SyntheticCamera, "grab", "exposure wait (hardware)")  # what is left of a grab once the render is out
     spans.wrap(StereoRenderer, "render_view", "render")
@@ -203,7 +208,7 @@ def instrument_campaign(spans: Spans) -> None:
     if hasattr(BenchSimulator, "_prerendered"):  # pairs served from a render ahead (BenchSimulator.stage)
         spans.count(BenchSimulator, "_prerendered", "pairs rendered ahead")
     spans.wrap(StereoRenderer, "__init__", "renderer setup")
-    spans.wrap(session, "encode_frame", "encode")
+    spans.wrap(session.writer, "encode_frame", "encode")  # the name the writer calls (session/ re-exports it)
     spans.wrap(session.SessionWriter, "record", "record/fsync")  # minus the encoding inside it
     instrument_runner(spans)
 
@@ -211,7 +216,7 @@ def instrument_campaign(spans: Spans) -> None:
 def instrument_replay(spans: Spans) -> None:
     from stereo_bench.campaign import session
 
-    spans.wrap(session, "decode_frame", "decode")
+    spans.wrap(session.reader, "decode_frame", "decode")  # the name the reader calls
     spans.wrap(session.SessionReader, "read_bytes", "read")
     instrument_runner(spans)
 
