@@ -58,31 +58,30 @@ def preflight(config: CampaignConfig, *, source: str = "campaign config") -> Pre
     from stereo_bench.campaign.extrinsics_run import session_sources
 
     with read_once():  # each input file read once, whichever checks and parsers read it
-        check_bench(config, source=source)
+        rig_config = check_bench(config, source=source)
         kinematic_model, calib_dir_options = _read_files(config, source=source)
         sources = tuple(session_sources(config))
-    return Preflight(config=config, rig_config=config.rig.rig_config(), kinematic_model=kinematic_model,
+    return Preflight(config=config, rig_config=rig_config, kinematic_model=kinematic_model,
                      calib_dir_options=MappingProxyType(calib_dir_options), sources=sources)
 
 
 def check_campaign(config: CampaignConfig, *, source: str = "campaign config") -> None:
     """Everything ``run`` checks before moving, without moving or opening anything; raises ``ConfigError``."""
-    check_bench(config, source=source)
-    check_files(config, source=source)
+    preflight(config, source=source)
 
 
-def check_bench(config: CampaignConfig, *, source: str = "campaign config") -> None:
+def check_bench(config: CampaignConfig, *, source: str = "campaign config") -> RigConfig:
     """The rig mapping fits the bench: simulated cameras cannot render a quantity set by hand; V4L2 cameras are
-    named stably and are two cameras."""
+    named stably and are two cameras. Returns the rig config."""
     try:
         rig_config = config.rig.rig_config()
     except RigConfigError as error:
         raise ConfigError(f"{source}: rig.config_file: {error}") from None
     if config.cameras.kind == "v4l2":
         check_camera_names(config, source=source)
-        return
+        return rig_config
     if config.cameras.kind != "simulated":
-        return
+        return rig_config
     where = (f"rig.config_file ({config.rig.config_file}): quantities" if config.rig.config_file is not None
              else "rig.quantities")
     for quantity in RENDERED_QUANTITIES:
@@ -94,6 +93,7 @@ def check_bench(config: CampaignConfig, *, source: str = "campaign config") -> N
                 f"{source}: {where}.{quantity}: axis = \"manual\" cannot run on {bench}: the simulated cameras "
                 f"render from the axis positions the controller reports, and a manual {quantity} has none; drive "
                 f"it by an axis, or set axis = \"fixed\" with its value (only target_distance_mm can be manual)")
+    return rig_config
 
 
 def check_camera_names(config: CampaignConfig, *, source: str = "campaign config") -> None:
@@ -122,18 +122,13 @@ def _image_size(config: CampaignConfig) -> tuple[tuple[int, int], str] | None:
     return None
 
 
-def check_files(config: CampaignConfig, *, source: str = "campaign config") -> None:
-    """Read the calibration and model files the config names, as ``run`` will (a corrupt YAML fails here)."""
-    _read_files(config, source=source, keep=False)
-
-
 class _CalibDirOptions:
     """What a source's ``load_calibration`` sets from ``calib_dir`` (the runner's options take these attributes)."""
 
 
-def _read_files(config: CampaignConfig, *, source: str, keep: bool = True) -> tuple[Any, dict[str, Any]]:
-    """Check the files :func:`check_files` checks; ``keep``: also what the run takes from them (the kinematic
-    model, the options ``calib_dir`` sets), read here instead of at the run."""
+def _read_files(config: CampaignConfig, *, source: str) -> tuple[Any, dict[str, Any]]:
+    """Read the calibration and model files the config names, as ``run`` will (a corrupt YAML fails here), and
+    keep what the run takes from them: the kinematic model, the options ``calib_dir`` sets."""
     from stereo_bench.kinematics import KinematicFileError, load_model
     from stereo_bench.vision.calibio import CalibrationFileError
 
@@ -154,7 +149,7 @@ def _read_files(config: CampaignConfig, *, source: str, keep: bool = True) -> tu
                 f"{source}: extrinsics.calib_dir: {calib_dir} is a calibration of {size[0]}x{size[1]} images, the "
                 f"cameras give {given[0][0]}x{given[0][1]} ({given[1]})")
     calib_dir_options: dict[str, Any] = {}
-    if calib_dir is not None and keep:
+    if calib_dir is not None:
         read = _CalibDirOptions()
         try:
             extrinsics.source().load_calibration(read, extrinsics, reader=None, intrinsics_copy=None,
@@ -172,6 +167,5 @@ def _read_files(config: CampaignConfig, *, source: str, keep: bool = True) -> tu
 
 
 __all__ = [
-    "RENDERED_QUANTITIES", "Preflight", "check_bench", "check_camera_names", "check_campaign", "check_files",
-    "preflight",
+    "RENDERED_QUANTITIES", "Preflight", "check_bench", "check_camera_names", "check_campaign", "preflight",
 ]
