@@ -127,7 +127,12 @@ def _config_link(session: SessionReport, config: ConfigReport) -> str:
 
 def _k_text(session: SessionReport) -> str:
     ks = sorted({c.budget.k for c in session.configs if c.budget and c.budget.k is not None})
-    return ", ".join(f"k = {k:g}" for k in ks) or "k unknown"
+    if not ks:
+        return "k unknown"
+    if ks[-1] - ks[0] < 0.005:  # one k, to the digits a reader compares
+        return f"k = {ks[0]:.2f}".rstrip("0").rstrip(".")
+    # Each budget's own coverage factor (Student's t of its effective degrees of freedom): a range, not a list
+    return f"k = {ks[0]:.2f}–{ks[-1]:.2f} per configuration (Student's t of each budget's effective degrees of freedom)"
 
 
 def _table_html(table: Table, csv_path: str, session_key: str, error_csv: str = "", k_text: str = "") -> str:
