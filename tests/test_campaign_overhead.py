@@ -32,10 +32,12 @@ def test_a_campaign_records_the_same_frames_with_and_without_rendering_ahead(tmp
     assert run_campaign(small_config(), ahead, yes=True, bench_factory=counting_bench).exit_status == "success"
     assert run_campaign(small_config(), now, yes=True,
                         bench_factory=functools.partial(simulated_bench, render_ahead=False)).exit_status == "success"
-    # Most pairs of the run that rendered ahead came from a render ahead (2 measured configurations x 8
-    # pairs; a pair whose render had not started when the rig was triggered, after a settle of 2 ms at
-    # this time scale, is rendered at the trigger).
-    assert 8 <= benches[0].presenter.bench.prerendered_used <= 16
+    # Pairs of the run that rendered ahead came from a render ahead (2 measured configurations x 8 pairs),
+    # so the comparison below compares the two paths. How many is the machine's load's business: a pair
+    # whose render had not started when the rig was triggered, after a settle of 2 ms at this time scale,
+    # is rendered at the trigger (in a quiet run 8-16 were served ahead; on a loaded 2-core machine fewer).
+    # scripts/bench_campaign.py measures the fraction.
+    assert 1 <= benches[0].presenter.bench.prerendered_used <= 16
     frames_ahead, frames_now = _frames(ahead), _frames(now)
     assert sorted(frames_ahead) == sorted(frames_now) and len(frames_ahead) == 32
     for key, image in frames_ahead.items():

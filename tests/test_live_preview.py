@@ -135,13 +135,16 @@ def test_a_view_without_a_board_is_searched_again_once_a_second(monkeypatch):
     try:
         with bench.camera_gate.lent():
             wait_for(lambda: previews.stats["live"] >= 5)
-            started, detections = time.monotonic(), previews.stats["live_detections"]
+            started, detections, frames = time.monotonic(), previews.stats["live_detections"], previews.stats["live"]
             time.sleep(1.6)
             elapsed = time.monotonic() - started
             again = previews.stats["live_detections"] - detections
+            shown = previews.stats["live"] - frames
     finally:
         previews.stop()
-    assert encoded[-1].meta["board"] is None and previews.stats["live"] > 40
+    # Frames keep coming while the search for a board is retried only once a second: more frames than
+    # searches, however few frames a loaded machine lets through (not a frame rate: that is the machine's).
+    assert encoded[-1].meta["board"] is None and shown > again
     assert 1 <= again <= elapsed / preview_module.RETRY_MISS_S + 1
 
 

@@ -88,7 +88,7 @@ from drivers.rig.motion import REFERENCE_HOMING
 from drivers.sim.clock import BenchClock
 from drivers.sim.grbl.emulator import GrblEmulator
 from drivers.sim.grbl.firmware import AxisSpec, axis_specs_for_travel
-from drivers.sim.grbl.planner import MotionEvent
+from drivers.sim.grbl.planner import MotionEvent, _approach_of
 from drivers.sim.mechanics import MOVED, MoveHistory, PairState, pair_state, ringing_duration_s
 from drivers.sim.profile import IDEAL, BoardErrors, CameraErrors, SimProfile
 from drivers.sim.render import BoardShape, Optics, StereoRenderer, _auto_px_per_square
@@ -345,6 +345,7 @@ class BenchSimulator:
         self._history_lock = threading.Lock()
         self._context: MoveContext | None = None
         self._draws: Counter = Counter()  # landing draws made in the current context, per (quantity, kind)
+        self._motions_seen = 0  # MotionEvents received (against PlannedMotion.reported)
         self._homings = 0
         self._stopping = threading.Event()
         self._placements: Counter = Counter()
@@ -543,29 +544,53 @@ class BenchSimulator:
         return self.emulator.state == "Idle"
 
     def _predicted_snapshot(self) -> _Snapshot | None:
-        """The pair at rest where the queued moves end: what a trigger will see there once the ringing stopped."""
+        """The pair at rest where the queued moves end: what a trigger will see there once the ringing stopped.
+
+        None when it cannot be known now: homing or stopping, or a motion ended while the plan was read (the
+        next look sees it in the history). The history the prediction starts from and the motions it adds are
+        those of one instant, whatever the threads' timing: a motion's landing draw is made once, either in
+        the history already or predicted here (a prediction read mid-move that also found the move's event in
+        the history drew that landing twice, rendered for a state the rig never reached, and on a loaded
+        machine the frames were rendered again at the trigger).
+        """
         self._catch_up()
-        planned = self.emulator.planned_physical_position()
-        if planned is None:
+        plan = self.emulator.planned_motion()
+        if plan is None:
             return None
-        values = to_physical(self.rig_config, planned)
-        for quantity, mapping in self.rig_config.quantities.items():
-            if mapping.axis == "fixed":
-                values.setdefault(quantity, float(mapping.value))
+        values = self._with_fixed(to_physical(self.rig_config, plan.end))
         pose = self._pose_of(values)
         if self.profile.mechanically_ideal and self.history is None:
             return _Snapshot(pose=pose, T_rig_cam={"left": pose.T_rig_left, "right": pose.T_rig_right})
-        current = self.reported_values() if self.history is not None else values  # not under the history lock
         with self._history_lock:
+            if self._motions_seen != plan.reported:
+                return None
             history = copy.deepcopy(self.history)
-            if history is not None:  # the move's event will come: its direction, its landing draw (not yet made)
-                approach = {q: 1 if values[q] > current[q] else -1 for q in MOVED
-                            if abs(values[q] - current[q]) > 1e-9}
-                history.moved(values, end_s=0.0, approach=approach,
-                              keys=self._landing_keys("move", values, approach, commit=False))
+            if history is not None:  # the motions' events will come: their directions and landing draws
+                draws = self._draws.copy()
+                for start, end in plan.pending:
+                    end_values = to_physical(self.rig_config, end)  # as _on_motion will have it
+                    approach = self._physical_approach(_approach_of(start, end))
+                    history.moved(end_values, end_s=0.0, approach=approach,
+                                  keys=self._landing_keys("move", end_values, approach, draws=draws))
         state = pair_state(self.profile, values, history=history, now_s=math.inf)
         return _Snapshot(pose=pose, T_rig_cam={"left": state.T_bench_left, "right": state.T_bench_right},
                          state=state)
+
+    def _with_fixed(self, values: dict[str, float]) -> dict[str, float]:
+        """``values`` with the config's fixed quantities added (their axis is ``fixed``)."""
+        for quantity, mapping in self.rig_config.quantities.items():
+            if mapping.axis == "fixed":
+                values.setdefault(quantity, float(mapping.value))
+        return values
+
+    def _physical_approach(self, approach_by_axis: dict[str, int]) -> dict[str, int]:
+        """Per moved quantity the direction it arrived in, from the emulator's per-axis (machine) directions."""
+        approach = {}
+        for quantity, axis in self.rig_config.driven.items():
+            if quantity in MOVED and approach_by_axis.get(axis):
+                sign = 1 if self.rig_config.quantities[quantity].scale > 0 else -1
+                approach[quantity] = approach_by_axis[axis] * sign
+        return approach
 
     def _render_ahead(self) -> None:
         """The thread that renders staged scenes for the state the rig will rest in, and checks it once it does."""
@@ -619,11 +644,7 @@ class BenchSimulator:
             return {"baseline_mm": pose.baseline_mm, "toe_in_left_deg": pose.toe_in_left_deg,
                     "toe_in_right_deg": pose.toe_in_right_deg, "tilt_left_deg": pose.tilt_left_deg,
                     "tilt_right_deg": pose.tilt_right_deg}
-        physical = to_physical(self.rig_config, self.emulator.physical_position())
-        for quantity, mapping in self.rig_config.quantities.items():
-            if mapping.axis == "fixed":
-                physical.setdefault(quantity, float(mapping.value))
-        return physical
+        return self._with_fixed(to_physical(self.rig_config, self.emulator.physical_position()))
 
     def rig_pose(self) -> RigPose:
         """The rig pose the axes are at now (fixed quantities from the config): what the mechanics are commanded.
@@ -660,24 +681,25 @@ class BenchSimulator:
             self._draws = Counter()
 
     def _landing_keys(self, kind: str, end: dict[str, float], approach: dict[str, int], *,
-                      commit: bool) -> dict[str, tuple[int, ...]] | None:
-        """Per moved quantity the key of its landing draw (call with the history lock held); ``commit``: count it.
-        None without a context: the history keys the draws by position and visits."""
+                      draws: Counter) -> dict[str, tuple[int, ...]] | None:
+        """Per moved quantity the key of its landing draw (call with the history lock held), counted in ``draws``
+        (the bench's own when the motion happened, a copy when it is predicted). None without a context: the
+        history keys the draws by position and visits."""
         context, keys = self._context, {}
         if context is None:
             return None
         if kind == "home":
             index = self._homings
-            self._homings += commit
+            self._homings += draws is self._draws
             return {q: (0x40E, index) for q in approach}
         for q in approach:
             arrived = kind == "move" and q in context.targets and abs(end[q] - context.targets[q]) <= REST_TOLERANCE
             count = (q, "arrive" if arrived else kind)
             if arrived:
-                keys[q] = (0xA441, _crc(context.arrivals.get(q, context.config_id)), self._draws[count])
+                keys[q] = (0xA441, _crc(context.arrivals.get(q, context.config_id)), draws[count])
             else:
-                keys[q] = (0x7A45, _crc(context.config_id), _crc(kind), self._draws[count])
-            self._draws[count] += commit
+                keys[q] = (0x7A45, _crc(context.config_id), _crc(kind), draws[count])
+            draws[count] += 1
         return keys
 
     def _catch_up(self) -> None:
@@ -691,13 +713,10 @@ class BenchSimulator:
         if self.history is None:
             return
         end = to_physical(self.rig_config, event.end)
-        approach = {}
-        for quantity, axis in self.rig_config.driven.items():
-            if quantity in MOVED and event.approach.get(axis):
-                sign = 1 if self.rig_config.quantities[quantity].scale > 0 else -1
-                approach[quantity] = event.approach[axis] * sign
+        approach = self._physical_approach(event.approach)
         with self._history_lock:
-            keys = self._landing_keys(event.kind, end, approach, commit=True)
+            self._motions_seen += 1
+            keys = self._landing_keys(event.kind, end, approach, draws=self._draws)
             self.history.moved(end, end_s=event.end_s, approach=approach, keys=keys)
 
     def _snapshot(self, at_s: float | None = None) -> _Snapshot:

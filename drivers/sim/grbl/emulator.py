@@ -159,7 +159,7 @@ from drivers.sim.grbl.firmware import (
     AxisSpec,
     _fmt_setting,
 )
-from drivers.sim.grbl.planner import MotionEvent, _approach_of, _Block, _HomingPhase, _lround, _Stop
+from drivers.sim.grbl.planner import MotionEvent, PlannedMotion, _approach_of, _Block, _HomingPhase, _lround, _Stop
 
 
 class GrblEmulator:
@@ -232,6 +232,7 @@ class GrblEmulator:
         self.clock = clock if clock is not None else BenchClock(time_scale)
         self.time_scale = self.clock.time_scale
         self.on_motion = on_motion
+        self._motions_reported = 0  # MotionEvents given to on_motion (PlannedMotion.reported)
         self.force_set_origin = force_set_origin
         self.firmware = firmware
         grblhal = firmware == "grblhal"
@@ -486,15 +487,23 @@ class GrblEmulator:
             machine = self._on_grid(self._current_position(now))
             return {a: machine[a] + self._offset[a] for a in self.axes}
 
-    def planned_physical_position(self) -> dict[str, float] | None:
+    def planned_motion(self) -> PlannedMotion | None:
         """Where the axes will stand once the moves queued now have run (whole steps, as
-        :meth:`physical_position` will then say), or None while homing or stopping (not known ahead)."""
+        :meth:`physical_position` will then say), the motions still to be reported on the way there, and how
+        many have been reported, all read at one instant (:class:`PlannedMotion`); None while homing or
+        stopping (not known ahead)."""
         with self._lock:
             if self._homing_block is not None or any(isinstance(b, _Stop) for b in self._planner):
                 return None
             machine = self._on_grid(self._planner[-1].end) if self._planner else self._on_grid(
                 self._current_position(self._sim_now()))
-            return {a: machine[a] + self._offset[a] for a in self.axes}
+            pending = []
+            for block in self._planner:
+                start, end = self._physical(self._on_grid(block.start)), self._physical(self._on_grid(block.end))
+                if _approach_of(start, end):  # as _report_motion: a block that moves nothing is not reported
+                    pending.append((start, end))
+            return PlannedMotion(end=self._physical(machine), pending=tuple(pending),
+                                 reported=self._motions_reported)
 
     @property
     def state(self) -> str:
@@ -586,6 +595,7 @@ class GrblEmulator:
         """Tell the listener that a motion ended (machine positions are turned physical by the caller)."""
         approach = _approach_of(start, end) if approach is None else dict(approach)
         if self.on_motion is not None and approach:
+            self._motions_reported += 1
             self.on_motion(MotionEvent(kind=kind, start=dict(start), end=dict(end), start_s=start_s, end_s=end_s,
                                        approach=approach))
 

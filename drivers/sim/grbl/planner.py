@@ -147,6 +147,22 @@ class MotionEvent:
     approach: dict[str, int]
 
 
+@dataclass(frozen=True)
+class PlannedMotion:
+    """What the emulator's planner holds at one instant (:meth:`GrblEmulator.planned_motion`), read atomically.
+
+    ``end``: where the axes will stand once the queued moves have run (physical frame, whole steps);
+    ``pending``: the motions still to be reported, in order, each as ``(start, end)`` physical positions
+    (the running one from where it began), only those that move an axis; ``reported``: how many
+    :class:`MotionEvent` the listener has been given so far. A listener that counts the events it got
+    knows, by comparing with ``reported``, whether one arrived after this reading was taken.
+    """
+
+    end: dict[str, float]
+    pending: tuple[tuple[dict[str, float], dict[str, float]], ...]
+    reported: int
+
+
 def _approach_of(start: Mapping[str, float], end: Mapping[str, float]) -> dict[str, int]:
     """Per axis that moved from ``start`` to ``end``, the sign of its motion."""
     return {a: 1 if end[a] > start[a] else -1 for a in start if abs(end[a] - start[a]) > 1e-12}
