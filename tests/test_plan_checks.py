@@ -84,6 +84,19 @@ def test_whole_numbers_load_as_floats_and_a_recorded_config_loads_again(tmp_path
     assert recorded_campaign(fixed.model_dump(mode="json")) == fixed
 
 
+def test_a_recording_made_before_lens_models_were_compared_replays_with_the_fit_it_ran():
+    """A v4l2 session recorded without ``extrinsics.lens_model`` calibrated with the default flags, no comparison;
+    a recording made since says ``null`` (today's default: auto for v4l2 cameras) or a name."""
+    recorded = small_config().model_dump(mode="json")  # the section's reading is the cameras' kind's: asked below
+    assert recorded["extrinsics"]["lens_model"] is None
+    assert recorded_campaign(recorded).extrinsics.lens_model_for("v4l2") == "auto"
+    old = {**recorded, "extrinsics": {k: v for k, v in recorded["extrinsics"].items() if k != "lens_model"}}
+    assert recorded_campaign(old).extrinsics.lens_model == "legacy"
+    assert recorded_campaign(old).extrinsics.lens_model_for("v4l2") is None
+    named = {**recorded, "extrinsics": {**recorded["extrinsics"], "lens_model": "rational"}}
+    assert recorded_campaign(named).extrinsics.lens_model_for("v4l2") == "rational"
+
+
 def test_a_rig_config_file_is_strict(tmp_path):
     path = tmp_path / "rig.toml"
     path.write_text('[quantities.baseline_mm]\naxis = "X"\nmin = 0\nmax = true\n')

@@ -506,12 +506,15 @@ class ExtrinsicsSection(BaseModel):
                              "spelling (mode \"fixed\" is R, T from calib_dir)")
     calib_dir: Path | None = Field(None, strict=False,
                                    description="calibration directory, relative to the campaign file")
-    lens_model: Literal["auto", "fixed-aspect", "opencv4", "opencv5", "thin-prism", "rational"] | None = Field(
+    lens_model: Literal["auto", "fixed-aspect", "opencv4", "opencv5", "thin-prism", "rational",
+                        "legacy"] | None = Field(
         None, description="the per-configuration calibrations' lens model (stereo_bench.vision.lensmodels; "
                           "calibrate --lens-model): auto (chosen on held-out views) or a name. Default: auto for "
                           "v4l2 cameras; for simulated cameras opencv4 without a comparison (the model their "
                           "recorded numbers were calibrated with; their lens has square pixels and two radial "
-                          "terms, which auto fits as fixed-aspect, equivalently)")
+                          "terms, which auto fits as fixed-aspect, equivalently). \"legacy\": that fit without a "
+                          "comparison whatever the cameras, as every calibration ran before lens models were "
+                          "compared (a session recorded without this key replays with it)")
     kinematic_file: Path | None = Field(
         None, strict=False,
         description="a saved kinematic rig model (TOML, stereo-bench rig calibrate-kinematics), relative to "
@@ -541,6 +544,8 @@ class ExtrinsicsSection(BaseModel):
     def lens_model_for(self, cameras_kind: str) -> str | None:
         """The lens model per-configuration calibrations fit (``lens_model`` or its default for ``cameras_kind``);
         None: the default flags without a comparison (:func:`~stereo_bench.vision.pipeline.calibrate_from_images`)."""
+        if self.lens_model == "legacy":
+            return None
         if self.lens_model is not None:
             return self.lens_model
         return "auto" if cameras_kind == "v4l2" else None
@@ -805,9 +810,16 @@ def recorded_campaign(data: Mapping[str, Any]) -> CampaignConfig:
 
     A section the recording lacks takes the value the session ran with (:data:`RECORDED_BEFORE_SECTIONS`),
     so a session recorded before ``[sim]`` existed replays and reports as the ideal bench it was; a new
-    campaign without ``[sim]`` runs on the ``lab`` bench.
+    campaign without ``[sim]`` runs on the ``lab`` bench. Likewise an ``[extrinsics]`` without ``lens_model``
+    is ``"legacy"``, the fit every calibration ran before lens models were compared.
     """
-    return CampaignConfig.model_validate({**RECORDED_BEFORE_SECTIONS, **data})
+    data = {**RECORDED_BEFORE_SECTIONS, **data}
+    extrinsics = data.get("extrinsics")
+    if isinstance(extrinsics, Mapping) and "lens_model" not in extrinsics:
+        # Recorded before lens models were compared: the fit it ran with, not today's default (auto for v4l2
+        # cameras), so that its replay reproduces it. A recording made since always has the key (null included).
+        data["extrinsics"] = {**extrinsics, "lens_model": "legacy"}
+    return CampaignConfig.model_validate(data)
 
 
 def _check_files(config: CampaignConfig, source: str) -> None:
