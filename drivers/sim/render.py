@@ -806,12 +806,14 @@ class StereoRenderer:
         return _Displacement(shear=shear, centre_row=(camera.image_size[1] - 1) / 2.0, nodes=nodes,
                              step=o.jitter_scale_px)
 
-    def render_pair(self, rig: RigPose, T_rig_board: np.ndarray, rng: np.random.Generator) -> RenderedPair:
-        """Both views of the target at ``T_rig_board`` (4x4, mm) with the rig's true geometry."""
+    def render_pair(self, rig: RigPose, T_rig_board: np.ndarray, rng: np.random.Generator, *,
+                    shape: BoardShape | None = None) -> RenderedPair:
+        """Both views of the target at ``T_rig_board`` (4x4, mm) with the rig's true geometry; ``shape`` as
+        :meth:`render_view` takes it."""
         T_rig_board = np.array(T_rig_board, dtype=np.float64)
         T_rig_left, T_rig_right = rig.T_rig_left, rig.T_rig_right
-        left = self.render_view("left", invert_transform(T_rig_left) @ T_rig_board, rng)
-        right = self.render_view("right", invert_transform(T_rig_right) @ T_rig_board, rng)
+        left = self.render_view("left", invert_transform(T_rig_left) @ T_rig_board, rng, shape=shape)
+        right = self.render_view("right", invert_transform(T_rig_right) @ T_rig_board, rng, shape=shape)
         R, T = rig.stereo_extrinsics()
         return RenderedPair(left=left, right=right, R=R, T=T, T_rig_left=T_rig_left, T_rig_right=T_rig_right,
                             T_rig_board=T_rig_board)
