@@ -20,24 +20,12 @@ from stereo_bench.targets import CharucoTarget
 from stereo_bench.vision.calibrate import calibrate_stereo
 from stereo_bench.vision.detect import common_corners, detect
 from stereo_bench.vision.measure import measure_square
-from tests.real_data import REAL
+from tests.real_data import CALISCOPE, CALISCOPE_BOARD, CALISCOPE_MIN_COMMON, caliscope_frames
 
-FOLDER = REAL / "caliscope_charuco_2cam"
-BOARD = CharucoTarget(4, 5, 54.0, 40.5, "DICT_4X4_1000", inverted=True)  # charuco.toml
-MIN_COMMON = 6
-
-
-@cache
-def frames() -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Both videos decoded to grey; frame i of each is the same sync_index (SOURCE.md)."""
-    def read(path):
-        capture, out = cv2.VideoCapture(str(path)), []
-        while True:
-            ok, frame = capture.read()
-            if not ok:
-                return out
-            out.append(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY))
-    return read(FOLDER / "cam_0.mp4"), read(FOLDER / "cam_1.mp4")
+FOLDER = CALISCOPE
+BOARD = CALISCOPE_BOARD  # charuco.toml: 4 x 5 squares, 54 / 40.5 mm, DICT_4X4_1000, inverted
+MIN_COMMON = CALISCOPE_MIN_COMMON
+frames = caliscope_frames  # both videos decoded to grey; frame i of each is the same sync_index (SOURCE.md)
 
 
 @cache
