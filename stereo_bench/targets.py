@@ -145,7 +145,12 @@ class Checkerboard:
 
 @dataclass(frozen=True)
 class CharucoTarget:
-    """ChArUco board of ``squares_x`` x ``squares_y`` squares; every identified corner counts on its own."""
+    """ChArUco board of ``squares_x`` x ``squares_y`` squares; every identified corner counts on its own.
+
+    ``inverted``: printed with white and black swapped (white markers on black squares, as caliscope's boards
+    are): the detector inverts the grey image first, since OpenCV's ArUco detector looks for black-bordered
+    markers only and finds none on such a board (0 of caliscope_charuco_2cam's 111 frames without it).
+    """
 
     squares_x: int
     squares_y: int
@@ -153,6 +158,7 @@ class CharucoTarget:
     marker_mm: float
     dictionary: str = "DICT_5X5_1000"
     legacy_pattern: bool = False
+    inverted: bool = False
     kind: Literal["charuco"] = "charuco"
 
     def __post_init__(self):
@@ -216,6 +222,8 @@ class CharucoTarget:
         margin_px = int(round(margin_squares * px_per_square))
         size = (self.squares_x * px_per_square + 2 * margin_px, self.squares_y * px_per_square + 2 * margin_px)
         image = self.cv_board.generateImage(size, marginSize=margin_px, borderBits=1)
+        if self.inverted:
+            image = 255 - image
         mm_per_px = self.square_mm / px_per_square
         origin = -self.square_mm - margin_px * mm_per_px
         return Texture(image=image, origin_mm=(origin, origin), mm_per_px=mm_per_px)

@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stereo_bench.targets import Checkerboard
+from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision.calibrate import StereoCalibration, calibrate_stereo
 from stereo_bench.vision.covariance import EXTRINSIC_NAMES
 from stereo_bench.vision.detect import common_corners, detect
@@ -203,6 +203,13 @@ def leave_one_out(name: str) -> dict:
 
 def summary(result: dict) -> dict:
     """The issue's figures of one set's :func:`leave_one_out`."""
+    baseline = result["jackknife"]["baseline"]
+    return {**summary_rows(result), "baseline_sigma_ratio": baseline["scatter"] / baseline["sigma"],
+            "baseline_sigma_ratio_residuals": baseline["scatter"] / baseline["sigma_residuals"]}
+
+
+def summary_rows(result: dict) -> dict:
+    """The held-out figures of a leave-one-out's ``rows`` and ``opencv_errors_mm`` (no jackknife)."""
     errors = np.array([r["error_mm"] for r in result["rows"]])
     u_c = np.array([r["u_c_mm"] for r in result["rows"]])
     U = np.array([r["U_mm"] for r in result["rows"]])
@@ -214,9 +221,6 @@ def summary(result: dict) -> dict:
         "within_U": float(np.mean(np.abs(errors) <= U)),
         "inflation": float(np.median(U) / np.median(np.abs(errors))),
         "median_U_mm": float(np.median(U)), "median_abs_error_mm": float(np.median(np.abs(errors))),
-        "baseline_sigma_ratio": result["jackknife"]["baseline"]["scatter"] / result["jackknife"]["baseline"]["sigma"],
-        "baseline_sigma_ratio_residuals":
-            result["jackknife"]["baseline"]["scatter"] / result["jackknife"]["baseline"]["sigma_residuals"],
     }
 
 
@@ -256,3 +260,92 @@ def inconsistent_leave_one_out(name: str, views: tuple[int, ...], shift_px: floa
         U.append(budget.expanded)
     return {"errors_mm": np.array(errors), "u_c_mm": np.array(u_c), "U_mm": np.array(U),
             "adequacy": calibrate(usable).adequacy}
+
+
+# caliscope_charuco_2cam: an inverted ChArUco board in two synchronised videos, the cameras 83 deg convergent
+# (calib_data/real/caliscope_charuco_2cam/SOURCE.md). Held out per synchronised frame; the calibration is the
+# project's default (joint, each camera's intrinsics from the frames in the calibration), the square is
+# triangulated without rectification (measure_square on undistorted rays).
+CALISCOPE = REAL / "caliscope_charuco_2cam"
+CALISCOPE_BOARD = CharucoTarget(4, 5, 54.0, 40.5, "DICT_4X4_1000", inverted=True)
+CALISCOPE_MIN_COMMON = 6
+
+
+@cache
+def caliscope_frames() -> tuple[list[np.ndarray], list[np.ndarray]]:
+    def read(path):
+        capture, out = cv2.VideoCapture(str(path)), []
+        while True:
+            ok, frame = capture.read()
+            if not ok:
+                return out
+            out.append(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY))
+    return read(CALISCOPE / "cam_0.mp4"), read(CALISCOPE / "cam_1.mp4")
+
+
+@cache
+def caliscope_views() -> tuple[list[int], tuple]:
+    """(synchronised frames with >= 6 common corners, per frame the (left, right) detections with noise)."""
+    left, right = caliscope_frames()
+    det = tuple((detect(a, CALISCOPE_BOARD), detect(b, CALISCOPE_BOARD)) for a, b in zip(left, right, strict=True))
+    frames = [i for i, (a, b) in enumerate(det) if a is not None and b is not None
+              and len(common_corners(a, b)[0]) >= CALISCOPE_MIN_COMMON]
+    return frames, det
+
+
+def _opencv_charuco(image: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """OpenCV's own CharucoDetector (whole dictionary) on the inverted grey image: (ids, corners) or None."""
+    b = CALISCOPE_BOARD
+    board = cv2.aruco.CharucoBoard((b.squares_x, b.squares_y), b.square_mm, b.marker_mm,
+                                   cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_1000))
+    corners, ids, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(255 - image)
+    if ids is None:
+        return None
+    return np.asarray(ids).reshape(-1), np.asarray(corners, np.float64).reshape(-1, 2)
+
+
+def caliscope_opencv_leave_one_out() -> np.ndarray:
+    """Plain OpenCV's held-out square errors (mm), per synchronised frame with >= 6 common corners."""
+    left, right = caliscope_frames()
+    views = {}
+    for i, (a, b) in enumerate(zip(left, right, strict=True)):
+        da, db = _opencv_charuco(a), _opencv_charuco(b)
+        if da is None or db is None:
+            continue
+        ids, ia, ib = np.intersect1d(da[0], db[0], return_indices=True)
+        if len(ids) >= CALISCOPE_MIN_COMMON:
+            views[i] = (ids, da[1][ia], db[1][ib])
+    errors = []
+    for held_out in views:
+        keep = [i for i in views if i != held_out]
+        calib = plain_opencv_stereo([CALISCOPE_BOARD.object_points[views[i][0]] for i in keep],
+                                    [views[i][1] for i in keep], [views[i][2] for i in keep], (1280, 720))
+        ids, lp, rp = views[held_out]
+        points = triangulate(calib, lp, rp)
+        pos = {k: j for j, k in enumerate(ids.tolist())}
+        pairs = [p for p in CALISCOPE_BOARD.adjacent_pairs() if p[0] in pos and p[1] in pos]
+        errors.append(float(np.mean([np.linalg.norm(points[pos[a]] - points[pos[b]]) for a, b in pairs]))
+                      - CALISCOPE_BOARD.square_mm)
+    return np.array(errors)
+
+
+@cache
+def caliscope_leave_one_out() -> dict:
+    """:func:`leave_one_out`'s ``rows`` and ``opencv_errors_mm`` for caliscope_charuco_2cam (no jackknife)."""
+    frames, det = caliscope_views()
+    left, right = caliscope_frames()
+    views = {i: common_corners(*det[i]) for i in frames}
+    rows = []
+    for held_out in frames:
+        keep = [i for i in frames if i != held_out]
+        calib = _calibrate([CALISCOPE_BOARD.object_points[views[i][0]] for i in keep], [views[i][1] for i in keep],
+                           [views[i][2] for i in keep], (1280, 720))
+        pair = measure_pair(left[held_out], right[held_out], calib, CALISCOPE_BOARD, detections=det[held_out])
+        budget = configuration_budget([pair], calib, CALISCOPE_BOARD, board_scale=BoardScale(same_board=True),
+                                      structure_covariance=np.zeros((6, 6)), structure_source="unmoved within the set")
+        rows.append({"pair": held_out, "error_mm": budget.error_mm, "u_c_mm": budget.combined,
+                     "U_mm": budget.expanded, **{f"u_{k}_mm": v for k, v in budget.components.items()},
+                     "u_adequacy_mm": budget.adequacy, "noise_random_mm": budget.noise_random_mm,
+                     "noise_systematic_mm": budget.noise_systematic_mm, "dominant": budget.dominant,
+                     "baseline_mm": calib.baseline_mm, "rms_px": calib.rms_px})
+    return {"rows": rows, "opencv_errors_mm": caliscope_opencv_leave_one_out()}

@@ -517,8 +517,13 @@ def _square_levels(gray: np.ndarray, grid: np.ndarray) -> tuple[float, float]:
 
 def detect_charuco(image: np.ndarray, target: CharucoTarget, *, min_corners: int = 4,
                    noise: bool = True) -> Detection | None:
-    """ChArUco detection: every identified corner, partial views included; None below ``min_corners``."""
+    """ChArUco detection: every identified corner, partial views included; None below ``min_corners``.
+
+    An ``inverted`` target is looked for in the inverted grey image (the corner noise estimate is the same
+    either way: it depends on gradient magnitudes only)."""
     gray = to_gray(image)
+    if target.inverted:
+        gray = 255 - gray
     detector = _charuco_detector(target)
     corners, ids, _, _ = detector.detectBoard(gray)
     if ids is None or len(ids) < min_corners:
