@@ -232,3 +232,38 @@ def test_without_noise_the_corners_and_ids_are_the_same_and_sigma_is_unknown():
             assert_same_bits(getattr(without, field), getattr(with_noise, field), field)
         assert (without.order, without.image_size) == (with_noise.order, with_noise.image_size)
     assert checked >= 6
+
+
+def full_chain_corners(image: np.ndarray, board: Checkerboard) -> np.ndarray | None:
+    """The thorough search's corners in the search image as before repeated steps were skipped: every step of
+    THOROUGH_CHAIN in turn after the fast search."""
+    gray = detect_module.to_gray(image)
+    small, _ = detect_module._search_image(gray, detect_module.DEFAULT_SEARCH_WIDTH_PX)
+    found, corners = plain_find_chessboard(small, board.pattern_size)
+    for step in detect_module.THOROUGH_CHAIN:
+        if found:
+            break
+        found, corners, _ = detect_module._thorough_step(gray, board, step, detect_module.DEFAULT_SEARCH_WIDTH_PX)
+    return corners if found else None
+
+
+def test_thorough_detection_skipping_repeated_steps_finds_what_the_full_chain_finds_on_real_images():
+    """present_cjn holds views the fast search misses (one found by SB, one by none): 640x480 frames, where the
+    chain's classic step at 960 px and SB at full resolution repeat earlier searches and are skipped."""
+    board, missed_fast = Checkerboard(8, 11, 12.0), 0
+    board_views = 0
+    for path in sorted(PRESENT_CJN.glob("*.jpg")):
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        missed_fast += not plain_find_chessboard(image, board.pattern_size)[0]
+        chain = full_chain_corners(image, board)
+        found = detect(image, board, thorough=True, noise=False)
+        assert (found is None) == (chain is None)
+        if found is not None:
+            board_views += 1
+            gray = detect_module.to_gray(image)
+            scale = min(1.0, detect_module.THOROUGH_SEARCH_WIDTH_PX / max(gray.shape))
+            grid = detect_module.refine_grid(
+                gray, detect_module._to_full_resolution(chain, scale).reshape(board.rows, board.cols, 2))
+            grid, _ = detect_module.canonical_order(gray, grid, board)
+            assert_same_bits(found.corners_px, grid.reshape(-1, 2), "thorough corners")
+    assert board_views > 0 and missed_fast >= 2

@@ -187,7 +187,15 @@ def detect_checkerboard(
     small, scale = _search_image(gray, search_width_px)
     found, corners = _find_chessboard_fast_checked(small, board.pattern_size)
     if not found and thorough:
+        # A step whose search image and detector were tried already gives the same answer (the detectors are
+        # deterministic): on frames no wider than the search widths (640x480) classic at 960 px repeats the fast
+        # search and SB at full resolution repeats SB at 960 px, so they are skipped.
+        tried = {("classic", min(search_width_px, max(gray.shape)), _SEARCH_FLAGS)}
         for step in THOROUGH_CHAIN:
+            key = (step[0], _thorough_search_width(gray, step, search_width_px), step[2])
+            if key in tried:
+                continue
+            tried.add(key)
             found, corners, scale = _thorough_step(gray, board, step, search_width_px)
             if found:
                 break
@@ -213,6 +221,13 @@ THOROUGH_CHAIN = (
     ("sb", THOROUGH_SEARCH_WIDTH_PX, cv2.CALIB_CB_NORMALIZE_IMAGE),
     ("sb", 0, 0),
 )
+
+
+def _thorough_search_width(gray: np.ndarray, step: tuple[str, int, int], search_width_px: int) -> int:
+    """The longest side (px) of the search image one :data:`THOROUGH_CHAIN` step searches: steps of one detector
+    and flags at the same width search the same image (:func:`_search_image` of the same arguments)."""
+    width = max(gray.shape) if step[1] == 0 else max(search_width_px, step[1])
+    return min(width, max(gray.shape))
 
 
 def _thorough_step(gray: np.ndarray, board: Checkerboard, step: tuple[str, int, int],

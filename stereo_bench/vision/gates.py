@@ -23,7 +23,9 @@ Pure functions of arrays: no files, no printing.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -487,9 +489,13 @@ def gate_board_fit(target: Target, found: Sequence[bool], images: Sequence[np.nd
 
     # The missed images, and two where the board was found: a board larger than the one named contains it,
     # and the classic detector then finds the smaller grid inside it in some images (wrong corner ids).
-    missed = [oriented(found_board_shape(im)) for im in [im for im, ok in zip(images, found, strict=True)
-                                                          if not ok][:most]]
-    hits = [oriented(found_board_shape(im)) for im in [im for im, ok in zip(images, found, strict=True) if ok][:2]]
+    searched = ([im for im, ok in zip(images, found, strict=True) if not ok][:most]
+                + [im for im, ok in zip(images, found, strict=True) if ok][:2])
+    # Side by side on threads (SB releases the GIL; each search's answer does not depend on the thread).
+    with ThreadPoolExecutor(max_workers=max(1, min(len(searched), os.cpu_count() or 1))) as pool:
+        shapes = [oriented(shape) for shape in pool.map(found_board_shape, searched)]
+    n_missed = min(most, len(found) - sum(map(bool, found)))
+    missed, hits = shapes[:n_missed], shapes[n_missed:]
     # A board smaller than the one named is evidence only where the named one is missing from most images: where
     # it is found in most, a smaller grid in a missed image is a part of it (blurred, shaded or cut off).
     found_most = np.mean(found) >= BOARD_FIT_MIN_FOUND_SHARE if len(found) else False
