@@ -311,3 +311,14 @@ def test_a_campaign_that_measured_some_of_its_plan_says_partial_and_exits_0(tmp_
     assert session.status == "partial"  # the report's badge: the word the CLI printed
     table = _comparison_table(session)
     assert "outside" in table and "B5000" in table  # each missing configuration with its reason
+
+
+def test_the_measurable_exp2_preset_holds_the_whole_board_in_both_views_at_every_alpha():
+    from stereo_bench.campaign.config import load_preset
+    from stereo_bench.campaign.plan import expand_plan
+
+    configurations = expand_plan(load_preset("paper-exp2-measurable"))
+    assert [c.alpha_deg for c in configurations] == [5, 15, 25, 35, 45, 55]
+    assert all(c.runnable and c.fraction_in_both == 1.0 for c in configurations), \
+        [(c.config_id, c.reason, c.limit_violation) for c in configurations]
+    assert "deviates from the paper" in load_preset("paper-exp2-measurable").description
