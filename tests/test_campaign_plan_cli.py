@@ -134,9 +134,10 @@ def test_schema_is_json_schema(capsys):
 def test_presets_listed(capsys):
     code, out, _ = _run(capsys, "presets")
     assert code == 0
-    assert [line.split()[0] for line in out.splitlines()] == ["paper-exp1", "paper-exp2", "paper-exp2-toe-in"]
+    assert [line.split()[0] for line in out.splitlines()] == ["paper-exp1", "paper-exp2", "paper-exp2-toe-in",
+                                                                "paper-exp2-measurable"]
     code, out, _ = _run(capsys, "presets", "--json")
-    assert set(json.loads(out)) == {"paper-exp1", "paper-exp2", "paper-exp2-toe-in"}
+    assert set(json.loads(out)) == {"paper-exp1", "paper-exp2", "paper-exp2-toe-in", "paper-exp2-measurable"}
 
 
 def test_campaign_needs_an_action(capsys):

@@ -297,3 +297,41 @@ def test_a_batch_re_analysis_reports_a_bad_session_and_goes_on(small_reference, 
     assert f"re-analysed 2 measured configurations of {small_reference}" in out
     (line,) = [text for text in out.splitlines() if text.startswith(f"{damaged}: error: ")]
     assert ".png" in line
+
+
+def test_a_campaign_outcome_is_partial_when_fewer_than_planned_were_measured():
+    from stereo_bench.campaign.documents import campaign_outcome
+
+    assert campaign_outcome("success", {"measured": 2}) == ("success", "")
+    assert campaign_outcome("success", {"measured": 1, "infeasible": 5}) == (
+        "partial", "1 of 6 planned configurations measured")
+    assert campaign_outcome("success", {"infeasible": 2, "limit": 1})[0] == "failed"
+    assert campaign_outcome("interrupted", {"measured": 1, "not run": 3}) == ("interrupted", "")
+
+
+def test_a_campaign_that_measured_some_of_its_plan_says_partial_and_exits_0(tmp_path, capsys):
+    path = tmp_path / "part.toml"
+    path.write_text(SMALL.replace("baseline_mm = [100, 150]", "baseline_mm = [100, 5000]"))
+    code = main(["campaign", "run", str(path), "--out", str(tmp_path / "s"), "--yes", "--quiet"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "campaign partial in" in out and "(1 of 4 planned configurations measured)" in out
+    assert "success" not in out
+    from stereo_bench.report.collect import read_session
+    from stereo_bench.report.html import _comparison_table
+
+    session = read_session(tmp_path / "s", "s")
+    assert session.status == "partial"  # the report's badge: the word the CLI printed
+    table = _comparison_table(session)
+    assert "outside" in table and "B5000" in table  # each missing configuration with its reason
+
+
+def test_the_measurable_exp2_preset_holds_the_whole_board_in_both_views_at_every_alpha():
+    from stereo_bench.campaign.config import load_preset
+    from stereo_bench.campaign.plan import expand_plan
+
+    configurations = expand_plan(load_preset("paper-exp2-measurable"))
+    assert [c.alpha_deg for c in configurations] == [5, 15, 25, 35, 45, 55]
+    assert all(c.runnable and c.fraction_in_both == 1.0 for c in configurations), \
+        [(c.config_id, c.reason, c.limit_violation) for c in configurations]
+    assert "deviates from the paper" in load_preset("paper-exp2-measurable").description

@@ -42,6 +42,25 @@ ResultStatus = Literal["measured", "failed", "infeasible", "limit"]
 BenchName = Literal["simulated", "hardware", "bring-up", "replay"]
 
 
+def campaign_outcome(exit_status: str, counts: Mapping[str, int]) -> tuple[str, str]:
+    """The word a campaign ends with, and why: ``(word, why)``, from the stop's ``exit_status`` and the result
+    statuses counted (``{"measured": 1, "infeasible": 5}``; a planned configuration with no result counts too).
+
+    A run that ended normally is "success" only when every planned configuration was measured; "partial" when
+    some were and others not (infeasible, outside the limits, failed or not run: issue 23, paper-exp2 measured
+    1 of 6 under a green "success"); "failed" when none was. Other stops keep their word.
+    """
+    if exit_status != "success" or not counts:
+        return exit_status, ""
+    measured = counts.get("measured", 0)
+    total = sum(counts.values())
+    if measured == 0:
+        return "failed", "nothing was measured"
+    if measured < total:
+        return "partial", f"{measured} of {total} planned configurations measured"
+    return "success", ""
+
+
 class DocumentError(ValueError):
     """A document that does not follow its schema; one line naming the document and the field."""
 
@@ -919,6 +938,6 @@ __all__ = [
     "DocumentError", "Draft", "EventDocument", "HomeEvent", "IntrinsicsEvent", "KinematicModelEvent",
     "MeasurementFrameEvent", "NumericEnvironment", "MoveEvent", "PromptEvent", "ResultDocument", "ResultRow",
     "ResumeDocument", "RunControlEvent", "StartDocument", "StopDocument", "StructureEvent", "TargetNotFoundEvent",
-    "TranscriptEvent", "TruthEvent", "document_json", "columns_of", "column", "document_json_schema", "event_draft",
-    "json_safe", "nested", "parse_document", "result_row",
+    "TranscriptEvent", "TruthEvent", "campaign_outcome", "document_json", "columns_of", "column",
+    "document_json_schema", "event_draft", "json_safe", "nested", "parse_document", "result_row",
 ]

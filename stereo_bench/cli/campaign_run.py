@@ -357,20 +357,22 @@ def _stop_line(summary, out: Path, resume_command: str) -> str:
 
 
 def _summarise(args: argparse.Namespace, summary, out: Path, resume_command: str, elapsed: float) -> int:
+    from stereo_bench.campaign.documents import campaign_outcome
+
     counts = summary.counts()
     parts = ", ".join(f"{n} {status}" for status, n in sorted(counts.items()))
     report = sys.stderr if args.json else sys.stdout  # --json: stdout holds only the documents
     if summary.plan_drift:
         print(f"note: the recorded plan runs; {summary.plan_drift}", file=report)
-    # The word and the exit status agree (docs/EXIT_STATUS.md): success 0, interrupted 130, failed 1, and a run
+    # The word and the exit status agree (docs/EXIT_STATUS.md): success 0, partial 0 (some planned configurations
+    # not measured: the word says so, the report lists each with its reason), interrupted 130, failed 1, and a run
     # that measured nothing (every configuration infeasible, outside the limits or failed) is failed, not success.
-    status, code, why = summary.exit_status, 0, ""
+    status, reason = campaign_outcome(summary.exit_status, counts)
+    code, why = 0, f" ({reason})" if reason else ""
     if status == "interrupted":
         code = EXIT_INTERRUPTED
-    elif status != "success":
+    elif status not in ("success", "partial"):
         code = EXIT_FAILED
-    elif counts and not counts.get("measured", 0):
-        status, code, why = "failed", EXIT_FAILED, " (nothing was measured)"
     print(f"campaign {status} in {elapsed:.0f} s: {parts or 'nothing run'}"
           + (f" ({summary.skipped} already complete)" if summary.skipped else "") + why, file=report)
     print(f"session:  {out}/  (documents.jsonl, frames/, calib/, results.sqlite)", file=report)

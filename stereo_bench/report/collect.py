@@ -47,6 +47,7 @@ from stereo_bench.campaign.documents import (
     StartDocument,
     StructureEvent,
     TruthEvent,
+    campaign_outcome,
 )
 from stereo_bench.campaign.extrinsics import SOURCES
 from stereo_bench.campaign.recorded import RecordedStart
@@ -268,9 +269,18 @@ def read_session(directory: str | Path, key: str) -> SessionReport:
                                         config=config, calibration=_calibration_loader(reader, report, warnings))
         configs.append(report)
     session = SessionReport(key=key, directory=Path(directory), reader=reader, start=start, config=config,
-                            status=reader.status(), configs=configs, warnings=warnings)
+                            status=_outcome(reader.status(), configs), configs=configs, warnings=warnings)
     add_predictions(session)
     return session
+
+
+def _outcome(status: str, configs: list[ConfigReport]) -> str:
+    """The session's badge: the stop's word, "partial" or "failed" when fewer than planned were measured
+    (:func:`stereo_bench.campaign.documents.campaign_outcome`, the word the CLI printed)."""
+    counts: dict[str, int] = {}
+    for config in configs:
+        counts[str(config.status)] = counts.get(str(config.status), 0) + 1
+    return campaign_outcome(status, counts)[0]
 
 
 def _calibration_loader(reader: SessionReader, report: ConfigReport, warnings: list[str]):

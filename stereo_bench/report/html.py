@@ -238,6 +238,8 @@ def _comparison_table(session: SessionReport) -> str:
         if prediction.get("pixel_sigma_source"):
             sources.add(str(prediction["pixel_sigma_source"]))
         note = prediction.get("reason") if not prediction.get("available") else ""
+        if config.status != "measured" and row.get("reason"):  # why it is missing: what the session recorded
+            note = str(row["reason"])
         status_cell = _badge(config.status) + (f' <span class="small muted">{_e(note)}</span>' if note else "")
         body.append(
             f"<tr><td class='label'>{_config_link(session, config)}</td>"
