@@ -107,7 +107,8 @@ def test_plan_on_a_real_controller_opens_no_port_and_reports_limits(tmp_path, ca
 @pytest.mark.parametrize("argv, message", [
     ([], "give a campaign file or --preset NAME"),
     (["x.toml", "--preset", "paper-exp1"], "give a campaign file or --preset NAME, not both"),
-    (["--preset", "paper-exp9"], "unknown preset 'paper-exp9'; known: paper-exp1, paper-exp2, paper-exp2-toe-in, paper-exp2-measurable"),
+    (["--preset", "paper-exp9"],
+     "unknown preset 'paper-exp9'; known: paper-exp1, paper-exp2, paper-exp2-toe-in, paper-exp2-measurable"),
 ])
 def test_plan_argument_errors(capsys, argv, message):
     code, out, err = _run(capsys, "plan", *argv)
