@@ -403,12 +403,27 @@ def test_nothing_is_rendered_ahead_before_the_move_to_where_the_scenes_need_the_
 
 
 @pytest.mark.slow
+def capture_served_ahead_bit_for_bit(bench: BenchSimulator, pose: np.ndarray) -> None:
+    """Show the staged board (seed 80) and capture a pair: it comes from the render ahead, and is bit for bit
+    (image and truth) the pair a render at the trigger gives."""
+    from drivers.camera.stereo import StereoCamera
+
+    with StereoCamera(*bench.cameras()) as cameras_:
+        bench.show(BOARD, pose, seed=80)
+        pair = cameras_.capture_pair()
+    assert bench.prerendered_used == 1
+    snapshot = bench._snapshot()
+    for side, frame in (("left", pair.left), ("right", pair.right)):
+        image, meta = bench._render_job(side, snapshot, bench._scene, 0)
+        np.testing.assert_array_equal(frame.image, image)
+        assert frame.meta == meta
+
+
 def test_scenes_are_rendered_during_the_move_for_where_it_will_rest_and_served_bit_for_bit():
     """The move's end is planned (whole steps) and its landing drawn as the mechanics will draw it: the
     frames rendered while the rig still moves are those a render at the trigger gives after it."""
     import threading
 
-    from drivers.camera.stereo import StereoCamera
 
     # The move must last long enough for the render-ahead thread to start while it runs, on a loaded machine too
     # (at 5x it once ended before that thread was scheduled, in a full suite beside other work).
@@ -430,66 +445,7 @@ def test_scenes_are_rendered_during_the_move_for_where_it_will_rest_and_served_b
             moving.join()
         assert rendered_while_moving
         bench.clock.advance(0.5)  # the settle: the ringing has stopped
-        with StereoCamera(*bench.cameras()) as cameras_:
-            bench.show(BOARD, pose, seed=80)
-            pair = cameras_.capture_pair()
-        assert bench.prerendered_used == 1
-        snapshot = bench._snapshot()
-        for side, frame in (("left", pair.left), ("right", pair.right)):
-            image, meta = bench._render_job(side, snapshot, bench._scene, 0)
-            np.testing.assert_array_equal(frame.image, image)
-            assert frame.meta == meta
-
-
-def test_a_prediction_overtaken_by_the_moves_end_is_not_rendered_for_a_state_the_rig_never_reaches(monkeypatch):
-    """The render-ahead thread reads the plan mid-move and is then held (a loaded machine) until the move has
-    ended and its landing is in the history: what it renders must still be the frame a render at the trigger
-    gives. (It once drew that landing twice, rendered for a state the rig never reached, and the trigger had
-    to render again: the suite's load-dependent failure of the test above.)"""
-    import threading
-
-    from drivers.camera.stereo import StereoCamera
-
-    with BenchSimulator(time_scale=2.5, profile=LAB, seed=5, **cameras()) as bench:
-        real_plan = bench.emulator.planned_motion
-        overtaken = threading.Event()
-
-        def plan_then_stall():
-            plan = real_plan()
-            if plan is not None and plan.pending and not overtaken.is_set() \
-                    and threading.current_thread().name == "sim-render-ahead":
-                seen = bench._motions_seen
-                deadline = time.monotonic() + 60.0
-                while bench._motions_seen == seen and time.monotonic() < deadline:
-                    time.sleep(0.002)  # held until the move's event is in the history
-                overtaken.set()
-            return plan
-
-        with GrblRig(bench.tty_path, bench.rig_config) as rig:
-            rig.home()
-            move_and_ask(rig, OPERATORS, baseline_mm=60.0, alpha_left_deg=88.0, alpha_right_deg=88.0,
-                         target_distance_mm=450.0)
-            bench.warm_up(BOARD)
-            monkeypatch.setattr(bench.emulator, "planned_motion", plan_then_stall)
-            pose = board_pose_facing_rig(distance_mm=450.0, board_size_mm=BOARD.grid_size_mm, yaw_deg=4.0)
-            bench.stage([("board", BOARD, pose, 80)], at=RigPose.symmetric(220.0, 84.0))
-            move_and_ask(rig, OPERATORS, baseline_mm=220.0, alpha_left_deg=84.0, alpha_right_deg=84.0,
-                         target_distance_mm=450.0)
-        assert overtaken.is_set()
-        bench.clock.advance(0.5)  # the settle: the ringing has stopped
-        deadline = time.monotonic() + 60.0
-        while bench.staged_rendered() == 0 and time.monotonic() < deadline:
-            time.sleep(0.01)  # the thread looks again and renders (a condition, not a time, is waited for)
-        assert bench.staged_rendered() == 1
-        with StereoCamera(*bench.cameras()) as cameras_:
-            bench.show(BOARD, pose, seed=80)
-            pair = cameras_.capture_pair()
-        assert bench.prerendered_used == 1
-        snapshot = bench._snapshot()
-        for side, frame in (("left", pair.left), ("right", pair.right)):
-            image, meta = bench._render_job(side, snapshot, bench._scene, 0)
-            np.testing.assert_array_equal(frame.image, image)
-            assert frame.meta == meta
+        capture_served_ahead_bit_for_bit(bench, pose)
 
 
 def test_frames_rendered_for_a_wrong_prediction_are_rendered_again_once_the_rig_rests(lab_bench, monkeypatch):
