@@ -48,6 +48,7 @@ from stereo_bench import __version__, atomic, paths
 from stereo_bench.campaign.documents import REPORT_COLUMNS
 from stereo_bench.campaign.session import DOCUMENTS_FILE, SessionError
 from stereo_bench.report import annotate, figures, html
+from stereo_bench.report.answer import answer_of
 from stereo_bench.report.collect import (
     BUDGET_COMPONENTS,
     EXTRINSICS_MODES,
@@ -530,6 +531,14 @@ def _session_page(writer: _Writer, session: SessionReport, *, images: bool, warn
         page.tables2.append((table, writer.write(f"tables/{table.key}.csv", table.to_csv())))
         page.error_csvs[table.key] = writer.write(f"tables/{table.key}_error.csv", table.error_csv())
     page.error_figures = _error_figures(writer, session)
+    page.answer = answer_of(session)
+    if page.answer.points:
+        against_true = all(p.square_true_mm is not None for p in page.answer.points)
+        title = f"Where the error comes from: measured beside each predicted term ({session.name})"
+        page.answer_figure = writer.figure(
+            f"figures/{session.key}_answer.png",
+            figures.answer_figure(page.answer.points, page.answer.sources, title=title, against_true=against_true),
+            alt=title)
     predictions = {c.config_id: c.prediction or {} for c in session.configs}
     title = f"Measured error beside the rigorous prediction: {session.name}"
     page.comparison = writer.figure(f"figures/{session.key}_comparison.png",

@@ -492,8 +492,55 @@ def calibration_figure(configs: Sequence[tuple[str, str, Mapping[str, object] | 
     return figure
 
 
+#: Line style of each predicted term on the first screen's figure.
+TERM_STYLE = {"noise": ("C0", "-"), "bias": ("C0", ":"), "calibration": ("C1", "-"), "target": ("C7", "--"),
+              "structure (nominal)": ("C3", "-"), "structure (kinematic)": ("C2", "-"), "paper's γ": ("k", ":")}
+
+
+def answer_figure(points: Sequence, sources: Sequence[str], *, title: str, against_true: bool) -> Figure:
+    """|error| per measured configuration (markers, per extrinsics source) over the predicted terms (lines), log y.
+
+    ``points``: :class:`stereo_bench.report.answer.AnswerPoint`; ordered by Z, then B, then α (one x slot each).
+    ``against_true``: the error against the board as printed (the print's scale drawn as its own term).
+    """
+    ordered = sorted(points, key=lambda p: (p.distance_mm, p.baseline_mm, p.alpha_deg))
+    figure = _new_figure(9.0, 5.0)
+    ax = figure.add_subplot()
+    x = np.arange(len(ordered))
+    terms = [t for t in TERM_STYLE if t != "paper's γ" and any(p.predicted_mm.get(t) for p in ordered)]
+    for term in terms:
+        colour, style = TERM_STYLE[term]
+        y = [p.predicted_mm.get(term) or np.nan for p in ordered]
+        ax.plot(x, y, style, color=colour, lw=1.4, label=f"predicted: {term}")
+    gamma = [p.paper_gamma_mm or np.nan for p in ordered]
+    if np.isfinite(gamma).any():
+        colour, style = TERM_STYLE["paper's γ"]
+        ax.plot(x, gamma, style, color=colour, lw=1.2, label="the paper's γ (error of the axes' meeting point)")
+    for source in sources:
+        marker, colour = SOURCE_STYLE.get(source, ("o", "black"))
+        y = [abs(e) if (e := (p.error_true_mm(source) if against_true else p.errors_nominal_mm.get(source)))
+             is not None else np.nan for p in ordered]
+        ax.plot(x, y, marker, color=colour, ls="none", ms=6, label=f"measured: {SOURCE_LABELS.get(source, source)}")
+    ax.set_yscale("log")
+    ax.set_xticks(x, [f"B{p.baseline_mm:g}" + ("" if abs(p.alpha_deg - 90) < 1e-9 else f" α{p.alpha_deg:g}")
+                      for p in ordered], rotation=90, fontsize=7)
+    for k in range(1, len(ordered)):
+        if ordered[k].distance_mm != ordered[k - 1].distance_mm:
+            ax.axvline(k - 0.5, color="#bbbbbb", lw=0.8)
+    for z in sorted({p.distance_mm for p in ordered}):
+        slots = [k for k, p in enumerate(ordered) if p.distance_mm == z]
+        ax.annotate(f"Z {z:g} mm", (np.mean(slots), 1.0), xycoords=("data", "axes fraction"), ha="center",
+                    va="bottom", fontsize=8)
+    ax.set_ylabel("|error| of the square, mm (log)" + (", vs as printed" if against_true else ""))
+    ax.set_xlabel("configuration (baseline B in mm, grouped by object distance Z)")
+    ax.set_title(title, fontsize=10, pad=16)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.28), ncol=3, fontsize=7, frameon=False)
+    ax.grid(True, which="major", axis="y", alpha=0.3)
+    return figure
+
+
 __all__ = [
-    "AXIS_LABELS", "SOURCE_LABELS", "SOURCE_STYLE", "UNMEASURED_STYLE", "NormalisedPoint", "calibration_figure",
-    "comparison_figure", "coverage", "deviation_figure", "error_figure", "normalised_figure", "png_bytes",
-    "structural_figure",
+    "AXIS_LABELS", "SOURCE_LABELS", "SOURCE_STYLE", "TERM_STYLE", "UNMEASURED_STYLE", "NormalisedPoint",
+    "answer_figure", "calibration_figure", "comparison_figure", "coverage", "deviation_figure", "error_figure",
+    "normalised_figure", "png_bytes", "structural_figure",
 ]
