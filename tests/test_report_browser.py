@@ -108,7 +108,8 @@ def test_report_renders_in_headless_chromium(tmp_path):
     page = (report / "index.html").read_text(encoding="utf-8")
     paper_tables = page.count('<table class="paper">')
     assert paper_tables >= 2
-    assert checked["tables"] == page.count("<table") == (1 + 1) + (1 + 1) + 3 * 3 + 3 + 6 + len(GRID + SWEEP) + paper_tables
+    expected = (1 + 1) + (1 + 1) + 3 * 3 + 3 + 6 + len(GRID + SWEEP) + paper_tables
+    assert checked["tables"] == page.count("<table") == expected
 
     # the check does catch an image that does not load
     broken = image_check(report, profile, extra='<img src="figures/missing.png" alt="missing">')
