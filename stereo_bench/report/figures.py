@@ -539,8 +539,60 @@ def answer_figure(points: Sequence, sources: Sequence[str], *, title: str, again
     return figure
 
 
+def rig_figure(baseline_mm: float, alpha_left_deg: float, alpha_right_deg: float, tilt_deg: float, distance_mm: float,
+               board_size_mm: tuple[float, float], camera, *, title: str) -> Figure:
+    """A 3-D view of one configuration in the rig frame (mm; x along the baseline, z forward, y down): both cameras
+    with their view frustums out to the board, the baseline, and the target board facing the rig at Z.
+
+    ``camera``: a :class:`stereo_bench.geometry.CameraModel` (its K and image size give the frustums).
+    """
+    from stereo_bench.geometry import RigPose, board_pose_facing_rig, transform_points
+
+    pose = RigPose(baseline_mm, alpha_left_deg, alpha_right_deg, tilt_deg, tilt_deg)
+    figure = _new_figure(5.2, 4.2)
+    ax = figure.add_subplot(projection="3d")
+    width, height = camera.image_size
+    K_inv = np.linalg.inv(np.asarray(camera.K, float))
+    pixels = np.array([[0, 0, 1], [width, 0, 1], [width, height, 1], [0, height, 1]], float)
+    rays = (K_inv @ pixels.T).T  # unit depth
+    depth = distance_mm * 1.05
+
+    def plot(points: np.ndarray, *args, **kwargs) -> None:
+        # Matplotlib's z is up: draw the rig's (x, z, -y) so that forward goes into the picture and up is up.
+        ax.plot(points[:, 0], points[:, 2], -points[:, 1], *args, **kwargs)
+
+    for side, T, colour in (("left", pose.T_rig_left, "C0"), ("right", pose.T_rig_right, "C3")):
+        centre = T[:3, 3]
+        far = transform_points(T, rays * depth)
+        for corner in far:
+            plot(np.vstack([centre, corner]), color=colour, lw=0.7, alpha=0.6)
+        plot(np.vstack([far, far[:1]]), color=colour, lw=0.9, alpha=0.8)
+        axis = transform_points(T, np.array([[0.0, 0.0, 0.0], [0.0, 0.0, distance_mm]]))
+        plot(axis, "--", color=colour, lw=0.8, label=f"{side} camera, optical axis")
+        ax.scatter([centre[0]], [centre[2]], [-centre[1]], color=colour, s=18)
+    centres = np.vstack([pose.T_rig_left[:3, 3], pose.T_rig_right[:3, 3]])
+    plot(centres, "-", color="black", lw=2.0, label=f"baseline B = {baseline_mm:g} mm")
+    board_w, board_h = board_size_mm
+    T_board = board_pose_facing_rig(distance_mm=distance_mm, board_size_mm=board_size_mm)
+    outline = transform_points(T_board, np.array([[0, 0, 0], [board_w, 0, 0], [board_w, board_h, 0], [0, board_h, 0],
+                                                  [0, 0, 0]], float))
+    plot(outline, "-", color="#2e7d32", lw=2.0, label=f"target board at Z = {distance_mm:g} mm")
+    ax.set_xlabel("x (mm)", fontsize=8)
+    ax.set_ylabel("z, forward (mm)", fontsize=8)
+    ax.set_zlabel("up (mm)", fontsize=8)
+    ax.tick_params(labelsize=6)
+    span = max(distance_mm, baseline_mm) * 1.1
+    ax.set_xlim(-span / 2, span / 2)
+    ax.set_ylim(-0.05 * span, span * 1.0)
+    ax.set_zlim(-span / 2, span / 2)
+    ax.view_init(elev=22, azim=-62)
+    ax.set_title(title, fontsize=9)
+    figure.legend(loc="outside lower center", fontsize=7, ncols=2, frameon=False)
+    return figure
+
+
 __all__ = [
     "AXIS_LABELS", "SOURCE_LABELS", "SOURCE_STYLE", "TERM_STYLE", "UNMEASURED_STYLE", "NormalisedPoint",
     "answer_figure", "calibration_figure", "comparison_figure", "coverage", "deviation_figure", "error_figure",
-    "normalised_figure", "png_bytes", "structural_figure",
+    "normalised_figure", "png_bytes", "rig_figure", "structural_figure",
 ]
