@@ -349,7 +349,7 @@ def test_advice_includes_the_calibrations_error_by_default():
     noise_only = advise(800.0, 1.0, calibration=None, **grid)
     plan = CalibrationPlan(n_views=6, mode="fixed")  # few views, intrinsics fixed: a large calibration error
     with_calibration = advise(800.0, 1.0, calibration=plan, **grid)
-    assert noise_only.calibration_views == 0 and "no calibration error" in noise_only.message
+    assert noise_only.calibration_views == 0 and "no calibration, rig or target error" in noise_only.message
     assert with_calibration.calibration_views == 6 and "calibration from 6 views" in with_calibration.message
     best, best_noise = with_calibration.best, noise_only.best
     assert best.sigma_calibration_mm > 0.3 * best.predicted_error_mm  # it matters here

@@ -171,7 +171,8 @@ def test_model_compare_coarse(capsys):
 
 
 def test_model_predict_includes_the_planned_calibration(capsys):
-    argv = ("model", "predict", "--baseline", "200", "--distance", "500", "--alpha", "80", "--no-sensitivities")
+    argv = ("model", "predict", "--baseline", "200", "--distance", "500", "--alpha", "80", "--no-sensitivities",
+            "--no-rig")
     code, out, _ = run(capsys, *argv, "--json")
     report = json.loads(out)
     assert code == 0 and report["calibration_views"] == 12 and report["sigma_calibration_mm"] > 0

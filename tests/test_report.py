@@ -209,7 +209,10 @@ def test_report_of_the_sample_session(tmp_path):
     for config_id in ("B100_Z450_A90", "B150_Z450_A90"):  # measured: corners and rectified pair
         assert f"images/s1-sample-session/{config_id}_corners.jpg" in srcs
         assert f"images/s1-sample-session/{config_id}_rectified.jpg" in srcs
-    assert not any("A35" in src for src in srcs if src.startswith("images/"))  # infeasible: no frames
+    # infeasible: no frames, only the 3-D view of the rig (which shows why: the board outside a view)
+    assert sorted(src for src in srcs if src.startswith("images/") and "A35" in src) == [
+        f"images/s1-sample-session/{c}_rig.png" for c in ("B100_Z450_A35", "B150_Z450_A35")]
+    assert all(f"images/s1-sample-session/{c}_rig.png" in srcs for c in ("B100_Z450_A90", "B150_Z450_A90"))
     corners = cv2.imread(str(report / "images" / "s1-sample-session" / "B100_Z450_A90_corners.jpg"))
     assert corners.shape[:2] == (392, 1400)  # 960x540 pair + 8 px gap, downscaled to 1400 px wide
     # Table 1 of alpha = 35 deg (both infeasible) and Table 2 (alpha 35 infeasible at both B)

@@ -85,14 +85,11 @@ from stereo_bench.geometry import (
 )
 from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision.calibrate import MIN_BASELINE_MM, MIN_VIEWS
-from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL
+from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL, PRINTED_TARGET_SCALE_U_REL
 
 if TYPE_CHECKING:
     from stereo_bench.campaign.extrinsics import ExtrinsicsSource
 
-#: Relative standard uncertainty of a printed measured target's square when the config does not state it:
-#: an office laser/inkjet print is +-0.1 % in scale from the paper feed (rectangular: 0.1 % / sqrt(3)).
-PRINTED_TARGET_SCALE_U_REL = 0.001 / math.sqrt(3.0)
 
 # cv2.stereoCalibrate through stereo_bench.vision.calibrate.calibrate_stereo needs at least this many views.
 MIN_CALIBRATION_VIEWS = MIN_VIEWS  # what calibrate_stereo accepts

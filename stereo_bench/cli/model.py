@@ -128,6 +128,75 @@ def _calibration_plan(args):
         raise CliError(f"--calibration-board/--calibration-square/--calibration-distance: {error}") from None
 
 
+def _add_rig_options(parser: argparse.ArgumentParser) -> None:
+    """Where R, T come from and what the rig and boards state: the structure and target terms of the budget."""
+    from stereo_bench.campaign.config import EXTRINSICS_MODES, PRESETS
+
+    modes = [m for m in EXTRINSICS_MODES if m != "fixed"]
+    group = parser.add_argument_group(
+        "rig and boards (the structure and target terms of the campaign's budget; defaults: a campaign's defaults, "
+        "a hobby-grade rig's stated tolerances and a printed target)")
+    group.add_argument("--config", metavar="CAMPAIGN", help="take the extrinsics mode, [extrinsics.tolerances], the "
+                       "repeatability, kinematic_file and the boards' scale uncertainties from a campaign file or "
+                       f"a shipped preset ({', '.join(PRESETS)})")
+    group.add_argument("--extrinsics", choices=modes, metavar="MODE",
+                       help=f"where R, T come from: {', '.join(modes)} (default: the config's mode, else per-config)")
+    group.add_argument("--kinematic-file", metavar="FILE", help="with --extrinsics kinematic: a fitted rig model "
+                       "(rig calibrate-kinematics); without one, only the axes' landing repeatability is counted")
+    group.add_argument("--target-scale-u", type=finite_float(min=0, max=0.1), metavar="REL",
+                       help="the measured board's relative scale uncertainty (default: the config's, else 5.8e-4: "
+                            "an office print)")
+    group.add_argument("--no-rig", action="store_true",
+                       help="leave the structure and target terms out (image noise and the calibration only)")
+
+
+def _rig_errors(args: argparse.Namespace):
+    """The :class:`~stereo_bench.errormodel.rig.RigErrors` the options describe; None with --no-rig."""
+    from stereo_bench.campaign.config import PRESETS, CampaignConfig, load_campaign, load_preset
+    from stereo_bench.errormodel.rig import RigErrors
+    from stereo_bench.kinematics import KinematicFileError, kinematic_design, load_model
+
+    if args.no_rig:
+        if args.config or args.extrinsics or args.kinematic_file or args.target_scale_u is not None:
+            raise CliError("--no-rig leaves the rig and boards out: drop --config, --extrinsics, --kinematic-file "
+                           "and --target-scale-u")
+        return None
+    if args.config is None:
+        config, source = CampaignConfig(plan={"baseline_mm": [100.0], "distance_mm": [500.0]}), (
+            "the campaign's default tolerances (a hobby-grade rig, not measured) and a printed target")
+    elif Path(args.config).exists() or args.config not in PRESETS:
+        config, source = load_campaign(args.config), f"from {args.config}"
+    else:
+        config, source = load_preset(args.config), f"from preset {args.config}"
+    extrinsics = config.extrinsics
+    mode = args.extrinsics or extrinsics.mode
+    if mode == "fixed":
+        raise CliError(f"--config {args.config}: extrinsics.mode \"fixed\" (R, T of one calibration at every "
+                       "configuration) has no predicted structure term; choose --extrinsics per-config, nominal or "
+                       "kinematic")
+    model_path = args.kinematic_file or (extrinsics.kinematic_file if mode == "kinematic" else None)
+    if model_path is not None and mode != "kinematic":
+        raise CliError("--kinematic-file needs --extrinsics kinematic")
+    model = None
+    if model_path is not None:
+        try:
+            model = load_model(model_path)
+        except (KinematicFileError, OSError) as error:
+            raise CliError(f"--kinematic-file: {error}") from None
+        source += f", the kinematic model {model_path}"
+    # The kinematic fit refines the intrinsics from every visit of the presented design (3 baselines x 3 toe-ins).
+    visits = len(kinematic_design((1.0, 2.0), (0.0, 1.0))) if mode == "kinematic" else 1
+    target_u = args.target_scale_u if args.target_scale_u is not None else config.target.scale_u("target")
+    try:
+        return RigErrors(mode=mode, tolerances=extrinsics.tolerances.sigmas(),
+                         repeatability_mm=extrinsics.repeatability_mm, repeatability_deg=extrinsics.repeatability_deg,
+                         kinematic_model=model, target_scale_u_rel=target_u,
+                         calibration_board_scale_u_rel=config.calibration_board.scale_u("calibration_board"),
+                         source=source, intrinsics_visits=visits)
+    except ValueError as error:
+        raise CliError(str(error)) from None
+
+
 def _add_executor_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("execution")
     group.add_argument("--executor", choices=("local", "serial", "dask"), default="local",
@@ -285,6 +354,7 @@ def _alphas(args) -> tuple[float, float]:
 
 def cmd_predict(args: argparse.Namespace) -> int:
     from stereo_bench.errormodel import paper
+    from stereo_bench.errormodel.rig import combined, dominant_term
     from stereo_bench.errormodel.rigorous import Setup, parallel_depth_sigma_mm, predict, sensitivities
 
     if not (args.baseline > 0 and args.distance > 0):
@@ -301,14 +371,19 @@ def cmd_predict(args: argparse.Namespace) -> int:
                            board_offset_mm=tuple(args.board_offset))
     except ValueError as error:
         raise CliError(str(error)) from None
-    prediction = predict(setup, sigma, margin_px=scene["margin_px"], calibration=_calibration_plan(args))
+    rig = _rig_errors(args)
+    prediction = predict(setup, sigma, margin_px=scene["margin_px"], calibration=_calibration_plan(args), rig=rig)
     result = prediction.model_dump()
-    terms = [result["sigma_square_mm"], result["bias_square_mm"]]
+    terms = {"noise": result["sigma_square_mm"], "bias": result["bias_square_mm"]}
     if prediction.calibration_views:
-        terms.append(result["sigma_calibration_mm"])
-    # Image noise, its bias and (when planned) the calibration's error, in quadrature: the square's 1-sigma error.
-    result["sigma_square_total_mm"] = (None if any(t is None for t in terms)
-                                       else float(math.sqrt(sum(t * t for t in terms))))
+        terms["calibration"] = result["sigma_calibration_mm"]
+    if rig is not None:
+        terms |= {"structure": result["sigma_structure_mm"], "target": result["sigma_target_mm"]}
+    # Image noise, its bias, the calibration's error (when planned), the rig's and the boards' (unless --no-rig),
+    # in quadrature: the square's 1-sigma error against its nominal size.
+    result["terms_mm"] = terms
+    result["sigma_square_total_mm"] = combined(terms)
+    result["dominant_term"] = dominant_term(terms)
     k = args.baseline / args.distance
     f_px = setup.left.fx
     dx, dz = paper.components_mm(k, args.distance, f_px, sigma)
@@ -352,8 +427,13 @@ def _print_prediction(r: dict) -> None:
               f"{_fmt(r['sigma_calibration_depth_mm'])} mm ({r['calibration_note']}; shared by every frame)")
     else:
         print("calibration:  not included (--calibration-views 0): image noise only")
-    print(f"square total: sigma {_fmt(r['sigma_square_total_mm'])} mm (noise, its bias"
-          + (", calibration)" if r["calibration_views"] else ")"))
+    if r["extrinsics_mode"] is not None:
+        print(f"rig:          square sigma {_fmt(r['sigma_structure_mm'])} mm from the structure "
+              f"({r['rig_note']}); boards' scale {_fmt(r['sigma_target_mm'])} mm")
+    else:
+        print("rig:          not included (--no-rig): no structure or target term")
+    print(f"square total: sigma {_fmt(r['sigma_square_total_mm'])} mm ({', '.join(r['terms_mm'])} in quadrature; "
+          f"the largest: {r['dominant_term']})")
     print(f"board centre: sigma x {_fmt(r['sigma_x_mm'])}  y {_fmt(r['sigma_y_mm'])}  z {_fmt(r['sigma_z_mm'])} mm "
           f"(rig frame); gamma_xz {_fmt(r['gamma_xz_mm'])} mm, paper's gamma {r['paper']['gamma_mm']:.4f} mm")
     if "textbook_parallel_sigma_z_mm" in r:
@@ -496,11 +576,14 @@ def cmd_advise(args: argparse.Namespace) -> int:
         advice = advise(args.distance, args.target_error_mm, pixel_sigma_px=sigma, metric=args.metric,
                         baseline_error_mm=args.baseline_error_mm, alpha_error_deg=args.alpha_error_deg,
                         baselines_mm=baselines, alphas_deg=alphas, executor=executor,
-                        calibration=_calibration_plan(args), **scene)
+                        calibration=_calibration_plan(args), rig=_rig_errors(args), **scene)
     if args.json:
         _print_json(advice.model_dump())
         return 0 if advice.meets_target else 1
     print(advice.message)
+    if advice.best is not None:
+        terms = ", ".join(f"{name} {_fmt(value, '.2g')}" for name, value in advice.best.terms_mm.items())
+        print(f"at the best configuration: {terms} mm")
     print(f"{'B mm':>6}  {'alpha range (deg) meeting the target':38s} {'best alpha':>10} {'error mm':>9}")
     for row in advice.rows:
         span = (f"{row.alpha_min_deg:g}-{row.alpha_max_deg:g}" + ("" if row.contiguous else " (with gaps)")
@@ -555,6 +638,7 @@ def register(subparsers) -> None:
     predict.add_argument("--json", action="store_true", help="print one JSON object")
     _add_scene_options(predict)
     _add_calibration_options(predict)
+    _add_rig_options(predict)
     _add_executor_options(predict)
     predict.set_defaults(func=cmd_predict)
 
@@ -612,5 +696,6 @@ def register(subparsers) -> None:
     adv.add_argument("--json", action="store_true", help="print one JSON object")
     _add_scene_options(adv)
     _add_calibration_options(adv)
+    _add_rig_options(adv)
     _add_executor_options(adv)
     adv.set_defaults(func=cmd_advise)

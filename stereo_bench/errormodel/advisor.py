@@ -13,7 +13,10 @@ combines, in quadrature (all 1σ, mm):
   covariance pushed through the measurement (``rigorous.calibration_sigmas``). One calibration
   serves all frames of a configuration, so no number of frames averages it away: without it a
   recommendation rests on image noise alone. ``calibration=None`` leaves it out (and says so);
-- structural errors, when given: a baseline wrong by ``baseline_error_mm`` and each camera's angle
+- the rig and the boards (``rig``: a :class:`~stereo_bench.errormodel.rig.RigErrors`): the structure term
+  of where R, T come from (the rig's stated tolerances, its repeatability or a kinematic model) and the
+  boards' scale, as the campaign's budget counts them;
+- structural errors, when given by hand: a baseline wrong by ``baseline_error_mm`` and each camera's angle
   independently wrong by ``alpha_error_deg`` (first-order sensitivities × error; √2 × one camera's
   sensitivity for the two cameras).
 
@@ -33,6 +36,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from stereo_bench.errormodel.rig import RigErrors, combined, dominant_term
 from stereo_bench.errormodel.rigorous import DEFAULT_MARGIN_PX, CalibrationPlan
 from stereo_bench.errormodel.surfaces import SurfacePoint, evaluate_configs
 from stereo_bench.executors import Executor
@@ -46,32 +50,47 @@ DEFAULT_BASELINES_MM = tuple(float(b) for b in np.arange(20.0, 350.001, 10.0))
 DEFAULT_ALPHAS_DEG = tuple(float(a) for a in np.arange(30.0, 90.001, 2.0))
 
 
-def predicted_error_mm(point: SurfacePoint, metric: str, *, baseline_error_mm: float = 0.0,
-                       alpha_error_deg: float = 0.0, calibration: bool = False) -> float | None:
-    """Combined 1σ error (mm) of ``metric`` at a configuration; None when it cannot be computed.
+def error_terms(point: SurfacePoint, metric: str, *, baseline_error_mm: float = 0.0, alpha_error_deg: float = 0.0,
+                calibration: bool = False, rig: bool = False) -> dict[str, float | None]:
+    """The 1σ terms (mm) of ``metric`` at a configuration, by name (:data:`stereo_bench.errormodel.rig.TERM_NAMES`):
+    only the terms asked for; a term None where it cannot be computed.
 
-    ``calibration``: include the point's predicted calibration component (None there: not computable).
-    A single length's calibration error is taken as the square's (the calibration scales every length alike).
+    ``calibration``: the point's predicted calibration component. ``rig``: its structure and target terms
+    (the point was evaluated with a :class:`~stereo_bench.errormodel.rig.RigErrors`). ``given``: the baseline
+    and angle errors given by hand. A single length's calibration error is taken as the square's (the
+    calibration scales every length alike).
     """
     if metric not in ADVICE_METRICS:
         raise ValueError(f"metric must be one of {', '.join(ADVICE_METRICS)}, not {metric!r}")
-    if metric == "depth":
-        noise, bias = point.sigma_z_mm, 0.0
+    depth = metric == "depth"
+    if depth:
+        terms: dict[str, float | None] = {"noise": point.sigma_z_mm}
         per_b, per_a = point.depth_per_mm_baseline, point.depth_per_deg_alpha
     else:
-        noise = point.sigma_square_mm if metric == "square" else point.sigma_length_mm
-        bias = point.bias_square_mm
+        terms = {"noise": point.sigma_square_mm if metric == "square" else point.sigma_length_mm,
+                 "bias": point.bias_square_mm}
         per_b, per_a = point.square_per_mm_baseline, point.square_per_deg_alpha
-    terms = [noise, bias]
     if calibration:
-        terms.append(point.sigma_calibration_depth_mm if metric == "depth" else point.sigma_calibration_mm)
+        terms["calibration"] = point.sigma_calibration_depth_mm if depth else point.sigma_calibration_mm
+    if rig:
+        terms["structure"] = point.sigma_structure_depth_mm if depth else point.sigma_structure_mm
+        terms["target"] = point.sigma_target_depth_mm if depth else point.sigma_target_mm
+    given = []
     if baseline_error_mm:
-        terms.append(None if per_b is None else per_b * baseline_error_mm)
+        given.append(None if per_b is None else per_b * baseline_error_mm)
     if alpha_error_deg:
-        terms.append(None if per_a is None else math.sqrt(2.0) * per_a * alpha_error_deg)
-    if any(t is None for t in terms):
-        return None
-    return math.sqrt(sum(t * t for t in terms))
+        given.append(None if per_a is None else math.sqrt(2.0) * per_a * alpha_error_deg)
+    if given:
+        terms["given"] = combined({str(i): g for i, g in enumerate(given)})
+    return terms
+
+
+def predicted_error_mm(point: SurfacePoint, metric: str, *, baseline_error_mm: float = 0.0,
+                       alpha_error_deg: float = 0.0, calibration: bool = False, rig: bool = False) -> float | None:
+    """Combined 1σ error (mm) of ``metric`` at a configuration (:func:`error_terms` in quadrature); None when
+    any term cannot be computed."""
+    return combined(error_terms(point, metric, baseline_error_mm=baseline_error_mm, alpha_error_deg=alpha_error_deg,
+                                calibration=calibration, rig=rig))
 
 
 class AdviceRow(BaseModel):
@@ -98,6 +117,9 @@ class Configuration(BaseModel):
     sigma_noise_mm: float | None
     bias_mm: float | None
     sigma_calibration_mm: float | None = None
+    # Every term of predicted_error_mm by name (errormodel.rig.TERM_NAMES), and the largest.
+    terms_mm: dict[str, float | None] = {}
+    dominant_term: str | None = None
 
 
 class Advice(BaseModel):
@@ -110,6 +132,8 @@ class Advice(BaseModel):
     baseline_error_mm: float
     alpha_error_deg: float
     calibration_views: int  # planned calibration views behind the calibration component; 0: left out
+    extrinsics_mode: str | None = None  # where R, T come from (errormodel.rig); None: no rig or target terms
+    rig_note: str = ""  # what the rig and target terms rest on
     baselines_mm: tuple[float, float, float]  # first, last, step of the grid
     alphas_deg: tuple[float, float, float]
     meets_target: bool
@@ -155,11 +179,13 @@ def advise(
     alphas_deg: tuple[float, ...] | np.ndarray = DEFAULT_ALPHAS_DEG, board: Checkerboard | None = None,
     left: CameraModel | None = None, right: CameraModel | None = None, margin_px: float = DEFAULT_MARGIN_PX,
     executor: Executor | None = None, calibration: CalibrationPlan | None = CalibrationPlan(),  # noqa: B008
+    rig: RigErrors | None = None,
 ) -> Advice:
     """Recommend B and α ranges (symmetric rig) meeting ``target_error_mm`` on ``metric`` at ``distance_mm``.
 
     ``calibration``: the planned calibration views whose predicted error is included; None: image noise
-    (and the structural errors given) only.
+    (and the structural errors given) only. ``rig``: where R, T come from and what the rig and boards state:
+    the structure and target terms of the campaign's budget (:mod:`stereo_bench.errormodel.rig`); None: left out.
     """
     if not distance_mm > 0:
         raise ValueError(f"distance_mm must be positive, not {distance_mm}")
@@ -179,13 +205,12 @@ def advise(
     points = evaluate_configs(
         [(b, distance_mm, a, a) for b in baselines for a in alphas], pixel_sigma_px=pixel_sigma_px, board=board,
         left=left, right=right, margin_px=margin_px, with_sensitivities=structural, executor=executor,
-        calibration=calibration,
+        calibration=calibration, rig=rig,
     )
+    asked = {"baseline_error_mm": baseline_error_mm, "alpha_error_deg": alpha_error_deg,
+             "calibration": calibration is not None, "rig": rig is not None}
     errors = np.array([
-        np.nan if (e := predicted_error_mm(p, metric, baseline_error_mm=baseline_error_mm,
-                                           alpha_error_deg=alpha_error_deg, calibration=calibration is not None))
-        is None else e
-        for p in points
+        np.nan if (e := predicted_error_mm(p, metric, **asked)) is None else e for p in points
     ]).reshape(len(baselines), len(alphas))
     feasible = np.array([p.feasible for p in points]).reshape(errors.shape)
     ok = feasible & np.isfinite(errors) & (errors <= target_error_mm)
@@ -215,6 +240,7 @@ def advise(
             sigma_noise_mm={"square": p.sigma_square_mm, "length": p.sigma_length_mm, "depth": p.sigma_z_mm}[metric],
             bias_mm=None if metric == "depth" else p.bias_square_mm,
             sigma_calibration_mm=p.sigma_calibration_depth_mm if metric == "depth" else p.sigma_calibration_mm,
+            terms_mm=(terms := error_terms(p, metric, **asked)), dominant_term=dominant_term(terms),
         )
     rect = _largest_rectangle(ok)
     rec_b = rec_a = worst = None
@@ -235,17 +261,24 @@ def advise(
                    f"{best.baseline_mm:g} mm, alpha {best.alpha_deg:g} deg, predicts {best.predicted_error_mm:.4g} mm")
     else:
         message = f"no configuration of the grid keeps the whole board in both views at Z = {distance_mm:g} mm"
-    if calibration is None:
-        message += " (image noise only, no calibration error"
-        message += "" if structural else ", no structural error: pass a baseline or angle error"
-        message += ")"
-    elif not structural:
-        message += (f" (image noise and the error of a calibration from {calibration.n_views} views; pass a "
-                    "baseline or angle error to include structural errors)")
+    parts = ["image noise"] + ([] if calibration is None else
+                               [f"the error of a calibration from {calibration.n_views} views"])
+    if rig is not None:
+        parts.append(f"the rig and boards ({rig.describe()})")
+    if structural:
+        parts.append("the baseline and angle errors given")
+    message += f" ({', '.join(parts)}"
+    if calibration is None and rig is None and not structural:
+        message += "; no calibration, rig or target error"
+    message += ")"
+    if best is not None and best.dominant_term is not None:
+        message += f"; the largest term at the best configuration: {best.dominant_term}"
     return Advice(
         distance_mm=distance_mm, target_error_mm=target_error_mm, pixel_sigma_px=pixel_sigma_px, metric=metric,
         baseline_error_mm=baseline_error_mm, alpha_error_deg=alpha_error_deg,
-        calibration_views=0 if calibration is None else calibration.n_views, baselines_mm=_grid_spec(baselines),
+        calibration_views=0 if calibration is None else calibration.n_views,
+        extrinsics_mode=None if rig is None else rig.mode, rig_note="" if rig is None else rig.describe(),
+        baselines_mm=_grid_spec(baselines),
         alphas_deg=_grid_spec(alphas), meets_target=bool(n_ok),
         recommended_baseline_mm=rec_b, recommended_alpha_deg=rec_a, recommended_worst_error_mm=worst, best=best,
         n_feasible=int(feasible.sum()), n_meeting=n_ok, rows=rows, message=message,

@@ -45,6 +45,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from stereo_bench.errormodel.rig import RigErrors, structure_covariance, target_sigma_mm
 from stereo_bench.geometry import (
     VIEW_MARGIN_PX,
     CameraModel,
@@ -59,6 +60,7 @@ from stereo_bench.geometry import (
 from stereo_bench.targets import Checkerboard
 from stereo_bench.vision.calibrate import DEFAULT_FLAGS, StereoCalibration
 from stereo_bench.vision.covariance import (
+    EXTRINSIC_NAMES,
     CalibrationCovariance,
     CovarianceUnavailable,
     mono_linearisation,
@@ -310,13 +312,22 @@ class Prediction(BaseModel):
     sigma_calibration_mm: float | None = None  # of the measured square
     sigma_calibration_depth_mm: float | None = None  # of the board centre's rig z
     calibration_note: str = ""
+    # What the rig and boards add (stereo_bench.errormodel.rig; None: not asked for, or not computable).
+    extrinsics_mode: str | None = None  # where R, T come from: per-config, nominal, kinematic
+    sigma_structure_mm: float | None = None  # of the measured square, from the source R, T's covariance
+    sigma_structure_depth_mm: float | None = None
+    sigma_target_mm: float | None = None  # the boards' scales: the square against its nominal size
+    sigma_target_depth_mm: float | None = None
+    rig_note: str = ""
 
 
 def predict(setup: Setup, pixel_sigma_px: float, *, margin_px: float = DEFAULT_MARGIN_PX,
-            calibration: CalibrationPlan | None = None) -> Prediction:
+            calibration: CalibrationPlan | None = None, rig: RigErrors | None = None) -> Prediction:
     """First-order σ of the measured square and of the board centre for image noise ``pixel_sigma_px``.
 
-    ``calibration``: also predict the calibration's own error from these planned views (same noise).
+    ``calibration``: also predict the calibration's own error from these planned views (same noise); with
+    ``rig`` in a mode whose R, T do not come from that calibration, the intrinsics' part only.
+    ``rig``: also the structure and target terms (:mod:`stereo_bench.errormodel.rig`).
     """
     if not pixel_sigma_px >= 0:
         raise ValueError(f"pixel_sigma_px must be >= 0, not {pixel_sigma_px}")
@@ -337,16 +348,22 @@ def predict(setup: Setup, pixel_sigma_px: float, *, margin_px: float = DEFAULT_M
     if centre_front[0]:
         cov = point_covariances_rig(setup, centre, pixel_sigma_px)[0]
         sx, sy, sz = (float(v) for v in np.sqrt(np.diag(cov)))
-    rig = setup.rig
+    pose = setup.rig
     calibration_fields = {}
     if calibration is not None:
-        square_cal, depth_cal, note = calibration_sigmas(setup, calibration, pixel_sigma_px, margin_px=margin_px)
+        square_cal, depth_cal, note = calibration_sigmas(
+            setup, calibration, pixel_sigma_px, margin_px=margin_px,
+            intrinsics_only=rig is not None and not rig.extrinsics_from_calibration)
+        if rig is not None and rig.intrinsics_visits > 1:
+            square_cal, depth_cal = (None if v is None else v * rig.intrinsics_scale for v in (square_cal, depth_cal))
+            note += f", as if seen at each of {rig.intrinsics_visits} design visits"
         calibration_fields = {"calibration_views": calibration.n_views, "sigma_calibration_mm": square_cal,
                               "sigma_calibration_depth_mm": depth_cal, "calibration_note": note}
+    rig_fields = {} if rig is None else _rig_fields(setup, rig, margin_px)
     return Prediction(
-        **calibration_fields,
-        baseline_mm=rig.baseline_mm, distance_mm=setup.distance_mm, alpha_left_deg=rig.alpha_left_deg,
-        alpha_right_deg=rig.alpha_right_deg, K=rig.baseline_mm / setup.distance_mm, pixel_sigma_px=pixel_sigma_px,
+        **calibration_fields, **rig_fields,
+        baseline_mm=pose.baseline_mm, distance_mm=setup.distance_mm, alpha_left_deg=pose.alpha_left_deg,
+        alpha_right_deg=pose.alpha_right_deg, K=pose.baseline_mm / setup.distance_mm, pixel_sigma_px=pixel_sigma_px,
         margin_px=margin_px, feasible=vis.feasible, measurable=vis.measurable, reason=vis.reason,
         n_in_both=vis.n_in_both, n_pairs=vis.n_pairs, fraction_in_both=vis.fraction_in_both,
         square_true_mean_mm=_nan_to_none(sq_mean), sigma_square_mm=_nan_to_none(sq_sigma),
@@ -355,6 +372,15 @@ def predict(setup: Setup, pixel_sigma_px: float, *, margin_px: float = DEFAULT_M
         sigma_x_mm=_nan_to_none(sx), sigma_y_mm=_nan_to_none(sy), sigma_z_mm=_nan_to_none(sz),
         gamma_xz_mm=_nan_to_none(math.hypot(sx, sz)), gamma_mm=_nan_to_none(math.sqrt(sx * sx + sy * sy + sz * sz)),
     )
+
+
+def _rig_fields(setup: Setup, rig: RigErrors, margin_px: float) -> dict:
+    r = setup.rig
+    covariance = structure_covariance(rig, r.baseline_mm, r.alpha_left_deg, r.alpha_right_deg, r.tilt_left_deg)
+    square, depth = (0.0, 0.0) if covariance is None else structure_sigmas(setup, covariance, margin_px=margin_px)
+    target, target_depth = target_sigma_mm(rig, setup.board.square_mm, setup.distance_mm)
+    return {"extrinsics_mode": rig.mode, "sigma_structure_mm": square, "sigma_structure_depth_mm": depth,
+            "sigma_target_mm": target, "sigma_target_depth_mm": target_depth, "rig_note": rig.describe()}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -654,12 +680,14 @@ def _depth_sensitivities(calib: StereoCalibration, setup: Setup, names: tuple[st
 
 def calibration_sigmas(
     setup: Setup, plan: CalibrationPlan, pixel_sigma_px: float, *, margin_px: float = DEFAULT_MARGIN_PX,
+    intrinsics_only: bool = False,
 ) -> tuple[float | None, float | None, str]:
     """(sigma of the measured square, sigma of the board centre's rig z, note): mm, from the calibration alone.
 
     None with the reason in the note when the planned views cannot be placed or determine nothing,
     or nothing of the target is measurable. The square's sensitivities are those of the measurement
     (:func:`stereo_bench.vision.uncertainty.square_sensitivities`) at the target's true pixels.
+    ``intrinsics_only``: R, T come from elsewhere (the rig's geometry or its model): only the intrinsics' part.
     """
     if not pixel_sigma_px > 0:
         return 0.0, 0.0, "no image noise: a perfect calibration"
@@ -668,6 +696,8 @@ def calibration_sigmas(
     except (ValueError, CovarianceUnavailable) as error:
         return None, None, f"calibration not predictable: {error}"
     covariance: CalibrationCovariance = calib.covariance
+    if intrinsics_only:
+        covariance = covariance.subset([n for n in covariance.names if n.startswith(("left.", "right."))])
     names = covariance.names
     square = None
     ids, vis = visible_corners(setup, margin_px=margin_px)
@@ -678,4 +708,26 @@ def calibration_sigmas(
         square = float(np.sqrt(max(g @ covariance.matrix @ g, 0.0)))
     g_depth = _depth_sensitivities(calib, setup, names)
     depth = None if g_depth is None else float(np.sqrt(max(g_depth @ covariance.matrix @ g_depth, 0.0)))
-    return square, depth, f"{plan.n_views} planned views of the {plan.board.cols}x{plan.board.rows} board ({plan.mode})"
+    what = "the intrinsics of " if intrinsics_only else ""
+    return square, depth, (f"{what}{plan.n_views} planned views of the {plan.board.cols}x{plan.board.rows} board "
+                           f"({plan.mode})")
+
+
+def structure_sigmas(setup: Setup, structure_covariance: np.ndarray, *, margin_px: float = DEFAULT_MARGIN_PX,
+                     ) -> tuple[float | None, float | None]:
+    """(sigma of the measured square, sigma of the board centre's rig z), mm, from a (6, 6) covariance of the
+    stereo extrinsics (rvec [rad], T [mm]); the same sensitivities as the budget's structure component
+    (:func:`stereo_bench.vision.uncertainty.configuration_budget`), at the target's true pixels. None where
+    nothing is measurable (square) or the centre is behind a camera (depth)."""
+    calib = calibration_of(setup)
+    C = np.asarray(structure_covariance, float)
+    square = None
+    ids, vis = visible_corners(setup, margin_px=margin_px)
+    if vis.measurable:
+        left_px, right_px, _ = project_both(setup, setup.corners_rig[ids])
+        frame = FrameCorners(ids, left_px, right_px, 0.0, (0.0, 0.0))
+        g = square_sensitivities(calib, [frame], setup.board, EXTRINSIC_NAMES)
+        square = float(np.sqrt(max(g @ C @ g, 0.0)))
+    g_depth = _depth_sensitivities(calib, setup, EXTRINSIC_NAMES)
+    depth = None if g_depth is None else float(np.sqrt(max(g_depth @ C @ g_depth, 0.0)))
+    return square, depth

@@ -21,6 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from stereo_bench.errormodel import paper
+from stereo_bench.errormodel.rig import RigErrors
 from stereo_bench.errormodel.rigorous import DEFAULT_MARGIN_PX, CalibrationPlan, Setup, predict, sensitivities
 from stereo_bench.executors import Executor, SerialExecutor, group
 from stereo_bench.geometry import CameraModel
@@ -72,6 +73,11 @@ class SurfacePoint(BaseModel):
     # The calibration's own error from the planned views (rigorous.calibration_sigmas); None: not asked/placeable.
     sigma_calibration_mm: float | None = None
     sigma_calibration_depth_mm: float | None = None
+    # What the rig and boards add (errormodel.rig); None: not asked for, or not computable.
+    sigma_structure_mm: float | None = None
+    sigma_structure_depth_mm: float | None = None
+    sigma_target_mm: float | None = None
+    sigma_target_depth_mm: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,6 +92,7 @@ class _Job:
     margin_px: float
     with_sensitivities: bool
     calibration: CalibrationPlan | None = None
+    rig: RigErrors | None = None
 
 
 def _evaluate(job: _Job) -> list[SurfacePoint]:
@@ -93,7 +100,7 @@ def _evaluate(job: _Job) -> list[SurfacePoint]:
     for baseline, distance, alpha_left, alpha_right in job.configs:
         setup = Setup.make(baseline, distance, alpha_left, alpha_right_deg=alpha_right, board=job.board,
                            left=job.left, right=job.right)
-        pred = predict(setup, job.pixel_sigma_px, margin_px=job.margin_px, calibration=job.calibration)
+        pred = predict(setup, job.pixel_sigma_px, margin_px=job.margin_px, calibration=job.calibration, rig=job.rig)
         sens = {}
         if job.with_sensitivities:
             sens = sensitivities(setup, ("baseline_mm", "alpha_right_deg", "alpha_both_deg"), margin_px=job.margin_px)
@@ -113,6 +120,8 @@ def _evaluate(job: _Job) -> list[SurfacePoint]:
             square_per_deg_alpha_both=s_ab.square_mm_per_unit if s_ab else None,
             depth_per_deg_alpha_both=s_ab.depth_mm_per_unit if s_ab else None,
             sigma_calibration_mm=pred.sigma_calibration_mm, sigma_calibration_depth_mm=pred.sigma_calibration_depth_mm,
+            sigma_structure_mm=pred.sigma_structure_mm, sigma_structure_depth_mm=pred.sigma_structure_depth_mm,
+            sigma_target_mm=pred.sigma_target_mm, sigma_target_depth_mm=pred.sigma_target_depth_mm,
         ))
     return rows
 
@@ -133,17 +142,18 @@ def evaluate_configs(
     configs: list[tuple[float, float, float, float]], *, pixel_sigma_px: float = 0.1, board: Checkerboard | None = None,
     left: CameraModel | None = None, right: CameraModel | None = None, margin_px: float = DEFAULT_MARGIN_PX,
     with_sensitivities: bool = True, executor: Executor | None = None, points_per_task: int = 16,
-    calibration: CalibrationPlan | None = None,
+    calibration: CalibrationPlan | None = None, rig: RigErrors | None = None,
 ) -> list[SurfacePoint]:
     """:class:`SurfacePoint` for each (B mm, Z mm, α_left deg, α_right deg), in order, run through ``executor``.
 
     ``calibration``: also predict each configuration's calibration error from these planned views.
+    ``rig``: also the structure and target terms (:mod:`stereo_bench.errormodel.rig`).
     """
     probe = Setup.make(100.0, 500.0, board=board, left=left, right=right)
     chunks = group(list(configs), max(1, math.ceil(len(configs) / max(1, points_per_task))))
     jobs = [_Job(configs=tuple(tuple(float(v) for v in c) for c in chunk), pixel_sigma_px=float(pixel_sigma_px),
                  board=probe.board, left=probe.left, right=probe.right, margin_px=float(margin_px),
-                 with_sensitivities=with_sensitivities, calibration=calibration) for chunk in chunks]
+                 with_sensitivities=with_sensitivities, calibration=calibration, rig=rig) for chunk in chunks]
     results = (executor or SerialExecutor()).map(_evaluate, jobs)
     return [row for rows in results for row in rows]
 

@@ -48,6 +48,7 @@ from stereo_bench import __version__, atomic, paths
 from stereo_bench.campaign.documents import REPORT_COLUMNS
 from stereo_bench.campaign.session import DOCUMENTS_FILE, SessionError
 from stereo_bench.report import annotate, figures, html
+from stereo_bench.report.answer import answer_of
 from stereo_bench.report.collect import (
     BUDGET_COMPONENTS,
     EXTRINSICS_MODES,
@@ -530,11 +531,23 @@ def _session_page(writer: _Writer, session: SessionReport, *, images: bool, warn
         page.tables2.append((table, writer.write(f"tables/{table.key}.csv", table.to_csv())))
         page.error_csvs[table.key] = writer.write(f"tables/{table.key}_error.csv", table.error_csv())
     page.error_figures = _error_figures(writer, session)
+    page.answer = answer_of(session)
+    if page.answer.points:
+        against_true = all(p.square_true_mm is not None for p in page.answer.points)
+        title = f"Where the error comes from: measured beside each predicted term ({session.name})"
+        page.answer_figure = writer.figure(
+            f"figures/{session.key}_answer.png",
+            figures.answer_figure(page.answer.points, page.answer.sources, title=title, against_true=against_true),
+            alt=title)
     predictions = {c.config_id: c.prediction or {} for c in session.configs}
     title = f"Measured error beside the rigorous prediction: {session.name}"
     page.comparison = writer.figure(f"figures/{session.key}_comparison.png",
                                     figures.comparison_figure(rows, predictions, title=title, uncertainties=expanded),
-                                    alt=title)
+                                    alt=title, caption="Per configuration, how far the measured square is off "
+                                    "(|error|, mm, log) beside the σ the frames' corner noise gives, the σ the "
+                                    "model predicts from it and the budget's U: an error far above σ comes from "
+                                    "something image noise does not explain (the print's scale, the calibration, "
+                                    "the structure).")
     if any(c.budget is not None for c in session.configs):
         page.budget_csv = writer.write(f"tables/{session.key}_budget.csv", rows_to_csv(budget_rows(session)))
         ks = sorted({c.budget.k for c in session.configs if c.budget and c.budget.k is not None})
@@ -542,20 +555,47 @@ def _session_page(writer: _Writer, session: SessionReport, *, images: bool, warn
         title = f"Normalised error (error / u_c) per configuration: {session.name}"
         page.normalised = writer.figure(f"figures/{session.key}_normalised.png",
                                         figures.normalised_figure(normalised_points(session), title=title, k=k),
-                                        alt=title)
+                                        alt=title, caption="Each configuration's error divided by its combined "
+                                        f"standard uncertainty u_c: inside the ±{k:g} band the stated uncertainty "
+                                        "covers the error; a point outside it is an error the budget does not explain.")
     page.structure_csv = writer.write(f"tables/{session.key}_structure.csv", rows_to_csv(structure_rows(session)))
     _deviation(writer, session, page)
     title = f"Calibration quality (per-view reprojection RMS): {session.name}"
     page.calibration = writer.figure(
         f"figures/{session.key}_calibration.png",
         figures.calibration_figure([(c.config_id, c.status, c.calibration) for c in session.configs], title=title),
-        alt=title)
+        alt=title, caption="Per configuration, each calibration view's reprojection RMS (px; left and right "
+        "cameras) and the calibration's overall RMS (bar): a view far above the others is a view to exclude.")
     page.calibration_csv = writer.write(f"tables/{session.key}_calibration.csv",
                                         rows_to_csv(calibration_rows(session)))
     for config in session.configs:
         if images:
+            _rig_view(writer, session, config, page)
             _annotations(writer, session, config, page, warnings)
     return page
+
+
+def _rig_view(writer: _Writer, session: SessionReport, config: ConfigReport, page: SessionPage) -> None:
+    """The configuration in 3-D: cameras, frustums and the board (also where nothing was measured: it shows why)."""
+    if session.config is None:
+        return
+    values = [_finite(config.row.get(k)) for k in ("baseline_mm", "alpha_deg", "distance_mm")]
+    if any(v is None for v in values):
+        return
+    baseline, alpha, distance = values
+    target = session.config.target.build()
+    camera = session.config.cameras.optics.camera_model("camera")
+    title = f"{config.config_id}: the rig in 3-D ({config.status})"
+    try:
+        figure = figures.rig_figure(baseline, alpha, alpha, _finite(config.row.get("tilt_deg")) or 0.0, distance,
+                                    tuple(target.grid_size_mm), camera, title=title)
+    except ValueError:
+        return  # a pose the geometry refuses (e.g. a camera looking along the baseline): nothing to draw
+    page.images.setdefault(config.config_id, []).append(writer.figure(
+        f"images/{session.key}/{config.config_id}_rig.png", figure, alt=title,
+        caption="The configuration seen from above and behind: both cameras with their fields of view out to the "
+                "target board (its inner-corner grid, green) at Z; a board outside a frustum is not seen by that "
+                "camera."))
 
 
 def structural_points(sessions: Sequence[SessionReport]) -> tuple[dict[str, list[dict]], dict, int]:

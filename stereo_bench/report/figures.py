@@ -492,8 +492,107 @@ def calibration_figure(configs: Sequence[tuple[str, str, Mapping[str, object] | 
     return figure
 
 
+#: Line style of each predicted term on the first screen's figure.
+TERM_STYLE = {"noise": ("C0", "-"), "bias": ("C0", ":"), "calibration": ("C1", "-"), "target": ("C7", "--"),
+              "structure (nominal)": ("C3", "-"), "structure (kinematic)": ("C2", "-"), "paper's γ": ("k", ":")}
+
+
+def answer_figure(points: Sequence, sources: Sequence[str], *, title: str, against_true: bool) -> Figure:
+    """|error| per measured configuration (markers, per extrinsics source) over the predicted terms (lines), log y.
+
+    ``points``: :class:`stereo_bench.report.answer.AnswerPoint`; ordered by Z, then B, then α (one x slot each).
+    ``against_true``: the error against the board as printed (the print's scale drawn as its own term).
+    """
+    ordered = sorted(points, key=lambda p: (p.distance_mm, p.baseline_mm, p.alpha_deg))
+    figure = _new_figure(9.0, 5.0)
+    ax = figure.add_subplot()
+    x = np.arange(len(ordered))
+    terms = [t for t in TERM_STYLE if t != "paper's γ" and any(p.predicted_mm.get(t) for p in ordered)]
+    for term in terms:
+        colour, style = TERM_STYLE[term]
+        y = [p.predicted_mm.get(term) or np.nan for p in ordered]
+        ax.plot(x, y, style, color=colour, lw=1.4, label=f"predicted: {term}")
+    gamma = [p.paper_gamma_mm or np.nan for p in ordered]
+    if np.isfinite(gamma).any():
+        colour, style = TERM_STYLE["paper's γ"]
+        ax.plot(x, gamma, style, color=colour, lw=1.2, label="the paper's γ (error of the axes' meeting point)")
+    for source in sources:
+        marker, colour = SOURCE_STYLE.get(source, ("o", "black"))
+        y = [abs(e) if (e := (p.error_true_mm(source) if against_true else p.errors_nominal_mm.get(source)))
+             is not None else np.nan for p in ordered]
+        ax.plot(x, y, marker, color=colour, ls="none", ms=6, label=f"measured: {SOURCE_LABELS.get(source, source)}")
+    ax.set_yscale("log")
+    ax.set_xticks(x, [f"B{p.baseline_mm:g}" + ("" if abs(p.alpha_deg - 90) < 1e-9 else f" α{p.alpha_deg:g}")
+                      for p in ordered], rotation=90, fontsize=7)
+    for k in range(1, len(ordered)):
+        if ordered[k].distance_mm != ordered[k - 1].distance_mm:
+            ax.axvline(k - 0.5, color="#bbbbbb", lw=0.8)
+    for z in sorted({p.distance_mm for p in ordered}):
+        slots = [k for k, p in enumerate(ordered) if p.distance_mm == z]
+        ax.annotate(f"Z {z:g} mm", (np.mean(slots), 1.0), xycoords=("data", "axes fraction"), ha="center",
+                    va="bottom", fontsize=8)
+    ax.set_ylabel("|error| of the square, mm (log)" + (", vs as printed" if against_true else ""))
+    ax.set_xlabel("configuration (baseline B in mm, grouped by object distance Z)")
+    ax.set_title(title, fontsize=10, pad=16)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.28), ncol=3, fontsize=7, frameon=False)
+    ax.grid(True, which="major", axis="y", alpha=0.3)
+    return figure
+
+
+def rig_figure(baseline_mm: float, alpha_left_deg: float, alpha_right_deg: float, tilt_deg: float, distance_mm: float,
+               board_size_mm: tuple[float, float], camera, *, title: str) -> Figure:
+    """A 3-D view of one configuration in the rig frame (mm; x along the baseline, z forward, y down): both cameras
+    with their view frustums out to the board, the baseline, and the target board facing the rig at Z.
+
+    ``camera``: a :class:`stereo_bench.geometry.CameraModel` (its K and image size give the frustums).
+    """
+    from stereo_bench.geometry import RigPose, board_pose_facing_rig, transform_points
+
+    pose = RigPose(baseline_mm, alpha_left_deg, alpha_right_deg, tilt_deg, tilt_deg)
+    figure = _new_figure(5.2, 4.2)
+    ax = figure.add_subplot(projection="3d")
+    width, height = camera.image_size
+    K_inv = np.linalg.inv(np.asarray(camera.K, float))
+    pixels = np.array([[0, 0, 1], [width, 0, 1], [width, height, 1], [0, height, 1]], float)
+    rays = (K_inv @ pixels.T).T  # unit depth
+    depth = distance_mm * 1.05
+
+    def plot(points: np.ndarray, *args, **kwargs) -> None:
+        # Matplotlib's z is up: draw the rig's (x, z, -y) so that forward goes into the picture and up is up.
+        ax.plot(points[:, 0], points[:, 2], -points[:, 1], *args, **kwargs)
+
+    for side, T, colour in (("left", pose.T_rig_left, "C0"), ("right", pose.T_rig_right, "C3")):
+        centre = T[:3, 3]
+        far = transform_points(T, rays * depth)
+        for corner in far:
+            plot(np.vstack([centre, corner]), color=colour, lw=0.7, alpha=0.6)
+        plot(np.vstack([far, far[:1]]), color=colour, lw=0.9, alpha=0.8)
+        axis = transform_points(T, np.array([[0.0, 0.0, 0.0], [0.0, 0.0, distance_mm]]))
+        plot(axis, "--", color=colour, lw=0.8, label=f"{side} camera, optical axis")
+        ax.scatter([centre[0]], [centre[2]], [-centre[1]], color=colour, s=18)
+    centres = np.vstack([pose.T_rig_left[:3, 3], pose.T_rig_right[:3, 3]])
+    plot(centres, "-", color="black", lw=2.0, label=f"baseline B = {baseline_mm:g} mm")
+    board_w, board_h = board_size_mm
+    T_board = board_pose_facing_rig(distance_mm=distance_mm, board_size_mm=board_size_mm)
+    outline = transform_points(T_board, np.array([[0, 0, 0], [board_w, 0, 0], [board_w, board_h, 0], [0, board_h, 0],
+                                                  [0, 0, 0]], float))
+    plot(outline, "-", color="#2e7d32", lw=2.0, label=f"target board at Z = {distance_mm:g} mm")
+    ax.set_xlabel("x (mm)", fontsize=8)
+    ax.set_ylabel("z, forward (mm)", fontsize=8)
+    ax.set_zlabel("up (mm)", fontsize=8)
+    ax.tick_params(labelsize=6)
+    span = max(distance_mm, baseline_mm) * 1.1
+    ax.set_xlim(-span / 2, span / 2)
+    ax.set_ylim(-0.05 * span, span * 1.0)
+    ax.set_zlim(-span / 2, span / 2)
+    ax.view_init(elev=22, azim=-62)
+    ax.set_title(title, fontsize=9)
+    figure.legend(loc="outside lower center", fontsize=7, ncols=2, frameon=False)
+    return figure
+
+
 __all__ = [
-    "AXIS_LABELS", "SOURCE_LABELS", "SOURCE_STYLE", "UNMEASURED_STYLE", "NormalisedPoint", "calibration_figure",
-    "comparison_figure", "coverage", "deviation_figure", "error_figure", "normalised_figure", "png_bytes",
-    "structural_figure",
+    "AXIS_LABELS", "SOURCE_LABELS", "SOURCE_STYLE", "TERM_STYLE", "UNMEASURED_STYLE", "NormalisedPoint",
+    "answer_figure", "calibration_figure", "comparison_figure", "coverage", "deviation_figure", "error_figure",
+    "normalised_figure", "png_bytes", "rig_figure", "structural_figure",
 ]

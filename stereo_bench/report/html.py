@@ -47,6 +47,8 @@ p, ul { margin: 4px 0 8px; }
 .small { font-size: 12px; }
 nav ul { columns: 2; }
 table { border-collapse: collapse; margin: 6px 0 4px; font-variant-numeric: tabular-nums; }
+.answer { border: 1px solid #cfd8dc; background: #fafcfd; padding: 4px 12px 8px; margin: 8px 0 16px; }
+.answer table.paper { display: inline-table; margin-right: 16px; vertical-align: top; }
 th, td { border: 1px solid var(--line); padding: 3px 8px; text-align: right; vertical-align: top; }
 th { background: #eceff1; font-weight: 600; }
 td.label, th.label { text-align: left; }
@@ -618,9 +620,73 @@ def _config_block(config: ConfigReport, page: SessionPage) -> str:
     return "".join(parts)
 
 
+def _paper_table(cells, label, key_text) -> str:
+    """The paper's published values beside ours, per cell (mm)."""
+    sources = [s for s in dict.fromkeys(s for c in cells for s in c.ours_mm)]
+    has_true = any(c.square_true_mm is not None for c in cells)
+    head = "".join(f"<th>ours: {_e(s)}</th><th>ours − true</th>" if has_true else f"<th>ours: {_e(s)}</th>"
+                   for s in sources)
+    rows = []
+    for c in cells:
+        ours = ""
+        for s in sources:
+            value = c.ours_mm.get(s)
+            ours += f"<td>{_num(value, 4)}</td>"
+            if has_true:
+                ours += (f"<td>{_num(value - c.square_true_mm, 4, signed=True)}</td>"
+                         if value is not None and c.square_true_mm is not None else "<td>–</td>")
+        note = f' <span class="small muted">({_e(c.note)})</span>' if c.note else ""
+        rows.append(f"<tr><th>{_e(key_text(c.key))}</th><td>{c.paper_mm:.4f}</td><td>{c.paper_mm - 27.0:+.4f}</td>"
+                    f"{ours}<td>{_num(c.square_true_mm, 4)}</td></tr>".replace("</th><td>", f"{note}</th><td>", 1))
+    def rms(values):
+        values = [v for v in values if v is not None]
+        return (sum(v * v for v in values) / len(values)) ** 0.5 if values else None
+    summary = [f"paper: RMS error {rms([c.paper_mm - 27.0 for c in cells]):.3f} mm over {len(cells)} values"]
+    for s in sources:
+        mine = [c for c in cells if c.ours_mm.get(s) is not None]
+        text = f"ours, {s}: {rms([c.ours_mm[s] - 27.0 for c in mine]):.4f} mm against 27"
+        if has_true:
+            text += f", {_num(rms([c.ours_mm[s] - c.square_true_mm for c in mine if c.square_true_mm]), 4)} " \
+                    "against the board as printed"
+        summary.append(text + f" ({len(mine)} values)")
+    return (f"<details class=\"paper\"><summary><b>{_e(label)}</b>: {_e('; '.join(summary))}</summary>"
+            f"<table class=\"paper\"><tr><th></th><th>paper (mm)</th>"
+            f"<th>paper − 27</th>{head}<th>board as printed</th></tr>" + "".join(rows) + "</table></details>")
+
+
+def _answer_section(page: SessionPage) -> str:
+    """The first screen: how the error depends on B, Z and alpha, why, and the paper's numbers beside ours."""
+    answer = page.answer
+    if answer is None or not answer.points:
+        return ""
+    parts = ['<div class="answer"><h3>How the error depends on B, Z and α, and why</h3>']
+    parts += [f"<p>{_e(line)}</p>" for line in answer.lines]
+    if page.answer_figure:
+        parts.append(_img(page.answer_figure))
+        parts.append(f'<p class="small muted">Markers: each configuration\'s measured |error| per extrinsics source; '
+                     "lines: the term the model predicts there (1σ: image noise through the triangulation and its "
+                     "bias, the calibration's own error, the structure of the nominal or kinematic R, T from the "
+                     "rig's stated tolerances, the print's scale) and the paper's γ. A measurement follows the term "
+                     f"that dominates it. Image noise: {_e(answer.pixel_sigma_note)}; the model, its terms and the "
+                     "comparison with the paper are explained in docs/ERROR_MODEL.md of stereo-bench.</p>")
+    if answer.table1:
+        parts.append(_paper_table(answer.table1, "The paper's Table 1 beside ours: the square (mm) per B and Z "
+                                  "(α 90°)", lambda k: k.replace("_", " / ").replace("B", "B ").replace("Z", "Z ")))
+    if answer.table2:
+        parts.append(_paper_table(answer.table2, "The paper's Table 2 beside ours: the square (mm) per α "
+                                  "(the paper: B 100 mm, Z 500 mm; ours: this session's B and Z)",
+                                  lambda k: k.replace("alpha", "α ") + "°"))
+    parts.append("<h4>The paper's claims</h4><ul>")
+    for claim in answer.claims:
+        evidence = "".join(f"<li>{_e(e)}</li>" for e in claim.evidence)
+        parts.append(f"<li><b>“{_e(claim.claim)}”: {_e(claim.verdict)}.</b><ul>{evidence}</ul></li>")
+    parts.append("</ul></div>")
+    return "".join(parts)
+
+
 def _session_section(page: SessionPage, index: int) -> str:
     session = page.session
-    parts = [f"<section>{_session_header(session, index)}"]
+    parts = [f"<section>{_session_header(session, index)}", _answer_section(page)]
     if page.tables1:
         parts.append("<h3>Measured square per baseline and distance (the paper's Table 1)</h3>")
         parts += [_table_html(table, path, session.key, page.error_csvs.get(table.key, ""), _k_text(session))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from stereo_bench.report.answer import Answer
 from stereo_bench.report.collect import SessionReport
 from stereo_bench.report.tables import Table
 
@@ -40,6 +41,8 @@ class SessionPage:
     structure_csv: str = ""
     deviation: ImageRef | None = None
     deviation_reference: str = ""  # 'truth' or 'nominal'
+    answer: Answer | None = None  # the first screen: how the error depends on B, Z and alpha, and the paper's numbers
+    answer_figure: ImageRef | None = None
 
 
 @dataclass

@@ -92,6 +92,9 @@ K_COVERAGE = 2.0
 #: print is not certified at that level (an office print is easily 1e-3 off in scale): give its own
 #: value (``BoardScale``, ``--board-scale-u``), ideally measured.
 DEFAULT_BOARD_SCALE_U_REL = 1e-4
+#: Relative standard uncertainty of a printed measured target's square when nothing states it: an office
+#: laser/inkjet print is +-0.1 % in scale from the paper feed (rectangular: 0.1 % / sqrt(3)).
+PRINTED_TARGET_SCALE_U_REL = 0.001 / math.sqrt(3.0)
 COMPONENTS = ("noise", "calibration", "structure", "target")
 #: Fewer held-out views than this say too little about the model's adequacy: the component is not computed.
 MIN_ADEQUACY_VIEWS = 8
