@@ -67,3 +67,15 @@ def test_the_report_opens_with_the_answer(small_reference, tmp_path):
     assert first < page.index("Measured square per") and first < page.index("Uncertainty budget")
     assert "The paper's claims" in page and "docs/ERROR_MODEL.md" in page
     assert (session / "report" / "figures" / "s1-small_answer.png").stat().st_size > 10_000
+
+
+def test_the_comparison_names_why_image_noise_does_not_explain_the_error(tmp_path):
+    from stereo_bench.campaign.execute import run_campaign
+    from tests.campaigns import LAB, small_config
+
+    session = tmp_path / "lab"
+    assert run_campaign(small_config(LAB), session, yes=True).exit_status == "success"
+    assert main(["report", str(session), "--no-images"]) == 0
+    page = (session / "report" / "index.html").read_text()
+    # The lab bench's frames carry ~1e-3 px of sensor noise, while its corners scatter ~0.2 px about the model.
+    assert "Here the median ratio is" in page and "scatter about the calibrated model by 0.2" in page
