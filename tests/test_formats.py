@@ -345,3 +345,35 @@ def test_the_commands_formats_are_the_codecs():
     from stereo_bench.vision.formats import FORMATS
 
     assert CLI_FORMATS == FORMATS
+
+
+MRCAL_WRITE = r"""
+import sys
+import numpy as np
+import mrcal
+left = mrcal.cameramodel(intrinsics=("LENSMODEL_OPENCV8", np.array([float(v) for v in sys.argv[2].split(",")])),
+                         imagersize=(1920, 1080))
+rt = np.array([float(v) for v in sys.argv[4].split(",")])
+right = mrcal.cameramodel(intrinsics=("LENSMODEL_OPENCV8", np.array([float(v) for v in sys.argv[3].split(",")])),
+                          imagersize=(1920, 1080), extrinsics_rt_fromref=rt)
+left.write(sys.argv[1] + "/left.cameramodel")
+right.write(sys.argv[1] + "/right.cameramodel")
+"""
+
+
+def test_models_mrcal_itself_writes_import(tmp_path):
+    python = mrcal_python()
+    if python is None:
+        pytest.skip("mrcal is not installed (apt-get install mrcal python3-mrcal; or STEREO_BENCH_MRCAL_PYTHON)")
+    calib = calibration("rational")
+    rt = np.concatenate([cv2.Rodrigues(calib.R)[0].ravel(), calib.T / 1000])
+
+    def values(K, D):
+        return ",".join(repr(float(v)) for v in [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *np.ravel(D)])
+
+    subprocess.run([python, "-c", MRCAL_WRITE, str(tmp_path), values(calib.K1, calib.D1), values(calib.K2, calib.D2),
+                    ",".join(repr(float(v)) for v in rt)], check=True, timeout=120, capture_output=True)
+    texts = [(str(tmp_path / f"{side}.cameramodel"), (tmp_path / f"{side}.cameramodel").read_text())
+             for side in ("left", "right")]
+    imported = import_texts("mrcal", texts)
+    assert_same(imported.calib, calib, rtol=1e-8)  # mrcal's writer keeps 10 significant digits
