@@ -377,3 +377,103 @@ def test_models_mrcal_itself_writes_import(tmp_path):
              for side in ("left", "right")]
     imported = import_texts("mrcal", texts)
     assert_same(imported.calib, calib, rtol=1e-8)  # mrcal's writer keeps 10 significant digits
+
+
+# ------------------------------------------------------------------ files as the other tools write them
+
+ROS_LEFT = """image_width: 640
+image_height: 480
+camera_name: narrow_stereo/left
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [ 520.5,    0.  , 321.25,
+            0.  ,  521.75, 241.5,
+            0.  ,    0.  ,   1.  ]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [-0.281, 0.0712, 0.0003, -0.0002, 0.]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1., 0., 0., 0., 1., 0., 0., 0., 1.]
+projection_matrix:
+  rows: 3
+  cols: 4
+  data: [500., 0., 320., 0., 0., 500., 240., 0., 0., 0., 1., 0.]
+"""
+
+
+def test_a_stereo_pair_as_ros_camera_calibration_writes_it():
+    """Two camera_info files in ROS's own layout (multi-line flow lists, camera_name with a namespace): a parallel
+    pair 0.12 m apart, P2[0, 3] = -fx' B = -500 * 0.12."""
+    right = (ROS_LEFT.replace("narrow_stereo/left", "narrow_stereo/right")
+             .replace("500., 0., 320., 0.,", "500., 0., 320., -60.,"))
+    imported = import_texts("ros", [("left.yaml", ROS_LEFT), ("right.yaml", right)])
+    np.testing.assert_allclose(imported.calib.T, [-120.0, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(imported.calib.R, np.eye(3), atol=1e-15)
+    assert imported.calib.K1[1, 1] == 521.75 and imported.calib.lens_model == "opencv4"
+    assert imported.rect.Q[3, 2] == pytest.approx(1 / 120.0)  # -1 / Tx, Tx = -120 mm
+
+
+KALIBR_CAMCHAIN = """cam0:
+  cam_overlaps: [1]
+  camera_model: pinhole
+  distortion_coeffs: [-0.2834, 0.0739, 0.00019, 1.76e-05]
+  distortion_model: radtan
+  intrinsics: [458.65, 457.3, 367.2, 248.4]
+  resolution: [752, 480]
+  rostopic: /cam0/image_raw
+cam1:
+  T_cn_cnm1:
+  - [1.0, 0.0, 0.0, -0.11]
+  - [0.0, 1.0, 0.0, 0.0004]
+  - [0.0, 0.0, 1.0, -0.0009]
+  - [0.0, 0.0, 0.0, 1.0]
+  cam_overlaps: [0]
+  camera_model: pinhole
+  distortion_coeffs: [-0.2836, 0.0745, -0.0001, -3.5e-05]
+  distortion_model: radtan
+  intrinsics: [457.59, 456.13, 379.9, 255.2]
+  resolution: [752, 480]
+  rostopic: /cam1/image_raw
+"""
+
+
+def test_a_camchain_as_kalibr_writes_it():
+    """Kalibr's yaml.dump layout (keys sorted, block lists of flow rows), metres."""
+    imported = import_texts("kalibr", [("camchain-stereo.yaml", KALIBR_CAMCHAIN)])
+    np.testing.assert_allclose(imported.calib.T, [-110.0, 0.4, -0.9], rtol=1e-12)
+    assert imported.calib.image_size == (752, 480)
+    np.testing.assert_array_equal(imported.calib.D2, [[-0.2836, 0.0745, -0.0001, -3.5e-05, 0.0]])
+
+
+def test_an_imported_calibration_serves_as_given_intrinsics(capsys, tmp_path, real_calib):
+    """calibrate --intrinsics with a directory imported from ROS: the fixed-mode fit of the same views."""
+    assert main(["export", str(real_calib), "--to", "ros", "--out", str(tmp_path / "ros")]) == 0
+    assert main(["import", str(tmp_path / "ros" / "left.yaml"), str(tmp_path / "ros" / "right.yaml"), "--from", "ros",
+                 "--out", str(tmp_path / "c")]) == 0
+    capsys.readouterr()
+    code, out, _ = run(capsys, "calibrate", "--board", "9x6", "--square", "30", "--intrinsics", str(tmp_path / "c"),
+                       "--left", str(OPENCV_SAMPLE / "left*.jpg"), "--right", str(OPENCV_SAMPLE / "right*.jpg"),
+                       "--out", str(tmp_path / "fixed"), "--json")
+    report = json.loads(out)
+    assert code == 0 and report["mode"] == "fixed"
+    assert report["left"]["fx"] == pytest.approx(read_calibration(real_calib).K1[0, 0], rel=1e-12)
+    assert report["baseline_mm"] == pytest.approx(read_calibration(real_calib).baseline_mm, abs=0.05)
+    assert report["uncertainty"] is None  # the imported intrinsics carry no covariance: unknown, not zero
+
+
+def test_a_campaign_row_measured_with_a_calibration_without_rms_prints():
+    """A fixed-mode campaign on an imported calib_dir (no RMS recorded: the store has none) printed its row with a
+    KeyError; a full run with one measured 27.0022 mm as with the directory it was exported from (docs/FORMATS.md)."""
+    from stereo_bench.cli.campaign_run import _format_row
+
+    row = {"config_id": "B100_Z500_A90", "baseline_mm": 100.0, "distance_mm": 500.0, "alpha_deg": 90.0,
+           "status": "measured", "square_mean_mm": 27.0022, "error_mm": 0.0022, "U_expanded_mm": 0.0316,
+           "n_squares": 279}
+    assert _format_row(row).endswith("(n 279, RMS not recorded)")
+    assert _format_row({**row, "rms_px": float("nan")}).endswith("(n 279, RMS not recorded)")
+    assert _format_row({**row, "rms_px": 0.25}).endswith("(n 279, RMS 0.250 px)")
