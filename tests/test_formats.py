@@ -315,6 +315,13 @@ def test_export_of_opencvs_own_sample_files_needs_the_image_size(capsys, tmp_pat
     assert code == 0
     info = yaml.safe_load((tmp_path / "r" / "left.yaml").read_text())
     assert info["distortion_model"] == "rational_polynomial"  # the sample fits CALIB_RATIONAL_MODEL
+    code, out, _ = run(capsys, "export", str(OPENCV_FORMAT), "--to", "mrcal", "--out", str(tmp_path / "m"),
+                       "--image-size", "640x480", "--json")
+    report = json.loads(out)
+    assert code == 0 and report["format"] == "mrcal" and report["units"] == "m"
+    assert report["files"] == [str(tmp_path / "m" / "left.cameramodel"), str(tmp_path / "m" / "right.cameramodel")]
+    # The sample's files record no covariance, gates or board: only its rectification is dropped.
+    assert [line.split(":")[1].strip() for line in report["dropped"]] == ["rectification R1 R2 P1 P2 Q"]
 
 
 def test_import_errors_are_one_line_with_exit_status_2(capsys, tmp_path):

@@ -34,7 +34,7 @@ from __future__ import annotations
 import ast
 import math
 from dataclasses import dataclass, field
-from typing import Annotated, Literal
+from typing import Annotated
 
 import cv2
 import numpy as np
@@ -45,7 +45,6 @@ from stereo_bench.vision.calibrate import StereoCalibration, calibration_problem
 from stereo_bench.vision.rectify import Rectification, rectify
 
 FORMATS = ("ros", "kalibr", "mrcal")
-Format = Literal["ros", "kalibr", "mrcal"]
 MM_PER_M = 1000.0
 
 #: OpenCV's distortion vector, in its order.
