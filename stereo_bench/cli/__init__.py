@@ -47,6 +47,7 @@ from stereo_bench import __version__
 # Each module defines ``register(subparsers)``; its subparsers set ``func(args) -> int``.
 COMMAND_MODULES = (
     "stereo_bench.cli.vision",
+    "stereo_bench.cli.formats",
     "stereo_bench.cli.devices",
     "stereo_bench.cli.rig",
     "stereo_bench.cli.model",

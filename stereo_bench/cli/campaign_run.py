@@ -119,8 +119,11 @@ def _format_row(row: dict) -> str:
     head = (f"{row['config_id']:>16s}  B {row['baseline_mm']:6.1f}  Z {row['distance_mm']:6.1f}  "
             f"alpha {row['alpha_deg']:5.1f}")
     if row["status"] == "measured":
+        # A fixed calibration from a file that records no RMS (OpenCV's sample, an imported one) stores none.
+        rms = row.get("rms_px")
+        rms_text = f"RMS {rms:.3f} px" if rms is not None and math.isfinite(rms) else "RMS not recorded"
         return (f"{head}  square {row['square_mean_mm']:8.4f} mm  error {row['error_mm']:+.4f} "
-                f"{_uncertainty(row)}  (n {row['n_squares']}, RMS {row['rms_px']:.3f} px)")
+                f"{_uncertainty(row)}  (n {row['n_squares']}, {rms_text})")
     return f"{head}  {row['status'].upper()}: {row.get('reason')}"
 
 

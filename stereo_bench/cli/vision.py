@@ -224,6 +224,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from stereo_bench.vision.pipeline import calibrate_from_images
 
     target = target_from_args(args)
+    mrcal = _mrcal_for_cross_check(args)
     left_paths, right_paths = expand_glob(args.left, "--left"), expand_glob(args.right, "--right")
     if len(left_paths) != len(right_paths):
         raise CliError(f"--left matches {len(left_paths)} files but --right matches {len(right_paths)}: "
@@ -287,6 +288,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         "lens_model": _lens_report(calib),
         "gates": None if result.gates is None else result.gates.as_dict(),
     }
+    if mrcal is not None:
+        report["cross_check"] = _cross_check(mrcal, result, target, out)
     if args.json:
         print_json(report)
     else:
@@ -321,7 +324,36 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             if gate.verdict == "fail":
                 print(f"quality gate {gate.name} FAILED (kept: --accept-poor): {gate.line}", file=sys.stderr)
         print(f"wrote {out / 'intrinsics.yml'} and {out / 'extrinsics.yml'}")
+        if mrcal is not None:
+            from stereo_bench.vision.mrcal_bridge import cross_check_lines
+
+            print("\n".join(cross_check_lines(report["cross_check"])))
     return 0
+
+
+def _mrcal_for_cross_check(args: argparse.Namespace) -> str | None:
+    """The Python that runs mrcal for ``--cross-check mrcal`` (None without it), found before anything is fitted."""
+    if args.cross_check != "mrcal":
+        return None
+    from stereo_bench.vision.mrcal_bridge import mrcal_python, unavailable_reason
+
+    python = mrcal_python()
+    if python is None:
+        raise CliError(f"--cross-check mrcal: {unavailable_reason()}")
+    return python
+
+
+def _cross_check(python: str, result, target, out: Path) -> dict:
+    """mrcal's fit of the calibration's corners beside ours (docs/FORMATS.md); the files are written already."""
+    from stereo_bench.cli import EXIT_FAILED
+    from stereo_bench.vision.mrcal_bridge import cross_check
+
+    try:
+        return cross_check(result.calib, result.corners, target.object_points, target.square_mm, python=python)
+    except ValueError as error:
+        raise CliError(f"--cross-check mrcal: {error} (the calibration is written to {out})") from None
+    except RuntimeError as error:
+        raise CliError(f"--cross-check mrcal: {error} (the calibration is written to {out})", EXIT_FAILED) from None
 
 
 def cmd_measure(args: argparse.Namespace) -> int:
@@ -508,6 +540,10 @@ def register(subparsers) -> None:
                            help="write the calibration even when a quality gate refuses it (pairs not taken together, "
                                 "inconsistent views, blur, a bent board, left/right swapped: docs/CALIBRATION.md); "
                                 "the files record which gates failed. Without it a refusal exits with status 2")
+    calibrate.add_argument("--cross-check", choices=("mrcal",), metavar="mrcal",
+                           help="fit the same corners again with mrcal (Debian's python3-mrcal, or the Python in "
+                                "$STEREO_BENCH_MRCAL_PYTHON) and compare |T| with both uncertainties, both RMS and "
+                                "mrcal's projection difference over the image (docs/FORMATS.md)")
     calibrate.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     calibrate.set_defaults(func=cmd_calibrate)
 

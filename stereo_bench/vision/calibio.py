@@ -415,3 +415,30 @@ def recorded_epipolar_rms_px(calib_dir: str | Path) -> float | None:
         return None
     finally:
         storage.release()
+
+
+def recorded_keys(calib_dir: str | Path) -> set[str]:
+    """The top-level keys of a calibration directory's two files (what an export into another format may drop)."""
+    keys: set[str] = set()
+    for name in (INTRINSICS_FILE, EXTRINSICS_FILE):
+        path = _resolve(calib_dir, name)
+        storage = _open(path)
+        try:
+            keys.update(storage.root().keys())
+        finally:
+            storage.release()
+    return keys
+
+
+def read_rectification(calib_dir: str | Path, image_size: tuple[int, int]) -> Rectification | None:
+    """The rectification ``extrinsics.yml`` records (R1 R2 P1 P2 Q), or None when it records none."""
+    path = _resolve(calib_dir, EXTRINSICS_FILE)
+    storage = _open(path)
+    try:
+        if any(storage.getNode(key).empty() for key in ("R1", "R2", "P1", "P2", "Q")):
+            return None
+        return Rectification(R1=_matrix(storage, path, "R1", (3, 3)), R2=_matrix(storage, path, "R2", (3, 3)),
+                             P1=_matrix(storage, path, "P1", (3, 4)), P2=_matrix(storage, path, "P2", (3, 4)),
+                             Q=_matrix(storage, path, "Q", (4, 4)), image_size=tuple(image_size))
+    finally:
+        storage.release()

@@ -98,6 +98,9 @@ class CalibrationResult:
     views_rejected: list[RejectedView]  # detection failures and calibration outliers, by pair index
     views_used: list[int]  # pair indices
     gates: GateReport | None = None  # the quality gates' measurements (None: not run)
+    # Per view used (calib.views_used' order): (board points (N, 3) mm, left (N, 2) px, right (N, 2) px), the corners
+    # the fit saw (a cross-check fits them again: stereo_bench.vision.mrcal_bridge).
+    corners: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -244,6 +247,7 @@ def calibrate_from_images(
     return CalibrationResult(
         calib=calib, rect=rect, epipolar_rms_px=rms(epipolar),
         views_rejected=sorted(rejected, key=lambda r: r.index), views_used=used, gates=report,
+        corners=tuple((objects[i], lefts[i], rights[i]) for i in calib.views_used),
     )
 
 
