@@ -236,10 +236,10 @@ def test_without_noise_the_corners_and_ids_are_the_same_and_sigma_is_unknown():
 
 def full_chain_corners(image: np.ndarray, board: Checkerboard) -> np.ndarray | None:
     """The thorough search's corners in the search image as before repeated steps were skipped: every step of
-    THOROUGH_CHAIN in turn after the fast search."""
+    THOROUGH_CHAIN in turn after plain OpenCV's search (no FAST_CHECK gate: stored images)."""
     gray = detect_module.to_gray(image)
     small, _ = detect_module._search_image(gray, detect_module.DEFAULT_SEARCH_WIDTH_PX)
-    found, corners = plain_find_chessboard(small, board.pattern_size)
+    found, corners = cv2.findChessboardCorners(small, board.pattern_size, flags=_SEARCH_FLAGS)
     for step in detect_module.THOROUGH_CHAIN:
         if found:
             break
@@ -248,8 +248,9 @@ def full_chain_corners(image: np.ndarray, board: Checkerboard) -> np.ndarray | N
 
 
 def test_thorough_detection_skipping_repeated_steps_finds_what_the_full_chain_finds_on_real_images():
-    """present_cjn holds views the fast search misses (one found by SB, one by none): 640x480 frames, where the
-    chain's classic step at 960 px and SB at full resolution repeat earlier searches and are skipped."""
+    """present_cjn holds views the fast search misses (leftPic17, found by the search without the FAST_CHECK gate
+    that the thorough one starts with; leftPic07, found by none): 640x480 frames, where the chain's classic step at
+    960 px and SB at full resolution repeat earlier searches and are skipped."""
     board, missed_fast = Checkerboard(8, 11, 12.0), 0
     board_views = 0
     for path in sorted(PRESENT_CJN.glob("*.jpg")):

@@ -178,14 +178,21 @@ def detect_checkerboard(
 ) -> Detection | None:
     """Whole-board detection: all ``board.n_corners`` corners, or None.
 
-    ``CALIB_CB_FAST_CHECK`` occasionally rejects a real board (one of present_cjn's 29 views); with
-    ``thorough`` a miss is retried along :data:`THOROUGH_CHAIN` (the classic detector at 960 px, then
+    ``CALIB_CB_FAST_CHECK`` occasionally rejects a real board (present_cjn's leftPic17), so ``thorough`` (stored
+    images) searches without it, as plain OpenCV does; a miss is retried along :data:`THOROUGH_CHAIN` (the classic
+    detector at 960 px, then
     ``findChessboardCornersSB``, which is bounded in time (20-40 ms on a 960-pixel image without a board)
     unlike the classic detector without FAST_CHECK, at 960 px and at full resolution).
     """
     gray = to_gray(image)
     small, scale = _search_image(gray, search_width_px)
-    found, corners = _find_chessboard_fast_checked(small, board.pattern_size)
+    if thorough:
+        # Stored images, where the board is expected: the search plain OpenCV makes (no FAST_CHECK gate, whose
+        # checkChessboard costs ~1.4 ms of a 640x480 image's ~5 ms and can only turn a board away). It finds every
+        # board the gated search finds, the same corners (the gate decides only whether the search runs).
+        found, corners = cv2.findChessboardCorners(small, board.pattern_size, flags=_SEARCH_FLAGS)
+    else:
+        found, corners = _find_chessboard_fast_checked(small, board.pattern_size)
     if not found and thorough:
         # A step whose search image and detector were tried already gives the same answer (the detectors are
         # deterministic): on frames no wider than the search widths (640x480) classic at 960 px repeats the fast

@@ -20,6 +20,7 @@ from stereo_bench.vision.calibrate import (
     calibrate_stereo_lens,
     calibration_problems,
     camera_problems,
+    single_threaded_opencv,
 )
 from stereo_bench.vision.covariance import CalibrationCovariance
 from stereo_bench.vision.detect import Detection, common_corners, common_sigmas, detect
@@ -136,11 +137,15 @@ def _detect_all(left_images: Sequence[np.ndarray], right_images: Sequence[np.nda
     def one(image: np.ndarray) -> Detection | None:
         return detect(image, target, thorough=thorough, noise=False)
 
-    if workers == 1:
-        found = [one(image) for image in images]
-    else:
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            found = list(pool.map(one, images))
+    # OpenCV on one thread inside each detection: the images are already spread over the cores, and OpenCV's own
+    # workers would only add hand-over and spinning (~10 % of the detections' CPU on the real sets); the corners
+    # are the same bits either way.
+    with single_threaded_opencv():
+        if workers == 1:
+            found = [one(image) for image in images]
+        else:
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                found = list(pool.map(one, images))
     return list(zip(found[0::2], found[1::2], strict=True))
 
 
@@ -205,33 +210,53 @@ def calibrate_from_images(
         objects.append(target.object_points[ids])
         lefts.append(left_px)
         rights.append(right_px)
-    report = None
-    if gates:
-        images = [image for pair in zip(left_images, right_images, strict=True) for image in pair]
-        board = gate_board_fit(target, found, images)
-        report = GateReport((board,), accept_poor)
-        if board.verdict == "fail" and (not accept_poor or len(objects) < MIN_VIEWS):
-            raise CalibrationRefused(GateReport((board,)))
-    if len(objects) < MIN_VIEWS:
-        raise ValueError(f"calibration board found in only {len(objects)} of {len(left_images)} view pairs "
-                         f"(need {MIN_VIEWS})")
-    if lens_model is None:
-        calib = calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode,
-                                 intrinsics_covariance=intrinsics_covariance)
-    else:
-        calib = calibrate_stereo_lens(objects, lefts, rights, tuple(image_size), lens_model=lens_model,
-                                      intrinsics=intrinsics, mode=mode, intrinsics_covariance=intrinsics_covariance)
-    dropped = [(pair_index[r.index], r.reason) for r in calib.views_rejected]
-    if report is not None:
-        views = [GateView(index, objects[k], lefts[k], rights[k], left_images[index], right_images[index])
-                 for k, index in enumerate(pair_index)]
-        report = report.merged(run_gates(calib, views, target, dropped=dropped, names=view_names,
-                                         accept_poor=accept_poor))
-        if report.refused:
-            raise CalibrationRefused(report)
-        dropped = [(index, f"{why}: {report.view_diagnoses[index]}" if index in report.view_diagnoses else why)
-                   for index, why in dropped]
-    calib = with_adequacy(calib, objects, lefts, rights)  # the held-out check of the budget (docs/UNCERTAINTY.md)
+    with single_threaded_opencv(), ThreadPoolExecutor(max_workers=2) as pool:
+        # Work that does not wait for the fit runs beside it on the other core (each OpenCV call on one thread:
+        # the same numbers as one after the other): the board-size search beside the calibration, the quality
+        # gates beside the leave-one-view-out check. A refusal by a gate still comes before any other failure.
+        report = None
+        board_search = None
+        if gates:
+            images = [image for pair in zip(left_images, right_images, strict=True) for image in pair]
+            board_search = pool.submit(gate_board_fit, target, found, images)
+
+        def board_report() -> GateReport | None:
+            if board_search is None:
+                return None
+            board = board_search.result()
+            if board.verdict == "fail" and (not accept_poor or len(objects) < MIN_VIEWS):
+                raise CalibrationRefused(GateReport((board,)))
+            return GateReport((board,), accept_poor)
+
+        if len(objects) < MIN_VIEWS:
+            board_report()
+            raise ValueError(f"calibration board found in only {len(objects)} of {len(left_images)} view pairs "
+                             f"(need {MIN_VIEWS})")
+        try:
+            if lens_model is None:
+                calib = calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode,
+                                         intrinsics_covariance=intrinsics_covariance)
+            else:
+                calib = calibrate_stereo_lens(objects, lefts, rights, tuple(image_size), lens_model=lens_model,
+                                              intrinsics=intrinsics, mode=mode,
+                                              intrinsics_covariance=intrinsics_covariance)
+        except Exception:
+            board_report()
+            raise
+        report = board_report()
+        dropped = [(pair_index[r.index], r.reason) for r in calib.views_rejected]
+        # The held-out check of the budget (docs/UNCERTAINTY.md).
+        adequacy = pool.submit(with_adequacy, calib, objects, lefts, rights)
+        if report is not None:
+            views = [GateView(index, objects[k], lefts[k], rights[k], left_images[index], right_images[index])
+                     for k, index in enumerate(pair_index)]
+            report = report.merged(run_gates(calib, views, target, dropped=dropped, names=view_names,
+                                             accept_poor=accept_poor))
+            if report.refused:
+                raise CalibrationRefused(report)
+            dropped = [(index, f"{why}: {report.view_diagnoses[index]}" if index in report.view_diagnoses else why)
+                       for index, why in dropped]
+        calib = adequacy.result()
     problems = calibration_problems(calib)
     if problems:
         if report is not None and report.failed:  # kept with --accept-poor: the gates name the cause

@@ -29,12 +29,65 @@ def triangulate_normalised(R: np.ndarray, T: np.ndarray, left_norm: np.ndarray, 
     """(N, 2) + (N, 2) undistorted normalised coordinates -> (N, 3) points in the left camera frame (mm).
 
     The DLT step of :func:`triangulate`, for a caller that undistorts once and triangulates many times
-    (a perturbed right camera leaves the left's undistorted corners as they were). OpenCV triangulates
-    point by point, so points stacked into one call come out as from calls of their own.
+    (a perturbed right camera leaves the left's undistorted corners as they were).
+
+    The DLT point of OpenCV's ``triangulatePoints`` (the unit vector X minimising |A X| for the 4x4 system A of
+    the two views, divided by its last entry), computed for all points at once instead of by one SVD per point
+    (4-8x faster: the calibration's leave-one-view-out check triangulates ~10^5 corners). With X = (p, 1) the
+    minimiser solves (B - lambda I) p = -b, lambda = b.p + d (B, b, d: the blocks of A^T A), lambda its smallest
+    eigenvalue: Newton's method on that secular equation from lambda = 0 (where p is the least-squares point)
+    converges to it from below, in 2-3 steps to round-off (agrees with triangulatePoints to ~1e-13 relative,
+    tests/test_triangulate_dlt.py). A point it leaves unconverged (rays nearly parallel: a point near infinity)
+    goes through triangulatePoints. Arithmetic is element by element, so points stacked into one call come out
+    as from calls of their own.
     """
-    P2 = np.hstack([R, np.asarray(T, float).reshape(3, 1)])
-    homogeneous = cv2.triangulatePoints(_P1, P2, left_norm.T.copy(), right_norm.T.copy())
-    return (homogeneous[:3] / homogeneous[3]).T
+    R = np.asarray(R, float)
+    T = np.asarray(T, float).reshape(3)
+    left_norm, right_norm = np.asarray(left_norm, float).reshape(-1, 2), np.asarray(right_norm, float).reshape(-1, 2)
+    x1, y1, x2, y2 = left_norm[:, 0], left_norm[:, 1], right_norm[:, 0], right_norm[:, 1]
+    # A's rows for P1 = [I | 0] are (-1, 0, x1, 0) and (0, -1, y1, 0); for P2 = [R | T], u P2[2] - P2[k].
+    r3 = [x2 * R[2, j] - R[0, j] for j in range(3)] + [x2 * T[2] - T[0]]
+    r4 = [y2 * R[2, j] - R[1, j] for j in range(3)] + [y2 * T[2] - T[1]]
+    b00 = 1.0 + r3[0] * r3[0] + r4[0] * r4[0]
+    b01 = r3[0] * r3[1] + r4[0] * r4[1]
+    b02 = -x1 + r3[0] * r3[2] + r4[0] * r4[2]
+    b11 = 1.0 + r3[1] * r3[1] + r4[1] * r4[1]
+    b12 = -y1 + r3[1] * r3[2] + r4[1] * r4[2]
+    b22 = x1 * x1 + y1 * y1 + r3[2] * r3[2] + r4[2] * r4[2]
+    c0, c1, c2 = (r3[j] * r3[3] + r4[j] * r4[3] for j in range(3))
+    d = r3[3] * r3[3] + r4[3] * r4[3]
+    lam = np.zeros_like(x1)
+    p0 = p1 = p2 = step = None
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for _ in range(_DLT_STEPS):
+            a00, a11, a22 = b00 - lam, b11 - lam, b22 - lam
+            m00, m01, m02 = a11 * a22 - b12 * b12, b02 * b12 - b01 * a22, b01 * b12 - b02 * a11
+            m11, m12, m22 = a00 * a22 - b02 * b02, b01 * b02 - a00 * b12, a00 * a11 - b01 * b01
+            det = a00 * m00 + b01 * m01 + b02 * m02
+            q0 = -(m00 * c0 + m01 * c1 + m02 * c2) / det
+            q1 = -(m01 * c0 + m11 * c1 + m12 * c2) / det
+            q2 = -(m02 * c0 + m12 * c1 + m22 * c2) / det
+            if p0 is not None:
+                step = np.maximum(np.maximum(np.abs(q0 - p0), np.abs(q1 - p1)), np.abs(q2 - p2))
+            p0, p1, p2 = q0, q1, q2
+            norm2 = p0 * p0 + p1 * p1 + p2 * p2
+            lam = lam + (p0 * c0 + p1 * c1 + p2 * c2 + d - lam) / (norm2 + 1.0)
+        # Settled, and on the smallest eigenvalue's branch (B - lambda I positive definite: lambda below B's
+        # smallest eigenvalue, left of the secular equation's first pole; a Newton step can overshoot past it).
+        below_pole = (a00 > 0) & (m22 > 0) & (det > 0)
+        unsettled = ~(np.isfinite(step) & (step <= _DLT_SETTLED * np.sqrt(norm2)) & below_pole)
+    p = np.stack([p0, p1, p2], axis=1)
+    if np.any(unsettled):
+        P2 = np.hstack([R, T.reshape(3, 1)])
+        homogeneous = cv2.triangulatePoints(_P1, P2, left_norm[unsettled].T.copy(), right_norm[unsettled].T.copy())
+        p[unsettled] = (homogeneous[:3] / homogeneous[3]).T
+    return p
+
+
+#: Newton steps of :func:`triangulate_normalised` (the last one's change must be below ``_DLT_SETTLED`` of the point's
+#: distance, else the point goes through ``cv2.triangulatePoints``).
+_DLT_STEPS = 5
+_DLT_SETTLED = 1e-8
 
 
 def triangulation_jacobian(
