@@ -188,3 +188,43 @@ def test_a_3d_view_of_the_rig(served, small_reference):
     assert ratio == pytest.approx(last.baseline_mm / 250.0, rel=0.02)  # the board is drawn 250 mm wide
     text = tab.inner_text("#rig3d")
     assert re.search(rf"B {last.baseline_mm:.0f} mm", text) and "board at Z" in text
+
+
+@pytest.mark.slow
+def test_the_coverage_counts_every_view_the_analysis_can_detect(tmp_path):
+    """After Stop the page said '0 corners' with the board in view: the calibration view shown last had been
+    detected for the coverage in a 480 px copy, where a distant or tilted board is missed (on the lab bench at
+    1920x1080, Z = 700 mm: 5 of 12 views). Every view detected at full resolution must be in the coverage, and
+    its preview must count its corners."""
+    import time
+
+    from stereo_bench.campaign.config import campaign_from_dict
+    from stereo_bench.campaign.execute import run_campaign
+    from stereo_bench.live.preview import Previews
+    from stereo_bench.vision.detect import detect
+
+    config = campaign_from_dict({"name": "far", "seed": 3, "rig": {"time_scale": 50},
+                                 "plan": {"baseline_mm": [250], "distance_mm": [700], "alpha_deg": [90]}})
+    board = config.calibration_board.build()
+    seen: dict[int, dict] = {}
+    previews = Previews({"calibration": board, "target": config.target.build()}, on_encoded=lambda encoded: None,
+                        on_views=lambda config_id, index, found: seen.__setitem__(index, found)).start()
+    try:
+        out = tmp_path / "s"
+        assert run_campaign(config, out, yes=True, frame_subscribers=[previews.captured]).exit_status == "success"
+        deadline = time.monotonic() + 60
+        while len(seen) < config.capture.calibration_views and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        previews.stop()
+    reader = SessionReader(out)
+    views = reader.events(kind="calibration_view")
+    assert len(seen) == len(views)
+    for event in views:
+        for side in ("left", "right"):
+            full = detect(reader.frame(event.frames[side]), board)
+            shown = seen[event.data.index][side]
+            assert (shown is None) == (full is None), (event.data.index, side)
+            if full is not None:
+                assert shown.n == full.n
+    assert previews.stats.get("full_resolution_detections", 0) >= 2  # the case of the issue happens here

@@ -201,6 +201,7 @@ class Progress:
         self.status = ""
         self.clock = clock
         self.started_s = clock()
+        self._epoch_offset_s = time.time() - self.started_s  # epoch time stamps (a rig reading's) on this clock
         self.eta = EtaTracker(forecast_groups(config, plan.steps), start_s=self.started_s)
         self.etas: list[tuple[float, float]] = []  # (elapsed, ETA) at every marker: what the line showed
         stream = stream or sys.stderr
@@ -223,9 +224,13 @@ class Progress:
 
     def _moved(self, document) -> None:
         now = self.clock()
-        self.eta.moved(document.config_id, now)
-        self.etas.append((now - self.started_s, self.eta.shown(now)))
         rig = document.data.rig
+        # When the rig arrived, from its reading's time stamp (epoch seconds): the event reaches this subscriber
+        # after the frames recorded before it, late on a loaded machine, and a late marker skews the ETA.
+        arrived = now if rig.timestamp is None else min(now, max(rig.timestamp - self._epoch_offset_s,
+                                                                  self.started_s))
+        self.eta.moved(document.config_id, arrived)
+        self.etas.append((now - self.started_s, self.eta.shown(now)))
         self.status = f"at {document.config_id}: B {rig.baseline_mm:g} mm"
         self.line.refresh()
 

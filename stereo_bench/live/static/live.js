@@ -175,7 +175,7 @@ function renderRig(rig) {
 
 // -- the rig in 3-D: cameras, their fields of view to the board, the board (an SVG, from the rig's position) -----
 
-const RIG_VIEW = {yaw: -0.55, pitch: 0.42, halfFovDeg: 30, aspect: 9 / 16, boardMm: [250, 180]};
+const RIG_VIEW = {yaw: -0.35, pitch: 0.95, halfFovDeg: 30, aspect: 9 / 16, boardMm: [250, 180]};
 function renderRig3d(rig, plan) {
   const p = rig.position || {};
   const current = (plan.configs || []).find((c) => c.config_id === plan.current) || {};
@@ -208,11 +208,11 @@ function renderRig3d(rig, plan) {
   const xs = points.map((q) => q[0]), ys = points.map((q) => q[1]);
   const pad = 0.06 * Math.max(Math.max(...xs) - Math.min(...xs), Math.max(...ys) - Math.min(...ys));
   const x0 = Math.min(...xs) - pad, y0 = Math.min(...ys) - pad, w = Math.max(...xs) - x0 + pad, hh = Math.max(...ys) - y0 + pad;
-  const W = 420, H = Math.max(160, Math.min(300, W * hh / w)), scale = Math.min(W / w, H / hh);
+  const W = 420, H = Math.max(140, Math.min(220, W * hh / w)), scale = Math.min(W / w, H / hh);
   const sx = (q) => ((q[0] - x0) * scale).toFixed(1), syy = (q) => ((q[1] - y0) * scale).toFixed(1);
   const pt = (P) => { const q = view(P); return `${sx(q)},${syy(q)}`; };
   const colour = {left: "#2463eb", right: "#d97706"};
-  let svg = `<svg viewBox="0 0 ${W} ${H.toFixed(0)}" data-baseline-mm="${B}" data-distance-mm="${Z}" role="img" aria-label="the rig in 3-D">`;
+  let svg = `<svg viewBox="-12 -16 ${W + 24} ${(H + 40).toFixed(0)}" data-baseline-mm="${B}" data-distance-mm="${Z}" role="img" aria-label="the rig in 3-D">`;
   svg += `<polygon class="board" points="${board.map(pt).join(" ")}" fill="#1f9d55" fill-opacity="0.25" stroke="#1f9d55"/>`;
   for (const s of shapes) {
     const c = colour[s.name];
