@@ -221,7 +221,8 @@ function renderRig3d(rig, plan) {
   }
   const [l, r] = shapes.map((s) => view(s.apex));
   svg += `<line class="baseline" x1="${sx(l)}" y1="${syy(l)}" x2="${sx(r)}" y2="${syy(r)}" stroke="#20242c" stroke-width="3"/>`;
-  for (const s of shapes) { const q = view(s.apex); svg += `<circle class="camera" data-camera="${s.name}" cx="${sx(q)}" cy="${syy(q)}" r="5" fill="${colour[s.name]}"/><text x="${sx(q)}" y="${(Number(syy(q)) + 16).toFixed(1)}" text-anchor="middle">${s.name}</text>`; }
+  for (const s of shapes) { const q = view(s.apex); const left = s.name === "left";  // labels outward: the two never overlap, however short B is
+    svg += `<circle class="camera" data-camera="${s.name}" cx="${sx(q)}" cy="${syy(q)}" r="5" fill="${colour[s.name]}"/><text x="${(Number(sx(q)) + (left ? -8 : 8)).toFixed(1)}" y="${(Number(syy(q)) + 12).toFixed(1)}" text-anchor="${left ? "end" : "start"}">${s.name}</text>`; }
   const mid = view([0, 0, 0]), tip = view([0, 0, Z]);
   svg += `<text x="${sx(mid)}" y="${(Number(syy(mid)) - 8).toFixed(1)}" text-anchor="middle">B ${num(B, 0)} mm</text>` +
     `<text x="${sx(tip)}" y="${(Number(syy(tip)) - 6).toFixed(1)}" text-anchor="middle">board at Z ${num(Z, 0)} mm</text>`;
