@@ -19,6 +19,7 @@ from stereo_bench.campaign.eta import (
     forecast_groups,
     remaining_s,
     shown_eta_s,
+    unmodelled_s,
 )
 from stereo_bench.campaign.execute import CampaignPlan, run_campaign
 from tests.campaigns import small_config
@@ -27,13 +28,13 @@ TOLERANCE = 0.25  # the issue's band, relative to the time actually left
 
 
 def _timeline(forecast: Forecast, *, machine_s, operator_s) -> tuple[list[tuple[float, float]], float]:
-    """Run ``forecast``'s groups on a synthetic clock: group i takes ``machine_s[i]`` on the machine (its move
-    first, then the rest) and ``operator_s[i]`` s per prompt. Returns [(t, ETA)] at every marker and the end."""
+    """Run ``forecast``'s groups on a synthetic clock: group i takes ``machine_s[i]`` on the machine (its move as
+    modelled first, then the rest) and ``operator_s[i]`` s per prompt. Returns [(t, ETA)] at every marker and the
+    end."""
     tracker, t, etas = EtaTracker(forecast), 0.0, []
     t += forecast.homing_s
     for i, group in enumerate(forecast.groups):
-        share = group.move_s / (group.move_s + group.rest_s)
-        t += machine_s[i] * share  # the move
+        t += group.move_s  # the move, as modelled (the motion model is the emulator's)
         tracker.moved(group.config_id, t)
         etas.append((t, tracker.remaining(t)))
         for _ in range(group.prompts):
@@ -41,7 +42,7 @@ def _timeline(forecast: Forecast, *, machine_s, operator_s) -> tuple[list[tuple[
             t += operator_s[i]
             tracker.prompt_ended()
             tracker.prompt_answered(operator_s[i])
-        t += machine_s[i] * (1 - share)
+        t += machine_s[i] - group.move_s  # the rest: settle, captures, and what the plan does not model
     return etas, t
 
 
@@ -98,7 +99,7 @@ def test_an_operator_who_takes_long_raises_the_eta_at_once():
 def test_a_resume_corrects_from_its_own_configurations():
     forecast = Forecast(tuple(GroupForecast(f"c{i}", 1.0, 1.0, 0, 0.0) for i in range(6)))
     # Resumed at c3: the first marker seen is c3's, at 10 s (homing, its move); c4 at 10 + 5 s.
-    measured = Measured(group=4, machine_s=15.0, first=3, machine_at_first_s=10.0, machine_at_group_s=15.0)
+    measured = Measured(group=4, machine_s=15.0, marks=((3, 10.0), (4, 15.0)))
     # predicted c3's rest + c4's move = 2 s, measured 5 s: 3 s unmodelled per configuration.
     assert remaining_s(forecast, measured) == pytest.approx((1.0 + 3.0) + (2.0 + 3.0))
 
@@ -106,7 +107,7 @@ def test_a_resume_corrects_from_its_own_configurations():
 def test_skipped_configurations_cost_nothing():
     groups = (GroupForecast("a", 1.0, 1.0, 0, 0.0), GroupForecast("skipped", 0.0, 0.0, 0, 0.0),
               GroupForecast("b", 1.0, 1.0, 0, 0.0), GroupForecast("c", 1.0, 1.0, 0, 0.0))
-    measured = Measured(group=2, machine_s=6.0, machine_at_first_s=0.0, machine_at_group_s=6.0)
+    measured = Measured(group=2, machine_s=6.0, marks=((0, 0.0), (2, 6.0)))
     # a's rest + b's move predicted 2 s, took 6 s: 4 s more over one configuration that ran (not two).
     assert remaining_s(Forecast(groups), measured) == pytest.approx((1.0 + 4.0) + (2.0 + 4.0))
 
@@ -157,3 +158,22 @@ def test_the_shown_eta_stands_still_while_the_operator_is_waited_for():
     tracker.prompt_shown(1.0)
     assert tracker.shown(20.0) == pytest.approx(first - 19.0)  # the prompt's 30 s are counted down as they pass
     assert tracker.shown(200.0) == pytest.approx(first - 30.0)  # then it waits with the run, not below
+
+
+def test_the_unmodelled_time_leaves_out_the_first_configuration_and_follows_a_drift():
+    forecast = Forecast(tuple(GroupForecast(f"c{i}", 1.0, 1.0, 0, 0.0) for i in range(6)))
+    # Intervals of 2 s predicted: 12 (start-up), then 5, 5, 3 s measured.
+    marks = ((0, 0.0), (1, 12.0), (2, 17.0), (3, 22.0), (4, 25.0))
+    assert unmodelled_s(forecast, marks[:2]) == pytest.approx(10.0)  # only the first interval: it is all there is
+    assert unmodelled_s(forecast, marks[:3]) == pytest.approx(3.0)  # then the start-up is left out
+    assert unmodelled_s(forecast, marks, weight=0.3) == pytest.approx(3.0 + 0.3 * (3.0 - 3.0) + 0.3 * (1.0 - 3.0))
+
+
+def test_eta_follows_computation_that_drifts():
+    """paper-exp1 on the simulated bench: the configurations go faster as the board gets smaller in the images."""
+    rng = np.random.default_rng(7)
+    forecast = _forecast(25, rng, prompts=0)
+    machine = [g.move_s + g.rest_s + np.interp(i, [0, 24], [5.0, 3.0]) for i, g in enumerate(forecast.groups)]
+    machine[0] += 8.0  # the bench's first renders
+    etas, end = _timeline(forecast, machine_s=machine, operator_s=[0.0] * 25)
+    assert max(abs(e) for e in _check(etas, end)) < TOLERANCE

@@ -100,27 +100,51 @@ def forecast_groups(config: CampaignConfig, steps: Sequence[Step]) -> Forecast:
     return Forecast(tuple(groups), homing)
 
 
+#: Weight of the latest configuration in the unmodelled time per configuration (an exponential average): the
+#: computation's cost drifts over a campaign (on paper-exp1 the configurations at larger Z, whose boards are
+#: smaller in the images, go faster), which a plain mean would follow only late.
+RECENT_WEIGHT = 0.3
+
+
 @dataclass(frozen=True)
 class Measured:
     """What a run has measured so far, on one clock (s).
 
-    ``group``: the index of the group whose marker (its move) came last, None before the first; ``first``: the
-    group this run's first marker was (a resume starts later); ``machine_s``: time so far not spent waiting for an
-    operator; ``machine_at_first_s`` / ``machine_at_group_s``: the same at the first marker and the last one;
-    ``operator_done_s``: seconds waited on prompts in the groups ``first`` .. ``group - 1``; ``operator_group_s``:
-    seconds waited in group ``group`` so far, a pending prompt's wait included (before the first marker: the
-    prompts before it); ``second`` / ``machine_at_second_s``: the marker after the first, and the machine time then.
+    ``group``: the index of the group whose marker (its move) came last, None before the first; ``machine_s``: time
+    so far not spent waiting for an operator; ``marks``: (group index, ``machine_s`` then) at every marker of this
+    run, in order (a resume starts at a later group); ``operator_done_s``: seconds waited on prompts in the groups
+    from the first marker's up to ``group``'s (excluded); ``operator_group_s``: seconds waited in group ``group`` so
+    far, a pending prompt's wait included (before the first marker: the prompts before it).
     """
 
     group: int | None
     machine_s: float
-    first: int = 0
-    machine_at_first_s: float = 0.0
-    machine_at_group_s: float = 0.0
+    marks: tuple[tuple[int, float], ...] = ()
     operator_done_s: float = 0.0
     operator_group_s: float = 0.0
-    second: int | None = None
-    machine_at_second_s: float = 0.0
+
+
+def unmodelled_s(forecast: Forecast, marks: Sequence[tuple[int, float]], *, weight: float = RECENT_WEIGHT) -> float:
+    """The machine time per configuration the plan does not model (s; negative where the rig is faster than
+    modelled), from the intervals between ``marks``: each interval's measured time less the plan's (the rest of the
+    groups it closes, the moves of the groups it opens) per configuration that ran in it. The first interval carries
+    what is done once (the bench's first renders, caches warming up) and counts only while it is the only one; the
+    later ones are averaged with ``weight`` on the newest."""
+    groups = forecast.groups
+    per_interval = []
+    for (a, at_a), (b, at_b) in zip(marks, marks[1:], strict=False):
+        ran = [g for g in groups[a:b] if g.runs]
+        if ran:
+            predicted = sum(g.rest_s for g in groups[a:b]) + sum(g.move_s for g in groups[a + 1:b + 1])
+            per_interval.append((at_b - at_a - predicted) / len(ran))
+    if not per_interval:
+        return 0.0
+    if len(per_interval) == 1:
+        return per_interval[0]
+    c = per_interval[1]
+    for u in per_interval[2:]:
+        c = weight * u + (1.0 - weight) * c
+    return c
 
 
 def remaining_s(forecast: Forecast, measured: Measured) -> float:
@@ -135,20 +159,14 @@ def remaining_s(forecast: Forecast, measured: Measured) -> float:
         rest = sum(g.rest_s + g.prompts * q for g in groups[:1])
         later = sum(g.move_s + g.rest_s + g.prompts * q for g in groups[1:])
         return ahead + max(rest - measured.operator_group_s, 0.0) + later
-    k, first = measured.group, measured.first
-    # The first configuration carries what is done once (the bench's first renders, caches warming up): once a
-    # configuration after the second marker is done, the unmodelled time is counted from the second marker.
-    base, base_s = first, measured.machine_at_first_s
-    if measured.second is not None and k > measured.second:
-        base, base_s = measured.second, measured.machine_at_second_s
-    done = [g for g in groups[base:k] if g.runs]
-    # Predicted between the base marker and this one: the rests of the groups done and the moves since the base.
-    predicted = sum(g.rest_s for g in groups[base:k]) + sum(g.move_s for g in groups[base + 1:k + 1])
-    c = (measured.machine_at_group_s - base_s - predicted) / len(done) if done else 0.0
+    k = measured.group
+    marks = measured.marks or ((k, measured.machine_s),)
+    first, at_group = marks[0][0], marks[-1][1]
+    c = unmodelled_s(forecast, marks)
     prompts_done = sum(g.prompts for g in groups[first:k])
     q = measured.operator_done_s / prompts_done if prompts_done else forecast.prior_s_per_prompt
     current = groups[k]
-    machine_here = max(current.rest_s + c - (measured.machine_s - measured.machine_at_group_s), 0.0)
+    machine_here = max(current.rest_s + c - (measured.machine_s - at_group), 0.0)
     operator_here = max(current.prompts * q - measured.operator_group_s, 0.0)
     later = sum(max(g.move_s + g.rest_s + c, 0.0) + g.prompts * q for g in groups[k + 1:] if g.runs)
     return machine_here + operator_here + later
@@ -176,13 +194,9 @@ class EtaTracker:
         self._start_s = start_s
         self._operator_s = 0.0  # answered prompts, all groups
         self._pending_since: float | None = None
-        self._group: int | None = None
-        self._first = 0
-        self._at_first = self._at_group = 0.0
+        self._marks: list[tuple[int, float]] = []
         self._operator_at_group = 0.0  # self._operator_s at the last marker
         self._operator_at_first = 0.0
-        self._second: int | None = None
-        self._at_second = 0.0
         self._shown: tuple[float, float] | None = None  # (ETA shown, machine time then)
 
     def _machine(self, now_s: float) -> float:
@@ -194,13 +208,12 @@ class EtaTracker:
     def moved(self, config_id: str | None, now_s: float) -> None:
         """The marker of ``config_id``: its move event (approach moves and unknown ids are not markers)."""
         index = None if config_id is None else self.forecast.index(config_id)
-        if index is None or index == self._group:
+        if index is None or (self._marks and index == self._marks[-1][0]):
             return
-        if self._group is None:
-            self._first, self._at_first, self._operator_at_first = index, self._machine(now_s), self._operator_s
-        elif self._second is None:
-            self._second, self._at_second = index, self._machine(now_s)
-        self._group, self._at_group, self._operator_at_group = index, self._machine(now_s), self._operator_s
+        if not self._marks:
+            self._operator_at_first = self._operator_s
+        self._marks.append((index, self._machine(now_s)))
+        self._operator_at_group = self._operator_s
 
     def prompt_shown(self, now_s: float) -> None:
         """A prompt is shown to the operator: its wait counts as operator time as it passes."""
@@ -215,12 +228,9 @@ class EtaTracker:
         self._operator_s += waited_s
 
     def measured(self, now_s: float) -> Measured:
-        pending = self._pending(now_s)
-        return Measured(group=self._group, machine_s=self._machine(now_s), first=self._first,
-                        machine_at_first_s=self._at_first, machine_at_group_s=self._at_group,
-                        operator_done_s=self._operator_at_group - self._operator_at_first,
-                        operator_group_s=self._operator_s - self._operator_at_group + pending,
-                        second=self._second, machine_at_second_s=self._at_second)
+        return Measured(group=self._marks[-1][0] if self._marks else None, machine_s=self._machine(now_s),
+                        marks=tuple(self._marks), operator_done_s=self._operator_at_group - self._operator_at_first,
+                        operator_group_s=self._operator_s - self._operator_at_group + self._pending(now_s))
 
     def remaining(self, now_s: float) -> float:
         return remaining_s(self.forecast, self.measured(now_s))
