@@ -106,6 +106,7 @@ def test_campaign_prompt_is_the_last_line_and_progress_returns(tmp_path):
     terminal.until(lambda t: "small" in t.last_line() and "elapsed, ETA" in t.last_line(),
                    what="the progress line back as the last line after Enter")
     assert any(line.startswith(">>> move the target to Z = 400 mm") for line in terminal.lines())
+    _keep("campaign-run-after-enter.txt", terminal)
 
     terminal.until(_prompt_for(500), what="the prompt for Z = 500 mm as the last line")
     _prompt_stays_last(terminal, 500)
