@@ -469,7 +469,7 @@ def test_a_frame_without_the_target_is_captured_again_and_replays(tmp_path):
 
 
 def test_the_result_line_shows_the_expanded_uncertainty_and_says_when_only_noise_is_known():
-    from stereo_bench.cli.campaign_run import _format_row
+    from stereo_bench.cli.progress import format_row as _format_row
 
     row = {"config_id": "B250_Z700_A90", "baseline_mm": 250.0, "distance_mm": 700.0, "alpha_deg": 90.0,
            "status": "measured", "square_mean_mm": 28.2697, "error_mm": 1.2697, "sigma_mm": 0.00004,

@@ -476,7 +476,7 @@ def test_an_imported_calibration_serves_as_given_intrinsics(capsys, tmp_path, re
 def test_a_campaign_row_measured_with_a_calibration_without_rms_prints():
     """A fixed-mode campaign on an imported calib_dir (no RMS recorded: the store has none) printed its row with a
     KeyError; a full run with one measured 27.0022 mm as with the directory it was exported from (docs/FORMATS.md)."""
-    from stereo_bench.cli.campaign_run import _format_row
+    from stereo_bench.cli.progress import format_row as _format_row
 
     row = {"config_id": "B100_Z500_A90", "baseline_mm": 100.0, "distance_mm": 500.0, "alpha_deg": 90.0,
            "status": "measured", "square_mean_mm": 27.0022, "error_mm": 0.0022, "U_expanded_mm": 0.0316,

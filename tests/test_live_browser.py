@@ -104,10 +104,10 @@ def test_a_campaign_followed_and_steered_from_the_live_page(tmp_path):
             page.wait_for_selector("#prompt:not([hidden])", timeout=120_000)
             assert "Z = 450 mm" in page.inner_text("#prompt-message")
             page.wait_for_selector("#results-table tr[data-status='measured']", timeout=60_000)
-            row = page.inner_text("#results-table tbody tr")
+            row = page.inner_text("#results-table tr[data-config='B100_Z400_A90']")
             assert row.startswith("B100_Z400_A90")
             second.wait_for_selector("#results-table tr[data-config='B100_Z400_A90']", timeout=10_000)
-            assert second.inner_text("#results-table tbody tr") == row
+            assert second.inner_text("#results-table tr[data-config='B100_Z400_A90']") == row
             page.wait_for_selector(".cov canvas", timeout=10_000)  # the coverage of the kept views
             # The results plot's series legend sits below the plot, clear of the error bars (it overlapped them).
             # Checked in the page in one go: the plot is drawn anew with each result, so boxes read one after the

@@ -257,23 +257,25 @@ def test_a_campaign_that_measured_nothing_says_failed_and_exits_1(tmp_path, caps
     assert "campaign failed in" in out and "(nothing was measured)" in out and "success" not in out
 
 
-def test_the_progress_bar_is_erased_before_an_error_line(monkeypatch):
-    from stereo_bench.cli.campaign_run import Progress
+def test_the_progress_bar_is_erased_before_an_error_line():
+    from stereo_bench.campaign.execute import CampaignPlan
+    from stereo_bench.cli.progress import Progress
 
     class Terminal(io.StringIO):
         def isatty(self) -> bool:
             return True
 
     terminal = Terminal()
-    monkeypatch.setattr("sys.stderr", terminal)
-    progress = Progress(4, "small", quiet=False)
-    progress.bar.update(1)
+    config = small_config()
+    progress = Progress(CampaignPlan.of(config), config, quiet=False, stream=terminal, refresh_s=None)
+    progress.line.refresh()
     progress.close(clear=True)
     print("stereo-bench campaign: error: the last line", file=terminal)
     screen = terminal.getvalue()
-    assert "0/4" in screen  # it was drawn on the terminal ...
+    assert "small 0/4" in screen  # it was drawn on the terminal ...
     last_redraw = screen.rsplit("\r", 1)[-1]
-    assert last_redraw.strip() == "stereo-bench campaign: error: the last line"  # ... and erased before the error
+    # ... and erased (carriage return, clear to the end of the line) before the error
+    assert last_redraw == "\x1b[Kstereo-bench campaign: error: the last line\n"
 
 
 def test_render_charuco_hints_a_measure_command_that_works(tmp_path, capsys):

@@ -223,6 +223,36 @@ class LineOperator:
         return None
 
 
+@runtime_checkable
+class PromptDisplay(Protocol):
+    """Where a terminal operator shows its prompt: the CLI's progress line suspends itself for it
+    (``stereo_bench/cli/progress.py``), so that the prompt stays the last thing on the screen."""
+
+    def show_prompt(self, message: str) -> None:
+        """Show ``message`` as the prompt (the cursor after it)."""
+
+    def end_prompt(self, note: str | None = None) -> None:
+        """The prompt was answered: by Enter (``note`` None) or elsewhere (``note``, e.g. 'done: answered by ...')."""
+
+
+class StreamPromptDisplay:
+    """A prompt written to a stream as it is (no progress line to suspend)."""
+
+    def __init__(self, stream_out: IO[str] | None = None):
+        self._out = stream_out
+
+    def show_prompt(self, message: str) -> None:
+        out = self._out or sys.stderr
+        out.write(f"\n>>> {message} ")
+        out.flush()
+
+    def end_prompt(self, note: str | None = None) -> None:
+        if note is not None:
+            out = self._out or sys.stderr
+            out.write(f"({note})\n")
+            out.flush()
+
+
 class TerminalOperator:
     """The operator at the terminal: the prompt is printed, Enter on standard input answers it.
 
@@ -236,9 +266,10 @@ class TerminalOperator:
     name = "terminal"
 
     def __init__(self, stream_in: IO[str] | None = None, stream_out: IO[str] | None = None, *,
-                 absent_advice: str = "run it in a terminal, or pass --yes on the simulated bench"):
+                 absent_advice: str = "run it in a terminal, or pass --yes on the simulated bench",
+                 display: PromptDisplay | None = None):
         self._in = stream_in
-        self._out = stream_out
+        self.display = display or StreamPromptDisplay(stream_out)
         self.absent_advice = absent_advice
         self._lock = threading.Lock()
         self._ticket: Ticket | None = None
@@ -254,16 +285,14 @@ class TerminalOperator:
             if self._reader is None:
                 self._reader = threading.Thread(target=self._read, name="terminal-operator", daemon=True)
                 self._reader.start()
-        out = self._out or sys.stderr
-        out.write(f"\n>>> {ticket.prompt.message} ")
-        out.flush()
+            self.display.show_prompt(ticket.prompt.message)
 
     def withdraw(self, ticket: Ticket) -> None:
         with self._lock:
             if self._ticket is ticket:
                 self._ticket = None
-                if ticket.answered_by is not None:
-                    (self._out or sys.stderr).write(f"(done: answered by {ticket.answered_by})\n")
+                self.display.end_prompt(f"done: answered by {ticket.answered_by}" if ticket.answered_by is not None
+                                        else "no longer needed: the run stopped")
 
     def _read(self) -> None:
         stream = self._in or sys.stdin
@@ -288,3 +317,4 @@ class TerminalOperator:
                 with self._lock:
                     if self._ticket is ticket:
                         self._ticket = None
+                        self.display.end_prompt()

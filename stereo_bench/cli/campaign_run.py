@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import math
 import shlex
 import signal
 import sys
@@ -38,6 +37,7 @@ from stereo_bench.cli import (
     silence_stdout,
 )
 from stereo_bench.cli.args import TIME_SCALE, int_in, output_dir
+from stereo_bench.cli.progress import Progress
 
 
 def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: float | None = None,
@@ -102,84 +102,6 @@ def _override(config, section: str, field: str, value, option: str):
         message = error.errors()[0].get("msg", "invalid").removeprefix("Value error, ")
         raise CliError(f"{option} {value}: {message}") from None
     return config.model_copy(update={section: replaced})
-
-
-
-
-def _uncertainty(row: dict) -> str:
-    """The expanded uncertainty U (k=2) where the budget is known; else the image-noise sigma, said so (a
-    bare +- sigma beside a calibration- or structure-dominated error reads as a false precision)."""
-    expanded = row.get("U_expanded_mm")
-    if expanded is not None and math.isfinite(expanded):
-        return f"+- {expanded:.4f} mm (U, k=2)"
-    return f"+- {row['sigma_mm']:.4f} mm (sigma of image noise only)"
-
-
-def _format_row(row: dict) -> str:
-    head = (f"{row['config_id']:>16s}  B {row['baseline_mm']:6.1f}  Z {row['distance_mm']:6.1f}  "
-            f"alpha {row['alpha_deg']:5.1f}")
-    if row["status"] == "measured":
-        # A fixed calibration from a file that records no RMS (OpenCV's sample, an imported one) stores none.
-        rms = row.get("rms_px")
-        rms_text = f"RMS {rms:.3f} px" if rms is not None and math.isfinite(rms) else "RMS not recorded"
-        return (f"{head}  square {row['square_mean_mm']:8.4f} mm  error {row['error_mm']:+.4f} "
-                f"{_uncertainty(row)}  (n {row['n_squares']}, {rms_text})")
-    return f"{head}  {row['status'].upper()}: {row.get('reason')}"
-
-
-class Progress:
-    """A subscriber: a progress bar over the configurations and one line per result (stderr); a document router."""
-
-    def __init__(self, total: int, name: str, *, quiet: bool):
-        from tqdm import tqdm
-
-        from stereo_bench.campaign.documents import MoveEvent, PromptEvent, ResultDocument, ResumeDocument
-        from stereo_bench.campaign.router import DocumentRouter
-
-        self._router = (DocumentRouter().on(ResumeDocument, self._resumed).on(MoveEvent, self._moved)
-                        .on(PromptEvent, self._prompted).on(ResultDocument, self._result))
-
-        self._tqdm = tqdm
-        self.quiet = quiet
-        # No bar where stderr is not a terminal (a log, a pipe, a test): its redrawn lines would be text there. The
-        # per-configuration lines are written either way (unless quiet).
-        self.bar = tqdm(total=total, unit="config", disable=quiet or not _is_terminal(sys.stderr), dynamic_ncols=True,
-                        desc=name, file=sys.stderr)
-
-    def __call__(self, document) -> None:
-        self._router(document)
-
-    def _resumed(self, document) -> None:
-        self.bar.update(len(document.completed))
-
-    def _moved(self, document) -> None:
-        rig = document.data.rig
-        self.bar.set_postfix_str(f"at {document.config_id}: B {rig.baseline_mm:g} mm")
-
-    def _prompted(self, document) -> None:
-        if document.data.answered_by != "simulator":
-            self.bar.set_postfix_str(f"{document.data.prompt} done by {document.data.answered_by}")
-
-    def _result(self, document) -> None:
-        self.bar.update(1)
-        if not self.quiet:
-            self._tqdm.write(_format_row(document.row.stored()), file=sys.stderr)
-
-    def write(self, text: str) -> None:
-        self._tqdm.write(text, file=sys.stderr)
-
-    def close(self, *, clear: bool = False) -> None:
-        """End the bar; ``clear``: erase it (a failure's one-line error follows, clean, as the last line)."""
-        if clear:
-            self.bar.leave = False
-        self.bar.close()
-
-
-def _is_terminal(stream) -> bool:
-    try:
-        return stream.isatty()
-    except (AttributeError, ValueError):  # a closed or replaced stream
-        return False
 
 
 def start_live_page(page, *, write=None):
@@ -281,15 +203,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     plan = CampaignPlan.of(config)  # expanded once: the progress bar and the run share it
     resume_command = _resume_command(args, out)
     control = RunControl()
-    operators, frame_subscribers, page = None, [], None
+    progress = Progress(plan, config, quiet=args.quiet)
+    # The terminal's prompts suspend the progress line: the prompt is the last thing on the screen.
+    operators, frame_subscribers, page = default_operators(config, yes=args.yes, display=progress), [], None
     if args.ui:  # before the progress bar: an address it cannot serve on is one line
         from stereo_bench.live.page import LivePage
 
         page = start_live_page(LivePage.for_campaign(
             config, session_dir=out, host=args.ui_host or DEFAULT_UI_HOST,
             port=DEFAULT_UI_PORT if args.ui_port is None else args.ui_port, control=control))
-        operators = default_operators(config, yes=args.yes) + [page.operator]  # the first answer wins
-    progress = Progress(len(plan.configurations), config.name, quiet=args.quiet)
+        operators = operators + [page.operator]  # the first answer wins
     # Outputs whose reader may go away: stopped at a safe point (as by a signal) rather than failed.
     outputs = [_UntilOutputGone(progress, "stderr", control)]
     if args.json:

@@ -324,13 +324,13 @@ def _cmd_rig(args) -> int:
             raise CliError("calibrate-kinematics records the serial transcript in its session and times moves from "
                            "the rig config: --spy-log and --timeout do not apply")
         return rig_kinematics.run(list(args.actions[1:]), port=args.port, rig_config=args.rig_config)
-    if args.port is None:
-        raise CliError("rig: --port is required (the controller's serial device or a sim-controller link)")
     config = _config(args)
     try:
-        actions = _parse_actions(list(args.actions), config)
+        actions = _parse_actions(list(args.actions), config)  # before --port: `rig move --help` needs none
     except _HelpShown:
         return 0
+    if args.port is None:
+        raise CliError("rig: --port is required (the controller's serial device or a sim-controller link)")
     _check_spy_log(args.spy_log)
     first = actions[0].name
     # One soft reset at connect flushes half-received lines; not when looking, resuming a hold or in the shell.

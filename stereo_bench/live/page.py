@@ -82,6 +82,7 @@ class LivePage:
                                name=name, on_change=self.app.notify)
         self.previews = Previews(boards, on_encoded=lambda encoded: self.state.set_preview(encoded.meta),
                                  on_views=self.state.calibration_view_detected)
+        self.state.on_calibration = self.previews.set_calibration
         self.operator = PageOperator(self.state)
         self.server = LiveServer(self.app, host, port)
         self._poller: threading.Thread | None = None

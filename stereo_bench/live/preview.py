@@ -65,6 +65,8 @@ JPEG_QUALITY = 80
 COVERAGE_WIDTH_PX = 480  # the coverage's detections: ~4 ms a view and camera, corners ~0.3 px at full resolution
 WORKER_NICE = 10  # the captured-frame worker yields the CPU to the campaign's threads when they need it
 GREEN, ORANGE, CYAN = (60, 200, 60), (0, 150, 255), (255, 200, 0)
+EPIPOLAR_SPACING_PX = 24  # the rectified preview's horizontal lines, preview pixels apart
+EPIPOLAR_COLOURS = ((0, 220, 255), (255, 120, 60))
 
 
 @dataclass
@@ -165,6 +167,7 @@ class Previews:
         self._threads: list[threading.Thread] = []
         self._last_other_try = 0.0
         self._last_live: _LastDetection | None = None
+        self._rectification: tuple | None = None  # (config_id, preview size, maps): set_calibration
         self.encoded: Encoded | None = None
         self.last_error: str | None = None
         self._stats_lock = threading.Lock()
@@ -308,7 +311,7 @@ class Previews:
         for side, image in (("left", pair.left), ("right", pair.right)):
             small, scale = _small(_grey(image), COVERAGE_WIDTH_PX, gray=True)
             detections[side] = _full_resolution(_detect_or_none(small, board), scale, image)
-        pair.detections = detections
+        pair.detections = detections = self._full_resolution_misses(pair, detections, board)
         self._count("coverage_views")
         if self.on_views is not None:  # the pair's preview, if still waiting, reuses these detections
             self.on_views(config_id, index, detections)
@@ -331,6 +334,53 @@ class Previews:
                     self.expect_board = name
                 return found, name
         return {"left": None, "right": None}, None
+
+    def _full_resolution_misses(self, pair: Pair, detections: dict, board: Target) -> dict:
+        """A recorded view where the board was missed in the shrunk image, detected at full resolution as the
+        analysis detects it. Shrunk, a distant or tilted board is missed (at Z = 700 mm on the lab bench at
+        1920x1080, 5 of 12 calibration views at the coverage's 480 px): the view was then missing from the coverage
+        and its preview said '0 corners' with the board in view. ~10-20 ms a miss, on the nice thread."""
+        found = dict(detections)
+        for side in ("left", "right"):
+            image = getattr(pair, side)
+            if found.get(side) is None and image.shape[1] > COVERAGE_WIDTH_PX:
+                found[side] = _detect_or_none(_grey(image), board)
+                self._count("full_resolution_detections")
+        return found
+
+    def set_calibration(self, config_id: str, calibration) -> None:
+        """The pair's calibration (a :class:`~stereo_bench.vision.calibrate.StereoCalibration`, at full resolution):
+        from now on each preview also has a rectified pair with epipolar lines (``jpeg['rectified']``)."""
+        from stereo_bench.vision.calibrate import StereoCalibration
+        from stereo_bench.vision.rectify import rectification_maps, rectify
+
+        width, height = calibration.image_size
+        scale = PREVIEW_WIDTH_PX / width if width > PREVIEW_WIDTH_PX else 1.0
+        size = (round(width * scale), round(height * scale))
+        shrink = np.diag([scale, scale, 1.0])
+        small = StereoCalibration(K1=shrink @ calibration.K1, D1=calibration.D1, K2=shrink @ calibration.K2,
+                                  D2=calibration.D2, R=calibration.R, T=calibration.T, image_size=size)
+        maps = rectification_maps(small, rectify(small))
+        self._rectification = (config_id, size, maps)
+
+    def _rectified(self, pair: Pair, smalls: dict) -> np.ndarray | None:
+        """Both previews rectified side by side with horizontal epipolar lines (a corner lies on the same line in
+        both views when the calibration holds), or None before the first calibration."""
+        rectification = self._rectification
+        if rectification is None:
+            return None
+        _, size, maps = rectification
+        views = []
+        for side, (map_x, map_y) in zip(("left", "right"), maps, strict=True):
+            image = smalls[side]
+            if (image.shape[1], image.shape[0]) != size:
+                image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+            views.append(cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR))
+        joined = np.hstack(views)
+        for i, y in enumerate(range(EPIPOLAR_SPACING_PX // 2, joined.shape[0], EPIPOLAR_SPACING_PX)):
+            cv2.line(joined, (0, y), (joined.shape[1] - 1, y), EPIPOLAR_COLOURS[i % 2], 1, cv2.LINE_8)
+        cv2.line(joined, (size[0], 0), (size[0], joined.shape[0] - 1), (255, 255, 255), 1)
+        return joined
 
     def _live_detections(self, pair: Pair, greys: dict, scales: dict) -> tuple[dict, str | None]:
         """The overlay of a live pair: the last detection again while neither view has changed, else detected."""
@@ -361,6 +411,9 @@ class Previews:
                 detections, found_name = self._detect_small(pair, greys, scales)
             board_name = board_name or found_name
         board = self.boards.get(board_name) if board_name else None
+        if pair.source == "captured" and board is not None:
+            detections = self._full_resolution_misses(pair, detections, board)
+        rectified = self._rectified(pair, smalls)
         jpeg, corners = {}, {}
         for side, other in (("left", "right"), ("right", "left")):
             draw_detection(smalls[side], detections.get(side), detections.get(other), board, scales[side])
@@ -368,11 +421,15 @@ class Previews:
             jpeg[side] = buffer.tobytes() if ok else b""
             detection = detections.get(side)
             corners[side] = 0 if detection is None else detection.n
+        if rectified is not None:
+            ok, buffer = cv2.imencode(".jpg", rectified, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+            jpeg["rectified"] = buffer.tobytes() if ok else b""
         left, right = detections.get("left"), detections.get("right")
         in_both = int(np.isin(left.ids, right.ids).sum()) if left is not None and right is not None else 0
         meta = {"source": pair.source, "label": pair.label, "board": board_name, "corners": corners,
                 "in_both": in_both, "skew_ms": None if pair.dt_s is None else pair.dt_s * 1e3, "time": pair.stamp,
-                "size": [int(smalls["left"].shape[1]), int(smalls["left"].shape[0])]}
+                "size": [int(smalls["left"].shape[1]), int(smalls["left"].shape[0])],
+                "rectified": None if rectified is None else self._rectification[0]}
         with self._publish:  # one at a time, in frame order: a late captured pair never hides a newer live one
             if pair.stamp < self._shown_stamp:
                 self._count("stale")

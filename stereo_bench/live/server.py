@@ -8,7 +8,8 @@ Routes (everything the page needs ships in the package: no CDN, works offline):
 ``GET /api/state``        the state as JSON (:meth:`LiveState.snapshot`)
 ``GET /api/events``       Server-Sent Events: ``state`` (the state, each time it changes, at most 5 a
                           second) and ``preview`` (the newest preview's meta, each time there is one)
-``GET /preview/SIDE.jpg`` the newest preview of ``left`` or ``right``
+``GET /preview/SIDE.jpg`` the newest preview of ``left`` or ``right``; ``rectified``: both, rectified, with
+                          epipolar lines (after the first calibration)
 ``GET /session/PATH``     a file of the session directory (refused outside it, symlinks included)
 ``POST /api/control/ACT`` continue, capture_now, discard_last_view, pause, resume, stop: needs the token
 ========================  ===================================================================
@@ -227,7 +228,7 @@ class LiveApp:
 
         side = request.path_params["side"]
         encoded = self.page.previews.encoded
-        if side not in ("left", "right") or encoded is None or not encoded.jpeg.get(side):
+        if side not in ("left", "right", "rectified") or encoded is None or not encoded.jpeg.get(side):
             return Response("no preview yet", status_code=404, headers={"Cache-Control": "no-store"})
         return Response(encoded.jpeg[side], media_type="image/jpeg",
                         headers={"Cache-Control": "no-store", "X-Preview-Version": str(encoded.version)})

@@ -92,6 +92,8 @@ class LiveState(DocumentRouter):
         self.status: dict[str, str] = {}
         self.reasons: dict[str, str] = {}
         self.results: dict[str, dict] = {}
+        self._arrivals = 0
+        self.on_calibration = None  # (config_id, StereoCalibration): the previews' rectification (LivePage)
         self.current: str | None = None
         self.step = "starting"
         self.rig: dict = {"position": {}, "source": None}
@@ -274,6 +276,15 @@ class LiveState(DocumentRouter):
     def _calibrated(self, doc: CalibrationEvent) -> None:
         if doc.config_id is None:
             return
+        if self.on_calibration is not None and self.session_dir is not None and "intrinsics" in doc.files:
+            # The rectified preview: the files are written before the event reaches a subscriber.
+            from stereo_bench.vision.calibio import read_calibration
+
+            try:
+                where = Path(self.session_dir) / Path(doc.files["intrinsics"]).parent
+                self.on_calibration(doc.config_id, read_calibration(where))
+            except Exception as error:  # noqa: BLE001 - a preview must never take the campaign down
+                self._note(f"rectified preview unavailable: {error}", level="warn")
         self.calibration = {"config_id": doc.config_id, "rms_px": doc.data.rms_px,
                             "baseline_mm": doc.data.baseline_mm, "views_used": doc.data.views_used,
                             "per_view": [], "rejected": []}
@@ -304,6 +315,8 @@ class LiveState(DocumentRouter):
     def _result_row(self, row: dict) -> None:
         config_id = row["config_id"]
         self.results[config_id] = {key: row.get(key) for key in RESULT_KEYS if row.get(key) is not None}
+        self._arrivals += 1
+        self.results[config_id]["arrival"] = self._arrivals  # the page lists the newest first
         self.status[config_id] = row.get("status") or "failed"
         if row.get("reason"):
             self.reasons[config_id] = row["reason"]

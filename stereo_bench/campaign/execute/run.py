@@ -20,7 +20,7 @@ from stereo_bench.campaign.environment import numeric_environment
 from stereo_bench.campaign.execute.control import RunControl
 from stereo_bench.campaign.execute.options import runner_options
 from stereo_bench.campaign.execute.planned import CampaignPlan, plan_drift
-from stereo_bench.campaign.operator import Operator, SimulatedOperator, TerminalOperator
+from stereo_bench.campaign.operator import Operator, PromptDisplay, SimulatedOperator, TerminalOperator
 from stereo_bench.campaign.plan import PREPARE_ID, Visit
 from stereo_bench.campaign.preflight import Preflight
 from stereo_bench.campaign.recorded import RecordedStart
@@ -68,9 +68,12 @@ def resume_sources(options: RunnerOptions, writer: SessionWriter, config: Campai
     return {visit.config_id for visit in visits} | {PREPARE_ID}
 
 
-def default_operators(config: CampaignConfig, *, yes: bool) -> list[Operator]:
-    """``--yes`` on simulated cameras: the simulator does the manual steps; else the terminal."""
-    return [SimulatedOperator()] if yes and config.cameras.kind == "simulated" else [TerminalOperator()]
+def default_operators(config: CampaignConfig, *, yes: bool, display: PromptDisplay | None = None) -> list[Operator]:
+    """``--yes`` on simulated cameras: the simulator does the manual steps; else the terminal (its prompts shown by
+    ``display``: the CLI's progress line, which they suspend)."""
+    if yes and config.cameras.kind == "simulated":
+        return [SimulatedOperator()]
+    return [TerminalOperator(display=display)]
 
 
 def run_campaign(

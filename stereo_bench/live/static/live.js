@@ -46,15 +46,33 @@ if (!TOKEN) $("readonly").hidden = false;
 
 // -- previews: fetch the newest JPEG when the last one has loaded (a slow browser just sees fewer frames) -----
 
-const previews = {left: {loading: false, shown: 0, wanted: 0}, right: {loading: false, shown: 0, wanted: 0}};
+const previews = {left: {loading: false, shown: 0, wanted: 0}, right: {loading: false, shown: 0, wanted: 0},
+  rectified: {loading: false, shown: 0, wanted: 0}};
+// Fetched as a blob and shown once decoded: a pane shows its placeholder until the first frame, never a
+// broken-image icon (a frame that fails to load leaves the last one shown).
 function loadPreview(side) {
   const p = previews[side];
   if (p.loading || p.wanted <= p.shown) return;
   p.loading = true;
   const version = p.wanted;
   const img = $(`img-${side}`);
-  img.onload = img.onerror = () => { p.loading = false; p.shown = version; img.dataset.version = String(version); loadPreview(side); };
-  img.src = `/preview/${side}.jpg?v=${version}`;
+  const done = () => { p.loading = false; p.shown = Math.max(p.shown, version); loadPreview(side); };
+  fetch(`/preview/${side}.jpg?v=${version}`, {cache: "no-store"})
+    .then((response) => (response.ok ? response.blob() : null))
+    .then((blob) => {
+      if (!blob) { done(); return; }
+      const url = URL.createObjectURL(blob);
+      const probe = new Image();
+      probe.onload = () => {
+        const old = img.dataset.url;
+        img.onload = () => { if (old) URL.revokeObjectURL(old); img.dataset.version = String(version); img.hidden = false; $(`ph-${side}`).hidden = true; done(); };
+        img.dataset.url = url;
+        img.src = url;
+      };
+      probe.onerror = () => { URL.revokeObjectURL(url); done(); };
+      probe.src = url;
+    })
+    .catch(done);
 }
 
 function renderPreview(meta) {
@@ -64,6 +82,11 @@ function renderPreview(meta) {
     loadPreview(side);
     const n = meta.corners ? meta.corners[side] : 0;
     $(`cap-${side}`).textContent = meta.board ? `· ${n} corners of the ${meta.board === "calibration" ? "calibration board" : "target"}` : "· no board found";
+  }
+  if (meta.rectified) {
+    previews.rectified.wanted = Math.max(previews.rectified.wanted, meta.version);
+    loadPreview("rectified");
+    $("rectified-label").textContent = `with the calibration of ${meta.rectified}: a corner lies on the same line in both views`;
   }
   const when = meta.source === "live" ? "live" : meta.label;
   $("preview-label").textContent = `${when} · ${meta.in_both} corners in both views`;
@@ -150,6 +173,62 @@ function renderRig(rig) {
   if (atBottom) pre.scrollTop = pre.scrollHeight;
 }
 
+// -- the rig in 3-D: cameras, their fields of view to the board, the board (an SVG, from the rig's position) -----
+
+const RIG_VIEW = {yaw: -0.35, pitch: 0.95, halfFovDeg: 30, aspect: 9 / 16, boardMm: [250, 180]};
+function renderRig3d(rig, plan) {
+  const p = rig.position || {};
+  const current = (plan.configs || []).find((c) => c.config_id === plan.current) || {};
+  const B = p.baseline_mm ?? current.baseline_mm;
+  let Z = p.target_distance_mm ?? current.distance_mm;
+  const box = $("rig3d");
+  if (B === null || B === undefined) { box.innerHTML = `<p class="muted">The rig appears with its first reading.</p>`; return; }
+  Z = Z || 500;
+  const rad = Math.PI / 180;
+  const cy = Math.cos(RIG_VIEW.yaw), sy = Math.sin(RIG_VIEW.yaw), cp = Math.cos(RIG_VIEW.pitch), sp = Math.sin(RIG_VIEW.pitch);
+  // Rig frame (BRIEF): X along the baseline (left camera at -B/2), Y down, Z toward the board. Seen from above
+  // and behind: a turn about Y, then a tilt about X; orthographic.
+  const view = ([x, y, z]) => { const x1 = cy * x + sy * z, z1 = -sy * x + cy * z; return [x1, cp * y - sp * z1]; };
+  const cams = [["left", -B / 2, p.toe_in_left_deg || 0, p.tilt_left_deg || 0], ["right", B / 2, -(p.toe_in_right_deg || 0), p.tilt_right_deg || 0]];
+  const h = Math.tan(RIG_VIEW.halfFovDeg * rad), v = h * RIG_VIEW.aspect;
+  const shapes = [];
+  for (const [name, x, toe, tilt] of cams) {
+    const t = toe * rad, k = tilt * rad;
+    // Camera axes in the rig frame: toe-in turns the optical axis toward the other camera, tilt > 0 looks down.
+    const fwd = [Math.sin(t) * Math.cos(k), Math.sin(k), Math.cos(t) * Math.cos(k)];
+    const right = [Math.cos(t), 0, -Math.sin(t)];
+    const down = [fwd[1] * right[2] - fwd[2] * right[1], fwd[2] * right[0] - fwd[0] * right[2], fwd[0] * right[1] - fwd[1] * right[0]];
+    const at = (a, b) => [0, 1, 2].map((i) => (i === 0 ? x : 0) + Z * (fwd[i] + a * h * right[i] + b * v * down[i]));
+    const far = [at(-1, -1), at(1, -1), at(1, 1), at(-1, 1)];
+    shapes.push({cls: "frustum", name, apex: [x, 0, 0], far});
+  }
+  const [bw, bh] = RIG_VIEW.boardMm;
+  const board = [[-bw / 2, -bh / 2, Z], [bw / 2, -bh / 2, Z], [bw / 2, bh / 2, Z], [-bw / 2, bh / 2, Z]];
+  const points = [board, ...shapes.map((s) => [s.apex, ...s.far])].flat().map(view);
+  const xs = points.map((q) => q[0]), ys = points.map((q) => q[1]);
+  const pad = 0.06 * Math.max(Math.max(...xs) - Math.min(...xs), Math.max(...ys) - Math.min(...ys));
+  const x0 = Math.min(...xs) - pad, y0 = Math.min(...ys) - pad, w = Math.max(...xs) - x0 + pad, hh = Math.max(...ys) - y0 + pad;
+  const W = 420, H = Math.max(140, Math.min(220, W * hh / w)), scale = Math.min(W / w, H / hh);
+  const sx = (q) => ((q[0] - x0) * scale).toFixed(1), syy = (q) => ((q[1] - y0) * scale).toFixed(1);
+  const pt = (P) => { const q = view(P); return `${sx(q)},${syy(q)}`; };
+  const colour = {left: "#2463eb", right: "#d97706"};
+  let svg = `<svg viewBox="-12 -16 ${W + 24} ${(H + 40).toFixed(0)}" data-baseline-mm="${B}" data-distance-mm="${Z}" role="img" aria-label="the rig in 3-D">`;
+  svg += `<polygon class="board" points="${board.map(pt).join(" ")}" fill="#1f9d55" fill-opacity="0.25" stroke="#1f9d55"/>`;
+  for (const s of shapes) {
+    const c = colour[s.name];
+    svg += `<g class="frustum" data-camera="${s.name}"><polygon points="${s.far.map(pt).join(" ")}" fill="${c}" fill-opacity="0.06" stroke="${c}" stroke-opacity="0.5"/>` +
+      s.far.map((f) => `<line x1="${sx(view(s.apex))}" y1="${syy(view(s.apex))}" x2="${sx(view(f))}" y2="${syy(view(f))}" stroke="${c}" stroke-opacity="0.45"/>`).join("") + "</g>";
+  }
+  const [l, r] = shapes.map((s) => view(s.apex));
+  svg += `<line class="baseline" x1="${sx(l)}" y1="${syy(l)}" x2="${sx(r)}" y2="${syy(r)}" stroke="#20242c" stroke-width="3"/>`;
+  for (const s of shapes) { const q = view(s.apex); const left = s.name === "left";  // labels outward: the two never overlap, however short B is
+    svg += `<circle class="camera" data-camera="${s.name}" cx="${sx(q)}" cy="${syy(q)}" r="5" fill="${colour[s.name]}"/><text x="${(Number(sx(q)) + (left ? -8 : 8)).toFixed(1)}" y="${(Number(syy(q)) + 12).toFixed(1)}" text-anchor="${left ? "end" : "start"}">${s.name}</text>`; }
+  const mid = view([0, 0, 0]), tip = view([0, 0, Z]);
+  svg += `<text x="${sx(mid)}" y="${(Number(syy(mid)) - 8).toFixed(1)}" text-anchor="middle">B ${num(B, 0)} mm</text>` +
+    `<text x="${sx(tip)}" y="${(Number(syy(tip)) - 6).toFixed(1)}" text-anchor="middle">board at Z ${num(Z, 0)} mm</text>`;
+  box.innerHTML = svg + "</svg>";
+}
+
 function renderPlan(plan) {
   const c = plan.counts;
   const done = c.measured + c.failed + c.infeasible;
@@ -168,18 +247,41 @@ function uncertainty(row) {
   return row.sigma_mm !== undefined ? 2 * row.sigma_mm : null;
 }
 
+// Numbers to their significant digits: an uncertainty to 2 significant digits, a value to the uncertainty's
+// decimal place (GUM 7.2.6): 27.0217 +- 0.0324 reads 27.022 +- 0.032; a sigma of 2e-6 mm is not 0.0000.
+function decimalsOf(u) {
+  if (!(u > 0) || !Number.isFinite(u)) return null;
+  return Math.max(0, 1 - Math.floor(Math.log10(u) + 1e-12));
+}
+function significant(u) {
+  if (u === null || u === undefined || Number.isNaN(u)) return "–";
+  if (u === 0) return "0";
+  const d = decimalsOf(Math.abs(u));
+  return d === null ? String(u) : Number(u).toFixed(d);
+}
+function toUncertainty(value, u, signed = false) {
+  if (value === null || value === undefined || Number.isNaN(value)) return "–";
+  const d = decimalsOf(u);
+  const text = d === null ? Number(value).toPrecision(6) : Number(value).toFixed(d);
+  return signed && value >= 0 ? `+${text}` : text;
+}
+window.liveFormat = {decimalsOf, significant, toUncertainty};
+
 function renderResults(results, plan) {
   const hasU = results.some((r) => r.U_expanded_mm !== undefined || r.u_combined_mm !== undefined);
   const head = ["configuration", "B mm", "Z mm", "α °", "square mm", "error mm", "σ mm"].concat(hasU ? ["u_c mm", "U mm"] : []).concat(["RMS px"]);
-  const body = results.map((r) => {
+  // Newest first: the result that just arrived is the one the operator looks for.
+  const newest = [...results].sort((a, b) => (b.arrival || 0) - (a.arrival || 0));
+  const body = newest.map((r) => {
     const cells = [esc(r.config_id), num(r.baseline_mm, 0), num(r.distance_mm, 0), num(r.alpha_deg, 1)];
     if (r.status !== "measured") {
       return `<tr data-config="${esc(r.config_id)}" data-status="${esc(r.status)}"><td>${cells.join("</td><td>")}</td>` +
         `<td class="${esc(r.status)}" colspan="${head.length - 4}">${esc(r.status)}${r.reason ? `: ${esc(r.reason)}` : ""}</td></tr>`;
     }
-    cells.push(num(r.square_mean_mm, 4), (r.error_mm >= 0 ? "+" : "") + num(r.error_mm, 4), num(r.sigma_mm, 4));
-    if (hasU) cells.push(num(r.u_combined_mm, 4), num(r.U_expanded_mm, 4));
-    cells.push(num(r.rms_px, 3));
+    const u = uncertainty(r);
+    cells.push(toUncertainty(r.square_mean_mm, u), toUncertainty(r.error_mm, u, true), significant(r.sigma_mm));
+    if (hasU) cells.push(significant(r.u_combined_mm), significant(r.U_expanded_mm));
+    cells.push(significant(r.rms_px));
     return `<tr data-config="${esc(r.config_id)}" data-status="measured"><td>${cells.join("</td><td>")}</td></tr>`;
   }).join("");
   $("results-table").innerHTML = `<thead><tr>${head.map((h) => `<th>${h}</th>`).join("")}</tr></thead><tbody>${body}</tbody>`;
@@ -265,6 +367,7 @@ function render(next) {
   renderCoverage(state.coverage);
   renderCalibration(state.calibration);
   renderRig(state.rig);
+  renderRig3d(state.rig, state.plan);
   renderPlan(state.plan);
   renderResults(state.results, state.plan);
   renderLog(state.log);
