@@ -27,16 +27,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from stereo_bench.campaign.config import RigTolerances  # noqa: E402
-from stereo_bench.errormodel.rig import RigErrors, combined, dominant_term  # noqa: E402
+from stereo_bench.errormodel.rig import PRESENTED_DESIGN_VISITS, RigErrors, combined, dominant_term  # noqa: E402
 from stereo_bench.errormodel.rigorous import CalibrationPlan, Setup, predict  # noqa: E402
-from stereo_bench.kinematics import kinematic_design  # noqa: E402
 
 MODES = {"per-config": "per-config", "nominal": "nominal", "kinematic": "kinematic"}
 
 
 def predicted(mode: str, bench: str, baseline_mm: float, distance_mm: float, toe_in_deg: float,
               pixel_sigma_px: float, frames: int) -> dict:
-    visits = len(kinematic_design((1.0, 2.0), (0.0, 1.0))) if mode == "kinematic" else 1
+    visits = PRESENTED_DESIGN_VISITS if mode == "kinematic" else 1
     # What each bench's builder states (as coverage_campaign.py runs them): the lab bench the campaign's default
     # tolerances and repeatability, the ideal bench (built exactly) zeros.
     exact = bench == "ideal"

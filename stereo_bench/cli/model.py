@@ -153,8 +153,8 @@ def _add_rig_options(parser: argparse.ArgumentParser) -> None:
 def _rig_errors(args: argparse.Namespace):
     """The :class:`~stereo_bench.errormodel.rig.RigErrors` the options describe; None with --no-rig."""
     from stereo_bench.campaign.config import PRESETS, CampaignConfig, load_campaign, load_preset
-    from stereo_bench.errormodel.rig import RigErrors
-    from stereo_bench.kinematics import KinematicFileError, kinematic_design, load_model
+    from stereo_bench.errormodel.rig import rig_errors_of
+    from stereo_bench.kinematics import KinematicFileError, load_model
 
     if args.no_rig:
         if args.config or args.extrinsics or args.kinematic_file or args.target_scale_u is not None:
@@ -162,13 +162,17 @@ def _rig_errors(args: argparse.Namespace):
                            "and --target-scale-u")
         return None
     if args.config is None:
-        config, source = CampaignConfig(plan={"baseline_mm": [100.0], "distance_mm": [500.0]}), (
-            "the campaign's default tolerances (a hobby-grade rig, not measured) and a printed target")
-    elif Path(args.config).exists() or args.config not in PRESETS:
-        config, source = load_campaign(args.config), f"from {args.config}"
+        # A campaign's sections as a file that states none of them has them.
+        sections = tuple(CampaignConfig.model_fields[name].default_factory()
+                         for name in ("extrinsics", "target", "calibration_board"))
+        source = "the campaign's default tolerances (a hobby-grade rig, not measured) and a printed target"
     else:
-        config, source = load_preset(args.config), f"from preset {args.config}"
-    extrinsics = config.extrinsics
+        if Path(args.config).exists() or args.config not in PRESETS:
+            config, source = load_campaign(args.config), f"from {args.config}"
+        else:
+            config, source = load_preset(args.config), f"from preset {args.config}"
+        sections = config.extrinsics, config.target, config.calibration_board
+    extrinsics = sections[0]
     mode = args.extrinsics or extrinsics.mode
     if mode == "fixed":
         raise CliError(f"--config {args.config}: extrinsics.mode \"fixed\" (R, T of one calibration at every "
@@ -184,15 +188,9 @@ def _rig_errors(args: argparse.Namespace):
         except (KinematicFileError, OSError) as error:
             raise CliError(f"--kinematic-file: {error}") from None
         source += f", the kinematic model {model_path}"
-    # The kinematic fit refines the intrinsics from every visit of the presented design (3 baselines x 3 toe-ins).
-    visits = len(kinematic_design((1.0, 2.0), (0.0, 1.0))) if mode == "kinematic" else 1
-    target_u = args.target_scale_u if args.target_scale_u is not None else config.target.scale_u("target")
     try:
-        return RigErrors(mode=mode, tolerances=extrinsics.tolerances.sigmas(),
-                         repeatability_mm=extrinsics.repeatability_mm, repeatability_deg=extrinsics.repeatability_deg,
-                         kinematic_model=model, target_scale_u_rel=target_u,
-                         calibration_board_scale_u_rel=config.calibration_board.scale_u("calibration_board"),
-                         source=source, intrinsics_visits=visits)
+        return rig_errors_of(*sections, mode=mode, kinematic_model=model, target_scale_u_rel=args.target_scale_u,
+                             source=source)
     except ValueError as error:
         raise CliError(str(error)) from None
 

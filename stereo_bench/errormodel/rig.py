@@ -29,7 +29,7 @@ from typing import Literal
 
 import numpy as np
 
-from stereo_bench.kinematics import TOLERANCE_NAMES, KinematicModel, nominal_covariance
+from stereo_bench.kinematics import TOLERANCE_NAMES, KinematicModel, kinematic_design, nominal_covariance
 from stereo_bench.kinematics import predict as predict_kinematic
 from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL, PRINTED_TARGET_SCALE_U_REL
 
@@ -95,6 +95,26 @@ class RigErrors:
                               "R, T predicted by a kinematic model (its landing repeatability only: the fit's "
                               "own uncertainty needs a model file)")}[self.mode]
         return f"{what}; {self.source}"
+
+
+#: How many configurations the presented kinematic design visits (3 baselines x 3 toe-in pairs), each with its
+#: calibration views: what the kinematic fit refines the intrinsics from.
+PRESENTED_DESIGN_VISITS = len(kinematic_design((1.0, 2.0), (0.0, 1.0)))
+
+
+def rig_errors_of(extrinsics, target, calibration_board, *, mode: str | None = None,
+                  kinematic_model: KinematicModel | None = None, target_scale_u_rel: float | None = None,
+                  source: str) -> RigErrors:
+    """The :class:`RigErrors` a campaign's sections state: ``extrinsics`` (its ``[extrinsics]``: mode, tolerances,
+    repeatability), ``target`` and ``calibration_board`` (their scale uncertainties). ``mode``,
+    ``target_scale_u_rel``: instead of the sections' (None: theirs)."""
+    mode = mode or extrinsics.mode
+    return RigErrors(mode=mode, tolerances=extrinsics.tolerances.sigmas(), repeatability_mm=extrinsics.repeatability_mm,
+                     repeatability_deg=extrinsics.repeatability_deg, kinematic_model=kinematic_model,
+                     target_scale_u_rel=(target.scale_u("target") if target_scale_u_rel is None
+                                         else target_scale_u_rel),
+                     calibration_board_scale_u_rel=calibration_board.scale_u("calibration_board"), source=source,
+                     intrinsics_visits=PRESENTED_DESIGN_VISITS if mode == "kinematic" else 1)
 
 
 def _repeatability_tolerances(errors: RigErrors) -> dict[str, float]:

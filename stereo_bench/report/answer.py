@@ -112,24 +112,11 @@ def _pixel_sigma(session: SessionReport) -> tuple[float | None, str]:
                                   "configurations, per coordinate")
 
 
-def _rig_errors(session: SessionReport, mode: str):
-    from stereo_bench.errormodel.rig import RigErrors
-    from stereo_bench.kinematics import kinematic_design
-
-    config = session.config
-    extrinsics = config.extrinsics
-    return RigErrors(mode=mode, tolerances=extrinsics.tolerances.sigmas(), repeatability_mm=extrinsics.repeatability_mm,
-                     repeatability_deg=extrinsics.repeatability_deg,
-                     target_scale_u_rel=config.target.scale_u("target"),
-                     calibration_board_scale_u_rel=config.calibration_board.scale_u("calibration_board"),
-                     intrinsics_visits=len(kinematic_design((1.0, 2.0), (0.0, 1.0))) if mode == "kinematic" else 1,
-                     source="the session's config")
-
-
 def _predicted(session: SessionReport, point: AnswerPoint, sigma_px: float, modes: Sequence[str]) -> None:
     """The terms at ``point``: noise (per frame / sqrt(frames)), calibration (per-config's), the structure of each
     mode, the print's scale; and the paper's γ."""
     from stereo_bench.errormodel import paper
+    from stereo_bench.errormodel.rig import rig_errors_of
     from stereo_bench.errormodel.rigorous import CalibrationPlan, Setup, predict
     from stereo_bench.targets import Checkerboard
 
@@ -150,7 +137,9 @@ def _predicted(session: SessionReport, point: AnswerPoint, sigma_px: float, mode
     for mode in modes:
         if mode not in ("per-config", "nominal", "kinematic"):
             continue
-        p = predict(setup, sigma_px, calibration=plan if mode == "per-config" else None, rig=_rig_errors(session, mode))
+        rig = rig_errors_of(config.extrinsics, config.target, config.calibration_board, mode=mode,
+                            source="the session's config")
+        p = predict(setup, sigma_px, calibration=plan if mode == "per-config" else None, rig=rig)
         if mode == "per-config":
             point.predicted_mm["noise"] = None if p.sigma_square_mm is None else p.sigma_square_mm / math.sqrt(frames)
             point.predicted_mm["bias"] = p.bias_square_mm
