@@ -79,3 +79,12 @@ def test_the_comparison_names_why_image_noise_does_not_explain_the_error(tmp_pat
     page = (session / "report" / "index.html").read_text()
     # The lab bench's frames carry ~1e-3 px of sensor noise, while its corners scatter ~0.2 px about the model.
     assert "Here the median ratio is" in page and "scatter about the calibrated model by 0.2" in page
+
+
+def test_a_trend_is_claimed_only_over_values_that_vary():
+    from stereo_bench.report.answer import _claims
+
+    sweep = [_point(600.0, 200.0, a, 27.0 + a / 1000) for a in (15.0, 25.0, 35.0, 45.0)]  # one K, four alphas
+    claim_k, claim_alpha = _claims(sweep, ["per-config"])
+    assert not any("smallest |error|" in e for e in claim_k.evidence)
+    assert any("the smallest |error|" in e and "at α = 15°" in e for e in claim_alpha.evidence)

@@ -37,6 +37,10 @@ PAPER_TABLE1_MM: dict[tuple[float, float], float] = {
 PAPER_TABLE2_MM: dict[float, float] = {5.0: 28.0896, 15.0: 26.3043, 25.0: 26.7151, 35.0: 27.1043, 45.0: 27.3276,
                                        55.0: 27.433}
 PAPER_SQUARE_MM = 27.0
+#: alpha (deg) -> the Table 1 cell (B, Z) whose published value its Table 2 value repeats to the last digit.
+PAPER_TABLE2_REPEATS: dict[float, tuple[float, float]] = {
+    alpha: cell for alpha, value in PAPER_TABLE2_MM.items() for cell, other in PAPER_TABLE1_MM.items()
+    if other == value}
 #: The paper's claims, as its abstract states them.
 CLAIM_K = "the error is smallest for K = B/Z between 1 and 1.5"
 CLAIM_ALPHA = "the error is smallest for α between 30° and 40°"
@@ -70,6 +74,10 @@ class AnswerPoint:
         error = self.errors_nominal_mm.get(source)
         scale = self.print_scale_mm
         return None if error is None or scale is None else error - scale
+
+    def error_mm(self, source: str) -> float | None:
+        """The error the first screen judges: against the board as printed where it is known, else the nominal."""
+        return self.error_true_mm(source) if self.square_true_mm is not None else self.errors_nominal_mm.get(source)
 
 
 @dataclass
@@ -193,15 +201,15 @@ def _table1(points: list[AnswerPoint]) -> list[PaperCell]:
 
 
 def _table2(points: list[AnswerPoint]) -> list[PaperCell]:
-    duplicates = {alpha: next((f"B{b:g}/Z{z:g}" for (b, z), v in PAPER_TABLE1_MM.items() if v == value), "")
-                  for alpha, value in PAPER_TABLE2_MM.items()}
-    sweep = [p for p in points if abs(p.alpha_deg - 90.0) > 1e-6 or len({q.alpha_deg for q in points}) > 1]
+    # An alpha sweep: the session's points when it measured more than one alpha (a single alpha of 90 is no sweep).
+    sweep = points if len({p.alpha_deg for p in points}) > 1 else [p for p in points if abs(p.alpha_deg - 90) > 1e-6]
     cells = []
     for alpha, value in PAPER_TABLE2_MM.items():
         # The paper's alpha as this project reads it (docs/REPORTS.md): the angle between baseline and axis.
         mine = [p for p in sweep if abs(p.alpha_deg - alpha) < 1e-6]
-        note = (f"the paper's value equals its Table 1 cell {duplicates[alpha]} to the last digit"
-                if duplicates[alpha] else "")
+        repeated = PAPER_TABLE2_REPEATS.get(alpha)
+        note = (f"the paper's value equals its Table 1 cell B{repeated[0]:g}/Z{repeated[1]:g} to the last digit"
+                if repeated else "")
         cell = PaperCell(f"alpha{alpha:g}", value, note=note)
         if mine:
             cell.ours_mm = {s: e + PAPER_SQUARE_MM for s, e in mine[0].errors_nominal_mm.items()}
@@ -215,8 +223,7 @@ def _rms(values: Sequence[float]) -> float:
 
 
 def _by_k(points: list[AnswerPoint], source: str) -> list[tuple[float, float]]:
-    return sorted((p.K, abs(e)) for p in points if (e := p.error_true_mm(source) if p.square_true_mm is not None
-                                                    else p.errors_nominal_mm.get(source)) is not None)
+    return sorted((p.K, abs(e)) for p in points if (e := p.error_mm(source)) is not None)
 
 
 def _claims(points: list[AnswerPoint], sources: list[str]) -> list[Claim]:
@@ -228,7 +235,7 @@ def _claims(points: list[AnswerPoint], sources: list[str]) -> list[Claim]:
         k_evidence.append(f"This session measured K = {min(ks):.3f}-{max(ks):.3f}.")
     for source in sources:
         pairs = _by_k(points, source)
-        if len(pairs) >= 3:
+        if len({k for k, _ in pairs}) >= 3:  # a trend over K needs K to vary (an alpha sweep holds it)
             best_k, best_error = min(pairs, key=lambda kv: kv[1])
             worst_k, worst_error = max(pairs, key=lambda kv: kv[1])
             what = "against the board as printed" if points[0].square_true_mm is not None else "against nominal"
@@ -243,13 +250,13 @@ def _claims(points: list[AnswerPoint], sources: list[str]) -> list[Claim]:
     a_evidence = ["At the paper's Experiment II (B 100 mm, Z 500 mm) the rigorous model sees no corner of the board "
                   "in either view for α <= 45° under our reading of α (the paper's cot α = K/2 implies it); under the "
                   "toe-in reading (our α 50-60°) only part of the board is seen (docs/ERROR_MODEL.md §4).",
-                  "Two of the paper's Table 2 values repeat its Table 1 cells to the last digit (25°: B 50 / Z 500; "
-                  "35°: B 100 / Z 300)."]
+                  f"{len(PAPER_TABLE2_REPEATS)} of the paper's Table 2 values repeat its Table 1 cells to the last "
+                  "digit (" + "; ".join(f"{a:g}°: B {b:g} / Z {z:g}" for a, (b, z) in PAPER_TABLE2_REPEATS.items())
+                  + ")."]
     if len(alphas) > 1:
         for source in sources:
-            pairs = sorted((p.alpha_deg, abs(e)) for p in points if (e := (p.error_true_mm(source)
-                           if p.square_true_mm is not None else p.errors_nominal_mm.get(source))) is not None)
-            if len(pairs) >= 3:
+            pairs = sorted((p.alpha_deg, abs(e)) for p in points if (e := p.error_mm(source)) is not None)
+            if len({a for a, _ in pairs}) >= 3:
                 best = min(pairs, key=lambda ae: ae[1])
                 a_evidence.append(f"{source}: over α = {pairs[0][0]:g}-{pairs[-1][0]:g}° measured, the smallest "
                                   f"|error| {best[1]:.3g} mm is at α = {best[0]:g}°.")
@@ -271,8 +278,7 @@ def _lines(points: list[AnswerPoint], sources: list[str]) -> list[str]:
                    f"({scale / PAPER_SQUARE_MM * 100:+.3f} % of scale): the same at every B, Z and α, so it hides "
                    "every trend of the rig. The figure shows the error against the board as printed.")
     for source in sources:
-        errs = [abs(e) for p in points if (e := (p.error_true_mm(source) if p.square_true_mm is not None
-                                                 else p.errors_nominal_mm.get(source))) is not None]
+        errs = [abs(e) for p in points if (e := p.error_mm(source)) is not None]
         if not errs:
             continue
         largest: dict[str, int] = {}

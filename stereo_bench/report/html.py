@@ -635,7 +635,7 @@ def _config_block(config: ConfigReport, page: SessionPage) -> str:
 
 def _paper_table(cells, label, key_text) -> str:
     """The paper's published values beside ours, per cell (mm)."""
-    sources = [s for s in dict.fromkeys(s for c in cells for s in c.ours_mm)]
+    sources = list(dict.fromkeys(s for c in cells for s in c.ours_mm))
     has_true = any(c.square_true_mm is not None for c in cells)
     head = "".join(f"<th>ours: {_e(s)}</th><th>ours − true</th>" if has_true else f"<th>ours: {_e(s)}</th>"
                    for s in sources)
@@ -649,8 +649,8 @@ def _paper_table(cells, label, key_text) -> str:
                 ours += (f"<td>{_num(value - c.square_true_mm, 4, signed=True)}</td>"
                          if value is not None and c.square_true_mm is not None else "<td>–</td>")
         note = f' <span class="small muted">({_e(c.note)})</span>' if c.note else ""
-        rows.append(f"<tr><th>{_e(key_text(c.key))}</th><td>{c.paper_mm:.4f}</td><td>{c.paper_mm - 27.0:+.4f}</td>"
-                    f"{ours}<td>{_num(c.square_true_mm, 4)}</td></tr>".replace("</th><td>", f"{note}</th><td>", 1))
+        rows.append(f"<tr><th>{_e(key_text(c.key))}{note}</th><td>{c.paper_mm:.4f}</td>"
+                    f"<td>{c.paper_mm - 27.0:+.4f}</td>{ours}<td>{_num(c.square_true_mm, 4)}</td></tr>")
     def rms(values):
         values = [v for v in values if v is not None]
         return (sum(v * v for v in values) / len(values)) ** 0.5 if values else None
