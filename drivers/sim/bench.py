@@ -534,14 +534,16 @@ class BenchSimulator:
         return all(abs(getattr(pose, name) - getattr(at, name)) <= REST_TOLERANCE for name in
                    ("baseline_mm", "alpha_left_deg", "alpha_right_deg", "tilt_left_deg", "tilt_right_deg"))
 
-    def _at_rest(self, snapshot: _Snapshot, at: RigPose) -> bool:
-        """The rig stands still at ``at`` and rings no more: a frame taken now or later looks the same."""
-        if not self._at_pose(snapshot.pose, at):
+    def _at_rest(self, idle: bool, snapshot: _Snapshot, at: RigPose) -> bool:
+        """The rig stands still at ``at`` and rings no more: a frame taken now or later looks the same.
+
+        ``idle``: the controller was idle before ``snapshot`` was taken. Read after it, a move that ended in
+        between would count as rest while the snapshot holds its last instant, before its landing.
+        """
+        if not idle or not self._at_pose(snapshot.pose, at):
             return False
-        if snapshot.state is not None and (any(snapshot.state.ringing_deg.values())
-                                           or any(snapshot.state.rock_deg.values())):
-            return False
-        return self.emulator.state == "Idle"
+        return snapshot.state is None or not (any(snapshot.state.ringing_deg.values())
+                                              or any(snapshot.state.rock_deg.values()))
 
     def _predicted_snapshot(self) -> _Snapshot | None:
         """The pair at rest where the queued moves end: what a trigger will see there once the ringing stopped.
@@ -605,8 +607,9 @@ class BenchSimulator:
                     continue
                 at = (unchecked or waiting)[0].at
             try:
+                idle = self.emulator.state == "Idle"
                 snapshot = self._snapshot()
-                at_rest = self._at_rest(snapshot, at)
+                at_rest = self._at_rest(idle, snapshot, at)
                 predicted = self._predicted_snapshot() if render and not at_rest else None
             except Exception:  # noqa: BLE001 - the emulator stopping under the thread ends it
                 if self.emulator is None or not self.emulator.running:
@@ -724,14 +727,24 @@ class BenchSimulator:
         if self.profile.mechanically_ideal and self.history is None:
             pose = self.rig_pose()
             return _Snapshot(pose=pose, T_rig_cam={"left": pose.T_rig_left, "right": pose.T_rig_right})
-        self._catch_up()
-        values = self.reported_values()
         now = self.clock.now() if at_s is None else at_s
-        pose = self._pose_of(values)
         # The frame sees the pair at mid-exposure (exposure_s is in bench seconds).
         at = now + 0.5 * self.exposure_s
-        with self._history_lock:
-            state = pair_state(self.profile, values, history=self.history, now_s=at)
+        # The axes and the history of one instant: reading where the motors stand does not advance the
+        # emulator's model, so a motion can end between the catch-up and that read, and its landing draw reach
+        # the history only at the next advance. Such a snapshot showed the rig at its end without its landing,
+        # and the render-ahead check, which reads the state (an advance) after it, took it for the rest.
+        while True:
+            self._catch_up()
+            with self._history_lock:
+                seen = self._motions_seen
+            values = self.reported_values()
+            self._catch_up()
+            with self._history_lock:
+                if self._motions_seen == seen:
+                    state = pair_state(self.profile, values, history=self.history, now_s=at)
+                    break
+        pose = self._pose_of(values)
         smear = {}
         for side in SIDES:
             camera = self.left_model if side == "left" else self.right_model
