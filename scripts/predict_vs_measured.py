@@ -11,7 +11,7 @@ target's noise averaged over the campaign's frames. The coverage campaigns' boar
 prediction, its largest term, the measured RMS and the ratio; writes JSON.
 
     .venv/bin/python scripts/predict_vs_measured.py [--coverage scripts/results/coverage_campaign.json]
-        [--pixel-sigma 0.032] [--frames 3] [--out predict_vs_measured.json]
+        [--calibration-rms 0.032 | --pixel-sigma PX] [--no-joint] [--frames 3] [--out predict_vs_measured.json]
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import argparse
 import json
 import math
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,22 +28,41 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from stereo_bench.campaign.config import RigTolerances  # noqa: E402
-from stereo_bench.errormodel.rig import PRESENTED_DESIGN_VISITS, RigErrors, combined, dominant_term  # noqa: E402
+from stereo_bench.errormodel.rig import (  # noqa: E402
+    PRESENTED_DESIGN_VISITS,
+    RigErrors,
+    combined,
+    dominant_term,
+)
 from stereo_bench.errormodel.rigorous import CalibrationPlan, Setup, predict  # noqa: E402
+from stereo_bench.kinematics import campaign_design  # noqa: E402
 
 MODES = {"per-config": "per-config", "nominal": "nominal", "kinematic": "kinematic"}
 
 
+@dataclass(frozen=True)
+class _Planned:
+    baseline_mm: float
+    distance_mm: float
+    toe_in_deg: float
+    runnable: bool = True
+
+
 def predicted(mode: str, bench: str, baseline_mm: float, distance_mm: float, toe_in_deg: float,
-              pixel_sigma_px: float, frames: int) -> dict:
+              pixel_sigma_px: float, frames: int, configurations: list[_Planned], joint: bool = True) -> dict:
     visits = PRESENTED_DESIGN_VISITS if mode == "kinematic" else 1
+    # The design the coverage campaigns' plan visits (over their configurations), fitted at this noise; without
+    # it (--no-joint) the old split: one configuration's intrinsics / sqrt(visits) and R, T apart.
+    design, design_distance = campaign_design(configurations) if mode == "kinematic" and joint else (None, None)
     # What each bench's builder states (as coverage_campaign.py runs them): the lab bench the campaign's default
     # tolerances and repeatability, the ideal bench (built exactly) zeros.
     exact = bench == "ideal"
     tolerances = {name: 0.0 for name in RigTolerances().sigmas()} if exact else RigTolerances().sigmas()
     repeatability = {"repeatability_mm": 0.0, "repeatability_deg": 0.0} if exact else {}
     rig = RigErrors(mode=mode, tolerances=tolerances, target_scale_u_rel=0.0, calibration_board_scale_u_rel=0.0,
-                    intrinsics_visits=visits, source=f"the {bench} bench's stated tolerances", **repeatability)
+                    intrinsics_visits=visits, source=f"the {bench} bench's stated tolerances",
+                    design=None if design is None else tuple(design), design_distance_mm=design_distance,
+                    **repeatability)
     setup = Setup.make(baseline_mm, distance_mm, 90.0 - toe_in_deg)
     p = predict(setup, pixel_sigma_px, calibration=CalibrationPlan(), rig=rig)
     terms = {"noise": None if p.sigma_square_mm is None else p.sigma_square_mm / math.sqrt(frames),
@@ -55,16 +75,25 @@ def main() -> None:
     parser.add_argument("--coverage", type=Path, nargs="+",
                         default=[Path("scripts/results/coverage_campaign.json"),
                                  Path("scripts/results/coverage_campaign_builds.json")])
-    parser.add_argument("--pixel-sigma", type=float, default=0.032,
-                        help="the bench's calibration RMS, px (lab before issue 22: 0.032; after: 0.214)")
+    noise = parser.add_mutually_exclusive_group()
+    noise.add_argument("--pixel-sigma", type=float, default=None,
+                       help="image noise per coordinate, px (the model's input; default: --calibration-rms / sqrt 2)")
+    noise.add_argument("--calibration-rms", type=float, default=0.032,
+                       help="the bench's calibration reprojection RMS, px (a 2-D distance per corner: sqrt 2 x the "
+                            "noise per coordinate; lab before issue 22: 0.032, after: 0.214)")
+    parser.add_argument("--no-joint", action="store_true",
+                        help="kinematic mode as before: one configuration's intrinsics / sqrt(visits), R, T apart")
     parser.add_argument("--frames", type=int, default=3, help="measurement frames per configuration")
     parser.add_argument("--out", default="predict_vs_measured.json")
     args = parser.parse_args()
+    if args.pixel_sigma is None:
+        args.pixel_sigma = args.calibration_rms / math.sqrt(2.0)
     rows = []
     print(f"{'bench/mode':22s} {'config':15s} {'predicted mm':>12} {'largest':>11} {'measured RMS mm':>15} "
           f"{'ratio':>6}")
     for path in args.coverage:
         result = json.loads(path.read_text())
+        planned = [_Planned(b, z, t) for b, z, t in result["configurations"]]
         for key, entry in result["table"].items():
             bench, _, mode = key.partition("/")
             if mode not in MODES:
@@ -78,7 +107,8 @@ def main() -> None:
                 if not errors.size:
                     continue
                 measured = float(np.sqrt(np.mean(errors**2)))
-                p = predicted(MODES[mode], bench, baseline, distance, toe_in, args.pixel_sigma, args.frames)
+                p = predicted(MODES[mode], bench, baseline, distance, toe_in, args.pixel_sigma, args.frames,
+                              planned, joint=not args.no_joint)
                 ratio = p["predicted_mm"] / measured if p["predicted_mm"] and measured else None
                 rows.append({"coverage": str(path), "bench": bench, "mode": mode, "config_id": config_id,
                              "n": int(errors.size), "measured_rms_mm": measured, **p, "ratio": ratio})
@@ -91,6 +121,7 @@ def main() -> None:
                 print(f"{key:22s} {'all (RMS)':15s} {pred:12.4g} {'':>11} {meas:15.4g} {pred / meas:6.2f}")
     out = Path(args.out)
     out.write_text(json.dumps({"benchmark": "predict_vs_measured", "pixel_sigma_px": args.pixel_sigma,
+                               "joint_kinematic": not args.no_joint,
                                "frames": args.frames, "rows": rows}, indent=1))
     print(f"wrote {out}")
 

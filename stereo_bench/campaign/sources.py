@@ -38,6 +38,7 @@ from stereo_bench.kinematics import (
     AXES,
     KinematicModel,
     approach_directions,
+    joint_covariance,
     nominal_covariance,
     nominal_extrinsics,
     predict,
@@ -164,15 +165,11 @@ def kinematic_source(model: KinematicModel, axes: Mapping[str, float], approach:
     prediction = predict(model, axes, approach)
     K1, D1, K2, D2 = model.intrinsics()
     covariance = model_intrinsics_covariance(model)
-    cross = model.cross_covariance_matrix()
-    joint = covariance is not None and cross is not None and prediction.parameter_jacobian is not None
+    both = joint_covariance(model, prediction)
+    joint = covariance is not None and both is not None
     if joint:
-        J = prediction.parameter_jacobian
-        C_x = J @ model.covariance_matrix() @ J.T
-        C_ix = cross @ J.T
-        covariance = CalibrationCovariance(covariance.names + EXTRINSIC_NAMES,
-                                           np.block([[covariance.matrix, C_ix], [C_ix.T, C_x]]),
-                                           covariance.sigma_px, covariance.dof, covariance.pixel_locking_px)
+        covariance = CalibrationCovariance(covariance.names + EXTRINSIC_NAMES, both[0], covariance.sigma_px,
+                                           covariance.dof, covariance.pixel_locking_px)
     calib = StereoCalibration(
         K1=K1, D1=D1, K2=K2, D2=D2, R=prediction.R, T=prediction.T,
         image_size=(int(model.image_size[0]), int(model.image_size[1])),

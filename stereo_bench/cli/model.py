@@ -188,9 +188,19 @@ def _rig_errors(args: argparse.Namespace):
         except (KinematicFileError, OSError) as error:
             raise CliError(f"--kinematic-file: {error}") from None
         source += f", the kinematic model {model_path}"
+    design = None
+    if mode == "kinematic" and model is None and args.config is not None:
+        # The design the campaign's plan would visit: the prediction fits its planned views (docs/ERROR_MODEL.md §5).
+        from stereo_bench.campaign.plan.configurations import expand_plan
+        from stereo_bench.kinematics import campaign_design
+
+        design = campaign_design(expand_plan(config))
+        if design is not None:
+            source += f", the kinematic design over its plan ({len(design[0])} visits)"
     try:
         return rig_errors_of(*sections, mode=mode, kinematic_model=model, target_scale_u_rel=args.target_scale_u,
-                             source=source)
+                             design=None if design is None else design[0],
+                             design_distance_mm=None if design is None else design[1], source=source)
     except ValueError as error:
         raise CliError(str(error)) from None
 

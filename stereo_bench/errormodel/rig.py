@@ -23,13 +23,19 @@ Lengths mm, angles deg, relative uncertainties 1.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 
-from stereo_bench.kinematics import TOLERANCE_NAMES, KinematicModel, kinematic_design, nominal_covariance
+from stereo_bench.kinematics import (
+    TOLERANCE_NAMES,
+    DesignConfiguration,
+    KinematicModel,
+    kinematic_design,
+    nominal_covariance,
+)
 from stereo_bench.kinematics import predict as predict_kinematic
 from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL, PRINTED_TARGET_SCALE_U_REL
 
@@ -59,6 +65,12 @@ class RigErrors:
     # How many configurations' calibration views the intrinsics rest on: the kinematic fit refines them from
     # every design visit's views (the presented design visits 3 baselines x 3 toe-in pairs); 1 elsewhere.
     intrinsics_visits: int = 1
+    # Kinematic mode without a model file: the design the campaign would visit and where its board stands, so
+    # that a prediction fits the design's planned views (errormodel.rigorous.planned_kinematic_model) and carries
+    # the joint covariance of intrinsics and R, T the campaign's budget carries. None: the intrinsics of one
+    # configuration's views scaled by 1/sqrt(intrinsics_visits), and R, T apart (an over-prediction).
+    design: tuple[DesignConfiguration, ...] | None = None
+    design_distance_mm: float | None = None
 
     def __post_init__(self):
         if self.mode not in RIG_MODES:
@@ -67,6 +79,8 @@ class RigErrors:
             missing = [name for name in TOLERANCE_NAMES if name not in self.tolerances]
             if missing:
                 raise ValueError(f"nominal mode needs the rig's tolerances: missing {', '.join(missing)}")
+        if self.design is not None and not (self.design_distance_mm is not None and self.design_distance_mm > 0):
+            raise ValueError(f"a design needs design_distance_mm > 0, not {self.design_distance_mm}")
         if self.intrinsics_visits < 1:
             raise ValueError(f"intrinsics_visits must be >= 1, not {self.intrinsics_visits}")
         for name in ("repeatability_mm", "repeatability_deg", "target_scale_u_rel", "calibration_board_scale_u_rel"):
@@ -91,9 +105,12 @@ class RigErrors:
     def describe(self) -> str:
         what = {"per-config": "R, T calibrated at every configuration",
                 "nominal": "R, T from the rig's ideal geometry (its stated tolerances)",
-                "kinematic": ("R, T predicted by the kinematic model" if self.kinematic_model is not None else
+                "kinematic": ("R, T predicted by the kinematic model (where a calibration is predicted "
+                              "too, the fit's own error goes, joint with the intrinsics', in its term and the "
+                              "structure term is the landing repeatability)"
+                              if self.kinematic_model is not None or self.design is not None else
                               "R, T predicted by a kinematic model (its landing repeatability only: the fit's "
-                              "own uncertainty needs a model file)")}[self.mode]
+                              "own uncertainty needs a model file or a campaign's design)")}[self.mode]
         return f"{what}; {self.source}"
 
 
@@ -104,17 +121,24 @@ PRESENTED_DESIGN_VISITS = len(kinematic_design((1.0, 2.0), (0.0, 1.0)))
 
 def rig_errors_of(extrinsics, target, calibration_board, *, mode: str | None = None,
                   kinematic_model: KinematicModel | None = None, target_scale_u_rel: float | None = None,
+                  design: Sequence[DesignConfiguration] | None = None, design_distance_mm: float | None = None,
                   source: str) -> RigErrors:
     """The :class:`RigErrors` a campaign's sections state: ``extrinsics`` (its ``[extrinsics]``: mode, tolerances,
     repeatability), ``target`` and ``calibration_board`` (their scale uncertainties). ``mode``,
-    ``target_scale_u_rel``: instead of the sections' (None: theirs)."""
+    ``target_scale_u_rel``: instead of the sections' (None: theirs). ``design``, ``design_distance_mm``: the
+    kinematic design the campaign's plan visits (:func:`stereo_bench.kinematics.campaign_design`), kinematic mode
+    only."""
     mode = mode or extrinsics.mode
+    if mode != "kinematic":
+        design = design_distance_mm = None
     return RigErrors(mode=mode, tolerances=extrinsics.tolerances.sigmas(), repeatability_mm=extrinsics.repeatability_mm,
                      repeatability_deg=extrinsics.repeatability_deg, kinematic_model=kinematic_model,
                      target_scale_u_rel=(target.scale_u("target") if target_scale_u_rel is None
                                          else target_scale_u_rel),
                      calibration_board_scale_u_rel=calibration_board.scale_u("calibration_board"), source=source,
-                     intrinsics_visits=PRESENTED_DESIGN_VISITS if mode == "kinematic" else 1)
+                     intrinsics_visits=PRESENTED_DESIGN_VISITS if mode == "kinematic" else 1,
+                     design=None if design is None else tuple(design), design_distance_mm=design_distance_mm)
+
 
 
 def _repeatability_tolerances(errors: RigErrors) -> dict[str, float]:

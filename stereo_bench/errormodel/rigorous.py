@@ -38,6 +38,7 @@ All functions are pure: inputs are left untouched and results are new arrays or 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -50,6 +51,7 @@ from stereo_bench.geometry import (
     VIEW_MARGIN_PX,
     CameraModel,
     RigPose,
+    alpha_from_toe_in,
     board_faces_camera,
     board_pose_facing_rig,
     board_pose_in_view,
@@ -57,6 +59,7 @@ from stereo_bench.geometry import (
     mean_view_frame,
     transform_points,
 )
+from stereo_bench.kinematics import ConfigurationViews, DesignConfiguration, KinematicModel, fit_kinematics
 from stereo_bench.targets import Checkerboard
 from stereo_bench.vision.calibrate import DEFAULT_FLAGS, StereoCalibration
 from stereo_bench.vision.covariance import (
@@ -350,16 +353,26 @@ def predict(setup: Setup, pixel_sigma_px: float, *, margin_px: float = DEFAULT_M
         sx, sy, sz = (float(v) for v in np.sqrt(np.diag(cov)))
     pose = setup.rig
     calibration_fields = {}
-    if calibration is not None:
+    kinematic = None
+    if calibration is not None and rig is not None and rig.mode == "kinematic":
+        kinematic = kinematic_sigmas(setup, rig, calibration, pixel_sigma_px, margin_px=margin_px)
+    if kinematic is not None:
+        square_cal, depth_cal, _, _, note = kinematic
+        calibration_fields = {"calibration_views": calibration.n_views, "sigma_calibration_mm": square_cal,
+                              "sigma_calibration_depth_mm": depth_cal, "calibration_note": note}
+    elif calibration is not None:
         square_cal, depth_cal, note = calibration_sigmas(
             setup, calibration, pixel_sigma_px, margin_px=margin_px,
             intrinsics_only=rig is not None and not rig.extrinsics_from_calibration)
         if rig is not None and rig.intrinsics_visits > 1:
             square_cal, depth_cal = (None if v is None else v * rig.intrinsics_scale for v in (square_cal, depth_cal))
-            note += f", as if seen at each of {rig.intrinsics_visits} design visits"
+            note += (f", as if seen at each of {rig.intrinsics_visits} design visits (intrinsics and R, T apart: "
+                     "an over-prediction; a campaign's design gives the joint one)")
         calibration_fields = {"calibration_views": calibration.n_views, "sigma_calibration_mm": square_cal,
                               "sigma_calibration_depth_mm": depth_cal, "calibration_note": note}
     rig_fields = {} if rig is None else _rig_fields(setup, rig, margin_px)
+    if kinematic is not None:
+        rig_fields["sigma_structure_mm"], rig_fields["sigma_structure_depth_mm"] = kinematic[2:4]
     return Prediction(
         **calibration_fields, **rig_fields,
         baseline_mm=pose.baseline_mm, distance_mm=setup.distance_mm, alpha_left_deg=pose.alpha_left_deg,
@@ -698,19 +711,119 @@ def calibration_sigmas(
     covariance: CalibrationCovariance = calib.covariance
     if intrinsics_only:
         covariance = covariance.subset([n for n in covariance.names if n.startswith(("left.", "right."))])
-    names = covariance.names
-    square = None
-    ids, vis = visible_corners(setup, margin_px=margin_px)
-    if vis.measurable:
-        left_px, right_px, _ = project_both(setup, setup.corners_rig[ids])
-        frame = FrameCorners(ids, left_px, right_px, 0.0, (pixel_sigma_px, pixel_sigma_px))
-        g = square_sensitivities(calib, [frame], setup.board, names)
-        square = float(np.sqrt(max(g @ covariance.matrix @ g, 0.0)))
-    g_depth = _depth_sensitivities(calib, setup, names)
-    depth = None if g_depth is None else float(np.sqrt(max(g_depth @ covariance.matrix @ g_depth, 0.0)))
+    square, depth = _through_the_measurement(setup, calib, covariance.names, covariance.matrix, pixel_sigma_px,
+                                             margin_px)
     what = "the intrinsics of " if intrinsics_only else ""
     return square, depth, (f"{what}{plan.n_views} planned views of the {plan.board.cols}x{plan.board.rows} board "
                            f"({plan.mode})")
+
+
+@dataclass(frozen=True)
+class _Corners:
+    """The detection interface the fit reads: corner ids and their pixels."""
+
+    ids: np.ndarray
+    corners_px: np.ndarray
+
+
+def planned_kinematic_model(design: Sequence[DesignConfiguration], distance_mm: float, plan, pixel_sigma_px: float,
+                            *, repeatability_mm: float, repeatability_deg: float, left: CameraModel,
+                            right: CameraModel) -> KinematicModel:
+    """The kinematic fit a campaign will make, predicted: its design's planned views fitted at a stated image noise.
+
+    In kinematic mode the intrinsics and R, T come from one joint adjustment over every design visit's views
+    (:func:`stereo_bench.kinematics.fit_kinematics`), and their errors are correlated: a focal length error is
+    met by the right camera's position, so through a measurement they partly cancel, as a per-configuration
+    calibration's intrinsics and R, T do. The design's views are :func:`planned_board_poses` at each visit (exact
+    pixels), fitted at the stated noise (the weight against the landing priors is that noise's); the prediction
+    then uses the joint covariance the campaign's budget carries (docs/ERROR_MODEL.md section 5).
+
+    ``distance_mm``: where the design's target would stand (the board's views range about it, as the campaign's
+    choreography shows them); ``plan``: a :class:`CalibrationPlan` (views per
+    visit, board); ``pixel_sigma_px``: image noise per coordinate (> 0). Every visit is reached from below on
+    every axis (a campaign knows its approach). Memoised: an advisor's grid evaluates one model many times.
+
+    Raises:
+        ValueError: a visit's views cannot be placed in both cameras, or the fit fails.
+    """
+    if not pixel_sigma_px > 0:
+        raise ValueError(f"pixel_sigma_px must be > 0, not {pixel_sigma_px}")
+    design_key = tuple((float(d.baseline_mm), float(d.toe_in_left_deg), float(d.toe_in_right_deg)) for d in design)
+    key = (design_key, float(distance_mm), plan, float(pixel_sigma_px), float(repeatability_mm),
+           float(repeatability_deg), left, right)  # cameras hash by K, dist and size
+    if key not in _MODELS:
+        if len(_MODELS) >= 16:
+            _MODELS.pop(next(iter(_MODELS)))
+        _MODELS[key] = _planned(design_key, float(distance_mm), plan, float(pixel_sigma_px), float(repeatability_mm),
+                                float(repeatability_deg), left, right)
+    return _MODELS[key]
+
+
+_MODELS: dict[tuple, KinematicModel] = {}
+
+
+def _planned(design: tuple, distance_mm: float, plan, pixel_sigma_px: float, repeatability_mm: float,
+             repeatability_deg: float, left: CameraModel, right: CameraModel) -> KinematicModel:
+    points = np.asarray(plan.board.object_points, float)
+    configurations = []
+    for baseline_mm, toe_in_left_deg, toe_in_right_deg in design:
+        setup = Setup.make(baseline_mm, distance_mm, alpha_from_toe_in(toe_in_left_deg),
+                           alpha_right_deg=alpha_from_toe_in(toe_in_right_deg), left=left, right=right)
+        views = []
+        for T_rig_board in planned_board_poses(setup, plan):
+            left_px, right_px, in_front = project_both(setup, transform_points(T_rig_board, points))
+            ids = np.flatnonzero(in_front & setup.left.in_image(left_px) & setup.right.in_image(right_px))
+            views.append((_Corners(ids, left_px[ids]), _Corners(ids, right_px[ids])))
+        axes = {"baseline_mm": baseline_mm, "toe_in_left_deg": toe_in_left_deg, "toe_in_right_deg": toe_in_right_deg}
+        configurations.append(ConfigurationViews(axes=axes, approach=dict.fromkeys(axes, 1), views=views))
+    intrinsics = (np.asarray(left.K, float), np.asarray(left.dist, float).reshape(1, -1),
+                  np.asarray(right.K, float), np.asarray(right.dist, float).reshape(1, -1))
+    fit = fit_kinematics(configurations, points, tuple(int(v) for v in left.image_size), intrinsics=intrinsics,
+                         refine_intrinsics=True, repeatability_mm=repeatability_mm,
+                         repeatability_left_deg=repeatability_deg, repeatability_right_deg=repeatability_deg,
+                         pixel_sigma_px=pixel_sigma_px)
+    return fit.model
+
+
+def kinematic_sigmas(setup: Setup, rig: RigErrors, plan: CalibrationPlan, pixel_sigma_px: float, *,
+                     margin_px: float = DEFAULT_MARGIN_PX) -> tuple[float | None, float | None, float | None,
+                                                                   float | None, str] | None:
+    """(calibration σ of the square, of the centre's rig z, structure σ of the square, of the depth, note) in
+    kinematic mode, as the campaign's budget splits them (:func:`stereo_bench.campaign.sources.kinematic_source`):
+    the calibration term the joint covariance of the model's intrinsics and the R, T it predicts here, the
+    structure term the rig's landing repeatability. The model is ``rig.kinematic_model`` (a model file) or the
+    fit of ``rig.design``'s planned views at ``pixel_sigma_px`` (:func:`planned_kinematic_model`).
+
+    None when neither is given, the model holds no joint covariance, or the design's views cannot be placed
+    (the caller falls back on one configuration's intrinsics).
+    """
+    from stereo_bench.kinematics import joint_covariance
+    from stereo_bench.kinematics import predict as predict_kinematic
+
+    model, what = rig.kinematic_model, "the kinematic model file's fit"
+    if model is None:
+        if rig.design is None or not pixel_sigma_px > 0:
+            return None
+        try:
+            model = planned_kinematic_model(rig.design, rig.design_distance_mm, plan, pixel_sigma_px,
+                                            repeatability_mm=rig.repeatability_mm,
+                                            repeatability_deg=rig.repeatability_deg, left=setup.left,
+                                            right=setup.right)
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+        what = (f"the planned kinematic fit: {plan.n_views} views at each of the design's {len(rig.design)} "
+                f"visits (intrinsics and R, T jointly)")
+    r = setup.rig
+    axes = {"baseline_mm": r.baseline_mm, "toe_in_left_deg": 90.0 - r.alpha_left_deg,
+            "toe_in_right_deg": 90.0 - r.alpha_right_deg}
+    prediction = predict_kinematic(model, axes, dict.fromkeys(axes, 1))
+    joint = joint_covariance(model, prediction)
+    if joint is None:
+        return None
+    names = tuple(model.intrinsics_covariance_names) + tuple(EXTRINSIC_NAMES)
+    square, depth = _through_the_measurement(setup, calibration_of(setup), names, joint[0], pixel_sigma_px, margin_px)
+    structure = structure_sigmas(setup, prediction.rig_covariance, margin_px=margin_px)
+    return square, depth, structure[0], structure[1], what
 
 
 def structure_sigmas(setup: Setup, structure_covariance: np.ndarray, *, margin_px: float = DEFAULT_MARGIN_PX,
@@ -719,15 +832,23 @@ def structure_sigmas(setup: Setup, structure_covariance: np.ndarray, *, margin_p
     stereo extrinsics (rvec [rad], T [mm]); the same sensitivities as the budget's structure component
     (:func:`stereo_bench.vision.uncertainty.configuration_budget`), at the target's true pixels. None where
     nothing is measurable (square) or the centre is behind a camera (depth)."""
-    calib = calibration_of(setup)
-    C = np.asarray(structure_covariance, float)
+    return _through_the_measurement(setup, calibration_of(setup), EXTRINSIC_NAMES,
+                                    np.asarray(structure_covariance, float), 0.0, margin_px)
+
+
+def _through_the_measurement(setup: Setup, calib: StereoCalibration, names: Sequence[str], covariance: np.ndarray,
+                             pixel_sigma_px: float, margin_px: float) -> tuple[float | None, float | None]:
+    """(σ of the measured square, σ of the board centre's rig z), mm, of the calibration parameters ``names`` with
+    ``covariance``, through the measurement at the target's true pixels (the budget's sensitivities, noise
+    ``pixel_sigma_px`` on the frame). None where nothing is measurable (square) or the centre is behind a
+    camera (depth)."""
     square = None
     ids, vis = visible_corners(setup, margin_px=margin_px)
     if vis.measurable:
         left_px, right_px, _ = project_both(setup, setup.corners_rig[ids])
-        frame = FrameCorners(ids, left_px, right_px, 0.0, (0.0, 0.0))
-        g = square_sensitivities(calib, [frame], setup.board, EXTRINSIC_NAMES)
-        square = float(np.sqrt(max(g @ C @ g, 0.0)))
-    g_depth = _depth_sensitivities(calib, setup, EXTRINSIC_NAMES)
-    depth = None if g_depth is None else float(np.sqrt(max(g_depth @ C @ g_depth, 0.0)))
+        frame = FrameCorners(ids, left_px, right_px, 0.0, (pixel_sigma_px, pixel_sigma_px))
+        g = square_sensitivities(calib, [frame], setup.board, names)
+        square = float(np.sqrt(max(g @ covariance @ g, 0.0)))
+    g_depth = _depth_sensitivities(calib, setup, names)
+    depth = None if g_depth is None else float(np.sqrt(max(g_depth @ covariance @ g_depth, 0.0)))
     return square, depth

@@ -13,7 +13,7 @@ Pure functions on numpy arrays; OpenCV for PnP and the initial intrinsics, scipy
 Units: mm and deg at the interface and in the file, radians inside.
 """
 
-from stereo_bench.kinematics.design import DesignConfiguration, approach_directions, kinematic_design
+from stereo_bench.kinematics.design import DesignConfiguration, approach_directions, campaign_design, kinematic_design
 from stereo_bench.kinematics.file import KinematicFileError, load_model, model_from_toml, model_toml, save_model
 from stereo_bench.kinematics.fit import FIT_TOLERANCE, ConfigurationViews, KinematicFit, fit_kinematics
 from stereo_bench.kinematics.model import (
@@ -30,12 +30,13 @@ from stereo_bench.kinematics.model import (
     nominal_parameters,
 )
 from stereo_bench.kinematics.nominal import TOLERANCE_NAMES, nominal_covariance, nominal_extrinsics
-from stereo_bench.kinematics.prediction import STRUCTURE_KEYS, Prediction, predict, structure_sigma
+from stereo_bench.kinematics.prediction import STRUCTURE_KEYS, Prediction, joint_covariance, predict, structure_sigma
 
 __all__ = [
     "AXES", "FILE_SCHEMA", "FIT_TOLERANCE", "N_PARAMS", "NAMES", "PARAMETERS", "STRUCTURE_KEYS", "TOLERANCE_NAMES",
     "ConfigurationViews", "DesignConfiguration", "FitSummary", "KinematicFileError", "KinematicFit",
-    "KinematicModel", "ParameterSpec", "ParameterValue", "Prediction", "approach_directions", "chain",
-    "fit_kinematics", "kinematic_design", "load_model", "model_from_toml", "model_toml", "nominal_covariance",
-    "nominal_extrinsics", "nominal_parameters", "predict", "save_model", "structure_sigma",
+    "KinematicModel", "ParameterSpec", "ParameterValue", "Prediction", "approach_directions", "campaign_design",
+    "chain",
+    "fit_kinematics", "joint_covariance", "kinematic_design", "load_model", "model_from_toml", "model_toml",
+    "nominal_covariance", "nominal_extrinsics", "nominal_parameters", "predict", "save_model", "structure_sigma",
 ]

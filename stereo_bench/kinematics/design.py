@@ -6,7 +6,7 @@ identifies the parameters from; :func:`approach_directions` says from which side
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,6 +81,22 @@ def kinematic_design(baseline_range_mm: tuple[float, float], toe_in_left_range_d
         design.append(DesignConfiguration(bs[min(b_index, len(bs) - 1)], tl[min(i, len(tl) - 1)],
                                           tr[min(j, len(tr) - 1)]))
     return design
+
+
+def campaign_design(configurations: Sequence) -> tuple[list[DesignConfiguration], float] | None:
+    """The kinematic design a campaign's plan visits for ``configurations`` (its planned
+    :class:`stereo_bench.campaign.plan.Configuration` list, or anything with ``baseline_mm``, ``toe_in_deg``,
+    ``distance_mm`` and ``runnable``) and the distance its board is shown at, as the plan chooses them
+    (the kinematic extrinsics source's visits and the error model's prediction of its fit); None: nothing runnable."""
+    runnable = [c for c in configurations if getattr(c, "runnable", True)]
+    if not runnable:
+        return None
+    baselines = [float(c.baseline_mm) for c in runnable]
+    toe_ins = [float(c.toe_in_deg) for c in runnable]
+    distances = sorted(float(c.distance_mm) for c in runnable)
+    toe_in_range = (min(toe_ins), max(toe_ins))
+    design = kinematic_design((min(baselines), max(baselines)), toe_in_range, toe_in_range)
+    return design, distances[len(distances) // 2]
 
 
 def approach_directions(previous: Mapping[str, float] | None, current: Mapping[str, float],

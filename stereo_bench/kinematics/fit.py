@@ -420,7 +420,7 @@ def fit_kinematics(
     configurations: Sequence[ConfigurationViews], object_points: np.ndarray, image_size: tuple[int, int], *,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, refine_intrinsics: bool = True,
     repeatability_mm: float = 0.0, repeatability_left_deg: float = 0.0, repeatability_right_deg: float = 0.0,
-    reference_baseline_mm: float | None = None, min_corners: int = 6,
+    reference_baseline_mm: float | None = None, min_corners: int = 6, pixel_sigma_px: float | None = None,
 ) -> KinematicFit:
     """Fit the kinematic model to calibration views at a design of configurations (one joint adjustment).
 
@@ -436,6 +436,9 @@ def fit_kinematics(
             for moves that land differently; 0 assumes exact landings.
         reference_baseline_mm: B_ref of the model (default: the middle of the design's baselines).
         min_corners: a view needs this many corners in each camera.
+        pixel_sigma_px: the corners' noise per coordinate, when known (a planned fit to exact pixels:
+            :func:`stereo_bench.errormodel.rigorous.planned_kinematic_model`); None: what the residuals show,
+            found by refitting.
 
     Raises:
         ValueError: too few usable views, or a design that identifies nothing.
@@ -498,7 +501,9 @@ def fit_kinematics(
             seen = cv2.projectPoints(object_points[ids].reshape(-1, 1, 3), _rvec(T[:3, :3]), T[:3, 3], K, D)[0]
             squares += float(((seen.reshape(-1, 2) - px) ** 2).sum())
             dof += 2 * len(ids) - 6
-    sigma_px = max(math.sqrt(squares / max(dof, 1)), 1e-3)
+    sigma_px = max(math.sqrt(squares / max(dof, 1)), 1e-3) if pixel_sigma_px is None else float(pixel_sigma_px)
+    if not sigma_px > 0:
+        raise ValueError(f"pixel_sigma_px must be > 0, not {pixel_sigma_px}")
     for _ in range(3):
         bundle = _Bundle(p0, free_index, B_ref, configurations, views, object_points, intr_l, intr_r,
                          refine_intrinsics, sigmas, sigma_px)
@@ -510,10 +515,10 @@ def fit_kinematics(
         pixel = r[: bundle.m_px] * sigma_px
         dof = max(1, bundle.m_px - (x.size - bundle.ne))
         estimate = float(math.sqrt(pixel @ pixel / dof))
-        converged = abs(estimate / sigma_px - 1.0) < 0.05
+        converged = pixel_sigma_px is not None or abs(estimate / sigma_px - 1.0) < 0.05
         # The pixel weight sets the balance against the landing priors: fit again with the sigma the
         # residuals show, until it agrees with the one assumed.
-        sigma_px = estimate
+        sigma_px = sigma_px if pixel_sigma_px is not None else estimate
         p0, _, intr_l, intr_r, poses = bundle.unpack(x)
         T_lb = [_pose_matrix(pose) for pose in poses]
         if converged:

@@ -102,7 +102,22 @@ def _rotation_matrices(rvecs: np.ndarray) -> np.ndarray:
 
 
 def _rvec(R: np.ndarray) -> np.ndarray:
-    return cv2.Rodrigues(np.asarray(R, dtype=float))[0].reshape(3)
+    """The rotation vector (3,) rad of ``R`` (3, 3), exact down to the identity.
+
+    cv2.Rodrigues returns 0 for every rotation under 1e-5 rad (its ``s < 1e-5`` branch), so a central
+    difference of R, T at parallel cameras (toe-ins 0, R the identity) saw no rotation at all and a prediction
+    there lost the rotational part of its covariance (the square's calibration term at B 60, α 90°: 27 µm
+    instead of ~6). The log map from the antisymmetric part: w = sin(θ) axis, θ axis = w θ / sin θ.
+    """
+    R = np.asarray(R, dtype=float)
+    w = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    s = float(np.linalg.norm(w))
+    theta = math.atan2(s, 0.5 * (float(np.trace(R)) - 1.0))
+    if theta > math.pi - 1e-3:
+        return cv2.Rodrigues(R)[0].reshape(3)  # near a half turn the antisymmetric part vanishes
+    if theta < 1e-4:
+        return w * (1.0 + theta * theta / 6.0)  # theta / sin(theta), to well below 1e-16 relative
+    return w * (theta / s)
 
 
 def _rvec_t(T_right_left: np.ndarray) -> np.ndarray:

@@ -113,3 +113,23 @@ def predict(model: KinematicModel, axes: Mapping[str, float], approach: Mapping[
                       structure=stereo_structure(R, x[3:]),
                       structure_sigma=structure_sigma(R, x[3:], covariance),
                       extrapolated=extrapolated, parameter_jacobian=J, rig_covariance=rig_part)
+
+
+def joint_covariance(model: KinematicModel, prediction: Prediction) -> tuple[np.ndarray, np.ndarray] | None:
+    """The fit's joint covariance of the intrinsics and the R, T ``prediction`` gives: ((P + 6, P + 6) matrix over
+    the model's ``intrinsics_covariance_names`` then (rvec [rad], T [mm]), the (P, 6) cross block); None when the
+    model file holds no intrinsics or cross covariance (an older file).
+
+    The design's one fit estimated the intrinsics and the kinematic parameters together, and their errors are
+    correlated (a focal length against the right camera's position): through a measurement they partly cancel,
+    as a per-configuration calibration's intrinsics and R, T do. The rig's own part (landing repeatability,
+    unknown backlash) is not in it: ``prediction.rig_covariance``.
+    """
+    C_i = model.intrinsics_covariance_matrix()
+    cross = model.cross_covariance_matrix()
+    J = prediction.parameter_jacobian
+    if C_i is None or cross is None or J is None:
+        return None
+    C_x = J @ model.covariance_matrix() @ J.T
+    C_ix = cross @ J.T
+    return np.block([[C_i, C_ix], [C_ix.T, C_x]]), C_ix

@@ -14,7 +14,7 @@ from stereo_bench.campaign.analysis import AnalysisError, ConfigurationAnalysis
 from stereo_bench.campaign.extrinsics.base import ExtrinsicsSource, measured_with, visit_captures
 from stereo_bench.campaign.extrinsics_run import Prepared
 from stereo_bench.campaign.sources import Source, kinematic_source
-from stereo_bench.kinematics import ConfigurationViews, fit_kinematics, kinematic_design
+from stereo_bench.kinematics import ConfigurationViews, campaign_design, fit_kinematics
 
 
 class KinematicSource(ExtrinsicsSource):
@@ -35,11 +35,11 @@ class KinematicSource(ExtrinsicsSource):
                format_id: Callable[[float], str]) -> list:
         """The design of :func:`stereo_bench.kinematics.kinematic_design` over ``ranges``; the board is shown
         around the middle of the plan's target distances."""
-        distances = sorted(c.distance_mm for c in configurations if c.runnable)
-        distance = distances[len(distances) // 2]
+        # The same design a prediction of this campaign fits (kinematics.campaign_design); ``ranges`` are
+        # design_ranges(configurations), which it spans.
+        designs, distance = campaign_design(configurations)
         visits = []
-        for k, design in enumerate(kinematic_design(ranges["baseline_mm"], ranges["toe_in_deg"],
-                                                    ranges["toe_in_deg"])):
+        for k, design in enumerate(designs):
             config_id = (f"design-{k + 1}_B{format_id(design.baseline_mm)}_L{format_id(design.toe_in_left_deg)}"
                          f"_R{format_id(design.toe_in_right_deg)}")
             visits.append(visit(k, config_id, "kinematic", design.baseline_mm, design.toe_in_left_deg,
