@@ -120,13 +120,15 @@ def _source_record(e: Expected, mode: str) -> dict:
 def write_structured_session(
     directory: Path, name: str, mode: str, geometries: list[tuple[float, float, float]], *,
     budget: bool = True, truth: bool = True, structure_event: bool = True, infeasible: tuple = (),
+    kinematic_fit_rms_px: float | None = None,
 ) -> Path:
     """A finished session of ``geometries`` (B, Z, alpha) measured with extrinsics ``mode``; no frames.
 
     ``budget``: rows carry the uncertainty columns and budget; ``truth``: the truth columns and a truth
     event (a simulated bench); ``structure_event``: the per-configuration structure event with every
     source the mode has and the square and budget of each (else only the row says which extrinsics were
-    used); ``infeasible``: geometries planned but not measurable.
+    used); ``infeasible``: geometries planned but not measurable; ``kinematic_fit_rms_px``: record the design's
+    kinematic fit (its event) with this RMS.
     """
     plan = [{"config_id": f"B{b:g}_Z{z:g}_A{a:g}", "baseline_mm": float(b), "distance_mm": float(z),
              "alpha_deg": float(a), "toe_in_deg": 90.0 - a, "tilt_deg": 0.0, "fraction_in_both": 1.0,
@@ -138,6 +140,9 @@ def write_structured_session(
                  "distance_mm": sorted({float(z) for _, z, _ in geometries})}}).model_dump(mode="json")
     with SessionWriter(directory).open() as writer:
         writer.start(config=config, plan=plan, software={"stereo_bench": "test"})
+        if kinematic_fit_rms_px is not None:
+            # The design's one fit, as the kinematic source records it before the first configuration.
+            writer.event("kinematic_model", data={"source": "design", "n_views": 108, "rms_px": kinematic_fit_rms_px})
         for b, z, a in geometries:
             e = expected(b, z, a, mode)
             used = e.structures[MODE_SOURCE[mode]]

@@ -3,6 +3,7 @@ predicted terms, the paper's tables beside ours and the verdicts on its claims."
 
 from __future__ import annotations
 
+import math
 import shutil
 
 import pytest
@@ -88,3 +89,25 @@ def test_a_trend_is_claimed_only_over_values_that_vary():
     claim_k, claim_alpha = _claims(sweep, ["per-config"])
     assert not any("smallest |error|" in e for e in claim_k.evidence)
     assert any("the smallest |error|" in e and "at α = 15°" in e for e in claim_alpha.evidence)
+
+
+def test_a_kinematic_session_shows_the_kinematic_fits_calibration_term(tmp_path):
+    """The joint term of the plan's design fit (docs/ERROR_MODEL.md section 5) beside the landing repeatability, and
+    far below the old intrinsics-apart split (22-32 against 1.6-6.8 um on the lab bench)."""
+    from stereo_bench.errormodel.rig import RigErrors
+    from stereo_bench.errormodel.rigorous import CalibrationPlan, Setup, predict
+    from tests.report_sessions import write_structured_session
+
+    geometries = [(60.0, 400.0, 90.0), (150.0, 550.0, 84.0), (240.0, 700.0, 80.0)]
+    session = write_structured_session(tmp_path, "kin", "kinematic", geometries, kinematic_fit_rms_px=0.21)
+    answer = answer_of(read_session(session, key="k"))
+    # No configuration calibrates: the noise is the design fit's (RMS / sqrt 2 per coordinate).
+    assert answer.pixel_sigma_px == pytest.approx(0.21 / math.sqrt(2.0))
+    assert "kinematic fit" in answer.pixel_sigma_note
+    for point in answer.points:
+        joint = point.predicted_mm.get("calibration (kinematic)")
+        assert joint is not None and joint > 0 and point.predicted_mm.get("structure (kinematic)") is not None
+        apart = predict(Setup.make(point.baseline_mm, point.distance_mm, point.alpha_deg), answer.pixel_sigma_px,
+                        calibration=CalibrationPlan(), rig=RigErrors(mode="kinematic", intrinsics_visits=9))
+        assert joint < 0.6 * apart.sigma_calibration_mm
+    assert any("kinematic: RMS |error|" in line for line in answer.lines)

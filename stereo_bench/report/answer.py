@@ -113,6 +113,9 @@ class Answer:
 def _pixel_sigma(session: SessionReport) -> tuple[float | None, str]:
     """Per coordinate, what the session's calibrations fitted to: RMS reprojection / sqrt(2) over configurations."""
     values = [v for c in session.configs if c.calibration and (v := _finite(c.calibration.get("rms_px"))) is not None]
+    if not values and (fit := _finite(session.kinematic_fit_rms_px)) is not None:
+        # A kinematic session calibrates nowhere but in its design's one fit.
+        return fit / math.sqrt(2.0), f"the kinematic fit's reprojection RMS {fit:.3g} px, per coordinate"
     if not values:
         return None, "no calibration RMS recorded"
     rms = math.sqrt(sum(v * v for v in values) / len(values))
@@ -120,9 +123,23 @@ def _pixel_sigma(session: SessionReport) -> tuple[float | None, str]:
                                   "configurations, per coordinate")
 
 
-def _predicted(session: SessionReport, point: AnswerPoint, sigma_px: float, modes: Sequence[str]) -> None:
-    """The terms at ``point``: noise (per frame / sqrt(frames)), calibration (per-config's), the structure of each
-    mode, the print's scale; and the paper's γ."""
+def _kinematic_design(session: SessionReport):
+    """(design, distance) the session's plan visits in kinematic mode (kinematics.campaign_design); None when the
+    plan cannot be expanded again."""
+    from stereo_bench.campaign.plan.configurations import expand_plan
+    from stereo_bench.kinematics import campaign_design
+
+    try:
+        return campaign_design(expand_plan(session.config))
+    except (ValueError, RuntimeError):
+        return None
+
+
+def _predicted(session: SessionReport, point: AnswerPoint, sigma_px: float, modes: Sequence[str],
+               design=None) -> None:
+    """The terms at ``point``: noise (per frame / sqrt(frames)), calibration (per-config's, and the kinematic fit's
+    jointly with its R, T when ``design``, the plan's kinematic design, is known), the structure of each mode, the
+    print's scale; and the paper's γ."""
     from stereo_bench.errormodel import paper
     from stereo_bench.errormodel.rig import rig_errors_of
     from stereo_bench.errormodel.rigorous import CalibrationPlan, Setup, predict
@@ -145,16 +162,21 @@ def _predicted(session: SessionReport, point: AnswerPoint, sigma_px: float, mode
     for mode in modes:
         if mode not in ("per-config", "nominal", "kinematic"):
             continue
+        joint = mode == "kinematic" and design is not None
         rig = rig_errors_of(config.extrinsics, config.target, config.calibration_board, mode=mode,
+                            design=design[0] if joint else None, design_distance_mm=design[1] if joint else None,
                             source="the session's config")
-        p = predict(setup, sigma_px, calibration=plan if mode == "per-config" else None, rig=rig)
+        p = predict(setup, sigma_px, calibration=plan if mode == "per-config" or joint else None, rig=rig)
+        # The image noise and its bias are every mode's (the same frames): drawn whichever modes were measured.
+        point.predicted_mm["noise"] = None if p.sigma_square_mm is None else p.sigma_square_mm / math.sqrt(frames)
+        point.predicted_mm["bias"] = p.bias_square_mm
         if mode == "per-config":
-            point.predicted_mm["noise"] = None if p.sigma_square_mm is None else p.sigma_square_mm / math.sqrt(frames)
-            point.predicted_mm["bias"] = p.bias_square_mm
             point.predicted_mm["calibration"] = p.sigma_calibration_mm
             point.predicted_mm["target"] = p.sigma_target_mm
         else:
             point.predicted_mm[f"structure ({mode})"] = p.sigma_structure_mm
+            if joint:
+                point.predicted_mm[f"calibration ({mode})"] = p.sigma_calibration_mm
     point.paper_gamma_mm = float(paper.gamma_mm(point.K, point.distance_mm, setup.left.fx, sigma_px))
 
 
@@ -180,8 +202,9 @@ def answer_of(session: SessionReport) -> Answer:
         sources += [s for s in squares if s not in sources]
         points.append(point)
     if sigma_px is not None and session.config is not None:
+        design = _kinematic_design(session) if "kinematic" in sources else None
         for point in points:
-            _predicted(session, point, sigma_px, sources)
+            _predicted(session, point, sigma_px, sources, design)
     return Answer(points=points, sources=sources, pixel_sigma_px=sigma_px, pixel_sigma_note=sigma_note,
                   table1=_table1(points), table2=_table2(points), claims=_claims(points, sources),
                   lines=_lines(points, sources))
@@ -282,7 +305,8 @@ def _lines(points: list[AnswerPoint], sources: list[str]) -> list[str]:
         if not errs:
             continue
         largest: dict[str, int] = {}
-        mine = ("noise", "bias", "calibration") if source == "per-config" else (f"structure ({source})",)
+        mine = ("noise", "bias", "calibration") if source == "per-config" else (
+            "noise", "bias", f"calibration ({source})", f"structure ({source})")
         for p in points:
             terms = {k: v for k, v in p.predicted_mm.items() if v is not None and k in mine}
             if terms:

@@ -43,6 +43,7 @@ from stereo_bench.campaign.documents import (
     AnalysisEvent,
     CalibrationEvent,
     EventDocument,
+    KinematicModelEvent,
     MeasurementFrameEvent,
     StartDocument,
     StructureEvent,
@@ -187,6 +188,7 @@ class SessionReport:
     status: str  # exit status of the last attempt, or 'incomplete'
     configs: list[ConfigReport]
     warnings: list[str] = field(default_factory=list)
+    kinematic_fit_rms_px: float | None = None  # the kinematic model's fit RMS (its event), where the session has one
 
     @property
     def name(self) -> str:
@@ -257,9 +259,12 @@ def read_session(directory: str | Path, key: str) -> SessionReport:
     plan_by_id = {str(entry.get("config_id")): entry for entry in plan}
     rows = with_plan([row.stored() for row in reader.results()], plan)
     events: dict[str, list[EventDocument]] = {}
+    kinematic_rms = None
     for event in reader.events():
         if event.config_id is not None:
             events.setdefault(event.config_id, []).append(event)
+        elif isinstance(event, KinematicModelEvent) and event.data.rms_px is not None:
+            kinematic_rms = float(event.data.rms_px)
     configs = []
     for row in rows:
         report = ConfigReport(row=row, plan=plan_by_id.get(str(row.get("config_id"))), budget=budget_of(row))
@@ -269,7 +274,8 @@ def read_session(directory: str | Path, key: str) -> SessionReport:
                                         config=config, calibration=_calibration_loader(reader, report, warnings))
         configs.append(report)
     session = SessionReport(key=key, directory=Path(directory), reader=reader, start=start, config=config,
-                            status=_outcome(reader.status(), configs), configs=configs, warnings=warnings)
+                            status=_outcome(reader.status(), configs), configs=configs, warnings=warnings,
+                            kinematic_fit_rms_px=kinematic_rms)
     add_predictions(session)
     return session
 

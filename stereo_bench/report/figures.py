@@ -494,7 +494,8 @@ def calibration_figure(configs: Sequence[tuple[str, str, Mapping[str, object] | 
 
 #: Line style of each predicted term on the first screen's figure.
 TERM_STYLE = {"noise": ("C0", "-"), "bias": ("C0", ":"), "calibration": ("C1", "-"), "target": ("C7", "--"),
-              "structure (nominal)": ("C3", "-"), "structure (kinematic)": ("C2", "-"), "paper's γ": ("k", ":")}
+              "structure (nominal)": ("C3", "-"), "structure (kinematic)": ("C2", "-"),
+              "calibration (kinematic)": ("C2", "--"), "paper's γ": ("k", ":")}
 
 
 def answer_figure(points: Sequence, sources: Sequence[str], *, title: str, against_true: bool) -> Figure:
