@@ -8,6 +8,7 @@ the same through the rendered lab bench.
 
 from __future__ import annotations
 
+import math
 import tomllib
 from types import SimpleNamespace
 
@@ -257,3 +258,18 @@ def test_the_predicted_sigma_matches_the_scatter_of_repeated_fits():
     ratio = scatter / np.mean(claimed, axis=0)
     # 12 samples: the std is known to about +-20 %; allow for it.
     assert np.all((ratio > 0.55) & (ratio < 1.6)), ratio
+
+
+def test_the_fit_keeps_its_residuals_binned_over_the_image(lab_fit):
+    """What the budget reads the corner error beyond noise from (as a per-config calibration's residual map): every
+    used corner binned, and for independent noise (this fit's) bin means within their standard errors of zero."""
+    result = lab_fit[0]
+    maps = result.model.residual_map_objects()
+    assert set(maps) == {"left", "right"}
+    assert sum(float(m.count.sum()) for m in maps.values()) == result.model.fit.n_observations
+    for m in maps.values():
+        full = m.count >= 8
+        z = m.mean[full] / np.maximum(m.standard_error()[full], 1e-12)
+        assert np.sqrt(np.mean(z**2)) < 1.5  # 1 expected for zero-mean noise
+        assert math.sqrt(float(m.sumsq.sum()) / (2 * m.count.sum())) == pytest.approx(
+            result.model.fit.pixel_sigma_px, rel=0.2)

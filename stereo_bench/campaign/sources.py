@@ -147,7 +147,8 @@ def model_intrinsics_covariance(model: KinematicModel) -> CalibrationCovariance 
     locking = tuple(model.pixel_locking_px) if model.pixel_locking_px is not None else None
     return CalibrationCovariance(tuple(model.intrinsics_covariance_names), matrix,
                                  sigma_px=float(fit.pixel_sigma_px) if fit is not None else float("nan"),
-                                 dof=int(fit.dof or 0) if fit is not None else 0, pixel_locking_px=locking)
+                                 dof=int(fit.dof or 0) if fit is not None else 0, pixel_locking_px=locking,
+                                 residual_map=model.residual_map_objects())
 
 
 def kinematic_source(model: KinematicModel, axes: Mapping[str, float], approach: Mapping[str, int],
@@ -169,7 +170,7 @@ def kinematic_source(model: KinematicModel, axes: Mapping[str, float], approach:
     joint = covariance is not None and both is not None
     if joint:
         covariance = CalibrationCovariance(covariance.names + EXTRINSIC_NAMES, both[0], covariance.sigma_px,
-                                           covariance.dof, covariance.pixel_locking_px)
+                                           covariance.dof, covariance.pixel_locking_px, covariance.residual_map)
     calib = StereoCalibration(
         K1=K1, D1=D1, K2=K2, D2=D2, R=prediction.R, T=prediction.T,
         image_size=(int(model.image_size[0]), int(model.image_size[1])),

@@ -68,6 +68,9 @@ def model_toml(model: KinematicModel) -> str:
     if data.get("fit") is not None:
         lines += ["", "[fit]"]
         lines.extend(f"{key} = {_toml_value(value)}" for key, value in data["fit"].items() if value is not None)
+    for side, record in (data.get("residual_maps") or {}).items():
+        lines += ["", f"[residual_maps.{side}]  # the fit's residuals binned over the image (projected - observed)"]
+        lines.extend(f"{key} = {_toml_value(value)}" for key, value in record.items())
     text = "\n".join(lines) + "\n"
     tomllib.loads(text)  # never write a file that does not read back
     return text

@@ -40,6 +40,7 @@ from stereo_bench.kinematics.model import (
     FitSummary,
     KinematicModel,
     ParameterValue,
+    ResidualMapRecord,
     _effective,
     _rotation_matrices,
     _rotation_vector_matrix,
@@ -406,6 +407,24 @@ class _Bundle:
         residual = self.residuals(x)[: self.m_px] * self.sigma_px  # projected - observed, px
         return pixel_locking(observed, residual)
 
+    def residual_maps(self, x: np.ndarray, image_size: tuple[int, int]) -> dict[str, ResidualMapRecord]:
+        """Per camera the residuals at ``x`` binned over the image (as a calibration covariance's residual map)."""
+        from stereo_bench.vision.covariance import ResidualMap
+
+        ordered = self.residuals(x)[: self.m_px] * self.sigma_px  # projected - observed, px, view by view
+        raw = np.empty_like(ordered)
+        raw[self.order] = ordered
+        split = 2 * len(self.obs["left"][0])
+        out = {}
+        for side, residual in (("left", raw[:split]), ("right", raw[split:])):
+            m = ResidualMap.of(self.obs[side][2], residual, image_size)
+            ny, nx = m.count.shape
+            out[side] = ResidualMapRecord(image_size=[int(image_size[0]), int(image_size[1])], bins=[nx, ny],
+                                          count=[float(v) for v in m.count.ravel()],
+                                          mean_px=[float(v) for v in m.mean.ravel()],
+                                          sumsq_px2=[float(v) for v in m.sumsq.ravel()])
+        return out
+
     def global_covariance(self, lin: dict) -> np.ndarray:
         """Covariance of the global unknowns (board poses marginalised): inverse of the Schur complement."""
         V_inv = np.linalg.inv(lin["V"])
@@ -572,6 +591,7 @@ def fit_kinematics(
         intrinsics_covariance_names=intrinsic_names, intrinsics_covariance=cov_i.tolist(),
         cross_covariance=cross.tolist(),
         pixel_locking_px=None if locking is None else [float(locking[0]), float(locking[1])],
+        residual_maps=bundle.residual_maps(x, (int(image_size[0]), int(image_size[1]))),
     )
     return KinematicFit(model=model, T_left_board=[_pose_matrix(pose) for pose in poses], view_rms_px=per_view,
                         view_configuration=bundle.view_config.copy(), views_dropped=dropped, landing=landing)

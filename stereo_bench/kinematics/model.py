@@ -227,6 +227,29 @@ class FitSummary(BaseModel):
     dof: int | None = Field(None, description="degrees of freedom of pixel_sigma_px (coordinates - unknowns)")
 
 
+class ResidualMapRecord(BaseModel):
+    """One camera's fit residuals binned over the image (:class:`stereo_bench.vision.covariance.ResidualMap`):
+    ``bins`` (nx, ny); ``count`` (ny * nx) corners per bin, ``mean_px`` and ``sumsq_px2`` (ny * nx * 2) their
+    mean residual (projected - observed) and sum of squares per coordinate, row-major."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    image_size: list[int]
+    bins: list[int]
+    count: list[float]
+    mean_px: list[float]
+    sumsq_px2: list[float]
+
+    @model_validator(mode="after")
+    def _shapes(self) -> ResidualMapRecord:
+        if len(self.bins) != 2 or min(self.bins) < 1 or len(self.image_size) != 2:
+            raise ValueError("bins and image_size must each be two positive integers")
+        n = self.bins[0] * self.bins[1]
+        if len(self.count) != n or len(self.mean_px) != 2 * n or len(self.sumsq_px2) != 2 * n:
+            raise ValueError(f"count must hold {n} values and mean_px, sumsq_px2 {2 * n} (bins {self.bins})")
+        return self
+
+
 class KinematicModel(BaseModel):
     """A fitted kinematic rig model: every parameter with its standard deviation, and their covariance."""
 
@@ -257,6 +280,10 @@ class KinematicModel(BaseModel):
     # (a_sin, a_cos) px: the corner detector's pixel locking fitted to the fit's residuals
     # (stereo_bench.vision.covariance.pixel_locking); None: not significant or not estimated.
     pixel_locking_px: list[float] | None = None
+    # Per camera the fit's residuals binned over the image: where the model misses the corners, so that the
+    # budget treats the corner error beyond noise as a per-config calibration's (the smooth part from the map,
+    # the rest independent from corner to corner). Empty: a file written before it was saved.
+    residual_maps: dict[str, ResidualMapRecord] = Field(default_factory=dict)
 
     @model_validator(mode="after")
     def _check(self) -> KinematicModel:
@@ -305,6 +332,21 @@ class KinematicModel(BaseModel):
             return None
         return np.asarray(self.cross_covariance, dtype=float).reshape(len(self.intrinsics_covariance_names),
                                                                       len(self.covariance_names))
+
+    def residual_map_objects(self) -> dict | None:
+        """``residual_maps`` as :class:`stereo_bench.vision.covariance.ResidualMap` per camera; None when empty."""
+        if not self.residual_maps:
+            return None
+        from stereo_bench.vision.covariance import ResidualMap
+
+        out = {}
+        for side, record in self.residual_maps.items():
+            nx, ny = record.bins
+            out[side] = ResidualMap((int(record.image_size[0]), int(record.image_size[1])),
+                                    np.asarray(record.count, float).reshape(ny, nx),
+                                    np.asarray(record.mean_px, float).reshape(ny, nx, 2),
+                                    np.asarray(record.sumsq_px2, float).reshape(ny, nx, 2))
+        return out
 
     def intrinsics_covariance_matrix(self) -> np.ndarray | None:
         """(P, P) covariance of ``intrinsics_covariance_names``; None when the file has none."""
