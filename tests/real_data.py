@@ -363,3 +363,53 @@ def caliscope_leave_one_out() -> dict:
                      "noise_systematic_mm": budget.noise_systematic_mm, "dominant": budget.dominant,
                      "baseline_mm": calib.baseline_mm, "rms_px": calib.rms_px})
     return {"rows": rows, "opencv_errors_mm": caliscope_opencv_leave_one_out()}
+
+
+def corner_sigmas(name: str) -> list[dict]:
+    """Per pair the full calibration keeps, measured with it: the budget's corner error per coordinate beside the
+    image noise and the pair's own planar-fit residual, with the calibration's covariance and without it."""
+    from dataclasses import replace as _replace
+
+    from stereo_bench.vision.uncertainty import FrameCorners, frames_residual_px
+
+    s = SETS[name]
+    det = detections(name)
+    full, usable = full_calibration(name)
+    bare = _replace(full, covariance=None, adequacy=None)
+    rows = []
+    for i in [usable[k] for k in full.views_used]:
+        pair = measure_pair(images(name)[0][i], images(name)[1][i], full, s.board, detections=det[i])
+        with_it = configuration_budget([pair], full, s.board, board_scale=BoardScale(same_board=True))
+        without = configuration_budget([pair], bare, s.board, board_scale=BoardScale(same_board=True))
+        rows.append({"image_noise_px": with_it.corner_random_px, "corner_sigma_px": with_it.corner_sigma_px,
+                     "corner_sigma_without_covariance_px": without.corner_sigma_px,
+                     "planar_fit_px": frames_residual_px([FrameCorners.from_pair(pair)])[0],
+                     "fit_sigma_px": full.covariance.sigma_px})
+    return rows
+
+
+@cache
+def leave_one_out_without_covariance(name: str) -> dict:
+    """:func:`leave_one_out`'s held-out errors and budgets (``errors_mm``, ``u_c_mm``, ``U_mm``) with each
+    leave-one-out calibration's covariance and adequacy check removed: a calibration file that has none."""
+    from dataclasses import replace as _replace
+
+    s = SETS[name]
+    det = detections(name)
+    full, usable = full_calibration(name)
+    usable = [usable[i] for i in full.views_used]
+    views = {i: common_corners(*det[i]) for i in usable}
+    errors, u_c, U = [], [], []
+    for held_out in usable:
+        keep = [i for i in usable if i != held_out]
+        calib = _calibrate([s.board.object_points[views[i][0]] for i in keep], [views[i][1] for i in keep],
+                           [views[i][2] for i in keep], images(name)[0][0].shape[::-1])
+        calib = _replace(calib, covariance=None, adequacy=None)
+        pair = measure_pair(images(name)[0][held_out], images(name)[1][held_out], calib, s.board,
+                            detections=det[held_out])
+        budget = configuration_budget([pair], calib, s.board, board_scale=BoardScale(same_board=True),
+                                      structure_covariance=np.zeros((6, 6)))
+        errors.append(budget.error_mm)
+        u_c.append(budget.combined)
+        U.append(budget.expanded)
+    return {"errors_mm": np.array(errors), "u_c_mm": np.array(u_c), "U_mm": np.array(U)}

@@ -133,7 +133,7 @@ def test_budget_is_bit_identical_with_every_shared_part():
     assert budget.systematic_model == "residual map" and budget.detector_bias_mm != 0
     field_bias, _ = mapped_systematic_mm(calib, frames, TARGET, maps, 0.02)
     assert budget.field_bias_mm == field_bias
-    memo_free = [noise_bias_mm(calib, f, TARGET) for f in frames]
+    memo_free = [noise_bias_mm(calib, f, TARGET, extra_px=0.02) for f in frames]
     assert budget.noise_bias_mm == float(np.mean(memo_free))
     assert budget.detector_bias_mm == float((complex(*covariance.pixel_locking_px)
                                              * phase_sum(calib, frames, TARGET)).imag)

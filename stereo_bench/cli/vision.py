@@ -439,13 +439,17 @@ def cmd_measure(args: argparse.Namespace) -> int:
         parts = ", ".join(f"{name} {'unknown' if value is None else mm(value)}" for name, value in components.items())
         print(f"        uncertainty: {parts} -> u_c {mm(budget.combined)} mm, dominant: {budget.dominant}"
               + (f"; not included: {', '.join(budget.unknown)}" if budget.unknown else ""))
-        print(f"        std {mm(sq.std_mm)} mm over n = {sq.n} adjacent pairs, sigma of mean {mm(sq.sigma_mean_mm)} mm")
+        print(f"        std {mm(sq.std_mm)} mm over n = {sq.n} adjacent pairs, sigma of mean {mm(sq.sigma_mean_mm)} mm "
+              f"from the sensor noise alone")
         print(f"depth:  {sq.depth_mm:.1f} mm (left camera frame); corners in both views: {len(sq.ids)} "
               f"of {target.n_corners}")
         fit = result.planar_fit_rms_px
         px = functools.partial(fixed_or_significant, decimals=3)
-        print(f"epipolar RMS {px(result.epipolar_rms_px)} px; random corner noise {px(sq.pixel_sigma_px[0])} / "
-              f"{px(sq.pixel_sigma_px[1])} px, planar-fit RMS {px(fit[0])} / {px(fit[1])} px (left / right)")
+        reference = f"{px(budget.corner_reference_px)} px in {budget.corner_reference or 'no residuals'}"
+        print(f"epipolar RMS {px(result.epipolar_rms_px)} px; planar-fit RMS {px(fit[0])} / {px(fit[1])} px (left / "
+              f"right); corner error counted {px(budget.corner_sigma_px)} px per coordinate: sensor noise "
+              f"{px(sq.pixel_sigma_px[0])} / {px(sq.pixel_sigma_px[1])} px, beyond it "
+              f"{px(budget.corner_systematic_px)} px (of {reference})")
     return 0
 
 

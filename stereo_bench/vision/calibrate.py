@@ -400,27 +400,11 @@ def _calibrate_stereo(
         used = [index for position, index in enumerate(used) if position not in set(drop)]
     D1n, D2n = _model_vector(D1n, flags), _model_vector(D2n, flags)
     T = np.asarray(T, float).reshape(3)
-    cov, note = None, ""
-    try:
-        if not covariance:
-            raise CovarianceUnavailable("not computed")
-        intrinsics_from = None
-        if mode == "fixed" and left is not None and left.views_used == right.views_used == used:
-            intrinsics_from = "these views"  # the usual case: the linearisations come from the stereo fit's rows
-        elif mode == "fixed" and left is not None:
-            intrinsics_from = tuple(
-                mono_linearisation([object_points[i] for i in mono.views_used], [points[i] for i in mono.views_used],
-                                   mono.K, mono.dist, mono.rvecs, mono.tvecs, flags=covariance_flags(flags),
-                                   view_indices=mono.views_used, side=side)
-                for mono, points, side in ((left, left_points, "left"), (right, right_points, "right"))
-            )
-        cov = stereo_covariance(
-            [object_points[i] for i in used], [left_points[i] for i in used], [right_points[i] for i in used],
-            K1n, D1n, K2n, D2n, R, T, rvecs, tvecs, flags=covariance_flags(stereo_flags), view_indices=used,
-            intrinsics_covariance=intrinsics_covariance, intrinsics_from=intrinsics_from, image_size=tuple(image_size),
-        )
-    except CovarianceUnavailable as error:
-        note = str(error)
+    cov, note = None, "not computed"
+    if covariance:
+        cov, note = _fit_covariance(object_points, left_points, right_points, used, K1n, D1n, K2n, D2n, R, T, rvecs,
+                                    tvecs, flags=flags, stereo_flags=stereo_flags, mode=mode, mono=(left, right),
+                                    intrinsics_covariance=intrinsics_covariance, image_size=image_size)
     calib = StereoCalibration(
         K1=K1n, D1=D1n, K2=K2n, D2=D2n, R=R, T=T, image_size=tuple(image_size), rms_px=float(rms),
         per_view_rms_px=per_view, views_used=used, views_rejected=sorted(rejected, key=lambda r: r.index),
@@ -428,6 +412,32 @@ def _calibrate_stereo(
         mono=None if left is None else (left, right),
     )
     return calib, [np.asarray(r, float).reshape(3) for r in rvecs], [np.asarray(t, float).reshape(3) for t in tvecs]
+
+
+def _fit_covariance(object_points, left_points, right_points, used: list[int], K1, D1, K2, D2, R, T, rvecs, tvecs, *,
+                    flags: int, stereo_flags: int, mode: StereoMode, mono: tuple, intrinsics_covariance,
+                    image_size) -> tuple[CalibrationCovariance | None, str]:
+    """(covariance, note) of a stereo fit of :func:`_calibrate_stereo` (its views ``used``, solution, board poses,
+    mono fits ``mono`` (left, right) or (None, None)); (None, why) when it is not available."""
+    left, right = mono
+    try:
+        intrinsics_from = None
+        if mode == "fixed" and left is not None and left.views_used == right.views_used == used:
+            intrinsics_from = "these views"  # the usual case: the linearisations come from the stereo fit's rows
+        elif mode == "fixed" and left is not None:
+            intrinsics_from = tuple(
+                mono_linearisation([object_points[i] for i in fit.views_used], [points[i] for i in fit.views_used],
+                                   fit.K, fit.dist, fit.rvecs, fit.tvecs, flags=covariance_flags(flags),
+                                   view_indices=fit.views_used, side=side)
+                for fit, points, side in ((left, left_points, "left"), (right, right_points, "right"))
+            )
+        return stereo_covariance(
+            [object_points[i] for i in used], [left_points[i] for i in used], [right_points[i] for i in used],
+            K1, D1, K2, D2, R, T, rvecs, tvecs, flags=covariance_flags(stereo_flags), view_indices=used,
+            intrinsics_covariance=intrinsics_covariance, intrinsics_from=intrinsics_from, image_size=tuple(image_size),
+        ), ""
+    except CovarianceUnavailable as error:
+        return None, str(error)
 
 
 def model_of_flags(flags: int) -> str:
@@ -483,9 +493,12 @@ def calibrate_stereo_lens(
     if lens_model != AUTO and lens_model not in MODELS:
         raise ValueError(f"unknown lens model {lens_model!r}: one of {AUTO}, {', '.join(MODELS)}")
     first = MODELS[DEFAULT_MODEL if lens_model == AUTO else lens_model]
+    comparing = lens_model == AUTO and intrinsics is None
+    # Compared, the default model's covariance is computed only once it is chosen (another model's replaces it).
     base, rvecs, tvecs = _calibrate_stereo(object_points, left_points, right_points, image_size,
                                            intrinsics=intrinsics, mode=mode, flags=first.flags,
-                                           intrinsics_covariance=intrinsics_covariance, covariance=covariance)
+                                           intrinsics_covariance=intrinsics_covariance,
+                                           covariance=covariance and not comparing)
     if intrinsics is not None and lens_model == AUTO:
         return replace(base, lens_model=DEFAULT_MODEL if base.lens_model else "")
     if lens_model != AUTO:
@@ -528,6 +541,13 @@ def calibrate_stereo_lens(
                      key=lambda r: (r.n_free, list(MODELS).index(r.model)))
     chosen, reason = choose(results)
     final = base
+    if chosen == first.name and covariance:
+        stereo_flags = first.flags | (cv2.CALIB_FIX_INTRINSIC if mode == "fixed" else cv2.CALIB_USE_INTRINSIC_GUESS)
+        cov, note = _fit_covariance(object_points, left_points, right_points, base.views_used, base.K1, base.D1,
+                                    base.K2, base.D2, base.R, base.T, rvecs, tvecs, flags=first.flags,
+                                    stereo_flags=stereo_flags, mode=mode, mono=base.mono or (None, None),
+                                    intrinsics_covariance=intrinsics_covariance, image_size=image_size)
+        final = replace(base, covariance=cov, covariance_note=note)
     if chosen != first.name:
         model = MODELS[chosen]
         fit, rv, tv = fits[chosen]

@@ -169,6 +169,24 @@ def mono_pose(obj: np.ndarray, px: np.ndarray, K: np.ndarray, D: np.ndarray) -> 
     return rvec, tvec, _rms(px - _project(obj, rvec, tvec, K, D))
 
 
+class PoseCache:
+    """:func:`mono_pose` of each (board points, pixels, K, D) computed once: the synchronisation gate and the
+    flatness gate fit the same images with the same mono intrinsics (and, without mono fits, the synchronisation
+    gate fits each image twice with the same ones). Keyed by the arrays' identities, so it serves one
+    :func:`run_gates` call, whose views hold the arrays; the same calls on the same numbers: the same bits."""
+
+    def __init__(self) -> None:
+        self._poses: dict[tuple[int, int, int, int], tuple[tuple, tuple[np.ndarray, np.ndarray, float]]] = {}
+
+    def pose(self, obj: np.ndarray, px: np.ndarray, K: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                                                         float]:
+        key = (id(obj), id(px), id(K), id(D))
+        if key not in self._poses:
+            # The arrays are kept with their result: their ids stay theirs while the cache lives.
+            self._poses[key] = ((obj, px, K, D), mono_pose(obj, px, K, D))
+        return self._poses[key][1]
+
+
 def _stereo_residual(calib: StereoCalibration, obj: np.ndarray, observed: np.ndarray, p: np.ndarray,
                      rvec_stereo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(residual (4N,) px, Jacobian (4N, 6)) of one board pose p = (rvec, tvec) in the left camera's frame, seen
@@ -234,15 +252,17 @@ def _mono_intrinsics(calib: StereoCalibration) -> tuple[tuple[np.ndarray, np.nda
     return (calib.K1, calib.D1), (calib.K2, calib.D2)
 
 
-def view_residuals(calib: StereoCalibration, view: GateView) -> ViewResiduals:
-    """Mono residuals (each image with its own pose) and the stereo residual (one pose for both) of a view."""
+def view_residuals(calib: StereoCalibration, view: GateView, poses: PoseCache | None = None) -> ViewResiduals:
+    """Mono residuals (each image with its own pose) and the stereo residual (one pose for both) of a view.
+    ``poses``: a :class:`PoseCache` shared with the other gates of one run."""
+    pose = (poses or PoseCache()).pose
     # Each image alone with its camera's own mono calibration where there is one: a joint fit of pairs that
     # were not taken together bends the intrinsics until no view fits, alone or not.
     (K1, D1), (K2, D2) = _mono_intrinsics(calib)
-    _, _, mono_left = mono_pose(view.object_points, view.left_px, K1, D1)
-    _, _, mono_right = mono_pose(view.object_points, view.right_px, K2, D2)
-    rl, tl, _ = mono_pose(view.object_points, view.left_px, calib.K1, calib.D1)
-    rr, tr, _ = mono_pose(view.object_points, view.right_px, calib.K2, calib.D2)
+    _, _, mono_left = pose(view.object_points, view.left_px, K1, D1)
+    _, _, mono_right = pose(view.object_points, view.right_px, K2, D2)
+    rl, tl, _ = pose(view.object_points, view.left_px, calib.K1, calib.D1)
+    rr, tr, _ = pose(view.object_points, view.right_px, calib.K2, calib.D2)
     # Start from each camera's own pose (the right one carried into the left frame) and keep the better fit.
     R, T = np.asarray(calib.R, float), np.asarray(calib.T, float).reshape(3)
     from_right = (cv2.Rodrigues(R.T @ cv2.Rodrigues(rr)[0])[0].reshape(3), R.T @ (tr - T))
@@ -374,19 +394,20 @@ def bowl_basis(object_points: np.ndarray, extent: tuple[float, float, float, flo
 
 
 def fit_bowl(images: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
-             board_points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+             board_points: np.ndarray, poses: PoseCache | None = None) -> tuple[np.ndarray, np.ndarray, float]:
     """Fit a bend dz = c . (x'^2, y'^2, x'y') (mm, out of the board's plane) to every image's residuals at once.
 
     ``images``: per image (object_points (N, 3) mm, pixels (N, 2), K, D); each image keeps its own pose,
     linearised (6 columns from ``projectPoints``) and eliminated, so only a bend no pose change mimics is fitted.
     Returns (c (3,) mm, covariance of c (3, 3) mm^2 scaled by the residual variance, peak-to-valley mm of the
-    fitted bend over ``board_points``).
+    fitted bend over ``board_points``). ``poses``: a :class:`PoseCache` shared with the other gates of one run.
     """
+    pose = (poses or PoseCache()).pose
     extent = (board_points[:, 0].min(), board_points[:, 0].max(), board_points[:, 1].min(), board_points[:, 1].max())
     normal, rhs, sq, dof = np.zeros((3, 3)), np.zeros(3), 0.0, 0
     for obj, px, K, D in images:
+        rvec, tvec, _ = pose(obj, px, K, D)
         obj = np.asarray(obj, np.float64).reshape(-1, 3)
-        rvec, tvec, _ = mono_pose(obj, px, K, D)
         projected, jac = cv2.projectPoints(obj.reshape(-1, 1, 3), rvec, tvec, K, D)
         r = (np.asarray(px, float).reshape(-1, 2) - projected.reshape(-1, 2)).reshape(-1)
         J = jac[:, :6]  # (2N, 6): rvec, tvec
@@ -408,14 +429,15 @@ def fit_bowl(images: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     return c, cov, float(shape.max() - shape.min())
 
 
-def gate_flatness(calib: StereoCalibration, views: Sequence[GateView], board_points: np.ndarray) -> GateResult:
+def gate_flatness(calib: StereoCalibration, views: Sequence[GateView], board_points: np.ndarray,
+                  poses: PoseCache | None = None) -> GateResult:
     """Fails when a bend of the board (:func:`fit_bowl`) is both large and well measured (``FLATNESS_*``)."""
     if len(views) < 3:
         return GateResult("flatness", float("nan"), FLATNESS_MAX_REL, "of diagonal", "n/a", "too few views")
     (K1, D1), (K2, D2) = _mono_intrinsics(calib)
     images = [(v.object_points, v.left_px, K1, D1) for v in views]
     images += [(v.object_points, v.right_px, K2, D2) for v in views]
-    c, cov, pv = fit_bowl(images, board_points)
+    c, cov, pv = fit_bowl(images, board_points, poses)
     extent = (board_points[:, 0].min(), board_points[:, 0].max(), board_points[:, 1].min(), board_points[:, 1].max())
     diagonal = float(np.hypot(extent[1] - extent[0], extent[3] - extent[2]))
     # sigma of the peak-to-valley, linearised: the bend's shape over the board with c's covariance.
@@ -525,7 +547,8 @@ def run_gates(calib: StereoCalibration, views: Sequence[GateView], target: Targe
     synchronisation gate names them); ``dropped``: (pair index, reason) of the views the fit dropped.
     """
     dropped_set = {i for i, _ in dropped}
-    residuals = [view_residuals(calib, v) for v in views]
+    poses = PoseCache()
+    residuals = [view_residuals(calib, v, poses) for v in views]
     sync = gate_synchronised(residuals, names)
     diagnoses = {v.index: (f"left and right not taken together (stereo residual {v.stereo_px:.2f} px, each image "
                            f"alone {v.mono_left_px:.2f} / {v.mono_right_px:.2f} px)")
@@ -545,7 +568,7 @@ def run_gates(calib: StereoCalibration, views: Sequence[GateView], target: Targe
         sync,
         gate_consistent_views(len(views), dropped, names),
         gate_sharpness(blurs, names),
-        gate_flatness(calib, kept, target.object_points),
+        gate_flatness(calib, kept, target.object_points, poses),
         gate_left_right(calib) if sync.verdict != "fail" else GateResult(
             "left_right", float("nan"), 0.0, "x/|C|", "n/a", "not judged: R, T of pairs not taken together"),
     )

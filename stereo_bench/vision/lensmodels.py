@@ -191,6 +191,24 @@ def _square_error_mm(K1, D1, K2, D2, R, T, left, right, a, b, length) -> float:
     return float(np.mean(np.linalg.norm(points[a] - points[b], axis=1) - length))
 
 
+def _unmoved_square_errors_mm(K1, D1, K2, D2, R, T, object_points, left_points, right_points,
+                              adjacency: dict | None) -> list[float]:
+    """Per view :func:`_square_error_mm` of the calibration as it is, the views' corners in one call per camera."""
+    lefts = [np.asarray(p, float).reshape(-1, 2) for p in left_points]
+    rights = [np.asarray(p, float).reshape(-1, 2) for p in right_points]
+    P2 = np.hstack([R, np.asarray(T, float).reshape(3, 1)])
+    homogeneous = cv2.triangulatePoints(_P1, P2, _normalised(np.vstack(lefts), K1, D1).T.copy(),
+                                        _normalised(np.vstack(rights), K2, D2).T.copy())
+    points = (homogeneous[:3] / homogeneous[3]).T
+    out, start = [], 0
+    for obj, left in zip(object_points, lefts, strict=True):
+        a, b, length = adjacency[id(obj)] if adjacency and id(obj) in adjacency else _adjacent(obj)
+        view = points[start:start + len(left)]
+        out.append(float(np.mean(np.linalg.norm(view[a] - view[b], axis=1) - length)))
+        start += len(left)
+    return out
+
+
 def _moved_square_mm(delta, names_l, names_r, square_pixels, K1, D1, K2, D2, rvec0, T, left, right, a, b,
                      length) -> float:
     """A view's square error (mm) with the stereo parameters moved by ``delta`` (left, right intrinsics, rvec, T)."""
@@ -230,8 +248,16 @@ def held_out(model: LensModel, object_points, left_points, right_points, K1, D1,
     rvec0 = cv2.Rodrigues(np.asarray(R, np.float64))[0].reshape(3)
     T = np.asarray(T, float).reshape(3)
     K1, D1, K2, D2 = (np.asarray(x, float) for x in (K1, D1, K2, D2))
-    for view, Jh, g_v, obj, left, right in zip(views, solution.Jhat, grads, object_points, left_points, right_points,
-                                               strict=True):
+    # Every view's square with the fit unmoved (delta = 0), all corners in one undistortion and triangulation per
+    # camera: both work point by point, so each view's points are the bits of its own call.
+    # (The intrinsics as _moved_square_mm makes them of a zero step: fx = a fy recomputes fx.)
+    zero = np.zeros(len(names_l))
+    K1z, D1z = _apply(tuple(names_l), zero, K1, D1, model.square_pixels)
+    K2z, D2z = _apply(tuple(names_r), zero, K2, D2, model.square_pixels)
+    unmoved = _unmoved_square_errors_mm(K1z, D1z, K2z, D2z, cv2.Rodrigues(rvec0)[0], T, object_points, left_points,
+                                        right_points, adjacency)
+    for view, Jh, g_v, obj, left, right, at_zero in zip(views, solution.Jhat, grads, object_points, left_points,
+                                                        right_points, unmoved, strict=True):
         S_minus = (S - Jh.T @ Jh) / scale / scale[:, None]  # unit diagonal: px, unitless and rad alike
         if np.linalg.cond(S_minus) > MAX_CONDITION:
             note = "a view's removal leaves the parameters undetermined"
@@ -247,8 +273,8 @@ def held_out(model: LensModel, object_points, left_points, right_points, K1, D1,
         # Linear in delta like the residual: along a direction the views barely determine (the rational model's
         # numerator against its denominator) delta is large and the lens moved by all of it is another lens.
         at = [_moved_square_mm(step * delta, names_l, names_r, model.square_pixels, K1, D1, K2, D2, rvec0, T, left,
-                               right, a, b, length) for step in (0.0, SQUARE_STEP, -SQUARE_STEP)]
-        square.append(at[0] + (at[1] - at[2]) / (2 * SQUARE_STEP))
+                               right, a, b, length) for step in (SQUARE_STEP, -SQUARE_STEP)]
+        square.append(at_zero + (at[0] - at[1]) / (2 * SQUARE_STEP))
     return HeldOut(model.name, model.n_free(n_dist), float(fit_rms_px), np.array(reprojection), np.array(square),
                    note)
 

@@ -164,7 +164,12 @@ class BoardScale:
 @dataclass(frozen=True, eq=False)
 class FrameCorners:
     """One measurement frame: corner ids (N,), raw pixels (N, 2) left and right, the noise sigma of its
-    square mean (mm) and the corner noise per coordinate (left, right; px) it was propagated from."""
+    square mean (mm) and the corner noise per coordinate (left, right; px) it was propagated from (the image's
+    sensor noise through the detector: :func:`~stereo_bench.vision.detect.corner_noise_px`).
+
+    ``planar_fit_rms_px`` (left, right): the corners' per-coordinate residual about the board plane's best
+    homography, sqrt(SSR / (2N - 8)) (:func:`~stereo_bench.vision.measure.planar_fit_rms_px`): the frame's own
+    Type A evidence of its corner error, random and systematic together; NaN: not known."""
 
     ids: np.ndarray
     left_px: np.ndarray
@@ -174,6 +179,7 @@ class FrameCorners:
     # (calibration, points (N, 3), Jacobian (N, 3, 4)) the measurement already triangulated these corners with
     # (the same calls :func:`_triangulated` makes); None: not known.
     triangulated: tuple[StereoCalibration, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    planar_fit_rms_px: tuple[float, float] = (float("nan"), float("nan"))
 
     @classmethod
     def from_pair(cls, pair: PairMeasurement) -> FrameCorners:
@@ -184,7 +190,8 @@ class FrameCorners:
         if square.calib is not None and square.jacobian is not None:
             triangulated = (square.calib, square.points_mm, square.jacobian)
         return cls(ids=ids, left_px=left_px, right_px=right_px, sigma_mean_mm=square.sigma_mean_mm,
-                   pixel_sigma_px=tuple(square.pixel_sigma_px), triangulated=triangulated)
+                   pixel_sigma_px=tuple(square.pixel_sigma_px), triangulated=triangulated,
+                   planar_fit_rms_px=tuple(float(v) for v in pair.planar_fit_rms_px))
 
 
 def _frames(frames: Sequence[PairMeasurement | FrameCorners]) -> list[FrameCorners]:
@@ -413,35 +420,71 @@ def mapped_systematic_mm(calib: StereoCalibration, frames: Sequence[PairMeasurem
     return bias, float(math.sqrt(variance))
 
 
-def corner_systematic_px(covariance: CalibrationCovariance | None, random_px: float) -> float:
-    """Systematic corner error per coordinate (px) the calibration's residuals show and the fitted locking does not.
+def frames_residual_px(frames: Sequence[FrameCorners]) -> tuple[float, float]:
+    """(sigma, dof): the frames' planar-fit residuals pooled over both cameras, sqrt(sum nu_i s_i^2 / sum nu_i) px
+    per coordinate with nu_i = 2 N_i - 8 per image (the homography's eight parameters), (NaN, 0) without one."""
+    ssr = dof = 0.0
+    for frame in frames:
+        nu = 2 * len(frame.ids) - 8
+        for value in frame.planar_fit_rms_px:
+            if nu > 0 and math.isfinite(value):
+                ssr, dof = ssr + nu * value**2, dof + nu
+    return (math.sqrt(ssr / dof), dof) if dof > 0 else (float("nan"), 0.0)
 
-    sqrt(sigma_fit^2 - random^2 - (a_sin^2 + a_cos^2) / 2) when sigma_fit^2 exceeds the rest by more
-    than three standard errors of a residual variance (sqrt(2 / dof) relative), else 0; 0 without
-    a covariance (nothing to compare with).
+
+def corner_reference(covariance: CalibrationCovariance | None, frames: Sequence[FrameCorners] = (),
+                     ) -> tuple[float, float, tuple[float, float] | None, str]:
+    """(sigma px, dof, pixel locking, source) of the corner error the residuals show, random and systematic together.
+
+    The calibration's residual sigma, sqrt(SSR / (n_coordinates - n_parameters)), when its covariance estimated
+    it; otherwise (no covariance: a calibration file without one, given intrinsics, a rig model; or a sigma
+    assumed, not estimated) the measured frames' own planar-fit residual (:func:`frames_residual_px`), so that
+    the corner error is never taken from the image's sensor noise alone. (NaN, 0, None, "") when neither is known.
     """
-    if covariance is None or not covariance.dof > 0 or not math.isfinite(covariance.sigma_px) or not random_px > 0:
+    if covariance is not None and covariance.dof > 0 and math.isfinite(covariance.sigma_px):
+        return float(covariance.sigma_px), float(covariance.dof), covariance.pixel_locking_px, \
+            "the calibration's residuals"
+    sigma, dof = frames_residual_px(frames)
+    if dof > 0:
+        return sigma, dof, None, "the frames' planar-fit residuals"
+    return float("nan"), 0.0, None, ""
+
+
+def corner_systematic_px(covariance: CalibrationCovariance | None, random_px: float,
+                         frames: Sequence[FrameCorners] = ()) -> float:
+    """Systematic corner error per coordinate (px) the residuals show beyond the random noise and the fitted locking.
+
+    sqrt(sigma^2 - random^2 - (a_sin^2 + a_cos^2) / 2) when sigma^2 exceeds the rest by more than three standard
+    errors of a residual variance (sqrt(2 / dof) relative), else 0. sigma, its dof and the locking are
+    :func:`corner_reference`'s: the calibration's residuals, or without them the frames' planar fit; 0 when
+    neither is known (nothing to compare with) or ``random_px`` is not positive.
+    """
+    sigma, dof, locking, _ = corner_reference(covariance, frames)
+    if not dof > 0 or not math.isfinite(sigma) or not random_px > 0:
         return 0.0
-    locking = covariance.pixel_locking_px or (0.0, 0.0)
+    locking = locking or (0.0, 0.0)
     explained = random_px**2 + 0.5 * (locking[0] ** 2 + locking[1] ** 2)
-    if covariance.sigma_px**2 <= explained * (1.0 + 3.0 * math.sqrt(2.0 / covariance.dof)):
+    if sigma**2 <= explained * (1.0 + 3.0 * math.sqrt(2.0 / dof)):
         return 0.0
-    return float(math.sqrt(covariance.sigma_px**2 - explained))
+    return float(math.sqrt(sigma**2 - explained))
 
 
-def noise_bias_mm(calib: StereoCalibration, frame: FrameCorners, target: Target, *, memo: dict | None = None) -> float:
+def noise_bias_mm(calib: StereoCalibration, frame: FrameCorners, target: Target, *, memo: dict | None = None,
+                  extra_px: float = 0.0) -> float:
     """Expected lengthening (mm) of the frame's mean adjacent length by its corner noise (second order).
 
-    Independent corners of per-coordinate noise ``frame.pixel_sigma_px``: S_d = S_a + S_b, each
-    point's S = J diag(noise^2) J^T through the triangulation; bias = mean over pairs of
-    (tr S_d - u^T S_d u) / (2 |d|). ``memo``: see :func:`_triangulated`.
+    Independent corners of per-coordinate noise ``frame.pixel_sigma_px`` (each image's) and ``extra_px`` (both
+    images: the corner error beyond the sensor noise, which lengthens a length as much whether it changes from
+    frame to frame or not): S_d = S_a + S_b, each point's S = J diag(noise^2) J^T through the triangulation;
+    bias = mean over pairs of (tr S_d - u^T S_d u) / (2 |d|). ``memo``: see :func:`_triangulated`.
     """
     pairs = _adjacent_index_pairs(frame, target)
     if not len(pairs):
         return float("nan")
     points, jac = _triangulated(calib, frame, memo)  # (N, 3), (N, 3, 4)
     s_left, s_right = frame.pixel_sigma_px
-    cov = np.einsum("nik,k,njk->nij", jac, np.array([s_left**2, s_left**2, s_right**2, s_right**2]), jac)
+    v_left, v_right = s_left**2 + extra_px**2, s_right**2 + extra_px**2
+    cov = np.einsum("nik,k,njk->nij", jac, np.array([v_left, v_left, v_right, v_right]), jac)
     d = points[pairs[:, 0]] - points[pairs[:, 1]]
     length = np.linalg.norm(d, axis=1)
     u = d / length[:, None]
@@ -659,6 +702,9 @@ class UncertaintyBudget:
     noise_systematic_mm: float = float("nan")  # the detector's systematic error, shared by the frames
     detector_bias_mm: float = float("nan")  # its predictable part: the fitted pixel locking on these corners
     corner_systematic_px: float = float("nan")  # systematic corner error the locking fit leaves (per coordinate)
+    corner_random_px: float = float("nan")  # the frames' sensor-noise corner sigma (RMS, per coordinate)
+    corner_reference_px: float = float("nan")  # the residuals' corner sigma it was compared with (corner_reference)
+    corner_reference: str = ""  # which residuals: the calibration's, or the frames' planar fit
     field_bias_mm: float = float("nan")  # the smooth part of that error where the corners are (residual map)
     systematic_model: str = ""  # how that error was counted: "residual map" or "coherent shift and magnification"
     pixel_locking_px: tuple[float, float] | None = None  # (a_sin, a_cos) from the calibration's residuals
@@ -668,6 +714,11 @@ class UncertaintyBudget:
     adequacy_dof: float = float("inf")
     calibration_dof: float = float("inf")  # finite when the calibration's views' jackknife gave its variance
     effective_dof: float = float("inf")  # Welch-Satterthwaite over the components; k is Student's t for it
+
+    @property
+    def corner_sigma_px(self) -> float:
+        """The corner error per coordinate (px) the noise component counts, random and systematic together."""
+        return float(math.hypot(self.corner_random_px, self.corner_systematic_px))
 
     @property
     def components(self) -> dict[str, float | None]:
@@ -712,7 +763,9 @@ class UncertaintyBudget:
             "n_frames": self.n_frames, "unknown": self.unknown, "dominant": self.dominant,
             "noise_random_mm": self.noise_random_mm, "noise_bias_mm": self.noise_bias_mm,
             "noise_systematic_mm": self.noise_systematic_mm, "detector_bias_mm": self.detector_bias_mm,
-            "corner_systematic_px": self.corner_systematic_px, "field_bias_mm": self.field_bias_mm,
+            "corner_systematic_px": self.corner_systematic_px, "corner_random_px": self.corner_random_px,
+            "corner_sigma_px": self.corner_sigma_px, "corner_reference_px": self.corner_reference_px,
+            "corner_reference": self.corner_reference or None, "field_bias_mm": self.field_bias_mm,
             "systematic_model": self.systematic_model or None,
             "pixel_locking_px": None if self.pixel_locking_px is None else list(self.pixel_locking_px),
             "complete": not self.unknown, "structure_source": self.structure_source or None,
@@ -796,14 +849,16 @@ def configuration_budget(
     sigmas = np.array([f.sigma_mean_mm for f in frames], float)
     random = float(np.sqrt(np.sum(sigmas**2)) / len(sigmas))
     memo: dict = {}  # each frame's points and Jacobian, shared by the noise bias and the pixel gradients
-    bias = float(np.mean([noise_bias_mm(calib, f, target, memo=memo) for f in frames]))
     random_px = float(np.sqrt(np.mean([np.mean(np.square(f.pixel_sigma_px)) for f in frames])))
+    reference_px, _, _, reference_source = corner_reference(covariance, frames)
     if corner_systematic is None:
-        corner_systematic = corner_systematic_px(covariance, random_px)
+        corner_systematic = corner_systematic_px(covariance, random_px, frames)
         if adequacy is not None and math.isfinite(adequacy.corner_px) and corner_systematic > 0:
             # The corner error the held-out squares show (at most the fit's sigma), less the random part counted
             # apart: what of the residuals' excess acts on a square as corner-to-corner error.
             corner_systematic = min(corner_systematic, math.sqrt(max(adequacy.corner_px**2 - random_px**2, 0.0)))
+    # Every corner error independent from corner to corner lengthens the lengths, the sensor noise's and the rest's.
+    bias = float(np.mean([noise_bias_mm(calib, f, target, memo=memo, extra_px=corner_systematic) for f in frames]))
     locking = None if covariance is None else covariance.pixel_locking_px
     detector_bias = rest = 0.0
     field_bias, systematic_model = float("nan"), ""
@@ -844,6 +899,7 @@ def configuration_budget(
         calibration_dof=calibration_dof, effective_dof=dof,
         structure_source=structure_source, calibration_note=note, sensitivities=gradient, noise_random_mm=random,
         noise_bias_mm=bias, noise_systematic_mm=systematic, corner_systematic_px=float(corner_systematic),
+        corner_random_px=random_px, corner_reference_px=reference_px, corner_reference=reference_source,
         detector_bias_mm=detector_bias, pixel_locking_px=locking, field_bias_mm=field_bias,
         systematic_model=systematic_model,
     )
