@@ -103,9 +103,10 @@ def fixed_board_design(baseline_range_mm: tuple[float, float], toe_in_left_range
         return lo, hi
 
     lo_b, hi_b = baseline_range_mm
-    bs = [float(v) for v in np.linspace(lo_b, hi_b, baseline_levels)] if hi_b > lo_b else [float(lo_b)]
-    tl = [float(v) for v in np.linspace(*widen(toe_in_left_range_deg), pan_levels)]
-    tr = [float(v) for v in np.linspace(*widen(toe_in_right_range_deg), pan_levels)]
+    # Levels to 0.1 mm and 0.1 deg (readable visit names; the fit takes the positions the rig reports anyway).
+    bs = [round(float(v), 1) for v in np.linspace(lo_b, hi_b, baseline_levels)] if hi_b > lo_b else [float(lo_b)]
+    tl = [round(float(v), 1) for v in np.linspace(*widen(toe_in_left_range_deg), pan_levels)]
+    tr = [round(float(v), 1) for v in np.linspace(*widen(toe_in_right_range_deg), pan_levels)]
     n = len(tl)
     # Pan pairs: the two heads together, then crossed (left rising while the right falls).
     together = [(tl[i], tr[i]) for i in range(n)]

@@ -15,6 +15,7 @@ from stereo_bench.campaign.extrinsics.base import ExtrinsicsSource, measured_wit
 from stereo_bench.campaign.extrinsics_run import Prepared
 from stereo_bench.campaign.sources import Source, kinematic_source
 from stereo_bench.kinematics import ConfigurationViews, fit_kinematics, kinematic_design
+from stereo_bench.kinematics.fixed_board import fixed_board_design
 
 
 class KinematicSource(ExtrinsicsSource):
@@ -29,6 +30,7 @@ class KinematicSource(ExtrinsicsSource):
     def describe(self, section: Any) -> str:
         return ("predicted by the kinematic rig model "
                 + (f"read from {section.kinematic_file}" if section.kinematic_file
+                   else "fitted once to a fixed board's views as the rig moves in front of it" if section.fixed_board
                    else "fitted once to the design's views"))
 
     def visits(self, section: Any, configurations: Sequence, ranges: dict, *, visit: Callable[..., Any],
@@ -38,8 +40,10 @@ class KinematicSource(ExtrinsicsSource):
         distances = sorted(c.distance_mm for c in configurations if c.runnable)
         distance = distances[len(distances) // 2]
         visits = []
-        for k, design in enumerate(kinematic_design(ranges["baseline_mm"], ranges["toe_in_deg"],
-                                                    ranges["toe_in_deg"])):
+        # fixed-board: slide and pan positions in front of one board (where it stands: plan_visits asks the
+        # feasibility rules); presented: 9 visits, the board presented 12 times at each.
+        design_of = fixed_board_design if section.fixed_board else kinematic_design
+        for k, design in enumerate(design_of(ranges["baseline_mm"], ranges["toe_in_deg"], ranges["toe_in_deg"])):
             config_id = (f"design-{k + 1}_B{format_id(design.baseline_mm)}_L{format_id(design.toe_in_left_deg)}"
                          f"_R{format_id(design.toe_in_right_deg)}")
             visits.append(visit(k, config_id, "kinematic", design.baseline_mm, design.toe_in_left_deg,

@@ -22,6 +22,18 @@ def calibration_presentations(steps: Sequence[Step]) -> dict[str, int]:
     return {**tally.counts, "total": tally.counts["visits"] + tally.counts["configurations"]}
 
 
+def operator_actions(steps: Sequence[Step]) -> dict[str, int]:
+    """What the operator does by hand in the steps: board ``presentations``, board ``placements`` (a fixed-board
+    design's one), ``target_moves`` and other ``manual_settings``; ``total``."""
+    from stereo_bench.campaign.plan.steps import PromptManual, PromptTarget
+
+    counts = calibration_presentations(steps)
+    out = {"presentations": counts["total"], "placements": counts["placements"],
+           "target_moves": sum(isinstance(s, PromptTarget) for s in steps),
+           "manual_settings": sum(isinstance(s, PromptManual) for s in steps)}
+    return {**out, "total": sum(out.values())}
+
+
 def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN_PX) -> dict[str, Any]:
     """Everything ``stereo-bench campaign plan`` reports, as one JSON-able object."""
     configurations = expand_plan(config, margin_px=margin_px)
@@ -33,6 +45,7 @@ def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGI
         "design": [v.as_dict() for v in visits],
         "design_ranges": design_ranges(configurations) if visits else None,
         "calibration_presentations": calibration_presentations(steps),
+        "operator_actions": operator_actions(steps),
         "name": config.name,
         "configurations": [c.as_dict() for c in configurations],
         "predicted_duration_s": estimate.total_s,
