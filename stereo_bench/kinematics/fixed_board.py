@@ -56,8 +56,8 @@ from stereo_bench.kinematics.model import (
     _about_line,
     _effective,
     _pan_line,
+    _rotation_matrices,
     _rvec,
-    chain,
     nominal_parameters,
 )
 
@@ -154,6 +154,51 @@ class FixedBoardFit:
     views_dropped: list[tuple[int, int, str]] = field(default_factory=list)
 
 
+def _about_lines(direction: np.ndarray, point: np.ndarray, rads: np.ndarray) -> np.ndarray:
+    """(C, 4, 4) rigid rotations by each of ``rads`` (C,) about one line (unit ``direction``, ``point``)."""
+    x, y, z = direction
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    s, c = np.sin(rads)[:, None, None], np.cos(rads)[:, None, None]
+    R = np.eye(3) + s * K + (1.0 - c) * (K @ K)
+    T = np.zeros((len(rads), 4, 4))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = point - R @ point
+    T[:, 3, 3] = 1.0
+    return T
+
+
+def _chains(p: np.ndarray, reference_baseline_mm: float, b: np.ndarray, tl: np.ndarray,
+            tr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(T_S_L, T_R_L), each (C, 4, 4), of :func:`stereo_bench.kinematics.model.chain` at C effective axis values at
+    once (the same chain, batched: tests/test_kinematics_fixed_board.py checks they agree)."""
+    left_dir, left_point = _pan_line(p, "left")
+    right_dir, right_point = _pan_line(p, "right")
+    T_S_L = _about_lines(left_dir, left_point, np.radians(p[_INDEX["left_angle_scale"]] * tl))
+    T_R0_R = _about_lines(right_dir, right_point, -np.radians(p[_INDEX["right_angle_scale"]] * tr))
+    i = _INDEX["right_rot_x_deg"]
+    T_S_R0 = np.eye(4)
+    T_S_R0[:3, :3] = _rotation_matrices(np.radians(p[i : i + 3]))[0]
+    T_S_R0[:3, 3] = p[i + 3 : i + 6]
+    T_S_R = T_S_R0 @ T_R0_R
+    T_S_R[:, :3, 3] += (p[_INDEX["slide_scale"]] * (b - reference_baseline_mm))[:, None] * _slide_direction(p)
+    R_t = np.transpose(T_S_R[:, :3, :3], (0, 2, 1))
+    T_R_S = np.zeros_like(T_S_R)
+    T_R_S[:, :3, :3] = R_t
+    T_R_S[:, :3, 3] = -np.einsum("cij,cj->ci", R_t, T_S_R[:, :3, 3])
+    T_R_S[:, 3, 3] = 1.0
+    return T_S_L, T_R_S @ T_S_L
+
+
+def _invert(T: np.ndarray) -> np.ndarray:
+    """(C, 4, 4) inverses of rigid transforms."""
+    R_t = np.transpose(T[:, :3, :3], (0, 2, 1))
+    out = np.zeros_like(T)
+    out[:, :3, :3] = R_t
+    out[:, :3, 3] = -np.einsum("cij,cj->ci", R_t, T[:, :3, 3])
+    out[:, 3, 3] = 1.0
+    return out
+
+
 def _left_in_S(p: np.ndarray, toe_in_left_deg: float) -> np.ndarray:
     direction, point = _pan_line(p, "left")
     return _about_line(direction, point, math.radians(p[_INDEX["left_angle_scale"]] * toe_in_left_deg))
@@ -216,16 +261,13 @@ class _FixedBundle:
         share = x[self.o_share]
         T_ref_board = _pose_matrix(x[self.o_board : self.o_board + 6])
         landing = x[self.o_land : self.o_intr].reshape(self.C, 3)
-        d = _slide_direction(p)
-        k_s = p[_INDEX["slide_scale"]]
-        T_L = np.empty((self.C, 4, 4))
-        T_R = np.empty((self.C, 4, 4))
-        for c, conf in enumerate(self.configurations):
-            b, tl, tr = np.array(_effective(conf.axes, conf.approach, p)) + landing[c]
-            shift = np.eye(4)
-            shift[:3, 3] = share * k_s * (b - self.B_ref) * d
-            T_L[c] = np.linalg.inv(_left_in_S(p, tl)) @ shift @ T_ref_board
-            T_R[c] = chain(p, self.B_ref, b, tl, tr) @ T_L[c]
+        effective = np.array([_effective(conf.axes, conf.approach, p) for conf in self.configurations]) + landing
+        b, tl, tr = effective.T
+        T_S_L, T_R_L = _chains(p, self.B_ref, b, tl, tr)
+        T_S_board = np.repeat(T_ref_board[None], self.C, axis=0)
+        T_S_board[:, :3, 3] += (share * p[_INDEX["slide_scale"]] * (b - self.B_ref))[:, None] * _slide_direction(p)
+        T_L = _invert(T_S_L) @ T_S_board
+        T_R = T_R_L @ T_L
         return T_L[self.view_config], T_R[self.view_config]
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
@@ -276,6 +318,11 @@ class _FixedBundle:
             if self.prior is not None:
                 J[r.size - 16 :, self.o_intr : self.o_intr + 16] = self.prior[1]
         return J
+
+
+def _normal(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(J^T J, J^T r)."""
+    return J.T @ J, J.T @ r
 
 
 def _information(J: np.ndarray, interest: np.ndarray, nuisance: np.ndarray) -> np.ndarray:
@@ -375,6 +422,22 @@ def fit_fixed_board(
     Raises:
         ValueError: too few usable views.
     """
+    from threadpoolctl import threadpool_limits
+
+    # One BLAS thread: every product and solve here is small, and a threaded BLAS spins 10-100x longer on a loaded
+    # 2-core machine (the presented fit measured it; here 23 ms per 140x140 solve against ~1 ms).
+    with threadpool_limits(1):
+        return _fit_fixed_board(configurations, object_points, image_size, intrinsics=intrinsics,
+                                intrinsics_covariance=intrinsics_covariance, refine_intrinsics=refine_intrinsics,
+                                repeatability_mm=repeatability_mm, repeatability_left_deg=repeatability_left_deg,
+                                repeatability_right_deg=repeatability_right_deg,
+                                reference_baseline_mm=reference_baseline_mm, left_share=left_share,
+                                min_corners=min_corners, max_iterations=max_iterations)
+
+
+def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, intrinsics_covariance,
+                     refine_intrinsics, repeatability_mm, repeatability_left_deg, repeatability_right_deg,
+                     reference_baseline_mm, left_share, min_corners, max_iterations) -> FixedBoardFit:
     object_points = np.asarray(object_points, dtype=float).reshape(-1, 3)
     views, dropped = [], []
     for c, conf in enumerate(configurations):
@@ -460,7 +523,7 @@ def fit_fixed_board(
             full = x.copy()
             full[active] = z
             J = bundle.jacobian(full, r)[:, active]
-            return J.T @ J, J.T @ r
+            return _normal(J, r)
 
         z, _ = _levenberg_marquardt(residuals, normal, _solve_dense, x[active], max_iterations=max_iterations)
         x[active] = z
@@ -478,7 +541,7 @@ def fit_fixed_board(
     # The table at the solution (the start's Jacobian chose what to hold; at the solution it says the same
     # unless the start was far off, and then the table tells).
     _, table = identifiability(J, free, nuisance, notes=notes, held=held)
-    cov = np.linalg.inv(J[:, active].T @ J[:, active])
+    cov = np.linalg.inv(_normal(J[:, active], r)[0])
     n_free = int(free.sum())
     free_index = np.flatnonzero(free)
     cov_k = cov[:n_free, :n_free]
