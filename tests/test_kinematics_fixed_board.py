@@ -173,3 +173,20 @@ def test_the_fixed_board_pose_is_the_one_the_fit_finds():
     T_truth = invert_transform(state.T_bench_left) @ T_BOARD
     np.testing.assert_allclose(fit.T_ref_board, T_truth, atol=1e-6)
     assert _effective(design[0].axes(), {}, np.zeros(len(NAMES)))[0] == design[0].baseline_mm
+
+
+def test_the_plans_table_before_any_view_says_what_the_fit_then_finds():
+    """design_identifiability (the plan's: nominal rig, exact views) holds what the fit on the lab mechanics holds."""
+    from stereo_bench.kinematics.fixed_board import design_identifiability
+
+    K, D = CAMERA.K, np.asarray(CAMERA.dist, float).ravel()[:5].reshape(1, 5)
+    for design in (fixed_board_design((60.0, 240.0), (0.0, 13.0)),
+                   fixed_board_design((60.0, 240.0), (0.0, 0.0), pan_levels=1),
+                   fixed_board_design((60.0, 240.0), (0.0, 0.4), min_pan_span_deg=0.4, pan_levels=2)):
+        planned = design_identifiability(design, BOARD.object_points, T_BOARD, (K, D, K, D), pixel_sigma_px=0.1)
+        fit = _fit(fixed_board_views(design, EXACT_LANDING, noise_px=0.1, seed=6), EXACT_LANDING)
+        assert [r.identified for r in planned] == [r.identified for r in fit.identifiability], (
+            identifiability_table(planned), identifiability_table(fit.identifiability))
+        for a, b in zip(planned, fit.identifiability, strict=True):
+            if a.identified:
+                assert a.sigma == pytest.approx(b.sigma, rel=0.3), (a, b)  # the nominal rig against the lab's

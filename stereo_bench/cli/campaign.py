@@ -150,6 +150,14 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
             status = where if visit["runnable"] else f"NOT RUN: {why}"
             lines.append(f"{'':>5}{visit['config_id']:<24} B {visit['baseline_mm']:>6g} mm  toe-in "
                          f"{visit['toe_in_left_deg']:g}/{visit['toe_in_right_deg']:g} deg  {status}")
+    table = summary.get("identifiability")
+    if table:
+        held = [row for row in table if not row["identified"]]
+        lines.append(f"identifiability (the design's views on the nominal rig, 0.1 px corners, intrinsics "
+                     f"{table[0]['intrinsics']}): {len(table) - len(held)} of {len(table)} parameters identified")
+        for row in table:
+            sigma = f"sigma {row['sigma']:.3g} {row['unit']}" if row["identified"] else f"held nominal: {row['note']}"
+            lines.append(f"{'':>5}{row['name']:<24} {sigma}")
     per_configuration = " (one set per configuration)" if extrinsics.calibrates_each_configuration else ""
     note = " (adding configurations adds none)" if counts["visits"] and not counts["configurations"] else ""
     lines.append(f"calibration board presentations: {counts['total']}: {counts['visits']} at visits{note}, "

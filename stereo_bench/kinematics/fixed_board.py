@@ -597,3 +597,62 @@ def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, i
                          view_configuration=bundle.view_config.copy(),
                          landing=x[bundle.o_land : bundle.o_intr].reshape(len(configurations), 3),
                          views_dropped=dropped)
+
+
+def design_identifiability(
+    design: Sequence[DesignConfiguration], object_points: np.ndarray, T_rig_board: np.ndarray,
+    intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], *, pixel_sigma_px: float = 0.1,
+    intrinsics_covariance: np.ndarray | None = None, refine_intrinsics: bool = True, repeatability_mm: float = 0.0,
+    repeatability_deg: float = 0.0,
+) -> list[IdentifiabilityRow]:
+    """The identifiability table a fixed-board design will have, before any view is taken (``campaign plan``).
+
+    The board at ``T_rig_board`` (the rig frame of :class:`stereo_bench.geometry.RigPose`) is projected exactly
+    through the nominal chain at every visit of ``design`` (visited in order, approach directions from the
+    order); the Jacobian there, whitened by ``pixel_sigma_px``, is what :func:`identifiability` reads. The views
+    are the nominal rig's: a built rig differs by its tolerances, which change the table little.
+    """
+    from stereo_bench.geometry import RigPose
+    from stereo_bench.kinematics.design import approach_directions
+
+    configurations, previous, approach = [], None, {}
+    for visit in design:
+        approach = approach_directions(previous, visit.axes(), approach)
+        previous = visit.axes()
+        configurations.append(ConfigurationViews(visit.axes(), dict(approach), []))
+    baselines = [c.axes["baseline_mm"] for c in configurations]
+    B_ref = 0.5 * (min(baselines) + max(baselines))
+    T_ref_board = np.linalg.inv(RigPose(B_ref, 90.0, 90.0).T_rig_left) @ np.asarray(T_rig_board, float)
+    intr = np.concatenate([_intrinsic_vector(intrinsics[0], intrinsics[1]), _intrinsic_vector(intrinsics[2],
+                                                                                              intrinsics[3])])
+    points = np.asarray(object_points, float).reshape(-1, 3)
+    ids = np.arange(len(points))
+    p0 = nominal_parameters(B_ref)
+    x = np.concatenate([p0, [0.5], _rvec(T_ref_board[:3, :3]), T_ref_board[:3, 3], np.zeros(3 * len(configurations)),
+                        intr[[0, 1, 2, 3, 4, 5, 6, 7, 9, 10, 11, 12, 13, 14, 15, 16]] if refine_intrinsics else []])
+    placeholder = [(c, ids, np.zeros((len(ids), 2)), ids, np.zeros((len(ids), 2))) for c in range(len(configurations))]
+    prior = None
+    if refine_intrinsics and intrinsics_covariance is not None:
+        cov = np.asarray(intrinsics_covariance, float).reshape(16, 16)
+        prior = (x[-16:].copy(), np.linalg.inv(np.linalg.cholesky(cov)))
+    sigmas = (repeatability_mm, repeatability_deg, repeatability_deg)
+
+    def bundle(views):
+        return _FixedBundle(p0, B_ref, configurations, views, points, intr, sigma_px=pixel_sigma_px,
+                            landing_sigmas=sigmas, intrinsics_prior=prior, refine_intrinsics=refine_intrinsics)
+
+    T_L, T_R = bundle(placeholder).transforms(x)
+    il, ir = intr[:9], intr[9:]
+    views = [(c, ids, _project(_rotate(np.repeat(T_L[c, None, :3, :3], len(ids), 0), points) + T_L[c, :3, 3], il),
+              ids, _project(_rotate(np.repeat(T_R[c, None, :3, :3], len(ids), 0), points) + T_R[c, :3, 3], ir))
+             for c in range(len(configurations))]
+    exact = bundle(views)
+    groups, notes = _identifiable(configurations)
+    rule_free = np.array([spec.group in groups for spec in PARAMETERS])
+    nuisance = np.array([k for k in range(exact.n_k, exact.n)
+                         if not (exact.o_land <= k < exact.o_intr and (k - exact.o_land) % 3 not in
+                                 exact.landing_axes)], int)
+    if len(set(baselines)) < 2:
+        nuisance = nuisance[nuisance != exact.o_share]
+    J = exact.jacobian(x, exact.residuals(x))
+    return identifiability(J, rule_free, nuisance, notes=notes)[1]
