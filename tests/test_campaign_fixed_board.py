@@ -94,3 +94,24 @@ def test_a_fixed_board_session_replays_to_the_last_digit(fixed_session, tmp_path
     assert again.read_bytes(model.files["kinematic_model.toml"]) == \
         SessionReader(fixed_session).read_bytes(original.files["kinematic_model.toml"])
     assert np.allclose(model.data.fixed_board["T_ref_board"], original.data.fixed_board["T_ref_board"])
+
+
+def test_rig_calibrate_kinematics_fits_a_fixed_board_model_alone(tmp_path, capsys):
+    from stereo_bench.cli import main
+    from stereo_bench.kinematics import load_model
+    from tests.campaigns import SMALL
+
+    config = tmp_path / "bench.toml"
+    config.write_text(SMALL)
+    argv = ["rig", "calibrate-kinematics", "--config", str(config), "--design", "fixed-board", "--baseline-range",
+            "80", "200", "--toe-in-range", "0", "10", "--out", str(tmp_path / "s"), "--yes"]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    assert "fixed board: placed once" in captured.err and "32 visits x 3 views" in captured.err
+    model = load_model(tmp_path / "s" / "kinematic_model.toml")
+    assert model.fit.n_views == 96 and model.span["baseline_mm"] == [80.0, 200.0]
+    assert all(p.identifiable for p in model.parameters.values())
+    reader = SessionReader(tmp_path / "s")
+    assert reader.results() == [] and len(reader.events(kind="calibration_view")) == 96
+    (event,) = reader.events(kind="kinematic_model", attempt=None)
+    assert event.data.design == "fixed-board" and len(event.data.identifiability) == 22
