@@ -229,7 +229,7 @@ def test_board_presentations_per_mode_and_adding_configurations_adds_none_to_kin
         data = exp1.model_dump(mode="json")
         data["extrinsics"]["mode"] = mode
         counts[mode] = plan_summary(campaign_from_dict(data))["calibration_presentations"]
-    assert counts["per-config"] == {"visits": 0, "configurations": 300, "total": 300}
+    assert counts["per-config"] == {"visits": 0, "configurations": 300, "placements": 0, "total": 300}
     assert counts["kinematic"]["total"] <= 110 and counts["kinematic"]["configurations"] == 0
     assert counts["nominal"]["total"] == 12
     data = exp1.model_dump(mode="json")

@@ -154,3 +154,36 @@ class HandPresentation:
             if start <= t_s < end:
                 return index
         return None
+
+
+#: How far from the requested pose an operator stands a calibration board placed once (the fixed-board design):
+#: by eye against a stand and a sketch of the pose, a few mm and degrees (std per axis).
+PLACEMENT_POSITION_SIGMA_MM = 3.0
+PLACEMENT_ROTATION_SIGMA_DEG = 1.5
+
+
+def placed_board_pose(T_requested: np.ndarray, *, seed: int, centre_board: np.ndarray | None = None,
+                      position_sigma_mm: float = PLACEMENT_POSITION_SIGMA_MM,
+                      rotation_sigma_deg: float = PLACEMENT_ROTATION_SIGMA_DEG) -> np.ndarray:
+    """T_rig_board (4x4, mm) where a simulated operator really stands a board asked for at ``T_requested``.
+
+    The board's point ``centre_board`` (board frame, mm: its grid centre, say) is off by N(0, ``position_sigma_mm``)
+    per axis and the board turned about it by a rotation vector of N(0, ``rotation_sigma_deg``) per axis: a pure
+    function of ``seed``.
+    """
+    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0xF1BD])
+    shift = rng.normal(0.0, position_sigma_mm, 3)
+    turn = cv2.Rodrigues(np.radians(rng.normal(0.0, rotation_sigma_deg, 3)))[0]
+    return placed_about(T_requested, turn, shift, centre_board=centre_board)
+
+
+def placed_about(T_requested: np.ndarray, turn: np.ndarray, shift: np.ndarray, *,
+                 centre_board: np.ndarray | None = None) -> np.ndarray:
+    """``T_requested`` turned by ``turn`` (3x3, rig axes) about the board's point ``centre_board`` (board frame,
+    mm; default its origin, the first inner corner) and moved by ``shift`` (3,) mm."""
+    T = np.array(T_requested, float)
+    c = T[:3, 3] if centre_board is None else T[:3, :3] @ centre_board + T[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = turn @ T[:3, :3]
+    out[:3, 3] = turn @ (T[:3, 3] - c) + c + shift
+    return out

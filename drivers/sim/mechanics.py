@@ -296,7 +296,9 @@ def kinematic_parameters(profile: SimProfile, reference_baseline_mm: float) -> d
     for k, name in enumerate(("x", "y", "z")):
         out[f"right_rot_{name}_deg"] = math.degrees(rvec[k])
         out[f"right_{name}_mm"] = float(T_S_R0[k, 3])
-    out["slide_backlash_mm"] = profile.slide.backlash_mm
-    out["left_backlash_deg"] = profile.left_head.backlash_deg
-    out["right_backlash_deg"] = profile.right_head.backlash_deg
+    # The model corrects the commanded value (B' = B - a b / 2, then scaled); the mechanics lose the backlash after
+    # the scale: the model's backlash is the mechanics' in commanded units (0.2 % apart on the lab heads).
+    out["slide_backlash_mm"] = profile.slide.backlash_mm / (1.0 + profile.slide.scale_error)
+    out["left_backlash_deg"] = profile.left_head.backlash_deg / (1.0 + profile.left_head.scale_error)
+    out["right_backlash_deg"] = profile.right_head.backlash_deg / (1.0 + profile.right_head.scale_error)
     return out

@@ -205,7 +205,8 @@ def planned_captures(config: CampaignConfig, configuration: Configuration | Visi
     configuration or design visit capture: a visit shows the calibration board only; a configuration its
     calibration views (per-config extrinsics) and its measurement frames."""
     if isinstance(configuration, Visit):
-        return config.capture.calibration_views, 0
+        return (config.extrinsics.fixed_board_views if configuration.board_fixed
+                else config.capture.calibration_views), 0
     views = config.capture.calibration_views if config.extrinsics.source().calibrates_each_configuration else 0
     return views, config.capture.frames_per_config
 
@@ -240,6 +241,7 @@ class SimulatedPresenter:
         # The plan's order (begin_run): where its rig arrived at each value, which placement each target sees.
         self._arrivals: dict[str, dict[str, str]] = {}
         self._placements: dict[str, str] = {}
+        self._fixed_board: np.ndarray | None = None  # where the simulated operator stood the fixed board
         bench.warm_up(calibration_board, target)
 
     def close(self) -> None:
@@ -250,6 +252,22 @@ class SimulatedPresenter:
         from stereo_bench.campaign.approach import arrivals, placements
 
         self._arrivals, self._placements = arrivals(sequence), placements(sequence)
+        # A fixed-board design: the operator stands the board once, off the requested pose by a placement error
+        # drawn from the campaign seed (the same in a resumed run, which does not ask for the placement again).
+        fixed = next((v for v in sequence if isinstance(v, Visit) and v.board_fixed), None)
+        if fixed is not None:
+            from drivers.sim.hand import placed_board_pose
+
+            centre = np.array([*self.calibration_board.grid_size_mm, 0.0]) / 2.0
+            self._fixed_board = placed_board_pose(fixed.fixed_board_matrix(), centre_board=centre,
+                                                  seed=scene_seed(self.seed, "fixed-board", "placement", 0))
+
+    def place_board(self, T_rig_board: np.ndarray) -> None:
+        assert self._fixed_board is not None, "begin_run() with a fixed-board visit first"
+        config_id = self._configuration.config_id if self._configuration is not None else "fixed-board"
+        self.bench.show(self.calibration_board, self._fixed_board,
+                        seed=scene_seed(self.seed, config_id, "fixed-board", 0))
+        return None
 
     def _placement(self, configuration: Configuration) -> str | None:
         return self._placements.get(configuration.config_id)
@@ -283,6 +301,9 @@ class SimulatedPresenter:
     def _calibration_poses(self, configuration: Configuration, n_views: int) -> list[np.ndarray]:
         from drivers.sim.render import calibration_board_poses
 
+        if isinstance(configuration, Visit) and configuration.board_fixed:
+            assert self._fixed_board is not None, "begin_run() with the fixed-board visits first"
+            return [self._fixed_board] * n_views  # it stands where it was placed; each view a new exposure
         near, far = self.calibration_distance_mm(configuration.distance_mm)
         fits = configuration.calibration_range_mm
         if fits:  # where the plan found the board fits both views
@@ -402,6 +423,9 @@ class ReplayPresenter:
 
     def begin_configuration(self, configuration: Configuration) -> None:
         self.config_id = configuration.config_id
+
+    def place_board(self, T_rig_board: np.ndarray) -> None:
+        return None
 
     def prepare_calibration(self, n_views: int) -> None:
         return None

@@ -532,6 +532,14 @@ class ExtrinsicsSection(BaseModel):
                     "through a tensioned belt repeats to +-0.005 deg (~2.5 sigma)")
     tolerances: RigTolerances = Field(default_factory=RigTolerances,
                                       description="the rig's stated tolerances (nominal extrinsics' uncertainty)")
+    design: Literal["presented", "fixed-board"] = Field(
+        "presented", description="kinematic: how the model's design is calibrated. presented: the operator presents "
+                                 "the calibration board at every design visit (12 views each); fixed-board: the "
+                                 "operator places the board once and the rig moves through a design of slide and pan "
+                                 "positions in front of it (docs/EXTRINSICS.md)")
+    fixed_board_views: int = Field(
+        3, ge=1, le=50, strict=True,
+        description="fixed-board design: stereo frames of the board captured at each visit (no presentation)")
 
     @field_validator("calib_dir", "kinematic_file")
     @classmethod
@@ -541,7 +549,15 @@ class ExtrinsicsSection(BaseModel):
     @model_validator(mode="after")
     def _check(self) -> ExtrinsicsSection:
         self.source().check(self)
+        if self.design != "presented" and self.mode != "kinematic":
+            raise ValueError(f"design = {self.design!r} is a kinematic model's design: it needs mode = \"kinematic\", "
+                             f"not {self.mode!r}")
         return self
+
+    @property
+    def fixed_board(self) -> bool:
+        """The kinematic design is fitted from one board placed once (``design = "fixed-board"``)."""
+        return self.mode == "kinematic" and self.design == "fixed-board" and self.kinematic_file is None
 
     def lens_model_for(self, cameras_kind: str) -> str | None:
         """The lens model per-configuration calibrations fit (``lens_model`` or its default for ``cameras_kind``);

@@ -483,10 +483,17 @@ class KinematicModelData(BaseModel):
     views_dropped: list[dict[str, Any]] = Field(default_factory=list)
     fit_s: float | None = None
     error: str | None = Field(None, description="the fit failed: why (no model; configurations fail with it)")
+    design: Literal["presented", "fixed-board"] = Field("presented", description="how the design's views were taken")
+    identifiability: list[dict[str, Any]] = Field(
+        default_factory=list, description="fixed-board: per kinematic parameter whether the design identified it "
+                                          "(name, unit, identified, sigma, note)")
+    fixed_board: dict[str, Any] | None = Field(
+        None, description="fixed-board: the board's fitted pose in the left camera's frame at B_ref and toe-in 0 "
+                          "(T 4x4, mm) and the left carriage's share of a baseline change")
 
 
 PromptKind = Literal["target", "manual", "calibration_board", "calibration_view", "calibration_review",
-                     "measured_target"]
+                     "measured_target", "fixed_board"]
 
 
 class PromptData(BaseModel):

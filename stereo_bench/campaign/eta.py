@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.plan.duration import homing_estimate_s
-from stereo_bench.campaign.plan.steps import CaptureCalibration, PromptManual, PromptTarget, Step
+from stereo_bench.campaign.plan.steps import CaptureCalibration, PlaceBoard, PromptManual, PromptTarget, Step
 from stereo_bench.campaign.plan.timing import DurationModel
 
 
@@ -90,8 +90,10 @@ def forecast_groups(config: CampaignConfig, steps: Sequence[Step]) -> Forecast:
             operator += model.operator_s - before[2]
             if isinstance(step, PromptTarget | PromptManual):
                 prompts += 1  # asked whoever does it: the terminal on the simulated bench too
+            elif isinstance(step, PlaceBoard) and model.real_scene:
+                prompts += 1  # the fixed-board design's one placement
             elif isinstance(step, CaptureCalibration) and model.real_scene:
-                prompts += step.n_views  # one presentation of the board per view
+                prompts += step.presentations  # one presentation of the board per view (none: a fixed board)
         groups.append(GroupForecast(config_id, move, rest, prompts, operator))
     homing = 0.0
     travel = model.rig_config.machine_travel()

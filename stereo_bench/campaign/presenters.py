@@ -37,6 +37,10 @@ class Presenter(Protocol):
     def begin_configuration(self, configuration: Configuration) -> None:
         """The rig stands at ``configuration``: the measured target is at its distance from now on."""
 
+    def place_board(self, T_rig_board: np.ndarray) -> Prompt | None:
+        """A fixed-board design starts: the calibration board goes to ``T_rig_board`` (4x4, mm), once, and stays
+        there for every visit whose ``board_fixed`` is true (their calibration views are captured, not presented)."""
+
     def prepare_calibration(self, n_views: int) -> Prompt | None:
         """``n_views`` calibration views follow; raises CalibrationPlacementError if none can be shown."""
 
@@ -75,21 +79,35 @@ class OperatorPresenter:
         self.coverage = Coverage(image_size, calibration_board)
         self._n_views = 0
         self._config_id: str | None = None
+        self._fixed = False  # the current visit captures the board placed once: nothing to present
 
     def begin_run(self, sequence: Sequence[Configuration | Visit]) -> None:
         return None
 
     def begin_configuration(self, configuration: Configuration) -> None:
         self._config_id = configuration.config_id
+        self._fixed = isinstance(configuration, Visit) and configuration.board_fixed
 
-    def prepare_calibration(self, n_views: int) -> Prompt:
+    def place_board(self, T_rig_board: np.ndarray) -> Prompt:
+        centre = T_rig_board[:3, :3] @ np.array([*self.calibration_board.grid_size_mm, 0.0]) / 2.0 + T_rig_board[:3, 3]
+        yaw = float(np.degrees(np.arctan2(T_rig_board[0, 2], T_rig_board[2, 2])))
+        return Prompt("fixed_board", f"[{self._config_id}] place the calibration board ONCE, about {centre[2]:.0f} mm "
+                      f"in front of the rig and {centre[0]:+.0f} mm across, turned ~{abs(yaw):.0f} deg toward one "
+                      "side and tilted back, wholly in both views (the live page shows them); leave it standing "
+                      "while the rig moves until the target prompt; press Enter", config_id=self._config_id)
+
+    def prepare_calibration(self, n_views: int) -> Prompt | None:
+        if self._fixed:
+            return None
         self.coverage = Coverage(self.image_size, self.calibration_board)
         self._n_views = n_views
         return Prompt("calibration_board", f"[{self._config_id}] calibration: present the calibration board "
                       f"{n_views} times, each time at a new position and tilt (up to ~40 deg), near and far, "
                       "filling the corners of both views; press Enter to begin", config_id=self._config_id)
 
-    def present_calibration_view(self, index: int) -> Prompt:
+    def present_calibration_view(self, index: int) -> Prompt | None:
+        if self._fixed:
+            return None  # the rig moved; the board stands where it was placed
         actions = (CONTINUE, CAPTURE_NOW, DISCARD_LAST_VIEW) if index > 0 else (CONTINUE, CAPTURE_NOW)
         discard = "; d + Enter: discard the previous view" if index > 0 else ""
         return Prompt("calibration_view", f"calibration view {index + 1}/{self._n_views}: hold the board still in "
@@ -107,7 +125,9 @@ class OperatorPresenter:
     def calibration_view_discarded(self, index: int) -> None:
         self.coverage.discard(index)
 
-    def review_calibration(self) -> Prompt:
+    def review_calibration(self) -> Prompt | None:
+        if self._fixed:
+            return None
         return Prompt("calibration_review", f"{self._n_views} calibration views taken ({self.coverage.summary()}); "
                       "press Enter to calibrate, or d + Enter to discard the last view and take it again",
                       config_id=self._config_id, actions=(CONTINUE, DISCARD_LAST_VIEW))

@@ -86,6 +86,7 @@ from stereo_bench.campaign.plan import (
     Configuration,
     Flush,
     Move,
+    PlaceBoard,
     PrepareExtrinsics,
     PromptManual,
     PromptTarget,
@@ -379,6 +380,12 @@ class CampaignRunner:
     @_execute.register
     def _(self, step: PromptManual, captured: Captured, failed: str | None) -> None:
         self._set_by_hand(captured.configuration, step.quantity, step.value)
+
+    @_execute.register
+    def _(self, step: PlaceBoard, captured: Captured, failed: str | None) -> None:
+        prompt = self.bench.presenter.place_board(np.array(step.T_rig_board, float).reshape(4, 4))
+        if prompt is not None:
+            self._ask(prompt)
 
     @_execute.register
     def _(self, step: Settle, captured: Captured, failed: str | None) -> None:

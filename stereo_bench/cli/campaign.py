@@ -16,12 +16,15 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from stereo_bench.campaign.config import (
     PRESETS,
     CampaignConfig,
     campaign_json_schema_text,
 )
 from stereo_bench.campaign.plan import plan_summary
+from stereo_bench.campaign.plan.feasibility import FIXED_BOARD_PITCH_DEG, FIXED_BOARD_YAW_DEG
 from stereo_bench.cli import campaign_run, print_json
 from stereo_bench.cli.campaign_run import config_from_args
 
@@ -131,17 +134,40 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
         span = (f" over B {ranges['baseline_mm'][0]:g}-{ranges['baseline_mm'][1]:g} mm, toe-in "
                 f"{ranges['toe_in_deg'][0]:g}-{ranges['toe_in_deg'][1]:g} deg" if ranges else "")
         lines.append(f"{title}: {sum(v['runnable'] for v in design)} of {len(design)} visits to run{span}")
+        fixed = design[0].get("fixed_board_pose")
+        if fixed:
+            T = np.array(fixed, float).reshape(4, 4)
+            centre = T[:3, :3] @ np.array([*config.calibration_board.build().grid_size_mm, 0.0]) / 2.0 + T[:3, 3]
+            lines.append(f"fixed board: placed once, centred {centre[2]:.0f} mm in front of the rig "
+                         f"({centre[0]:+.0f} mm across), turned {FIXED_BOARD_YAW_DEG:g} deg about the vertical and "
+                         f"{FIXED_BOARD_PITCH_DEG:g} deg about the horizontal; captured "
+                         f"{config.extrinsics.fixed_board_views} times at each visit, never moved")
         for visit in design:
-            where = (f"board at {visit['calibration_range_mm'][0]:g}-{visit['calibration_range_mm'][1]:g} mm"
+            where = ("fixed board" if visit.get("fixed_board_pose") else
+                     f"board at {visit['calibration_range_mm'][0]:g}-{visit['calibration_range_mm'][1]:g} mm"
                      if visit["calibration_range_mm"] else "")
             why = "; ".join(r for r in (visit["reason"], visit["limit_violation"]) if r)
             status = where if visit["runnable"] else f"NOT RUN: {why}"
             lines.append(f"{'':>5}{visit['config_id']:<24} B {visit['baseline_mm']:>6g} mm  toe-in "
                          f"{visit['toe_in_left_deg']:g}/{visit['toe_in_right_deg']:g} deg  {status}")
+    table = summary.get("identifiability")
+    if table:
+        held = [row for row in table if not row["identified"]]
+        lines.append(f"identifiability (the design's views on the nominal rig, 0.1 px corners, intrinsics "
+                     f"{table[0]['intrinsics']}): {len(table) - len(held)} of {len(table)} parameters identified")
+        for row in table:
+            sigma = f"sigma {row['sigma']:.3g} {row['unit']}" if row["identified"] else f"held nominal: {row['note']}"
+            lines.append(f"{'':>5}{row['name']:<24} {sigma}")
     per_configuration = " (one set per configuration)" if extrinsics.calibrates_each_configuration else ""
     note = " (adding configurations adds none)" if counts["visits"] and not counts["configurations"] else ""
     lines.append(f"calibration board presentations: {counts['total']}: {counts['visits']} at visits{note}, "
                  f"{counts['configurations']} at the configurations{per_configuration}")
+    actions = summary["operator_actions"]
+    lines.append(f"calibration board placements: {counts['placements']}")
+    lines.append(f"operator actions: {actions['total']} ({actions['presentations']} board presentations, "
+                 f"{actions['placements']} board placements, {actions['target_moves']} target moves"
+                 + (f", {actions['manual_settings']} other manual settings" if actions["manual_settings"] else "")
+                 + ")")
     return lines
 
 

@@ -2,6 +2,7 @@
 
     stereo-bench rig calibrate-kinematics --out sessions/kin --yes                     # the simulated lab bench
     stereo-bench rig calibrate-kinematics --preset paper-exp2-toe-in --out s --yes     # the design a campaign needs
+    stereo-bench rig calibrate-kinematics --design fixed-board --calib-dir lens/ --out s --yes  # a board placed once
     stereo-bench rig --port /dev/ttyUSB0 --rig-config rig.toml calibrate-kinematics --config bench.toml --out s
 
 It is a campaign of visits only (recorded as a session: every view, the rig's telemetry, the fitted model),
@@ -46,6 +47,11 @@ def parser() -> argparse.ArgumentParser:
                    help="toe-ins the model must cover, deg (default: the campaign's, else 0 20)")
     p.add_argument("--distance", type=DISTANCE_MM, metavar="MM",
                    help="where the calibration board is shown, mm (default: the middle of the campaign's distances)")
+    p.add_argument("--design", choices=("presented", "fixed-board"),
+                   help="presented: the board presented at every design visit; fixed-board: placed once, the rig "
+                        "moves in front of it (default: the campaign's [extrinsics] design, else presented)")
+    p.add_argument("--calib-dir", type=Path, metavar="DIR",
+                   help="fixed-board: a lens calibration (intrinsics.yml with its covariance) as the fit's prior")
     p.add_argument("--out", required=True, type=lambda text: Path(output_dir(text)), metavar="DIR",
                    help="session directory (never overwritten)")
     p.add_argument("--model", type=Path, metavar="FILE",
@@ -85,6 +91,10 @@ def _config(args, port: str | None, rig_config: Path | None):
     data["plan"] = plan
     extrinsics = {key: value for key, value in (data.get("extrinsics") or {}).items() if key != "kinematic_file"}
     data["extrinsics"] = {**extrinsics, "mode": "kinematic"}
+    if args.design is not None:
+        data["extrinsics"]["design"] = args.design
+    if args.calib_dir is not None:
+        data["extrinsics"]["calib_dir"] = str(os.path.abspath(args.calib_dir))
     data.setdefault("name", "calibrate-kinematics")
     rig = dict(data.get("rig") or {})
     if port is not None:
@@ -152,8 +162,11 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
 
     previous = {sig: signal.signal(sig, on_signal) for sig in STOP_SIGNALS}
     started = time.monotonic()
-    print(f"kinematic design: {sum(v.runnable for v in plan.visits)} visits x {config.capture.calibration_views} "
-          f"views on the {config.bench_kind} bench; recording {args.out}", file=sys.stderr, flush=True)
+    fixed = config.extrinsics.fixed_board
+    views = config.extrinsics.fixed_board_views if fixed else config.capture.calibration_views
+    print(f"kinematic design{' (fixed board: placed once)' if fixed else ''}: {sum(v.runnable for v in plan.visits)} "
+          f"visits x {views} views on the {config.bench_kind} bench; recording {args.out}", file=sys.stderr,
+          flush=True)
     try:
         summary = run_campaign(config, args.out, yes=args.yes, control=control, plan=plan)
     except (RigError, CameraError) as error:  # as campaign run: a port or camera not there 2, a fault in work 1
@@ -187,7 +200,8 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
         print(f"kinematic model fitted to {fit.n_views} views at {fit.n_configurations} visits (RMS {fit.rms_px:.3f} "
               f"px) in {summary_out['elapsed_s']:.0f} s")
         for name, p in model.parameters.items():
-            sigma = f"+- {p.sigma:.3g}" if p.sigma is not None else "(held nominal: not identifiable by this design)"
+            held = f"({p.note})" if p.note else "(held nominal: not identifiable by this design)"
+            sigma = f"+- {p.sigma:.3g}" if p.sigma is not None else held
             print(f"  {name:<24} {p.value:12.5g} {p.unit:<4} {sigma}")
         print(f"model:   {model_path}  (use it: [extrinsics] mode = \"kinematic\", kinematic_file = \"{model_path}\")")
         print(f"session: {args.out}/")

@@ -7,7 +7,9 @@ One room per concern, lowest first (each imports only ``model`` and the leaf mod
 - ``design``: the configurations the fit visits (:func:`kinematic_design`) and the approach directions;
 - ``file``: the model's readable TOML file (:func:`save_model`, :func:`load_model`);
 - ``prediction``: R, T and their covariance at any axis positions (:func:`predict`);
-- ``fit``: the joint bundle adjustment (:func:`fit_kinematics`).
+- ``fit``: the joint bundle adjustment (:func:`fit_kinematics`);
+- ``fixed_board``, the one room above the others (it stands on ``fit`` and ``design``): the fit from one board that
+  stays put while the rig moves, its design and identifiability table (:func:`fit_fixed_board`, issue 25).
 
 Pure functions on numpy arrays; OpenCV for PnP and the initial intrinsics, scipy for least squares.
 Units: mm and deg at the interface and in the file, radians inside.

@@ -409,21 +409,12 @@ class _Bundle:
 
     def residual_maps(self, x: np.ndarray, image_size: tuple[int, int]) -> dict[str, ResidualMapRecord]:
         """Per camera the residuals at ``x`` binned over the image (as a calibration covariance's residual map)."""
-        from stereo_bench.vision.covariance import ResidualMap
-
         ordered = self.residuals(x)[: self.m_px] * self.sigma_px  # projected - observed, px, view by view
         raw = np.empty_like(ordered)
         raw[self.order] = ordered
         split = 2 * len(self.obs["left"][0])
-        out = {}
-        for side, residual in (("left", raw[:split]), ("right", raw[split:])):
-            m = ResidualMap.of(self.obs[side][2], residual, image_size)
-            ny, nx = m.count.shape
-            out[side] = ResidualMapRecord(image_size=[int(image_size[0]), int(image_size[1])], bins=[nx, ny],
-                                          count=[float(v) for v in m.count.ravel()],
-                                          mean_px=[float(v) for v in m.mean.ravel()],
-                                          sumsq_px2=[float(v) for v in m.sumsq.ravel()])
-        return out
+        return {side: ResidualMapRecord.of(self.obs[side][2], residual, image_size)
+                for side, residual in (("left", raw[:split]), ("right", raw[split:]))}
 
     def global_covariance(self, lin: dict) -> np.ndarray:
         """Covariance of the global unknowns (board poses marginalised): inverse of the Schur complement."""

@@ -240,6 +240,17 @@ class ResidualMapRecord(BaseModel):
     mean_px: list[float]
     sumsq_px2: list[float]
 
+    @classmethod
+    def of(cls, observed_px: np.ndarray, residual_px: np.ndarray, image_size) -> ResidualMapRecord:
+        """From one camera's observed pixels and residuals (projected - observed), (N, 2) or interleaved."""
+        from stereo_bench.vision.covariance import ResidualMap
+
+        size = (int(image_size[0]), int(image_size[1]))
+        m = ResidualMap.of(observed_px, residual_px, size)
+        ny, nx = m.count.shape
+        return cls(image_size=list(size), bins=[nx, ny], count=[float(v) for v in m.count.ravel()],
+                   mean_px=[float(v) for v in m.mean.ravel()], sumsq_px2=[float(v) for v in m.sumsq.ravel()])
+
     @model_validator(mode="after")
     def _shapes(self) -> ResidualMapRecord:
         if len(self.bins) != 2 or min(self.bins) < 1 or len(self.image_size) != 2:

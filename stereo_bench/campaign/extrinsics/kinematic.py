@@ -8,6 +8,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import cv2
 import numpy as np
 
 from stereo_bench.campaign.analysis import AnalysisError, ConfigurationAnalysis
@@ -15,6 +16,7 @@ from stereo_bench.campaign.extrinsics.base import ExtrinsicsSource, measured_wit
 from stereo_bench.campaign.extrinsics_run import Prepared
 from stereo_bench.campaign.sources import Source, kinematic_source
 from stereo_bench.kinematics import ConfigurationViews, campaign_design, fit_kinematics
+from stereo_bench.kinematics.fixed_board import fixed_board_design
 
 
 class KinematicSource(ExtrinsicsSource):
@@ -29,6 +31,7 @@ class KinematicSource(ExtrinsicsSource):
     def describe(self, section: Any) -> str:
         return ("predicted by the kinematic rig model "
                 + (f"read from {section.kinematic_file}" if section.kinematic_file
+                   else "fitted once to a fixed board's views as the rig moves in front of it" if section.fixed_board
                    else "fitted once to the design's views"))
 
     def visits(self, section: Any, configurations: Sequence, ranges: dict, *, visit: Callable[..., Any],
@@ -38,6 +41,10 @@ class KinematicSource(ExtrinsicsSource):
         # The same design a prediction of this campaign fits (kinematics.campaign_design); ``ranges`` are
         # design_ranges(configurations), which it spans.
         designs, distance = campaign_design(configurations)
+        if section.fixed_board:
+            # Slide and pan positions in front of one board (where it stands: plan_visits asks the feasibility
+            # rules); presented: 9 visits, the board presented 12 times at each.
+            designs = fixed_board_design(ranges["baseline_mm"], ranges["toe_in_deg"], ranges["toe_in_deg"])
         visits = []
         for k, design in enumerate(designs):
             config_id = (f"design-{k + 1}_B{format_id(design.baseline_mm)}_L{format_id(design.toe_in_left_deg)}"
@@ -62,8 +69,11 @@ class KinematicSource(ExtrinsicsSource):
                 return Prepared(error=f"kinematic fit failed: {error}", record={**record, "error": str(error)})
             configurations.append(ConfigurationViews(axes=capture.axes, approach=capture.approach, views=views))
         image = captured[0].calibration_pairs[0][0]
+        image_size = (int(image.shape[1]), int(image.shape[0]))
         slide_mm, heads_deg = options.repeatability
         started = time.perf_counter()
+        if config.extrinsics.fixed_board:
+            return self._prepare_fixed_board(configurations, board, image_size, options, record, ids, started)
         try:
             fit = fit_kinematics(configurations, board.object_points, (int(image.shape[1]), int(image.shape[0])),
                                  intrinsics=options.intrinsics, refine_intrinsics=True, repeatability_mm=slide_mm,
@@ -73,6 +83,44 @@ class KinematicSource(ExtrinsicsSource):
         model = fit.model
         record.update(n_views=model.fit.n_views, rms_px=model.fit.rms_px, fit_s=time.perf_counter() - started,
                       views_dropped=[{"visit": ids[c], "view": i, "reason": why} for c, i, why in fit.views_dropped])
+        return Prepared(kinematic_model=model, record=record)
+
+    @staticmethod
+    def _prepare_fixed_board(configurations: list, board: Any, image_size: tuple[int, int], options: Any,
+                             record: dict[str, Any], ids: list[str], started: float) -> Prepared:
+        """The fixed-board fit (:func:`stereo_bench.kinematics.fixed_board.fit_fixed_board`): intrinsics from
+        ``calib_dir``'s lens calibration (its covariance a prior), else each camera calibrated from the same views
+        first and refined jointly."""
+        from stereo_bench.kinematics.fixed_board import INTRINSIC_NAMES, fit_fixed_board
+        from stereo_bench.vision.calibrate import DEFAULT_FLAGS, calibrate_mono
+
+        record["design"] = "fixed-board"
+        slide_mm, heads_deg = options.repeatability
+        intrinsics, prior = options.intrinsics, None
+        covariance = options.intrinsics_covariance
+        if intrinsics is not None and covariance is not None and all(n in covariance.names for n in INTRINSIC_NAMES):
+            index = covariance.index(INTRINSIC_NAMES)
+            prior = np.asarray(covariance.matrix, float)[np.ix_(index, index)]
+        try:
+            if intrinsics is None:
+                views = [v for conf in configurations for v in conf.views if v[0] is not None and v[1] is not None]
+                views = views[:: max(1, len(views) // 30)]  # a start the joint fit refines: 30 views as good as all
+                mono = [calibrate_mono([board.object_points[np.asarray(v[side].ids)] for v in views],
+                                       [np.asarray(v[side].corners_px, float) for v in views], image_size,
+                                       flags=DEFAULT_FLAGS) for side in (0, 1)]
+                intrinsics = (mono[0].K, mono[0].dist, mono[1].K, mono[1].dist)
+            fit = fit_fixed_board(configurations, board.object_points, image_size, intrinsics=intrinsics,
+                                  intrinsics_covariance=prior, repeatability_mm=slide_mm,
+                                  repeatability_left_deg=heads_deg, repeatability_right_deg=heads_deg)
+        except (ValueError, np.linalg.LinAlgError, cv2.error) as error:
+            return Prepared(error=f"kinematic fit (fixed board) failed: {error}",
+                            record={**record, "error": str(error)})
+        model = fit.model
+        record.update(n_views=model.fit.n_views, rms_px=model.fit.rms_px, fit_s=time.perf_counter() - started,
+                      views_dropped=[{"visit": ids[c], "view": i, "reason": why} for c, i, why in fit.views_dropped],
+                      identifiability=[{"name": r.name, "unit": r.unit, "identified": r.identified, "sigma": r.sigma,
+                                        "note": r.note} for r in fit.identifiability],
+                      fixed_board={"T_ref_board": fit.T_ref_board.tolist(), "left_share": fit.left_share})
         return Prepared(kinematic_model=model, record=record)
 
     def is_prepared(self, recorded: Prepared) -> bool:

@@ -8,6 +8,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, ClassVar
 
+import numpy as np
+
 from drivers.rig.config import LimitError, MoveRequestError, RigConfig, plan_move
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.plan.feasibility import (
@@ -104,8 +106,9 @@ class Configuration(_Runnable):
         recorded plan, never today's re-planning of it."""
         names = {f.name for f in dataclasses.fields(cls)}
         values = {key: value for key, value in data.items() if key in names}
-        if values.get("calibration_range_mm") is not None:
-            values["calibration_range_mm"] = tuple(values["calibration_range_mm"])
+        for key in ("calibration_range_mm", "fixed_board_pose"):
+            if values.get(key) is not None:
+                values[key] = tuple(values[key])
         return cls(**values)
 
 
@@ -224,7 +227,17 @@ class Visit(_Runnable):
     feasible: bool
     reason: str | None = None
     limit_violation: str | None = None
+    # A fixed-board design (issue 25): the calibration board stands where the operator placed it once, requested
+    # at this T_rig_board (16 numbers, row-major); None: presented by hand at this visit.
+    fixed_board_pose: tuple[float, ...] | None = None
     fraction_in_both: ClassVar[float] = 1.0
+
+    @property
+    def board_fixed(self) -> bool:
+        return self.fixed_board_pose is not None
+
+    def fixed_board_matrix(self) -> np.ndarray | None:
+        return None if self.fixed_board_pose is None else np.array(self.fixed_board_pose, float).reshape(4, 4)
 
     def axes(self) -> dict[str, float]:
         return {"baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_left_deg,
@@ -242,6 +255,10 @@ class Visit(_Runnable):
     def as_dict(self) -> dict[str, Any]:
         data = asdict(self)
         data["calibration_range_mm"] = list(self.calibration_range_mm) if self.calibration_range_mm else None
+        if self.fixed_board_pose is None:
+            del data["fixed_board_pose"]  # as recorded before fixed boards existed
+        else:
+            data["fixed_board_pose"] = list(self.fixed_board_pose)
         data["runnable"] = self.runnable
         return data
 
@@ -250,8 +267,9 @@ class Visit(_Runnable):
         """The visit a recorded ``start.design`` entry describes (resume and replay run the recorded visits)."""
         names = {f.name for f in dataclasses.fields(cls)}
         values = {key: value for key, value in data.items() if key in names}
-        if values.get("calibration_range_mm") is not None:
-            values["calibration_range_mm"] = tuple(values["calibration_range_mm"])
+        for key in ("calibration_range_mm", "fixed_board_pose"):
+            if values.get(key) is not None:
+                values[key] = tuple(values[key])
         return cls(**values)
 
 
@@ -302,4 +320,26 @@ def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration])
                       reason=reason)
         return dataclasses.replace(draft, limit_violation=_limit_violation(rig_config, draft.move_request()))
 
-    return source.visits(extrinsics, configurations, ranges, visit=visit, format_id=format_id_value)
+    visits = source.visits(extrinsics, configurations, ranges, visit=visit, format_id=format_id_value)
+    if extrinsics.fixed_board and visits:
+        visits = _with_fixed_board(visits, board, left, right, config.calibration_board.describe())
+    return visits
+
+
+def _with_fixed_board(visits: Sequence[Visit], board, left, right, board_name: str) -> list[Visit]:
+    """The fixed-board design's visits with where the operator is asked to place the board once
+    (:func:`~stereo_bench.campaign.plan.feasibility.fixed_board_placement`); a visit where it does not fit both
+    views is not run, with the reason."""
+    from stereo_bench.campaign.plan.feasibility import fixed_board_placement
+
+    T, fits = fixed_board_placement(board, [v.rig_pose() for v in visits], left=left, right=right)
+    pose = None if T is None else tuple(float(x) for x in np.asarray(T).ravel())
+    out = []
+    for v, ok in zip(visits, fits, strict=True):
+        reason = v.reason
+        if not ok and v.feasible:
+            reason = (f"calibration board ({board_name}) placed once for the fixed-board design does not fit both "
+                      f"views at B = {v.baseline_mm:g} mm, toe-ins {v.toe_in_left_deg:g}/{v.toe_in_right_deg:g} deg")
+        out.append(dataclasses.replace(v, fixed_board_pose=pose, feasible=v.feasible and ok, reason=reason,
+                                       distance_mm=float(T[2, 3]) if T is not None else v.distance_mm))
+    return out

@@ -11,7 +11,12 @@ from drivers.rig.motion import REFERENCE_AXIS_MOTION, REFERENCE_HOMING, homing_t
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.plan.configurations import Configuration
 from stereo_bench.campaign.plan.steps import Step
-from stereo_bench.campaign.plan.timing import OPERATOR_S_PER_CALIBRATION_VIEW, OPERATOR_S_PER_PROMPT, DurationModel
+from stereo_bench.campaign.plan.timing import (
+    OPERATOR_S_PER_BOARD_PLACEMENT,
+    OPERATOR_S_PER_CALIBRATION_VIEW,
+    OPERATOR_S_PER_PROMPT,
+    DurationModel,
+)
 
 
 @dataclass(frozen=True)
@@ -79,7 +84,9 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
         f"{frame_s:g} s per stereo frame" + ("" if config.cameras.kind == "simulated"
                                               else f", {flush_frames} frames per flush"),
         (f"operator {OPERATOR_S_PER_PROMPT:g} s per prompt and {OPERATOR_S_PER_CALIBRATION_VIEW:g} s per "
-         "calibration view done by hand" + ("" if real_scene else " (the scene is simulated: boards and target "
+         "calibration view done by hand"
+         + (f", {OPERATOR_S_PER_BOARD_PLACEMENT:g} s to place the fixed board" if config.extrinsics.fixed_board
+            else "") + ("" if real_scene else " (the scene is simulated: boards and target "
                                                                    "placed by the simulator)")
          if human else "no operator time: rig and cameras simulated"),
         "computation (rendering, detection, calibration) not included",

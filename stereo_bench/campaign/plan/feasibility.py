@@ -174,3 +174,42 @@ def _why_too_few(vis: Visibility, *, alpha_deg: float) -> str:
         cause = "too little of the board lies where the two views overlap"
     return (f"{vis.in_both} of {vis.n_corners} target corners in both views (left {vis.in_left}, "
             f"right {vis.in_right}; {MIN_CORNERS_IN_BOTH} needed): {cause} at alpha = {alpha_deg:g} deg")
+
+
+#: The fixed board's requested orientation (issue 25): turned about the vertical and about the horizontal, so each
+#: view's perspective separates each camera's focal length from the board's distance (a board facing the rig
+#: squarely leaves the right camera's depth offset, and with it the alphas, to the ratio of the two focal lengths:
+#: on tests/synthetic_mechanics' lab rig, 2 seeds x 5 configurations, max baseline / alpha error 0.17 mm / 0.04 deg
+#: facing at 500 mm against 0.05 mm / 0.019 deg turned 30/20 deg at 350 mm; a one-off experiment, not a script).
+FIXED_BOARD_YAW_DEG = 30.0
+FIXED_BOARD_PITCH_DEG = 20.0
+#: Room kept around the board's image at every visit for the operator's placement error (a few mm and degrees
+#: move the corners of a board at 300-500 mm by up to ~40 px at 1080p).
+FIXED_BOARD_EXTRA_MARGIN_PX = 60.0
+
+
+def fixed_board_placement(
+    board: Target, poses: Sequence[RigPose], *, left: CameraModel, right: CameraModel,
+    distances_mm: tuple[float, float] = CALIBRATION_DISTANCES_MM, step_mm: float = CALIBRATION_DISTANCE_STEP_MM,
+    yaw_deg: float = FIXED_BOARD_YAW_DEG, pitch_deg: float = FIXED_BOARD_PITCH_DEG,
+) -> tuple[np.ndarray | None, list[bool]]:
+    """Where to ask the operator to put the calibration board once, for the rig to see it at every pose of ``poses``.
+
+    The nearest distance (along the rig z axis, grid centred on it, turned ``yaw_deg`` about the vertical and
+    ``pitch_deg`` about the horizontal) at which the board is a usable view (:func:`calibration_view_fits`, with
+    :data:`FIXED_BOARD_EXTRA_MARGIN_PX` more margin) at the most poses; nearer is better (each view's pose is more
+    precise). Returns (T_rig_board 4x4 or None if it fits at none, per pose whether it fits there).
+    """
+    from stereo_bench.geometry import CALIBRATION_MARGIN_PX, calibration_view_fits
+
+    best: tuple[int, np.ndarray | None, list[bool]] = (0, None, [False] * len(poses))
+    for distance in np.arange(distances_mm[0], distances_mm[1] + 1e-9, step_mm):
+        T = board_pose_facing_rig(distance_mm=float(distance), board_size_mm=board.grid_size_mm, yaw_deg=yaw_deg,
+                                  pitch_deg=pitch_deg)
+        fits = [calibration_view_fits(board, T, rig=pose, left=left, right=right,
+                                      margin_px=CALIBRATION_MARGIN_PX + FIXED_BOARD_EXTRA_MARGIN_PX) for pose in poses]
+        if sum(fits) > best[0]:
+            best = (sum(fits), T, fits)
+        if all(fits):
+            break
+    return best[1], best[2]

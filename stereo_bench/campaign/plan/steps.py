@@ -12,7 +12,12 @@ from drivers.rig.config import QUANTITIES, to_machine
 from drivers.rig.motion import move_time_s
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.plan.configurations import Configuration, Visit, plan_visits
-from stereo_bench.campaign.plan.timing import OPERATOR_S_PER_CALIBRATION_VIEW, OPERATOR_S_PER_PROMPT, DurationModel
+from stereo_bench.campaign.plan.timing import (
+    OPERATOR_S_PER_BOARD_PLACEMENT,
+    OPERATOR_S_PER_CALIBRATION_VIEW,
+    OPERATOR_S_PER_PROMPT,
+    DurationModel,
+)
 
 
 class StepKind:
@@ -94,6 +99,24 @@ class PromptManual(StepKind):
 
 
 @dataclass(frozen=True)
+class PlaceBoard(StepKind):
+    """The operator places the calibration board once, where the fixed-board design asks (``T_rig_board``, 16
+    numbers row-major), and leaves it while the rig moves in front of it (issue 25)."""
+
+    T_rig_board: tuple[float, ...]
+    kind: ClassVar[str] = "place_board"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"step": self.kind, "T_rig_board": list(self.T_rig_board)}
+
+    def estimate(self, model: DurationModel) -> None:
+        model.operator_s += OPERATOR_S_PER_BOARD_PLACEMENT if model.real_scene else 0.0
+
+    def present(self, tally: Presentations) -> None:
+        tally.counts["placements"] += 1
+
+
+@dataclass(frozen=True)
 class Settle(StepKind):
     """Wait for the rig (and the operator's hands) to be still."""
 
@@ -125,17 +148,27 @@ class CaptureCalibration(StepKind):
     """Capture ``n_views`` stereo views of the calibration board (R, T are estimated from them)."""
 
     n_views: int
+    fixed_board: bool = False  # the board stands where it was placed (PlaceBoard): captured, not presented
     kind: ClassVar[str] = "capture_calibration"
 
     def as_dict(self) -> dict[str, Any]:
-        return {"step": self.kind, "n_views": self.n_views}
+        data: dict[str, Any] = {"step": self.kind, "n_views": self.n_views}
+        if self.fixed_board:
+            data["fixed_board"] = True
+        return data
 
     def estimate(self, model: DurationModel) -> None:
         model.capture_s += self.n_views * model.frame_s
-        model.operator_s += self.n_views * OPERATOR_S_PER_CALIBRATION_VIEW if model.real_scene else 0.0
+        if not self.fixed_board:
+            model.operator_s += self.n_views * OPERATOR_S_PER_CALIBRATION_VIEW if model.real_scene else 0.0
+
+    @property
+    def presentations(self) -> int:
+        """Board presentations by hand this capture needs."""
+        return 0 if self.fixed_board else self.n_views
 
     def present(self, tally: Presentations) -> None:
-        tally.add(self.n_views)
+        tally.add(self.presentations)
 
 
 @dataclass(frozen=True)
@@ -213,8 +246,8 @@ class PrepareExtrinsics(StepKind):
         return None  # computation (the fit, the calibration) is not counted
 
 
-Step = (Move | PromptTarget | PromptManual | Settle | Flush | CaptureCalibration | CaptureMeasurement | Checkpoint
-        | VisitDone | PrepareExtrinsics)
+Step = (Move | PromptTarget | PromptManual | PlaceBoard | Settle | Flush | CaptureCalibration | CaptureMeasurement
+        | Checkpoint | VisitDone | PrepareExtrinsics)
 
 
 def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration],
@@ -234,13 +267,22 @@ def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration],
     calibrates_each_configuration = config.extrinsics.source().calibrates_each_configuration
     steps: list[Step] = []
     visits = plan_visits(config, configurations) if visits is None else visits
+    placed = False
     for visit in visits:
         if not visit.runnable:
             steps.append(VisitDone(visit.config_id, skipped=True, reason=visit.skip_reason))
             continue
         # The calibration board is shown by hand or by the simulator: no prompt for the target distance.
-        steps += [Move(visit), Settle(config.capture.settle_s), Flush(),
-                  CaptureCalibration(config.capture.calibration_views), VisitDone(visit.config_id)]
+        steps.append(Move(visit))
+        if visit.board_fixed:
+            # Placed once, at the first visit run (the live page shows both views there), then left standing.
+            if not placed:
+                steps.append(PlaceBoard(visit.fixed_board_pose))
+                placed = True
+            capture = CaptureCalibration(config.extrinsics.fixed_board_views, fixed_board=True)
+        else:
+            capture = CaptureCalibration(config.capture.calibration_views)
+        steps += [Settle(config.capture.settle_s), Flush(), capture, VisitDone(visit.config_id)]
     if visits:
         steps.append(PrepareExtrinsics(visits[0].purpose))
     for configuration in configurations:
@@ -268,7 +310,7 @@ class Presentations:
     """Board presentations counted so far (``StepKind.present``): at visits, or at measured configurations."""
 
     in_visit: bool = False  # the last move went to a visit
-    counts: dict[str, int] = field(default_factory=lambda: {"visits": 0, "configurations": 0})
+    counts: dict[str, int] = field(default_factory=lambda: {"visits": 0, "configurations": 0, "placements": 0})
 
     def add(self, n_views: int) -> None:
         self.counts["visits" if self.in_visit else "configurations"] += n_views

@@ -22,6 +22,56 @@ def calibration_presentations(steps: Sequence[Step]) -> dict[str, int]:
     return {**tally.counts, "total": tally.counts["visits"] + tally.counts["configurations"]}
 
 
+def operator_actions(steps: Sequence[Step]) -> dict[str, int]:
+    """What the operator does by hand in the steps: board ``presentations``, board ``placements`` (a fixed-board
+    design's one), ``target_moves`` and other ``manual_settings``; ``total``."""
+    from stereo_bench.campaign.plan.steps import PromptManual, PromptTarget
+
+    counts = calibration_presentations(steps)
+    out = {"presentations": counts["total"], "placements": counts["placements"],
+           "target_moves": sum(isinstance(s, PromptTarget) for s in steps),
+           "manual_settings": sum(isinstance(s, PromptManual) for s in steps)}
+    return {**out, "total": sum(out.values())}
+
+
+def design_identifiability(config: CampaignConfig, visits: Sequence) -> list[dict[str, Any]] | None:
+    """A fixed-board design's identifiability table before any view (the board projected exactly through the
+    nominal chain at every runnable visit; :func:`stereo_bench.kinematics.fixed_board.design_identifiability`),
+    with ``calib_dir``'s intrinsics and covariance as the fit will take them when it holds readable ones. None for
+    other designs or when no visit can run."""
+    from stereo_bench.kinematics.design import DesignConfiguration
+    from stereo_bench.kinematics.fixed_board import INTRINSIC_NAMES
+    from stereo_bench.kinematics.fixed_board import design_identifiability as table_of
+
+    runnable = [v for v in visits if v.runnable and v.board_fixed]
+    if not config.extrinsics.fixed_board or len(runnable) < 3:
+        return None
+    optics = config.cameras.optics
+    left, right = optics.camera_model("left"), optics.camera_model("right")
+    intrinsics = (left.K, left.dist, right.K, right.dist)
+    covariance = None
+    if config.extrinsics.calib_dir is not None:
+        from stereo_bench.vision.calibio import CalibrationFileError, read_intrinsics, read_intrinsics_covariance
+
+        try:
+            K1, D1, K2, D2 = read_intrinsics(config.extrinsics.calib_dir)[:4]
+            stored = read_intrinsics_covariance(config.extrinsics.calib_dir)
+        except (CalibrationFileError, OSError):
+            stored = None
+        if stored is not None and all(name in stored.names for name in INTRINSIC_NAMES):
+            intrinsics = (K1, D1, K2, D2)
+            index = stored.index(INTRINSIC_NAMES)
+            covariance = stored.matrix[index][:, index]
+    design = [DesignConfiguration(v.baseline_mm, v.toe_in_left_deg, v.toe_in_right_deg) for v in runnable]
+    rows = table_of(design, config.calibration_board.build().object_points, runnable[0].fixed_board_matrix(),
+                    intrinsics, intrinsics_covariance=covariance,
+                    repeatability_mm=config.extrinsics.repeatability_mm,
+                    repeatability_deg=config.extrinsics.repeatability_deg)
+    return [{"name": r.name, "unit": r.unit, "identified": r.identified, "sigma": r.sigma, "note": r.note,
+             "intrinsics": "calib_dir prior" if covariance is not None else "from the design's views alone"}
+            for r in rows]
+
+
 def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN_PX) -> dict[str, Any]:
     """Everything ``stereo-bench campaign plan`` reports, as one JSON-able object."""
     configurations = expand_plan(config, margin_px=margin_px)
@@ -33,6 +83,8 @@ def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGI
         "design": [v.as_dict() for v in visits],
         "design_ranges": design_ranges(configurations) if visits else None,
         "calibration_presentations": calibration_presentations(steps),
+        "operator_actions": operator_actions(steps),
+        "identifiability": design_identifiability(config, visits),
         "name": config.name,
         "configurations": [c.as_dict() for c in configurations],
         "predicted_duration_s": estimate.total_s,

@@ -12,6 +12,10 @@ from stereo_bench.campaign.config import CampaignConfig
 # Duration assumptions (each estimate lists them).
 OPERATOR_S_PER_PROMPT = 30.0  # move the target (or set another manual quantity) and press Enter
 OPERATOR_S_PER_CALIBRATION_VIEW = 5.0  # present the calibration board in a new pose by hand
+# Stand the calibration board once where both views show it (the fixed-board design; the live page shows both views
+# and the plan's requested pose), press Enter: no distance to measure out, unlike a target move. An assumption, not
+# measured at a bench: a target move's 30 s less the measuring.
+OPERATOR_S_PER_BOARD_PLACEMENT = 20.0
 ASSUMED_FPS = 30.0  # a V4L2 camera's frame rate when the settings do not fix it
 ASSUMED_FLUSH_FRAMES = 4  # frames a V4L2 flush discards when buffer_count is left to the driver
 

@@ -1,0 +1,99 @@
+"""The plan of a fixed-board kinematic design (issue 25): one placement, no presentations, every visit's board
+in both views, the operator's actions and time, and what ``campaign plan`` prints for each design."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stereo_bench.campaign.config import campaign_from_dict
+from stereo_bench.campaign.plan import (
+    CaptureCalibration,
+    Move,
+    PlaceBoard,
+    estimate_duration,
+    expand_plan,
+    plan_steps,
+    plan_summary,
+    plan_visits,
+)
+from stereo_bench.cli import main
+from stereo_bench.geometry import calibration_view_fits
+
+PAPER_EXP1 = {"distance_mm": [300, 400, 500, 600, 700], "baseline_mm": [50, 100, 150, 200, 250], "alpha_deg": [90]}
+HARDWARE = {"rig": {"kind": "grbl", "port": "/dev/ttyUSB7"},
+            "cameras": {"kind": "v4l2", "left": "usb-port:1-1", "right": "usb-port:1-2"}}
+
+
+def _config(design: str, **extra):
+    return campaign_from_dict({"name": "paper-exp1", "plan": PAPER_EXP1,
+                               "extrinsics": {"mode": "kinematic", "design": design}, **extra})
+
+
+def test_paper_exp1_fixed_board_places_the_board_once_and_presents_nothing():
+    config = _config("fixed-board")
+    configurations = expand_plan(config)
+    visits = plan_visits(config, configurations)
+    steps = plan_steps(config, configurations, visits)
+    summary = plan_summary(config)
+    assert summary["calibration_presentations"] == {"visits": 0, "configurations": 0, "placements": 1, "total": 0}
+    assert summary["operator_actions"] == {"presentations": 0, "placements": 1, "target_moves": 5,
+                                           "manual_settings": 0, "total": 6}
+    # The placement comes once, right after the first move (both views live at the first visit).
+    places = [i for i, s in enumerate(steps) if isinstance(s, PlaceBoard)]
+    assert len(places) == 1 and isinstance(steps[places[0] - 1], Move) and places[0] == 1
+    captures = [s for s in steps if isinstance(s, CaptureCalibration)]
+    assert len(captures) == len(visits) == 32 and all(c.fixed_board and c.n_views == 3 for c in captures)
+    # One board pose for every visit, and it fits both views at each (where it was asked to stand).
+    T = visits[0].fixed_board_matrix()
+    board = config.calibration_board.build()
+    left, right = (config.cameras.optics.camera_model(side) for side in ("left", "right"))
+    assert all(v.runnable and np.array_equal(v.fixed_board_matrix(), T) for v in visits)
+    assert all(calibration_view_fits(board, T, rig=v.rig_pose(), left=left, right=right) for v in visits)
+    # The design spans the campaign's slide and turns the heads (0-6 deg) though the campaign stays at toe-in 0.
+    assert {v.baseline_mm for v in visits} == {50.0, 116.7, 183.3, 250.0}
+    assert {v.toe_in_left_deg for v in visits} == {0.0, 2.0, 4.0, 6.0}
+
+
+def test_the_presented_design_still_presents_108_times():
+    summary = plan_summary(_config("presented"))
+    assert summary["calibration_presentations"]["total"] == 108
+    assert summary["operator_actions"]["total"] == 113 and summary["operator_actions"]["placements"] == 0
+
+
+def test_a_hardware_run_of_paper_exp1_needs_under_three_minutes_of_operator_time():
+    fixed, presented = (_config(design, **HARDWARE) for design in ("fixed-board", "presented"))
+    operator = {}
+    for name, config in (("fixed", fixed), ("presented", presented)):
+        configurations = expand_plan(config)
+        operator[name] = estimate_duration(config, configurations, plan_steps(config, configurations)).operator_s
+    assert operator["fixed"] == pytest.approx(5 * 30.0 + 20.0)  # 5 target moves, one placement
+    assert operator["fixed"] < 180.0
+    assert operator["presented"] == pytest.approx(5 * 30.0 + 108 * 5.0)
+
+
+def test_a_fixed_board_design_outside_kinematic_mode_is_one_clear_error(tmp_path, capsys):
+    path = tmp_path / "c.toml"
+    path.write_text('[plan]\nbaseline_mm = [100]\ndistance_mm = [500]\nalpha_deg = [90]\n'
+                    '[extrinsics]\nmode = "per-config"\ndesign = "fixed-board"\n')
+    code = main(["campaign", "plan", str(path)])
+    err = capsys.readouterr().err
+    assert code != 0 and len(err.strip().splitlines()) == 1
+    assert "design = 'fixed-board'" in err and 'mode = "kinematic"' in err and "c.toml" in err
+
+
+@pytest.mark.parametrize(("design", "expected"), [
+    ("fixed-board", ["calibration board presentations: 0: 0 at visits", "calibration board placements: 1",
+                     "operator actions: 6 (0 board presentations, 1 board placements, 5 target moves)",
+                     "fixed board: placed once, centred", "design-1_B50_L0_R0", "fixed board\n"]),
+    ("presented", ["calibration board presentations: 108: 108 at visits", "calibration board placements: 0",
+                   "operator actions: 113 (108 board presentations, 0 board placements, 5 target moves)"]),
+])
+def test_campaign_plan_prints_placements_and_presentations_in_each_design(tmp_path, capsys, design, expected):
+    path = tmp_path / "exp1.toml"
+    path.write_text('[plan]\ndistance_mm = [300, 400, 500, 600, 700]\nbaseline_mm = [50, 100, 150, 200, 250]\n'
+                    f'alpha_deg = [90]\n[extrinsics]\nmode = "kinematic"\ndesign = "{design}"\n')
+    assert main(["campaign", "plan", str(path)]) == 0
+    out = capsys.readouterr().out
+    for text in expected:
+        assert text in out, text
