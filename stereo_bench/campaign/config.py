@@ -18,7 +18,8 @@ Sections (all optional except ``[plan]``; units in every key's name):
                           lens the feasibility prediction uses for real cameras)
     [calibration_board]   the board shown for stereo calibration (11x8 inner corners, 25 mm)
     [target]              the measured board (9x6 inner corners, 27 mm squares)
-    [capture]             settle_s, frames_per_config, calibration_views, board_retries
+    [capture]             settle_s, frames_per_config, calibration_views, board_retries, keep_frames,
+                          calibration_capture = "auto" | "enter", coverage_gate, max_calibration_views
     [extrinsics]          mode = "per-config" | "kinematic" | "nominal" | "fixed", intrinsics = "joint" |
                           "fixed", calib_dir, kinematic_file, repeatability_mm, repeatability_deg,
                           [extrinsics.tolerances] (the rig's stated tolerances, for nominal extrinsics)
@@ -428,6 +429,24 @@ class CaptureSection(BaseModel):
         "all", description="frames written to the session: all; measurement (calibration views are not kept: "
                            "their detections and the calibration are, and a replay calibrates from those); "
                            "none (no frames: a replay cannot reproduce the configurations)")
+    calibration_capture: Literal["auto", "enter"] | None = Field(
+        None, description="how calibration views are taken: auto (the cameras stream while the operator moves the "
+                          "board; a view is kept when it is still and new, until the coverage gate opens: "
+                          "stereo_bench/campaign/autocapture.py) or enter (one view per press of Enter; the "
+                          "simulator presents a still board per view). Default: auto for v4l2 cameras, enter for "
+                          "simulated ones (auto there: the simulated hand presents the board, [sim] presenter)")
+    coverage_gate: Literal["bars", "count"] = Field(
+        "bars", description="auto capture: calibrate once every coverage bar is full in both cameras (bars) or once "
+                            "calibration_views views are kept (count); never with fewer than calibration_views")
+    max_calibration_views: int = Field(
+        40, ge=1, le=MAX_CALIBRATION_VIEWS,
+        description="auto capture: calibrate with this many views kept whatever the bars say (ROS calls 40 enough)")
+
+    def calibration_capture_for(self, cameras_kind: str) -> str:
+        """``calibration_capture`` or its default for ``cameras_kind`` (auto for v4l2, enter for simulated)."""
+        if self.calibration_capture is not None:
+            return self.calibration_capture
+        return "auto" if cameras_kind == "v4l2" else "enter"
 
 
 def _tolerance(default: float, why: str, unit: str) -> Any:
@@ -678,7 +697,24 @@ class CampaignConfig(BaseModel):
                 and self.capture.calibration_views < MIN_CALIBRATION_VIEWS):
             raise ValueError(f"capture.calibration_views: {extrinsics.mode} extrinsics need at least "
                              f"{MIN_CALIBRATION_VIEWS} calibration views, not {self.capture.calibration_views}")
+        if self.calibration_capture == "auto" and self.cameras.kind == "simulated" and self.sim.presenter == "still":
+            raise ValueError("capture.calibration_capture = \"auto\" takes views of a board the operator moves; "
+                             "[sim] presenter = \"still\" does not move it: use presenter = \"hand\" (or leave it "
+                             "out)")
         return self
+
+    @property
+    def calibration_capture(self) -> str:
+        """How calibration views are taken: "auto" or "enter" (``[capture] calibration_capture`` or its default)."""
+        return self.capture.calibration_capture_for(self.cameras.kind)
+
+    @property
+    def sim_presenter(self) -> str:
+        """Who presents the calibration board on the simulated bench: "hand" or "still" (``[sim] presenter`` or its
+        default: the hand when views are taken automatically)."""
+        if self.sim.presenter is not None:
+            return self.sim.presenter
+        return "hand" if self.calibration_capture == "auto" else "still"
 
     @property
     def fully_simulated(self) -> bool:
@@ -821,6 +857,11 @@ def recorded_campaign(data: Mapping[str, Any]) -> CampaignConfig:
         # Recorded before lens models were compared: the fit it ran with, not today's default (auto for v4l2
         # cameras), so that its replay reproduces it. A recording made since always has the key (null included).
         data["extrinsics"] = {**extrinsics, "lens_model": "legacy"}
+    capture = data.get("capture")
+    if isinstance(capture, Mapping) and "calibration_capture" not in capture:
+        # Recorded before calibration views were taken automatically: one view per Enter (today's default for
+        # v4l2 cameras is auto, whose replay serves the views the recording kept: the same views either way).
+        data["capture"] = {**capture, "calibration_capture": "enter"}
     return CampaignConfig.model_validate(data)
 
 

@@ -58,6 +58,9 @@ class Prompt:
     value: float | None = None
     index: int | None = None
     actions: tuple[str, ...] = (CONTINUE,)  # the answers this prompt accepts (see ACTIONS)
+    # Shown while the runner works (views taken automatically); an answer ends that work early. Operators with
+    # nothing to do there (the simulator, a replay) leave it unanswered: the work ends by itself.
+    background: bool = False
 
 
 class Ticket:
@@ -70,6 +73,7 @@ class Ticket:
         self.answered_at: float | None = None
         self.action: str = CONTINUE
         self.gave_up: dict[str, str] = {}
+        self.withdraw_reason: str | None = None  # why it was withdrawn unanswered (OperatorDesk.close)
         self._n_operators = n_operators
         self._lock = threading.Lock()
         self._done = threading.Event()
@@ -137,27 +141,39 @@ class OperatorDesk:
         """
         if not self.operators:
             raise OperatorAbsent(f"the campaign needs an operator here ({prompt.message!r}) but none is connected")
-        ticket = Ticket(prompt, len(self.operators))
+        ticket = self.open(prompt)
         try:
-            for operator in self.operators:
-                operator.offer(ticket)
-                if ticket.done:
-                    break
             while not ticket.wait(poll_s):
                 if stop.is_set():
                     raise StopRequested()
                 if while_waiting is not None:
                     while_waiting()
         finally:
-            for operator in self.operators:
-                if operator.name != ticket.answered_by:
-                    operator.withdraw(ticket)
+            self.close(ticket)
         if ticket.answered_by is None:
             reasons = "; ".join(f"{name}: {why}" for name, why in ticket.gave_up.items())
             raise OperatorAbsent(f"the campaign needs the operator here ({prompt.message!r}) but nobody can "
                                  f"answer ({reasons})")
         assert ticket.answered_at is not None
         return Answer(operator=ticket.answered_by, waited_s=ticket.answered_at - ticket.asked_at, action=ticket.action)
+
+
+    def open(self, prompt: Prompt) -> Ticket:
+        """Offer ``prompt`` to every operator and return at once (a :attr:`Prompt.background` prompt: the runner
+        works meanwhile and looks at ``ticket.done``); :meth:`close` withdraws it."""
+        ticket = Ticket(prompt, len(self.operators))
+        for operator in self.operators:
+            operator.offer(ticket)
+            if ticket.done:
+                break
+        return ticket
+
+    def close(self, ticket: Ticket, *, reason: str | None = None) -> None:
+        """Withdraw ``ticket`` from every operator but the one that answered it (``reason``: why, when unanswered)."""
+        ticket.withdraw_reason = reason
+        for operator in self.operators:
+            if operator.name != ticket.answered_by:
+                operator.withdraw(ticket)
 
 
 def manual_prompt(quantity: str, value: float, *, config_id: str | None = None) -> Prompt:
@@ -193,7 +209,8 @@ class SimulatedOperator:
 
     def offer(self, ticket: Ticket) -> None:
         self.prompts.append(ticket.prompt)
-        ticket.answer(self.name)
+        if not ticket.prompt.background:  # a background prompt's work (the simulated hand) ends by itself
+            ticket.answer(self.name)
 
     def withdraw(self, ticket: Ticket) -> None:
         return None
@@ -292,7 +309,7 @@ class TerminalOperator:
             if self._ticket is ticket:
                 self._ticket = None
                 self.display.end_prompt(f"done: answered by {ticket.answered_by}" if ticket.answered_by is not None
-                                        else "no longer needed: the run stopped")
+                                        else ticket.withdraw_reason or "no longer needed: the run stopped")
 
     def _read(self) -> None:
         stream = self._in or sys.stdin

@@ -51,6 +51,7 @@ from stereo_bench.campaign.documents import (
     CalibrationDetectionsEvent,
     CalibrationEvent,
     CalibrationFiles,
+    CalibrationSelectionEvent,
     CalibrationViewDiscardedEvent,
     CalibrationViewEvent,
     DetectionRecord,
@@ -58,6 +59,7 @@ from stereo_bench.campaign.documents import (
     HomeEvent,
     MeasurementFrameEvent,
     MoveEvent,
+    PresentationTimeEvent,
     PromptEvent,
     ResultDocument,
     RigPositionTrustedEvent,
@@ -562,7 +564,10 @@ class CampaignRunner:
         return keep == "all" or (keep == "measurement" and model is MeasurementFrameEvent)
 
     def _capture(self, model, index: int, configuration: Configuration, **extra) -> tuple[np.ndarray, np.ndarray]:
-        pair = self.bench.cameras.capture_pair()
+        return self._record_pair(model, index, configuration, self.bench.cameras.capture_pair(), **extra)
+
+    def _record_pair(self, model, index: int, configuration: Configuration, pair, **extra) -> tuple[np.ndarray,
+                                                                                                   np.ndarray]:
         self._publish(Draft(
             model, config_id=configuration.config_id,
             data={"index": index, "dt_s": pair.dt_s, "left": pair.left.describe(), "right": pair.right.describe(),
@@ -586,14 +591,130 @@ class CampaignRunner:
         if self.options.fixed_calibration is not None:
             return
         presenter = self.bench.presenter
+        streams = getattr(presenter, "streams", False)
+        if not streams and self.config.calibration_capture == "auto" and self.bench.recorded_views is not None:
+            # A replay of views taken automatically: the views the recording kept, as many as it kept.
+            n_views = self.bench.recorded_views(captured.configuration.config_id) or n_views
         try:
             prompt = presenter.prepare_calibration(n_views)
         except CalibrationPlacementError as error:
             raise ConfigurationFailed(str(error)) from None
         if prompt is not None:
             self._ask(prompt)
+        timed = getattr(presenter, "presents_by_hand", False) and self.bench.now is not None
+        started_s = self.bench.now() if timed else None
+        if streams:
+            self._stream_calibration(n_views, captured, started_s)
+        else:
+            self._take_calibration_views(n_views, captured, started_s)
+
+    def _presented(self, captured: Captured, started_s: float | None, views: int, seconds: float | None = None) -> None:
+        """Record how long the board's presentations took (the next plan's estimate reads it: campaign/presentation.py):
+        from the first view asked for to the last one taken, on the bench's clock."""
+        if started_s is None or views <= 0:
+            return
+        if seconds is None:
+            seconds = max(self.bench.now() - started_s, 0.0)
+        self._publish(Draft(PresentationTimeEvent, config_id=captured.configuration.config_id, data={
+            "views": views, "seconds": seconds, "capture": self.config.calibration_capture,
+            "clock": "bench" if self.bench.kind in ("simulated", "bring-up") else "wall"}))
+
+    def _stream_calibration(self, n_views: int, captured: Captured, started_s: float | None) -> None:
+        """Views taken automatically: pair after pair of the cameras' stream offered to a
+        :class:`~stereo_bench.campaign.autocapture.ViewSelector`, which keeps the still, new, whole ones, until the
+        coverage gate opens (at least ``n_views``), the operator ends it (Enter) or the presenter has nothing more
+        to show. Kept views are recorded as calibration views (``data.auto``: when and why); every pair's decision
+        goes into one ``calibration_selection`` event. Pairs not kept are not recorded (their decisions are)."""
+        from stereo_bench.campaign.autocapture import AutoCaptureRule, ViewSelector
+
+        presenter = self.bench.presenter
+        capture = self.config.capture
+        rule = AutoCaptureRule(gate=capture.coverage_gate, min_views=n_views,
+                               max_views=max(capture.max_calibration_views, n_views))
+        configuration = captured.configuration
+        as_detections = not self._keeps_frames(CalibrationViewEvent)
+        selector: ViewSelector | None = None
+        ticket = None
+        prompt_shown_s = None
+        offered = 0
+        ended_by = "the coverage gate"
+        first_s = last_s = None
+        try:
+            while True:
+                self._between_steps()
+                if selector is not None and selector.gate_open()[0]:
+                    break
+                if ticket is not None and ticket.done:
+                    ended_by = f"the operator ({ticket.answered_by})" if ticket.answered_by else "the operator"
+                    break
+                if not presenter.next_stream_frame(offered):
+                    ended_by = "the presenter (every pose presented)"
+                    break
+                pair = self.bench.cameras.capture_pair()
+                left_image, right_image = pair.left.image, pair.right.image
+                if selector is None:
+                    height, width = left_image.shape[:2]
+                    selector = ViewSelector(rule, self.calibration_board, (width, height))
+                left_found = self._side_detector.submit(_detect_or_none_quiet, left_image, self.calibration_board,
+                                                        as_detections)
+                right = _detect_or_none_quiet(right_image, self.calibration_board, as_detections)
+                left = left_found.result()
+                time_s = float(pair.left.timestamp_s)
+                first_s = time_s if first_s is None else first_s
+                last_s = time_s
+                decision = selector.offer(time_s, left, right)
+                if decision.kept:
+                    index = selector.n_kept - 1
+                    self._record_pair(CalibrationViewEvent, index, configuration, pair, auto={
+                        "time_s": time_s, "offered": offered, "speed_px_s": decision.speed_px_s,
+                        "novelty": None if decision.novelty is None or not np.isfinite(decision.novelty)
+                        else decision.novelty})
+                    found = (_done(left), _done(right))
+                    if as_detections:
+                        self._publish_detections(configuration.config_id, index, found)
+                    if presenter.wants_detections:
+                        presenter.calibration_view_captured(index, left, right)
+                    captured.calibration_pairs.append((left_image, right_image))
+                    captured.calibration_detections.append(found)
+                if offered == 0:  # what the operator is told meanwhile (a background prompt: Enter ends it)
+                    prompt = presenter.stream_prompt(selector.n_kept, selector.gate_open()[1])
+                    if prompt is not None:
+                        prompt_shown_s = _wall()
+                        ticket = self.desk.open(prompt)
+                offered += 1
+                self._collect(block=False)
+        finally:
+            if ticket is not None:
+                self.desk.close(ticket, reason=f"done: {ended_by} ended the collection"
+                                if not ticket.done else None)
+        if ticket is not None:
+            self._publish(Draft(PromptEvent, config_id=configuration.config_id, data={
+                "prompt": ticket.prompt.kind, "message": ticket.prompt.message, "index": None,
+                "answered_by": ticket.answered_by or "coverage gate", "waited_s": max(_wall() - prompt_shown_s, 0.0)}))
+        n_kept = 0 if selector is None else selector.n_kept
+        collect_s = 0.0 if first_s is None else last_s - first_s
+        simulated = self.bench.kind in ("simulated", "bring-up")
+        self._publish(Draft(CalibrationSelectionEvent, config_id=configuration.config_id, data={
+            "rule": dict(rule.__dict__), "offered": offered, "kept": n_kept,
+            "tally": {} if selector is None else selector.tally(), "ended_by": ended_by,
+            "gate": "nothing offered" if selector is None else selector.gate_open()[1],
+            "started_s": first_s, "ended_s": last_s, "collect_s": collect_s,
+            "clock": "bench" if simulated else "cameras",
+            "decisions": [] if selector is None else [
+                (d.time_s, d.reason, d.speed_px_s, None if d.novelty is None or not np.isfinite(d.novelty)
+                 else d.novelty) for d in selector.decisions],
+            "coverage": None if selector is None else {side: [bar.as_dict() for bar in selector.coverage.bars(side)]
+                                                       for side in ("left", "right")}}))
+        self._presented(captured, started_s, n_kept)
+        self._start_calibration(captured)
+
+    def _take_calibration_views(self, n_views: int, captured: Captured, started_s: float | None) -> None:
+        """One view per ``present_calibration_view`` (Enter at the bench; the simulator's next pose; a replay's next
+        recorded view), then the review, then the calibration starts."""
+        presenter = self.bench.presenter
         as_detections = not self._keeps_frames(CalibrationViewEvent)  # recorded instead of the frames
         index = 0
+        presented_s = None
         while True:
             self._between_steps()
             reviewing = index >= n_views  # at the bench: one look at the views before calibrating
@@ -605,6 +726,7 @@ class CampaignRunner:
                     self._discard_calibration_view(index, captured, answer)
                     continue
             if reviewing:
+                self._presented(captured, started_s, len(captured.calibration_pairs), seconds=presented_s)
                 self._start_calibration(captured)
                 return
             left, right = self._capture(CalibrationViewEvent, index, captured.configuration)
@@ -624,6 +746,8 @@ class CampaignRunner:
             captured.calibration_pairs.append((left, right))
             captured.calibration_detections.append(found)
             index += 1
+            if started_s is not None and index >= n_views:  # the last view is taken: its review is not presenting
+                presented_s = max(self.bench.now() - started_s, 0.0)
 
     def _start_calibration(self, captured: Captured) -> None:
         """Per-config extrinsics: calibrate from the views just taken while the measurement frames are captured.
@@ -792,6 +916,21 @@ def _detect_or_none(image: np.ndarray, target, partial: bool):
         return detect(image, target, partial=partial)
     except AmbiguousViewError:
         return _AMBIGUOUS
+
+
+def _detect_or_none_quiet(image: np.ndarray, board, noise: bool):
+    """A streamed pair's detection of the calibration board, None when it is absent or cannot be read."""
+    try:
+        return detect(image, board, noise=noise)
+    except (ValueError, AmbiguousViewError, np.linalg.LinAlgError):
+        return None
+
+
+def _wall() -> float:
+    """Monotonic wall seconds: how long a prompt waited for the operator (as the operator desk measures it)."""
+    import time
+
+    return time.monotonic()
 
 
 def _record_or_none(future: Future):

@@ -25,6 +25,7 @@ import sys
 import time
 from pathlib import Path
 
+from stereo_bench.campaign import presentation
 from stereo_bench.cli import (
     EXIT_BROKEN_PIPE,
     EXIT_FAILED,
@@ -203,7 +204,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     plan = CampaignPlan.of(config)  # expanded once: the progress bar and the run share it
     resume_command = _resume_command(args, out)
     control = RunControl()
-    progress = Progress(plan, config, quiet=args.quiet)
+    # The seconds per board presentation earlier runs measured beside this session (campaign/presentation.py).
+    measured, note = presentation.read_beside(out)
+    if note is not None:
+        print(f"note: {note}: the ETA assumes 5 s per presentation", file=sys.stderr)
+    progress = Progress(plan, config, quiet=args.quiet, presentation=measured)
     # The terminal's prompts suspend the progress line: the prompt is the last thing on the screen.
     operators, frame_subscribers, page = default_operators(config, yes=args.yes, display=progress), [], None
     if args.ui:  # before the progress bar: an address it cannot serve on is one line

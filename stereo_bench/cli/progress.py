@@ -192,7 +192,7 @@ class Progress:
     """
 
     def __init__(self, plan, config, *, quiet: bool, stream: IO[str] | None = None,
-                 clock: Callable[[], float] = time.monotonic, refresh_s: float | None = 1.0):
+                 clock: Callable[[], float] = time.monotonic, refresh_s: float | None = 1.0, presentation=None):
         from stereo_bench.campaign.documents import MoveEvent, PromptEvent, ResultDocument, ResumeDocument
         from stereo_bench.campaign.eta import EtaTracker, forecast_groups
         from stereo_bench.campaign.router import DocumentRouter
@@ -205,7 +205,7 @@ class Progress:
         self.clock = clock
         self.started_s = clock()
         self._epoch_offset_s = time.time() - self.started_s  # epoch time stamps (a rig reading's) on this clock
-        self.eta = EtaTracker(forecast_groups(config, plan.steps), start_s=self.started_s)
+        self.eta = EtaTracker(forecast_groups(config, plan.steps, presentation=presentation), start_s=self.started_s)
         self.etas: list[tuple[float, float]] = []  # (elapsed, ETA) at every marker: what the line showed
         stream = stream or sys.stderr
         self.line = ProgressLine(stream, draw=not quiet and is_terminal(stream), render=self.render,
