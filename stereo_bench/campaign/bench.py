@@ -97,6 +97,9 @@ class Bench:
     now: Callable[[], float] | None = None
     # A replay: the calibration views recorded at a configuration (views taken automatically vary in number).
     recorded_views: Callable[[str], int] | None = None
+    # A replay: what the operator's review left out of a configuration's calibration, ({index: why}, threshold px),
+    # or None where it recorded no review.
+    recorded_exclusions: Callable[[str], tuple[dict[int, str], float | None] | None] | None = None
 
     def grab_preview(self, width_px: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """(left, right, dt_s) for a live preview; only with the cameras borrowed (``camera_gate.borrowed()``).
@@ -541,6 +544,7 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     from drivers.replay import ReplayRig, ReplayStereoCamera
     from stereo_bench.campaign.documents import (
         CalibrationDetectionsEvent,
+        CalibrationExclusionsEvent,
         CalibrationViewEvent,
         MeasurementFrameEvent,
         MoveEvent,
@@ -556,6 +560,7 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     truths: dict[str, dict] = {}
     detections = {}
     views: dict[str, int] = {}
+    exclusions: dict[str, tuple[dict[int, str], float | None]] = {}
 
     def move(event: MoveEvent) -> None:
         readings.append(json_safe(event.data.rig))
@@ -571,12 +576,17 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     def measurement_frame(event: MeasurementFrameEvent) -> None:
         frames[f"{event.config_id}/measurement_frame/{event.data.index}/{event.data.retry or 0}"] = event
 
+    def calibration_exclusions(event: CalibrationExclusionsEvent) -> None:
+        exclusions[event.config_id] = ({int(index): why for index, why in event.data.excluded},
+                                       event.data.max_view_rms_px)
+
     def calibration_detections(event: CalibrationDetectionsEvent) -> None:
         detections[f"{event.config_id}/{event.data.index}"] = tuple(
             None if side is None else side.detection() for side in (event.data.left, event.data.right))
 
     router = (DocumentRouter().on(MoveEvent, move).on(TruthEvent, truth).on(CalibrationViewEvent, calibration_view)
-              .on(MeasurementFrameEvent, measurement_frame).on(CalibrationDetectionsEvent, calibration_detections))
+              .on(MeasurementFrameEvent, measurement_frame).on(CalibrationDetectionsEvent, calibration_detections)
+              .on(CalibrationExclusionsEvent, calibration_exclusions))
     router.read(event for event in reader.events() if event.config_id in config_ids)
 
     def load_pair(key: str):
@@ -598,7 +608,7 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
                  operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack,
                  truth=truths.get if truths else None, approaches=False,
                  recorded_approach=lambda config_id: approaches.get(config_id, {}),
-                 recorded_views=lambda config_id: views.get(config_id, 0))
+                 recorded_views=lambda config_id: views.get(config_id, 0), recorded_exclusions=exclusions.get)
 
 
 def _not_kept(description) -> np.ndarray:

@@ -20,6 +20,7 @@ Sections (all optional except ``[plan]``; units in every key's name):
     [target]              the measured board (9x6 inner corners, 27 mm squares)
     [capture]             settle_s, frames_per_config, calibration_views, board_retries, keep_frames,
                           calibration_capture = "auto" | "enter", coverage_gate, max_calibration_views
+    [calibration]         max_view_rms_px, exclude_views, review (the per-view errors shown to the operator)
     [extrinsics]          mode = "per-config" | "kinematic" | "nominal" | "fixed", intrinsics = "joint" |
                           "fixed", calib_dir, kinematic_file, repeatability_mm, repeatability_deg,
                           [extrinsics.tolerances] (the rig's stated tolerances, for nominal extrinsics)
@@ -449,6 +450,36 @@ class CaptureSection(BaseModel):
         return "auto" if cameras_kind == "v4l2" else "enter"
 
 
+class CalibrationSection(BaseModel):
+    """Which calibration views each per-configuration calibration uses beyond its own outlier rule, and whether the
+    operator reviews the per-view errors first (a one-screen summary in the terminal: threshold, exclude,
+    recalibrate, accept; docs/CALIBRATION.md)."""
+
+    model_config = _STRICT
+
+    max_view_rms_px: float | None = Field(
+        None, gt=0, allow_inf_nan=False,
+        description="views whose reprojection RMS (the worse of the two cameras) exceeds this are excluded and the "
+                    "configuration calibrated again without them, px (None: only the calibration's own outlier rule)")
+    exclude_views: list[int] = Field(
+        default_factory=list, description="calibration views (indices within each configuration, from 0) left out of "
+                                          "every per-configuration calibration")
+    review: bool | None = Field(
+        None, description="after each configuration's calibration, show the operator the per-view errors to set a "
+                          "threshold, exclude views and recalibrate before measuring. Default: true with v4l2 cameras "
+                          "(an operator is at the bench), false with simulated ones")
+
+    @field_validator("exclude_views")
+    @classmethod
+    def _check_views(cls, value: list[int]) -> list[int]:
+        if any(index < 0 for index in value):
+            raise ValueError("view indices count from 0")
+        return sorted(set(value))
+
+    def review_for(self, cameras_kind: str) -> bool:
+        return self.review if self.review is not None else cameras_kind == "v4l2"
+
+
 def _tolerance(default: float, why: str, unit: str) -> Any:
     return Field(default, ge=0, allow_inf_nan=False, description=f"standard uncertainty, {unit}: {why}")
 
@@ -681,6 +712,9 @@ class CampaignConfig(BaseModel):
                                             description="board shown for stereo calibration (not the target)")
     target: TargetConfig = Field(default_factory=TargetConfig, description="the measured board")
     capture: CaptureSection = Field(default_factory=CaptureSection)
+    calibration: CalibrationSection = Field(default_factory=CalibrationSection,
+                                            description="views excluded from the per-configuration calibrations, and "
+                                                        "the operator's review of their per-view errors")
     extrinsics: ExtrinsicsSection = Field(default_factory=ExtrinsicsSection)
     sim: SimSettings = Field(default_factory=SimSettings,
                              description="the simulated bench's imperfections (simulated cameras: the simulated "
@@ -857,6 +891,8 @@ def recorded_campaign(data: Mapping[str, Any]) -> CampaignConfig:
         # Recorded before lens models were compared: the fit it ran with, not today's default (auto for v4l2
         # cameras), so that its replay reproduces it. A recording made since always has the key (null included).
         data["extrinsics"] = {**extrinsics, "lens_model": "legacy"}
+    if "calibration" not in data:  # recorded before the operator reviewed per-view errors: no review in replay
+        data["calibration"] = {"review": False}
     capture = data.get("capture")
     if isinstance(capture, Mapping) and "calibration_capture" not in capture:
         # Recorded before calibration views were taken automatically: one view per Enter (today's default for

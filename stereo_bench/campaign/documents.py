@@ -498,7 +498,7 @@ class KinematicModelData(BaseModel):
 
 
 PromptKind = Literal["target", "manual", "calibration_board", "calibration_view", "calibration_review",
-                     "measured_target", "calibration_stream"]
+                     "measured_target", "calibration_stream", "calibration_errors"]
 
 
 class PromptData(BaseModel):
@@ -513,7 +513,9 @@ class PromptData(BaseModel):
     answered_by: str = Field(description="the operator that answered: terminal, simulator, web, ...")
     waited_s: float = Field(ge=0, description="seconds between the question and the answer")
     action: str | None = Field(None, description="how it was answered when not plainly (Enter / Continue): "
-                                                 "capture_now, discard_last_view")
+                                                 "capture_now, discard_last_view, set_threshold, exclude_view, "
+                                                 "recalibrate")
+    action_value: float | None = Field(None, description="the action's number: a threshold (px), a view's index")
 
 
 class ViewDiscardedData(BaseModel):
@@ -543,6 +545,18 @@ class CalibrationSelectionData(BaseModel):
     decisions: list[tuple[float, str, float | None, float | None]] = Field(
         default_factory=list, description="every pair offered: (time s, reason, speed px/s, novelty)")
     coverage: dict[str, Any] | None = Field(None, description="the kept views' coverage bars per camera")
+
+
+class CalibrationExclusionsData(BaseModel):
+    """What the operator's review of a configuration's per-view errors left out of its calibration (a replay leaves
+    out the same): the views with the reason, and the per-view RMS threshold."""
+
+    model_config = _STRICT
+    excluded: list[tuple[int, str]] = Field(description="(view index, why): by the operator, by [calibration] "
+                                                        "exclude_views, or over the threshold")
+    max_view_rms_px: float | None = Field(None, description="views over this RMS (the worse camera's) left out, px")
+    recalibrations: int = Field(0, ge=0, description="calibrations the review ran again (r)")
+    answered_by: str = Field(description="the operator who accepted the calibration")
 
 
 class PresentationTimeData(BaseModel):
@@ -784,6 +798,11 @@ class CalibrationSelectionEvent(EventDocument):
     data: CalibrationSelectionData
 
 
+class CalibrationExclusionsEvent(EventDocument):
+    kind: Literal["calibration_exclusions"] = "calibration_exclusions"
+    data: CalibrationExclusionsData
+
+
 class PresentationTimeEvent(EventDocument):
     kind: Literal["presentation_time"] = "presentation_time"
     data: PresentationTimeData
@@ -988,7 +1007,8 @@ def event_draft(kind: str, *, config_id: str | None = None, data: Any = None, **
 __all__ = [
     "ADDED_COLUMNS", "COMPARED_COLUMNS", "DOCUMENT_MODELS", "DOCUMENT_TYPES", "EVENT_MODELS", "EXIT_STATUSES",
     "READABLE_SCHEMA_VERSIONS", "REPORT_COLUMNS", "RESULT_COLUMNS", "SCHEMA_VERSION", "TOLERANCES", "AnalysisEvent",
-    "ApproachEvent", "CalibrationDetectionsEvent", "CalibrationEvent", "CalibrationFiles", "CalibrationSelectionEvent",
+    "ApproachEvent", "CalibrationDetectionsEvent", "CalibrationEvent", "CalibrationExclusionsEvent", "CalibrationFiles",
+    "CalibrationSelectionEvent",
     "CalibrationViewDiscardedEvent", "CalibrationViewEvent", "ControllerEvent", "DetectionRecord", "Document",
     "DocumentError", "Draft", "EventDocument", "HomeEvent", "IntrinsicsEvent", "KinematicModelEvent",
     "MeasurementFrameEvent", "NumericEnvironment", "MoveEvent", "PresentationTimeEvent", "PromptEvent",

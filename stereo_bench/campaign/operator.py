@@ -35,8 +35,15 @@ from stereo_bench.campaign.documents import PromptKind
 CONTINUE = "continue"
 CAPTURE_NOW = "capture_now"
 DISCARD_LAST_VIEW = "discard_last_view"
+# The per-view error review (runner: after a configuration's calibration): with a value (px; a view's index).
+SET_THRESHOLD = "set_threshold"
+EXCLUDE_VIEW = "exclude_view"
+RECALIBRATE = "recalibrate"
 #: Every answer an operator can give; a prompt accepts a subset (always ``continue``).
-ACTIONS = (CONTINUE, CAPTURE_NOW, DISCARD_LAST_VIEW)
+ACTIONS = (CONTINUE, CAPTURE_NOW, DISCARD_LAST_VIEW, SET_THRESHOLD, EXCLUDE_VIEW, RECALIBRATE)
+#: What a terminal line answers (its first word; a number after it is the value), where the prompt accepts it.
+TERMINAL_KEYS = {"d": DISCARD_LAST_VIEW, "discard": DISCARD_LAST_VIEW, "t": SET_THRESHOLD, "x": EXCLUDE_VIEW,
+                 "r": RECALIBRATE}
 
 
 class OperatorAbsent(RuntimeError):
@@ -72,14 +79,16 @@ class Ticket:
         self.answered_by: str | None = None
         self.answered_at: float | None = None
         self.action: str = CONTINUE
+        self.value: float | None = None  # the action's number, where it takes one (a threshold, a view)
         self.gave_up: dict[str, str] = {}
         self.withdraw_reason: str | None = None  # why it was withdrawn unanswered (OperatorDesk.close)
         self._n_operators = n_operators
         self._lock = threading.Lock()
         self._done = threading.Event()
 
-    def answer(self, operator: str, action: str = CONTINUE) -> bool:
-        """``operator`` has done the step (``action``: one of the prompt's actions); True if it was the first.
+    def answer(self, operator: str, action: str = CONTINUE, value: float | None = None) -> bool:
+        """``operator`` has done the step (``action``: one of the prompt's actions, ``value`` its number where it
+        takes one); True if it was the first.
 
         Raises ValueError for an action the prompt does not accept.
         """
@@ -89,6 +98,7 @@ class Ticket:
             if self._done.is_set():
                 return False
             self.answered_by, self.answered_at, self.action = operator, time.monotonic(), action
+            self.value = value
             self._done.set()
             return True
 
@@ -125,6 +135,7 @@ class Answer:
     operator: str
     waited_s: float
     action: str = CONTINUE
+    value: float | None = None
 
 
 class OperatorDesk:
@@ -155,7 +166,8 @@ class OperatorDesk:
             raise OperatorAbsent(f"the campaign needs the operator here ({prompt.message!r}) but nobody can "
                                  f"answer ({reasons})")
         assert ticket.answered_at is not None
-        return Answer(operator=ticket.answered_by, waited_s=ticket.answered_at - ticket.asked_at, action=ticket.action)
+        return Answer(operator=ticket.answered_by, waited_s=ticket.answered_at - ticket.asked_at, action=ticket.action,
+                      value=ticket.value)
 
 
     def open(self, prompt: Prompt) -> Ticket:
@@ -238,6 +250,22 @@ class LineOperator:
 
     def withdraw(self, ticket: Ticket) -> None:
         return None
+
+
+def terminal_answer(line: str) -> tuple[str, float | None]:
+    """(action, value) a line typed at the terminal answers: its first word by :data:`TERMINAL_KEYS` ("t 0.4": set the
+    threshold to 0.4 px, "x 3": exclude view 3, "r", "d"), anything else Enter (continue). A key whose number is
+    missing or not one comes with None (the runner shows its prompt again and says so)."""
+    words = line.strip().lower().split()
+    action = TERMINAL_KEYS.get(words[0]) if words else None
+    if action is None:
+        return CONTINUE, None
+    if action in (SET_THRESHOLD, EXCLUDE_VIEW):
+        try:
+            return action, float(words[1])
+        except (IndexError, ValueError):
+            return action, None
+    return action, None
 
 
 @runtime_checkable
@@ -327,10 +355,10 @@ class TerminalOperator:
                 if ticket is not None:
                     ticket.give_up(self.name, f"standard input is closed: {self.absent_advice}")
                 return
-            action = DISCARD_LAST_VIEW if line.strip().lower() in ("d", "discard") else CONTINUE
+            action, value = terminal_answer(line)
             if ticket is not None and action not in ticket.prompt.actions:
-                action = CONTINUE
-            if ticket is not None and ticket.answer(self.name, action):
+                action, value = CONTINUE, None
+            if ticket is not None and ticket.answer(self.name, action, value):
                 with self._lock:
                     if self._ticket is ticket:
                         self._ticket = None

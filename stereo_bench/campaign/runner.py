@@ -50,6 +50,7 @@ from stereo_bench.campaign.documents import (
     ApproachEvent,
     CalibrationDetectionsEvent,
     CalibrationEvent,
+    CalibrationExclusionsEvent,
     CalibrationFiles,
     CalibrationSelectionEvent,
     CalibrationViewDiscardedEvent,
@@ -130,6 +131,10 @@ class Captured:
     axes: dict | None = None  # the kinematic axes the rig reported after the move
     approach: dict | None = None  # per axis the direction the move came from
     truth: dict | None = None  # simulated benches: the truth at the measurement (never used by it)
+    # Views left out of the calibration beyond its outlier rule (index -> why) and the per-view RMS threshold (px):
+    # [calibration]'s, the operator's review, or (a replay) what the recording's review chose. None: [calibration]'s.
+    exclude: dict[int, str] | None = None
+    max_view_rms_px: float | None = None
 
     def detections(self) -> list[tuple]:
         """Per calibration view the (left, right) Detection or None made while capturing (waited for here).
@@ -420,7 +425,8 @@ class CampaignRunner:
         self._publish(Draft(PromptEvent, config_id=prompt.config_id, data={
             "prompt": prompt.kind, "message": prompt.message, "quantity": prompt.quantity, "value": prompt.value,
             "index": prompt.index, "answered_by": answer.operator, "waited_s": answer.waited_s,
-            **({"action": answer.action} if answer.action != CONTINUE else {})}))
+            **({"action": answer.action} if answer.action != CONTINUE else {}),
+            **({"action_value": answer.value} if answer.value is not None else {})}))
         return answer
 
     def _set_by_hand(self, configuration: Configuration, quantity: str, value: float) -> None:
@@ -756,17 +762,70 @@ class CampaignRunner:
         numbers); queued on the analysis pool before that configuration's ``_analyse``, which waits for it.
         The pool takes tasks in order, so a waiting ``_analyse`` never holds up the calibration it waits for.
         """
-        if isinstance(captured.configuration, Configuration):
-            self._extrinsics.after_calibration_views(
-                captured, lambda: self._analysis.submit(self._calibrate, captured))
+        if not isinstance(captured.configuration, Configuration):
+            return
+        calibration = self.config.calibration
+        captured.exclude = {i: "excluded by [calibration] exclude_views" for i in calibration.exclude_views
+                            if i < len(captured.calibration_pairs)}
+        captured.max_view_rms_px = calibration.max_view_rms_px
+        recorded = self.bench.recorded_exclusions
+        if recorded is not None:  # a replay: what the operator's review chose when it was recorded
+            chosen = recorded(captured.configuration.config_id)
+            if chosen is not None:
+                captured.exclude, captured.max_view_rms_px = dict(chosen[0]), chosen[1]
+        elif (calibration.review_for(self.config.cameras.kind) and self._extrinsics.calibrates_each_configuration
+              and captured.calibration_pairs):
+            self._review_calibration(captured)
+            return
+        self._extrinsics.after_calibration_views(
+            captured, lambda: self._analysis.submit(self._calibrate, captured))
 
     def _calibrate(self, captured: Captured) -> ConfigurationAnalysis:
         options = self.options
+        calibration = self.config.calibration
+        exclude = captured.exclude
+        if exclude is None:
+            exclude = {i: "excluded by [calibration] exclude_views" for i in calibration.exclude_views}
+        threshold = captured.max_view_rms_px if captured.exclude is not None else calibration.max_view_rms_px
         return calibrate_configuration(captured.calibration_pairs, self.calibration_board,
                                        intrinsics=options.intrinsics, mode=options.intrinsics_mode,
                                        intrinsics_covariance=options.intrinsics_covariance,
                                        detections=captured.detections(),
-                                       lens_model=self.config.extrinsics.lens_model_for(self.config.cameras.kind))
+                                       lens_model=self.config.extrinsics.lens_model_for(self.config.cameras.kind),
+                                       exclude=exclude, max_view_rms_px=threshold)
+
+    def _review_calibration(self, captured: Captured) -> None:
+        """The operator's review of a configuration's per-view errors before it is measured (``[calibration]
+        review``): a one-screen summary (:func:`stereo_bench.campaign.review.review_message`) whose answers set the
+        threshold (``t PX``), exclude or include a view (``x N``), recalibrate (``r``) or accept (Enter). The
+        calibration accepted is the one measured with (a failed one fails the configuration); what it left out is
+        recorded (``calibration_exclusions``), and a replay leaves out the same."""
+        from stereo_bench.campaign.review import ReviewState, review_prompt
+
+        config_id = captured.configuration.config_id
+        state = ReviewState(n_views=len(captured.calibration_pairs), exclude=dict(captured.exclude or {}),
+                            threshold=captured.max_view_rms_px)
+        recalibrations = 0
+        while True:
+            captured.exclude, captured.max_view_rms_px = dict(state.exclude), state.threshold
+            calibrated: Future = self._analysis.submit(self._calibrate, captured)
+            try:
+                state.shown(calibrated.result(), None)
+            except AnalysisError as error:
+                state.shown(None, str(error))
+            while True:
+                answer = self._ask(review_prompt(config_id, state))
+                if answer.action == CONTINUE or state.answer(answer.action, answer.value):
+                    break  # accepted, or recalibrate
+            if answer.action == CONTINUE:
+                break
+            recalibrations += 1
+        captured.exclude, captured.max_view_rms_px = state.applied_exclude, state.applied_threshold
+        captured.calibration = calibrated  # the one shown and accepted: measured with, or failing the configuration
+        self._publish(Draft(CalibrationExclusionsEvent, config_id=config_id, data={
+            "excluded": [[index, why] for index, why in sorted(state.applied_exclude.items())],
+            "max_view_rms_px": state.applied_threshold, "recalibrations": recalibrations,
+            "answered_by": answer.operator}))
 
     def _discard_calibration_view(self, index: int, captured: Captured, answer: Answer) -> None:
         """Drop kept view ``index`` (the last one) so that it is taken again; its frames stay recorded."""
