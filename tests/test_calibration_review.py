@@ -123,3 +123,20 @@ def test_the_summary_marks_what_is_over_the_threshold_and_what_is_pending():
     assert lines[2].count("#") == round(30 * 0.2 / 0.6)
     assert not state.answer(EXCLUDE_VIEW, 7) and "x needs a view number from 0 to 3" in state.note
     assert state.answer(RECALIBRATE, None)
+
+
+def test_the_options_replace_the_config_keys_and_are_recorded(tmp_path, capsys):
+    from stereo_bench.cli import main
+
+    (tmp_path / "c.toml").write_text(CAMPAIGN.replace("calibration_views = 6", "calibration_views = 8"))
+    code = main(["campaign", "run", str(tmp_path / "c.toml"), "--out", str(tmp_path / "s"), "--yes", "--quiet",
+                 "--exclude-views", "1,3", "--max-view-rms-px", "5", "--no-review"])
+    assert code == 0, capsys.readouterr().err
+    recorded = SessionReader(tmp_path / "s").start().config["calibration"]
+    assert recorded == {"max_view_rms_px": 5.0, "exclude_views": [1, 3], "review": False}
+    calibration = analysis_of(tmp_path / "s")
+    assert sorted(set(range(8)) - set(calibration["views_used"])) == [1, 3]
+    for bad, message in ((["--max-view-rms-px", "0"], "must be a finite number"),
+                         (["--exclude-views", "1,x"], "give view indices separated by commas")):
+        code = main(["campaign", "run", str(tmp_path / "c.toml"), "--out", str(tmp_path / "t"), "--yes", *bad])
+        assert code == 2 and message in capsys.readouterr().err
