@@ -140,3 +140,27 @@ def test_the_options_replace_the_config_keys_and_are_recorded(tmp_path, capsys):
                          (["--exclude-views", "1,x"], "give view indices separated by commas")):
         code = main(["campaign", "run", str(tmp_path / "c.toml"), "--out", str(tmp_path / "t"), "--yes", *bad])
         assert code == 2 and message in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_views_taken_automatically_are_said_above_the_prompt_that_ends_them(tmp_path):
+    auto = (CAMPAIGN.replace("[calibration]\nreview = true\n", "")
+            .replace("settle_s = 0.1", 'settle_s = 0.1\ncalibration_capture = "auto"\ncoverage_gate = "count"')
+            .replace('profile = "ideal"', 'profile = "ideal"\npresenter = "hand"'))
+    (tmp_path / "c.toml").write_text(auto)
+    terminal = Terminal([*STEREO_BENCH, "campaign", "run", "c.toml", "--out", "s"], tmp_path)
+    terminal.until(lambda t: t.last_line().endswith("then press Enter"), what="the target prompt")
+    terminal.child.send("\r")
+    ending = "press Enter to calibrate with the views kept so far"
+    terminal.until(lambda t: any("calibration view 2 kept (B100_Z450_A90, corners at" in line for line in t.lines())
+                   and t.last_line().endswith(ending), what="a kept view said above the stream's prompt")
+    _keep("calibration-stream.txt", terminal)
+    terminal.until(lambda t: any("B100_Z450_A90: 6 calibration views kept of" in line for line in t.lines()),
+                   what="the collection's summary")
+    assert terminal.exit_status() == 0, terminal.text()
+    lines = terminal.lines()
+    (summary,) = [line for line in lines if "calibration views kept of" in line]
+    assert "moving" in summary and "not new" in summary, summary
+    assert "; the coverage gate ended it" in "".join(lines), terminal.text()  # (the line may wrap)
+    assert sum("kept (B100_Z450_A90" in line for line in lines) == 6, terminal.text()
+    assert any(line.endswith("(done: the coverage gate ended the collection)") for line in lines), terminal.text()

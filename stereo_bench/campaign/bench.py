@@ -423,8 +423,11 @@ class HandPresenter(SimulatedPresenter):
                                                    offered))
         return True
 
-    def stream_prompt(self, n_kept: int, gate: str) -> None:
-        return None  # nobody to tell: the hand presents by itself
+    def stream_prompt(self, n_kept: int, gate: str) -> Prompt:
+        # The hand presents by itself (the simulator answers nothing here); at a terminal Enter still ends it early.
+        return Prompt("calibration_stream", "the simulated hand presents the calibration board: views are taken "
+                      f"automatically when it is still and new ({gate}); press Enter to calibrate with the views "
+                      "kept so far", config_id=self._configuration.config_id, background=True)
 
     def present_calibration_view(self, index: int) -> None:
         assert self.hand is not None and self._configuration is not None, "prepare_calibration() first"
