@@ -562,7 +562,7 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     approaches: dict[str, dict] = {}
     truths: dict[str, dict] = {}
     detections = {}
-    views: dict[str, int] = {}
+    views: dict[str, tuple[int, int]] = {}  # config_id -> (attempt, views recorded in it)
     exclusions: dict[str, tuple[dict[int, str], float | None]] = {}
 
     def move(event: MoveEvent) -> None:
@@ -574,7 +574,10 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
 
     def calibration_view(event: CalibrationViewEvent) -> None:
         frames[f"{event.config_id}/calibration_view/{event.data.index}"] = event
-        views[event.config_id] = max(views.get(event.config_id, 0), event.data.index + 1)
+        # The views of the configuration's last attempt (a resumed one took its views again, as many as it kept).
+        attempt, count = views.get(event.config_id, (event.attempt, 0))
+        views[event.config_id] = ((event.attempt, max(count, event.data.index + 1)) if event.attempt == attempt
+                                  else (event.attempt, event.data.index + 1))
 
     def measurement_frame(event: MeasurementFrameEvent) -> None:
         frames[f"{event.config_id}/measurement_frame/{event.data.index}/{event.data.retry or 0}"] = event
@@ -611,7 +614,7 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
                  operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack,
                  truth=truths.get if truths else None, approaches=False,
                  recorded_approach=lambda config_id: approaches.get(config_id, {}),
-                 recorded_views=lambda config_id: views.get(config_id, 0), recorded_exclusions=exclusions.get)
+                 recorded_views=lambda config_id: views.get(config_id, (0, 0))[1], recorded_exclusions=exclusions.get)
 
 
 def _not_kept(description) -> np.ndarray:
