@@ -163,6 +163,15 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
     note = " (adding configurations adds none)" if counts["visits"] and not counts["configurations"] else ""
     lines.append(f"calibration board presentations: {counts['total']}: {counts['visits']} at visits{note}, "
                  f"{counts['configurations']} at the configurations{per_configuration}")
+    capture = config.capture
+    if counts["total"] and config.calibration_capture == "auto":
+        gate = ("every coverage bar full" if capture.coverage_gate == "bars" else "the count")
+        lines.append(f"calibration views taken automatically when the board is still and new, until {gate} (at "
+                     f"least {capture.calibration_views}, at most "
+                     f"{max(capture.max_calibration_views, capture.calibration_views)} per set; Enter ends a set early)"
+                     + (": the simulated hand presents the board" if config.cameras.kind == "simulated" else ""))
+    elif counts["total"] and config.cameras.kind != "simulated":
+        lines.append("calibration views taken one per Enter ([capture] calibration_capture = \"enter\")")
     return lines
 
 
