@@ -535,6 +535,7 @@ class CalibrationSelectionData(BaseModel):
     rule: dict[str, Any] = Field(description="the AutoCaptureRule's thresholds (px/s, s, 1, views)")
     offered: int = Field(ge=0, description="stereo pairs of the stream offered to the selector")
     kept: int = Field(ge=0, description="views kept (calibration_view events 0..kept-1)")
+    unpaired: int = Field(0, ge=0, description="grabs skipped: no pair within [cameras] max_skew_s")
     tally: dict[str, int] = Field(description="pairs per decision: kept, not in both views, moving, settling, not new")
     ended_by: str = Field(description="why the collection ended: the coverage gate, the operator, the presenter")
     gate: str = Field(description="the coverage gate's state at the end, in words")

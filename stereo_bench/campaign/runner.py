@@ -106,6 +106,11 @@ from stereo_bench.vision.uncertainty import BoardScale
 __all__ = ["CampaignRunner", "ConfigurationFailed", "RigUnrecoverable", "RunnerOptions", "StopRequested", "group_steps"]
 
 
+#: Views taken automatically: grabs in a row that find no pair within the skew limit before the stream gives up (the
+#: cameras' clocks or bus, not a pair now and then, are wrong: the error is then the run's, as for a single view).
+MAX_UNPAIRED_IN_A_ROW = 30
+
+
 class ConfigurationFailed(Exception):
     """The configuration cannot be completed; the message is the reason recorded with it."""
 
@@ -631,6 +636,7 @@ class CampaignRunner:
         coverage gate opens (at least ``n_views``), the operator ends it (Enter) or the presenter has nothing more
         to show. Kept views are recorded as calibration views (``data.auto``: when and why); every pair's decision
         goes into one ``calibration_selection`` event. Pairs not kept are not recorded (their decisions are)."""
+        from drivers.camera.stereo import StereoSkewError
         from stereo_bench.campaign.autocapture import AutoCaptureRule, ViewSelector
 
         presenter = self.bench.presenter
@@ -642,7 +648,7 @@ class CampaignRunner:
         selector: ViewSelector | None = None
         ticket = None
         prompt_shown_s = None
-        offered = 0
+        offered = unpaired = in_a_row = 0
         ended_by = "the coverage gate"
         first_s = last_s = None
         try:
@@ -656,7 +662,15 @@ class CampaignRunner:
                 if not presenter.next_stream_frame(offered):
                     ended_by = "the presenter (every pose presented)"
                     break
-                pair = self.bench.cameras.capture_pair()
+                try:
+                    pair = self.bench.cameras.capture_pair()
+                except StereoSkewError:  # no pair within [cameras] max_skew_s: the stream goes on without it
+                    unpaired += 1
+                    in_a_row += 1
+                    if in_a_row > MAX_UNPAIRED_IN_A_ROW:
+                        raise
+                    continue
+                in_a_row = 0
                 left_image, right_image = pair.left.image, pair.right.image
                 if selector is None:
                     height, width = left_image.shape[:2]
@@ -701,7 +715,7 @@ class CampaignRunner:
         collect_s = 0.0 if first_s is None else last_s - first_s
         simulated = self.bench.kind in ("simulated", "bring-up")
         self._publish(Draft(CalibrationSelectionEvent, config_id=configuration.config_id, data={
-            "rule": dict(rule.__dict__), "offered": offered, "kept": n_kept,
+            "rule": dict(rule.__dict__), "offered": offered, "kept": n_kept, "unpaired": unpaired,
             "tally": {} if selector is None else selector.tally(), "ended_by": ended_by,
             "gate": "nothing offered" if selector is None else selector.gate_open()[1],
             "started_s": first_s, "ended_s": last_s, "collect_s": collect_s,
