@@ -96,13 +96,16 @@ def test_a_fixed_board_session_replays_to_the_last_digit(fixed_session, tmp_path
     assert np.allclose(model.data.fixed_board["T_ref_board"], original.data.fixed_board["T_ref_board"])
 
 
-def test_rig_calibrate_kinematics_fits_a_fixed_board_model_alone(tmp_path, capsys):
+@pytest.mark.parametrize("capture", ["enter", "auto"])
+def test_rig_calibrate_kinematics_fits_a_fixed_board_model_alone(tmp_path, capsys, capture):
+    """Also with views taken automatically (the simulated hand): a fixed board is captured, not streamed."""
     from stereo_bench.cli import main
     from stereo_bench.kinematics import load_model
     from tests.campaigns import SMALL
 
     config = tmp_path / "bench.toml"
-    config.write_text(SMALL)
+    config.write_text(SMALL.replace("[capture]", f'[capture]\ncalibration_capture = "{capture}"')
+                      if "[capture]" in SMALL else SMALL + f'\n[capture]\ncalibration_capture = "{capture}"\n')
     argv = ["rig", "calibrate-kinematics", "--config", str(config), "--design", "fixed-board", "--baseline-range",
             "80", "200", "--toe-in-range", "0", "10", "--out", str(tmp_path / "s"), "--yes"]
     assert main(argv) == 0
@@ -115,3 +118,4 @@ def test_rig_calibrate_kinematics_fits_a_fixed_board_model_alone(tmp_path, capsy
     assert reader.results() == [] and len(reader.events(kind="calibration_view")) == 96
     (event,) = reader.events(kind="kinematic_model", attempt=None)
     assert event.data.design == "fixed-board" and len(event.data.identifiability) == 22
+    assert reader.events(kind="calibration_selection", attempt=None) == []

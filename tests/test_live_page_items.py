@@ -228,3 +228,43 @@ def test_the_coverage_counts_every_view_the_analysis_can_detect(tmp_path):
             if full is not None:
                 assert shown.n == full.n
     assert previews.stats.get("full_resolution_detections", 0) >= 2  # the case of the issue happens here
+
+
+@browser_only
+@pytest.mark.slow
+def test_the_per_view_review_has_threshold_exclude_and_recalibrate_controls(served):
+    import time
+
+    from stereo_bench.campaign.operator import Prompt, Ticket
+    from stereo_bench.campaign.review import ReviewState, review_prompt
+
+    page, documents, tab = served
+    _feed(page, documents)
+    plain = Ticket(Prompt("target", "move the target to Z = 450 mm, then press Enter"), 2)
+    page.operator.offer(plain)
+    tab.wait_for_selector("#prompt:not([hidden])")
+    assert not tab.is_visible("#review-controls")  # only the review has them
+    tab.click("#continue")
+    prompt = review_prompt("B100_Z450_A90", ReviewState(n_views=6))
+
+    def answered(ticket, timeout_s=10.0):
+        end = time.monotonic() + timeout_s
+        while not ticket.done and time.monotonic() < end:
+            time.sleep(0.05)
+        return ticket.action, ticket.value
+
+    for fill, click, expected in ((("#review-threshold", "0.3"), "#set_threshold", ("set_threshold", 0.3)),
+                                  (("#review-view", "4"), "#exclude_view", ("exclude_view", 4.0)),
+                                  (None, "#recalibrate", ("recalibrate", None)),
+                                  (None, "#continue", ("continue", None))):
+        ticket = Ticket(prompt, 2)
+        page.operator.offer(ticket)
+        tab.wait_for_selector("#review-controls:not([hidden])")
+        chart = tab.inner_text("#prompt-message")
+        assert "keys, then Enter: t PX  threshold" in chart and tab.evaluate(
+            "document.querySelector('#prompt-message').classList.contains('chart')")
+        if fill is not None:
+            tab.fill(*fill)
+        tab.click(click)
+        assert answered(ticket) == expected
+        assert ticket.answered_by == "live page"

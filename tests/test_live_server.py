@@ -127,6 +127,30 @@ def test_a_prompt_is_answered_once_over_http_and_the_page_refuses_what_it_does_n
     assert again.status_code == 409 and "terminal" in again.json()["message"]
 
 
+def test_the_per_view_review_is_answered_with_a_threshold_a_view_or_recalibrate_over_http(page):
+    from stereo_bench.campaign.review import ReviewState, review_prompt
+
+    client = client_of(page)
+    headers = {"X-Token": page.token}
+    prompt = review_prompt("B100_Z450_A90", ReviewState(n_views=6))
+    for action, value in (("set_threshold", 0.3), ("exclude_view", 4), ("recalibrate", None)):
+        ticket = Ticket(prompt, 2)
+        page.operator.offer(ticket)
+        shown = client.get("/api/state").json()["prompt"]
+        assert shown["message"] == prompt.message and "set_threshold" in shown["actions"]
+        if value is not None:  # a valued action without its number is refused, and the prompt still waits
+            missing = client.post(f"/api/control/{action}", headers=headers)
+            assert missing.status_code == 400 and "needs ?value=" in missing.json()["message"] and not ticket.done
+        query = "" if value is None else f"?value={value}"
+        answered = client.post(f"/api/control/{action}{query}", headers=headers)
+        assert answered.status_code == 200, answered.json()
+        assert (ticket.action, ticket.value) == (action, None if value is None else float(value))
+    # The page has the controls (the buttons the script wires to these actions, with their inputs).
+    html = client.get("/").text
+    for element in ('id="set_threshold"', 'data-input="review-threshold"', 'id="exclude_view"', 'id="recalibrate"'):
+        assert element in html, element
+
+
 def board_image() -> np.ndarray:
     """A 960x540 grey frame with the small campaign's 9x6 target, square-on (OpenCV detects it)."""
     texture = small_config().target.build().texture(px_per_square=40).image

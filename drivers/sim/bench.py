@@ -128,6 +128,9 @@ class Scene:
     shape: BoardShape | None = None
     measured_target: bool = False
     placement: dict | None = None
+    # A board carried by hand: its pose (4x4, mm) at the start and at the end of the exposure; each camera's frame
+    # is smeared by the board's image motion between them (and sheared by it in a rolling shutter's readout).
+    exposure_poses: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -174,6 +177,9 @@ def _same_scene(a: Scene, b: Scene) -> bool:
     if a.target != b.target or a.seed != b.seed or a.shape != b.shape or a.measured_target != b.measured_target:
         return False
     if a.placement != b.placement or (a.T_rig_board is None) != (b.T_rig_board is None):
+        return False
+    if (a.exposure_poses is None) != (b.exposure_poses is None) or (a.exposure_poses is not None and not all(
+            np.array_equal(x, y) for x, y in zip(a.exposure_poses, b.exposure_poses, strict=True))):
         return False
     return a.T_rig_board is None or np.array_equal(a.T_rig_board, b.T_rig_board)
 
@@ -401,14 +407,33 @@ class BenchSimulator:
 
     # -- the scene ---------------------------------------------------------------------------------------------
 
-    def show(self, target: Target | None, T_rig_board: np.ndarray | None = None, *, seed: int = 0) -> None:
+    def show(self, target: Target | None, T_rig_board: np.ndarray | None = None, *, seed: int = 0,
+             moving: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """Put ``target`` at ``T_rig_board`` in front of the rig (None: an empty scene).
 
         A board shown this way is the calibration board, as the profile's ``calibration_board`` has
-        it; :meth:`place_target` places the measured target.
+        it; :meth:`place_target` places the measured target. ``moving``: a board carried by hand, its pose at the
+        start and at the end of the next exposure (``T_rig_board`` is the one at mid-exposure): the frames are
+        smeared by its image motion.
         """
         self._set_scene(Scene(target=target, T_rig_board=None if T_rig_board is None else np.array(T_rig_board),
-                              seed=int(seed), shape=board_shape(self.profile.calibration_board)))
+                              seed=int(seed), shape=board_shape(self.profile.calibration_board),
+                              exposure_poses=None if moving is None else (np.array(moving[0]), np.array(moving[1]))))
+
+    def _board_smear_px(self, side: str, scene: Scene, T_rig_cam: np.ndarray) -> tuple[float, float] | None:
+        """The image motion (px) of a hand-held board's centre during the exposure, in the ``side`` camera."""
+        if scene.exposure_poses is None or scene.target is None:
+            return None
+        camera = self.left_model if side == "left" else self.right_model
+        width_mm, height_mm = scene.target.grid_size_mm
+        centre = np.array([width_mm / 2.0, height_mm / 2.0, 0.0, 1.0])
+        T_cam_rig = invert_transform(T_rig_cam)
+        ends = []
+        for T_rig_board in scene.exposure_poses:
+            point = (T_cam_rig @ T_rig_board @ centre)[:3]
+            ends.append((np.asarray(camera.K) @ (point / point[2]))[:2])
+        dx, dy = (float(v) for v in ends[1] - ends[0])
+        return dx, dy
 
     def _set_scene(self, scene: Scene) -> None:
         with self._lock:
@@ -956,6 +981,9 @@ class BenchSimulator:
             if skew_s is not None:
                 board["capture_skew_s"] = skew_s
         renderer, smear_px = self._renderer(target), snapshot.smear_px[side]
+        carried = self._board_smear_px(side, scene, T_rig_cam) if board is not None else None
+        if carried is not None:  # the hand's motion and the head's ringing add up
+            smear_px = carried if smear_px is None else (smear_px[0] + carried[0], smear_px[1] + carried[1])
         # The image's velocity during the readout (a rolling shutter shears it): the ringing's, as its smear.
         velocity = None if smear_px is None else (smear_px[0] / self.exposure_s, smear_px[1] / self.exposure_s)
         if scale != 1.0:  # a preview's smaller image: the same view, every length in its pixels

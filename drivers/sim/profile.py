@@ -381,6 +381,12 @@ class SimSettings(BaseModel):
     target: dict[str, Any] | None = Field(None, description="overrides of the measured board's values")
     calibration_board: dict[str, Any] | None = Field(None, description="overrides of the calibration board's values")
     cameras: dict[str, Any] | None = Field(None, description="overrides of the cameras' values")
+    presenter: Literal["still", "hand"] | None = Field(
+        None, description="who presents the calibration board: still (a still board at each view's pose, placed "
+                          "when the view is taken) or hand (a simulated operator carrying it by hand: "
+                          "drivers/sim/hand.py). Default: hand when views are taken automatically, else still")
+    hand_fps: float = Field(10.0, gt=0, le=60, description="the simulated hand: frames per second (bench clock) the "
+                                                            "cameras stream while views are taken automatically")
 
     @model_validator(mode="after")
     def _check(self) -> SimSettings:

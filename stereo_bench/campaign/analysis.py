@@ -6,7 +6,7 @@ call the very same function, which is what makes a replay reproduce a recording 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -94,8 +94,13 @@ def calibrate_configuration(
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: str = "joint",
     intrinsics_covariance: CalibrationCovariance | None = None,
     detections: Sequence[tuple[Detection | None, Detection | None]] | None = None, lens_model: str | None = None,
+    exclude: Mapping[int, str] | None = None, max_view_rms_px: float | None = None,
 ) -> ConfigurationAnalysis:
     """Stereo calibration of one (B, alpha) from its calibration views; raises AnalysisError if it can't.
+
+    ``exclude``: views (index -> why) left out, e.g. by the operator; ``max_view_rms_px``: after the calibration, the
+    views it used whose RMS (the worse camera's) exceeds this are left out too and it is calibrated again without
+    them (once). Both are listed among ``calibration_views_rejected`` with their reason; indices stay the views'.
 
     ``lens_model``: as :func:`~stereo_bench.vision.pipeline.calibrate_from_images` takes it.
 
@@ -105,18 +110,38 @@ def calibrate_configuration(
     ``intrinsics_covariance``: of given ``intrinsics`` held fixed (without it the covariance is unknown).
     ``detections``: per view, the (left, right) detections already made while capturing (None: detect here).
     """
-    try:
-        result = calibrate_from_images([left for left, _ in calibration_pairs],
-                                       [right for _, right in calibration_pairs], board, intrinsics=intrinsics,
-                                       mode="fixed" if mode == "fixed" else "joint", thorough=False,
-                                       intrinsics_covariance=intrinsics_covariance, detections=detections,
-                                       lens_model=lens_model)
-    except (ValueError, np.linalg.LinAlgError) as error:
-        raise AnalysisError(str(error)) from None
+    left_out = dict(exclude or {})
+
+    def fit():
+        kept = [i for i in range(len(calibration_pairs)) if i not in left_out]
+        if not kept:
+            raise AnalysisError(f"every calibration view is excluded ({len(left_out)} of {len(calibration_pairs)})")
+        try:
+            result = calibrate_from_images([calibration_pairs[i][0] for i in kept],
+                                           [calibration_pairs[i][1] for i in kept], board, intrinsics=intrinsics,
+                                           mode="fixed" if mode == "fixed" else "joint", thorough=False,
+                                           intrinsics_covariance=intrinsics_covariance,
+                                           detections=None if detections is None else [detections[i] for i in kept],
+                                           lens_model=lens_model)
+        except (ValueError, np.linalg.LinAlgError) as error:
+            raise AnalysisError(str(error) + (f" ({len(left_out)} view(s) excluded)" if left_out else "")) from None
+        return kept, result
+
+    kept, result = fit()
+    if max_view_rms_px is not None:
+        worst = np.max(np.asarray(result.calib.per_view_rms_px, float).reshape(len(result.views_used), -1), axis=1)
+        over = {kept[used]: float(rms) for used, rms in zip(result.views_used, worst, strict=True)
+                if rms > max_view_rms_px}
+        if over:
+            left_out.update({index: f"per-view RMS {rms:.3f} px over the threshold {max_view_rms_px:g} px"
+                             for index, rms in over.items()})
+            kept, result = fit()
+    rejected = [{**r.as_dict(), "index": kept[r.index]} for r in result.views_rejected]
+    rejected += [{"index": index, "reason": why} for index, why in sorted(left_out.items())]
     return ConfigurationAnalysis(
         calib=result.calib, rect=result.rect, calibration_epipolar_rms_px=result.epipolar_rms_px,
-        calibration_views_used=result.views_used,
-        calibration_views_rejected=[r.as_dict() for r in result.views_rejected],
+        calibration_views_used=[kept[i] for i in result.views_used],
+        calibration_views_rejected=sorted(rejected, key=lambda r: r["index"]),
         calibration_gates=None if result.gates is None else result.gates.as_dict(),
     )
 

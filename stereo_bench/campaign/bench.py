@@ -20,6 +20,7 @@ import contextlib
 import functools
 import math
 import threading
+import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -91,6 +92,14 @@ class Bench:
     recorded_approach: Callable[[str], dict] | None = None
     approaches: bool = True
     approach_rest_s: float = 0.0
+    # The clock the operator's presentation time is measured on (s): the bench clock of a simulated bench, the
+    # wall clock at a real one; None (a replay): not measured.
+    now: Callable[[], float] | None = None
+    # A replay: the calibration views recorded at a configuration (views taken automatically vary in number).
+    recorded_views: Callable[[str], int] | None = None
+    # A replay: what the operator's review left out of a configuration's calibration, ({index: why}, threshold px),
+    # or None where it recorded no review.
+    recorded_exclusions: Callable[[str], tuple[dict[int, str], float | None] | None] | None = None
 
     def grab_preview(self, width_px: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """(left, right, dt_s) for a live preview; only with the cameras borrowed (``camera_gate.borrowed()``).
@@ -172,8 +181,15 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
         rig_holder.append(rig)
         cameras = stack.enter_context(StereoCamera(*sim.cameras(), max_skew_s=config.cameras.max_skew_s))
         stage_ahead = functools.partial(planned_captures, config) if render_ahead else None
-        presenter = SimulatedPresenter(sim, config.calibration_board.build(), config.target.build(), seed=config.seed,
-                                       stage_ahead=stage_ahead)
+        if config.sim_presenter == "hand":
+            presenter = HandPresenter(sim, config.calibration_board.build(), config.target.build(), seed=config.seed,
+                                      stage_ahead=stage_ahead, streams=config.calibration_capture == "auto",
+                                      fps=config.sim.hand_fps,
+                                      max_views=max(config.capture.max_calibration_views,
+                                                    config.capture.calibration_views))
+        else:
+            presenter = SimulatedPresenter(sim, config.calibration_board.build(), config.target.build(),
+                                           seed=config.seed, stage_ahead=stage_ahead)
         stack.callback(presenter.close)
     except BaseException:
         stack.close()
@@ -183,7 +199,7 @@ def simulated_bench(config: CampaignConfig, *, operators: Sequence[Operator],
     return Bench(kind="bring-up" if bring_up else "simulated", rig=rig, cameras=cameras, presenter=presenter,
                  operators=list(operators), clock=clock, homes=config.rig.homing,
                  preview=_simulated_preview(sim, stack), _stack=stack, truth=lambda config_id: sim.truth(),
-                 approach_rest_s=sim.ringing_s)
+                 approach_rest_s=sim.ringing_s, now=sim.clock.now)
 
 
 def _simulated_preview(sim, stack: contextlib.ExitStack) -> PreviewGrab:
@@ -222,6 +238,8 @@ class SimulatedPresenter:
     """
 
     wants_detections = False
+    streams = False  # one still board per view (HandPresenter: the board carried by hand, streamed)
+    presents_by_hand = False
 
     def __init__(self, bench, calibration_board: Target, target: Target, *, seed: int = 0,
                  calibration_distance_mm: Callable[[float], tuple[float, float]] | None = None,
@@ -362,6 +380,97 @@ class SimulatedPresenter:
                                 placement=self._placement(configuration))
 
 
+def _board_fixed(configuration) -> bool:
+    """A fixed-board design's visit: the board placed once stands in the scene (nothing is presented)."""
+    return isinstance(configuration, Visit) and configuration.board_fixed
+
+
+class HandPresenter(SimulatedPresenter):
+    """A simulated operator presents the calibration board by hand (:class:`drivers.sim.hand.HandPresentation`):
+    carried from pose to pose, held for a while, trembling, sometimes half out of a view first.
+
+    ``streams`` (views taken automatically): the cameras stream at ``fps`` frames per bench second while the hand
+    presents up to ``max_views`` poses; :meth:`next_stream_frame` moves the bench clock to the next frame and puts
+    the board where the hand holds it then (smeared by its motion during the exposure). Otherwise (Enter): the
+    hand presents the view's pose and the simulated operator presses Enter as the hand stops, uniformly from
+    ``PRESS_EARLY_S`` before the hold to ``PRESS_LATE_S`` into it (as scripts/bench_autocapture.py's "enter").
+    Time is the bench clock's: the stream's frames, the hand's moves and holds pass on it, not on the wall clock.
+    """
+
+    PRESS_EARLY_S = 0.3
+    PRESS_LATE_S = 0.5
+    presents_by_hand = True
+
+    def __init__(self, bench, calibration_board: Target, target: Target, *, seed: int = 0, streams: bool,
+                 fps: float = 10.0, max_views: int = 40, **kwargs):
+        super().__init__(bench, calibration_board, target, seed=seed, **kwargs)
+        self.streams = streams
+        self.fps = float(fps)
+        self.max_views = int(max_views)
+        self.hand = None  # the HandPresentation of the current configuration
+        self._t0_s = 0.0  # bench time the hand started
+
+    def _stage(self, configuration: Configuration, n_views: int, n_frames: int) -> tuple[int, list | Exception]:
+        if _board_fixed(configuration):
+            return super()._stage(configuration, n_views, n_frames)  # the placed board stands still
+        return super()._stage(configuration, 0, n_frames)  # the hand's board is never still: the targets only
+
+    def prepare_calibration(self, n_views: int) -> None:
+        from drivers.sim.hand import HandPresentation
+
+        configuration = self._configuration
+        assert configuration is not None, "begin_configuration() first"
+        if _board_fixed(configuration):  # a fixed-board visit: the hand placed the board once, it stands there
+            self.hand = None
+            return super().prepare_calibration(n_views)
+        poses = self._calibration_poses(configuration, max(self.max_views, n_views) if self.streams else n_views)
+        self._poses = poses
+        self.hand = HandPresentation(poses, seed=scene_seed(self.seed, configuration.config_id, "hand", 0),
+                                     board_width_mm=self.calibration_board.grid_size_mm[0])
+        self._t0_s = self.bench.clock.now()
+        return None
+
+    def _show_at(self, t_s: float, seed: int) -> None:
+        """Move the bench clock on to bench time ``t_s`` (never back) and put the board where the hand holds it
+        during the exposure that starts then."""
+        clock = self.bench.clock
+        ahead = t_s - clock.now()
+        if ahead > 0:
+            clock.advance(ahead)
+        start = clock.now() - self._t0_s
+        exposure = self.bench.exposure_s
+        hand = self.hand
+        self.bench.show(self.calibration_board, hand.pose_at(start + exposure / 2.0), seed=seed,
+                        moving=(hand.pose_at(start), hand.pose_at(start + exposure)))
+
+    def next_stream_frame(self, offered: int) -> bool:
+        """Put the board where the hand holds it at the stream's ``offered``-th frame; False once the hand has
+        presented every pose (the collection ends)."""
+        assert self.hand is not None and self._configuration is not None, "prepare_calibration() first"
+        t_s = offered / self.fps
+        if t_s > self.hand.duration_s:
+            return False
+        self._show_at(self._t0_s + t_s, scene_seed(self.seed, self._configuration.config_id, "calibration-stream",
+                                                   offered))
+        return True
+
+    def stream_prompt(self, n_kept: int, gate: str) -> Prompt:
+        # The hand presents by itself (the simulator answers nothing here); at a terminal Enter still ends it early.
+        return Prompt("calibration_stream", "the simulated hand presents the calibration board: views are taken "
+                      f"automatically when it is still and new ({gate}); press Enter to calibrate with the views "
+                      "kept so far", config_id=self._configuration.config_id, background=True)
+
+    def present_calibration_view(self, index: int) -> None:
+        if _board_fixed(self._configuration):
+            return super().present_calibration_view(index)
+        assert self.hand is not None and self._configuration is not None, "prepare_calibration() first"
+        config_id = self._configuration.config_id
+        start, _, _ = self.hand.holds[index]
+        rng = np.random.default_rng(scene_seed(self.seed, config_id, "press", index))
+        press = start + float(rng.uniform(-self.PRESS_EARLY_S, self.PRESS_LATE_S))
+        self._show_at(self._t0_s + press, scene_seed(self.seed, config_id, "calibration", index))
+
+
 # -- the real bench --------------------------------------------------------------------------------
 
 
@@ -391,9 +500,10 @@ def hardware_bench(config: CampaignConfig, *, operators: Sequence[Operator], tra
         raise
     presenter = OperatorPresenter(image_size=(optics.width_px, optics.height_px),
                                   target_description=config.target.describe(),
-                                  calibration_board=config.calibration_board.build())
+                                  calibration_board=config.calibration_board.build(),
+                                  streams=config.calibration_capture == "auto")
     return Bench(kind="hardware", rig=rig, cameras=cameras, presenter=presenter, operators=list(operators),
-                 clock=Clock(1.0), homes=config.rig.homing, _stack=stack)
+                 clock=Clock(1.0), homes=config.rig.homing, _stack=stack, now=time.monotonic)
 
 
 # -- replay ----------------------------------------------------------------------------------------
@@ -408,6 +518,8 @@ class ReplayPresenter:
     """
 
     wants_detections = False
+    streams = False  # views taken automatically replay as the views the recording kept
+    presents_by_hand = False
 
     def __init__(self, cameras, detections: dict[str, tuple] | None = None):
         self.cameras = cameras
@@ -455,7 +567,8 @@ class ReplayOperator:
     name = "replay"
 
     def offer(self, ticket) -> None:
-        ticket.answer(self.name)
+        if not ticket.prompt.background:
+            ticket.answer(self.name)
 
     def withdraw(self, ticket) -> None:
         return None
@@ -470,6 +583,7 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     from drivers.replay import ReplayRig, ReplayStereoCamera
     from stereo_bench.campaign.documents import (
         CalibrationDetectionsEvent,
+        CalibrationExclusionsEvent,
         CalibrationViewEvent,
         MeasurementFrameEvent,
         MoveEvent,
@@ -484,6 +598,8 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     approaches: dict[str, dict] = {}
     truths: dict[str, dict] = {}
     detections = {}
+    views: dict[str, tuple[int, int]] = {}  # config_id -> (attempt, views recorded in it)
+    exclusions: dict[str, tuple[dict[int, str], float | None]] = {}
 
     def move(event: MoveEvent) -> None:
         readings.append(json_safe(event.data.rig))
@@ -494,16 +610,25 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
 
     def calibration_view(event: CalibrationViewEvent) -> None:
         frames[f"{event.config_id}/calibration_view/{event.data.index}"] = event
+        # The views of the configuration's last attempt (a resumed one took its views again, as many as it kept).
+        attempt, count = views.get(event.config_id, (event.attempt, 0))
+        views[event.config_id] = ((event.attempt, max(count, event.data.index + 1)) if event.attempt == attempt
+                                  else (event.attempt, event.data.index + 1))
 
     def measurement_frame(event: MeasurementFrameEvent) -> None:
         frames[f"{event.config_id}/measurement_frame/{event.data.index}/{event.data.retry or 0}"] = event
+
+    def calibration_exclusions(event: CalibrationExclusionsEvent) -> None:
+        exclusions[event.config_id] = ({int(index): why for index, why in event.data.excluded},
+                                       event.data.max_view_rms_px)
 
     def calibration_detections(event: CalibrationDetectionsEvent) -> None:
         detections[f"{event.config_id}/{event.data.index}"] = tuple(
             None if side is None else side.detection() for side in (event.data.left, event.data.right))
 
     router = (DocumentRouter().on(MoveEvent, move).on(TruthEvent, truth).on(CalibrationViewEvent, calibration_view)
-              .on(MeasurementFrameEvent, measurement_frame).on(CalibrationDetectionsEvent, calibration_detections))
+              .on(MeasurementFrameEvent, measurement_frame).on(CalibrationDetectionsEvent, calibration_detections)
+              .on(CalibrationExclusionsEvent, calibration_exclusions))
     router.read(event for event in reader.events() if event.config_id in config_ids)
 
     def load_pair(key: str):
@@ -524,7 +649,8 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     return Bench(kind="replay", rig=rig, cameras=cameras, presenter=ReplayPresenter(cameras, detections),
                  operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack,
                  truth=truths.get if truths else None, approaches=False,
-                 recorded_approach=lambda config_id: approaches.get(config_id, {}))
+                 recorded_approach=lambda config_id: approaches.get(config_id, {}),
+                 recorded_views=lambda config_id: views.get(config_id, (0, 0))[1], recorded_exclusions=exclusions.get)
 
 
 def _not_kept(description) -> np.ndarray:
@@ -533,6 +659,7 @@ def _not_kept(description) -> np.ndarray:
 
 
 __all__ = [
-    "Bench", "CalibrationPlacementError", "Clock", "Prompt", "ReplayOperator", "ReplayPresenter", "SimulatedPresenter",
+    "Bench", "CalibrationPlacementError", "Clock", "HandPresenter", "Prompt", "ReplayOperator", "ReplayPresenter",
+    "SimulatedPresenter",
     "hardware_bench", "open_bench", "pose_from_reading", "replay_bench", "simulated_bench",
 ]

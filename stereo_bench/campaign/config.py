@@ -18,7 +18,9 @@ Sections (all optional except ``[plan]``; units in every key's name):
                           lens the feasibility prediction uses for real cameras)
     [calibration_board]   the board shown for stereo calibration (11x8 inner corners, 25 mm)
     [target]              the measured board (9x6 inner corners, 27 mm squares)
-    [capture]             settle_s, frames_per_config, calibration_views, board_retries
+    [capture]             settle_s, frames_per_config, calibration_views, board_retries, keep_frames,
+                          calibration_capture = "auto" | "enter", coverage_gate, max_calibration_views
+    [calibration]         max_view_rms_px, exclude_views, review (the per-view errors shown to the operator)
     [extrinsics]          mode = "per-config" | "kinematic" | "nominal" | "fixed", intrinsics = "joint" |
                           "fixed", calib_dir, kinematic_file, repeatability_mm, repeatability_deg,
                           [extrinsics.tolerances] (the rig's stated tolerances, for nominal extrinsics)
@@ -428,6 +430,54 @@ class CaptureSection(BaseModel):
         "all", description="frames written to the session: all; measurement (calibration views are not kept: "
                            "their detections and the calibration are, and a replay calibrates from those); "
                            "none (no frames: a replay cannot reproduce the configurations)")
+    calibration_capture: Literal["auto", "enter"] | None = Field(
+        None, description="how calibration views are taken: auto (the cameras stream while the operator moves the "
+                          "board; a view is kept when it is still and new, until the coverage gate opens: "
+                          "stereo_bench/campaign/autocapture.py) or enter (one view per press of Enter; the "
+                          "simulator presents a still board per view). Default: auto for v4l2 cameras, enter for "
+                          "simulated ones (auto there: the simulated hand presents the board, [sim] presenter)")
+    coverage_gate: Literal["bars", "count"] = Field(
+        "bars", description="auto capture: calibrate once every coverage bar is full in both cameras (bars) or once "
+                            "calibration_views views are kept (count); never with fewer than calibration_views")
+    max_calibration_views: int = Field(
+        40, ge=1, le=MAX_CALIBRATION_VIEWS,
+        description="auto capture: calibrate with this many views kept whatever the bars say (ROS calls 40 enough)")
+
+    def calibration_capture_for(self, cameras_kind: str) -> str:
+        """``calibration_capture`` or its default for ``cameras_kind`` (auto for v4l2, enter for simulated)."""
+        if self.calibration_capture is not None:
+            return self.calibration_capture
+        return "auto" if cameras_kind == "v4l2" else "enter"
+
+
+class CalibrationSection(BaseModel):
+    """Which calibration views each per-configuration calibration uses beyond its own outlier rule, and whether the
+    operator reviews the per-view errors first (a one-screen summary in the terminal: threshold, exclude,
+    recalibrate, accept; docs/CALIBRATION.md)."""
+
+    model_config = _STRICT
+
+    max_view_rms_px: float | None = Field(
+        None, gt=0, allow_inf_nan=False,
+        description="views whose reprojection RMS (the worse of the two cameras) exceeds this are excluded and the "
+                    "configuration calibrated again without them, px (None: only the calibration's own outlier rule)")
+    exclude_views: list[int] = Field(
+        default_factory=list, description="calibration views (indices within each configuration, from 0) left out of "
+                                          "every per-configuration calibration")
+    review: bool | None = Field(
+        None, description="after each configuration's calibration, show the operator the per-view errors to set a "
+                          "threshold, exclude views and recalibrate before measuring. Default: true with v4l2 cameras "
+                          "(an operator is at the bench), false with simulated ones")
+
+    @field_validator("exclude_views")
+    @classmethod
+    def _check_views(cls, value: list[int]) -> list[int]:
+        if any(index < 0 for index in value):
+            raise ValueError("view indices count from 0")
+        return sorted(set(value))
+
+    def review_for(self, cameras_kind: str) -> bool:
+        return self.review if self.review is not None else cameras_kind == "v4l2"
 
 
 def _tolerance(default: float, why: str, unit: str) -> Any:
@@ -678,6 +728,9 @@ class CampaignConfig(BaseModel):
                                             description="board shown for stereo calibration (not the target)")
     target: TargetConfig = Field(default_factory=TargetConfig, description="the measured board")
     capture: CaptureSection = Field(default_factory=CaptureSection)
+    calibration: CalibrationSection = Field(default_factory=CalibrationSection,
+                                            description="views excluded from the per-configuration calibrations, and "
+                                                        "the operator's review of their per-view errors")
     extrinsics: ExtrinsicsSection = Field(default_factory=ExtrinsicsSection)
     sim: SimSettings = Field(default_factory=SimSettings,
                              description="the simulated bench's imperfections (simulated cameras: the simulated "
@@ -694,7 +747,24 @@ class CampaignConfig(BaseModel):
                 and self.capture.calibration_views < MIN_CALIBRATION_VIEWS):
             raise ValueError(f"capture.calibration_views: {extrinsics.mode} extrinsics need at least "
                              f"{MIN_CALIBRATION_VIEWS} calibration views, not {self.capture.calibration_views}")
+        if self.calibration_capture == "auto" and self.cameras.kind == "simulated" and self.sim.presenter == "still":
+            raise ValueError("capture.calibration_capture = \"auto\" takes views of a board the operator moves; "
+                             "[sim] presenter = \"still\" does not move it: use presenter = \"hand\" (or leave it "
+                             "out)")
         return self
+
+    @property
+    def calibration_capture(self) -> str:
+        """How calibration views are taken: "auto" or "enter" (``[capture] calibration_capture`` or its default)."""
+        return self.capture.calibration_capture_for(self.cameras.kind)
+
+    @property
+    def sim_presenter(self) -> str:
+        """Who presents the calibration board on the simulated bench: "hand" or "still" (``[sim] presenter`` or its
+        default: the hand when views are taken automatically)."""
+        if self.sim.presenter is not None:
+            return self.sim.presenter
+        return "hand" if self.calibration_capture == "auto" else "still"
 
     @property
     def fully_simulated(self) -> bool:
@@ -837,6 +907,13 @@ def recorded_campaign(data: Mapping[str, Any]) -> CampaignConfig:
         # Recorded before lens models were compared: the fit it ran with, not today's default (auto for v4l2
         # cameras), so that its replay reproduces it. A recording made since always has the key (null included).
         data["extrinsics"] = {**extrinsics, "lens_model": "legacy"}
+    if "calibration" not in data:  # recorded before the operator reviewed per-view errors: no review in replay
+        data["calibration"] = {"review": False}
+    capture = data.get("capture")
+    if isinstance(capture, Mapping) and "calibration_capture" not in capture:
+        # Recorded before calibration views were taken automatically: one view per Enter (today's default for
+        # v4l2 cameras is auto, whose replay serves the views the recording kept: the same views either way).
+        data["capture"] = {**capture, "calibration_capture": "enter"}
     return CampaignConfig.model_validate(data)
 
 
@@ -875,6 +952,8 @@ def load_campaign(path: str | Path) -> CampaignConfig:
     try:
         data = read_toml(path, what="campaign file")
     except InputFileError as error:
+        if not path.exists() and str(path) in PRESETS:
+            raise ConfigError(f"{error} (a shipped preset of that name exists: --preset {path})") from None
         raise ConfigError(str(error)) from None
     config = campaign_from_dict(data, source=str(path), base_dir=path.parent)
     _check_files(config, str(path))

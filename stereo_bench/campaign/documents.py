@@ -322,6 +322,16 @@ class ErrorData(BaseModel):
     error: str
 
 
+class AutoCaptureStamp(BaseModel):
+    """Why a streamed pair was kept as a calibration view (stereo_bench/campaign/autocapture.py)."""
+
+    model_config = _STRICT
+    time_s: float = Field(description="the pair's time stamp, s (the cameras' clock; the bench clock when simulated)")
+    offered: int = Field(ge=0, description="its place in the stream (0 = the first pair offered)")
+    speed_px_s: float | None = Field(None, description="median corner speed, the larger of the two cameras, px/s")
+    novelty: float | None = Field(None, description="L1 distance in (X, Y, size, skew) to the nearest kept view")
+
+
 class CaptureData(BaseModel):
     """One stereo capture: ``index`` within its step, grab skew ``dt_s`` and both frames' descriptions."""
 
@@ -331,6 +341,8 @@ class CaptureData(BaseModel):
     left: FrameRecord
     right: FrameRecord
     retry: int | None = Field(None, ge=0, description="measurement frames: re-capture number (0 = first)")
+    auto: AutoCaptureStamp | None = Field(None, description="calibration views taken automatically: when and why "
+                                                            "this pair of the stream was kept")
 
 
 class DetectionRecord(BaseModel):
@@ -493,7 +505,7 @@ class KinematicModelData(BaseModel):
 
 
 PromptKind = Literal["target", "manual", "calibration_board", "calibration_view", "calibration_review",
-                     "measured_target", "fixed_board"]
+                     "measured_target", "fixed_board", "calibration_stream", "calibration_errors"]
 
 
 class PromptData(BaseModel):
@@ -508,7 +520,9 @@ class PromptData(BaseModel):
     answered_by: str = Field(description="the operator that answered: terminal, simulator, web, ...")
     waited_s: float = Field(ge=0, description="seconds between the question and the answer")
     action: str | None = Field(None, description="how it was answered when not plainly (Enter / Continue): "
-                                                 "capture_now, discard_last_view")
+                                                 "capture_now, discard_last_view, set_threshold, exclude_view, "
+                                                 "recalibrate")
+    action_value: float | None = Field(None, description="the action's number: a threshold (px), a view's index")
 
 
 class ViewDiscardedData(BaseModel):
@@ -517,6 +531,52 @@ class ViewDiscardedData(BaseModel):
     model_config = _STRICT
     index: int = Field(ge=0, description="the calibration view dropped (its frames stay recorded)")
     answered_by: str = Field(description="the operator that asked for it")
+
+
+class CalibrationSelectionData(BaseModel):
+    """Calibration views taken automatically at one configuration: every pair of the stream offered, which were kept
+    (their ``calibration_view`` events, ``data.auto``) and why the others were not, and how the collection ended."""
+
+    model_config = _STRICT
+    capture: Literal["auto"] = "auto"
+    rule: dict[str, Any] = Field(description="the AutoCaptureRule's thresholds (px/s, s, 1, views)")
+    offered: int = Field(ge=0, description="stereo pairs of the stream offered to the selector")
+    kept: int = Field(ge=0, description="views kept (calibration_view events 0..kept-1)")
+    unpaired: int = Field(0, ge=0, description="grabs skipped: no pair within [cameras] max_skew_s")
+    tally: dict[str, int] = Field(description="pairs per decision: kept, not in both views, moving, settling, not new")
+    ended_by: str = Field(description="why the collection ended: the coverage gate, the operator, the presenter")
+    gate: str = Field(description="the coverage gate's state at the end, in words")
+    started_s: float | None = Field(None, description="time stamp of the first pair offered, s")
+    ended_s: float | None = Field(None, description="time stamp of the last pair offered, s")
+    collect_s: float = Field(ge=0, description="seconds from the first pair to the last (the presentation time)")
+    clock: Literal["bench", "cameras"] = Field(description="whose seconds: the simulated bench's clock or the cameras'")
+    decisions: list[tuple[float, str, float | None, float | None]] = Field(
+        default_factory=list, description="every pair offered: (time s, reason, speed px/s, novelty)")
+    coverage: dict[str, Any] | None = Field(None, description="the kept views' coverage bars per camera")
+
+
+class CalibrationExclusionsData(BaseModel):
+    """What the operator's review of a configuration's per-view errors left out of its calibration (a replay leaves
+    out the same): the views with the reason, and the per-view RMS threshold."""
+
+    model_config = _STRICT
+    excluded: list[tuple[int, str]] = Field(description="(view index, why): by the operator, by [calibration] "
+                                                        "exclude_views, or over the threshold")
+    max_view_rms_px: float | None = Field(None, description="views over this RMS (the worse camera's) left out, px")
+    recalibrations: int = Field(0, ge=0, description="calibrations the review ran again (r)")
+    answered_by: str = Field(description="the operator who accepted the calibration")
+
+
+class PresentationTimeData(BaseModel):
+    """How long the calibration board's presentations took at one configuration (by an operator, or the simulated
+    hand): the next plan's estimate per presentation reads it (stereo_bench/campaign/presentation.py)."""
+
+    model_config = _STRICT
+    views: int = Field(ge=1, description="calibration views taken")
+    seconds: float = Field(ge=0, description="from the first view asked for to the last one taken, s")
+    capture: Literal["auto", "enter"] = Field(description="how the views were taken ([capture] calibration_capture)")
+    clock: Literal["bench", "wall"] = Field(description="whose seconds: the simulated bench's clock, or the wall "
+                                                        "clock at a real bench")
 
 
 class RunControlData(BaseModel):
@@ -741,6 +801,21 @@ class CalibrationViewDiscardedEvent(EventDocument):
     data: ViewDiscardedData
 
 
+class CalibrationSelectionEvent(EventDocument):
+    kind: Literal["calibration_selection"] = "calibration_selection"
+    data: CalibrationSelectionData
+
+
+class CalibrationExclusionsEvent(EventDocument):
+    kind: Literal["calibration_exclusions"] = "calibration_exclusions"
+    data: CalibrationExclusionsData
+
+
+class PresentationTimeEvent(EventDocument):
+    kind: Literal["presentation_time"] = "presentation_time"
+    data: PresentationTimeData
+
+
 class RunControlEvent(EventDocument):
     kind: Literal["run_control"] = "run_control"
     data: RunControlData
@@ -940,10 +1015,12 @@ def event_draft(kind: str, *, config_id: str | None = None, data: Any = None, **
 __all__ = [
     "ADDED_COLUMNS", "COMPARED_COLUMNS", "DOCUMENT_MODELS", "DOCUMENT_TYPES", "EVENT_MODELS", "EXIT_STATUSES",
     "READABLE_SCHEMA_VERSIONS", "REPORT_COLUMNS", "RESULT_COLUMNS", "SCHEMA_VERSION", "TOLERANCES", "AnalysisEvent",
-    "ApproachEvent", "CalibrationDetectionsEvent", "CalibrationEvent", "CalibrationFiles",
+    "ApproachEvent", "CalibrationDetectionsEvent", "CalibrationEvent", "CalibrationExclusionsEvent", "CalibrationFiles",
+    "CalibrationSelectionEvent",
     "CalibrationViewDiscardedEvent", "CalibrationViewEvent", "ControllerEvent", "DetectionRecord", "Document",
     "DocumentError", "Draft", "EventDocument", "HomeEvent", "IntrinsicsEvent", "KinematicModelEvent",
-    "MeasurementFrameEvent", "NumericEnvironment", "MoveEvent", "PromptEvent", "ResultDocument", "ResultRow",
+    "MeasurementFrameEvent", "NumericEnvironment", "MoveEvent", "PresentationTimeEvent", "PromptEvent",
+    "ResultDocument", "ResultRow",
     "ResumeDocument", "RunControlEvent", "StartDocument", "StopDocument", "StructureEvent", "TargetNotFoundEvent",
     "TranscriptEvent", "TruthEvent", "campaign_outcome", "document_json", "columns_of", "column",
     "document_json_schema", "event_draft", "json_safe", "nested", "parse_document", "result_row",

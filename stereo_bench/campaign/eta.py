@@ -3,7 +3,8 @@ by what the run has measured so far, the operator's time included.
 
 The plan predicts each configuration's machine time (the move to it, then settle, flush and exposures) and how
 many prompts it puts to the operator; it leaves out computation (rendering, detection, calibration) and assumes
-30 s per prompt (5 s per calibration view by hand), or nothing where the scene is simulated. A run corrects both
+30 s per prompt (5 s per calibration view by hand, or what an earlier run measured: campaign/presentation.py),
+or nothing where the scene is simulated. A run corrects both
 from what it measured (:func:`remaining_s`, a pure function):
 
 - *machine*: the time not spent waiting for an operator, per configuration: what the plan predicted plus ``c``,
@@ -73,11 +74,13 @@ class Forecast:
         return sum(g.operator_s for g in self.groups) / prompts if prompts else 0.0
 
 
-def forecast_groups(config: CampaignConfig, steps: Sequence[Step]) -> Forecast:
-    """The plan's time model (:class:`DurationModel`, each step's own ``estimate``) split per group of steps."""
+def forecast_groups(config: CampaignConfig, steps: Sequence[Step], *, presentation=None) -> Forecast:
+    """The plan's time model (:class:`DurationModel`, each step's own ``estimate``) split per group of steps;
+    ``presentation``: the seconds per calibration view an earlier run measured
+    (:class:`~stereo_bench.campaign.presentation.PresentationTime`; None: the plan's assumed 5 s)."""
     from stereo_bench.campaign.runner import group_steps
 
-    model = DurationModel.of(config)
+    model = DurationModel.of(config, presentation)
     groups = []
     for config_id, group in group_steps(list(steps)):
         move = rest = operator = 0.0

@@ -35,8 +35,15 @@ from stereo_bench.campaign.documents import PromptKind
 CONTINUE = "continue"
 CAPTURE_NOW = "capture_now"
 DISCARD_LAST_VIEW = "discard_last_view"
+# The per-view error review (runner: after a configuration's calibration): with a value (px; a view's index).
+SET_THRESHOLD = "set_threshold"
+EXCLUDE_VIEW = "exclude_view"
+RECALIBRATE = "recalibrate"
 #: Every answer an operator can give; a prompt accepts a subset (always ``continue``).
-ACTIONS = (CONTINUE, CAPTURE_NOW, DISCARD_LAST_VIEW)
+ACTIONS = (CONTINUE, CAPTURE_NOW, DISCARD_LAST_VIEW, SET_THRESHOLD, EXCLUDE_VIEW, RECALIBRATE)
+#: What a terminal line answers (its first word; a number after it is the value), where the prompt accepts it.
+TERMINAL_KEYS = {"d": DISCARD_LAST_VIEW, "discard": DISCARD_LAST_VIEW, "t": SET_THRESHOLD, "x": EXCLUDE_VIEW,
+                 "r": RECALIBRATE}
 
 
 class OperatorAbsent(RuntimeError):
@@ -58,6 +65,9 @@ class Prompt:
     value: float | None = None
     index: int | None = None
     actions: tuple[str, ...] = (CONTINUE,)  # the answers this prompt accepts (see ACTIONS)
+    # Shown while the runner works (views taken automatically); an answer ends that work early. Operators with
+    # nothing to do there (the simulator, a replay) leave it unanswered: the work ends by itself.
+    background: bool = False
 
 
 class Ticket:
@@ -69,13 +79,16 @@ class Ticket:
         self.answered_by: str | None = None
         self.answered_at: float | None = None
         self.action: str = CONTINUE
+        self.value: float | None = None  # the action's number, where it takes one (a threshold, a view)
         self.gave_up: dict[str, str] = {}
+        self.withdraw_reason: str | None = None  # why it was withdrawn unanswered (OperatorDesk.close)
         self._n_operators = n_operators
         self._lock = threading.Lock()
         self._done = threading.Event()
 
-    def answer(self, operator: str, action: str = CONTINUE) -> bool:
-        """``operator`` has done the step (``action``: one of the prompt's actions); True if it was the first.
+    def answer(self, operator: str, action: str = CONTINUE, value: float | None = None) -> bool:
+        """``operator`` has done the step (``action``: one of the prompt's actions, ``value`` its number where it
+        takes one); True if it was the first.
 
         Raises ValueError for an action the prompt does not accept.
         """
@@ -85,6 +98,7 @@ class Ticket:
             if self._done.is_set():
                 return False
             self.answered_by, self.answered_at, self.action = operator, time.monotonic(), action
+            self.value = value
             self._done.set()
             return True
 
@@ -121,6 +135,7 @@ class Answer:
     operator: str
     waited_s: float
     action: str = CONTINUE
+    value: float | None = None
 
 
 class OperatorDesk:
@@ -137,27 +152,40 @@ class OperatorDesk:
         """
         if not self.operators:
             raise OperatorAbsent(f"the campaign needs an operator here ({prompt.message!r}) but none is connected")
-        ticket = Ticket(prompt, len(self.operators))
+        ticket = self.open(prompt)
         try:
-            for operator in self.operators:
-                operator.offer(ticket)
-                if ticket.done:
-                    break
             while not ticket.wait(poll_s):
                 if stop.is_set():
                     raise StopRequested()
                 if while_waiting is not None:
                     while_waiting()
         finally:
-            for operator in self.operators:
-                if operator.name != ticket.answered_by:
-                    operator.withdraw(ticket)
+            self.close(ticket)
         if ticket.answered_by is None:
             reasons = "; ".join(f"{name}: {why}" for name, why in ticket.gave_up.items())
             raise OperatorAbsent(f"the campaign needs the operator here ({prompt.message!r}) but nobody can "
                                  f"answer ({reasons})")
         assert ticket.answered_at is not None
-        return Answer(operator=ticket.answered_by, waited_s=ticket.answered_at - ticket.asked_at, action=ticket.action)
+        return Answer(operator=ticket.answered_by, waited_s=ticket.answered_at - ticket.asked_at, action=ticket.action,
+                      value=ticket.value)
+
+
+    def open(self, prompt: Prompt) -> Ticket:
+        """Offer ``prompt`` to every operator and return at once (a :attr:`Prompt.background` prompt: the runner
+        works meanwhile and looks at ``ticket.done``); :meth:`close` withdraws it."""
+        ticket = Ticket(prompt, len(self.operators))
+        for operator in self.operators:
+            operator.offer(ticket)
+            if ticket.done:
+                break
+        return ticket
+
+    def close(self, ticket: Ticket, *, reason: str | None = None) -> None:
+        """Withdraw ``ticket`` from every operator but the one that answered it (``reason``: why, when unanswered)."""
+        ticket.withdraw_reason = reason
+        for operator in self.operators:
+            if operator.name != ticket.answered_by:
+                operator.withdraw(ticket)
 
 
 def manual_prompt(quantity: str, value: float, *, config_id: str | None = None) -> Prompt:
@@ -193,7 +221,8 @@ class SimulatedOperator:
 
     def offer(self, ticket: Ticket) -> None:
         self.prompts.append(ticket.prompt)
-        ticket.answer(self.name)
+        if not ticket.prompt.background:  # a background prompt's work (the simulated hand) ends by itself
+            ticket.answer(self.name)
 
     def withdraw(self, ticket: Ticket) -> None:
         return None
@@ -221,6 +250,22 @@ class LineOperator:
 
     def withdraw(self, ticket: Ticket) -> None:
         return None
+
+
+def terminal_answer(line: str) -> tuple[str, float | None]:
+    """(action, value) a line typed at the terminal answers: its first word by :data:`TERMINAL_KEYS` ("t 0.4": set the
+    threshold to 0.4 px, "x 3": exclude view 3, "r", "d"), anything else Enter (continue). A key whose number is
+    missing or not one comes with None (the runner shows its prompt again and says so)."""
+    words = line.strip().lower().split()
+    action = TERMINAL_KEYS.get(words[0]) if words else None
+    if action is None:
+        return CONTINUE, None
+    if action in (SET_THRESHOLD, EXCLUDE_VIEW):
+        try:
+            return action, float(words[1])
+        except (IndexError, ValueError):
+            return action, None
+    return action, None
 
 
 @runtime_checkable
@@ -292,7 +337,7 @@ class TerminalOperator:
             if self._ticket is ticket:
                 self._ticket = None
                 self.display.end_prompt(f"done: answered by {ticket.answered_by}" if ticket.answered_by is not None
-                                        else "no longer needed: the run stopped")
+                                        else ticket.withdraw_reason or "no longer needed: the run stopped")
 
     def _read(self) -> None:
         stream = self._in or sys.stdin
@@ -310,10 +355,10 @@ class TerminalOperator:
                 if ticket is not None:
                     ticket.give_up(self.name, f"standard input is closed: {self.absent_advice}")
                 return
-            action = DISCARD_LAST_VIEW if line.strip().lower() in ("d", "discard") else CONTINUE
+            action, value = terminal_answer(line)
             if ticket is not None and action not in ticket.prompt.actions:
-                action = CONTINUE
-            if ticket is not None and ticket.answer(self.name, action):
+                action, value = CONTINUE, None
+            if ticket is not None and ticket.answer(self.name, action, value):
                 with self._lock:
                     if self._ticket is ticket:
                         self._ticket = None

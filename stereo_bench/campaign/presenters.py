@@ -30,6 +30,12 @@ class Presenter(Protocol):
     """Puts boards in front of the cameras. A returned :class:`Prompt` is a step for the operator."""
 
     wants_detections: bool  # calibration_view_captured wants the views' detections (coverage feedback)
+    # Calibration views are taken from a stream (``[capture] calibration_capture = "auto"``): the runner captures
+    # pair after pair (next_stream_frame) and keeps those the ViewSelector takes; else one view per
+    # present_calibration_view. ``presents_by_hand``: somebody presents the board (an operator, the simulated hand),
+    # whose presentation time the runner measures.
+    streams: bool
+    presents_by_hand: bool
 
     def begin_run(self, sequence: Sequence[Configuration | Visit]) -> None:
         """The plan's moves in order (``approach.move_sequence``: every one, also those this run skips)."""
@@ -45,6 +51,12 @@ class Presenter(Protocol):
         """``n_views`` calibration views follow; raises CalibrationPlacementError if none can be shown."""
 
     def present_calibration_view(self, index: int) -> Prompt | None: ...
+
+    def next_stream_frame(self, offered: int) -> bool:
+        """Streaming: the stream's ``offered``-th pair is about to be captured; False: nothing more is presented."""
+
+    def stream_prompt(self, n_kept: int, gate: str) -> Prompt | None:
+        """Streaming: what the operator is told while views are taken (a background prompt: Enter ends it)."""
 
     def recorded_detections(self, index: int) -> tuple | None:
         """A replay of views kept as detections only: view ``index``'s recorded (left, right); else None (detect)."""
@@ -71,8 +83,11 @@ class OperatorPresenter:
     """At the real bench: a prompt for each board placement, with coverage feedback."""
 
     wants_detections = True
+    presents_by_hand = True
 
-    def __init__(self, *, image_size: tuple[int, int], target_description: str, calibration_board: Target):
+    def __init__(self, *, image_size: tuple[int, int], target_description: str, calibration_board: Target,
+                 streams: bool = False):
+        self.streams = streams
         self.image_size = image_size
         self.target_description = target_description
         self.calibration_board = calibration_board
@@ -101,6 +116,11 @@ class OperatorPresenter:
             return None
         self.coverage = Coverage(self.image_size, self.calibration_board)
         self._n_views = n_views
+        if self.streams:
+            return Prompt("calibration_board", f"[{self._config_id}] calibration: views are taken automatically. "
+                          "Move the board slowly from pose to pose, each at a new position and tilt (up to ~40 "
+                          "deg), near and far, filling the corners of both views, and hold it still for a moment at "
+                          f"each (at least {n_views} views); press Enter to begin", config_id=self._config_id)
         return Prompt("calibration_board", f"[{self._config_id}] calibration: present the calibration board "
                       f"{n_views} times, each time at a new position and tilt (up to ~40 deg), near and far, "
                       "filling the corners of both views; press Enter to begin", config_id=self._config_id)
@@ -116,6 +136,14 @@ class OperatorPresenter:
 
     def recorded_detections(self, index: int) -> None:
         return None  # the views are detected as they are captured
+
+    def next_stream_frame(self, offered: int) -> bool:
+        return True  # the operator presents until the gate opens or Enter ends the collection
+
+    def stream_prompt(self, n_kept: int, gate: str) -> Prompt:
+        return Prompt("calibration_stream", f"taking calibration views: {n_kept} kept ({gate}; "
+                      f"{self.coverage.summary()}); hold the board still at each new pose; press Enter to calibrate "
+                      "with the views kept so far", config_id=self._config_id, background=True)
 
     def calibration_view_captured(self, index: int, left: Detection | None, right: Detection | None) -> None:
         for side, detection in (("left", left), ("right", right)):

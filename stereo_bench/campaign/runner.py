@@ -50,7 +50,9 @@ from stereo_bench.campaign.documents import (
     ApproachEvent,
     CalibrationDetectionsEvent,
     CalibrationEvent,
+    CalibrationExclusionsEvent,
     CalibrationFiles,
+    CalibrationSelectionEvent,
     CalibrationViewDiscardedEvent,
     CalibrationViewEvent,
     DetectionRecord,
@@ -58,6 +60,7 @@ from stereo_bench.campaign.documents import (
     HomeEvent,
     MeasurementFrameEvent,
     MoveEvent,
+    PresentationTimeEvent,
     PromptEvent,
     ResultDocument,
     RigPositionTrustedEvent,
@@ -104,6 +107,11 @@ from stereo_bench.vision.uncertainty import BoardScale
 __all__ = ["CampaignRunner", "ConfigurationFailed", "RigUnrecoverable", "RunnerOptions", "StopRequested", "group_steps"]
 
 
+#: Views taken automatically: grabs in a row that find no pair within the skew limit before the stream gives up (the
+#: cameras' clocks or bus, not a pair now and then, are wrong: the error is then the run's, as for a single view).
+MAX_UNPAIRED_IN_A_ROW = 30
+
+
 class ConfigurationFailed(Exception):
     """The configuration cannot be completed; the message is the reason recorded with it."""
 
@@ -129,6 +137,10 @@ class Captured:
     axes: dict | None = None  # the kinematic axes the rig reported after the move
     approach: dict | None = None  # per axis the direction the move came from
     truth: dict | None = None  # simulated benches: the truth at the measurement (never used by it)
+    # Views left out of the calibration beyond its outlier rule (index -> why) and the per-view RMS threshold (px):
+    # [calibration]'s, the operator's review, or (a replay) what the recording's review chose. None: [calibration]'s.
+    exclude: dict[int, str] | None = None
+    max_view_rms_px: float | None = None
 
     def detections(self) -> list[tuple]:
         """Per calibration view the (left, right) Detection or None made while capturing (waited for here).
@@ -425,7 +437,8 @@ class CampaignRunner:
         self._publish(Draft(PromptEvent, config_id=prompt.config_id, data={
             "prompt": prompt.kind, "message": prompt.message, "quantity": prompt.quantity, "value": prompt.value,
             "index": prompt.index, "answered_by": answer.operator, "waited_s": answer.waited_s,
-            **({"action": answer.action} if answer.action != CONTINUE else {})}))
+            **({"action": answer.action} if answer.action != CONTINUE else {}),
+            **({"action_value": answer.value} if answer.value is not None else {})}))
         return answer
 
     def _set_by_hand(self, configuration: Configuration, quantity: str, value: float) -> None:
@@ -569,7 +582,10 @@ class CampaignRunner:
         return keep == "all" or (keep == "measurement" and model is MeasurementFrameEvent)
 
     def _capture(self, model, index: int, configuration: Configuration, **extra) -> tuple[np.ndarray, np.ndarray]:
-        pair = self.bench.cameras.capture_pair()
+        return self._record_pair(model, index, configuration, self.bench.cameras.capture_pair(), **extra)
+
+    def _record_pair(self, model, index: int, configuration: Configuration, pair, **extra) -> tuple[np.ndarray,
+                                                                                                   np.ndarray]:
         self._publish(Draft(
             model, config_id=configuration.config_id,
             data={"index": index, "dt_s": pair.dt_s, "left": pair.left.describe(), "right": pair.right.describe(),
@@ -593,14 +609,142 @@ class CampaignRunner:
         if self.options.fixed_calibration is not None:
             return
         presenter = self.bench.presenter
+        # A fixed-board visit captures the board placed once: nothing is presented, so nothing streams or is timed.
+        fixed = bool(getattr(captured.configuration, "board_fixed", False))
+        streams = getattr(presenter, "streams", False) and not fixed
+        if (not streams and not fixed and self.config.calibration_capture == "auto"
+                and self.bench.recorded_views is not None):
+            # A replay of views taken automatically: the views the recording kept, as many as it kept.
+            n_views = self.bench.recorded_views(captured.configuration.config_id) or n_views
         try:
             prompt = presenter.prepare_calibration(n_views)
         except CalibrationPlacementError as error:
             raise ConfigurationFailed(str(error)) from None
         if prompt is not None:
             self._ask(prompt)
+        timed = getattr(presenter, "presents_by_hand", False) and self.bench.now is not None and not fixed
+        started_s = self.bench.now() if timed else None
+        if streams:
+            self._stream_calibration(n_views, captured, started_s)
+        else:
+            self._take_calibration_views(n_views, captured, started_s)
+
+    def _presented(self, captured: Captured, started_s: float | None, views: int, seconds: float | None = None) -> None:
+        """Record how long the board's presentations took (the next plan's estimate reads it: campaign/presentation.py):
+        from the first view asked for to the last one taken, on the bench's clock."""
+        if started_s is None or views <= 0:
+            return
+        if seconds is None:
+            seconds = max(self.bench.now() - started_s, 0.0)
+        self._publish(Draft(PresentationTimeEvent, config_id=captured.configuration.config_id, data={
+            "views": views, "seconds": seconds, "capture": self.config.calibration_capture,
+            "clock": "bench" if self.bench.kind in ("simulated", "bring-up") else "wall"}))
+
+    def _stream_calibration(self, n_views: int, captured: Captured, started_s: float | None) -> None:
+        """Views taken automatically: pair after pair of the cameras' stream offered to a
+        :class:`~stereo_bench.campaign.autocapture.ViewSelector`, which keeps the still, new, whole ones, until the
+        coverage gate opens (at least ``n_views``), the operator ends it (Enter) or the presenter has nothing more
+        to show. Kept views are recorded as calibration views (``data.auto``: when and why); every pair's decision
+        goes into one ``calibration_selection`` event. Pairs not kept are not recorded (their decisions are)."""
+        from drivers.camera.stereo import StereoSkewError
+        from stereo_bench.campaign.autocapture import AutoCaptureRule, ViewSelector
+
+        presenter = self.bench.presenter
+        capture = self.config.capture
+        rule = AutoCaptureRule(gate=capture.coverage_gate, min_views=n_views,
+                               max_views=max(capture.max_calibration_views, n_views))
+        configuration = captured.configuration
+        as_detections = not self._keeps_frames(CalibrationViewEvent)
+        selector: ViewSelector | None = None
+        ticket = None
+        prompt_shown_s = None
+        offered = unpaired = in_a_row = 0
+        ended_by = "the coverage gate"
+        first_s = last_s = None
+        try:
+            while True:
+                self._between_steps()
+                if selector is not None and selector.gate_open()[0]:
+                    break
+                if ticket is not None and ticket.done:
+                    ended_by = f"the operator ({ticket.answered_by})" if ticket.answered_by else "the operator"
+                    break
+                if not presenter.next_stream_frame(offered):
+                    ended_by = "the presenter (every pose presented)"
+                    break
+                try:
+                    pair = self.bench.cameras.capture_pair()
+                except StereoSkewError:  # no pair within [cameras] max_skew_s: the stream goes on without it
+                    unpaired += 1
+                    in_a_row += 1
+                    if in_a_row > MAX_UNPAIRED_IN_A_ROW:
+                        raise
+                    continue
+                in_a_row = 0
+                left_image, right_image = pair.left.image, pair.right.image
+                if selector is None:
+                    height, width = left_image.shape[:2]
+                    selector = ViewSelector(rule, self.calibration_board, (width, height))
+                left_found = self._side_detector.submit(_detect_or_none_quiet, left_image, self.calibration_board,
+                                                        as_detections)
+                right = _detect_or_none_quiet(right_image, self.calibration_board, as_detections)
+                left = left_found.result()
+                time_s = float(pair.left.timestamp_s)
+                first_s = time_s if first_s is None else first_s
+                last_s = time_s
+                decision = selector.offer(time_s, left, right)
+                if decision.kept:
+                    index = selector.n_kept - 1
+                    self._record_pair(CalibrationViewEvent, index, configuration, pair, auto={
+                        "time_s": time_s, "offered": offered, "speed_px_s": decision.speed_px_s,
+                        "novelty": None if decision.novelty is None or not np.isfinite(decision.novelty)
+                        else decision.novelty})
+                    found = (_done(left), _done(right))
+                    if as_detections:
+                        self._publish_detections(configuration.config_id, index, found)
+                    if presenter.wants_detections:
+                        presenter.calibration_view_captured(index, left, right)
+                    captured.calibration_pairs.append((left_image, right_image))
+                    captured.calibration_detections.append(found)
+                if offered == 0:  # what the operator is told meanwhile (a background prompt: Enter ends it)
+                    prompt = presenter.stream_prompt(selector.n_kept, selector.gate_open()[1])
+                    if prompt is not None:
+                        prompt_shown_s = _wall()
+                        ticket = self.desk.open(prompt)
+                offered += 1
+                self._collect(block=False)
+        finally:
+            if ticket is not None:
+                self.desk.close(ticket, reason=f"done: {ended_by} ended the collection"
+                                if not ticket.done else None)
+        if ticket is not None:
+            self._publish(Draft(PromptEvent, config_id=configuration.config_id, data={
+                "prompt": ticket.prompt.kind, "message": ticket.prompt.message, "index": None,
+                "answered_by": ticket.answered_by or "coverage gate", "waited_s": max(_wall() - prompt_shown_s, 0.0)}))
+        n_kept = 0 if selector is None else selector.n_kept
+        collect_s = 0.0 if first_s is None else last_s - first_s
+        simulated = self.bench.kind in ("simulated", "bring-up")
+        self._publish(Draft(CalibrationSelectionEvent, config_id=configuration.config_id, data={
+            "rule": dict(rule.__dict__), "offered": offered, "kept": n_kept, "unpaired": unpaired,
+            "tally": {} if selector is None else selector.tally(), "ended_by": ended_by,
+            "gate": "nothing offered" if selector is None else selector.gate_open()[1],
+            "started_s": first_s, "ended_s": last_s, "collect_s": collect_s,
+            "clock": "bench" if simulated else "cameras",
+            "decisions": [] if selector is None else [
+                (d.time_s, d.reason, d.speed_px_s, None if d.novelty is None or not np.isfinite(d.novelty)
+                 else d.novelty) for d in selector.decisions],
+            "coverage": None if selector is None else {side: [bar.as_dict() for bar in selector.coverage.bars(side)]
+                                                       for side in ("left", "right")}}))
+        self._presented(captured, started_s, n_kept)
+        self._start_calibration(captured)
+
+    def _take_calibration_views(self, n_views: int, captured: Captured, started_s: float | None) -> None:
+        """One view per ``present_calibration_view`` (Enter at the bench; the simulator's next pose; a replay's next
+        recorded view), then the review, then the calibration starts."""
+        presenter = self.bench.presenter
         as_detections = not self._keeps_frames(CalibrationViewEvent)  # recorded instead of the frames
         index = 0
+        presented_s = None
         while True:
             self._between_steps()
             reviewing = index >= n_views  # at the bench: one look at the views before calibrating
@@ -612,6 +756,7 @@ class CampaignRunner:
                     self._discard_calibration_view(index, captured, answer)
                     continue
             if reviewing:
+                self._presented(captured, started_s, len(captured.calibration_pairs), seconds=presented_s)
                 self._start_calibration(captured)
                 return
             left, right = self._capture(CalibrationViewEvent, index, captured.configuration)
@@ -631,6 +776,8 @@ class CampaignRunner:
             captured.calibration_pairs.append((left, right))
             captured.calibration_detections.append(found)
             index += 1
+            if started_s is not None and index >= n_views:  # the last view is taken: its review is not presenting
+                presented_s = max(self.bench.now() - started_s, 0.0)
 
     def _start_calibration(self, captured: Captured) -> None:
         """Per-config extrinsics: calibrate from the views just taken while the measurement frames are captured.
@@ -639,17 +786,70 @@ class CampaignRunner:
         numbers); queued on the analysis pool before that configuration's ``_analyse``, which waits for it.
         The pool takes tasks in order, so a waiting ``_analyse`` never holds up the calibration it waits for.
         """
-        if isinstance(captured.configuration, Configuration):
-            self._extrinsics.after_calibration_views(
-                captured, lambda: self._analysis.submit(self._calibrate, captured))
+        if not isinstance(captured.configuration, Configuration):
+            return
+        calibration = self.config.calibration
+        captured.exclude = {i: "excluded by [calibration] exclude_views" for i in calibration.exclude_views
+                            if i < len(captured.calibration_pairs)}
+        captured.max_view_rms_px = calibration.max_view_rms_px
+        recorded = self.bench.recorded_exclusions
+        if recorded is not None:  # a replay: what the operator's review chose when it was recorded
+            chosen = recorded(captured.configuration.config_id)
+            if chosen is not None:
+                captured.exclude, captured.max_view_rms_px = dict(chosen[0]), chosen[1]
+        elif (calibration.review_for(self.config.cameras.kind) and self._extrinsics.calibrates_each_configuration
+              and captured.calibration_pairs):
+            self._review_calibration(captured)
+            return
+        self._extrinsics.after_calibration_views(
+            captured, lambda: self._analysis.submit(self._calibrate, captured))
 
     def _calibrate(self, captured: Captured) -> ConfigurationAnalysis:
         options = self.options
+        calibration = self.config.calibration
+        exclude = captured.exclude
+        if exclude is None:
+            exclude = {i: "excluded by [calibration] exclude_views" for i in calibration.exclude_views}
+        threshold = captured.max_view_rms_px if captured.exclude is not None else calibration.max_view_rms_px
         return calibrate_configuration(captured.calibration_pairs, self.calibration_board,
                                        intrinsics=options.intrinsics, mode=options.intrinsics_mode,
                                        intrinsics_covariance=options.intrinsics_covariance,
                                        detections=captured.detections(),
-                                       lens_model=self.config.extrinsics.lens_model_for(self.config.cameras.kind))
+                                       lens_model=self.config.extrinsics.lens_model_for(self.config.cameras.kind),
+                                       exclude=exclude, max_view_rms_px=threshold)
+
+    def _review_calibration(self, captured: Captured) -> None:
+        """The operator's review of a configuration's per-view errors before it is measured (``[calibration]
+        review``): a one-screen summary (:func:`stereo_bench.campaign.review.review_message`) whose answers set the
+        threshold (``t PX``), exclude or include a view (``x N``), recalibrate (``r``) or accept (Enter). The
+        calibration accepted is the one measured with (a failed one fails the configuration); what it left out is
+        recorded (``calibration_exclusions``), and a replay leaves out the same."""
+        from stereo_bench.campaign.review import ReviewState, review_prompt
+
+        config_id = captured.configuration.config_id
+        state = ReviewState(n_views=len(captured.calibration_pairs), exclude=dict(captured.exclude or {}),
+                            threshold=captured.max_view_rms_px)
+        recalibrations = 0
+        while True:
+            captured.exclude, captured.max_view_rms_px = dict(state.exclude), state.threshold
+            calibrated: Future = self._analysis.submit(self._calibrate, captured)
+            try:
+                state.shown(calibrated.result(), None)
+            except AnalysisError as error:
+                state.shown(None, str(error))
+            while True:
+                answer = self._ask(review_prompt(config_id, state))
+                if answer.action == CONTINUE or state.answer(answer.action, answer.value):
+                    break  # accepted, or recalibrate
+            if answer.action == CONTINUE:
+                break
+            recalibrations += 1
+        captured.exclude, captured.max_view_rms_px = state.applied_exclude, state.applied_threshold
+        captured.calibration = calibrated  # the one shown and accepted: measured with, or failing the configuration
+        self._publish(Draft(CalibrationExclusionsEvent, config_id=config_id, data={
+            "excluded": [[index, why] for index, why in sorted(state.applied_exclude.items())],
+            "max_view_rms_px": state.applied_threshold, "recalibrations": recalibrations,
+            "answered_by": answer.operator}))
 
     def _discard_calibration_view(self, index: int, captured: Captured, answer: Answer) -> None:
         """Drop kept view ``index`` (the last one) so that it is taken again; its frames stay recorded."""
@@ -799,6 +999,21 @@ def _detect_or_none(image: np.ndarray, target, partial: bool):
         return detect(image, target, partial=partial)
     except AmbiguousViewError:
         return _AMBIGUOUS
+
+
+def _detect_or_none_quiet(image: np.ndarray, board, noise: bool):
+    """A streamed pair's detection of the calibration board, None when it is absent or cannot be read."""
+    try:
+        return detect(image, board, noise=noise)
+    except (ValueError, AmbiguousViewError, np.linalg.LinAlgError):
+        return None
+
+
+def _wall() -> float:
+    """Monotonic wall seconds: how long a prompt waited for the operator (as the operator desk measures it)."""
+    import time
+
+    return time.monotonic()
 
 
 def _record_or_none(future: Future):

@@ -1,6 +1,6 @@
 """``stereo-bench campaign``: plan (dry run), schema, presets; ``run`` is registered by :mod:`campaign_run`.
 
-    stereo-bench campaign plan PLAN.toml [--json] [--steps]
+    stereo-bench campaign plan PLAN.toml [--json] [--steps] [--out SESSION_DIR]
     stereo-bench campaign plan --preset paper-exp1
     stereo-bench campaign schema
     stereo-bench campaign presets [--json]
@@ -13,11 +13,13 @@ Exit status: 0 done; 2 for a config the user can fix (one line naming the file a
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from stereo_bench.campaign import presentation
 from stereo_bench.campaign.config import (
     PRESETS,
     CampaignConfig,
@@ -47,6 +49,10 @@ def register(subparsers) -> None:
     plan.add_argument("--json", action="store_true",
                       help="print one JSON object {configurations, predicted_duration_s, n_steps, infeasible, ...}")
     plan.add_argument("--steps", action="store_true", help="also list every step (move, settle, capture, ...)")
+    plan.add_argument("--out", type=Path, metavar="DIR",
+                      help="the session directory the run will write: the seconds per board presentation that "
+                           f"earlier runs measured beside it ({presentation.FILE_NAME} in its parent) replace the "
+                           "assumed 5 s")
     plan.set_defaults(func=_cmd_plan)
 
     schema = actions.add_parser("schema", help="print the JSON Schema of a campaign config")
@@ -68,7 +74,11 @@ def format_duration(seconds: float) -> str:
 
 def _cmd_plan(args) -> int:
     config = config_from_args(args.plan_file, args.preset)
-    summary = plan_summary(config)
+    measured, note = presentation.read_beside(args.out) if args.out is not None else (None, None)
+    if note is not None:
+        print(f"note: {note}: the assumed 5 s per presentation is used", file=sys.stderr)
+    summary = plan_summary(config, presentation=measured)
+    summary["presentation_time"]["file"] = str(presentation.beside(args.out)) if args.out is not None else None
     source = f"preset {args.preset}" if args.preset else str(args.plan_file)
     if args.json:
         if not args.steps:
@@ -114,11 +124,22 @@ def _plan_text(config: CampaignConfig, summary: dict[str, Any], *, source: str, 
         f"predicted duration: {format_duration(summary['predicted_duration_s'])} ({parts})",
         "assumed: " + "; ".join(duration["assumptions"]),
     ]
+    if config.cameras.kind != "simulated":  # boards presented by hand: where their time comes from
+        lines.append(_presentation_text(summary["presentation_time"]))
     if with_steps:
         lines += ["", "steps:"]
         lines += [f"{i:>5}  " + _step_text(step) for i, step in enumerate(summary["steps"])]
     lines.append("dry run: nothing moved, no port opened")
     return "\n".join(lines)
+
+
+def _presentation_text(figure: dict[str, Any]) -> str:
+    """Where the seconds per board presentation come from: measured by an earlier run (which file), or assumed."""
+    if figure["source"] == "measured":
+        return f"presentation time: measured, {figure['s_per_calibration_view']:.2f} s per view, from {figure['file']}"
+    where = (f"no measured figure in {figure['file']}" if figure.get("file")
+             else "pass --out SESSION_DIR to use the figure earlier runs measured beside it")
+    return f"presentation time: assumed, {figure['s_per_calibration_view']:g} s per view ({where})"
 
 
 def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[str]:
@@ -168,6 +189,15 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
                  f"{actions['placements']} board placements, {actions['target_moves']} target moves"
                  + (f", {actions['manual_settings']} other manual settings" if actions["manual_settings"] else "")
                  + ")")
+    capture = config.capture
+    if counts["total"] and config.calibration_capture == "auto":
+        gate = ("every coverage bar full" if capture.coverage_gate == "bars" else "the count")
+        lines.append(f"calibration views taken automatically when the board is still and new, until {gate} (at "
+                     f"least {capture.calibration_views}, at most "
+                     f"{max(capture.max_calibration_views, capture.calibration_views)} per set; Enter ends a set early)"
+                     + (": the simulated hand presents the board" if config.cameras.kind == "simulated" else ""))
+    elif counts["total"] and config.cameras.kind != "simulated":
+        lines.append("calibration views taken one per Enter ([capture] calibration_capture = \"enter\")")
     return lines
 
 

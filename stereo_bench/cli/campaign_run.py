@@ -25,6 +25,7 @@ import sys
 import time
 from pathlib import Path
 
+from stereo_bench.campaign import presentation
 from stereo_bench.cli import (
     EXIT_BROKEN_PIPE,
     EXIT_FAILED,
@@ -36,7 +37,7 @@ from stereo_bench.cli import (
     output_gone,
     silence_stdout,
 )
-from stereo_bench.cli.args import TIME_SCALE, int_in, output_dir
+from stereo_bench.cli.args import TIME_SCALE, finite_float, int_in, output_dir
 from stereo_bench.cli.progress import Progress
 
 
@@ -52,17 +53,19 @@ def config_from_args(plan_file: Path | None, preset: str | None, *, time_scale: 
 
 
 def preflight_from_args(plan_file: Path | None, preset: str | None, *, time_scale: float | None = None,
-                        sim: str | None = None, session: Path | None = None):
+                        sim: str | None = None, session: Path | None = None, calibration: dict | None = None):
     """:func:`config_from_args`'s config with what its preflight read (:class:`stereo_bench.campaign.preflight.
-    Preflight`): ``campaign run`` hands it to ``run_campaign``, which then reads no input file again."""
+    Preflight`): ``campaign run`` hands it to ``run_campaign``, which then reads no input file again.
+    ``calibration``: ``[calibration]`` keys given as options (--max-view-rms-px, --exclude-views, --no-review)."""
     from drivers.files import read_once
 
     with read_once():  # the campaign file, the files it names: each read once, by the loader and the preflight
-        return _preflight_from_args(plan_file, preset, time_scale=time_scale, sim=sim, session=session)
+        return _preflight_from_args(plan_file, preset, time_scale=time_scale, sim=sim, session=session,
+                                    calibration=calibration or {})
 
 
 def _preflight_from_args(plan_file: Path | None, preset: str | None, *, time_scale: float | None,
-                         sim: str | None, session: Path | None):
+                         sim: str | None, session: Path | None, calibration: dict):
     if plan_file is not None and preset is not None:
         raise CliError("give a campaign file or --preset NAME, not both")
     if plan_file is None and preset is None and session is None:
@@ -85,6 +88,8 @@ def _preflight_from_args(plan_file: Path | None, preset: str | None, *, time_sca
         if config.cameras.kind != "simulated":
             raise CliError("--sim applies to simulated cameras only (the simulated bench or bring-up)")
         config = _override(config, "sim", "profile", sim, "--sim")
+    for key, (value, option) in calibration.items():
+        config = _override(config, "calibration", key, value, option)
     from stereo_bench.campaign.preflight import preflight
 
     # What run checks before moving, checked for plan too; run_campaign takes it (it checks only when not given one).
@@ -142,6 +147,17 @@ def add_ui_options(parser: argparse.ArgumentParser, *, required: bool = False) -
                              "free one)")
 
 
+def _view_list(text: str) -> list[int]:
+    """--exclude-views: 'N,N,...' (view indices from 0)."""
+    try:
+        views = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give view indices separated by commas, e.g. 0,3") from None
+    if not views or min(views) < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: give view indices from 0 separated by commas, e.g. 0,3")
+    return views
+
+
 def _resume_command(args: argparse.Namespace, out: Path) -> str:
     """The command that continues the session in ``out``: no campaign file, so the config is the one the session
     recorded, with every option that went into it (``--time-scale``, ``--sim``, the file's own values); ``--yes``
@@ -190,8 +206,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     from stereo_bench.campaign.stream import JsonLines
 
     out = Path(args.out)
+    calibration = {key: (value, option) for key, value, option in (
+        ("max_view_rms_px", args.max_view_rms_px, "--max-view-rms-px"),
+        ("exclude_views", args.exclude_views, "--exclude-views"),
+        ("review", False if args.no_review else None, "--no-review")) if value is not None}
     checked = preflight_from_args(Path(args.plan) if args.plan else None, args.preset, time_scale=args.time_scale,
-                                  sim=args.sim, session=out if args.resume else None)
+                                  sim=args.sim, session=out if args.resume else None, calibration=calibration)
     config = checked.config
     if args.yes and config.cameras.kind != "simulated":
         raise CliError("--yes lets the simulator do the manual steps, for simulated cameras only; at the real "
@@ -203,7 +223,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     plan = CampaignPlan.of(config)  # expanded once: the progress bar and the run share it
     resume_command = _resume_command(args, out)
     control = RunControl()
-    progress = Progress(plan, config, quiet=args.quiet)
+    # The seconds per board presentation earlier runs measured beside this session (campaign/presentation.py).
+    measured, note = presentation.read_beside(out)
+    if note is not None:
+        print(f"note: {note}: the ETA assumes 5 s per presentation", file=sys.stderr)
+    progress = Progress(plan, config, quiet=args.quiet, presentation=measured)
     # The terminal's prompts suspend the progress line: the prompt is the last thing on the screen.
     operators, frame_subscribers, page = default_operators(config, yes=args.yes, display=progress), [], None
     if args.ui:  # before the progress bar: an address it cannot serve on is one line
@@ -344,6 +368,15 @@ def register_run(subparsers) -> None:
     run.add_argument("--sim", choices=("lab", "ideal"),
                      help="simulated cameras: the simulated bench's profile, 'lab' (a bench as built: the default) or "
                           "'ideal' (perfect mechanics, optics and boards); replaces [sim] profile, keeps its overrides")
+    run.add_argument("--max-view-rms-px", type=finite_float(min=0.0, inclusive=(False, True), unit="px"), metavar="PX",
+                     help="leave out of each configuration's calibration the views whose RMS (the worse camera's) "
+                          "exceeds PX and calibrate again without them; replaces [calibration] max_view_rms_px")
+    run.add_argument("--exclude-views", type=_view_list, metavar="N,N,...",
+                     help="calibration views (indices within each configuration, from 0) left out of every "
+                          "per-configuration calibration; replaces [calibration] exclude_views")
+    run.add_argument("--no-review", action="store_true",
+                     help="do not stop after each configuration's calibration for the operator's review of its "
+                          "per-view errors (the default with v4l2 cameras); replaces [calibration] review")
     run.add_argument("--json", action="store_true",
                      help="print every document (start, events, results, stop) as one JSON line on stdout, as it "
                           "is recorded; the summary goes to stderr")

@@ -89,11 +89,20 @@ class ProgressLine:
             self._emit(CLEAR_LINE + self._line())
             self._drawn = True
 
+    def _erase(self) -> str:
+        """What erases the status line, or a prompt however many rows it takes (wrapped, or of several lines: the
+        per-view review), the cursor left where it began."""
+        if self._prompt is None:
+            return CLEAR_LINE
+        columns = max(terminal_columns(self.stream), 1)
+        rows = sum(max(1, math.ceil(len(line) / columns)) for line in (PROMPT_MARK + self._prompt + " ").split("\n"))
+        return "\r" + (f"\x1b[{rows - 1}A" if rows > 1 else "") + "\x1b[J"
+
     def write(self, text: str) -> None:
         """A line above the status line (and above a prompt that waits, drawn again under it)."""
         with self._lock:
             if self.draw:
-                self._emit(CLEAR_LINE + text + "\n")
+                self._emit(self._erase() + text + "\n")
                 self._drawn = False
                 if self._prompt is not None:
                     self._emit(PROMPT_MARK + self._prompt + " ")
@@ -192,20 +201,28 @@ class Progress:
     """
 
     def __init__(self, plan, config, *, quiet: bool, stream: IO[str] | None = None,
-                 clock: Callable[[], float] = time.monotonic, refresh_s: float | None = 1.0):
-        from stereo_bench.campaign.documents import MoveEvent, PromptEvent, ResultDocument, ResumeDocument
+                 clock: Callable[[], float] = time.monotonic, refresh_s: float | None = 1.0, presentation=None):
+        from stereo_bench.campaign.documents import (
+            CalibrationSelectionEvent,
+            CalibrationViewEvent,
+            MoveEvent,
+            PromptEvent,
+            ResultDocument,
+            ResumeDocument,
+        )
         from stereo_bench.campaign.eta import EtaTracker, forecast_groups
         from stereo_bench.campaign.router import DocumentRouter
 
         self._router = (DocumentRouter().on(ResumeDocument, self._resumed).on(MoveEvent, self._moved)
-                        .on(PromptEvent, self._prompted).on(ResultDocument, self._result))
+                        .on(PromptEvent, self._prompted).on(ResultDocument, self._result)
+                        .on(CalibrationViewEvent, self._view_kept).on(CalibrationSelectionEvent, self._selected))
         self.name, self.total, self.done = config.name, len(plan.configurations), 0
         self.quiet = quiet
         self.status = ""
         self.clock = clock
         self.started_s = clock()
         self._epoch_offset_s = time.time() - self.started_s  # epoch time stamps (a rig reading's) on this clock
-        self.eta = EtaTracker(forecast_groups(config, plan.steps), start_s=self.started_s)
+        self.eta = EtaTracker(forecast_groups(config, plan.steps, presentation=presentation), start_s=self.started_s)
         self.etas: list[tuple[float, float]] = []  # (elapsed, ETA) at every marker: what the line showed
         stream = stream or sys.stderr
         self.line = ProgressLine(stream, draw=not quiet and is_terminal(stream), render=self.render,
@@ -242,6 +259,30 @@ class Progress:
         if document.data.answered_by != "simulator":
             self.status = f"{document.data.prompt} done by {document.data.answered_by}"
         self.line.refresh()
+
+    def _view_kept(self, document) -> None:
+        """A view taken automatically: a line (above the operator's prompt while it waits: the operator presents
+        the board and wants to know a pose was taken; the event may arrive just after the prompt ended)."""
+        auto = document.data.auto
+        if auto is None:
+            return
+        speed = "" if auto.speed_px_s is None else f", corners at {auto.speed_px_s:.0f} px/s"
+        new = "" if auto.novelty is None else f", new by {auto.novelty:.2f}"
+        text = f"calibration view {document.data.index + 1} kept ({document.config_id}{speed}{new})"
+        if self.quiet:
+            self.status = text
+            self.line.refresh()
+        else:
+            self.line.write(text)
+
+    def _selected(self, document) -> None:
+        data = document.data
+        rejected = ", ".join(f"{why} {n}" for why, n in data.tally.items() if why != "kept" and n)
+        text = (f"{document.config_id}: {data.kept} calibration views kept of {data.offered} pairs"
+                + (f" ({rejected})" if rejected else "") + f"; {data.ended_by} ended it")
+        if self.quiet:
+            return
+        self.line.write(text)
 
     def _result(self, document) -> None:
         self.done += 1

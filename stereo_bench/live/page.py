@@ -55,18 +55,19 @@ class PageOperator:
             self._ticket = None
         self.state.set_prompt(None)
 
-    def answer(self, action: str) -> tuple[int, str]:
-        """Answer the prompt shown with ``action``: (HTTP status, message)."""
+    def answer(self, action: str, value: float | None = None) -> tuple[int, str]:
+        """Answer the prompt shown with ``action`` (``value``: its number, where it takes one): (HTTP status,
+        message)."""
         with self._lock:
             ticket = self._ticket
         if ticket is None:
             return 409, "no prompt is waiting for an answer"
         if action not in ticket.prompt.actions:
             return 409, f"this prompt accepts {', '.join(ticket.prompt.actions)}, not {action}"
-        if not ticket.answer(self.name, action):
+        if not ticket.answer(self.name, action, value):
             return 409, f"already answered by {ticket.answered_by}"
         self.withdraw(ticket)
-        return 200, f"{action.replace('_', ' ')}: done"
+        return 200, f"{action.replace('_', ' ')}" + ("" if value is None else f" {value:g}") + ": done"
 
 
 class LivePage:
@@ -144,10 +145,10 @@ class LivePage:
 
     # -- controls (from the server's thread) ------------------------------------------------------------------
 
-    def control(self, action: str) -> tuple[int, str]:
-        """Carry out a control action: (HTTP status, message)."""
+    def control(self, action: str, value: float | None = None) -> tuple[int, str]:
+        """Carry out a control action (``value``: a prompt answer's number): (HTTP status, message)."""
         if action in ACTIONS:
-            return self.operator.answer(action)
+            return self.operator.answer(action, value)
         control = self.control_target
         if control is None:
             return 409, "no campaign is running: this page only previews"

@@ -33,7 +33,9 @@ from pathlib import Path
 
 STATIC_FILES = {"index.html": "text/html; charset=utf-8", "live.js": "text/javascript; charset=utf-8",
                 "live.css": "text/css; charset=utf-8"}
-CONTROL_ACTIONS = ("continue", "capture_now", "discard_last_view", "pause", "resume", "stop")
+CONTROL_ACTIONS = ("continue", "capture_now", "discard_last_view", "set_threshold", "exclude_view", "recalibrate",
+                   "pause", "resume", "stop")
+VALUED_ACTIONS = ("set_threshold", "exclude_view")  # ?value=: a threshold (px), a view's index
 MAX_UPDATES_PER_S = 5.0
 KEEPALIVE_S = 15.0
 
@@ -263,7 +265,14 @@ class LiveApp:
         if action not in CONTROL_ACTIONS:
             return JSONResponse({"ok": False, "message": f"unknown action {action!r}; known: "
                                                          f"{', '.join(CONTROL_ACTIONS)}"}, status_code=404)
-        status, message = await asyncio.to_thread(self.page.control, action)
+        value = None
+        if action in VALUED_ACTIONS:
+            try:
+                value = float(request.query_params.get("value", ""))
+            except ValueError:
+                return JSONResponse({"ok": False, "message": f"{action.replace('_', ' ')} needs ?value= (a number: "
+                                                             "a threshold in px, a view's index)"}, status_code=400)
+        status, message = await asyncio.to_thread(self.page.control, action, value)
         return JSONResponse({"ok": status == 200, "message": message}, status_code=status)
 
 

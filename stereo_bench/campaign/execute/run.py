@@ -42,6 +42,11 @@ class RunSummary:
     skipped: int = 0
     plan_drift: str | None = None
     reason: str | None = None
+    # The presentation time this run measured (campaign/presentation.py) and where it was written (None: nothing
+    # presented by hand, or the directory beside the session cannot be written: ``presentation_note`` says why).
+    presentation: object | None = None
+    presentation_file: Path | None = None
+    presentation_note: str | None = None
 
     def counts(self) -> dict[str, int]:
         counts: dict[str, int] = {}
@@ -163,7 +168,23 @@ def run_campaign(
         raise
     summary.exit_status, summary.reason = status, reason
     summary.rows = collector.rows
+    _write_presentation_time(summary, collector)
     return summary
+
+
+def _write_presentation_time(summary: RunSummary, collector: Collector) -> None:
+    """The seconds per board presentation this run measured, beside its session: the next plan's estimate."""
+    from stereo_bench.campaign.documents import PresentationTimeEvent
+    from stereo_bench.campaign.presentation import PresentationTime, write_beside
+
+    measured = PresentationTime.of_events(collector.of(PresentationTimeEvent), session=summary.session.name)
+    if measured is None:
+        return
+    summary.presentation = measured
+    try:
+        summary.presentation_file = write_beside(summary.session, measured)
+    except OSError as error:  # the measurement is in the session's events all the same
+        summary.presentation_note = f"presentation time not written beside {summary.session}: {error}"
 
 
 def recorded_config(session_dir: str | Path) -> CampaignConfig:

@@ -11,12 +11,7 @@ from drivers.rig.motion import REFERENCE_AXIS_MOTION, REFERENCE_HOMING, homing_t
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.plan.configurations import Configuration
 from stereo_bench.campaign.plan.steps import Step
-from stereo_bench.campaign.plan.timing import (
-    OPERATOR_S_PER_BOARD_PLACEMENT,
-    OPERATOR_S_PER_CALIBRATION_VIEW,
-    OPERATOR_S_PER_PROMPT,
-    DurationModel,
-)
+from stereo_bench.campaign.plan.timing import OPERATOR_S_PER_BOARD_PLACEMENT, OPERATOR_S_PER_PROMPT, DurationModel
 
 
 @dataclass(frozen=True)
@@ -43,7 +38,7 @@ class DurationEstimate:
 
 
 def estimate_duration(config: CampaignConfig, configurations: Sequence[Configuration],
-                      steps: Sequence[Step]) -> DurationEstimate:
+                      steps: Sequence[Step], *, presentation=None) -> DurationEstimate:
     """How long the campaign should take, step by step.
 
     - Motion: each Move as one straight GRBL move from the previous position (the first from where
@@ -59,13 +54,14 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
       case). On the simulated rig, homing and motion run ``time_scale`` times faster.
     - Settle as configured. Frames: one exposure each on simulated cameras; max(exposure, 1/fps) on
       V4L2 (30 fps assumed when not set); a V4L2 flush discards ``buffer_count`` frames.
-    - Operator: 30 s per prompt and 5 s per calibration view presented by hand, where a human does it:
+    - Operator: 30 s per prompt and 5 s per calibration view presented by hand (or ``presentation``'s measured
+      seconds per view: :mod:`stereo_bench.campaign.presentation`), where a human does it:
       boards and the target stand in the cameras' world (none with simulated cameras, bring-up
       included), a manual rig quantity on the rig (none on the simulated rig).
     - Not included: computation (rendering, detection, calibration) and parking the rig at the end.
     """
     del configurations  # the steps carry what is needed; the argument keeps the documented signature
-    model = DurationModel.of(config)
+    model = DurationModel.of(config, presentation)
     travel, speed_factor = model.rig_config.machine_travel(), model.speed_factor
     real_scene, frame_s, flush_frames = model.real_scene, model.frame_s, model.flush_frames
     human = real_scene or model.real_rig
@@ -83,11 +79,10 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
         + (f", simulated rig {speed_factor:g}x faster than real time" if speed_factor != 1.0 else ""),
         f"{frame_s:g} s per stereo frame" + ("" if config.cameras.kind == "simulated"
                                               else f", {flush_frames} frames per flush"),
-        (f"operator {OPERATOR_S_PER_PROMPT:g} s per prompt and {OPERATOR_S_PER_CALIBRATION_VIEW:g} s per "
-         "calibration view done by hand"
-         + (f", {OPERATOR_S_PER_BOARD_PLACEMENT:g} s to place the fixed board" if config.extrinsics.fixed_board
-            else "") + ("" if real_scene else " (the scene is simulated: boards and target "
-                                                                   "placed by the simulator)")
+        (f"operator {OPERATOR_S_PER_PROMPT:g} s per prompt; " + model.presentation_source
+         + (f", {OPERATOR_S_PER_BOARD_PLACEMENT:g} s to place the fixed board (assumed)"
+            if config.extrinsics.fixed_board else "")
+         + ("" if real_scene else " (the scene is simulated: boards and target placed by the simulator)")
          if human else "no operator time: rig and cameras simulated"),
         "computation (rendering, detection, calibration) not included",
     ) + ((f"homing at the reference rig's $25={REFERENCE_HOMING.seek_rate_per_min:g}, "

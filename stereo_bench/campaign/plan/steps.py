@@ -12,12 +12,7 @@ from drivers.rig.config import QUANTITIES, to_machine
 from drivers.rig.motion import move_time_s
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.plan.configurations import Configuration, Visit, plan_visits
-from stereo_bench.campaign.plan.timing import (
-    OPERATOR_S_PER_BOARD_PLACEMENT,
-    OPERATOR_S_PER_CALIBRATION_VIEW,
-    OPERATOR_S_PER_PROMPT,
-    DurationModel,
-)
+from stereo_bench.campaign.plan.timing import OPERATOR_S_PER_BOARD_PLACEMENT, OPERATOR_S_PER_PROMPT, DurationModel
 
 
 class StepKind:
@@ -160,7 +155,7 @@ class CaptureCalibration(StepKind):
     def estimate(self, model: DurationModel) -> None:
         model.capture_s += self.n_views * model.frame_s
         if not self.fixed_board:
-            model.operator_s += self.n_views * OPERATOR_S_PER_CALIBRATION_VIEW if model.real_scene else 0.0
+            model.operator_s += self.n_views * model.s_per_calibration_view if model.real_scene else 0.0
 
     @property
     def presentations(self) -> int:

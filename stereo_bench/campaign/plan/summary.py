@@ -11,6 +11,7 @@ from stereo_bench.campaign.plan.configurations import design_ranges, expand_plan
 from stereo_bench.campaign.plan.duration import estimate_duration
 from stereo_bench.campaign.plan.feasibility import FEASIBILITY_MARGIN_PX, MIN_CORNERS_IN_BOTH
 from stereo_bench.campaign.plan.steps import Presentations, Step, plan_steps
+from stereo_bench.campaign.plan.timing import OPERATOR_S_PER_CALIBRATION_VIEW
 
 
 def calibration_presentations(steps: Sequence[Step]) -> dict[str, int]:
@@ -72,12 +73,14 @@ def design_identifiability(config: CampaignConfig, visits: Sequence) -> list[dic
             for r in rows]
 
 
-def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN_PX) -> dict[str, Any]:
-    """Everything ``stereo-bench campaign plan`` reports, as one JSON-able object."""
+def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN_PX,
+                 presentation=None) -> dict[str, Any]:
+    """Everything ``stereo-bench campaign plan`` reports, as one JSON-able object; ``presentation``: a measured
+    :class:`~stereo_bench.campaign.presentation.PresentationTime` for the operator's presentations (None: assumed)."""
     configurations = expand_plan(config, margin_px=margin_px)
     visits = plan_visits(config, configurations)
     steps = plan_steps(config, configurations, visits)
-    estimate = estimate_duration(config, configurations, steps)
+    estimate = estimate_duration(config, configurations, steps, presentation=presentation)
     return {
         "extrinsics_mode": config.extrinsics.mode,
         "design": [v.as_dict() for v in visits],
@@ -88,6 +91,10 @@ def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGI
         "name": config.name,
         "configurations": [c.as_dict() for c in configurations],
         "predicted_duration_s": estimate.total_s,
+        "presentation_time": {"s_per_calibration_view": (presentation.seconds_per_view if presentation is not None
+                                                         else OPERATOR_S_PER_CALIBRATION_VIEW),
+                              "source": "measured" if presentation is not None else "assumed",
+                              "measured": None if presentation is None else presentation.model_dump()},
         "duration": estimate.as_dict(),
         "n_steps": len(steps),
         "steps": [s.as_dict() for s in steps],

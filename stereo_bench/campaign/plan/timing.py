@@ -49,10 +49,15 @@ class DurationModel:
     flush_s: float = 0.0
     capture_s: float = 0.0
     operator_s: float = 0.0
+    # Seconds per calibration view presented by hand: measured by an earlier run (campaign/presentation.py) or
+    # assumed; ``presentation_source`` says which.
+    s_per_calibration_view: float = OPERATOR_S_PER_CALIBRATION_VIEW
+    presentation_source: str = f"assumed {OPERATOR_S_PER_CALIBRATION_VIEW:g} s per calibration view done by hand"
 
     @classmethod
-    def of(cls, config: CampaignConfig) -> DurationModel:
-        """The model of ``config``'s bench, nothing counted yet, the axes where the emulator homes them."""
+    def of(cls, config: CampaignConfig, presentation=None) -> DurationModel:
+        """The model of ``config``'s bench, nothing counted yet, the axes where the emulator homes them;
+        ``presentation``: a measured :class:`~stereo_bench.campaign.presentation.PresentationTime` (None: assumed)."""
         rig_config = config.rig.rig_config()
         travel = rig_config.machine_travel()
         if config.cameras.kind == "simulated":
@@ -66,4 +71,6 @@ class DurationModel:
             feeds=rig_config.axis_feeds_per_min(),
             position={a: min(max(0.0, low), high) for a, (low, high) in travel.items()},  # the emulator's home
             real_scene=config.cameras.kind != "simulated", real_rig=config.rig.kind != "simulated",
-            frame_s=_frame_time_s(config), flush_frames=flush_frames)
+            frame_s=_frame_time_s(config), flush_frames=flush_frames,
+            **({} if presentation is None else {"s_per_calibration_view": presentation.seconds_per_view,
+                                                "presentation_source": presentation.describe()}))

@@ -24,10 +24,11 @@ function duration(seconds) {
 
 // -- controls ------------------------------------------------------------------------------------------------
 
-async function act(action) {
+async function act(action, value) {
   const box = $("message");
   try {
-    const response = await fetch(`/api/control/${action}`, {method: "POST", headers: {"X-Token": TOKEN}});
+    const query = value === undefined ? "" : `?value=${encodeURIComponent(value)}`;
+    const response = await fetch(`/api/control/${action}${query}`, {method: "POST", headers: {"X-Token": TOKEN}});
     const body = await response.json();
     box.textContent = body.message;
     box.className = response.ok ? "message" : "message error";
@@ -40,7 +41,10 @@ async function act(action) {
   act.timer = setTimeout(() => { box.hidden = true; }, 6000);
 }
 document.querySelectorAll("button[data-action]").forEach((button) => {
-  button.addEventListener("click", () => act(button.dataset.action === "pause" && state && state.run.paused ? "resume" : button.dataset.action));
+  button.addEventListener("click", () => {
+    if (button.dataset.input) return act(button.dataset.action, $(button.dataset.input).value);  // the review's t, x
+    act(button.dataset.action === "pause" && state && state.run.paused ? "resume" : button.dataset.action);
+  });
 });
 if (!TOKEN) $("readonly").hidden = false;
 
@@ -345,8 +349,15 @@ function renderPrompt(prompt, run) {
   const banner = $("prompt");
   banner.hidden = !prompt;
   const accepts = prompt ? prompt.actions : [];
-  for (const action of ["continue", "capture_now", "discard_last_view"]) $(action).disabled = !TOKEN || !accepts.includes(action);
-  if (prompt) $("prompt-message").textContent = prompt.message;
+  for (const action of ["continue", "capture_now", "discard_last_view", "set_threshold", "exclude_view", "recalibrate"]) {
+    $(action).disabled = !TOKEN || !accepts.includes(action);
+  }
+  // The per-view error review (several lines: the chart) with its threshold and exclude controls.
+  $("review-controls").hidden = !accepts.includes("set_threshold");
+  if (prompt) {
+    $("prompt-message").textContent = prompt.message;
+    $("prompt-message").classList.toggle("chart", prompt.message.includes("\n"));
+  }
   const live = ["running", "paused", "starting"].includes(run.status);
   $("pause").textContent = run.paused ? "Resume" : "Pause";
   $("pause").disabled = !TOKEN || !live;
