@@ -307,3 +307,37 @@ def test_previews_reach_the_page_as_their_own_events_unthrottled_and_change_no_s
     assert previews[-1][1] == {"version": 10, "source": "live", "corners": {"left": 54, "right": 54}}
     gaps = np.diff([at for at, _ in previews])
     assert len(previews) >= 2 and gaps.min() < 0.1  # not held to the state's 5 a second
+
+
+def test_the_pages_eta_is_the_terminals(small_reference):
+    """The page's ETA comes from the same tracker as the status line's (campaign/eta.py), fed the same events on
+    the same clock: the plan's time model corrected by what was measured, not a rate of its own."""
+    from stereo_bench.campaign.documents import MoveEvent, PromptEvent, StartDocument
+    from stereo_bench.campaign.eta import EtaTracker, forecast_groups
+    from stereo_bench.campaign.execute import CampaignPlan
+    from stereo_bench.campaign.recorded import RecordedStart
+    from stereo_bench.live.state import LiveState
+
+    now = [100.0]
+    state = LiveState(clock=lambda: now[0])
+    tracker = None
+    moves = 0
+    for document in SessionReader(small_reference).documents():
+        now[0] += 7.0  # every document a little later, on both sides
+        state(document)
+        if isinstance(document, StartDocument):
+            recorded = RecordedStart.of(document)
+            config = recorded.campaign
+            plan = CampaignPlan.of(config, recorded.configurations, recorded.visits)
+            tracker = EtaTracker(forecast_groups(config, plan.steps), start_s=now[0])
+        elif isinstance(document, MoveEvent):
+            tracker.moved(document.config_id, now[0])
+            moves += 1
+        elif isinstance(document, PromptEvent):
+            tracker.prompt_answered(document.data.waited_s)
+        if moves == 2:
+            break
+    assert moves == 2 and state.eta_tracker is not None
+    eta = state._eta()
+    assert eta["eta_s"] == pytest.approx(tracker.shown(now[0])) and eta["eta_s"] > 0
+    assert "as the terminal's" in eta["basis"]

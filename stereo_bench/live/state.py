@@ -89,6 +89,7 @@ class LiveState(DocumentRouter):
         self.plan: list[dict] = []
         self.varying: list[str] = []
         self.estimates_s: dict[str, float] = {}
+        self.eta_tracker = None  # campaign.eta.EtaTracker once the plan is known
         self.status: dict[str, str] = {}
         self.reasons: dict[str, str] = {}
         self.results: dict[str, dict] = {}
@@ -164,10 +165,15 @@ class LiveState(DocumentRouter):
             configurations = recorded.configurations
         except (KeyError, TypeError, ValueError):  # a plan this version does not read: no plan, no ETA
             configurations = []
-        self._set_plan(config, configurations)
+        try:
+            visits = recorded.visits
+        except (KeyError, TypeError, ValueError):
+            visits = []
+        self._set_plan(config, configurations, visits)
         self.views_expected = int(config.capture.calibration_views or 0) if config is not None else 0
 
-    def _set_plan(self, config: CampaignConfig | None, configurations: list[Configuration]) -> None:
+    def _set_plan(self, config: CampaignConfig | None, configurations: list[Configuration],
+                  visits: Sequence = ()) -> None:
         self.plan = [{key: getattr(c, key) for key in ("config_id", *PLAN_QUANTITIES, "toe_in_deg", "runnable",
                                                        "feasible", "reason", "status")} for c in configurations]
         self.varying = varying_quantities(configurations)
@@ -176,6 +182,18 @@ class LiveState(DocumentRouter):
             self.estimates_s = configuration_estimates_s(config, configurations) if config is not None else {}
         except Exception:  # noqa: BLE001 - e.g. a rig config file missing on this machine: no plan-based ETA
             self.estimates_s = {}
+        # The terminal's ETA (campaign/eta.py): the plan's time model corrected by what was measured so far,
+        # operator waits included; fed the same events, so the page and the status line agree.
+        self.eta_tracker = None
+        if config is not None and self.estimates_s:
+            from stereo_bench.campaign.eta import EtaTracker, forecast_groups
+            from stereo_bench.campaign.plan import plan_steps
+
+            try:
+                steps = plan_steps(config, configurations, list(visits))
+                self.eta_tracker = EtaTracker(forecast_groups(config, steps), start_s=self.clock())
+            except Exception:  # noqa: BLE001 - a plan this version cannot step through: the rate-based ETA
+                self.eta_tracker = None
 
     @handles(TranscriptEvent)
     def _transcript(self, doc: TranscriptEvent) -> None:
@@ -211,6 +229,8 @@ class LiveState(DocumentRouter):
     @handles(MoveEvent)
     def _move(self, doc: MoveEvent) -> None:
         self._rig_reading(doc, "move")
+        if self.eta_tracker is not None:
+            self.eta_tracker.moved(doc.config_id, self.clock())
 
     @handles(ApproachEvent)
     def _approach(self, doc: ApproachEvent) -> None:
@@ -268,6 +288,8 @@ class LiveState(DocumentRouter):
         data = doc.data
         if data.quantity is not None and data.value is not None:  # set by hand: what the operator confirmed
             self.manual[data.quantity] = data.value
+        if self.eta_tracker is not None and data.waited_s is not None:
+            self.eta_tracker.prompt_answered(data.waited_s)
         how = f" ({data.action.replace('_', ' ')})" if data.action else ""
         if data.answered_by != "simulator":
             self._note(f"{data.prompt.replace('_', ' ')} done by {data.answered_by}{how} after {data.waited_s:.1f} s")
@@ -345,6 +367,11 @@ class LiveState(DocumentRouter):
 
     def set_prompt(self, prompt: dict | None) -> None:
         with self._lock:
+            if self.eta_tracker is not None:
+                if prompt is not None and self.prompt is None:
+                    self.eta_tracker.prompt_shown(self.clock())
+                elif prompt is None:
+                    self.eta_tracker.prompt_ended()
             self.prompt = prompt
             self.version += 1
         self.on_change()
@@ -397,6 +424,10 @@ class LiveState(DocumentRouter):
                      if self.status.get(entry["config_id"]) not in FINAL and entry.get("runnable", True)]
         if not remaining:
             return {"eta_s": 0.0, "basis": "nothing left to run"}
+        if self.eta_tracker is not None:
+            return {"eta_s": self.eta_tracker.shown(self.clock()),
+                    "basis": "the plan's time model corrected by what was measured so far (operator waits "
+                             "included; computation not modelled), as the terminal's"}
         if self._finished_this_attempt and self._first_move_at is not None:
             rate = (self.clock() - self._first_move_at) / self._finished_this_attempt
             return {"eta_s": rate * len(remaining),
