@@ -113,9 +113,15 @@ def test_skipped_configurations_cost_nothing():
 
 
 @pytest.mark.slow
-def test_a_simulated_run_gives_an_eta_that_only_falls(tmp_path):
-    """The progress display's ETAs over a simulated run, on the bench clock (each group's first frame time)."""
-    config = small_config(plan={"baseline_mm": [100, 150], "distance_mm": [400, 450, 500], "alpha_deg": [90]})
+@pytest.mark.parametrize("capture", ["enter", "auto"])
+def test_a_simulated_run_gives_an_eta_that_only_falls(tmp_path, capture):
+    """The progress display's ETAs over a simulated run, on the bench clock (each group's first frame time); also
+    with views taken automatically while the simulated hand presents the board (its time is not in the plan's model
+    of a simulated scene: the measured correction carries it)."""
+    config = small_config(plan={"baseline_mm": [100, 150], "distance_mm": [400, 450, 500], "alpha_deg": [90]},
+                          # the count gate: the bars may never fill with the hand's poses (then all 40 are shown)
+                          capture={"calibration_capture": capture, "coverage_gate": "count"},
+                          sim={"hand_fps": 5.0} if capture == "auto" else {})
     plan = CampaignPlan.of(config)
     # The bench clock counts the rig's own seconds (time_scale only paces it against the wall): the plan's model
     # of the same campaign at time_scale 1 is its prediction.
