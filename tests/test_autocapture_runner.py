@@ -117,6 +117,18 @@ def test_a_session_of_views_taken_automatically_replays(hand_sessions):
     assert summary.from_detections == [auto.rows[0]["config_id"]]
 
 
+def test_a_replay_into_a_new_session_carries_how_the_views_were_taken(hand_sessions, tmp_path):
+    from stereo_bench.campaign.session import SessionReader
+
+    auto, _, _ = hand_sessions["auto"]
+    replay_session(auto.session, tmp_path / "again")
+    recorded, again = SessionReader(auto.session), SessionReader(tmp_path / "again")
+    for kind in ("calibration_selection", "presentation_time"):
+        before = [e.data.model_dump() for e in recorded.events(kind=kind, attempt=None)]
+        after = [e.data.model_dump() for e in again.events(kind=kind, attempt=None)]
+        assert before and after == before, kind
+
+
 BENCH = """\
 [plan]
 baseline_mm = [100, 150]

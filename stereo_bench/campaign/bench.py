@@ -100,6 +100,9 @@ class Bench:
     # A replay: what the operator's review left out of a configuration's calibration, ({index: why}, threshold px),
     # or None where it recorded no review.
     recorded_exclusions: Callable[[str], tuple[dict[int, str], float | None] | None] | None = None
+    # A replay: how a configuration's calibration views were taken, as recorded (its last ``calibration_selection``
+    # and ``presentation_time`` events: the replay copies them, as it takes no decision and measures no operator).
+    recorded_capture: Callable[[str], list] | None = None
 
     def grab_preview(self, width_px: int | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """(left, right, dt_s) for a live preview; only with the cameras borrowed (``camera_gate.borrowed()``).
@@ -584,9 +587,11 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     from stereo_bench.campaign.documents import (
         CalibrationDetectionsEvent,
         CalibrationExclusionsEvent,
+        CalibrationSelectionEvent,
         CalibrationViewEvent,
         MeasurementFrameEvent,
         MoveEvent,
+        PresentationTimeEvent,
         TruthEvent,
         json_safe,
     )
@@ -600,6 +605,10 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
     detections = {}
     views: dict[str, tuple[int, int]] = {}  # config_id -> (attempt, views recorded in it)
     exclusions: dict[str, tuple[dict[int, str], float | None]] = {}
+    capture: dict[str, dict[type, object]] = {}  # config_id -> event type -> its last event
+
+    def capture_record(event) -> None:
+        capture.setdefault(event.config_id, {})[type(event)] = event
 
     def move(event: MoveEvent) -> None:
         readings.append(json_safe(event.data.rig))
@@ -628,7 +637,8 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
 
     router = (DocumentRouter().on(MoveEvent, move).on(TruthEvent, truth).on(CalibrationViewEvent, calibration_view)
               .on(MeasurementFrameEvent, measurement_frame).on(CalibrationDetectionsEvent, calibration_detections)
-              .on(CalibrationExclusionsEvent, calibration_exclusions))
+              .on(CalibrationExclusionsEvent, calibration_exclusions)
+              .on(CalibrationSelectionEvent, capture_record).on(PresentationTimeEvent, capture_record))
     router.read(event for event in reader.events() if event.config_id in config_ids)
 
     def load_pair(key: str):
@@ -650,7 +660,8 @@ def replay_bench(reader, config_ids: set[str]) -> Bench:
                  operators=[ReplayOperator()], clock=Clock(math.inf), homes=False, _stack=stack,
                  truth=truths.get if truths else None, approaches=False,
                  recorded_approach=lambda config_id: approaches.get(config_id, {}),
-                 recorded_views=lambda config_id: views.get(config_id, (0, 0))[1], recorded_exclusions=exclusions.get)
+                 recorded_views=lambda config_id: views.get(config_id, (0, 0))[1], recorded_exclusions=exclusions.get,
+                 recorded_capture=lambda config_id: list(capture.get(config_id, {}).values()))
 
 
 def _not_kept(description) -> np.ndarray:

@@ -628,6 +628,10 @@ class CampaignRunner:
             self._stream_calibration(n_views, captured, started_s)
         else:
             self._take_calibration_views(n_views, captured, started_s)
+        if self.bench.recorded_capture is not None:
+            # A replay decides nothing and times no operator: it carries over how the recording took its views.
+            for event in self.bench.recorded_capture(captured.configuration.config_id):
+                self._publish(Draft(type(event), config_id=event.config_id, data=event.data.model_dump()))
 
     def _presented(self, captured: Captured, started_s: float | None, views: int, seconds: float | None = None) -> None:
         """Record how long the board's presentations took (the next plan's estimate reads it: campaign/presentation.py):
