@@ -182,7 +182,7 @@ def test_the_rotation_vector_is_exact_down_to_the_identity():
 def test_the_kinematic_calibration_term_is_continuous_at_parallel_cameras():
     from stereo_bench.errormodel.rigorous import kinematic_sigmas
 
-    rig, plan = _design_rig()
+    rig, plan = _design_rig(n_views=6)  # a smaller design fits faster; the terms compare alike
     parallel = kinematic_sigmas(Setup.make(60.0, 400.0, 90.0), rig, plan, 0.15)
     near = kinematic_sigmas(Setup.make(60.0, 400.0, 89.9), rig, plan, 0.15)
     assert parallel is not None and near is not None
@@ -191,7 +191,7 @@ def test_the_kinematic_calibration_term_is_continuous_at_parallel_cameras():
 
 
 def test_the_joint_kinematic_term_is_below_the_intrinsics_apart_and_says_so():
-    rig, plan = _design_rig()
+    rig, plan = _design_rig(n_views=6)  # a smaller design fits faster; the terms compare alike
     setup = Setup.make(110.0, 550.0, 81.0)
     joint = predict(setup, 0.15, calibration=plan, rig=rig)
     apart = predict(setup, 0.15, calibration=plan, rig=RigErrors(
