@@ -426,6 +426,59 @@ class _Bundle:
         return _levenberg_marquardt(self.residuals, self.linearize, self.solve, x0)
 
 
+def assemble_model(
+    configurations: Sequence[ConfigurationViews], *, p: np.ndarray, free: np.ndarray, cov_k: np.ndarray,
+    held_note, residual_px: np.ndarray, row_view: np.ndarray, view_config: np.ndarray, intr_l: np.ndarray,
+    intr_r: np.ndarray, image_size: tuple[int, int], B_ref: float, repeatability: tuple[float, float, float],
+    sigma_px: float, dof: int, intrinsics: str, intrinsic_names: list[str], cov_i: np.ndarray, cross: np.ndarray,
+    locking, residual_maps: dict,
+) -> tuple[KinematicModel, np.ndarray]:
+    """The model file of a fit (any design: :func:`fit_kinematics`, the fixed-board fit) and its per-view RMS.
+
+    ``p`` every parameter's value, ``free`` which were fitted, ``cov_k`` their covariance (in order); ``held_note``:
+    spec -> why a held parameter is not identified; ``residual_px`` (N, 2) the fit's pixel residuals and
+    ``row_view`` (N,) the view of each; ``view_config`` per view its configuration.
+    """
+    free_index = np.flatnonzero(free)
+    sig = np.sqrt(np.clip(np.diag(cov_k), 0.0, None))
+    parameters = {}
+    for i, spec in enumerate(PARAMETERS):
+        if free[i]:
+            k = int(np.searchsorted(free_index, i))
+            parameters[spec.name] = ParameterValue(value=float(p[i]), sigma=float(sig[k]), unit=spec.unit,
+                                                   identifiable=True)
+        else:
+            parameters[spec.name] = ParameterValue(value=float(p[i]), sigma=None, unit=spec.unit, identifiable=False,
+                                                   note=held_note(spec) + " (held nominal)")
+    n_views = len(view_config)
+    per_view = np.array([math.sqrt(float((residual_px[row_view == v] ** 2).sum(axis=1).mean()))
+                         for v in range(n_views)])
+    per_config_rms = [math.sqrt(float((residual_px[view_config[row_view] == c] ** 2).sum(axis=1).mean()))
+                      for c in range(len(configurations))]
+    K1, D1 = _K_D(intr_l)
+    K2, D2 = _K_D(intr_r)
+    span = {axis: [float(min(c.axes[axis] for c in configurations)), float(max(c.axes[axis] for c in configurations))]
+            for axis in AXES}
+    model = KinematicModel(
+        reference_baseline_mm=B_ref, repeatability_mm=repeatability[0],
+        repeatability_left_deg=repeatability[1], repeatability_right_deg=repeatability[2],
+        span=span, parameters=parameters, covariance_names=[NAMES[i] for i in free_index],
+        covariance=cov_k.tolist(), image_size=[int(image_size[0]), int(image_size[1])],
+        K1=K1.tolist(), D1=D1.ravel().tolist(), K2=K2.tolist(), D2=D2.ravel().tolist(),
+        fit=FitSummary(
+            rms_px=float(math.sqrt((residual_px**2).sum(axis=1).mean())), pixel_sigma_px=sigma_px,
+            n_configurations=len(configurations), n_views=n_views, n_observations=len(residual_px),
+            intrinsics=intrinsics, design=[{a: float(c.axes[a]) for a in AXES} for c in configurations],
+            per_configuration_rms_px=per_config_rms, dof=int(dof),
+        ),
+        intrinsics_covariance_names=intrinsic_names, intrinsics_covariance=cov_i.tolist(),
+        cross_covariance=cross.tolist(),
+        pixel_locking_px=None if locking is None else [float(locking[0]), float(locking[1])],
+        residual_maps=residual_maps,
+    )
+    return model, per_view
+
+
 def fit_kinematics(
     configurations: Sequence[ConfigurationViews], object_points: np.ndarray, image_size: tuple[int, int], *,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, refine_intrinsics: bool = True,
@@ -545,44 +598,15 @@ def fit_kinematics(
                            for name in ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")]
         cov_i = covariance[o : o + 16, o : o + 16]
         cross = covariance[o : o + 16, : bundle.nk]
-    locking = bundle.pixel_locking(x)
-    sig = np.sqrt(np.clip(np.diag(cov_k), 0.0, None))
-    parameters = {}
-    for i, spec in enumerate(PARAMETERS):
-        if free[i]:
-            k = int(np.searchsorted(free_index, i))
-            parameters[spec.name] = ParameterValue(value=float(p[i]), sigma=float(sig[k]), unit=spec.unit,
-                                                   identifiable=True)
-        else:
-            parameters[spec.name] = ParameterValue(value=float(p[i]), sigma=None, unit=spec.unit, identifiable=False,
-                                                   note=notes.get(spec.group, "") + " (held nominal)")
     residual = (r[: bundle.m_px] * sigma_px).reshape(-1, 2)  # view by view (u, v) pairs
     view_of_row = np.repeat(np.arange(bundle.V), [(sl.stop - sl.start) // 2 for sl in bundle.view_slices])
-    per_view = np.array([math.sqrt(float((residual[view_of_row == v] ** 2).sum(axis=1).mean()))
-                         for v in range(bundle.V)])
-    per_config_rms = [math.sqrt(float((residual[bundle.view_config[view_of_row] == c] ** 2).sum(axis=1).mean()))
-                      for c in range(len(configurations))]
-    K1, D1 = _K_D(intr_l)
-    K2, D2 = _K_D(intr_r)
-    span = {axis: [float(min(c.axes[axis] for c in configurations)), float(max(c.axes[axis] for c in configurations))]
-            for axis in AXES}
-    model = KinematicModel(
-        reference_baseline_mm=B_ref, repeatability_mm=repeatability_mm,
-        repeatability_left_deg=repeatability_left_deg, repeatability_right_deg=repeatability_right_deg,
-        span=span, parameters=parameters, covariance_names=[NAMES[i] for i in free_index],
-        covariance=cov_k.tolist(), image_size=[int(image_size[0]), int(image_size[1])],
-        K1=K1.tolist(), D1=D1.ravel().tolist(), K2=K2.tolist(), D2=D2.ravel().tolist(),
-        fit=FitSummary(
-            rms_px=float(math.sqrt((residual**2).sum(axis=1).mean())), pixel_sigma_px=sigma_px,
-            n_configurations=len(configurations), n_views=bundle.V, n_observations=len(residual),
-            intrinsics="refined jointly" if refine_intrinsics else "fixed",
-            design=[{a: float(c.axes[a]) for a in AXES} for c in configurations],
-            per_configuration_rms_px=per_config_rms, dof=int(dof),
-        ),
-        intrinsics_covariance_names=intrinsic_names, intrinsics_covariance=cov_i.tolist(),
-        cross_covariance=cross.tolist(),
-        pixel_locking_px=None if locking is None else [float(locking[0]), float(locking[1])],
-        residual_maps=bundle.residual_maps(x, (int(image_size[0]), int(image_size[1]))),
-    )
+    model, per_view = assemble_model(
+        configurations, p=p, free=free, cov_k=cov_k, held_note=lambda spec: notes.get(spec.group, ""),
+        residual_px=residual, row_view=view_of_row, view_config=bundle.view_config, intr_l=intr_l, intr_r=intr_r,
+        image_size=image_size, B_ref=B_ref,
+        repeatability=(repeatability_mm, repeatability_left_deg, repeatability_right_deg), sigma_px=sigma_px,
+        dof=dof, intrinsics="refined jointly" if refine_intrinsics else "fixed", intrinsic_names=intrinsic_names,
+        cov_i=cov_i, cross=cross, locking=bundle.pixel_locking(x),
+        residual_maps=bundle.residual_maps(x, (int(image_size[0]), int(image_size[1]))))
     return KinematicFit(model=model, T_left_board=[_pose_matrix(pose) for pose in poses], view_rms_px=per_view,
                         view_configuration=bundle.view_config.copy(), views_dropped=dropped, landing=landing)

@@ -44,15 +44,13 @@ from stereo_bench.kinematics.fit import (
     _project,
     _rotate,
     _solve_dense,
+    assemble_model,
 )
 from stereo_bench.kinematics.model import (
     _INDEX,
-    AXES,
     NAMES,
     PARAMETERS,
-    FitSummary,
     KinematicModel,
-    ParameterValue,
     ResidualMapRecord,
     _about_line,
     _effective,
@@ -544,20 +542,9 @@ def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, i
     _, table = identifiability(J, free, nuisance, notes=notes, held=held)
     cov = np.linalg.inv(_normal(J[:, active], r)[0])
     n_free = int(free.sum())
-    free_index = np.flatnonzero(free)
     cov_k = cov[:n_free, :n_free]
     p = x[: bundle.n_k]
-    sig = np.sqrt(np.clip(np.diag(cov_k), 0.0, None))
-    parameters = {}
     by_name = {row.name: row for row in table}
-    for i, spec in enumerate(PARAMETERS):
-        if free[i]:
-            k = int(np.searchsorted(free_index, i))
-            parameters[spec.name] = ParameterValue(value=float(p[i]), sigma=float(sig[k]), unit=spec.unit,
-                                                   identifiable=True)
-        else:
-            parameters[spec.name] = ParameterValue(value=float(p[i]), sigma=None, unit=spec.unit, identifiable=False,
-                                                   note=by_name[spec.name].note + " (held nominal)")
     intrinsic_names: list[str] = []
     cov_i = cross = np.zeros((0, 0))
     il, ir = bundle.intrinsics(x)
@@ -567,36 +554,19 @@ def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, i
         cov_i = cov[np.ix_(where, where)]
         cross = cov[np.ix_(where, list(range(n_free)))]
     residual = (r[: bundle.m_px] * sigma_px).reshape(-1, 2)
-    row_view = bundle.row_view[::2]
-    per_view = np.array([math.sqrt(float((residual[row_view == v] ** 2).sum(axis=1).mean()))
-                         for v in range(bundle.V)])
-    per_config_rms = [math.sqrt(float((residual[bundle.view_config[row_view] == c] ** 2).sum(axis=1).mean()))
-                      for c in range(len(configurations))]
-    K1, D1 = _K_D(il)
-    K2, D2 = _K_D(ir)
-    span = {axis: [float(min(c.axes[axis] for c in configurations)), float(max(c.axes[axis] for c in configurations))]
-            for axis in AXES}
-    model = KinematicModel(
-        reference_baseline_mm=B_ref, repeatability_mm=repeatability_mm,
-        repeatability_left_deg=repeatability_left_deg, repeatability_right_deg=repeatability_right_deg,
-        span=span, parameters=parameters, covariance_names=[NAMES[i] for i in free_index],
-        covariance=cov_k.tolist(), image_size=[int(image_size[0]), int(image_size[1])],
-        K1=K1.tolist(), D1=D1.ravel().tolist(), K2=K2.tolist(), D2=D2.ravel().tolist(),
-        fit=FitSummary(
-            rms_px=float(math.sqrt((residual**2).sum(axis=1).mean())), pixel_sigma_px=sigma_px,
-            n_configurations=len(configurations), n_views=bundle.V, n_observations=len(residual),
-            intrinsics=("refined jointly, lens calibration as prior" if prior is not None else
-                        "refined jointly" if refine_intrinsics else "fixed"),
-            design=[{a: float(c.axes[a]) for a in AXES} for c in configurations],
-            per_configuration_rms_px=per_config_rms, dof=int(dof),
-        ),
-        intrinsics_covariance_names=intrinsic_names, intrinsics_covariance=cov_i.tolist(),
-        cross_covariance=cross.tolist(), pixel_locking_px=None,
+    split = bundle.m_left // 2
+    model, per_view = assemble_model(
+        configurations, p=p, free=free, cov_k=cov_k, held_note=lambda spec: by_name[spec.name].note,
+        residual_px=residual, row_view=bundle.row_view[::2], view_config=bundle.view_config, intr_l=il, intr_r=ir,
+        image_size=image_size, B_ref=B_ref,
+        repeatability=(repeatability_mm, repeatability_left_deg, repeatability_right_deg), sigma_px=sigma_px,
+        dof=dof, intrinsics=("refined jointly, lens calibration as prior" if prior is not None else
+                             "refined jointly" if refine_intrinsics else "fixed"),
+        intrinsic_names=intrinsic_names, cov_i=cov_i, cross=cross, locking=None,
         # The residuals binned per camera, as the presented fit keeps them: the budget reads the corner error
         # beyond noise from them (docs/UNCERTAINTY.md) instead of bounding it as coherent.
         residual_maps={side: ResidualMapRecord.of(bundle.obs[side][2], pixels, image_size) for side, pixels in
-                       (("left", residual[: bundle.m_left // 2]), ("right", residual[bundle.m_left // 2:]))},
-    )
+                       (("left", residual[:split]), ("right", residual[split:]))})
     return FixedBoardFit(model=model, T_ref_board=_pose_matrix(x[bundle.o_board : bundle.o_board + 6]),
                          left_share=float(x[bundle.o_share]), identifiability=table, view_rms_px=per_view,
                          view_configuration=bundle.view_config.copy(),
