@@ -35,7 +35,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from coverage_campaign import CONFIGURATIONS, STRUCTURE_KEYS, campaign, figures, samples_of  # noqa: E402
+from coverage_campaign import (  # noqa: E402
+    CONFIGURATIONS,
+    STRUCTURE_KEYS,
+    campaign,
+    figures,
+    rows_with_structure,
+    samples_of,
+)
 
 from stereo_bench.campaign.config import campaign_from_dict  # noqa: E402
 from stereo_bench.campaign.execute import CampaignPlan, run_campaign  # noqa: E402
@@ -82,10 +89,7 @@ def one_seed(seed: int, *, half: bool, n_configurations: int, keep: bool) -> dic
             out["fit_s"][design] = model.fit_s
             if design == "fixed-board":
                 out["identifiability"] = model.identifiability
-            structures = {e.config_id: e.data.model_dump(mode="json", exclude_unset=True)
-                          for e in reader.events(kind="structure")}
-            out["rows"][design] = [{"row": row.stored(), "structure": structures.get(row.config_id)}
-                                   for row in reader.results()]
+            out["rows"][design] = rows_with_structure(reader)
     finally:
         if keep:
             print(f"kept {root}", file=sys.stderr)

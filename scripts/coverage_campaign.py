@@ -61,6 +61,12 @@ EXACT_RIG = {"tolerances": dict.fromkeys(TOLERANCE_NAMES, 0.0), "repeatability_m
 EXACT_BOARDS = {"scale_u_rel": 0.0}
 
 
+def rows_with_structure(reader) -> list[dict]:
+    """Per result row of a session (a SessionReader) its stored row and its configuration's structure event."""
+    structures = {e.config_id: e.data.model_dump(mode="json", exclude_unset=True)
+                  for e in reader.events(kind="structure")}
+    return [{"row": row.stored(), "structure": structures.get(row.config_id)} for row in reader.results()]
+
 def sim_table(bench: str, seed: int) -> dict:
     """The [sim] table of a bench: ``lab-builds`` is the lab bench with its as-built geometry drawn, per seed,
     from the rig's stated tolerances (a sample of the class of builds the nominal budget describes)."""
@@ -108,10 +114,7 @@ def one_seed(job: tuple) -> dict:
                     "kinematic_model.toml"]
                 model_file = root / "kinematic_model.toml"
                 model_file.write_bytes(reader.read_bytes(relative))
-            structures = {e.config_id: e.data.model_dump(mode="json", exclude_unset=True)
-                          for e in reader.events(kind="structure")}
-            out["rows"][mode] = [{"row": row.stored(), "structure": structures.get(row.config_id)}
-                                 for row in reader.results()]
+            out["rows"][mode] = rows_with_structure(reader)
     finally:
         if keep:
             print(f"kept {root}", file=sys.stderr)

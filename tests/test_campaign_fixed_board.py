@@ -4,31 +4,19 @@ design's levels measured with its predictions against the bench's truth; then re
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import shutil
 
 import numpy as np
 import pytest
 
-from stereo_bench.campaign.execute import CampaignPlan, replay_session, run_campaign
+from stereo_bench.campaign.execute import replay_session, run_campaign
 from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.session import SessionReader
 from tests.campaigns import results_csv
-from tests.test_campaign_extrinsics import lab_config
+from tests.test_campaign_extrinsics import _two_configurations, lab_config
 
 pytestmark = pytest.mark.slow
-
-
-def _plan(config):
-    """B 110 / toe-in 3 and B 170 / toe-in 7: not design positions (B 80/120/160/200, toe-in 0/3.3/6.7/10)."""
-    plan = CampaignPlan.of(config)
-    chosen = [c for c in plan.configurations if (c.baseline_mm, c.toe_in_deg) in {(80.0, 0.0), (200.0, 10.0)}]
-    inner = [dataclasses.replace(chosen[0], baseline_mm=110.0, toe_in_deg=3.0, alpha_deg=87.0,
-                                 config_id="B110_Z500_A87", index=0),
-             dataclasses.replace(chosen[1], baseline_mm=170.0, toe_in_deg=7.0, alpha_deg=83.0,
-                                 config_id="B170_Z500_A83", index=1)]
-    return CampaignPlan.of(config, inner, plan.visits)
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +30,8 @@ def fixed_session(tmp_path_factory):
     shutil.copytree(next((root / "lens" / "calib").glob("*/*")), calib_dir)
     config = lab_config(extrinsics={"mode": "kinematic", "design": "fixed-board", "calib_dir": str(calib_dir)})
     out = root / "session"
-    summary = run_campaign(config, out, yes=True, plan=_plan(config))
+    # B 110 / toe-in 3 and B 170 / toe-in 7: between this design's levels too (B 80/120/160/200, toe-in 0/3.3/6.7/10)
+    summary = run_campaign(config, out, yes=True, plan=_two_configurations(config))
     assert summary.exit_status == "success", summary.reason
     return out
 
