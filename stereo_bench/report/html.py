@@ -678,10 +678,12 @@ def _answer_section(page: SessionPage) -> str:
         parts.append(_img(page.answer_figure))
         parts.append(f'<p class="small muted">Markers: each configuration\'s measured |error| per extrinsics source; '
                      "lines: the term the model predicts there (1σ: image noise through the triangulation and its "
-                     "bias, the calibration's own error, the structure of the nominal or kinematic R, T from the "
-                     "rig's stated tolerances, the print's scale) and the paper's γ. A measurement follows the term "
-                     f"that dominates it. Image noise: {_e(answer.pixel_sigma_note)}; the model, its terms and the "
-                     "comparison with the paper are explained in docs/ERROR_MODEL.md of stereo-bench.</p>")
+                     "bias, the calibration's own error (in kinematic mode the design fit's, jointly with the R, T "
+                     "it predicts), the structure of the nominal R, T from the rig's stated tolerances or of the "
+                     "kinematic one from the landing repeatability, the print's scale) and the paper's γ. A "
+                     f"measurement follows the term that dominates it. Image noise: {_e(answer.pixel_sigma_note)}; "
+                     "the model, its terms and the comparison with the paper are explained in docs/ERROR_MODEL.md "
+                     "of stereo-bench.</p>")
     if answer.table1:
         parts.append(_paper_table(answer.table1, "The paper's Table 1 beside ours: the square (mm) per B and Z "
                                   "(α 90°)", lambda k: k.replace("_", " / ").replace("B", "B ").replace("Z", "Z ")))
