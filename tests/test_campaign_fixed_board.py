@@ -108,3 +108,55 @@ def test_rig_calibrate_kinematics_fits_a_fixed_board_model_alone(tmp_path, capsy
     (event,) = reader.events(kind="kinematic_model", attempt=None)
     assert event.data.design == "fixed-board" and len(event.data.identifiability) == 22
     assert reader.events(kind="calibration_selection", attempt=None) == []
+
+
+def test_a_resume_before_the_fit_places_the_board_again_and_visits_the_whole_design(tmp_path):
+    """Stopped half-way through the design, the board may have been moved since its views: one board pose is the
+    fit's premise, so the resume starts the design over (its placement first) and fits only its own views; the
+    stopped attempt's views stay recorded, and the session replays."""
+    import threading
+
+    from stereo_bench.campaign.bench import SimulatedPresenter
+    from stereo_bench.campaign.execute import RunControl
+
+    config = lab_config(extrinsics={"mode": "kinematic", "design": "fixed-board", "fixed_board_views": 1})
+    plan = _two_configurations(config)
+    n_visits = len(plan.visits)
+    out, control, done = tmp_path / "s", RunControl(), threading.Event()
+
+    def stop_mid_design() -> None:
+        stream = out / "documents.jsonl"
+        while not done.is_set():
+            if stream.exists() and stream.read_text().count('"calibration_view"') >= n_visits // 3:
+                control.request_stop("test: stopped mid-design")
+                return
+            done.wait(0.005)
+
+    placements = []
+    original = SimulatedPresenter.place_board
+
+    def counted(self, T_rig_board):
+        placements.append(np.array(T_rig_board))
+        return original(self, T_rig_board)
+
+    watcher = threading.Thread(target=stop_mid_design, daemon=True)
+    watcher.start()
+    try:
+        SimulatedPresenter.place_board = counted
+        first = run_campaign(config, out, plan=plan, control=control, yes=True)
+        assert first.exit_status == "interrupted"
+        stopped_views = len(SessionReader(out).events(kind="calibration_view", attempt=1))
+        assert 0 < stopped_views < n_visits
+        second = run_campaign(config, out, plan=plan, yes=True, resume=True)
+    finally:
+        SimulatedPresenter.place_board = original
+        done.set()
+    assert second.exit_status == "success", second.reason
+    assert len(placements) == 2  # placed again before the design's first visit of the resume
+    reader = SessionReader(out)
+    assert len(reader.events(kind="calibration_view", attempt=1)) == stopped_views  # kept, not overwritten
+    assert len(reader.events(kind="calibration_view", attempt=2)) == n_visits
+    (model,) = reader.events(kind="kinematic_model", attempt=None)
+    assert model.attempt == 2 and model.data.n_views == n_visits and model.data.error is None
+    assert {r["status"] for r in results_csv(out)} == {"measured"}
+    assert replay_session(out).differences == []

@@ -274,7 +274,8 @@ class SimulatedPresenter:
 
         self._arrivals, self._placements = arrivals(sequence), placements(sequence)
         # A fixed-board design: the operator stands the board once, off the requested pose by a placement error
-        # drawn from the campaign seed (the same in a resumed run, which does not ask for the placement again).
+        # drawn from the campaign seed (the same draw in a resumed run, which places it again: the design starts
+        # over).
         fixed = next((v for v in sequence if isinstance(v, Visit) and v.board_fixed), None)
         if fixed is not None:
             from drivers.sim.hand import placed_board_pose
