@@ -8,9 +8,21 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 from pathlib import Path
 
 import pytest
+
+# One BLAS thread per test process: pytest-xdist already puts a worker on every core, and OpenBLAS (numpy's,
+# OpenCV's) would start a thread per core in each and spin them in every small product and solve. On the 2-core
+# machines the suite runs on, the caliscope leave-one-out test took 49 s of CPU that way and 32 s with one thread.
+# Thread counts move numbers in their last digits only, which every replay tolerance holds (docs/REPLAY.md); set
+# OPENBLAS_NUM_THREADS yourself to run the suite with another count. Subprocesses (the CLI tests) inherit it.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+if "numpy" in sys.modules:  # a plugin loaded numpy (and its OpenBLAS) before this file: limit it at run time
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(int(os.environ["OPENBLAS_NUM_THREADS"]), user_api="blas")
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
