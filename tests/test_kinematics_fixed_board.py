@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from drivers.sim.hand import placed_board_pose
-from drivers.sim.mechanics import MoveHistory, kinematic_parameters, pair_state
+from drivers.sim.mechanics import MOVED, MoveHistory, kinematic_parameters, pair_state
 from drivers.sim.profile import LAB
 from stereo_bench.geometry import CameraModel, board_pose_facing_rig, invert_transform, transform_points
 from stereo_bench.kinematics import NAMES, PARAMETERS, ConfigurationViews, approach_directions, chain
@@ -33,11 +33,13 @@ EXACT_LANDING = LAB.model_copy(update={
 T_BOARD = board_pose_facing_rig(distance_mm=350.0, board_size_mm=BOARD.grid_size_mm, yaw_deg=30.0, pitch_deg=20.0)
 
 
-def fixed_board_views(design, profile, *, noise_px: float, seed: int, frames: int = 1) -> list[ConfigurationViews]:
-    """The design visited in order from home in front of the board at T_BOARD, as the mechanics place the cameras."""
+def fixed_board_views(design, profile, *, noise_px: float, seed: int, frames: int = 1,
+                      tilts: tuple[str, ...] = ()) -> list[ConfigurationViews]:
+    """The design visited in order from home in front of the board at T_BOARD, as the mechanics place the cameras;
+    ``tilts``: the tilts the rig drives (through the heads' joints; homing leaves them at -20 deg)."""
     rng = np.random.default_rng(seed)
-    history = MoveHistory(profile, seed)
-    previous, approach, out, now = dict(HOME), {}, [], 0.0
+    history = MoveHistory(profile, seed, quantities=MOVED + tuple(tilts))
+    previous, approach, out, now = {**HOME, **dict.fromkeys(tilts, -20.0)}, {}, [], 0.0
     points = np.asarray(BOARD.object_points, float)
     dist = np.asarray(CAMERA.dist, float).ravel()[:5]
     for config in design:
@@ -47,7 +49,7 @@ def fixed_board_views(design, profile, *, noise_px: float, seed: int, frames: in
             q: 1 if v > previous[q] else -1 for q, v in values.items() if v != previous[q]})
         approach = approach_directions(previous, values, approach)
         previous = values
-        state = pair_state(profile, values, history=history, now_s=now + 5.0)
+        state = pair_state(profile, values, history=history, now_s=now + 5.0, tilting=tuple(tilts))
         views = []
         for _ in range(frames):
             pair = []

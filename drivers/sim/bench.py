@@ -89,7 +89,7 @@ from drivers.sim.clock import BenchClock
 from drivers.sim.grbl.emulator import GrblEmulator
 from drivers.sim.grbl.firmware import AxisSpec, axis_specs_for_travel
 from drivers.sim.grbl.planner import MotionEvent, _approach_of
-from drivers.sim.mechanics import MOVED, MoveHistory, PairState, pair_state, ringing_duration_s
+from drivers.sim.mechanics import MOVED, TILTS, MoveHistory, PairState, pair_state, ringing_duration_s
 from drivers.sim.profile import IDEAL, BoardErrors, CameraErrors, SimProfile
 from drivers.sim.render import BoardShape, Optics, StereoRenderer, _auto_px_per_square
 from stereo_bench.geometry import (
@@ -296,8 +296,12 @@ class BenchSimulator:
         right: CameraModel | None = None, optics: Optics | None = None, time_scale: float = 1.0,
         exposure_s: float = 0.02, homing_enabled: bool = True, axis_specs: dict[str, AxisSpec] | None = None,
         profile: SimProfile | None = None, seed: int = 0, pose_source: Callable[[], RigPose] | None = None,
+        firmware: str | None = None,
     ):
         self.rig_config = rig_config or RigConfig()
+        # The tilts a motor drives: through the heads' tilt joints (drivers/sim/mechanics.py); a fixed tilt has none.
+        self.tilting = tuple(q for q in TILTS if self.rig_config.quantities[q].driven)
+        self._moved = MOVED + self.tilting
         self.profile = profile or IDEAL
         self.seed = int(seed)
         cams = self.profile.cameras
@@ -320,6 +324,8 @@ class BenchSimulator:
             axes=self.rig_config.axes, axis_specs=axis_specs or specs, time_scale=time_scale,
             homing_enabled=homing_enabled, force_set_origin=force_set_origin,  # homing: the reference rig's
             clock=self.clock, on_motion=self._on_motion,
+            # Grbl 1.1h drives three axes; a rig config that maps A, B or C needs grblHAL's (up to six).
+            firmware=firmware or ("grbl" if set(self.rig_config.axes) <= set("XYZ") else "grblhal"),
         )
         self._scene = Scene()
         self._lock = threading.Lock()
@@ -346,7 +352,7 @@ class BenchSimulator:
         # The axes' history (backlash, landing errors, ringing), when the profile needs one and an emulator
         # reports the motions. Its lock is never held while the emulator is called: the emulator calls
         # _on_motion with its own lock held.
-        self.history = (MoveHistory(self.profile, self.seed)
+        self.history = (MoveHistory(self.profile, self.seed, quantities=self._moved)
                         if self.profile.moves_need_history and self.emulator is not None else None)
         self._history_lock = threading.Lock()
         self._context: MoveContext | None = None
@@ -599,7 +605,7 @@ class BenchSimulator:
                     approach = self._physical_approach(_approach_of(start, end))
                     history.moved(end_values, end_s=0.0, approach=approach,
                                   keys=self._landing_keys("move", end_values, approach, draws=draws))
-        state = pair_state(self.profile, values, history=history, now_s=math.inf)
+        state = pair_state(self.profile, values, history=history, now_s=math.inf, tilting=self.tilting)
         return _Snapshot(pose=pose, T_rig_cam={"left": state.T_bench_left, "right": state.T_bench_right},
                          state=state)
 
@@ -614,7 +620,7 @@ class BenchSimulator:
         """Per moved quantity the direction it arrived in, from the emulator's per-axis (machine) directions."""
         approach = {}
         for quantity, axis in self.rig_config.driven.items():
-            if quantity in MOVED and approach_by_axis.get(axis):
+            if quantity in self._moved and approach_by_axis.get(axis):
                 sign = 1 if self.rig_config.quantities[quantity].scale > 0 else -1
                 approach[quantity] = approach_by_axis[axis] * sign
         return approach
@@ -767,7 +773,7 @@ class BenchSimulator:
             self._catch_up()
             with self._history_lock:
                 if self._motions_seen == seen:
-                    state = pair_state(self.profile, values, history=self.history, now_s=at)
+                    state = pair_state(self.profile, values, history=self.history, now_s=at, tilting=self.tilting)
                     break
         pose = self._pose_of(values)
         smear = {}
@@ -822,7 +828,7 @@ class BenchSimulator:
         if history is not None:
             for axis in history.axes.values():
                 axis.landing = 0.0
-        state = pair_state(self.profile, values, history=history)
+        state = pair_state(self.profile, values, history=history, tilting=self.tilting)
         return self._pair_truth(_Snapshot(pose=self._pose_of(values),
                                           T_rig_cam={"left": state.T_bench_left, "right": state.T_bench_right}))
 
@@ -833,6 +839,8 @@ class BenchSimulator:
         state = snapshot.state
         axes = {"separation_mm": state.separation_mm, "pan_left_deg": state.pan_left_deg,
                 "pan_right_deg": state.pan_right_deg, "ringing_deg": state.ringing_deg, "rock_deg": state.rock_deg}
+        for side, tilt in state.tilt_deg.items():  # a driven tilt's joint angle (none on a rig without one)
+            axes[f"tilt_{side}_deg"] = tilt
         if self.history is not None:
             axes["history"] = self.history.snapshot()
         return axes

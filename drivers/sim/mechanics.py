@@ -7,7 +7,14 @@ mechanical errors of a :class:`~drivers.sim.profile.SimProfile` (see that module
     separation = zero_offset + (1 + scale_error) * B        - approach * backlash / 2 + landing error
     pan        = zero_offset + (1 + scale_error) * toe_in   - approach * backlash / 2 + landing error
     T_bench_cam = Trans(carriage point) @ R_z(rock) @ Rot(pan axis, +-(pan + ringing))
-                  @ Trans(optical centre on the head) @ R_mount @ R_x(-tilt)
+                  @ Trans(optical centre on the head) @ R_mount @ R_x(-tilt)           (a fixed tilt)
+    tilt       = zero_offset + (1 + scale_error) * tilt     - approach * backlash / 2 + landing error
+    T_bench_cam = Trans(carriage point) @ R_z(rock) @ Rot(pan axis, +-(pan + ringing))
+                  @ Rot(tilt axis, -tilt) @ Trans(optical centre on the head) @ R_mount   (a driven tilt)
+
+A tilt is a joint only where the rig drives it (``tilting``: the ``tilt_*_deg`` quantities a rig config maps to
+an axis, grblHAL's A/B); a fixed tilt turns the camera about its own x axis through its optical centre, as the
+nominal geometry does, and a rig without a tilt axis is the bench it was before tilt joints existed.
 
 ``approach`` is the sign of the last motion of the quantity (+1 toward larger values): the driven
 part trails the motor by half the backlash. Landing errors are drawn once per move, at rest.
@@ -28,7 +35,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,8 +43,9 @@ from drivers.sim.profile import CameraErrors, PanHeadErrors, SimProfile, SlideEr
 from stereo_bench.geometry import make_transform, rotation_deg
 
 SIDES = ("left", "right")
-# The quantities whose motion the mechanics model (tilts are fixed on every rig this simulates).
+# The quantities whose motion the mechanics model on every rig; a tilt moves only where a rig drives it (TILTS).
 MOVED = ("baseline_mm", "toe_in_left_deg", "toe_in_right_deg")
+TILTS = ("tilt_left_deg", "tilt_right_deg")
 
 
 def rotation_about(axis: np.ndarray, deg: float) -> np.ndarray:
@@ -60,6 +68,12 @@ def pan_axis(head: PanHeadErrors) -> np.ndarray:
             @ np.array([0.0, 1.0, 0.0]))
 
 
+def tilt_axis(head: PanHeadErrors) -> np.ndarray:
+    """(3,) unit direction of a head's tilt axis in its camera's frame (nominally the camera's +x)."""
+    return (rotation_deg("y", head.tilt_axis_yaw_deg) @ rotation_deg("z", head.tilt_axis_roll_deg)
+            @ np.array([1.0, 0.0, 0.0]))
+
+
 def mount_rotation(head: PanHeadErrors) -> np.ndarray:
     """(3, 3) camera orientation on the head: yaw (about y, > 0 toward +x), pitch (> 0 down), roll (about z)."""
     return (rotation_deg("y", head.mount_yaw_deg) @ rotation_deg("x", -head.mount_pitch_deg)
@@ -78,16 +92,24 @@ def true_pan_deg(head: PanHeadErrors, toe_in_deg: float, *, approach: int = 0, l
             + landing_deg)
 
 
+def true_tilt_deg(head: PanHeadErrors, tilt_deg: float, *, approach: int = 0, landing_deg: float = 0.0) -> float:
+    """Tilt (> 0 looks down, deg) a head's tilt joint really turns to for a reported tilt."""
+    return (head.tilt_zero_offset_deg + (1.0 + head.tilt_scale_error) * tilt_deg
+            - approach * head.tilt_backlash_deg / 2.0 + landing_deg)
+
+
 def camera_pose(
     profile: SimProfile, side: str, *, separation_mm: float, pan_deg: float, tilt_deg: float = 0.0,
-    ringing_deg: float = 0.0, rock_deg: float = 0.0,
+    ringing_deg: float = 0.0, rock_deg: float = 0.0, tilt_joint: bool = False,
 ) -> np.ndarray:
     """T_bench_cam (4x4, mm) of the ``side`` camera for a true slide separation and pan angle.
 
     ``ringing_deg`` adds to the pan angle (the head's oscillation about its pan axis), ``rock_deg``
     turns the head about the rig z axis through the point where its pan axis meets the carriage.
-    Tilt turns the camera about its own x axis through its optical centre (> 0 looks down), as in
-    the nominal geometry; tilt errors are not modelled.
+    A fixed tilt (``tilt_joint`` False) turns the camera about its own x axis through its optical centre
+    (> 0 looks down), as in the nominal geometry. With ``tilt_joint``, ``tilt_deg`` is the true angle of the
+    head's tilt joint (:func:`true_tilt_deg`), which turns the camera about the head's tilt axis
+    (:func:`tilt_axis`, ``tilt_centre_*`` off the optical centre).
     """
     if side not in SIDES:
         raise ValueError(f"side must be 'left' or 'right', not {side!r}")
@@ -102,8 +124,16 @@ def camera_pose(
     centre_on_head = np.array([head.centre_sideways_mm, -head.centre_height_mm, head.centre_forward_mm])
     R_pan = rotation_about(pan_axis(head), toward * (pan_deg + ringing_deg))
     R_rock = rotation_deg("z", rock_deg)
-    R = R_rock @ R_pan @ mount_rotation(head) @ rotation_deg("x", -tilt_deg)
-    return make_transform(R, carriage + R_rock @ R_pan @ centre_on_head)
+    if not tilt_joint:
+        R = R_rock @ R_pan @ mount_rotation(head) @ rotation_deg("x", -tilt_deg)
+        return make_transform(R, carriage + R_rock @ R_pan @ centre_on_head)
+    # On the head (pan frame): the camera at tilt 0 stands at centre_on_head as mounted; the tilt axis runs along
+    # the camera's (turned) x axis, behind and below its optical centre.
+    M = mount_rotation(head)
+    pivot = centre_on_head + M @ np.array([0.0, head.tilt_centre_height_mm, -head.tilt_centre_forward_mm])
+    R_tilt = rotation_about(M @ tilt_axis(head), -tilt_deg)
+    centre = pivot + R_tilt @ (centre_on_head - pivot)
+    return make_transform(R_rock @ R_pan @ R_tilt @ M, carriage + R_rock @ R_pan @ centre)
 
 
 def ringing_deg(cameras: CameraErrors, amplitude_deg: float, since_s: float) -> tuple[float, float]:
@@ -154,15 +184,21 @@ class MoveHistory:
     its position and the visits of that position so far (in the order they happen).
     """
 
-    def __init__(self, profile: SimProfile, seed: int = 0):
+    def __init__(self, profile: SimProfile, seed: int = 0, *, quantities: Sequence[str] = MOVED):
+        """``quantities``: what moves (``MOVED``, and the tilts a rig drives, of ``TILTS``)."""
+        unknown = [q for q in quantities if q not in MOVED + TILTS]
+        if unknown:
+            raise ValueError(f"quantities: {', '.join(unknown)} not of {', '.join(MOVED + TILTS)}")
         self.profile = profile
         self.seed = int(seed) & 0xFFFFFFFF
-        self.axes = {q: AxisHistory() for q in MOVED}
+        self.axes = {q: AxisHistory() for q in quantities}
         self._visits: Counter = Counter()
 
     def _sigma(self, quantity: str) -> float:
         if quantity == "baseline_mm":
             return self.profile.slide.repeatability_mm
+        if quantity in TILTS:
+            return self.profile.head("left" if quantity == "tilt_left_deg" else "right").tilt_repeatability_deg
         side = "left" if quantity == "toe_in_left_deg" else "right"
         return self.profile.head(side).repeatability_deg
 
@@ -171,7 +207,8 @@ class MoveHistory:
         sigma = self._sigma(quantity)
         if sigma <= 0.0:
             return 0.0
-        rng = np.random.default_rng([self.seed, 0x1A9D, MOVED.index(quantity), *(int(k) & 0xFFFFFFFF for k in key)])
+        rng = np.random.default_rng([self.seed, 0x1A9D, (MOVED + TILTS).index(quantity),
+                                     *(int(k) & 0xFFFFFFFF for k in key)])
         return float(rng.normal(0.0, sigma))
 
     def moved(self, end: Mapping[str, float], *, end_s: float, approach: Mapping[str, int],
@@ -217,6 +254,7 @@ class PairState:
     ringing_deg: dict[str, float]  # per side: pan ringing angle at the instant
     ringing_rate_deg_s: dict[str, float]
     rock_deg: dict[str, float]
+    tilt_deg: dict[str, float] = field(default_factory=dict)  # per side with a tilt joint: its true angle
 
     def T_bench_cam(self, side: str) -> np.ndarray:
         return self.T_bench_left if side == "left" else self.T_bench_right
@@ -224,16 +262,17 @@ class PairState:
 
 def pair_state(
     profile: SimProfile, reported: Mapping[str, float], *, history: MoveHistory | None = None,
-    now_s: float = math.inf,
+    now_s: float = math.inf, tilting: Sequence[str] = (),
 ) -> PairState:
     """True camera poses for reported physical values (``baseline_mm``, ``toe_in_*_deg``, ``tilt_*_deg``).
 
     With ``history``, backlash follows each quantity's direction of approach, landing errors are added
     and the heads ring according to the time since the last move ended (``now_s``, simulated seconds).
     Without it, the poses are the mechanics' at rest with no backlash or landing error (approach 0).
+    ``tilting``: the tilts (of ``TILTS``) the rig drives, through the heads' tilt joints; any other tilt is fixed.
     """
     def state(quantity: str) -> AxisHistory:
-        return history.axes[quantity] if history is not None else AxisHistory()
+        return history.axes.get(quantity, AxisHistory()) if history is not None else AxisHistory()
 
     b, tl, tr = state("baseline_mm"), state("toe_in_left_deg"), state("toe_in_right_deg")
     separation = true_separation_mm(profile.slide, reported["baseline_mm"], approach=b.approach, landing_mm=b.landing)
@@ -243,21 +282,27 @@ def pair_state(
         "right": true_pan_deg(profile.right_head, reported["toe_in_right_deg"], approach=tr.approach,
                               landing_deg=tr.landing),
     }
-    ringing, rates, rocks, poses = {}, {}, {}, {}
+    ringing, rates, rocks, poses, tilts = {}, {}, {}, {}, {}
     for side in SIDES:
+        quantity = f"tilt_{side}_deg"
+        tilt = float(reported.get(quantity, 0.0))
+        if quantity in tilting:
+            moved = state(quantity)
+            tilt = tilts[side] = true_tilt_deg(profile.head(side), tilt, approach=moved.approach,
+                                               landing_deg=moved.landing)
         yaw_since, rock_since = history.excited_since(side) if history is not None else (-math.inf, -math.inf)
         cams = profile.cameras
         ringing[side], rates[side] = ringing_deg(cams, cams.vibration_yaw_deg, now_s - yaw_since)
         rocks[side] = ringing_deg(cams, cams.vibration_rock_deg, now_s - rock_since)[0]
-        poses[side] = camera_pose(profile, side, separation_mm=separation, pan_deg=pans[side],
-                                  tilt_deg=float(reported.get(f"tilt_{side}_deg", 0.0)),
-                                  ringing_deg=ringing[side], rock_deg=rocks[side])
+        poses[side] = camera_pose(profile, side, separation_mm=separation, pan_deg=pans[side], tilt_deg=tilt,
+                                  ringing_deg=ringing[side], rock_deg=rocks[side], tilt_joint=quantity in tilting)
     return PairState(T_bench_left=poses["left"], T_bench_right=poses["right"], separation_mm=separation,
                      pan_left_deg=pans["left"], pan_right_deg=pans["right"], ringing_deg=ringing,
-                     ringing_rate_deg_s=rates, rock_deg=rocks)
+                     ringing_rate_deg_s=rates, rock_deg=rocks, tilt_deg=tilts)
 
 
-def kinematic_parameters(profile: SimProfile, reference_baseline_mm: float) -> dict[str, float]:
+def kinematic_parameters(profile: SimProfile, reference_baseline_mm: float, *,
+                         tilting: Sequence[str] = ()) -> dict[str, float]:
     """The profile's mechanics in the parametrisation of ``stereo_bench.kinematics`` (same names and units).
 
     That model's frame S is the left camera at toe-in 0; pan axes are given in their own camera's
@@ -265,10 +310,17 @@ def kinematic_parameters(profile: SimProfile, reference_baseline_mm: float) -> d
     axis crosses the camera's y = 0 plane); the slide direction in S; the right camera's pose at
     ``reference_baseline_mm`` and toe-in 0 in S. The truth a fitted model is compared with: derived
     here from the simulator's own chain, not from the estimator's code.
+
+    ``tilting``: the tilts the rig drives (of ``TILTS``). Each camera's frame is then the one at commanded tilt 0
+    as well, and its tilt joint is given in it: direction (the camera's x axis turned about y, then z), where
+    it crosses the camera's x = 0 plane (y, z), its scale and backlash.
     """
     separation = true_separation_mm(profile.slide, reference_baseline_mm)
+    joint = {side: f"tilt_{side}_deg" in tilting for side in SIDES}
     poses = {side: camera_pose(profile, side, separation_mm=separation,
-                               pan_deg=true_pan_deg(profile.head(side), 0.0)) for side in SIDES}
+                               pan_deg=true_pan_deg(profile.head(side), 0.0),
+                               tilt_deg=true_tilt_deg(profile.head(side), 0.0) if joint[side] else 0.0,
+                               tilt_joint=joint[side]) for side in SIDES}
     height = 0.5 * (profile.left_head.centre_height_mm + profile.right_head.centre_height_mm)
     forward = 0.5 * (profile.left_head.centre_forward_mm + profile.right_head.centre_forward_mm)
     out: dict[str, float] = {}
@@ -284,6 +336,23 @@ def kinematic_parameters(profile: SimProfile, reference_baseline_mm: float) -> d
         out[f"{side}_axis_x_mm"] = float(crossing[0])
         out[f"{side}_axis_z_mm"] = float(crossing[2])
         out[f"{side}_angle_scale"] = 1.0 + profile.head(side).scale_error
+        if joint[side]:
+            head = profile.head(side)
+            # The tilt axis at pan 0 in the bench frame (a rotation about it leaves it where it is), then in the
+            # camera's frame at commanded tilt 0.
+            M = mount_rotation(head)
+            centre_on_head = np.array([head.centre_sideways_mm, -head.centre_height_mm, head.centre_forward_mm])
+            pivot_head = centre_on_head + M @ np.array([0.0, head.tilt_centre_height_mm, -head.tilt_centre_forward_mm])
+            R_pan = rotation_about(pan_axis(head), (1.0 if side == "left" else -1.0) * true_pan_deg(head, 0.0))
+            direction = R.T @ (R_pan @ M @ tilt_axis(head))
+            point = R.T @ (carriage + R_pan @ pivot_head - t)
+            crossing = point - point[0] / direction[0] * direction
+            out[f"{side}_tilt_axis_yaw_deg"] = math.degrees(math.atan2(-direction[2], direction[0]))
+            out[f"{side}_tilt_axis_roll_deg"] = math.degrees(math.asin(direction[1]))
+            out[f"{side}_tilt_axis_y_mm"] = float(crossing[1])
+            out[f"{side}_tilt_axis_z_mm"] = float(crossing[2])
+            out[f"{side}_tilt_scale"] = 1.0 + head.tilt_scale_error
+            out[f"{side}_tilt_backlash_deg"] = head.tilt_backlash_deg / (1.0 + head.tilt_scale_error)
     d = poses["left"][:3, :3].T @ slide_direction(profile.slide)
     out["slide_yaw_deg"] = math.degrees(math.atan2(-d[2], d[0]))
     out["slide_pitch_deg"] = math.degrees(math.asin(d[1]))

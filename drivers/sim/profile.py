@@ -25,6 +25,13 @@ parallel rig):
   front of the axis, ``centre_sideways_mm`` to the right of it (+x) and ``centre_height_mm`` above
   the carriage; the camera is screwed to the head with a small roll (about its optical axis), pitch
   (about its x axis) and yaw (about its y axis).
+- Where a rig config drives a camera's tilt (``tilt_*_deg`` mapped to an axis: grblHAL's A/B), the head carries a
+  tilt joint between the pan and the camera: it turns the camera about an axis along the camera's x axis turned
+  by ``tilt_axis_yaw_deg`` about y and ``tilt_axis_roll_deg`` about z, ``tilt_centre_forward_mm`` behind and
+  ``tilt_centre_height_mm`` below the optical centre, by ``tilt_zero_offset_deg + (1 + tilt_scale_error) * tilt``
+  (> 0 looks down; less half ``tilt_backlash_deg`` in the direction of approach, plus a landing error of std
+  ``tilt_repeatability_deg``). A fixed tilt has no joint: the camera is turned about its own x axis through its
+  optical centre by the fixed value, as in the nominal geometry.
 - After each move the heads ring: a damped oscillation of the pan angle (``vibration_yaw_deg``) and
   a rocking of the head on its carriage about the rig z axis (``vibration_rock_deg``), frequency
   ``vibration_frequency_hz``, envelope decaying with time constant ``vibration_decay_s``, stopped
@@ -104,6 +111,19 @@ class PanHeadErrors(BaseModel):
                             le=0.05)
     backlash_deg: float = _f(0.0, "lost motion on reversal; the head trails the motor by half of it, deg", ge=0, le=2)
     repeatability_deg: float = _f(0.0, "std of the random landing error of each move, deg", ge=0, le=1)
+    # The tilt joint: only where a rig config drives the camera's tilt (tilt_*_deg mapped to an axis, grblHAL's A/B);
+    # a rig whose tilt is fixed has no joint and these values do nothing (drivers/sim/mechanics.py).
+    tilt_axis_yaw_deg: float = _f(0.0, "tilt axis turned from the camera's x axis about its y axis, deg", ge=-5, le=5)
+    tilt_axis_roll_deg: float = _f(0.0, "tilt axis then turned about the camera's z axis (one end higher), deg",
+                                   ge=-5, le=5)
+    tilt_centre_forward_mm: float = _f(0.0, "optical centre in front of the tilt axis, mm", ge=-100, le=100)
+    tilt_centre_height_mm: float = _f(0.0, "optical centre above the tilt axis, mm", ge=-100, le=100)
+    tilt_zero_offset_deg: float = _f(0.0, "tilt (> 0 looks down) at commanded tilt 0, deg", ge=-5, le=5)
+    tilt_scale_error: float = _f(0.0, "relative tilt error: tilt = (1 + scale_error) * commanded tilt", ge=-0.05,
+                                 le=0.05)
+    tilt_backlash_deg: float = _f(0.0, "lost motion of the tilt on reversal; the camera trails by half of it, deg",
+                                  ge=0, le=2)
+    tilt_repeatability_deg: float = _f(0.0, "std of the random landing error of each tilt move, deg", ge=0, le=1)
 
 
 class BoardErrors(BaseModel):
@@ -218,7 +238,9 @@ class SimProfile(BaseModel):
         """Backlash, landing errors or vibration: the bench must watch the axes move."""
         s, left, right = self.slide, self.left_head, self.right_head
         return bool(s.backlash_mm or s.repeatability_mm or left.backlash_deg or left.repeatability_deg
-                    or right.backlash_deg or right.repeatability_deg or self.cameras.vibrates)
+                    or right.backlash_deg or right.repeatability_deg or self.cameras.vibrates
+                    or left.tilt_backlash_deg or left.tilt_repeatability_deg or right.tilt_backlash_deg
+                    or right.tilt_repeatability_deg)
 
     def rows(self) -> list[tuple[str, Any, str]]:
         """(dotted name, value, description) of every parameter, in declaration order."""
@@ -242,11 +264,15 @@ LAB = SimProfile(
         axis_tilt_x_deg=0.30, axis_tilt_z_deg=-0.15, centre_forward_mm=22.0, centre_sideways_mm=1.8,
         centre_height_mm=40.0, mount_roll_deg=0.40, mount_pitch_deg=-0.25, mount_yaw_deg=0.30,
         zero_offset_deg=0.15, scale_error=2.0e-3, backlash_deg=0.03, repeatability_deg=0.002,
+        tilt_axis_yaw_deg=0.25, tilt_axis_roll_deg=-0.15, tilt_centre_forward_mm=12.0, tilt_centre_height_mm=8.0,
+        tilt_zero_offset_deg=0.20, tilt_scale_error=2.5e-3, tilt_backlash_deg=0.02, tilt_repeatability_deg=0.002,
     ),
     right_head=PanHeadErrors(
         axis_tilt_x_deg=-0.20, axis_tilt_z_deg=0.25, centre_forward_mm=22.8, centre_sideways_mm=-2.6,
         centre_height_mm=40.6, mount_roll_deg=-0.30, mount_pitch_deg=0.35, mount_yaw_deg=-0.20,
         zero_offset_deg=-0.10, scale_error=-1.5e-3, backlash_deg=0.03, repeatability_deg=0.002,
+        tilt_axis_yaw_deg=-0.20, tilt_axis_roll_deg=0.20, tilt_centre_forward_mm=12.7, tilt_centre_height_mm=7.4,
+        tilt_zero_offset_deg=-0.15, tilt_scale_error=-2.0e-3, tilt_backlash_deg=0.02, tilt_repeatability_deg=0.002,
     ),
     target=BoardErrors(print_scale_error=8.0e-4, bow_mm=0.6, placement_distance_sigma_mm=2.0,
                        placement_yaw_sigma_deg=1.0),
@@ -286,6 +312,19 @@ LAB_JUSTIFICATIONS: dict[str, str] = {
     "left_head.backlash_deg": "tensioned GT2 belt reduction: 0.02-0.05 deg at the output",
     "left_head.repeatability_deg": "microstepped stepper through a tensioned belt: unidirectional +-0.005 deg "
                                    "(~2.5 sigma)",
+    "left_head.tilt_axis_yaw_deg": "tilt bracket's bearing bores drilled and squared to the camera plate by hand: "
+                                   "a few tenths of a degree, as the pan axis",
+    "left_head.tilt_axis_roll_deg": "as tilt_axis_yaw_deg, the other direction (one bearing seat higher)",
+    "left_head.tilt_centre_forward_mm": "tilt bracket pivots at the camera board; the M12 lens's entrance pupil "
+                                        "stands 10-15 mm in front of the board",
+    "left_head.tilt_centre_height_mm": "pivot screws through the bracket's lower holes, ~8 mm under the lens axis "
+                                       "of a 32 mm board camera",
+    "left_head.tilt_zero_offset_deg": "tilt homing switch placed at assembly to ~0.1-0.2 deg, as the pan's",
+    "left_head.tilt_scale_error": "GT2 belt reduction, as the pan, on a smaller pulley: 0.2-0.3 % off nominal",
+    "left_head.tilt_backlash_deg": "the camera's weight ahead of the pivot preloads the belt one way: less lost "
+                                   "motion than the pans' 0.03 deg",
+    "left_head.tilt_repeatability_deg": "microstepped stepper through a tensioned belt, as the pan: +-0.005 deg "
+                                        "(~2.5 sigma)",
     "right_head.axis_tilt_x_deg": "as left_head (a different head, a different error)",
     "right_head.axis_tilt_z_deg": "as left_head",
     "right_head.centre_forward_mm": "as left_head; the same head and camera mounted again land ~1 mm apart",
@@ -298,6 +337,14 @@ LAB_JUSTIFICATIONS: dict[str, str] = {
     "right_head.scale_error": "as left_head",
     "right_head.backlash_deg": "as left_head",
     "right_head.repeatability_deg": "as left_head",
+    "right_head.tilt_axis_yaw_deg": "as left_head",
+    "right_head.tilt_axis_roll_deg": "as left_head",
+    "right_head.tilt_centre_forward_mm": "as left_head; the same bracket and camera mounted again land ~1 mm apart",
+    "right_head.tilt_centre_height_mm": "as left_head; 0.6 mm from the bracket holes' clearance",
+    "right_head.tilt_zero_offset_deg": "as left_head",
+    "right_head.tilt_scale_error": "as left_head",
+    "right_head.tilt_backlash_deg": "as left_head",
+    "right_head.tilt_repeatability_deg": "as left_head",
     "target.print_scale_error": "office laser/inkjet print: +-0.1 % scale from the paper feed",
     "target.bow_mm": "A3 print laminated on 5 mm foam board: 0.5-1 mm out of flat over 300 mm",
     "target.placement_distance_sigma_mm": "operator sets the distance with a tape measure: ~2 mm",

@@ -24,21 +24,26 @@ from stereo_bench.kinematics.model import (
     N_PARAMS,
     NAMES,
     PARAMETERS,
+    TILT_AXES,
+    TILT_PARAMETERS,
     FitSummary,
     KinematicModel,
     ParameterSpec,
     ParameterValue,
     chain,
+    model_axes,
     nominal_parameters,
+    parameter_specs,
+    vector_specs,
 )
 from stereo_bench.kinematics.nominal import TOLERANCE_NAMES, nominal_covariance, nominal_extrinsics
 from stereo_bench.kinematics.prediction import STRUCTURE_KEYS, Prediction, joint_covariance, predict, structure_sigma
 
 __all__ = [
-    "AXES", "FILE_SCHEMA", "FIT_TOLERANCE", "N_PARAMS", "NAMES", "PARAMETERS", "STRUCTURE_KEYS", "TOLERANCE_NAMES",
-    "ConfigurationViews", "DesignConfiguration", "FitSummary", "KinematicFileError", "KinematicFit",
-    "KinematicModel", "ParameterSpec", "ParameterValue", "Prediction", "approach_directions", "campaign_design",
-    "chain",
-    "fit_kinematics", "joint_covariance", "kinematic_design", "load_model", "model_from_toml", "model_toml",
-    "nominal_covariance", "nominal_extrinsics", "nominal_parameters", "predict", "save_model", "structure_sigma",
+    "AXES", "FILE_SCHEMA", "FIT_TOLERANCE", "N_PARAMS", "NAMES", "PARAMETERS", "STRUCTURE_KEYS", "TILT_AXES",
+    "TILT_PARAMETERS", "TOLERANCE_NAMES", "ConfigurationViews", "DesignConfiguration", "FitSummary",
+    "KinematicFileError", "KinematicFit", "KinematicModel", "ParameterSpec", "ParameterValue", "Prediction",
+    "approach_directions", "campaign_design", "chain", "fit_kinematics", "joint_covariance", "kinematic_design",
+    "load_model", "model_axes", "model_from_toml", "model_toml", "nominal_covariance", "nominal_extrinsics",
+    "nominal_parameters", "parameter_specs", "predict", "save_model", "structure_sigma", "vector_specs",
 ]

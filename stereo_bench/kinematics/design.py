@@ -12,20 +12,26 @@ from dataclasses import dataclass
 import numpy as np
 
 from stereo_bench.geometry import alpha_from_toe_in
-from stereo_bench.kinematics.model import AXES
+from stereo_bench.kinematics.model import AXES, TILT_AXES
 
 
 @dataclass(frozen=True)
 class DesignConfiguration:
-    """One configuration of the calibration design (commanded values)."""
+    """One configuration of the calibration design (commanded values); the tilts only on a rig that drives them."""
 
     baseline_mm: float
     toe_in_left_deg: float
     toe_in_right_deg: float
+    tilt_left_deg: float | None = None
+    tilt_right_deg: float | None = None
 
     def axes(self) -> dict[str, float]:
-        return {"baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_left_deg,
-                "toe_in_right_deg": self.toe_in_right_deg}
+        out = {"baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_left_deg,
+               "toe_in_right_deg": self.toe_in_right_deg}
+        for axis in TILT_AXES:
+            if getattr(self, axis) is not None:
+                out[axis] = getattr(self, axis)
+        return out
 
     @property
     def alpha_left_deg(self) -> float:
@@ -107,7 +113,7 @@ def approach_directions(previous: Mapping[str, float] | None, current: Mapping[s
     """
     before = before or {}
     out = {}
-    for axis in AXES:
+    for axis in AXES + tuple(a for a in TILT_AXES if a in current):
         if previous is None or axis not in previous or axis not in current:
             out[axis] = int(before.get(axis, 0))
             continue

@@ -13,7 +13,7 @@ from pydantic import ValidationError
 
 from drivers.files import MAX_TOML_BYTES, InputFileError, decode_utf8, parse_toml, read_regular_file
 from stereo_bench import atomic
-from stereo_bench.kinematics.model import _INDEX, NAMES, PARAMETERS, KinematicModel
+from stereo_bench.kinematics.model import KinematicModel
 
 
 class KinematicFileError(ValueError):
@@ -34,8 +34,12 @@ def model_toml(model: KinematicModel) -> str:
     data = model.model_dump(mode="json", by_alias=True)
     lines = ["# stereo-bench kinematic rig model: T_right_left at any (B, toe-ins) from the rig's axis positions.",
              "# Parameters in mm, deg and 1; covariance over the identifiable ones, same units and order.", ""]
-    for key in ("schema", "reference_baseline_mm", "repeatability_mm", "repeatability_left_deg",
-                "repeatability_right_deg", "image_size", "covariance_names"):
+    keys = ["schema", "reference_baseline_mm", "repeatability_mm", "repeatability_left_deg",
+            "repeatability_right_deg", "image_size", "covariance_names"]
+    if model.tilts:  # a rig with tilt joints; a file without these keys is a model of one without (every older file)
+        keys[1:1] = ["axes"]
+        keys[5:5] = [f"repeatability_{axis.removesuffix('_deg')}_deg" for axis in model.tilts]
+    for key in keys:
         lines.append(f"{key} = {_toml_value(data[key])}")
     lines.append("covariance = [")
     lines.extend(f"  {_toml_value(row)}," for row in data["covariance"])
@@ -60,8 +64,8 @@ def model_toml(model: KinematicModel) -> str:
         lines.append("]")
     lines += ["", "[span]"]
     lines.extend(f"{axis} = {_toml_value(values)}" for axis, values in data["span"].items())
-    for name in NAMES:
-        spec = PARAMETERS[_INDEX[name]]
+    for spec in model.specs:
+        name = spec.name
         lines += ["", f"[parameters.{name}]  # {spec.description}"]
         lines.extend(f"{key} = {_toml_value(value)}" for key, value in data["parameters"][name].items()
                      if value is not None)

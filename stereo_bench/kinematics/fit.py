@@ -35,18 +35,22 @@ from stereo_bench.geometry import rotation_deg
 from stereo_bench.kinematics.model import (
     _INDEX,
     AXES,
-    NAMES,
     PARAMETERS,
+    TILT_AXES,
     FitSummary,
     KinematicModel,
     ParameterValue,
     ResidualMapRecord,
     _effective,
+    _effective_tilts,
     _rotation_matrices,
     _rotation_vector_matrix,
     _rvec,
     chain,
+    model_axes,
     nominal_parameters,
+    parameter_specs,
+    vector_specs,
 )
 
 
@@ -160,11 +164,23 @@ def _solve_dense(lin: tuple[np.ndarray, np.ndarray], lam: float) -> np.ndarray:
     return np.linalg.solve(A + lam * np.diag(np.maximum(np.diag(A), 1e-12)), -g)
 
 
+def axes_of(configurations: Sequence[ConfigurationViews]) -> tuple[str, ...]:
+    """The model axes of a design: AXES, and the tilts every visit reports (a rig that drives them)."""
+    return model_axes([a for a in TILT_AXES if configurations and all(a in c.axes for c in configurations)])
+
+
 def _identifiable(configurations: Sequence[ConfigurationViews]) -> tuple[set[str], dict[str, str]]:
     """(parameter groups the design identifies, reason per group it does not)."""
     free, notes = {"right_pose"}, {}
     groups = {"baseline_mm": ("slide", "slide_backlash"), "toe_in_left_deg": ("left_axis", "left_backlash"),
               "toe_in_right_deg": ("right_axis", "right_backlash")}
+    axes = axes_of(configurations)
+    for tilt in TILT_AXES:
+        side = tilt.split("_")[1]
+        if tilt in axes:
+            groups[tilt] = (f"{side}_tilt", f"{side}_tilt_backlash")
+        elif len(axes) > len(AXES):  # the other camera tilts: this one's joint is in the vector, not in the rig
+            notes[f"{side}_tilt"] = notes[f"{side}_tilt_backlash"] = f"not in the model: the rig does not drive {tilt}"
     for axis, (geometry, backlash) in groups.items():
         values = {round(float(c.axes[axis]), 9) for c in configurations}
         if len(values) < 2:
@@ -212,7 +228,7 @@ def _pnp(object_points: np.ndarray, pixels: np.ndarray, K: np.ndarray, D: np.nda
 def _initial_parameters(free: np.ndarray, B_ref: float, configurations: Sequence[ConfigurationViews],
                         T_rl: list[np.ndarray | None]) -> np.ndarray:
     """Kinematic parameters from the per-configuration relative poses (small least squares from nominal)."""
-    p = nominal_parameters(B_ref)
+    p = nominal_parameters(B_ref, axes_of(configurations))
     usable = [i for i, T in enumerate(T_rl) if T is not None]
     # The right camera at B_ref, toe-in 0 from the configuration nearest to it, under the nominal chain.
     c0 = min(usable, key=lambda i: (abs(configurations[i].axes["toe_in_left_deg"])
@@ -235,7 +251,8 @@ def _initial_parameters(free: np.ndarray, B_ref: float, configurations: Sequence
         out = []
         for c in usable:
             conf = configurations[c]
-            model = chain(q, B_ref, *_effective(conf.axes, conf.approach, q))
+            model = chain(q, B_ref, *_effective(conf.axes, conf.approach, q),
+                          *_effective_tilts(conf.axes, conf.approach, q))
             dR = _rvec(model[:3, :3].T @ T_rl[c][:3, :3])
             out.append(np.concatenate([1000.0 * dR, model[:3, 3] - T_rl[c][:3, 3]]))
         return np.concatenate(out)
@@ -429,7 +446,7 @@ class _Bundle:
 def assemble_model(
     configurations: Sequence[ConfigurationViews], *, p: np.ndarray, free: np.ndarray, cov_k: np.ndarray,
     held_note, residual_px: np.ndarray, row_view: np.ndarray, view_config: np.ndarray, intr_l: np.ndarray,
-    intr_r: np.ndarray, image_size: tuple[int, int], B_ref: float, repeatability: tuple[float, float, float],
+    intr_r: np.ndarray, image_size: tuple[int, int], B_ref: float, repeatability: tuple[float, ...],
     sigma_px: float, dof: int, intrinsics: str, intrinsic_names: list[str], cov_i: np.ndarray, cross: np.ndarray,
     locking, residual_maps: dict,
 ) -> tuple[KinematicModel, np.ndarray]:
@@ -437,12 +454,19 @@ def assemble_model(
 
     ``p`` every parameter's value, ``free`` which were fitted, ``cov_k`` their covariance (in order); ``held_note``:
     spec -> why a held parameter is not identified; ``residual_px`` (N, 2) the fit's pixel residuals and
-    ``row_view`` (N,) the view of each; ``view_config`` per view its configuration.
+    ``row_view`` (N,) the view of each; ``view_config`` per view its configuration. A design whose visits report
+    tilts (:func:`axes_of`) gives a model with tilt joints: ``p`` and ``free`` over its vector (:func:`vector_specs`),
+    ``repeatability`` then also each driven tilt's.
     """
+    axes = axes_of(configurations)
+    names = [spec.name for spec in vector_specs(axes)]
+    present = {spec.name for spec in parameter_specs(axes)}
     free_index = np.flatnonzero(free)
     sig = np.sqrt(np.clip(np.diag(cov_k), 0.0, None))
     parameters = {}
-    for i, spec in enumerate(PARAMETERS):
+    for i, spec in enumerate(vector_specs(axes)):
+        if spec.name not in present:
+            continue
         if free[i]:
             k = int(np.searchsorted(free_index, i))
             parameters[spec.name] = ParameterValue(value=float(p[i]), sigma=float(sig[k]), unit=spec.unit,
@@ -458,17 +482,22 @@ def assemble_model(
     K1, D1 = _K_D(intr_l)
     K2, D2 = _K_D(intr_r)
     span = {axis: [float(min(c.axes[axis] for c in configurations)), float(max(c.axes[axis] for c in configurations))]
-            for axis in AXES}
+            for axis in axes}
+    tilted = {}  # a model with tilt joints: its axes and (repeatability[3:], left then right) its tilts' landings
+    if len(axes) > len(AXES):
+        tilt_sigma = dict(zip(TILT_AXES, repeatability[3:], strict=False))
+        tilted = {"axes": list(axes), "repeatability_tilt_left_deg": tilt_sigma.get("tilt_left_deg", 0.0),
+                  "repeatability_tilt_right_deg": tilt_sigma.get("tilt_right_deg", 0.0)}
     model = KinematicModel(
         reference_baseline_mm=B_ref, repeatability_mm=repeatability[0],
-        repeatability_left_deg=repeatability[1], repeatability_right_deg=repeatability[2],
-        span=span, parameters=parameters, covariance_names=[NAMES[i] for i in free_index],
+        repeatability_left_deg=repeatability[1], repeatability_right_deg=repeatability[2], **tilted,
+        span=span, parameters=parameters, covariance_names=[names[i] for i in free_index],
         covariance=cov_k.tolist(), image_size=[int(image_size[0]), int(image_size[1])],
         K1=K1.tolist(), D1=D1.ravel().tolist(), K2=K2.tolist(), D2=D2.ravel().tolist(),
         fit=FitSummary(
             rms_px=float(math.sqrt((residual_px**2).sum(axis=1).mean())), pixel_sigma_px=sigma_px,
             n_configurations=len(configurations), n_views=n_views, n_observations=len(residual_px),
-            intrinsics=intrinsics, design=[{a: float(c.axes[a]) for a in AXES} for c in configurations],
+            intrinsics=intrinsics, design=[{a: float(c.axes[a]) for a in axes} for c in configurations],
             per_configuration_rms_px=per_config_rms, dof=int(dof),
         ),
         intrinsics_covariance_names=intrinsic_names, intrinsics_covariance=cov_i.tolist(),
@@ -528,6 +557,10 @@ def fit_kinematics(
     if missing:
         raise ValueError(f"configurations {missing} have no view seen by both cameras: take views there or "
                          "leave them out of the design")
+    tilts = axes_of(configurations)[len(AXES):]
+    if tilts:
+        raise ValueError(f"the presented design's fit has no tilt joints and the design reports {', '.join(tilts)}: "
+                         "fit a tilting rig with the fixed-board design (stereo_bench.kinematics.fixed_board)")
     groups, notes = _identifiable(configurations)
     free = np.array([spec.group in groups for spec in PARAMETERS])
     free_index = np.flatnonzero(free)

@@ -45,19 +45,26 @@ from stereo_bench.kinematics.fit import (
     _rotate,
     _solve_dense,
     assemble_model,
+    axes_of,
 )
 from stereo_bench.kinematics.model import (
     _INDEX,
-    NAMES,
+    N_PARAMS,
     PARAMETERS,
+    TILT_AXES,
     KinematicModel,
+    ParameterSpec,
     ResidualMapRecord,
     _about_line,
     _effective,
+    _effective_tilts,
     _pan_line,
     _rotation_matrices,
     _rvec,
+    _tilt_joint,
+    _tilt_line,
     nominal_parameters,
+    vector_specs,
 )
 
 INTRINSIC_NAMES = tuple(f"{side}.{name}" for side in ("left", "right")
@@ -76,7 +83,9 @@ IDENTIFIABILITY_SCALE = {"deg": 0.3, "mm": 1.0, "1": 2e-3}
 
 def fixed_board_design(baseline_range_mm: tuple[float, float], toe_in_left_range_deg: tuple[float, float] = (0.0, 0.0),
                        toe_in_right_range_deg: tuple[float, float] | None = None, *, baseline_levels: int = 4,
-                       pan_levels: int = 4, min_pan_span_deg: float = 6.0) -> list[DesignConfiguration]:
+                       pan_levels: int = 4, min_pan_span_deg: float = 6.0,
+                       tilt_ranges_deg: Mapping[str, tuple[float, float]] | None = None, tilt_levels: int = 3,
+                       min_tilt_span_deg: float = 10.0) -> list[DesignConfiguration]:
     """Slide and pan positions for the fixed-board fit, in the order to visit them (every axis from both sides).
 
     ``baseline_levels`` slide positions over the range; at each, the two heads go through
@@ -87,9 +96,17 @@ def fixed_board_design(baseline_range_mm: tuple[float, float], toe_in_left_range
     toe-in) is widened about its middle (a toe-in of 0 upward): the heads turning are what shows
     where each pan axis is and what separates the intrinsics from the board pose; a single pan level
     (``pan_levels`` 1) keeps the pan where the campaign needs it.
+
+    ``tilt_ranges_deg``: per tilt the rig drives (``tilt_left_deg``, ``tilt_right_deg``: a rig config that maps it to
+    an axis), the range the campaign uses; its ``tilt_levels`` values (a range narrower than ``min_tilt_span_deg``
+    widened about its middle) are stepped up and down once per visit, the right tilt half a period behind the left
+    (a triangle wave: every inner level reached from both sides), so each tilt meets every slide and pan position.
     """
-    if baseline_levels < 1 or pan_levels < 1:
-        raise ValueError("baseline_levels and pan_levels must be >= 1")
+    if baseline_levels < 1 or pan_levels < 1 or tilt_levels < 1:
+        raise ValueError("baseline_levels, pan_levels and tilt_levels must be >= 1")
+    unknown = [axis for axis in (tilt_ranges_deg or {}) if axis not in TILT_AXES]
+    if unknown:
+        raise ValueError(f"tilt_ranges_deg: {', '.join(unknown)} not of {', '.join(TILT_AXES)}")
     toe_in_right_range_deg = toe_in_right_range_deg or toe_in_left_range_deg
 
     def widen(r: tuple[float, float]) -> tuple[float, float]:
@@ -120,7 +137,31 @@ def fixed_board_design(baseline_range_mm: tuple[float, float], toe_in_left_range
             pairs = pairs[::-1]
         for left, right in pairs:
             design.append(DesignConfiguration(bs[b], left, right))
+    if tilt_ranges_deg:
+        design = _with_tilts(design, tilt_ranges_deg, tilt_levels, min_tilt_span_deg)
     return design
+
+
+def _with_tilts(design: list[DesignConfiguration], ranges: Mapping[str, tuple[float, float]], levels: int,
+                min_span_deg: float) -> list[DesignConfiguration]:
+    """``design`` with each driven tilt stepped through its levels, up and down (see :func:`fixed_board_design`)."""
+    from dataclasses import replace
+
+    period = max(1, 2 * (levels - 1))
+    wave = [k if k < levels else period - k for k in range(period)]  # 0 1 .. n-1 .. 1
+    values = {}
+    for axis, (a, b) in ranges.items():
+        lo, hi = float(min(a, b)), float(max(a, b))
+        if levels > 1 and hi - lo < min_span_deg:
+            mid = 0.5 * (lo + hi)
+            lo, hi = mid - min_span_deg / 2.0, mid + min_span_deg / 2.0
+        values[axis] = [round(float(v), 1) for v in np.linspace(lo, hi, levels)] if levels > 1 else [0.5 * (lo + hi)]
+    out = []
+    for k, visit in enumerate(design):
+        tilts = {axis: values[axis][wave[(k + (0 if axis == "tilt_left_deg" else levels - 1)) % period]]
+                 for axis in values}
+        out.append(replace(visit, **tilts))
+    return out
 
 
 # --------------------------------------------------------------------------------------------------
@@ -149,7 +190,7 @@ class FixedBoardFit:
     identifiability: list[IdentifiabilityRow]
     view_rms_px: np.ndarray
     view_configuration: np.ndarray
-    landing: np.ndarray  # (n_configurations, 3)
+    landing: np.ndarray  # (n_configurations, 3), or 5 with tilt joints (mm, deg)
     views_dropped: list[tuple[int, int, str]] = field(default_factory=list)
 
 
@@ -166,14 +207,23 @@ def _about_lines(direction: np.ndarray, point: np.ndarray, rads: np.ndarray) -> 
     return T
 
 
-def _chains(p: np.ndarray, reference_baseline_mm: float, b: np.ndarray, tl: np.ndarray,
-            tr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _chains(p: np.ndarray, reference_baseline_mm: float, b: np.ndarray, tl: np.ndarray, tr: np.ndarray,
+            til: np.ndarray | None = None, tir: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(T_S_L, T_R_L), each (C, 4, 4), of :func:`stereo_bench.kinematics.model.chain` at C effective axis values at
-    once (the same chain, batched: tests/test_kinematics_fixed_board.py checks they agree)."""
+    once (the same chain, batched: tests/test_kinematics_fixed_board.py checks they agree); ``til``, ``tir``: the
+    effective tilts, for a vector ``p`` with tilt joints."""
     left_dir, left_point = _pan_line(p, "left")
     right_dir, right_point = _pan_line(p, "right")
     T_S_L = _about_lines(left_dir, left_point, np.radians(p[_INDEX["left_angle_scale"]] * tl))
     T_R0_R = _about_lines(right_dir, right_point, -np.radians(p[_INDEX["right_angle_scale"]] * tr))
+    if len(p) > N_PARAMS:
+        for side, tilt in (("left", til), ("right", tir)):
+            direction, point = _tilt_line(p, side)
+            turn = _about_lines(direction, point, -np.radians(p[_INDEX[f"{side}_tilt_scale"]] * tilt))
+            if side == "left":
+                T_S_L = T_S_L @ turn
+            else:
+                T_R0_R = T_R0_R @ turn
     i = _INDEX["right_rot_x_deg"]
     T_S_R0 = np.eye(4)
     T_S_R0[:3, :3] = _rotation_matrices(np.radians(p[i : i + 3]))[0]
@@ -198,9 +248,10 @@ def _invert(T: np.ndarray) -> np.ndarray:
     return out
 
 
-def _left_in_S(p: np.ndarray, toe_in_left_deg: float) -> np.ndarray:
+def _left_in_S(p: np.ndarray, toe_in_left_deg: float, tilt_left_deg: float = 0.0) -> np.ndarray:
     direction, point = _pan_line(p, "left")
-    return _about_line(direction, point, math.radians(p[_INDEX["left_angle_scale"]] * toe_in_left_deg))
+    T = _about_line(direction, point, math.radians(p[_INDEX["left_angle_scale"]] * toe_in_left_deg))
+    return T @ _tilt_joint(p, "left", tilt_left_deg) if len(p) > N_PARAMS else T
 
 
 def _slide_direction(p: np.ndarray) -> np.ndarray:
@@ -209,7 +260,8 @@ def _slide_direction(p: np.ndarray) -> np.ndarray:
 
 
 class _FixedBundle:
-    """Dense adjustment. Unknowns: [kinematic (all 22, masked), share, board pose (6), landings (3 C), intrinsics (16)].
+    """Dense adjustment. Unknowns: [kinematic (the vector's 22, or 34 with tilt joints; masked), share, board pose (6),
+    landings (one per axis and visit: 3 C, or 5 C with tilt joints), intrinsics (16)].
 
     Residuals: every corner's pixel error / sigma_px (left then right camera), the landing priors, the
     intrinsics prior (whitened by its covariance's Cholesky factor). Held parameters stay at their value
@@ -222,15 +274,16 @@ class _FixedBundle:
         self.C = len(configurations)
         self.sigma_px = sigma_px
         self.landing_sigmas = np.asarray(landing_sigmas, float)
-        self.landing_axes = [a for a in range(3) if self.landing_sigmas[a] > 0.0]
+        self.n_axes = len(self.landing_sigmas)  # the chain's axes: 3, or 5 with tilt joints
+        self.landing_axes = [a for a in range(self.n_axes) if self.landing_sigmas[a] > 0.0]
         self.refine = refine_intrinsics
         self.intr0 = np.asarray(intr0, float)  # (18,): left 9, right 9 (k3 fixed)
         self.prior = intrinsics_prior  # (mean (16,), whitening (16, 16)) or None
-        self.n_k = len(NAMES)
+        self.n_k = len(self.p0)
         self.o_share = self.n_k
         self.o_board = self.o_share + 1
         self.o_land = self.o_board + 6
-        self.o_intr = self.o_land + 3 * self.C
+        self.o_intr = self.o_land + self.n_axes * self.C
         self.n = self.o_intr + (16 if refine_intrinsics else 0)
         obs = {"left": ([], [], []), "right": ([], [], [])}
         for v, (_c, ids_l, px_l, ids_r, px_r) in enumerate(views):
@@ -259,10 +312,17 @@ class _FixedBundle:
         p = x[: self.n_k]
         share = x[self.o_share]
         T_ref_board = _pose_matrix(x[self.o_board : self.o_board + 6])
-        landing = x[self.o_land : self.o_intr].reshape(self.C, 3)
-        effective = np.array([_effective(conf.axes, conf.approach, p) for conf in self.configurations]) + landing
-        b, tl, tr = effective.T
-        T_S_L, T_R_L = _chains(p, self.B_ref, b, tl, tr)
+        landing = x[self.o_land : self.o_intr].reshape(self.C, self.n_axes)
+        if self.n_axes > 3:
+            effective = np.array([(*_effective(conf.axes, conf.approach, p), *_effective_tilts(conf.axes, conf.approach,
+                                                                                              p))
+                                  for conf in self.configurations]) + landing
+            b, tl, tr, til, tir = effective.T
+            T_S_L, T_R_L = _chains(p, self.B_ref, b, tl, tr, til, tir)
+        else:
+            effective = np.array([_effective(conf.axes, conf.approach, p) for conf in self.configurations]) + landing
+            b, tl, tr = effective.T
+            T_S_L, T_R_L = _chains(p, self.B_ref, b, tl, tr)
         T_S_board = np.repeat(T_ref_board[None], self.C, axis=0)
         T_S_board[:, :3, 3] += (share * p[_INDEX["slide_scale"]] * (b - self.B_ref))[:, None] * _slide_direction(p)
         T_L = _invert(T_S_L) @ T_S_board
@@ -277,7 +337,7 @@ class _FixedBundle:
             vid, obj, px = self.obs[side]
             X = _rotate(T[vid, :3, :3], obj) + T[vid, :3, 3]
             out.append((_project(X, intr) - px).ravel() / self.sigma_px)
-        landing = x[self.o_land : self.o_intr].reshape(self.C, 3)
+        landing = x[self.o_land : self.o_intr].reshape(self.C, self.n_axes)
         if self.landing_axes:
             out.append((landing[:, self.landing_axes] / self.landing_sigmas[self.landing_axes]).ravel())
         if self.refine and self.prior is not None:
@@ -302,7 +362,7 @@ class _FixedBundle:
         m = self.m_px
         n_axes = len(self.landing_axes)
         for a in self.landing_axes:
-            columns = [self.o_land + 3 * c + a for c in range(self.C)]
+            columns = [self.o_land + self.n_axes * c + a for c in range(self.C)]
             d, h = diff(columns)
             j = self.landing_axes.index(a)
             for c, column in enumerate(columns):
@@ -336,12 +396,13 @@ def _information(J: np.ndarray, interest: np.ndarray, nuisance: np.ndarray) -> n
     return I_aa - I_an @ np.linalg.solve(I_nn + 1e-12 * np.eye(len(I_nn)) * np.trace(I_nn) / len(I_nn), I_an.T)
 
 
-def _scales() -> np.ndarray:
-    return np.array([IDENTIFIABILITY_SCALE[spec.unit] for spec in PARAMETERS])
+def _scales(specs: Sequence[ParameterSpec] = PARAMETERS) -> np.ndarray:
+    return np.array([IDENTIFIABILITY_SCALE[spec.unit] for spec in specs])
 
 
 def identifiability(J: np.ndarray, free: np.ndarray, nuisance: np.ndarray, *, notes: Mapping[str, str] | None = None,
-                    held: Mapping[str, str] | None = None) -> tuple[np.ndarray, list[IdentifiabilityRow]]:
+                    held: Mapping[str, str] | None = None,
+                    specs: Sequence[ParameterSpec] = PARAMETERS) -> tuple[np.ndarray, list[IdentifiabilityRow]]:
     """Which of the ``free`` kinematic parameters the whitened Jacobian ``J`` determines.
 
     ``J``'s first ``len(NAMES)`` columns are the kinematic parameters; ``nuisance`` the column indices
@@ -350,10 +411,12 @@ def identifiability(J: np.ndarray, free: np.ndarray, nuisance: np.ndarray, *, no
     1 (the tolerance) is not determined, and the parameter with the largest part in it is held, until
     every remaining direction is determined. ``notes``: why a parameter group is held by rule (the design
     holds its axis at one value...); ``held``: why a parameter was held by an earlier call. Returns (the mask
-    of identified parameters, the table).
+    of identified parameters, the table). ``specs``: the kinematic columns' parameters (with tilt joints:
+    :func:`stereo_bench.kinematics.model.vector_specs`); a tilt joint the rig does not drive has no row.
     """
     notes = dict(notes or {})
-    scales = _scales()
+    names = [spec.name for spec in specs]
+    scales = _scales(specs)
     free = np.array(free, bool).copy()
     held_note: dict[int, str] = {}
     while free.any():
@@ -364,7 +427,7 @@ def identifiability(J: np.ndarray, free: np.ndarray, nuisance: np.ndarray, *, no
             break
         vec = U[:, 0]
         worst = int(np.argmax(np.abs(vec)))
-        partners = [NAMES[idx[k]] for k in np.argsort(-np.abs(vec)) if k != worst and abs(vec[k]) > 0.3]
+        partners = [names[idx[k]] for k in np.argsort(-np.abs(vec)) if k != worst and abs(vec[k]) > 0.3]
         what = "not determined by the design" + (f": confounded with {', '.join(partners)}" if partners
                                                 else f" (sigma {1.0 / math.sqrt(max(w[0], 1e-300)):.3g} x its "
                                                      "tolerance)")
@@ -372,16 +435,18 @@ def identifiability(J: np.ndarray, free: np.ndarray, nuisance: np.ndarray, *, no
         free[idx[worst]] = False
     rows: list[IdentifiabilityRow] = []
     idx = np.flatnonzero(free)
-    sig = np.full(len(NAMES), np.nan)
-    null_share = np.zeros(len(NAMES))
+    sig = np.full(len(names), np.nan)
+    null_share = np.zeros(len(names))
     if idx.size:
         info = _information(J, idx, nuisance)
         cov = np.linalg.inv(info)
         sig[idx] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     # The part of each parameter in the directions left undetermined, with all rule-free parameters.
-    for i, spec in enumerate(PARAMETERS):
+    for i, spec in enumerate(specs):
         if free[i]:
             rows.append(IdentifiabilityRow(spec.name, spec.unit, True, float(sig[i]), float(null_share[i])))
+        elif notes.get(spec.group, "").startswith("not in the model"):
+            continue  # the joint of a tilt the rig does not drive: in the vector, not in the rig
         else:
             note = held_note.get(i) or (held or {}).get(spec.name) or notes.get(spec.group, "not identifiable")
             rows.append(IdentifiabilityRow(spec.name, spec.unit, False, None, 1.0, note))
@@ -402,6 +467,7 @@ def fit_fixed_board(
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     intrinsics_covariance: np.ndarray | None = None, refine_intrinsics: bool = True,
     repeatability_mm: float = 0.0, repeatability_left_deg: float = 0.0, repeatability_right_deg: float = 0.0,
+    repeatability_tilt_left_deg: float = 0.0, repeatability_tilt_right_deg: float = 0.0,
     reference_baseline_mm: float | None = None, left_share: float = 0.5, min_corners: int = 6,
     max_iterations: int = 50,
 ) -> FixedBoardFit:
@@ -418,6 +484,9 @@ def fit_fixed_board(
         repeatability_*: std of each axis' landing error per move (a prior on one landing error per axis
             and visit).
 
+    Visits whose ``axes`` report tilts (every one of them: a rig that drives ``tilt_left_deg`` / ``tilt_right_deg``)
+    give a model with the tilt joints of :mod:`stereo_bench.kinematics.model`, fitted with the rest.
+
     Raises:
         ValueError: too few usable views.
     """
@@ -430,13 +499,15 @@ def fit_fixed_board(
                                 intrinsics_covariance=intrinsics_covariance, refine_intrinsics=refine_intrinsics,
                                 repeatability_mm=repeatability_mm, repeatability_left_deg=repeatability_left_deg,
                                 repeatability_right_deg=repeatability_right_deg,
+                                repeatability_tilts=(repeatability_tilt_left_deg, repeatability_tilt_right_deg),
                                 reference_baseline_mm=reference_baseline_mm, left_share=left_share,
                                 min_corners=min_corners, max_iterations=max_iterations)
 
 
 def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, intrinsics_covariance,
                      refine_intrinsics, repeatability_mm, repeatability_left_deg, repeatability_right_deg,
-                     reference_baseline_mm, left_share, min_corners, max_iterations) -> FixedBoardFit:
+                     repeatability_tilts, reference_baseline_mm, left_share, min_corners,
+                     max_iterations) -> FixedBoardFit:
     object_points = np.asarray(object_points, dtype=float).reshape(-1, 3)
     views, dropped = [], []
     for c, conf in enumerate(configurations):
@@ -453,8 +524,11 @@ def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, i
     if len(views) < 3 or missing:
         raise ValueError(f"the fixed-board fit needs the board seen by both cameras at every visit "
                          f"(visits without: {missing}, views usable: {len(views)})")
+    axes = axes_of(configurations)
+    tilted = len(axes) > 3
+    specs = vector_specs(axes)
     groups, notes = _identifiable(configurations)
-    rule_free = np.array([spec.group in groups for spec in PARAMETERS])
+    rule_free = np.array([spec.group in groups for spec in specs])
     baselines = [float(c.axes["baseline_mm"]) for c in configurations]
     B_ref = float(reference_baseline_mm if reference_baseline_mm is not None
                   else 0.5 * (min(baselines) + max(baselines)))
@@ -477,7 +551,7 @@ def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, i
         b, tl, _ = _effective(conf.axes, conf.approach, p0)
         shift = np.eye(4)
         shift[:3, 3] = -left_share * p0[_INDEX["slide_scale"]] * (b - B_ref) * d0
-        boards.append(shift @ _left_in_S(p0, tl) @ T)
+        boards.append(shift @ _left_in_S(p0, tl, _effective_tilts(conf.axes, conf.approach, p0)[0]) @ T)
     T_board0 = _average_transform(boards)
 
     prior = None
@@ -485,6 +559,9 @@ def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, i
         cov = np.asarray(intrinsics_covariance, float).reshape(16, 16)
         prior = (np.concatenate([intr_l[:8], intr_r[:8]]), np.linalg.inv(np.linalg.cholesky(cov)))
     landing_sigmas = (repeatability_mm, repeatability_left_deg, repeatability_right_deg)
+    if tilted:  # one landing per tilt and visit; a tilt the rig does not drive lands exactly (held at 0)
+        landing_sigmas += tuple(sigma if axis in axes else 0.0
+                                for axis, sigma in zip(TILT_AXES, repeatability_tilts, strict=True))
 
     def build(sigma_px: float, p: np.ndarray) -> _FixedBundle:
         return _FixedBundle(p, B_ref, configurations, views, object_points, np.concatenate([intr_l, intr_r]),
@@ -493,19 +570,20 @@ def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, i
 
     sigma_px = 0.1
     bundle = build(sigma_px, p0)
-    x = np.concatenate([p0, [left_share], _rvec(T_board0[:3, :3]), T_board0[:3, 3], np.zeros(3 * len(configurations)),
+    x = np.concatenate([p0, [left_share], _rvec(T_board0[:3, :3]), T_board0[:3, 3],
+                        np.zeros(bundle.n_axes * len(configurations)),
                         np.concatenate([intr_l[:8], intr_r[:8]]) if refine_intrinsics else []])
     # Landing errors of an axis with no stated repeatability are not unknowns (exact landings).
     nuisance = np.array([k for k in range(bundle.n_k, bundle.n)
-                         if not (bundle.o_land <= k < bundle.o_intr and (k - bundle.o_land) % 3 not in
+                         if not (bundle.o_land <= k < bundle.o_intr and (k - bundle.o_land) % bundle.n_axes not in
                                  bundle.landing_axes)], int)
     if len(set(baselines)) < 2:
         nuisance = nuisance[nuisance != bundle.o_share]  # the share needs two baselines: held
     # Which parameters the design determines, at the start (a Jacobian there is as good for the rank).
     J0 = bundle.jacobian(x, bundle.residuals(x))
-    free, start_table = identifiability(J0, rule_free, nuisance, notes=notes)
+    free, start_table = identifiability(J0, rule_free, nuisance, notes=notes, specs=specs)
     held = {row.name: row.note for row in start_table if not row.identified}
-    nominal = nominal_parameters(B_ref)
+    nominal = nominal_parameters(B_ref, axes)
     x[: bundle.n_k] = np.where(free, x[: bundle.n_k], nominal)  # what the design cannot identify: held nominal
 
     active = np.concatenate([np.flatnonzero(free), nuisance]).astype(int)
@@ -528,7 +606,7 @@ def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, i
         x[active] = z
         r = bundle.residuals(x)
         pixel = r[: bundle.m_px] * sigma_px
-        dof = max(1, bundle.m_px - (len(active) - 3 * len(configurations)))
+        dof = max(1, bundle.m_px - (len(active) - bundle.n_axes * len(configurations)))
         estimate = max(math.sqrt(float(pixel @ pixel) / dof), 1e-6)
         converged = abs(estimate / sigma_px - 1.0) < 0.05
         sigma_px = estimate
@@ -539,7 +617,7 @@ def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, i
     J = bundle.jacobian(x, r)
     # The table at the solution (the start's Jacobian chose what to hold; at the solution it says the same
     # unless the start was far off, and then the table tells).
-    _, table = identifiability(J, free, nuisance, notes=notes, held=held)
+    _, table = identifiability(J, free, nuisance, notes=notes, held=held, specs=specs)
     cov = np.linalg.inv(_normal(J[:, active], r)[0])
     n_free = int(free.sum())
     cov_k = cov[:n_free, :n_free]
@@ -556,10 +634,11 @@ def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, i
     residual = (r[: bundle.m_px] * sigma_px).reshape(-1, 2)
     split = bundle.m_left // 2
     model, per_view = assemble_model(
-        configurations, p=p, free=free, cov_k=cov_k, held_note=lambda spec: by_name[spec.name].note,
+        configurations, p=p, free=free, cov_k=cov_k,
+        held_note=lambda spec: by_name[spec.name].note if spec.name in by_name else notes.get(spec.group, ""),
         residual_px=residual, row_view=bundle.row_view[::2], view_config=bundle.view_config, intr_l=il, intr_r=ir,
         image_size=image_size, B_ref=B_ref,
-        repeatability=(repeatability_mm, repeatability_left_deg, repeatability_right_deg), sigma_px=sigma_px,
+        repeatability=landing_sigmas, sigma_px=sigma_px,
         dof=dof, intrinsics=("refined jointly, lens calibration as prior" if prior is not None else
                              "refined jointly" if refine_intrinsics else "fixed"),
         intrinsic_names=intrinsic_names, cov_i=cov_i, cross=cross, locking=None,
@@ -570,7 +649,7 @@ def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, i
     return FixedBoardFit(model=model, T_ref_board=_pose_matrix(x[bundle.o_board : bundle.o_board + 6]),
                          left_share=float(x[bundle.o_share]), identifiability=table, view_rms_px=per_view,
                          view_configuration=bundle.view_config.copy(),
-                         landing=x[bundle.o_land : bundle.o_intr].reshape(len(configurations), 3),
+                         landing=x[bundle.o_land : bundle.o_intr].reshape(len(configurations), bundle.n_axes),
                          views_dropped=dropped)
 
 
@@ -578,14 +657,16 @@ def design_identifiability(
     design: Sequence[DesignConfiguration], object_points: np.ndarray, T_rig_board: np.ndarray,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], *, pixel_sigma_px: float = 0.1,
     intrinsics_covariance: np.ndarray | None = None, refine_intrinsics: bool = True, repeatability_mm: float = 0.0,
-    repeatability_deg: float = 0.0,
+    repeatability_deg: float = 0.0, repeatability_tilt_deg: float | None = None,
 ) -> list[IdentifiabilityRow]:
     """The identifiability table a fixed-board design will have, before any view is taken (``campaign plan``).
 
     The board at ``T_rig_board`` (the rig frame of :class:`stereo_bench.geometry.RigPose`) is projected exactly
     through the nominal chain at every visit of ``design`` (visited in order, approach directions from the
     order); the Jacobian there, whitened by ``pixel_sigma_px``, is what :func:`identifiability` reads. The views
-    are the nominal rig's: a built rig differs by its tolerances, which change the table little.
+    are the nominal rig's: a built rig differs by its tolerances, which change the table little. A design with
+    tilts (:func:`fixed_board_design`'s ``tilt_ranges_deg``) has the tilt joints' rows too; their landings' std is
+    ``repeatability_tilt_deg`` (None: ``repeatability_deg``, the heads').
     """
     from stereo_bench.geometry import RigPose
     from stereo_bench.kinematics.design import approach_directions
@@ -602,15 +683,21 @@ def design_identifiability(
                                                                                               intrinsics[3])])
     points = np.asarray(object_points, float).reshape(-1, 3)
     ids = np.arange(len(points))
-    p0 = nominal_parameters(B_ref)
-    x = np.concatenate([p0, [0.5], _rvec(T_ref_board[:3, :3]), T_ref_board[:3, 3], np.zeros(3 * len(configurations)),
+    axes = axes_of(configurations)
+    specs = vector_specs(axes)
+    p0 = nominal_parameters(B_ref, axes)
+    sigmas = (repeatability_mm, repeatability_deg, repeatability_deg)
+    if len(axes) > 3:
+        tilt_sigma = repeatability_deg if repeatability_tilt_deg is None else repeatability_tilt_deg
+        sigmas += tuple(tilt_sigma if axis in axes else 0.0 for axis in TILT_AXES)
+    x = np.concatenate([p0, [0.5], _rvec(T_ref_board[:3, :3]), T_ref_board[:3, 3],
+                        np.zeros(len(sigmas) * len(configurations)),
                         intr[[0, 1, 2, 3, 4, 5, 6, 7, 9, 10, 11, 12, 13, 14, 15, 16]] if refine_intrinsics else []])
     placeholder = [(c, ids, np.zeros((len(ids), 2)), ids, np.zeros((len(ids), 2))) for c in range(len(configurations))]
     prior = None
     if refine_intrinsics and intrinsics_covariance is not None:
         cov = np.asarray(intrinsics_covariance, float).reshape(16, 16)
         prior = (x[-16:].copy(), np.linalg.inv(np.linalg.cholesky(cov)))
-    sigmas = (repeatability_mm, repeatability_deg, repeatability_deg)
 
     def bundle(views):
         return _FixedBundle(p0, B_ref, configurations, views, points, intr, sigma_px=pixel_sigma_px,
@@ -623,11 +710,11 @@ def design_identifiability(
              for c in range(len(configurations))]
     exact = bundle(views)
     groups, notes = _identifiable(configurations)
-    rule_free = np.array([spec.group in groups for spec in PARAMETERS])
+    rule_free = np.array([spec.group in groups for spec in specs])
     nuisance = np.array([k for k in range(exact.n_k, exact.n)
-                         if not (exact.o_land <= k < exact.o_intr and (k - exact.o_land) % 3 not in
+                         if not (exact.o_land <= k < exact.o_intr and (k - exact.o_land) % exact.n_axes not in
                                  exact.landing_axes)], int)
     if len(set(baselines)) < 2:
         nuisance = nuisance[nuisance != exact.o_share]
     J = exact.jacobian(x, exact.residuals(x))
-    return identifiability(J, rule_free, nuisance, notes=notes)[1]
+    return identifiability(J, rule_free, nuisance, notes=notes, specs=specs)[1]

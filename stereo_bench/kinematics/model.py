@@ -17,6 +17,19 @@ of commanded baseline), ``T_S_R0`` the right camera at B_ref and toe-in 0 (rotat
 translation in mm). Commanded values are corrected for backlash by the direction of approach a
 (+1: the quantity last increased): B' = B - a * b_s / 2, t' = t - a * b / 2.
 
+A rig that drives a camera's tilt (issue 25: ``tilt_left_deg`` / ``tilt_right_deg`` among the model's ``axes``) has a
+tilt joint after the pan, and S is then the left camera at toe-in 0 AND tilt 0::
+
+    T_S_L = Rot(left pan axis, + k_L * t_L') @ Rot(left tilt axis, - k_tL * u_L')
+    T_S_R = Trans(k_s * (B' - B_ref) * d) @ T_S_R0 @ Rot(right pan axis, - k_R * t_R')
+            @ Rot(right tilt axis, - k_tR * u_R')
+
+(u > 0 looks down, for both cameras.) Each tilt axis is given in its camera's frame at toe-in 0 and tilt 0: the
+camera's x axis turned by ``*_tilt_axis_yaw_deg`` about y, then ``*_tilt_axis_roll_deg`` about z, crossing the
+camera's x = 0 plane at ``*_tilt_axis_y_mm``, ``*_tilt_axis_z_mm`` (about +8 and -12 mm for a pivot below and behind
+the optical centre); ``*_tilt_scale`` and ``*_tilt_backlash_deg`` as the pan's. Their parameters exist only in a
+model whose axes include that tilt; a model without (every file written before tilt joints) is the chain above it.
+
 Units: mm and deg at the interface and in the file, radians inside.
 """
 
@@ -33,6 +46,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from stereo_bench.geometry import rotation_deg
 
 AXES = ("baseline_mm", "toe_in_left_deg", "toe_in_right_deg")
+#: The tilts a model may add to AXES, in this order (a rig config that maps them to an axis: grblHAL's A/B).
+TILT_AXES = ("tilt_left_deg", "tilt_right_deg")
 FILE_SCHEMA = "stereo-bench kinematic rig model 1"
 
 
@@ -78,8 +93,46 @@ PARAMETERS: tuple[ParameterSpec, ...] = (
     _spec("right_backlash_deg", "deg", 0.0, "right_backlash", "lost motion of the right pan head on reversal"),
 )
 NAMES = tuple(p.name for p in PARAMETERS)
-_INDEX = {name: i for i, name in enumerate(NAMES)}
 N_PARAMS = len(PARAMETERS)
+
+
+def _tilt_specs(side: str) -> tuple[ParameterSpec, ...]:
+    group = f"{side}_tilt"
+    return (
+        _spec(f"{side}_tilt_axis_yaw_deg", "deg", 0.0, group,
+              f"{side} tilt axis: the {side} camera's x axis (at toe-in 0, tilt 0) turned about y"),
+        _spec(f"{side}_tilt_axis_roll_deg", "deg", 0.0, group, f"{side} tilt axis: then turned about z"),
+        _spec(f"{side}_tilt_axis_y_mm", "mm", 0.0, group,
+              f"{side} tilt axis crosses the {side} camera's x = 0 plane at this y (> 0: below the optical centre)"),
+        _spec(f"{side}_tilt_axis_z_mm", "mm", 0.0, group, "... and this z (negative: behind the optical centre)"),
+        _spec(f"{side}_tilt_scale", "1", 1.0, group, f"{side} tilt angle per degree of commanded tilt"),
+        _spec(f"{side}_tilt_backlash_deg", "deg", 0.0, f"{side}_tilt_backlash",
+              f"lost motion of the {side} tilt on reversal"),
+    )
+
+
+#: The tilt joints' parameters: after PARAMETERS in the vector of a model whose axes include a tilt.
+TILT_PARAMETERS: tuple[ParameterSpec, ...] = _tilt_specs("left") + _tilt_specs("right")
+_INDEX = {spec.name: i for i, spec in enumerate(PARAMETERS + TILT_PARAMETERS)}
+
+
+def model_axes(tilts=()) -> tuple[str, ...]:
+    """The axes of a model of a rig that drives ``tilts`` (of TILT_AXES): AXES, then those tilts in order."""
+    unknown = [t for t in tilts if t not in TILT_AXES]
+    if unknown:
+        raise ValueError(f"tilts: {', '.join(unknown)} not of {', '.join(TILT_AXES)}")
+    return AXES + tuple(t for t in TILT_AXES if t in tilts)
+
+
+def vector_specs(axes=AXES) -> tuple[ParameterSpec, ...]:
+    """The parameters of the vector :func:`chain` takes for a model with ``axes``: PARAMETERS (22), and every tilt
+    joint's (both cameras') when any tilt is among them; a tilt not driven keeps its joint's nominal values."""
+    return PARAMETERS + TILT_PARAMETERS if any(a in TILT_AXES for a in axes) else PARAMETERS
+
+
+def parameter_specs(axes=AXES) -> tuple[ParameterSpec, ...]:
+    """The parameters a model with ``axes`` has (in its file, its fit): PARAMETERS and the driven tilts' joints."""
+    return PARAMETERS + tuple(spec for spec in TILT_PARAMETERS if f"tilt_{spec.name.split('_')[0]}_deg" in axes)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -158,25 +211,56 @@ def _pan_line(p: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
     return direction, np.array([x, 0.0, z])
 
 
+def _tilt_line(p: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
+    """(unit direction, point) of a tilt axis in its camera's frame (toe-in 0, tilt 0), from a tilted vector ``p``."""
+    i = _INDEX[f"{side}_tilt_axis_yaw_deg"]
+    yaw, roll, y, z = p[i], p[i + 1], p[i + 2], p[i + 3]
+    direction = rotation_deg("y", yaw) @ rotation_deg("z", roll) @ np.array([1.0, 0.0, 0.0])
+    return direction, np.array([0.0, y, z])
+
+
+def _effective_tilts(axes: Mapping[str, float], approach: Mapping[str, int], p: np.ndarray) -> tuple[float, float]:
+    """Commanded tilts corrected for backlash (0 for a tilt the vector ``p`` has no joint for, or ``axes`` lacks)."""
+    if len(p) <= N_PARAMS:
+        return 0.0, 0.0
+    out = []
+    for axis in TILT_AXES:
+        side = axis.split("_")[1]
+        value = float(axes.get(axis, 0.0))
+        backlash = p[_INDEX[f"{side}_tilt_backlash_deg"]]
+        out.append(value - approach.get(axis, 0) * backlash / 2.0 if axis in axes else 0.0)
+    return out[0], out[1]
+
+
 def _effective(axes: Mapping[str, float], approach: Mapping[str, int], p: np.ndarray) -> tuple[float, float, float]:
-    """Commanded values corrected for backlash by the direction of approach."""
+    """Commanded values corrected for backlash by the direction of approach (the tilts: :func:`_effective_tilts`)."""
     b = axes["baseline_mm"] - approach.get("baseline_mm", 0) * p[_INDEX["slide_backlash_mm"]] / 2.0
     tl = axes["toe_in_left_deg"] - approach.get("toe_in_left_deg", 0) * p[_INDEX["left_backlash_deg"]] / 2.0
     tr = axes["toe_in_right_deg"] - approach.get("toe_in_right_deg", 0) * p[_INDEX["right_backlash_deg"]] / 2.0
     return b, tl, tr
 
 
-def chain(p: np.ndarray, reference_baseline_mm: float, baseline_mm: float, toe_in_left_deg: float,
-          toe_in_right_deg: float) -> np.ndarray:
-    """T_right_left (4x4, mm) of the model with parameters ``p`` (N_PARAMS,) at effective axis values.
+def _tilt_joint(p: np.ndarray, side: str, tilt_deg: float) -> np.ndarray:
+    """4x4 turn of a camera's tilt joint by the effective ``tilt_deg`` (> 0 looks down: about -x)."""
+    direction, point = _tilt_line(p, side)
+    return _about_line(direction, point, -math.radians(p[_INDEX[f"{side}_tilt_scale"]] * tilt_deg))
 
-    Effective values are already corrected for backlash (see :func:`_effective`).
+
+def chain(p: np.ndarray, reference_baseline_mm: float, baseline_mm: float, toe_in_left_deg: float,
+          toe_in_right_deg: float, tilt_left_deg: float = 0.0, tilt_right_deg: float = 0.0) -> np.ndarray:
+    """T_right_left (4x4, mm) of the model with parameters ``p`` at effective axis values.
+
+    ``p``: (N_PARAMS,), or with the tilt joints (``len(vector_specs(axes))``), which turn by the effective tilts.
+    Effective values are already corrected for backlash (see :func:`_effective`, :func:`_effective_tilts`).
     """
     p = np.asarray(p, dtype=float)
     left_dir, left_point = _pan_line(p, "left")
     right_dir, right_point = _pan_line(p, "right")
     T_S_L = _about_line(left_dir, left_point, math.radians(p[_INDEX["left_angle_scale"]] * toe_in_left_deg))
     T_R0_R = _about_line(right_dir, right_point, -math.radians(p[_INDEX["right_angle_scale"]] * toe_in_right_deg))
+    if len(p) > N_PARAMS:
+        T_S_L = T_S_L @ _tilt_joint(p, "left", tilt_left_deg)
+        T_R0_R = T_R0_R @ _tilt_joint(p, "right", tilt_right_deg)
     d = (rotation_deg("y", p[_INDEX["slide_yaw_deg"]]) @ rotation_deg("z", p[_INDEX["slide_pitch_deg"]])
          @ np.array([1.0, 0.0, 0.0]))
     i = _INDEX["right_rot_x_deg"]
@@ -192,9 +276,10 @@ def chain(p: np.ndarray, reference_baseline_mm: float, baseline_mm: float, toe_i
     return T_R_S @ T_S_L
 
 
-def nominal_parameters(reference_baseline_mm: float) -> np.ndarray:
-    """Parameters of the ideal rig: pan about the optical centres, vertical axes, every scale exact."""
-    p = np.array([spec.nominal for spec in PARAMETERS])
+def nominal_parameters(reference_baseline_mm: float, axes=AXES) -> np.ndarray:
+    """Parameters of the ideal rig: pan (and tilt) about the optical centres, vertical axes, every scale exact;
+    the vector of a model with ``axes`` (:func:`vector_specs`)."""
+    p = np.array([spec.nominal for spec in vector_specs(axes)])
     p[_INDEX["right_x_mm"]] = reference_baseline_mm
     return p
 
@@ -267,10 +352,16 @@ class KinematicModel(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
 
     schema_id: str = Field(FILE_SCHEMA, alias="schema")
+    # The axes the chain takes: AXES, then the tilts the rig drives (TILT_AXES). Absent (every file written before
+    # tilt joints): AXES.
+    axes: list[str] = Field(default_factory=lambda: list(AXES))
     reference_baseline_mm: float = Field(allow_inf_nan=False)
     repeatability_mm: float = Field(0.0, ge=0, description="std of the slide's landing error per move")
     repeatability_left_deg: float = Field(0.0, ge=0, description="std of the left head's landing error per move")
     repeatability_right_deg: float = Field(0.0, ge=0, description="std of the right head's landing error per move")
+    repeatability_tilt_left_deg: float = Field(0.0, ge=0, description="std of the left tilt's landing error per move")
+    repeatability_tilt_right_deg: float = Field(0.0, ge=0, description="std of the right tilt's landing error per "
+                                                                        "move")
     span: dict[str, list[float]] = Field(description="min and max of each axis over the design")
     parameters: dict[str, ParameterValue]
     covariance_names: list[str]
@@ -298,14 +389,20 @@ class KinematicModel(BaseModel):
 
     @model_validator(mode="after")
     def _check(self) -> KinematicModel:
-        missing = [n for n in NAMES if n not in self.parameters]
+        if tuple(self.axes[:3]) != AXES or [a for a in self.axes[3:] if a in TILT_AXES] != [
+                a for a in TILT_AXES if a in self.axes[3:]] or any(a not in TILT_AXES for a in self.axes[3:]):
+            raise ValueError(f"axes: {', '.join(AXES)}, then any of {', '.join(TILT_AXES)} in that order")
+        names = {spec.name for spec in parameter_specs(self.axes)}
+        missing = [spec.name for spec in parameter_specs(self.axes) if spec.name not in self.parameters]
         if missing:
             raise ValueError(f"parameters: missing {', '.join(missing)}")
-        unknown = [n for n in self.parameters if n not in _INDEX]
+        unknown = [n for n in self.parameters if n not in names]
         if unknown:
-            raise ValueError(f"parameters: unknown {', '.join(unknown)}")
+            raise ValueError(f"parameters: unknown {', '.join(unknown)}" + (
+                " (a tilt joint's: the model's axes do not include that tilt)" if any(n in _INDEX for n in unknown)
+                else ""))
         n = len(self.covariance_names)
-        if any(name not in _INDEX for name in self.covariance_names):
+        if any(name not in names for name in self.covariance_names):
             raise ValueError("covariance_names: names a parameter that does not exist")
         if len(self.covariance) != n or any(len(row) != n for row in self.covariance):
             raise ValueError(f"covariance must be {n}x{n} (one row and column per covariance_names entry)")
@@ -324,7 +421,19 @@ class KinematicModel(BaseModel):
 
     @property
     def vector(self) -> np.ndarray:
-        return np.array([self.parameters[name].value for name in NAMES])
+        """The parameter vector :func:`chain` takes (:func:`vector_specs`; a tilt not driven at its nominal)."""
+        return np.array([self.parameters[spec.name].value if spec.name in self.parameters else spec.nominal
+                         for spec in vector_specs(self.axes)])
+
+    @property
+    def specs(self) -> tuple[ParameterSpec, ...]:
+        """The model's parameters, in file order (:func:`parameter_specs`)."""
+        return parameter_specs(self.axes)
+
+    @property
+    def tilts(self) -> tuple[str, ...]:
+        """The tilts the model's rig drives (of TILT_AXES)."""
+        return tuple(a for a in self.axes if a in TILT_AXES)
 
     @property
     def free(self) -> list[str]:

@@ -14,7 +14,16 @@ import cv2
 import numpy as np
 
 from stereo_bench.geometry import stereo_structure
-from stereo_bench.kinematics.model import _INDEX, AXES, PARAMETERS, KinematicModel, _effective, _rvec, _rvec_t, chain
+from stereo_bench.kinematics.model import (
+    _INDEX,
+    KinematicModel,
+    _effective,
+    _effective_tilts,
+    _rvec,
+    _rvec_t,
+    chain,
+    vector_specs,
+)
 
 
 @dataclass(frozen=True)
@@ -65,50 +74,72 @@ def structure_sigma(R: np.ndarray, T: np.ndarray, covariance: np.ndarray) -> dic
 
 def predict(model: KinematicModel, axes: Mapping[str, float], approach: Mapping[str, int] | None = None,
             ) -> Prediction:
-    """R, T of the pair at axis positions ``axes`` (``baseline_mm``, ``toe_in_left_deg``, ``toe_in_right_deg``).
+    """R, T of the pair at axis positions ``axes`` (``baseline_mm``, ``toe_in_left_deg``, ``toe_in_right_deg``; and
+    the reported tilts a model with tilt joints has among its ``axes``).
 
     ``approach``: per axis the direction of the move that reached it (+1 increased, -1 decreased, 0 or
     missing: unknown). With an unknown direction the prediction sits midway and the backlash adds
     (b / 2)^2 to the variance. The covariance also holds the parameters' covariance and the rig's
     landing repeatability.
     """
-    missing = [a for a in AXES if a not in axes]
+    model_axes = tuple(model.axes)
+    missing = [a for a in model_axes if a not in axes]
     if missing:
         raise ValueError(f"axes: missing {', '.join(missing)}")
     approach = dict(approach or {})
     p = model.vector
     B_ref = model.reference_baseline_mm
+    tilted = len(model_axes) > 3
+    specs = vector_specs(model_axes)
 
     def at(params: np.ndarray, values: Sequence[float]) -> np.ndarray:
         return _rvec_t(chain(params, B_ref, *values))
 
-    effective = np.array(_effective(axes, approach, p))
+    def effective_of(params: np.ndarray) -> np.ndarray:
+        values = _effective(axes, approach, params)
+        if tilted:
+            return np.array([*values, *_effective_tilts({a: axes[a] for a in model_axes}, approach, params)])
+        return np.array(values)
+
+    effective = effective_of(p)
     x = at(p, effective)
     # Parameters' covariance, by central differences.
     free = model.free
     J = np.zeros((6, len(free)))
     for k, name in enumerate(free):
         i = _INDEX[name]
-        h = 1e-4 * max(1.0, abs(p[i])) if PARAMETERS[i].unit != "1" else 1e-6
+        h = 1e-4 * max(1.0, abs(p[i])) if specs[i].unit != "1" else 1e-6
         up, down = p.copy(), p.copy()
         up[i] += h
         down[i] -= h
-        J[:, k] = (at(up, _effective(axes, approach, up)) - at(down, _effective(axes, approach, down))) / (2 * h)
+        J[:, k] = (at(up, effective_of(up)) - at(down, effective_of(down))) / (2 * h)
     parameter_part = J @ model.covariance_matrix() @ J.T if free else np.zeros((6, 6))
-    # Landing repeatability and unknown backlash, through the axes.
-    J_axes = np.zeros((6, 3))
-    for k in range(3):
-        step = np.zeros(3)
+    # Landing repeatability and unknown backlash, through the axes (the chain's: both tilts once it has joints,
+    # a tilt the model's rig does not drive with no variance).
+    n_axes = len(effective)
+    J_axes = np.zeros((6, n_axes))
+    for k in range(n_axes):
+        step = np.zeros(n_axes)
         step[k] = 1e-4
         J_axes[:, k] = (at(p, effective + step) - at(p, effective - step)) / 2e-4
-    variances = np.array([model.repeatability_mm, model.repeatability_left_deg, model.repeatability_right_deg]) ** 2
-    backlash = p[[_INDEX["slide_backlash_mm"], _INDEX["left_backlash_deg"], _INDEX["right_backlash_deg"]]]
-    unknown = np.array([approach.get(axis, 0) == 0 for axis in AXES])
+    repeatability = [model.repeatability_mm, model.repeatability_left_deg, model.repeatability_right_deg]
+    backlash_names = ["slide_backlash_mm", "left_backlash_deg", "right_backlash_deg"]
+    chain_axes = list(model.axes[:3])
+    if tilted:
+        for axis, sigma in (("tilt_left_deg", model.repeatability_tilt_left_deg),
+                            ("tilt_right_deg", model.repeatability_tilt_right_deg)):
+            driven = axis in model_axes
+            repeatability.append(sigma if driven else 0.0)
+            backlash_names.append(f"{axis.split('_')[1]}_tilt_backlash_deg")
+            chain_axes.append(axis if driven else "")
+    variances = np.array(repeatability) ** 2
+    backlash = p[[_INDEX[name] for name in backlash_names]]
+    unknown = np.array([bool(axis) and approach.get(axis, 0) == 0 for axis in chain_axes])
     variances = variances + np.where(unknown, (backlash / 2.0) ** 2, 0.0)
     rig_part = J_axes @ np.diag(variances) @ J_axes.T
     covariance = parameter_part + rig_part
     R = cv2.Rodrigues(x[:3])[0]
-    extrapolated = [a for a in AXES if not (model.span[a][0] - 1e-6 <= float(axes[a]) <= model.span[a][1] + 1e-6)]
+    extrapolated = [a for a in model_axes if not (model.span[a][0] - 1e-6 <= float(axes[a]) <= model.span[a][1] + 1e-6)]
     return Prediction(R=R, T=x[3:].copy(), rvec=x[:3].copy(), covariance=covariance,
                       structure=stereo_structure(R, x[3:]),
                       structure_sigma=structure_sigma(R, x[3:], covariance),
