@@ -194,8 +194,9 @@ def main() -> None:
         table["square_rms_ratio"] = ratio
     rows = results[0]["identifiability"] or []
     held = [r["name"] for r in rows if not r["identified"]]
-    print(f"fixed-board identifiability (seed {results[0]['seed']}): {len(rows) - len(held)} of {len(rows)} "
-          "parameters identified" + (f"; held: {', '.join(held)}" if held else ""))
+    if rows:
+        print(f"fixed-board identifiability (seed {results[0]['seed']}): {len(rows) - len(held)} of {len(rows)} "
+              "parameters identified" + (f"; held: {', '.join(held)}" if held else ""))
     result = {
         "benchmark": "bench_fixed_board", "seeds": args.seeds, "designs": list(designs),
         "lens_views": args.lens_views, "fixed_board": fixed_board,
