@@ -205,40 +205,51 @@ def main() -> None:
     parser.add_argument("--variants", nargs="*", default=list(VARIANTS))
     parser.add_argument("--out", type=Path, default=Path("scripts/results/bench_fixed_board_design.json"))
     args = parser.parse_args()
+    lens = str(args.calib_dir)
     if args.calib_dir is None:
+        lens = "bench_fixed_board.lens_calibration(seed 0): 12 presented views at B 150 mm, Z 450 mm"
         import tempfile
 
         from bench_fixed_board import lens_calibration
 
-        args.calib_dir = lens_calibration(Path(tempfile.mkdtemp(prefix="fixed-board-design-")), 0, half=False)
-    results = {}
-    for name in args.variants:
-        v = dict(VARIANTS[name])
-        prior = None if v.pop("prior", None) == "none" else lens_prior(args.calib_dir, v.pop("prior_scale", 1.0))
-        v.pop("prior_scale", None)
-        design_kw = {k: v.pop(k) for k in ("min_pan_span_deg", "pan_levels", "baseline_levels") if k in v}
-        toe_in = v.pop("toe_in", (0.0, 13.0))
-        design = fixed_board_design((60.0, 240.0), toe_in, toe_in, **design_kw)
-        r = analyse(design, pixel_sigma=args.pixel_sigma, views=v.pop("views", 3), prior=prior,
-                    yaw_deg=v.pop("yaw_deg", 30.0), pitch_deg=v.pop("pitch_deg", 20.0), **v)
-        results[name] = r
-        if "error" in r:
-            print(f"{name:36s} {r['error']}")
-            continue
-        s = r["structure_sigma_max"]
-        print(f"{name:36s} {r['visits']:3d} visits ({r['visits_board_outside']} outside) Z {r['distance_mm']:4.0f}  "
-              f"sigma|dT| rms {r['rms_sigma_T_mm']:.4f} "
-              f"max {r['max_sigma_T_mm']:.4f} mm  sigma dR rms {r['rms_sigma_R_deg']:.4f} max "
-              f"{r['max_sigma_R_deg']:.4f} deg | B {s['baseline_mm']:.4f} aL {s['alpha_left_deg']:.4f} "
-              f"rot {s['rotation_deg']:.4f}")
-        print("    limits (share of var T, R removed when known): " + ", ".join(
-            f"{n} {a:.0%}/{b:.0%}" for n, a, b in r["limits"][:6]))
-        print("    sigmas: " + ", ".join(f"{n} {r['sigmas'][n]:.3g}" for n in (
-            "right_z_mm", "right_x_mm", "right_rot_y_deg", "left.fx", "right.fx", "fx_ratio", "left.cx", "right.cx")
-            if n in r["sigmas"]))
+        root = Path(tempfile.mkdtemp(prefix="fixed-board-design-"))
+        args.calib_dir = lens_calibration(root, 0, half=False)
+    try:
+        results = {name: run_variant(name, args) for name in args.variants}
+    finally:
+        if lens != str(args.calib_dir):
+            import shutil
+
+            shutil.rmtree(args.calib_dir.parent, ignore_errors=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"benchmark": "bench_fixed_board_design", "pixel_sigma_px": args.pixel_sigma,
-                                    "calib_dir": str(args.calib_dir), "results": results}, indent=1) + "\n")
+                                    "lens_calibration": lens, "results": results}, indent=1) + "\n")
+
+
+def run_variant(name: str, args) -> dict:
+    """One variant of VARIANTS analysed and printed."""
+    v = dict(VARIANTS[name])
+    prior = None if v.pop("prior", None) == "none" else lens_prior(args.calib_dir, v.pop("prior_scale", 1.0))
+    v.pop("prior_scale", None)
+    design_kw = {k: v.pop(k) for k in ("min_pan_span_deg", "pan_levels", "baseline_levels") if k in v}
+    toe_in = v.pop("toe_in", (0.0, 13.0))
+    design = fixed_board_design((60.0, 240.0), toe_in, toe_in, **design_kw)
+    r = analyse(design, pixel_sigma=args.pixel_sigma, views=v.pop("views", 3), prior=prior,
+                yaw_deg=v.pop("yaw_deg", 30.0), pitch_deg=v.pop("pitch_deg", 20.0), **v)
+    if "error" in r:
+        print(f"{name:36s} {r['error']}")
+        return r
+    s = r["structure_sigma_max"]
+    print(f"{name:36s} {r['visits']:3d} visits ({r['visits_board_outside']} outside) Z {r['distance_mm']:4.0f}  "
+          f"sigma|dT| rms {r['rms_sigma_T_mm']:.4f} max {r['max_sigma_T_mm']:.4f} mm  sigma dR rms "
+          f"{r['rms_sigma_R_deg']:.4f} max {r['max_sigma_R_deg']:.4f} deg | B {s['baseline_mm']:.4f} aL "
+          f"{s['alpha_left_deg']:.4f} rot {s['rotation_deg']:.4f}", flush=True)
+    print("    limits (share of var T, R removed when known): " + ", ".join(
+        f"{n} {a:.0%}/{b:.0%}" for n, a, b in r["limits"][:6]))
+    print("    sigmas: " + ", ".join(f"{n} {r['sigmas'][n]:.3g}" for n in (
+        "right_z_mm", "right_x_mm", "right_rot_y_deg", "left.fx", "right.fx", "fx_ratio", "left.cx", "right.cx")
+        if n in r["sigmas"]))
+    return r
 
 
 if __name__ == "__main__":
