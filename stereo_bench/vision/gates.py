@@ -57,6 +57,11 @@ FLATNESS_MIN_SIGMAS = 5.0
 BOARD_FIT_MIN_OTHER = 2
 # ... and a board smaller than the one named counts only when the named one is missing from over half the images.
 BOARD_FIT_MIN_FOUND_SHARE = 0.5
+# ... and an image where the named board was found is searched only when its grid's checker pattern may go on past
+# an edge (a larger board): the four squares meeting one step beyond every edge corner are sampled, and a side ends
+# where its two inner squares differ by over BOARD_EDGE_CONTRAST_DN and its two outer squares do not repeat them
+# crosswise; a side with fewer than half its points inside the image and contrasted cannot be judged (searched).
+BOARD_EDGE_CONTRAST_DN = 20.0
 # left_right: judged only for side-by-side cameras (|x| of the right centre over its distance at least this).
 SIDE_BY_SIDE_MIN = 0.5
 
@@ -492,12 +497,58 @@ def found_board_shape(gray: np.ndarray) -> tuple[int, int] | None:
     return None
 
 
+_QUADRANT_OFFSETS = np.array([-0.25, 0.0, 0.25])  # samples across a square, in steps of the grid
+
+
+def _side_ends(gray: np.ndarray, edge: np.ndarray, inner: np.ndarray) -> bool | None:
+    """Does the checker pattern end at this side of a found grid? ``edge`` (n, 2) its corners, ``inner`` (n, 2) the
+    row (or column) next to it. True: it ends (the squares beyond are not the board's); False: it goes on (a larger
+    board); None: cannot be judged (too few points inside the image with contrast).
+
+    One step beyond each edge corner (linear extrapolation) four squares meet: the two on the inside are the
+    board's outermost, one black one white; on a larger board the two outside repeat them crosswise (an X-corner),
+    at a board's edge they are its margin (alike)."""
+    outward = edge - inner
+    along = np.gradient(edge, axis=0)
+    beyond = edge + outward
+    quadrants = []
+    for su, sv in ((1, 1), (-1, 1), (1, -1), (-1, -1)):
+        centre = beyond + 0.5 * su * along + 0.5 * sv * outward
+        points = (centre[:, None, None, :] + _QUADRANT_OFFSETS[None, :, None, None] * along[:, None, None, :]
+                  + _QUADRANT_OFFSETS[None, None, :, None] * outward[:, None, None, :]).reshape(len(edge), 9, 2)
+        maps = points.astype(np.float32)
+        quadrants.append(cv2.remap(gray, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR,
+                                   borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0))
+    inside = np.all(np.stack(quadrants) >= 0, axis=(0, 2))
+    out_a, out_b, in_c, in_d = (np.median(q, axis=1) for q in quadrants)  # (+along, +out), (-, +), (+, -), (-, -)
+    contrast = np.abs(in_d - in_c)
+    judged = inside & (contrast > BOARD_EDGE_CONTRAST_DN)
+    crosswise = (judged & ((out_a - out_b) * (in_d - in_c) > 0) & (np.abs(out_a - out_b) > 0.5 * contrast)
+                 & (np.abs(out_a - in_d) < 0.5 * contrast) & (np.abs(out_b - in_c) < 0.5 * contrast))
+    if judged.sum() < 0.5 * len(edge):
+        return None
+    return bool(crosswise.sum() < 0.5 * judged.sum())
+
+
+def board_may_be_larger(gray: np.ndarray, grid: np.ndarray) -> bool:
+    """False when the checker pattern of a found (rows, cols, 2) corner grid ends at all four sides
+    (:func:`_side_ends`): the board is the one found, not a larger one containing it, and the board-size search
+    (SB, ~50-100 ms) can only find it again. True when a side goes on or cannot be judged."""
+    if grid.shape[0] < 2 or grid.shape[1] < 2:
+        return True
+    gray = np.asarray(gray, np.float32)
+    sides = ((grid[0], grid[1]), (grid[-1], grid[-2]), (grid[:, 0], grid[:, 1]), (grid[:, -1], grid[:, -2]))
+    return not all(_side_ends(gray, edge, inner) is True for edge, inner in sides)
+
+
 def gate_board_fit(target: Target, found: Sequence[bool], images: Sequence[np.ndarray], *,
-                   most: int = 4) -> GateResult:
+                   most: int = 4, grids: Sequence[np.ndarray | None] | None = None) -> GateResult:
     """Is the board the user named the one in the images? ``found`` per image; ``images`` the same images.
 
     Up to ``most`` of the missed images and two of the found ones are searched for the largest checkerboard
-    of any size (SB, ~40 ms each); it fails when that is another size than the one given.
+    of any size (SB, ~40 ms each); it fails when that is another size than the one given. ``grids``: per image the
+    found (rows, cols, 2) corners (None where not found or not whole); a found image whose grid's pattern ends at
+    every side (:func:`board_may_be_larger` False) is not searched: only a larger board counts there.
     """
     if not isinstance(target, Checkerboard):
         return GateResult("board_fit", float("nan"), BOARD_FIT_MIN_OTHER, "images", "n/a", "not a checkerboard")
@@ -511,11 +562,14 @@ def gate_board_fit(target: Target, found: Sequence[bool], images: Sequence[np.nd
 
     # The missed images, and two where the board was found: a board larger than the one named contains it,
     # and the classic detector then finds the smaller grid inside it in some images (wrong corner ids).
+    grids = list(grids) if grids is not None else [None] * len(images)
+    found_at = [k for k, ok in enumerate(found) if ok][:2]
     searched = ([im for im, ok in zip(images, found, strict=True) if not ok][:most]
-                + [im for im, ok in zip(images, found, strict=True) if ok][:2])
+                + [images[k] for k in found_at if grids[k] is None or board_may_be_larger(images[k], grids[k])])
     # Side by side on threads (SB releases the GIL; each search's answer does not depend on the thread).
     with ThreadPoolExecutor(max_workers=max(1, min(len(searched), os.cpu_count() or 1))) as pool:
         shapes = [oriented(shape) for shape in pool.map(found_board_shape, searched)]
+    shapes += [None] * (len(found_at) - (len(shapes) - min(most, len(found) - sum(map(bool, found)))))
     n_missed = min(most, len(found) - sum(map(bool, found)))
     missed, hits = shapes[:n_missed], shapes[n_missed:]
     # A board smaller than the one named is evidence only where the named one is missing from most images: where

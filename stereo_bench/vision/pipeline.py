@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereo_bench.targets import Target
+from stereo_bench.targets import Checkerboard, Target
 from stereo_bench.vision.calibrate import (
     MIN_VIEWS,
     ImplausibleCalibration,
@@ -149,6 +149,16 @@ def _detect_all(left_images: Sequence[np.ndarray], right_images: Sequence[np.nda
     return list(zip(found[0::2], found[1::2], strict=True))
 
 
+def _whole_grids(detections: Sequence[tuple[Detection | None, Detection | None]],
+                 target: Target) -> list[np.ndarray | None]:
+    """Per image (left and right of each pair in turn) the found (rows, cols, 2) corner grid of a whole checkerboard,
+    else None (the board-size search's hint: :func:`~stereo_bench.vision.gates.gate_board_fit`)."""
+    if not isinstance(target, Checkerboard):
+        return [None] * (2 * len(detections))
+    return [d.corners_px.reshape(target.rows, target.cols, 2) if d is not None and d.n == target.n_corners else None
+            for pair in detections for d in pair]
+
+
 def calibrate_from_images(
     left_images: Sequence[np.ndarray], right_images: Sequence[np.ndarray], target: Target, *,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: StereoMode = "joint",
@@ -218,7 +228,7 @@ def calibrate_from_images(
         board_search = None
         if gates:
             images = [image for pair in zip(left_images, right_images, strict=True) for image in pair]
-            board_search = pool.submit(gate_board_fit, target, found, images)
+            board_search = pool.submit(gate_board_fit, target, found, images, grids=_whole_grids(detections, target))
 
         def board_report() -> GateReport | None:
             if board_search is None:
