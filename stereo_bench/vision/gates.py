@@ -24,7 +24,7 @@ Pure functions of arrays: no files, no printing.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -592,13 +592,29 @@ def gate_board_fit(target: Target, found: Sequence[bool], images: Sequence[np.nd
                       "seen in the rest")
 
 
+def image_blur(image: np.ndarray | None, px: np.ndarray, target: Target) -> tuple[float, float, float] | None:
+    """(blur along rows px, along columns px, square side px) of one image's whole checkerboard (the sharpness
+    gate's measurement, :func:`edge_blur_px`); None without the image or a whole checkerboard. It needs no
+    calibration: a caller may measure it while the fit runs (``run_gates(blur_of=...)``)."""
+    if image is None or not isinstance(target, Checkerboard) or len(px) != target.n_corners:
+        return None
+    grid = np.asarray(px, float).reshape(target.rows, target.cols, 2)
+    steps = [np.linalg.norm(np.diff(grid, axis=a), axis=2) for a in (0, 1)]
+    square = float(np.median(np.concatenate([s.ravel() for s in steps])))
+    along_rows, along_cols = edge_blur_px(image, grid)
+    return along_rows, along_cols, square
+
+
 def run_gates(calib: StereoCalibration, views: Sequence[GateView], target: Target, *,
               dropped: Sequence[tuple[int, str]] = (), names: Sequence[str] | None = None,
-              accept_poor: bool = False) -> GateReport:
+              accept_poor: bool = False,
+              blur_of: Mapping[tuple[int, str], tuple[float, float, float] | None] | None = None) -> GateReport:
     """Every gate on a finished stereo calibration.
 
     ``views``: every pair with the board in both images (also those the outlier rule dropped: the
     synchronisation gate names them); ``dropped``: (pair index, reason) of the views the fit dropped.
+    ``blur_of``: per (pair index, "left" | "right") the :func:`image_blur` of the views' images, when the caller
+    measured it already (the same numbers).
     """
     dropped_set = {i for i, _ in dropped}
     poses = PoseCache()
@@ -611,13 +627,9 @@ def run_gates(calib: StereoCalibration, views: Sequence[GateView], target: Targe
     blurs = []
     for v in kept:
         for side, image, px in (("left", v.left_image, v.left_px), ("right", v.right_image, v.right_px)):
-            if image is None or not isinstance(target, Checkerboard) or len(px) != target.n_corners:
-                continue
-            grid = np.asarray(px, float).reshape(target.rows, target.cols, 2)
-            steps = [np.linalg.norm(np.diff(grid, axis=a), axis=2) for a in (0, 1)]
-            square = float(np.median(np.concatenate([s.ravel() for s in steps])))
-            along_rows, along_cols = edge_blur_px(image, grid)
-            blurs.append((v.index, side, along_rows, along_cols, square))
+            blur = blur_of[(v.index, side)] if blur_of is not None else image_blur(image, px, target)
+            if blur is not None:
+                blurs.append((v.index, side, *blur))
     results = (
         sync,
         gate_consistent_views(len(views), dropped, names),

@@ -24,7 +24,14 @@ from stereo_bench.vision.calibrate import (
 )
 from stereo_bench.vision.covariance import CalibrationCovariance
 from stereo_bench.vision.detect import Detection, common_corners, common_sigmas, detect
-from stereo_bench.vision.gates import CalibrationRefused, GateReport, GateView, gate_board_fit, run_gates
+from stereo_bench.vision.gates import (
+    CalibrationRefused,
+    GateReport,
+    GateView,
+    gate_board_fit,
+    image_blur,
+    run_gates,
+)
 from stereo_bench.vision.measure import SquareMeasurement, measure_square, planar_fit_rms_px
 from stereo_bench.vision.rectify import Rectification, epipolar_errors_px, rectify, rms
 from stereo_bench.vision.triangulate import camera_depths_mm, parallax_px
@@ -226,9 +233,15 @@ def calibrate_from_images(
         # gates beside the leave-one-view-out check. A refusal by a gate still comes before any other failure.
         report = None
         board_search = None
+        blurs = {}
         if gates:
             images = [image for pair in zip(left_images, right_images, strict=True) for image in pair]
             board_search = pool.submit(gate_board_fit, target, found, images, grids=_whole_grids(detections, target))
+            # The sharpness gate's measurement needs no calibration: on the pool while the cameras are fitted.
+            blurs = {(index, side): pool.submit(image_blur, image, px, target)
+                     for k, index in enumerate(pair_index)
+                     for side, image, px in (("left", left_images[index], lefts[k]),
+                                             ("right", right_images[index], rights[k]))}
 
         def board_report() -> GateReport | None:
             if board_search is None:
@@ -261,7 +274,8 @@ def calibrate_from_images(
             views = [GateView(index, objects[k], lefts[k], rights[k], left_images[index], right_images[index])
                      for k, index in enumerate(pair_index)]
             report = report.merged(run_gates(calib, views, target, dropped=dropped, names=view_names,
-                                             accept_poor=accept_poor))
+                                             accept_poor=accept_poor,
+                                             blur_of={key: blur.result() for key, blur in blurs.items()}))
             if report.refused:
                 raise CalibrationRefused(report)
             dropped = [(index, f"{why}: {report.view_diagnoses[index]}" if index in report.view_diagnoses else why)
