@@ -497,7 +497,8 @@ def found_board_shape(gray: np.ndarray) -> tuple[int, int] | None:
     return None
 
 
-_QUADRANT_OFFSETS = np.array([-0.25, 0.0, 0.25])  # samples across a square, in steps of the grid
+_QUADRANT_OFFSETS = np.array([-0.1, 0.0, 0.1])  # samples across a quadrant, in steps of the grid
+_QUADRANT_CENTRE = 0.25  # the quadrants sampled around the point beyond the edge, in steps of the grid
 
 
 def _side_ends(gray: np.ndarray, edge: np.ndarray, inner: np.ndarray) -> bool | None:
@@ -513,7 +514,7 @@ def _side_ends(gray: np.ndarray, edge: np.ndarray, inner: np.ndarray) -> bool | 
     beyond = edge + outward
     quadrants = []
     for su, sv in ((1, 1), (-1, 1), (1, -1), (-1, -1)):
-        centre = beyond + 0.5 * su * along + 0.5 * sv * outward
+        centre = beyond + _QUADRANT_CENTRE * (su * along + sv * outward)
         points = (centre[:, None, None, :] + _QUADRANT_OFFSETS[None, :, None, None] * along[:, None, None, :]
                   + _QUADRANT_OFFSETS[None, None, :, None] * outward[:, None, None, :]).reshape(len(edge), 9, 2)
         maps = points.astype(np.float32)
