@@ -33,6 +33,7 @@ import numpy as np
 
 from stereo_bench.targets import Checkerboard, Target
 from stereo_bench.vision.calibrate import ImplausibleCalibration, StereoCalibration
+from stereo_bench.vision.detect import THOROUGH_SEARCH_WIDTH_PX, AnyBoardSearch, _search_image
 
 # --- thresholds (docs/CALIBRATION.md says why each has its value) ---
 # synchronised: a view fails when its stereo residual exceeds SYNC_RATIO_MAX x the larger mono residual AND
@@ -479,18 +480,18 @@ def gate_left_right(calib: StereoCalibration) -> GateResult:
                       "--right (or the cameras' bindings)")
 
 
-def found_board_shape(gray: np.ndarray) -> tuple[int, int] | None:
-    """(cols, rows) inner corners of the largest checkerboard in ``gray`` (SB with CALIB_CB_LARGER), or None (none,
-    or one that reaches within a square of the image border: perhaps cut by it)."""
-    scale = min(1.0, 960 / max(gray.shape))
-    small = gray if scale >= 1 else cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    for flags in (cv2.CALIB_CB_LARGER, cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE):
-        found, corners, meta = cv2.findChessboardCornersSBWithMeta(small, (3, 3), flags)
+def found_board_shape(gray: np.ndarray, any_board: AnyBoardSearch | None = None) -> tuple[int, int] | None:
+    """(cols, rows) inner corners of the largest checkerboard in ``gray`` (SB with CALIB_CB_LARGER, at <= 960 px), or
+    None (none, or one that reaches within a square of the image border: perhaps cut by it). ``any_board``: the
+    searches the detection made already (:class:`~stereo_bench.vision.detect.AnyBoardSearch`)."""
+    any_board = any_board or AnyBoardSearch()
+    for flags in (0, cv2.CALIB_CB_NORMALIZE_IMAGE):
+        found, corners, meta = any_board.search(gray, flags)
         if found and meta is not None and corners is not None and meta.size == len(corners):
             rows, cols = meta.shape
             grid = corners.reshape(rows, cols, 2)
             spacing = float(np.median(np.linalg.norm(np.diff(grid, axis=1), axis=2)))
-            height, width = small.shape
+            height, width = _search_image(gray, THOROUGH_SEARCH_WIDTH_PX)[0].shape
             inside = (grid[..., 0].min() > spacing and grid[..., 1].min() > spacing
                       and grid[..., 0].max() < width - 1 - spacing and grid[..., 1].max() < height - 1 - spacing)
             return (cols, rows) if inside else None
@@ -543,13 +544,15 @@ def board_may_be_larger(gray: np.ndarray, grid: np.ndarray) -> bool:
 
 
 def gate_board_fit(target: Target, found: Sequence[bool], images: Sequence[np.ndarray], *,
-                   most: int = 4, grids: Sequence[np.ndarray | None] | None = None) -> GateResult:
+                   most: int = 4, grids: Sequence[np.ndarray | None] | None = None,
+                   any_board: AnyBoardSearch | None = None) -> GateResult:
     """Is the board the user named the one in the images? ``found`` per image; ``images`` the same images.
 
     Up to ``most`` of the missed images and two of the found ones are searched for the largest checkerboard
     of any size (SB, ~40 ms each); it fails when that is another size than the one given. ``grids``: per image the
     found (rows, cols, 2) corners (None where not found or not whole); a found image whose grid's pattern ends at
-    every side (:func:`board_may_be_larger` False) is not searched: only a larger board counts there.
+    every side (:func:`board_may_be_larger` False) is not searched: only a larger board counts there. ``any_board``:
+    the detection's searches of these images (:class:`~stereo_bench.vision.detect.AnyBoardSearch`), not repeated.
     """
     if not isinstance(target, Checkerboard):
         return GateResult("board_fit", float("nan"), BOARD_FIT_MIN_OTHER, "images", "n/a", "not a checkerboard")
@@ -569,7 +572,8 @@ def gate_board_fit(target: Target, found: Sequence[bool], images: Sequence[np.nd
                 + [images[k] for k in found_at if grids[k] is None or board_may_be_larger(images[k], grids[k])])
     # Side by side on threads (SB releases the GIL; each search's answer does not depend on the thread).
     with ThreadPoolExecutor(max_workers=max(1, min(len(searched), os.cpu_count() or 1))) as pool:
-        shapes = [oriented(shape) for shape in pool.map(found_board_shape, searched)]
+        any_board = any_board or AnyBoardSearch()
+        shapes = [oriented(shape) for shape in pool.map(lambda image: found_board_shape(image, any_board), searched)]
     shapes += [None] * (len(found_at) - (len(shapes) - min(most, len(found) - sum(map(bool, found)))))
     n_missed = min(most, len(found) - sum(map(bool, found)))
     missed, hits = shapes[:n_missed], shapes[n_missed:]

@@ -23,7 +23,7 @@ from stereo_bench.vision.calibrate import (
     single_threaded_opencv,
 )
 from stereo_bench.vision.covariance import CalibrationCovariance
-from stereo_bench.vision.detect import Detection, common_corners, common_sigmas, detect
+from stereo_bench.vision.detect import AnyBoardSearch, Detection, common_corners, common_sigmas, detect
 from stereo_bench.vision.gates import (
     CalibrationRefused,
     GateReport,
@@ -136,13 +136,15 @@ DETECTION_THREADS = 4
 
 
 def _detect_all(left_images: Sequence[np.ndarray], right_images: Sequence[np.ndarray], target: Target, *,
-                thorough: bool) -> list[tuple[Detection | None, Detection | None]]:
-    """Per pair the (left, right) detections, without corner-noise estimates, on a few threads."""
+                thorough: bool, any_board: AnyBoardSearch | None = None,
+                ) -> list[tuple[Detection | None, Detection | None]]:
+    """Per pair the (left, right) detections, without corner-noise estimates, on a few threads. ``any_board``: the
+    any-size board searches, kept for the board-size gate (:class:`~stereo_bench.vision.detect.AnyBoardSearch`)."""
     images = [image for pair in zip(left_images, right_images, strict=True) for image in pair]
     workers = max(1, min(DETECTION_THREADS, os.cpu_count() or 1, len(images)))
 
     def one(image: np.ndarray) -> Detection | None:
-        return detect(image, target, thorough=thorough, noise=False)
+        return detect(image, target, thorough=thorough, noise=False, any_board=any_board)
 
     # OpenCV on one thread inside each detection: the images are already spread over the cores, and OpenCV's own
     # workers would only add hand-over and spinning (~10 % of the detections' CPU on the real sets); the corners
@@ -209,8 +211,9 @@ def calibrate_from_images(
             raise ImplausibleCalibration(f"the given intrinsics do not fit these images: {given[0]}")
     rejected: list[RejectedView] = []
     pair_index, objects, lefts, rights = [], [], [], []
+    any_board = AnyBoardSearch()
     if detections is None:
-        detections = _detect_all(left_images, right_images, target, thorough=thorough)
+        detections = _detect_all(left_images, right_images, target, thorough=thorough, any_board=any_board)
     found: list[bool] = []  # per image, left and right of each pair in turn
     for index in range(len(left_images)):
         left, right = detections[index]
@@ -236,7 +239,8 @@ def calibrate_from_images(
         blurs = {}
         if gates:
             images = [image for pair in zip(left_images, right_images, strict=True) for image in pair]
-            board_search = pool.submit(gate_board_fit, target, found, images, grids=_whole_grids(detections, target))
+            board_search = pool.submit(gate_board_fit, target, found, images, grids=_whole_grids(detections, target),
+                                       any_board=any_board)
             # The sharpness gate's measurement needs no calibration: on the pool while the cameras are fitted.
             blurs = {(index, side): pool.submit(image_blur, image, px, target)
                      for k, index in enumerate(pair_index)

@@ -1,0 +1,41 @@
+"""Does SB for the named board find a board only where SB for a board of any size (CALIB_CB_LARGER, (3, 3)) finds one?
+
+The thorough detection (stereo_bench.vision.detect.AnyBoardSearch) skips SB for the named board in an image where
+the any-size search finds no checkerboard at all; this checks that rule on every image of the real sets, with and
+without CALIB_CB_NORMALIZE_IMAGE: a violation is an image where the named board is found but no board of any size.
+Measured 2026-12-03: 252 searches, 238 boards found, 0 violations.
+
+    python scripts/check_any_board_search.py
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+from pathlib import Path
+
+import cv2
+
+SHARED = Path(os.environ.get("STEREO_BENCH_SHARED_DATA", "/work/shared/data"))
+SETS = [("present_cjn/*Pic*.jpg", (8, 11)), ("smiler488_box/*.png", (8, 5)), ("opencv_sample/*.jpg", (9, 6))]
+
+
+def main() -> None:
+    cv2.setNumThreads(1)
+    violations = searches = found = 0
+    for pattern, size in SETS:
+        for path in sorted(glob.glob(str(SHARED / pattern))):
+            gray = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+            for flags in (0, cv2.CALIB_CB_NORMALIZE_IMAGE):
+                searches += 1
+                if not cv2.findChessboardCornersSB(gray, size, flags=flags)[0]:
+                    continue
+                found += 1
+                if not cv2.findChessboardCornersSBWithMeta(gray, (3, 3), cv2.CALIB_CB_LARGER | flags)[0]:
+                    violations += 1
+                    print(f"violation: {path} flags {flags}")
+    print(f"{searches} searches, {found} boards found by SB for the named board, {violations} violations")
+
+
+if __name__ == "__main__":
+    main()
