@@ -88,12 +88,12 @@ class AnyBoardSearch:
     checkerboard of any size in an image, each (image, flags) searched once (~50 ms at 640x480).
 
     Two users of one calibration's images share it: the thorough detection of an image the classic detector missed
-    asks it before running SB for the named board (where SB with CALIB_CB_LARGER finds no checkerboard at all, SB
-    for the named board finds none either: every one of the 453 SB finds on the three real sets' 126 images, as
-    stored and as 1280x720 prints, was also found so: scripts/check_any_board_search.py), and the board-size gate's
-    search of the missed images (:func:`stereo_bench.vision.gates.found_board_shape`) asks the same question. Keyed
-    by the image array's identity, which the cache keeps alive; the same call on the same pixels: the same
-    answer."""
+    asks it (without CALIB_CB_NORMALIZE_IMAGE) before running SB for the named board without that flag (where SB
+    with CALIB_CB_LARGER finds no checkerboard at all, SB for the named board finds none either: every one of the
+    453 SB finds on the three real sets' 126 images, as stored and as 1280x720 prints, was also found so:
+    scripts/check_any_board_search.py), and the board-size gate's search of the missed images
+    (:func:`stereo_bench.vision.gates.found_board_shape`) asks the same question. Keyed by the image array's
+    identity, which the cache keeps alive; the same call on the same pixels: the same answer."""
 
     def __init__(self) -> None:
         self._found: dict[tuple[int, int], tuple[np.ndarray, tuple]] = {}
@@ -209,7 +209,8 @@ def detect_checkerboard(
     detector at 960 px, then
     ``findChessboardCornersSB``, which is bounded in time (20-40 ms on a 960-pixel image without a board)
     unlike the classic detector without FAST_CHECK, at 960 px and at full resolution). With ``any_board``, an SB
-    step at 960 px runs only where :class:`AnyBoardSearch` finds a checkerboard of some size in the same image.
+    step at 960 px without CALIB_CB_NORMALIZE_IMAGE runs only where :class:`AnyBoardSearch` finds a checkerboard of
+    some size in the same image.
     """
     gray = to_gray(image)
     small, scale = _search_image(gray, search_width_px)
@@ -272,8 +273,13 @@ def _thorough_step(gray: np.ndarray, board: Checkerboard, step: tuple[str, int, 
     small, scale = _search_image(gray, width)
     if detector == "classic":
         found, corners = _find_chessboard_fast_checked(small, board.pattern_size)
-    elif any_board is not None and width == THOROUGH_SEARCH_WIDTH_PX and not any_board.search(gray, flags)[0]:
-        found, corners = False, None  # no checkerboard of any size in this search image
+    elif any_board is not None and width == THOROUGH_SEARCH_WIDTH_PX and flags == 0 and \
+            not any_board.search(gray, 0)[0]:
+        # No checkerboard of any size in this search image. Only the step without CALIB_CB_NORMALIZE_IMAGE asks: the
+        # board-size gate searches a missed image with that flag only when the search without it finds nothing, so
+        # asking with it here would add an SB search to an image with a board cut by its border (present_cjn's
+        # leftPic07), where the search without it finds the cut grid.
+        found, corners = False, None
     else:
         found, corners = cv2.findChessboardCornersSB(small, board.pattern_size, flags=flags)
     return bool(found), corners, scale
