@@ -42,6 +42,32 @@ def test_calibrate_json(capsys, tmp_path):
     assert (tmp_path / "c" / "intrinsics.yml").is_file() and (tmp_path / "c" / "extrinsics.yml").is_file()
 
 
+def test_calibrate_fits_on_one_blas_thread_and_restores_the_threads(capsys, tmp_path, monkeypatch):
+    """`calibrate` runs its calibration with every BLAS library (numpy's OpenBLAS, OpenCV's) on one thread, where a
+    threaded OpenBLAS spins on a loaded machine (docs/CALIBRATION.md, Speed), and gives the threads back after."""
+    from threadpoolctl import threadpool_info
+
+    import stereo_bench.vision.pipeline as pipeline
+
+    def blas_threads() -> list[int]:
+        return [info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"]
+
+    before, during = blas_threads(), []
+    real = pipeline.calibrate_from_images
+
+    def spy(*args, **kwargs):
+        during.extend(blas_threads())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "calibrate_from_images", spy)
+    code, _, _ = run(capsys, "calibrate", "--board", "9x6", "--square", "30", "--lens-model", "opencv4",
+                     "--left", str(OPENCV_SAMPLE / "left*.jpg"), "--right", str(OPENCV_SAMPLE / "right*.jpg"),
+                     "--out", str(tmp_path / "c"), "--json")
+    assert code == 0
+    assert during and set(during) == {1}
+    assert blas_threads() == before
+
+
 def test_calibrate_refuses_to_overwrite(capsys, calib_dir):
     code, _, err = run(capsys, "calibrate", "--board", "9x6", "--square", "30",
                        "--left", str(OPENCV_SAMPLE / "left*.jpg"), "--right", str(OPENCV_SAMPLE / "right*.jpg"),

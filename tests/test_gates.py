@@ -16,7 +16,7 @@ from stereo_bench.cli import main
 from stereo_bench.targets import Checkerboard
 from stereo_bench.vision.calibio import read_gates, write_calibration
 from stereo_bench.vision.detect import detect
-from stereo_bench.vision.gates import GATE_NAMES, CalibrationRefused
+from stereo_bench.vision.gates import GATE_NAMES, CalibrationRefused, board_may_be_larger
 from stereo_bench.vision.pipeline import calibrate_from_images
 from tests.real_data import OPENCV_SAMPLE, PRESENT_CJN, REAL
 
@@ -121,6 +121,27 @@ def test_board_larger_than_named():
     left, right, _ = load("present_cjn")
     error = refused(left[:4], right[:4], Checkerboard(7, 10, 12.0))
     assert "use --board 8x11" in str(error)
+
+
+@pytest.mark.parametrize("name", list(SETS))
+def test_board_size_search_skips_only_boards_whose_pattern_ends(name):
+    """The board-size search's pre-check (gates.board_may_be_larger) on every found board of the real sets: the
+    whole board never reads as larger where its pattern visibly ends (present_cjn, smiler488_box: every side of
+    every image ends; opencv_sample's dark surround keeps some sides unjudged, which is searched), and every grid
+    one row or column short of it (a board named smaller than it is) reads as possibly larger."""
+    left, right, board = load(name)
+    whole, shorter = [], []
+    for image in left + right:
+        found = detect(image, board, thorough=True, noise=False)
+        if found is None:
+            continue
+        grid = found.corners_px.reshape(board.rows, board.cols, 2)
+        whole.append(board_may_be_larger(image, grid))
+        shorter += [board_may_be_larger(image, sub) for sub in (grid[:-1], grid[1:], grid[:, :-1], grid[:, 1:])]
+    assert len(whole) >= 0.9 * len(left + right)
+    assert all(shorter)
+    if name != "opencv_sample":
+        assert not any(whole)
 
 
 def test_bent_board():

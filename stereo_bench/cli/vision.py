@@ -255,12 +255,20 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise CliError(f"{left_paths[same[0]]} and {right_paths[same[0]]} are the same image"
                        + (f" ({len(same)} of {len(left_paths)} pairs are)" if len(same) > 1 else "")
                        + ": a stereo calibration needs the left and the right camera's views")
+    from threadpoolctl import threadpool_limits
+
     try:
-        result = calibrate_from_images(left_images, right_images, target, intrinsics=intrinsics, mode=mode,
-                                       intrinsics_covariance=intrinsics_covariance, lens_model=args.lens_model,
-                                       accept_poor=args.accept_poor,
-                                       view_names=[f"{Path(a).name}, {Path(b).name}"
-                                                   for a, b in zip(left_paths, right_paths, strict=True)])
+        # One BLAS thread (numpy's OpenBLAS and OpenCV's own): every product and solve of a calibration is small
+        # (~200 x 200 at most), the work is spread over the cores by the pipeline's own threads, and a threaded
+        # OpenBLAS spins: on the loaded 2-core machine it doubled the CPU of an auto calibration (present_cjn 3.7 ->
+        # 1.8 s) and multiplied the held-out estimates' by 5 (docs/CALIBRATION.md, Speed). The numbers move in
+        # their last digits only (R, T ~1e-9 relative; a campaign's calibrations keep the default threads).
+        with threadpool_limits(1):
+            result = calibrate_from_images(left_images, right_images, target, intrinsics=intrinsics, mode=mode,
+                                           intrinsics_covariance=intrinsics_covariance, lens_model=args.lens_model,
+                                           accept_poor=args.accept_poor,
+                                           view_names=[f"{Path(a).name}, {Path(b).name}"
+                                                       for a, b in zip(left_paths, right_paths, strict=True)])
     except CalibrationRefused as error:
         raise CliError(str(error)) from None
     except (ValueError, cv2.error) as error:

@@ -83,9 +83,34 @@ class AmbiguousViewError(ValueError):
     """A partial checkerboard was found but which board corners it shows cannot be proven."""
 
 
+class AnyBoardSearch:
+    """``findChessboardCornersSBWithMeta(image at <= 960 px, (3, 3), CALIB_CB_LARGER | flags)``: the largest
+    checkerboard of any size in an image, each (image, flags) searched once (~50 ms at 640x480).
+
+    Two users of one calibration's images share it: the thorough detection of an image the classic detector missed
+    asks it (without CALIB_CB_NORMALIZE_IMAGE) before running SB for the named board without that flag (where SB
+    with CALIB_CB_LARGER finds no checkerboard at all, SB for the named board finds none either: every one of the
+    453 SB finds on the three real sets' 126 images, as stored and as 1280x720 prints, was also found so:
+    scripts/check_any_board_search.py), and the board-size gate's search of the missed images
+    (:func:`stereo_bench.vision.gates.found_board_shape`) asks the same question. Keyed by the image array's
+    identity, which the cache keeps alive; the same call on the same pixels: the same answer."""
+
+    def __init__(self) -> None:
+        self._found: dict[tuple[int, int], tuple[np.ndarray, tuple]] = {}
+
+    def search(self, gray: np.ndarray, flags: int) -> tuple:
+        """(found, corners, meta) of the search of ``gray`` (full resolution, grey) with ``flags``."""
+        key = (id(gray), flags)
+        if key not in self._found:
+            small, _ = _search_image(gray, THOROUGH_SEARCH_WIDTH_PX)
+            self._found[key] = (gray, cv2.findChessboardCornersSBWithMeta(small, (3, 3),
+                                                                           cv2.CALIB_CB_LARGER | flags))
+        return self._found[key][1]
+
+
 def detect(
     image: np.ndarray, target: Target, *, search_width_px: int = DEFAULT_SEARCH_WIDTH_PX, thorough: bool = False,
-    partial: bool = False, noise: bool = True,
+    partial: bool = False, noise: bool = True, any_board: AnyBoardSearch | None = None,
 ) -> Detection | None:
     """Find the target's corners in ``image``; None when it is not there.
 
@@ -96,7 +121,7 @@ def detect(
     ``sigma_px`` None (unknown) instead of estimating it (:func:`corner_noise_px`, 1.0 ms of a 1080p
     view's 4.8: scripts/results/bench_detect.json): for views whose corner noise nothing reads, such as
     calibration views, whose fit takes the noise from its own residuals. The corners and ids are the same
-    either way.
+    either way. ``any_board``: an :class:`AnyBoardSearch` shared with the board-size gate (``thorough`` only).
     """
     if isinstance(target, Checkerboard):
         if partial:
@@ -105,7 +130,8 @@ def detect(
             # it is faster but loses the column nearest the image border).
             width = max(search_width_px, THOROUGH_SEARCH_WIDTH_PX)
             return detect_checkerboard_partial(image, target, search_width_px=width, noise=noise)
-        return detect_checkerboard(image, target, search_width_px=search_width_px, thorough=thorough, noise=noise)
+        return detect_checkerboard(image, target, search_width_px=search_width_px, thorough=thorough, noise=noise,
+                                   any_board=any_board)
     if isinstance(target, CharucoTarget):
         return detect_charuco(image, target, noise=noise)
     raise TypeError(f"unsupported target {target!r}")
@@ -174,7 +200,7 @@ def _to_full_resolution(corners: np.ndarray, scale: float) -> np.ndarray:
 
 def detect_checkerboard(
     image: np.ndarray, board: Checkerboard, *, search_width_px: int = DEFAULT_SEARCH_WIDTH_PX, thorough: bool = False,
-    noise: bool = True,
+    noise: bool = True, any_board: AnyBoardSearch | None = None,
 ) -> Detection | None:
     """Whole-board detection: all ``board.n_corners`` corners, or None.
 
@@ -182,7 +208,9 @@ def detect_checkerboard(
     images) searches without it, as plain OpenCV does; a miss is retried along :data:`THOROUGH_CHAIN` (the classic
     detector at 960 px, then
     ``findChessboardCornersSB``, which is bounded in time (20-40 ms on a 960-pixel image without a board)
-    unlike the classic detector without FAST_CHECK, at 960 px and at full resolution).
+    unlike the classic detector without FAST_CHECK, at 960 px and at full resolution). With ``any_board``, an SB
+    step at 960 px without CALIB_CB_NORMALIZE_IMAGE runs only where :class:`AnyBoardSearch` finds a checkerboard of
+    some size in the same image.
     """
     gray = to_gray(image)
     small, scale = _search_image(gray, search_width_px)
@@ -203,7 +231,7 @@ def detect_checkerboard(
             if key in tried:
                 continue
             tried.add(key)
-            found, corners, scale = _thorough_step(gray, board, step, search_width_px)
+            found, corners, scale = _thorough_step(gray, board, step, search_width_px, any_board)
             if found:
                 break
     if not found:
@@ -237,14 +265,21 @@ def _thorough_search_width(gray: np.ndarray, step: tuple[str, int, int], search_
     return min(width, max(gray.shape))
 
 
-def _thorough_step(gray: np.ndarray, board: Checkerboard, step: tuple[str, int, int],
-                   search_width_px: int) -> tuple[bool, np.ndarray | None, float]:
+def _thorough_step(gray: np.ndarray, board: Checkerboard, step: tuple[str, int, int], search_width_px: int,
+                   any_board: AnyBoardSearch | None = None) -> tuple[bool, np.ndarray | None, float]:
     """(found, corners in the search image, its scale) of one :data:`THOROUGH_CHAIN` step."""
     detector, width, flags = step
     width = max(gray.shape) if width == 0 else max(search_width_px, width)
     small, scale = _search_image(gray, width)
     if detector == "classic":
         found, corners = _find_chessboard_fast_checked(small, board.pattern_size)
+    elif any_board is not None and width == THOROUGH_SEARCH_WIDTH_PX and flags == 0 and \
+            not any_board.search(gray, 0)[0]:
+        # No checkerboard of any size in this search image. Only the step without CALIB_CB_NORMALIZE_IMAGE asks: the
+        # board-size gate searches a missed image with that flag only when the search without it finds nothing, so
+        # asking with it here would add an SB search to an image with a board cut by its border (present_cjn's
+        # leftPic07), where the search without it finds the cut grid.
+        found, corners = False, None
     else:
         found, corners = cv2.findChessboardCornersSB(small, board.pattern_size, flags=flags)
     return bool(found), corners, scale

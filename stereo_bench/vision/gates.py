@@ -24,7 +24,7 @@ Pure functions of arrays: no files, no printing.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -33,6 +33,7 @@ import numpy as np
 
 from stereo_bench.targets import Checkerboard, Target
 from stereo_bench.vision.calibrate import ImplausibleCalibration, StereoCalibration
+from stereo_bench.vision.detect import THOROUGH_SEARCH_WIDTH_PX, AnyBoardSearch, _search_image
 
 # --- thresholds (docs/CALIBRATION.md says why each has its value) ---
 # synchronised: a view fails when its stereo residual exceeds SYNC_RATIO_MAX x the larger mono residual AND
@@ -57,6 +58,11 @@ FLATNESS_MIN_SIGMAS = 5.0
 BOARD_FIT_MIN_OTHER = 2
 # ... and a board smaller than the one named counts only when the named one is missing from over half the images.
 BOARD_FIT_MIN_FOUND_SHARE = 0.5
+# ... and an image where the named board was found is searched only when its grid's checker pattern may go on past
+# an edge (a larger board): the four squares meeting one step beyond every edge corner are sampled, and a side ends
+# where its two inner squares differ by over BOARD_EDGE_CONTRAST_DN and its two outer squares do not repeat them
+# crosswise; a side with fewer than half its points inside the image and contrasted cannot be judged (searched).
+BOARD_EDGE_CONTRAST_DN = 20.0
 # left_right: judged only for side-by-side cameras (|x| of the right centre over its distance at least this).
 SIDE_BY_SIDE_MIN = 0.5
 
@@ -474,30 +480,79 @@ def gate_left_right(calib: StereoCalibration) -> GateResult:
                       "--right (or the cameras' bindings)")
 
 
-def found_board_shape(gray: np.ndarray) -> tuple[int, int] | None:
-    """(cols, rows) inner corners of the largest checkerboard in ``gray`` (SB with CALIB_CB_LARGER), or None (none,
-    or one that reaches within a square of the image border: perhaps cut by it)."""
-    scale = min(1.0, 960 / max(gray.shape))
-    small = gray if scale >= 1 else cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    for flags in (cv2.CALIB_CB_LARGER, cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE):
-        found, corners, meta = cv2.findChessboardCornersSBWithMeta(small, (3, 3), flags)
+def found_board_shape(gray: np.ndarray, any_board: AnyBoardSearch | None = None) -> tuple[int, int] | None:
+    """(cols, rows) inner corners of the largest checkerboard in ``gray`` (SB with CALIB_CB_LARGER, at <= 960 px), or
+    None (none, or one that reaches within a square of the image border: perhaps cut by it). ``any_board``: the
+    searches the detection made already (:class:`~stereo_bench.vision.detect.AnyBoardSearch`)."""
+    any_board = any_board or AnyBoardSearch()
+    for flags in (0, cv2.CALIB_CB_NORMALIZE_IMAGE):
+        found, corners, meta = any_board.search(gray, flags)
         if found and meta is not None and corners is not None and meta.size == len(corners):
             rows, cols = meta.shape
             grid = corners.reshape(rows, cols, 2)
             spacing = float(np.median(np.linalg.norm(np.diff(grid, axis=1), axis=2)))
-            height, width = small.shape
+            height, width = _search_image(gray, THOROUGH_SEARCH_WIDTH_PX)[0].shape
             inside = (grid[..., 0].min() > spacing and grid[..., 1].min() > spacing
                       and grid[..., 0].max() < width - 1 - spacing and grid[..., 1].max() < height - 1 - spacing)
             return (cols, rows) if inside else None
     return None
 
 
+_QUADRANT_OFFSETS = np.array([-0.1, 0.0, 0.1])  # samples across a quadrant, in steps of the grid
+_QUADRANT_CENTRE = 0.25  # the quadrants sampled around the point beyond the edge, in steps of the grid
+
+
+def _side_ends(gray: np.ndarray, edge: np.ndarray, inner: np.ndarray) -> bool | None:
+    """Does the checker pattern end at this side of a found grid? ``edge`` (n, 2) its corners, ``inner`` (n, 2) the
+    row (or column) next to it. True: it ends (the squares beyond are not the board's); False: it goes on (a larger
+    board); None: cannot be judged (too few points inside the image with contrast).
+
+    One step beyond each edge corner (linear extrapolation) four squares meet: the two on the inside are the
+    board's outermost, one black one white; on a larger board the two outside repeat them crosswise (an X-corner),
+    at a board's edge they are its margin (alike)."""
+    outward = edge - inner
+    along = np.gradient(edge, axis=0)
+    beyond = edge + outward
+    quadrants = []
+    for su, sv in ((1, 1), (-1, 1), (1, -1), (-1, -1)):
+        centre = beyond + _QUADRANT_CENTRE * (su * along + sv * outward)
+        points = (centre[:, None, None, :] + _QUADRANT_OFFSETS[None, :, None, None] * along[:, None, None, :]
+                  + _QUADRANT_OFFSETS[None, None, :, None] * outward[:, None, None, :]).reshape(len(edge), 9, 2)
+        maps = points.astype(np.float32)
+        quadrants.append(cv2.remap(gray, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR,
+                                   borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0))
+    inside = np.all(np.stack(quadrants) >= 0, axis=(0, 2))
+    out_a, out_b, in_c, in_d = (np.median(q, axis=1) for q in quadrants)  # (+along, +out), (-, +), (+, -), (-, -)
+    contrast = np.abs(in_d - in_c)
+    judged = inside & (contrast > BOARD_EDGE_CONTRAST_DN)
+    crosswise = (judged & ((out_a - out_b) * (in_d - in_c) > 0) & (np.abs(out_a - out_b) > 0.5 * contrast)
+                 & (np.abs(out_a - in_d) < 0.5 * contrast) & (np.abs(out_b - in_c) < 0.5 * contrast))
+    if judged.sum() < 0.5 * len(edge):
+        return None
+    return bool(crosswise.sum() < 0.5 * judged.sum())
+
+
+def board_may_be_larger(gray: np.ndarray, grid: np.ndarray) -> bool:
+    """False when the checker pattern of a found (rows, cols, 2) corner grid ends at all four sides
+    (:func:`_side_ends`): the board is the one found, not a larger one containing it, and the board-size search
+    (SB, ~50-100 ms) can only find it again. True when a side goes on or cannot be judged."""
+    if grid.shape[0] < 2 or grid.shape[1] < 2:
+        return True
+    gray = np.asarray(gray, np.float32)
+    sides = ((grid[0], grid[1]), (grid[-1], grid[-2]), (grid[:, 0], grid[:, 1]), (grid[:, -1], grid[:, -2]))
+    return not all(_side_ends(gray, edge, inner) is True for edge, inner in sides)
+
+
 def gate_board_fit(target: Target, found: Sequence[bool], images: Sequence[np.ndarray], *,
-                   most: int = 4) -> GateResult:
+                   most: int = 4, grids: Sequence[np.ndarray | None] | None = None,
+                   any_board: AnyBoardSearch | None = None) -> GateResult:
     """Is the board the user named the one in the images? ``found`` per image; ``images`` the same images.
 
     Up to ``most`` of the missed images and two of the found ones are searched for the largest checkerboard
-    of any size (SB, ~40 ms each); it fails when that is another size than the one given.
+    of any size (SB, ~40 ms each); it fails when that is another size than the one given. ``grids``: per image the
+    found (rows, cols, 2) corners (None where not found or not whole); a found image whose grid's pattern ends at
+    every side (:func:`board_may_be_larger` False) is not searched: only a larger board counts there. ``any_board``:
+    the detection's searches of these images (:class:`~stereo_bench.vision.detect.AnyBoardSearch`), not repeated.
     """
     if not isinstance(target, Checkerboard):
         return GateResult("board_fit", float("nan"), BOARD_FIT_MIN_OTHER, "images", "n/a", "not a checkerboard")
@@ -511,11 +566,15 @@ def gate_board_fit(target: Target, found: Sequence[bool], images: Sequence[np.nd
 
     # The missed images, and two where the board was found: a board larger than the one named contains it,
     # and the classic detector then finds the smaller grid inside it in some images (wrong corner ids).
+    grids = list(grids) if grids is not None else [None] * len(images)
+    found_at = [k for k, ok in enumerate(found) if ok][:2]
     searched = ([im for im, ok in zip(images, found, strict=True) if not ok][:most]
-                + [im for im, ok in zip(images, found, strict=True) if ok][:2])
+                + [images[k] for k in found_at if grids[k] is None or board_may_be_larger(images[k], grids[k])])
     # Side by side on threads (SB releases the GIL; each search's answer does not depend on the thread).
     with ThreadPoolExecutor(max_workers=max(1, min(len(searched), os.cpu_count() or 1))) as pool:
-        shapes = [oriented(shape) for shape in pool.map(found_board_shape, searched)]
+        any_board = any_board or AnyBoardSearch()
+        shapes = [oriented(shape) for shape in pool.map(lambda image: found_board_shape(image, any_board), searched)]
+    shapes += [None] * (len(found_at) - (len(shapes) - min(most, len(found) - sum(map(bool, found)))))
     n_missed = min(most, len(found) - sum(map(bool, found)))
     missed, hits = shapes[:n_missed], shapes[n_missed:]
     # A board smaller than the one named is evidence only where the named one is missing from most images: where
@@ -538,13 +597,29 @@ def gate_board_fit(target: Target, found: Sequence[bool], images: Sequence[np.nd
                       "seen in the rest")
 
 
+def image_blur(image: np.ndarray | None, px: np.ndarray, target: Target) -> tuple[float, float, float] | None:
+    """(blur along rows px, along columns px, square side px) of one image's whole checkerboard (the sharpness
+    gate's measurement, :func:`edge_blur_px`); None without the image or a whole checkerboard. It needs no
+    calibration: a caller may measure it while the fit runs (``run_gates(blur_of=...)``)."""
+    if image is None or not isinstance(target, Checkerboard) or len(px) != target.n_corners:
+        return None
+    grid = np.asarray(px, float).reshape(target.rows, target.cols, 2)
+    steps = [np.linalg.norm(np.diff(grid, axis=a), axis=2) for a in (0, 1)]
+    square = float(np.median(np.concatenate([s.ravel() for s in steps])))
+    along_rows, along_cols = edge_blur_px(image, grid)
+    return along_rows, along_cols, square
+
+
 def run_gates(calib: StereoCalibration, views: Sequence[GateView], target: Target, *,
               dropped: Sequence[tuple[int, str]] = (), names: Sequence[str] | None = None,
-              accept_poor: bool = False) -> GateReport:
+              accept_poor: bool = False,
+              blur_of: Mapping[tuple[int, str], tuple[float, float, float] | None] | None = None) -> GateReport:
     """Every gate on a finished stereo calibration.
 
     ``views``: every pair with the board in both images (also those the outlier rule dropped: the
     synchronisation gate names them); ``dropped``: (pair index, reason) of the views the fit dropped.
+    ``blur_of``: per (pair index, "left" | "right") the :func:`image_blur` of the views' images, when the caller
+    measured it already (the same numbers).
     """
     dropped_set = {i for i, _ in dropped}
     poses = PoseCache()
@@ -557,13 +632,9 @@ def run_gates(calib: StereoCalibration, views: Sequence[GateView], target: Targe
     blurs = []
     for v in kept:
         for side, image, px in (("left", v.left_image, v.left_px), ("right", v.right_image, v.right_px)):
-            if image is None or not isinstance(target, Checkerboard) or len(px) != target.n_corners:
-                continue
-            grid = np.asarray(px, float).reshape(target.rows, target.cols, 2)
-            steps = [np.linalg.norm(np.diff(grid, axis=a), axis=2) for a in (0, 1)]
-            square = float(np.median(np.concatenate([s.ravel() for s in steps])))
-            along_rows, along_cols = edge_blur_px(image, grid)
-            blurs.append((v.index, side, along_rows, along_cols, square))
+            blur = blur_of[(v.index, side)] if blur_of is not None else image_blur(image, px, target)
+            if blur is not None:
+                blurs.append((v.index, side, *blur))
     results = (
         sync,
         gate_consistent_views(len(views), dropped, names),

@@ -134,19 +134,24 @@ class HeldOut:
                 "note": self.note}
 
 
+#: Where each name of :func:`_apply` lives: K's entry or the distortion vector's index.
+_K_ENTRY = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
+_D_INDEX = {name: i for i, name in enumerate(("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4",
+                                               "tx", "ty"))}
+
+
 def _apply(names: tuple[str, ...], delta: np.ndarray, K: np.ndarray, D: np.ndarray,
            square_pixels: bool) -> tuple[np.ndarray, np.ndarray]:
     K, D = K.copy(), D.copy().reshape(-1)
-    order = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
     for name, d in zip(names, delta, strict=True):
         if name == "f":  # fx = a fy with a held
             ratio = square_pixels_ratio(K)
             K[1, 1] += d
             K[0, 0] = K[1, 1] * ratio
-        elif name in ("fx", "fy", "cx", "cy"):
-            K[{"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}[name]] += d
+        elif name in _K_ENTRY:
+            K[_K_ENTRY[name]] += d
         else:
-            D[order.index(name)] += d
+            D[_D_INDEX[name]] += d
     return K, D.reshape(1, -1)
 
 
@@ -172,14 +177,17 @@ def _adjacent(object_points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
 #: stereo_bench.vision.rectify.undistort_points, which this module cannot import (it imports calibrate).
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
 _P1 = np.hstack([np.eye(3), np.zeros((3, 1))])
+_EYE3 = np.eye(3)
+_EYE3.flags.writeable = False
+_UNDISTORT_ITER = hasattr(cv2, "undistortPointsIter")  # OpenCV 4.x: the criteria overload lives there
 
 
 def _normalised(points_px: np.ndarray, K: np.ndarray, D: np.ndarray) -> np.ndarray:
     src = np.asarray(points_px, np.float64).reshape(-1, 1, 2)
-    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x
-        out = cv2.undistortPointsIter(src, K, D, np.eye(3), None, _UNDISTORT_CRITERIA)
+    if _UNDISTORT_ITER:
+        out = cv2.undistortPointsIter(src, K, D, _EYE3, None, _UNDISTORT_CRITERIA)
     else:
-        out = cv2.undistortPoints(src, K, D, R=np.eye(3), P=None, criteria=_UNDISTORT_CRITERIA)
+        out = cv2.undistortPoints(src, K, D, R=_EYE3, P=None, criteria=_UNDISTORT_CRITERIA)
     return out.reshape(-1, 2)
 
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereo_bench.targets import Target
+from stereo_bench.targets import Checkerboard, Target
 from stereo_bench.vision.calibrate import (
     MIN_VIEWS,
     ImplausibleCalibration,
@@ -23,8 +23,15 @@ from stereo_bench.vision.calibrate import (
     single_threaded_opencv,
 )
 from stereo_bench.vision.covariance import CalibrationCovariance
-from stereo_bench.vision.detect import Detection, common_corners, common_sigmas, detect
-from stereo_bench.vision.gates import CalibrationRefused, GateReport, GateView, gate_board_fit, run_gates
+from stereo_bench.vision.detect import AnyBoardSearch, Detection, common_corners, common_sigmas, detect
+from stereo_bench.vision.gates import (
+    CalibrationRefused,
+    GateReport,
+    GateView,
+    gate_board_fit,
+    image_blur,
+    run_gates,
+)
 from stereo_bench.vision.measure import SquareMeasurement, measure_square, planar_fit_rms_px
 from stereo_bench.vision.rectify import Rectification, epipolar_errors_px, rectify, rms
 from stereo_bench.vision.triangulate import camera_depths_mm, parallax_px
@@ -129,13 +136,15 @@ DETECTION_THREADS = 4
 
 
 def _detect_all(left_images: Sequence[np.ndarray], right_images: Sequence[np.ndarray], target: Target, *,
-                thorough: bool) -> list[tuple[Detection | None, Detection | None]]:
-    """Per pair the (left, right) detections, without corner-noise estimates, on a few threads."""
+                thorough: bool, any_board: AnyBoardSearch | None = None,
+                ) -> list[tuple[Detection | None, Detection | None]]:
+    """Per pair the (left, right) detections, without corner-noise estimates, on a few threads. ``any_board``: the
+    any-size board searches, kept for the board-size gate (:class:`~stereo_bench.vision.detect.AnyBoardSearch`)."""
     images = [image for pair in zip(left_images, right_images, strict=True) for image in pair]
     workers = max(1, min(DETECTION_THREADS, os.cpu_count() or 1, len(images)))
 
     def one(image: np.ndarray) -> Detection | None:
-        return detect(image, target, thorough=thorough, noise=False)
+        return detect(image, target, thorough=thorough, noise=False, any_board=any_board)
 
     # OpenCV on one thread inside each detection: the images are already spread over the cores, and OpenCV's own
     # workers would only add hand-over and spinning (~10 % of the detections' CPU on the real sets); the corners
@@ -147,6 +156,16 @@ def _detect_all(left_images: Sequence[np.ndarray], right_images: Sequence[np.nda
             with ThreadPoolExecutor(max_workers=workers) as pool:
                 found = list(pool.map(one, images))
     return list(zip(found[0::2], found[1::2], strict=True))
+
+
+def _whole_grids(detections: Sequence[tuple[Detection | None, Detection | None]],
+                 target: Target) -> list[np.ndarray | None]:
+    """Per image (left and right of each pair in turn) the found (rows, cols, 2) corner grid of a whole checkerboard,
+    else None (the board-size search's hint: :func:`~stereo_bench.vision.gates.gate_board_fit`)."""
+    if not isinstance(target, Checkerboard):
+        return [None] * (2 * len(detections))
+    return [d.corners_px.reshape(target.rows, target.cols, 2) if d is not None and d.n == target.n_corners else None
+            for pair in detections for d in pair]
 
 
 def calibrate_from_images(
@@ -192,8 +211,9 @@ def calibrate_from_images(
             raise ImplausibleCalibration(f"the given intrinsics do not fit these images: {given[0]}")
     rejected: list[RejectedView] = []
     pair_index, objects, lefts, rights = [], [], [], []
+    any_board = AnyBoardSearch()
     if detections is None:
-        detections = _detect_all(left_images, right_images, target, thorough=thorough)
+        detections = _detect_all(left_images, right_images, target, thorough=thorough, any_board=any_board)
     found: list[bool] = []  # per image, left and right of each pair in turn
     for index in range(len(left_images)):
         left, right = detections[index]
@@ -216,9 +236,16 @@ def calibrate_from_images(
         # gates beside the leave-one-view-out check. A refusal by a gate still comes before any other failure.
         report = None
         board_search = None
+        blurs = {}
         if gates:
             images = [image for pair in zip(left_images, right_images, strict=True) for image in pair]
-            board_search = pool.submit(gate_board_fit, target, found, images)
+            board_search = pool.submit(gate_board_fit, target, found, images, grids=_whole_grids(detections, target),
+                                       any_board=any_board)
+            # The sharpness gate's measurement needs no calibration: on the pool while the cameras are fitted.
+            blurs = {(index, side): pool.submit(image_blur, image, px, target)
+                     for k, index in enumerate(pair_index)
+                     for side, image, px in (("left", left_images[index], lefts[k]),
+                                             ("right", right_images[index], rights[k]))}
 
         def board_report() -> GateReport | None:
             if board_search is None:
@@ -251,7 +278,8 @@ def calibrate_from_images(
             views = [GateView(index, objects[k], lefts[k], rights[k], left_images[index], right_images[index])
                      for k, index in enumerate(pair_index)]
             report = report.merged(run_gates(calib, views, target, dropped=dropped, names=view_names,
-                                             accept_poor=accept_poor))
+                                             accept_poor=accept_poor,
+                                             blur_of={key: blur.result() for key, blur in blurs.items()}))
             if report.refused:
                 raise CalibrationRefused(report)
             dropped = [(index, f"{why}: {report.view_diagnoses[index]}" if index in report.view_diagnoses else why)

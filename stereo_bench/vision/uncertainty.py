@@ -68,6 +68,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -632,14 +633,18 @@ def model_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray]
         return np.bincount(owner_arr, weights=square.weights * lengths, minlength=n)
 
     nominal_arr = np.array(nominal)
-    measured = per_view(triangulate(calib, square.left, square.right))
-    g = _sensitivities(calib, square, names, per_view).T  # (n, P)
+    # The corners' triangulation Jacobian (below) on another thread while the sensitivities are computed: both are
+    # numpy and OpenCV work on large arrays, which releases the GIL (the same calls: the same numbers).
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        triangulated = pool.submit(lambda: (triangulate(calib, square.left, square.right),
+                                            triangulation_jacobian(calib, square.left, square.right)))
+        measured = per_view(triangulate(calib, square.left, square.right))
+        g = _sensitivities(calib, square, names, per_view).T  # (n, P)
+        points, jac = triangulated.result()
     # First order in each view's leave-one-out change, like the change itself (no refit, no re-triangulation).
     errors = (measured + np.einsum("np,np->n", g, covariance.view_deltas) - nominal_arr) / nominal_arr
     calibration = np.array([covariance.variance_of(g_v, names)[0] for g_v in g]) / nominal_arr**2
     # The square's pixel gradient per corner: each view's own square (weights 1/K_v), through the triangulation.
-    points, jac = triangulate(calib, square.left, square.right), triangulation_jacobian(calib, square.left,
-                                                                                       square.right)
     d = points[square.a_idx] - points[square.b_idx]
     u = d / np.linalg.norm(d, axis=1)[:, None] * square.weights[:, None]
     gradient = np.zeros((len(points), 4))
