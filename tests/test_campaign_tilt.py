@@ -141,6 +141,28 @@ def test_a_tilting_session_replays_to_the_last_digit(tilt_session, tmp_path):
         SessionReader(tilt_session).read_bytes(original.files["kinematic_model.toml"])
 
 
+def test_at_one_campaign_tilt_the_design_holds_the_tilts_and_the_model_has_no_joints(tmp_path):
+    """The tilting rig at one campaign tilt (design_tilt = "auto"): the visits are recorded as on a rig without tilt
+    axes, the fit drops the tilts the rig reports (a three-axis model, 22 parameters), and the configuration's
+    reported position still carries them."""
+    config = lab_config(rig=TILT_RIG, extrinsics={"mode": "kinematic", "design": "fixed-board", "fixed_board_views": 1},
+                        calibration_board={"cols": 9, "rows": 6, "square_mm": 20})
+    plan = CampaignPlan.of(config)
+    first = next(c for c in plan.configurations if c.runnable)
+    inner = [dataclasses.replace(first, baseline_mm=140.0, toe_in_deg=5.0, alpha_deg=85.0, config_id="B140_Z500_A85",
+                                 index=0)]
+    out = tmp_path / "s"
+    assert run_campaign(config, out, yes=True, plan=CampaignPlan.of(config, inner, plan.visits)).exit_status == \
+        "success"
+    reader = SessionReader(out)
+    design = reader.start().design
+    assert len(design) == 32 and not any("tilt_left_deg" in visit for visit in design)
+    (event,) = reader.events(kind="kinematic_model", attempt=None)
+    assert event.data.error is None and len(event.data.identifiability) == 22
+    (structure,) = reader.events(kind="structure")
+    assert structure.data.axes["tilt_left_deg"] == structure.data.axes["tilt_right_deg"] == 0.0
+
+
 def test_rig_calibrate_kinematics_fits_the_tilt_joints_on_a_tilting_rig(tmp_path, capsys):
     """`rig calibrate-kinematics --design fixed-board` on a rig config that drives the tilts: the design steps them
     (--tilt-range, widened to 10 deg) and the model file has tilt joints, ready for a campaign at any tilt inside
