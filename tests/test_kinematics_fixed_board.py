@@ -192,3 +192,39 @@ def test_the_plans_table_before_any_view_says_what_the_fit_then_finds():
         for a, b in zip(planned, fit.identifiability, strict=True):
             if a.identified:
                 assert a.sigma == pytest.approx(b.sigma, rel=0.3), (a, b)  # the nominal rig against the lab's
+
+
+def _lens_prior(scale: float) -> np.ndarray:
+    """(16, 16) covariance of INTRINSIC_NAMES like a 12-view lens calibration's (bench_fixed_board's calib_dir: fx
+    0.26 px, the two cameras' fx correlated 0.77, cx 0.46 px), times ``scale``."""
+    from stereo_bench.kinematics.fixed_board import INTRINSIC_NAMES
+
+    sigma = {"fx": 0.26, "fy": 0.26, "cx": 0.46, "cy": 0.4, "k1": 1e-3, "k2": 3e-3, "p1": 5e-5, "p2": 5e-5}
+    s = np.array([sigma[name.split(".")[1]] for name in INTRINSIC_NAMES])
+    corr = np.eye(16)
+    for j in range(8):  # the same quantity of the two cameras: correlated through the stereo calibration
+        corr[j, 8 + j] = corr[8 + j, j] = 0.77
+    return scale * np.outer(s, s) * corr
+
+
+def test_one_board_pose_leaves_the_right_cameras_depth_to_the_ratio_of_the_focal_lengths():
+    """Issue 25 item 3: with one board pose the right camera's depth offset is known no better than Z x the focal
+    ratio's sigma (both cameras measure the board's depth as f x size / image size), so the lens prior's focal ratio
+    is what limits T_z; a 10x tighter prior (by variance) makes it about half."""
+    from stereo_bench.kinematics.fixed_board import INTRINSIC_NAMES
+
+    configurations = fixed_board_views(fixed_board_design((60.0, 240.0), (0.0, 13.0)), LAB, noise_px=0.1, seed=7)
+    sigmas = {}
+    for scale in (1.0, 0.1):
+        fit = _fit(configurations, LAB, intrinsics_covariance=_lens_prior(scale))
+        C = fit.model.intrinsics_covariance_matrix()
+        names = list(fit.model.intrinsics_covariance_names)
+        a, b = names.index("left.fx"), names.index("right.fx")
+        ratio = math.sqrt(C[a, a] + C[b, b] - 2 * C[a, b]) / CAMERA.fx
+        depth = float(np.linalg.norm(fit.T_ref_board[:3, 3]))  # the board's distance from the left camera
+        sigmas[scale] = (fit.model.parameters["right_z_mm"].sigma, depth * ratio)
+        assert INTRINSIC_NAMES[0] in names
+    sigma_z, predicted = sigmas[1.0]
+    assert 0.75 * predicted < sigma_z < 1.25 * predicted, sigmas  # measured: 0.037 mm against 0.038
+    # Tighter focal lengths: T_z follows (0.019 mm measured), then other terms (the board's pose, the pan axes) show.
+    assert sigmas[0.1][0] < 0.6 * sigma_z, sigmas

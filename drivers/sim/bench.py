@@ -998,8 +998,12 @@ class BenchSimulator:
             renderer = self._preview_renderer(target, scale)
             smear_px = None if smear_px is None else (smear_px[0] * scale, smear_px[1] * scale)
             velocity = None if velocity is None else (velocity[0] * scale, velocity[1] * scale)
+        # The corner scatter beyond image noise is the scene's and the rig's, not the frame's: frames of one rest
+        # in front of one scene share it (a still board's print texture and JPEG blocks, the optics' aberrations
+        # where its corners fall), so averaging frames does not remove it, as at a real bench.
+        jitter_rng = np.random.default_rng([scene.seed, SIDES.index(side), 0x717E5, _crc(repr(pose))])
         view = renderer.render_view(side, T_cam_board, rng, shape=scene.shape, smear_px=smear_px,
-                                    velocity_px_s=velocity)
+                                    velocity_px_s=velocity, jitter_rng=jitter_rng)
         truth = {"T_bench_cam": T_rig_cam[:3].tolist(), **self._pair_truth(snapshot), "board": board}
         if snapshot.state is not None:
             truth["ringing_deg"] = snapshot.state.ringing_deg[side]

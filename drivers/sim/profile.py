@@ -176,7 +176,8 @@ class CameraErrors(BaseModel):
                                          "std (added in quadrature)", ge=0, le=50)
     shot_noise_gain: float = _f(0.0, "shot-noise variance per DN of signal (DN^2 / DN) at the camera's gain",
                                 ge=0, le=10)
-    corner_noise_px: float = _f(0.0, "random displacement of the pattern's image per view, std (px) of each "
+    corner_noise_px: float = _f(0.0, "random displacement of the pattern's image per view (frames of one still "
+                                     "view share it), std (px) of each "
                                      "coordinate at nodes corner_noise_scale_px apart: the corner scatter real "
                                      "cameras show beyond their image noise", ge=0, le=10)
     corner_noise_scale_px: int = Field(16, ge=2, le=1024, description="node spacing of the corner-noise field, px")

@@ -741,7 +741,8 @@ class StereoRenderer:
 
     def render_view(self, side: str, T_cam_board: np.ndarray, rng: np.random.Generator, *,
                     shape: BoardShape | None = None, smear_px: tuple[float, float] | None = None,
-                    velocity_px_s: tuple[float, float] | None = None) -> RenderedView:
+                    velocity_px_s: tuple[float, float] | None = None,
+                    jitter_rng: np.random.Generator | None = None) -> RenderedView:
         """Render the ``side`` ('left' or 'right') camera's frame of the target at ``T_cam_board`` (4x4, mm).
 
         ``rng`` drives the sensor noise only (one draw per call), so a seeded generator reproduces
@@ -752,7 +753,10 @@ class StereoRenderer:
         turns into a shear of the board's image; None: still.
 
         With ``optics.jitter_px`` > 0 the board's image is also displaced by a random field drawn from
-        ``rng`` (first, then the sensor noise): the corner scatter of a real camera beyond its image noise.
+        ``jitter_rng`` (None: from ``rng``, first, then the sensor noise): the corner scatter of a real camera
+        beyond its image noise. What it stands for (print texture, the optics' local aberrations, JPEG blocks)
+        does not change between frames of a still board seen by a still camera: a caller that renders several
+        frames of one still view passes the same ``jitter_rng`` seed for each.
         """
         camera = self.camera(side)
         raster = self._rasters[side]
@@ -785,7 +789,9 @@ class StereoRenderer:
             bent = shape is not None and shape.bow_mm != 0.0 and facing and depths_ok
             displace = _BentBoard(shape, self.target, camera.K, T_cam_board, H_ideal_board) if bent else None
             frame, texture_sigma_px = raster.render(mip, H_ideal_board, depths_ok=depths_ok, displace=displace,
-                                                    displacement=self._displacement(camera, rng, velocity_px_s))
+                                                    displacement=self._displacement(
+                                                        camera, rng if jitter_rng is None else jitter_rng,
+                                                        velocity_px_s))
         image = self._sensor(frame, raster, rng, texture_sigma_px, smear_px=smear_px)
         return RenderedView(image=image, corners_px=corners_px, visible=visible, T_cam_board=T_cam_board)
 

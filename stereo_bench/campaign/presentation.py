@@ -9,6 +9,12 @@ the directory that holds the sessions, ``--out``'s parent). The next ``campaign 
 run`` (its ETA) read the file beside their ``--out`` and use its seconds per view instead of the assumed 5 s, and
 say where the figure came from.
 
+The same file carries the operator's other hand work a real bench timed (prompts answered by a person, not the
+simulator, with real cameras: on the simulated bench the scene is placed by the simulator and a prompt's wait
+says nothing about a bench): seconds per target move (``target`` prompts) and per fixed-board placement
+(``fixed_board`` prompts), which replace the plan's assumed 30 s and 20 s. A run that presented no view by hand
+but timed a placement (a fixed-board campaign) writes the file with ``seconds_per_view`` null.
+
     measured = PresentationTime.of_events(events, session="2026-11-21")   # None: nothing presented by hand
     write_beside(session_dir, measured)                                   # -> session_dir.parent / FILE_NAME
     found = read_beside(out_dir)                                          # (PresentationTime | None, note | None)
@@ -37,9 +43,15 @@ class PresentationTime(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
     schema_version: Literal[1] = 1
-    seconds_per_view: float = Field(gt=0, description="seconds per view presented, s")
-    views: int = Field(ge=1, description="views presented in the run it was measured in")
+    seconds_per_view: float | None = Field(gt=0, description="seconds per view presented, s (null: none presented)")
+    views: int = Field(ge=0, description="views presented in the run it was measured in")
     seconds: float = Field(ge=0, description="their presentation time in total, s")
+    seconds_per_target_move: float | None = Field(None, gt=0, description="seconds per target move done by a "
+                                                  "person at a real bench, s (null: none timed)")
+    target_moves: int = Field(0, ge=0, description="target moves timed")
+    seconds_per_placement: float | None = Field(None, gt=0, description="seconds per fixed-board placement done by "
+                                                "a person at a real bench, s (null: none timed)")
+    placements: int = Field(0, ge=0, description="fixed-board placements timed")
     capture: Literal["auto", "enter", "mixed"] = Field(description="how the views were taken")
     clock: Literal["bench", "wall", "mixed"] = Field(
         description="whose seconds: the operator's wall clock (a real bench) or the simulated bench's clock")
@@ -47,18 +59,31 @@ class PresentationTime(BaseModel):
     measured_at: str = Field(description="when the run ended (UTC, ISO 8601)")
 
     @classmethod
-    def of_events(cls, events: Iterable, *, session: str) -> PresentationTime | None:
-        """The total of a run's ``presentation_time`` events (:class:`PresentationTimeEvent`); None without one."""
+    def of_events(cls, events: Iterable, *, session: str, prompts: Iterable = (),
+                  real_scene: bool = False) -> PresentationTime | None:
+        """The total of a run's ``presentation_time`` events (:class:`PresentationTimeEvent`) and, with
+        ``real_scene`` (real cameras), the waits of its ``target`` and ``fixed_board`` prompts (``PromptEvent``)
+        that a person answered; None when nothing was timed."""
         data = [event.data for event in events]
-        if not data:
-            return None
         views = sum(d.views for d in data)
         seconds = sum(d.seconds for d in data)
-        if seconds <= 0:
+        timed: dict[str, list[float]] = {"target": [], "fixed_board": []}
+        if real_scene:
+            for event in prompts:
+                prompt = event.data
+                if prompt.prompt in timed and prompt.answered_by != "simulator" and prompt.waited_s > 0:
+                    timed[prompt.prompt].append(prompt.waited_s)
+        presented = views > 0 and seconds > 0
+        if not presented and not any(timed.values()):
             return None
         captures, clocks = {d.capture for d in data}, {d.clock for d in data}
-        return cls(seconds_per_view=seconds / views, views=views, seconds=seconds,
-                   capture=captures.pop() if len(captures) == 1 else "mixed",
+        if any(timed.values()):
+            clocks.add("wall")
+        moves, placed = timed["target"], timed["fixed_board"]
+        return cls(seconds_per_view=seconds / views if presented else None, views=views, seconds=seconds,
+                   seconds_per_target_move=sum(moves) / len(moves) if moves else None, target_moves=len(moves),
+                   seconds_per_placement=sum(placed) / len(placed) if placed else None, placements=len(placed),
+                   capture=captures.pop() if len(captures) == 1 else ("mixed" if captures else "enter"),
                    clock=clocks.pop() if len(clocks) == 1 else "mixed", session=session,
                    measured_at=datetime.now(UTC).isoformat(timespec="seconds"))
 
@@ -67,8 +92,21 @@ class PresentationTime(BaseModel):
         over 96 views of session x on 2026-12-03T08:10:00+00:00'."""
         clock = {"bench": "the simulated bench's clock", "wall": "the operator's wall clock",
                  "mixed": "bench and wall clocks"}[self.clock]
+        if self.seconds_per_view is None:
+            return f"no calibration view presented by hand in session {self.session} at {self.measured_at}"
         return (f"{self.seconds_per_view:.2f} s per calibration view presented by hand, measured over {self.views} "
                 f"views ({self.capture} capture, {clock}) in session {self.session} at {self.measured_at}")
+
+    def describe_prompts(self) -> list[str]:
+        """The operator's other hand work this run timed: ['31.2 s per target move, measured over 5 moves in
+        session x', ...]; [] when none was timed."""
+        out = []
+        for what, seconds, count, noun in (("target move", self.seconds_per_target_move, self.target_moves, "moves"),
+                                           ("fixed-board placement", self.seconds_per_placement, self.placements,
+                                            "placements")):
+            if seconds is not None:
+                out.append(f"{seconds:.1f} s per {what}, measured over {count} {noun} in session {self.session}")
+        return out
 
 
 def beside(out_dir: str | Path) -> Path:

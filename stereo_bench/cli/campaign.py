@@ -135,11 +135,16 @@ def _plan_text(config: CampaignConfig, summary: dict[str, Any], *, source: str, 
 
 def _presentation_text(figure: dict[str, Any]) -> str:
     """Where the seconds per board presentation come from: measured by an earlier run (which file), or assumed."""
+    others = "".join(f"; {what}: measured, {figure[key]:.1f} s, from {figure['file']}"
+                     for what, key, source in (("target move", "s_per_target_move", "target_move_source"),
+                                               ("board placement", "s_per_placement", "placement_source"))
+                     if figure.get(source) == "measured")
     if figure["source"] == "measured":
-        return f"presentation time: measured, {figure['s_per_calibration_view']:.2f} s per view, from {figure['file']}"
+        return (f"presentation time: measured, {figure['s_per_calibration_view']:.2f} s per view, from "
+                f"{figure['file']}" + others)
     where = (f"no measured figure in {figure['file']}" if figure.get("file")
              else "pass --out SESSION_DIR to use the figure earlier runs measured beside it")
-    return f"presentation time: assumed, {figure['s_per_calibration_view']:g} s per view ({where})"
+    return f"presentation time: assumed, {figure['s_per_calibration_view']:g} s per view ({where})" + others
 
 
 def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[str]:

@@ -168,16 +168,18 @@ def run_campaign(
         raise
     summary.exit_status, summary.reason = status, reason
     summary.rows = collector.rows
-    _write_presentation_time(summary, collector)
+    _write_presentation_time(summary, collector, real_scene=config.cameras.kind != "simulated")
     return summary
 
 
-def _write_presentation_time(summary: RunSummary, collector: Collector) -> None:
-    """The seconds per board presentation this run measured, beside its session: the next plan's estimate."""
-    from stereo_bench.campaign.documents import PresentationTimeEvent
+def _write_presentation_time(summary: RunSummary, collector: Collector, *, real_scene: bool) -> None:
+    """The seconds per board presentation (and, with real cameras, per target move and fixed-board placement) this
+    run measured, beside its session: the next plan's estimate."""
+    from stereo_bench.campaign.documents import PresentationTimeEvent, PromptEvent
     from stereo_bench.campaign.presentation import PresentationTime, write_beside
 
-    measured = PresentationTime.of_events(collector.of(PresentationTimeEvent), session=summary.session.name)
+    measured = PresentationTime.of_events(collector.of(PresentationTimeEvent), session=summary.session.name,
+                                          prompts=collector.of(PromptEvent), real_scene=real_scene)
     if measured is None:
         return
     summary.presentation = measured

@@ -79,9 +79,9 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
         + (f", simulated rig {speed_factor:g}x faster than real time" if speed_factor != 1.0 else ""),
         f"{frame_s:g} s per stereo frame" + ("" if config.cameras.kind == "simulated"
                                               else f", {flush_frames} frames per flush"),
-        (f"operator {OPERATOR_S_PER_PROMPT:g} s per prompt; " + model.presentation_source
+        (_prompt_assumption(model) + model.presentation_source
          + (f", {OPERATOR_S_PER_BOARD_PLACEMENT:g} s to place the fixed board (assumed)"
-            if config.extrinsics.fixed_board else "")
+            if config.extrinsics.fixed_board and model.s_per_placement == OPERATOR_S_PER_BOARD_PLACEMENT else "")
          + ("" if real_scene else " (the scene is simulated: boards and target placed by the simulator)")
          if human else "no operator time: rig and cameras simulated"),
         "computation (rendering, detection, calibration) not included",
@@ -92,6 +92,12 @@ def estimate_duration(config: CampaignConfig, configurations: Sequence[Configura
              else "the far end of each axis' range (the longest seek)"),) if homing else ())
     return DurationEstimate(homing_s=homing, motion_s=motion, settle_s=settle, flush_s=flush, capture_s=capture,
                             operator_s=operator, assumptions=assumptions)
+
+
+def _prompt_assumption(model) -> str:
+    """The operator's seconds per prompt the estimate counts, and the figures an earlier run measured instead."""
+    measured = "".join(f"{line}; " for line in model.prompts_source)
+    return f"operator {OPERATOR_S_PER_PROMPT:g} s per prompt; " + measured
 
 
 def homing_estimate_s(travel: Mapping[str, tuple[float, float]], *, simulated: bool) -> float:

@@ -12,7 +12,7 @@ from drivers.rig.config import QUANTITIES, to_machine
 from drivers.rig.motion import move_time_s
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.plan.configurations import Configuration, Visit, plan_visits
-from stereo_bench.campaign.plan.timing import OPERATOR_S_PER_BOARD_PLACEMENT, OPERATOR_S_PER_PROMPT, DurationModel
+from stereo_bench.campaign.plan.timing import OPERATOR_S_PER_PROMPT, DurationModel
 
 
 class StepKind:
@@ -75,7 +75,7 @@ class PromptTarget(StepKind):
         return {"step": self.kind, "distance_mm": self.distance_mm}
 
     def estimate(self, model: DurationModel) -> None:
-        model.operator_s += OPERATOR_S_PER_PROMPT if model.real_scene else 0.0
+        model.operator_s += model.s_per_target_move if model.real_scene else 0.0
 
 
 @dataclass(frozen=True)
@@ -105,7 +105,7 @@ class PlaceBoard(StepKind):
         return {"step": self.kind, "T_rig_board": list(self.T_rig_board)}
 
     def estimate(self, model: DurationModel) -> None:
-        model.operator_s += OPERATOR_S_PER_BOARD_PLACEMENT if model.real_scene else 0.0
+        model.operator_s += model.s_per_placement if model.real_scene else 0.0
 
     def present(self, tally: Presentations) -> None:
         tally.counts["placements"] += 1

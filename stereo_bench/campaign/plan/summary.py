@@ -75,6 +75,25 @@ def design_identifiability(config: CampaignConfig, visits: Sequence) -> list[dic
             for r in rows]
 
 
+def _presentation_time(presentation) -> dict[str, Any]:
+    """The plan's seconds per hand presentation, per target move and per fixed-board placement, and whether each is
+    ``measured`` by an earlier run (``presentation``) or ``assumed``."""
+    from stereo_bench.campaign.plan.timing import OPERATOR_S_PER_BOARD_PLACEMENT, OPERATOR_S_PER_PROMPT
+
+    def figure(measured: float | None, assumed: float) -> tuple[float, str]:
+        return (measured, "measured") if measured is not None else (assumed, "assumed")
+
+    view, source = figure(None if presentation is None else presentation.seconds_per_view,
+                          OPERATOR_S_PER_CALIBRATION_VIEW)
+    move, move_source = figure(None if presentation is None else presentation.seconds_per_target_move,
+                               OPERATOR_S_PER_PROMPT)
+    placement, placement_source = figure(None if presentation is None else presentation.seconds_per_placement,
+                                         OPERATOR_S_PER_BOARD_PLACEMENT)
+    return {"s_per_calibration_view": view, "source": source, "s_per_target_move": move,
+            "target_move_source": move_source, "s_per_placement": placement, "placement_source": placement_source,
+            "measured": None if presentation is None else presentation.model_dump()}
+
+
 def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN_PX,
                  presentation=None) -> dict[str, Any]:
     """Everything ``stereo-bench campaign plan`` reports, as one JSON-able object; ``presentation``: a measured
@@ -94,10 +113,7 @@ def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGI
         "name": config.name,
         "configurations": [c.as_dict() for c in configurations],
         "predicted_duration_s": estimate.total_s,
-        "presentation_time": {"s_per_calibration_view": (presentation.seconds_per_view if presentation is not None
-                                                         else OPERATOR_S_PER_CALIBRATION_VIEW),
-                              "source": "measured" if presentation is not None else "assumed",
-                              "measured": None if presentation is None else presentation.model_dump()},
+        "presentation_time": _presentation_time(presentation),
         "duration": estimate.as_dict(),
         "n_steps": len(steps),
         "steps": [s.as_dict() for s in steps],

@@ -53,6 +53,10 @@ class DurationModel:
     # assumed; ``presentation_source`` says which.
     s_per_calibration_view: float = OPERATOR_S_PER_CALIBRATION_VIEW
     presentation_source: str = f"assumed {OPERATOR_S_PER_CALIBRATION_VIEW:g} s per calibration view done by hand"
+    # Seconds per target move and per fixed-board placement: measured at a real bench by an earlier run, or assumed.
+    s_per_target_move: float = OPERATOR_S_PER_PROMPT
+    s_per_placement: float = OPERATOR_S_PER_BOARD_PLACEMENT
+    prompts_source: tuple[str, ...] = ()
 
     @classmethod
     def of(cls, config: CampaignConfig, presentation=None) -> DurationModel:
@@ -71,6 +75,18 @@ class DurationModel:
             feeds=rig_config.axis_feeds_per_min(),
             position={a: min(max(0.0, low), high) for a, (low, high) in travel.items()},  # the emulator's home
             real_scene=config.cameras.kind != "simulated", real_rig=config.rig.kind != "simulated",
-            frame_s=_frame_time_s(config), flush_frames=flush_frames,
-            **({} if presentation is None else {"s_per_calibration_view": presentation.seconds_per_view,
-                                                "presentation_source": presentation.describe()}))
+            frame_s=_frame_time_s(config), flush_frames=flush_frames, **_measured(presentation))
+
+
+def _measured(presentation) -> dict:
+    """The :class:`DurationModel` fields an earlier run's measured figures replace (none: the assumed ones)."""
+    if presentation is None:
+        return {}
+    out: dict = {"prompts_source": tuple(presentation.describe_prompts())}
+    if presentation.seconds_per_view is not None:
+        out.update(s_per_calibration_view=presentation.seconds_per_view, presentation_source=presentation.describe())
+    if presentation.seconds_per_target_move is not None:
+        out["s_per_target_move"] = presentation.seconds_per_target_move
+    if presentation.seconds_per_placement is not None:
+        out["s_per_placement"] = presentation.seconds_per_placement
+    return out
