@@ -19,15 +19,20 @@ from tests.test_campaign_extrinsics import _two_configurations, lab_config
 pytestmark = pytest.mark.slow
 
 
-@pytest.fixture(scope="module")
-def fixed_session(tmp_path_factory):
-    root = tmp_path_factory.mktemp("fixed-board")
-    # The lens calibration made once (calib_dir): one per-config calibration of 12 presented views.
+def lens_calibration(root):
+    """The lens calibration made once (a calib_dir in ``root``): one per-config calibration of 12 presented views."""
     lens = lab_config(capture={"calibration_views": 12},
                       plan={"baseline_mm": [140], "distance_mm": [450], "toe_in_deg": [5]})
     assert run_campaign(lens, root / "lens", yes=True).exit_status == "success"
     calib_dir = root / "calib_dir"
     shutil.copytree(next((root / "lens" / "calib").glob("*/*")), calib_dir)
+    return calib_dir
+
+
+@pytest.fixture(scope="module")
+def fixed_session(tmp_path_factory):
+    root = tmp_path_factory.mktemp("fixed-board")
+    calib_dir = lens_calibration(root)
     config = lab_config(extrinsics={"mode": "kinematic", "design": "fixed-board", "calib_dir": str(calib_dir)})
     out = root / "session"
     # B 110 / toe-in 3 and B 170 / toe-in 7: between this design's levels too (B 80/120/160/200, toe-in 0/3.3/6.7/10)

@@ -97,3 +97,71 @@ def test_campaign_plan_prints_placements_and_presentations_in_each_design(tmp_pa
     out = capsys.readouterr().out
     for text in expected:
         assert text in out, text
+
+
+#: grblHAL with the tilts on A and B (tests/test_sim_tilt.py's TILT_RIG), inline.
+TILT_RIG = {"controller": {"rx_buffer_size": 1024},
+            "quantities": {side: {"axis": axis, "offset": -21.0, "scale": -1.0, "min": -20, "max": 20}
+                           for side, axis in (("tilt_left_deg", "A"), ("tilt_right_deg", "B"))}}
+SMALL_PLAN = {"baseline_mm": [80, 200], "distance_mm": [500], "toe_in_deg": [0, 10]}
+
+
+def _tilt_config(plan=None, **extrinsics):
+    return campaign_from_dict({"name": "tilt", "rig": TILT_RIG, "plan": {**SMALL_PLAN, **(plan or {})},
+                               "calibration_board": {"cols": 9, "rows": 6, "square_mm": 20},
+                               "extrinsics": {"mode": "kinematic", "design": "fixed-board", **extrinsics}})
+
+
+def test_the_design_steps_the_tilts_when_the_plan_has_several_and_holds_them_at_one():
+    several = _tilt_config({"tilts_deg": [-2, 2]})
+    configurations = expand_plan(several)
+    # tilts innermost, serpentine: one step of one axis between neighbours
+    assert [c.config_id for c in configurations][:4] == ["B80_Z500_A90_Tm2", "B80_Z500_A90_T2", "B80_Z500_A80_T2",
+                                                         "B80_Z500_A80_Tm2"]
+    visits = plan_visits(several, configurations)
+    assert len(visits) == 32 and all(v.runnable for v in visits)
+    assert {v.tilt_left_deg for v in visits} == {v.tilt_right_deg for v in visits} == {-5.0, 0.0, 5.0}
+    assert visits[0].config_id == "design-1_B80_L0_R0_TLm5_TR5"
+    assert visits[0].move_request()["tilt_left_deg"] == -5.0 and visits[0].rig_pose().tilt_right_deg == 5.0
+    for one in (_tilt_config(), _tilt_config(plan={"tilts_deg": [-2, 2]}, design_tilt="include")):
+        held = plan_visits(one, expand_plan(one))
+        assert len(held) == 32
+    (single,) = {v.tilts_in_design for v in plan_visits(_tilt_config(), expand_plan(_tilt_config()))}
+    assert single == ()  # held: recorded as before (no per-camera tilts)
+    assert "tilt_left_deg" not in plan_visits(_tilt_config(), expand_plan(_tilt_config()))[0].as_dict()
+    included = _tilt_config(design_tilt="include")
+    assert {v.tilt_left_deg for v in plan_visits(included, expand_plan(included))} == {-5.0, 0.0, 5.0}
+
+
+def test_campaign_plan_says_whether_the_design_steps_the_tilts_and_prints_their_joints(tmp_path, capsys):
+    summary = plan_summary(_tilt_config({"tilts_deg": [-2, 2]}))
+    assert summary["design_tilt"].startswith("tilts stepped (tilt_left_deg, tilt_right_deg; the campaign tilts")
+    names = [row["name"] for row in summary["identifiability"]]
+    assert len(names) == 34 and "right_tilt_axis_y_mm" in names
+    held = plan_summary(_tilt_config())
+    assert held["design_tilt"].startswith("tilts held at 0 deg (one campaign tilt")
+    assert len(held["identifiability"]) == 22
+    assert "design_tilt" not in plan_summary(_config("fixed-board"))  # a rig without tilt axes: as before
+    path = tmp_path / "tilt.toml"
+    rig = "".join(f'[rig.quantities.{side}]\naxis = "{axis}"\noffset = -21.0\nscale = -1.0\nmin = -20\nmax = 20\n'
+                  for side, axis in (("tilt_left_deg", "A"), ("tilt_right_deg", "B")))
+    path.write_text('[plan]\nbaseline_mm = [80, 200]\ndistance_mm = [500]\ntoe_in_deg = [0, 10]\ntilts_deg = [-2, 2]\n'
+                    '[calibration_board]\ncols = 9\nrows = 6\nsquare_mm = 20\n'
+                    '[extrinsics]\nmode = "kinematic"\ndesign = "fixed-board"\n'
+                    '[rig.controller]\nrx_buffer_size = 1024\n' + rig)
+    assert main(["campaign", "plan", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "design tilts: tilts stepped" in out and "tilt -5/5 deg" in out
+    assert "34 parameters identified" in out and "left_tilt_axis_z_mm" in out
+
+
+@pytest.mark.parametrize(("extrinsics", "plan", "message"), [
+    ({"design": "presented"}, {"tilts_deg": [0, 4]}, "the presented design's fit has no tilt joints"),
+    ({"design_tilt": "hold"}, {"tilts_deg": [0, 4]}, "design_tilt = \"hold\" keeps one tilt"),
+    ({}, {"tilts_deg": [0, 4], "tilt_deg": 3}, "give tilt_deg or tilts_deg, not both"),
+])
+def test_a_plan_of_several_tilts_that_a_model_cannot_predict_is_refused_with_one_line(extrinsics, plan, message):
+    from stereo_bench.campaign.config import ConfigError
+
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(")):
+        _tilt_config(plan, **extrinsics)

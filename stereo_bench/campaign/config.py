@@ -26,7 +26,7 @@ Sections (all optional except ``[plan]``; units in every key's name):
                           [extrinsics.tolerances] (the rig's stated tolerances, for nominal extrinsics)
     [sim]                 profile = "lab" | "ideal" (the simulated bench's imperfections), and
                           [sim.slide] / [sim.left_head] / ... overrides (drivers/sim/profile.py)
-    [plan]                baseline_mm, distance_mm, alpha_deg or toe_in_deg, tilt_deg
+    [plan]                baseline_mm, distance_mm, alpha_deg or toe_in_deg, tilt_deg or tilts_deg
 
 Rig and cameras: simulated + simulated (the default), grbl + v4l2 (the real bench), or grbl +
 simulated ("bring-up": the real controller moves, simulated cameras render from the positions it
@@ -590,6 +590,12 @@ class ExtrinsicsSection(BaseModel):
     fixed_board_views: int = Field(
         3, ge=1, le=50, strict=True,
         description="fixed-board design: stereo frames of the board captured at each visit (no presentation)")
+    design_tilt: Literal["auto", "include", "hold"] = Field(
+        "auto", description="fixed-board design on a rig that drives the tilts (grblHAL's A/B): include: the design "
+                            "steps them and the model has tilt joints (predictions at any tilt); hold: the design "
+                            "keeps the campaign's one tilt (no joints: predictions at that tilt only); auto: include "
+                            "when the plan has more than one tilt (at one tilt the joints cost the right camera's "
+                            "height 2.4x its sigma, docs/EXTRINSICS.md)")
 
     @field_validator("calib_dir", "kinematic_file")
     @classmethod
@@ -642,6 +648,7 @@ _PLAN_BOUNDS = {
     "distance_mm": (0.0, MAX_DISTANCE_MM, (False, True)),
     "alpha_deg": (0.0, 180.0, (False, False)),
     "toe_in_deg": (-MAX_TOE_IN_DEG, MAX_TOE_IN_DEG, (False, False)),
+    "tilts_deg": (-90.0, 90.0, (False, False)),
 }
 _ALONG = ": a camera would look along (or behind) the baseline, at the other camera, not at the target"
 # Why a value beyond each end is refused, where the interval alone does not say it: (below, above).
@@ -672,8 +679,11 @@ class PlanSection(BaseModel):
     toe_in_deg: list[float] | None = Field(None, description="toe-ins, deg, in (-90, 90); 0 = parallel rig")
     tilt_deg: float = Field(0.0, gt=-90, lt=90, allow_inf_nan=False,
                             description="tilt of both cameras, deg (> 0 looks down)")
+    tilts_deg: list[float] | None = Field(
+        None, description="tilts of both cameras, deg, each a part of the grid (a rig that drives the tilts: "
+                          "grblHAL's A/B); instead of tilt_deg")
 
-    @field_validator("baseline_mm", "distance_mm", "alpha_deg", "toe_in_deg")
+    @field_validator("baseline_mm", "distance_mm", "alpha_deg", "toe_in_deg", "tilts_deg")
     @classmethod
     def _check_list(cls, values: list[float] | None, info: ValidationInfo) -> list[float] | None:
         if values is None:
@@ -699,13 +709,20 @@ class PlanSection(BaseModel):
             raise ValueError("give alpha_deg or toe_in_deg, not both")
         if self.alpha_deg is None and self.toe_in_deg is None:
             self.alpha_deg = [90.0]
+        if self.tilts_deg is not None and self.tilt_deg != 0.0:  # (a recorded config holds both: tilt_deg 0)
+            raise ValueError("give tilt_deg or tilts_deg, not both")
         angles = self.alpha_deg if self.toe_in_deg is None else self.toe_in_deg
-        counts = (len(self.baseline_mm), len(self.distance_mm), len(angles or ()))
+        counts = (len(self.baseline_mm), len(self.distance_mm), len(angles or ()), len(self.tilts()))
         if math.prod(counts) > MAX_PLAN_CONFIGURATIONS:
+            tilts = f" x {counts[3]:,} tilts" if self.tilts_deg is not None else ""
             raise ValueError(f"{math.prod(counts):,} configurations ({counts[0]:,} baselines x {counts[1]:,} distances "
-                             f"x {counts[2]:,} angles): at most {MAX_PLAN_CONFIGURATIONS:,} per campaign; split the "
-                             "grid into several campaigns")
+                             f"x {counts[2]:,} angles{tilts}): at most {MAX_PLAN_CONFIGURATIONS:,} per campaign; split "
+                             "the grid into several campaigns")
         return self
+
+    def tilts(self) -> list[float]:
+        """The tilts of the grid in the order written (``tilts_deg``, else the one ``tilt_deg``)."""
+        return [float(t) for t in self.tilts_deg] if self.tilts_deg is not None else [float(self.tilt_deg)]
 
     def angles_deg(self) -> list[tuple[float, float]]:
         """(alpha, toe-in) pairs in the order written."""
@@ -751,6 +768,13 @@ class CampaignConfig(BaseModel):
             raise ValueError("capture.calibration_capture = \"auto\" takes views of a board the operator moves; "
                              "[sim] presenter = \"still\" does not move it: use presenter = \"hand\" (or leave it "
                              "out)")
+        if (len(set(self.plan.tilts())) > 1 and extrinsics.mode == "kinematic" and extrinsics.kinematic_file is None
+                and (not extrinsics.fixed_board or extrinsics.design_tilt == "hold")):
+            why = ("design_tilt = \"hold\" keeps one tilt" if extrinsics.fixed_board
+                   else "the presented design's fit has no tilt joints")
+            raise ValueError(f"plan.tilts_deg: a kinematic model fitted at one tilt predicts R, T at that tilt only "
+                             f"({why}): use [extrinsics] design = \"fixed-board\" with design_tilt = \"auto\" on a rig "
+                             "that drives the tilts, or one tilt per campaign")
         return self
 
     @property

@@ -85,7 +85,7 @@ def check_bench(config: CampaignConfig, *, source: str = "campaign config") -> R
     where = (f"rig.config_file ({config.rig.config_file}): quantities" if config.rig.config_file is not None
              else "rig.quantities")
     for quantity in RENDERED_QUANTITIES:
-        if quantity.startswith("tilt_") and config.plan.tilt_deg == 0.0:
+        if quantity.startswith("tilt_") and not any(config.plan.tilts()):
             continue  # the renderer takes a tilt without a value as 0, which is what the operator is asked to set
         if rig_config.quantities[quantity].axis == "manual":
             bench = "bring-up" if config.rig.kind == "grbl" else "the simulated bench"

@@ -209,6 +209,8 @@ class CampaignRunner:
         self._manual_quantities = {q for q, mapping in quantities.items() if mapping.axis == "manual"}
         self._motor_limits = {q: (mapping.min, mapping.max) for q, mapping in quantities.items()
                               if mapping.driven and q not in self._manual_quantities}
+        # The tilts the rig drives (grblHAL's A/B): part of every reported position the kinematic model reads.
+        self._driven_tilts = tuple(q for q in ("tilt_left_deg", "tilt_right_deg") if q in self._motor_limits)
         self._homed = not bench.homes
         # The plan's moves in order (all of them, also those a resume skips) and where this run stands in them:
         # a move that does not follow the previous one of the plan is approached as the plan's was (approach.py).
@@ -487,9 +489,7 @@ class CampaignRunner:
                 raise ConfigurationFailed(f"rig: {error}") from None
         self._last_index = self._sequence_index.get(configuration.config_id)
         request = configuration.move_request()
-        axes = reported_axes(reading, {"baseline_mm": request["baseline_mm"],
-                                       "toe_in_left_deg": request["toe_in_left_deg"],
-                                       "toe_in_right_deg": request["toe_in_right_deg"]})
+        axes = reported_axes(reading, request, self._driven_tilts)
         recorded = self.bench.recorded_approach
         # A replay serves the directions the recording's moves came from (homes of earlier attempts included).
         approach = recorded(configuration.config_id) if recorded is not None else self._approach.reached(axes)
@@ -501,8 +501,9 @@ class CampaignRunner:
         """Homing left the rig at ``reading``: where the plan's moves start from, and each axis' approach there."""
         self._homed = True
         # The cycle's last move pulls each axis off its switch: the direction the homed position was reached from.
-        self._approach.homed(reported_axes(reading, {"baseline_mm": 0.0, "toe_in_left_deg": 0.0,
-                                                    "toe_in_right_deg": 0.0}),
+        self._approach.homed(reported_axes(reading, dict.fromkeys(("baseline_mm", "toe_in_left_deg",
+                                                                   "toe_in_right_deg", *self._driven_tilts), 0.0),
+                                           self._driven_tilts),
                              self.bench.rig.homing_approach())
         self._last_index = -1
         self._start = self._start or self._motor_position(reading, {})
@@ -532,7 +533,7 @@ class CampaignRunner:
         moves = approach_moves(commanded, index, here, start=self._start, limits=self._motor_limits)
         for target in moves:
             reading = self._move_once({q: target.get(q) for q in commanded[index]})
-            self._approach.reached(reported_axes(reading, {**commanded[index], **target}))
+            self._approach.reached(reported_axes(reading, {**commanded[index], **target}, self._driven_tilts))
             self._publish(Draft(ApproachEvent, config_id=configuration.config_id,
                                 data={"rig": reading.to_dict(), "target": target}))
         if moves:  # rest as at the configuration the plan's rig came from: settled, no longer ringing

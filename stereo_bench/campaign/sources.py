@@ -36,6 +36,7 @@ import numpy as np
 from stereo_bench.geometry import stereo_structure
 from stereo_bench.kinematics import (
     AXES,
+    TILT_AXES,
     KinematicModel,
     approach_directions,
     joint_covariance,
@@ -61,11 +62,12 @@ SOURCE_NAMES = ("calibrated", "kinematic", "nominal", "fixed")
 # Where the rig is, and from which side it got there
 
 
-def reported_axes(reading: Any, commanded: Mapping[str, float]) -> dict[str, float]:
-    """The kinematic axes a rig reading reports (``baseline_mm``, ``toe_in_left_deg``, ``toe_in_right_deg``);
-    a quantity the rig does not report (set by hand) is the commanded value."""
+def reported_axes(reading: Any, commanded: Mapping[str, float], tilts: Sequence[str] = ()) -> dict[str, float]:
+    """The kinematic axes a rig reading reports (``baseline_mm``, ``toe_in_left_deg``, ``toe_in_right_deg``, and
+    ``tilts``: the tilts the rig drives, grblHAL's A/B); a quantity the rig does not report (set by hand) is the
+    commanded value."""
     out = {}
-    for axis in AXES:
+    for axis in (*AXES, *tilts):
         value = getattr(reading, axis, None) if reading is not None else None
         out[axis] = float(commanded[axis] if value is None else value)
     return out
@@ -86,16 +88,21 @@ class ApproachTracker:
         """Record that homing left the rig at ``axes``, arriving from ``directions`` (its pull-off:
         ``GrblRig.homing_approach``; an axis missing there keeps what it had)."""
         approach = approach_directions(self.previous, axes, self.approach)
-        approach.update({axis: int(directions[axis]) for axis in AXES if axis in directions})
+        approach.update({axis: int(directions[axis]) for axis in _tracked(axes) if axis in directions})
         self.approach = approach
-        self.previous = {axis: float(axes[axis]) for axis in AXES}
+        self.previous = {axis: float(axes[axis]) for axis in _tracked(axes)}
         return dict(self.approach)
 
     def reached(self, axes: Mapping[str, float]) -> dict[str, int]:
         """Record that the rig now stands at ``axes``; returns the directions it approached them from."""
         self.approach = approach_directions(self.previous, axes, self.approach)
-        self.previous = {axis: float(axes[axis]) for axis in AXES}
+        self.previous = {axis: float(axes[axis]) for axis in _tracked(axes)}
         return dict(self.approach)
+
+
+def _tracked(axes: Mapping[str, float]) -> tuple[str, ...]:
+    """The axes an :class:`ApproachTracker` follows: the chain's three, and the tilts where ``axes`` has them."""
+    return (*AXES, *(axis for axis in TILT_AXES if axis in axes))
 
 
 # --------------------------------------------------------------------------------------------------

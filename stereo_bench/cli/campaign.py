@@ -160,6 +160,8 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
         span = (f" over B {ranges['baseline_mm'][0]:g}-{ranges['baseline_mm'][1]:g} mm, toe-in "
                 f"{ranges['toe_in_deg'][0]:g}-{ranges['toe_in_deg'][1]:g} deg" if ranges else "")
         lines.append(f"{title}: {sum(v['runnable'] for v in design)} of {len(design)} visits to run{span}")
+        if summary.get("design_tilt"):
+            lines.append(f"design tilts: {summary['design_tilt']}")
         fixed = design[0].get("fixed_board_pose")
         if fixed:
             T = np.array(fixed, float).reshape(4, 4)
@@ -174,8 +176,10 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
                      if visit["calibration_range_mm"] else "")
             why = "; ".join(r for r in (visit["reason"], visit["limit_violation"]) if r)
             status = where if visit["runnable"] else f"NOT RUN: {why}"
+            tilts = (f"  tilt {visit['tilt_left_deg']:g}/{visit['tilt_right_deg']:g} deg"
+                     if visit.get("tilt_left_deg") is not None and visit.get("tilt_right_deg") is not None else "")
             lines.append(f"{'':>5}{visit['config_id']:<24} B {visit['baseline_mm']:>6g} mm  toe-in "
-                         f"{visit['toe_in_left_deg']:g}/{visit['toe_in_right_deg']:g} deg  {status}")
+                         f"{visit['toe_in_left_deg']:g}/{visit['toe_in_right_deg']:g} deg{tilts}  {status}")
     table = summary.get("identifiability")
     if table:
         held = [row for row in table if not row["identified"]]

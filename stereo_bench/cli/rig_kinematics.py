@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 
 from stereo_bench.cli import EXIT_FAILED, EXIT_INTERRUPTED, STOP_SIGNALS, CliError, failure, hung_up
-from stereo_bench.cli.args import BASELINE_MM, DISTANCE_MM, TIME_SCALE, TOE_IN_DEG, check_range, output_dir
+from stereo_bench.cli.args import BASELINE_MM, DISTANCE_MM, TILT_DEG, TIME_SCALE, TOE_IN_DEG, check_range, output_dir
 from stereo_bench.paths import UnwritablePath, check_output_file, is_inside
 
 
@@ -45,6 +45,11 @@ def parser() -> argparse.ArgumentParser:
                    help="baselines the model must cover, mm (default: the campaign's, else 50 250)")
     p.add_argument("--toe-in-range", type=TOE_IN_DEG, nargs=2, metavar=("MIN", "MAX"),
                    help="toe-ins the model must cover, deg (default: the campaign's, else 0 20)")
+    p.add_argument("--tilt-range", type=TILT_DEG, nargs=2, metavar=("MIN", "MAX"),
+                   help="fixed-board on a rig that drives the tilts (grblHAL's A/B): tilts the model must cover, deg "
+                        "(default: the campaign's; a span under 10 deg is widened to 10 about its middle). The design "
+                        "steps them and the model has tilt joints unless the campaign says [extrinsics] design_tilt = "
+                        "\"hold\"")
     p.add_argument("--distance", type=DISTANCE_MM, metavar="MM",
                    help="where the calibration board is shown, mm (default: the middle of the campaign's distances)")
     p.add_argument("--design", choices=("presented", "fixed-board"),
@@ -88,9 +93,15 @@ def _config(args, port: str | None, rig_config: Path | None):
         plan["toe_in_deg"] = sorted(set(args.toe_in_range or (0.0, 20.0)))
     if args.distance is not None:
         plan["distance_mm"] = [args.distance]
+    if args.tilt_range:
+        plan.pop("tilt_deg", None)
+        plan["tilts_deg"] = sorted(set(args.tilt_range))
     data["plan"] = plan
     extrinsics = {key: value for key, value in (data.get("extrinsics") or {}).items() if key != "kinematic_file"}
     data["extrinsics"] = {**extrinsics, "mode": "kinematic"}
+    if extrinsics.get("design_tilt") != "hold":
+        # A model file serves later campaigns at any tilt: on a rig that drives the tilts, fit their joints.
+        data["extrinsics"]["design_tilt"] = "include"
     if args.design is not None:
         data["extrinsics"]["design"] = args.design
     if args.calib_dir is not None:
@@ -142,7 +153,7 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
     from stereo_bench.kinematics import save_model
 
     args = parser().parse_args(argv)
-    for option in ("baseline_range", "toe_in_range"):
+    for option in ("baseline_range", "toe_in_range", "tilt_range"):
         check_range(getattr(args, option), "--" + option.replace("_", "-"))
     config = _config(args, port, rig_config)
     model_path = _model_path(args)

@@ -109,8 +109,10 @@ class ExtrinsicsSource(ABC):
                format_id: Callable[[float], str]) -> list:
         """The visits before the configurations (asked only when :meth:`visit_purpose` is not None).
 
-        ``visit(index, config_id, purpose, baseline, toe_left, toe_right, distance)`` makes one, checked like a
-        configuration; ``ranges``: the span of the runnable configurations (``plan.design_ranges``);
+        ``visit(index, config_id, purpose, baseline, toe_left, toe_right, distance, tilts=None)`` makes one, checked
+        like a configuration (``tilts``: per-camera tilts the design steps; None: the campaign's); ``ranges``: the
+        span of the runnable configurations (``plan.design_ranges``; ``tilt_ranges_deg`` where the design steps
+        the tilts, ``plan.design_tilt``);
         ``format_id``: how a value is written in a config id.
         """
         return []

@@ -17,6 +17,7 @@ from stereo_bench.campaign.extrinsics_run import Prepared
 from stereo_bench.campaign.sources import Source, kinematic_source
 from stereo_bench.kinematics import ConfigurationViews, campaign_design, fit_kinematics
 from stereo_bench.kinematics.fixed_board import fixed_board_design
+from stereo_bench.kinematics.model import TILT_AXES
 
 
 class KinematicSource(ExtrinsicsSource):
@@ -43,14 +44,19 @@ class KinematicSource(ExtrinsicsSource):
         designs, distance = campaign_design(configurations)
         if section.fixed_board:
             # Slide and pan positions in front of one board (where it stands: plan_visits asks the feasibility
-            # rules); presented: 9 visits, the board presented 12 times at each.
-            designs = fixed_board_design(ranges["baseline_mm"], ranges["toe_in_deg"], ranges["toe_in_deg"])
+            # rules), and the tilts where the plan steps them (plan.design_tilt); presented: 9 visits, the board
+            # presented 12 times at each.
+            designs = fixed_board_design(ranges["baseline_mm"], ranges["toe_in_deg"], ranges["toe_in_deg"],
+                                         tilt_ranges_deg=ranges.get("tilt_ranges_deg"))
         visits = []
         for k, design in enumerate(designs):
             config_id = (f"design-{k + 1}_B{format_id(design.baseline_mm)}_L{format_id(design.toe_in_left_deg)}"
                          f"_R{format_id(design.toe_in_right_deg)}")
+            tilts = {axis: value for axis, value in design.axes().items() if axis in TILT_AXES}
+            config_id += "".join(f"_T{axis.split('_')[1][0].upper()}{format_id(value)}"  # _TLm5_TR5
+                                 for axis, value in tilts.items())
             visits.append(visit(k, config_id, "kinematic", design.baseline_mm, design.toe_in_left_deg,
-                                design.toe_in_right_deg, distance))
+                                design.toe_in_right_deg, distance, tilts=tilts or None))
         return visits
 
     def prepare(self, captures: Sequence, config: Any, options: Any) -> Prepared:
@@ -67,7 +73,8 @@ class KinematicSource(ExtrinsicsSource):
                 views = capture.detections()  # made while capturing (or recorded, in a replay)
             except AnalysisError as error:
                 return Prepared(error=f"kinematic fit failed: {error}", record={**record, "error": str(error)})
-            configurations.append(ConfigurationViews(axes=capture.axes, approach=capture.approach, views=views))
+            configurations.append(ConfigurationViews(axes=_design_axes(capture), approach=capture.approach,
+                                                     views=views))
         image = captured[0].calibration_pairs[0][0]
         image_size = (int(image.shape[1]), int(image.shape[0]))
         slide_mm, heads_deg = options.repeatability
@@ -111,7 +118,9 @@ class KinematicSource(ExtrinsicsSource):
                 intrinsics = (mono[0].K, mono[0].dist, mono[1].K, mono[1].dist)
             fit = fit_fixed_board(configurations, board.object_points, image_size, intrinsics=intrinsics,
                                   intrinsics_covariance=prior, repeatability_mm=slide_mm,
-                                  repeatability_left_deg=heads_deg, repeatability_right_deg=heads_deg)
+                                  repeatability_left_deg=heads_deg, repeatability_right_deg=heads_deg,
+                                  # a head's tilt lands as its pan does ([extrinsics] repeatability_deg)
+                                  repeatability_tilt_left_deg=heads_deg, repeatability_tilt_right_deg=heads_deg)
         except (ValueError, np.linalg.LinAlgError, cv2.error) as error:
             return Prepared(error=f"kinematic fit (fixed board) failed: {error}",
                             record={**record, "error": str(error)})
@@ -132,3 +141,10 @@ class KinematicSource(ExtrinsicsSource):
             raise AnalysisError(prepared.error or "no kinematic rig model")
         source = kinematic_source(prepared.kinematic_model, captured.axes, captured.approach, options.board_scale)
         return measured_with(source), source
+
+
+def _design_axes(capture: Any) -> dict[str, float]:
+    """The reported axes of a design visit the fit takes: the tilts only where the design steps them (the visit's
+    ``tilts_in_design``; a rig that drives them reports them at every move, held or not)."""
+    design = getattr(capture.configuration, "tilts_in_design", ())
+    return {axis: value for axis, value in capture.axes.items() if axis not in TILT_AXES or axis in design}

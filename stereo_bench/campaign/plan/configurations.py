@@ -146,12 +146,13 @@ def expand_plan(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN
     rig_config = config.rig.rig_config()
     per_config = config.extrinsics.source().calibrates_each_configuration
     angles = plan.angles_deg()
-    calibration_ranges: dict[tuple[float, float], tuple[float, float] | None] = {}
-    computed: dict[float, tuple[list[float], list]] = {}  # alpha -> (sorted baselines, their ranges): hints
+    calibration_ranges: dict[tuple[float, float, float], tuple[float, float] | None] = {}
+    computed: dict[tuple[float, float], tuple[list[float], list]] = {}  # (alpha, tilt) -> (baselines, ranges): hints
     configurations: list[Configuration] = []
-    sweep = 0
-    poses = {(baseline, alpha): RigPose.symmetric(baseline, alpha, plan.tilt_deg)
-             for baseline in plan.baseline_mm for alpha, _ in angles}
+    sweep = tilt_sweep = 0
+    tilts = plan.tilts()
+    poses = {(baseline, alpha, tilt): RigPose.symmetric(baseline, alpha, tilt)
+             for baseline in plan.baseline_mm for alpha, _ in angles for tilt in tilts}
     for z_index, distance in enumerate(plan.distance_mm):
         visibility = dict(zip(poses, target_visibilities(target, list(poses.values()), distance_mm=distance,
                                                           left=left, right=right, margin_px=margin_px), strict=True))
@@ -160,43 +161,56 @@ def expand_plan(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGIN
             ordered = angles if sweep % 2 == 0 else angles[::-1]
             sweep += 1
             for alpha, toe_in in ordered:
-                rig = poses[baseline, alpha]
-                vis = visibility[baseline, alpha]
-                reasons = []
-                if vis.in_both < MIN_CORNERS_IN_BOTH:
-                    reasons.append(_why_too_few(vis, alpha_deg=alpha))
-                else:  # the runner detects a view with fewer corners than the board's as partial: the same rule
-                    need = min_detectable_square_px(target, image_size, partial=vis.in_both < vis.n_corners)
-                    too_small = _why_too_small(vis, need, distance_mm=distance, target=target)
-                    if too_small:
-                        reasons.append(too_small)
-                calibration_range = None
-                if per_config:
-                    if (baseline, alpha) not in calibration_ranges:
-                        calibration_ranges[baseline, alpha] = calibration_distance_range(
-                            calibration_board, rig, left=left, right=right,
-                            hint=_nearest_range(computed.setdefault(alpha, ([], [])), baseline))
-                        _remember(computed[alpha], baseline, calibration_ranges[baseline, alpha])
-                    calibration_range = calibration_ranges[baseline, alpha]
-                    if calibration_range is None:
-                        reasons.append(_calibration_reason(config, calibration_board, baseline_mm=baseline,
-                                                           alpha_deg=alpha))
-                config_id = f"B{format_id_value(baseline)}_Z{format_id_value(distance)}_A{format_id_value(alpha)}"
-                if plan.tilt_deg:
-                    config_id += f"_T{format_id_value(plan.tilt_deg)}"
-                configuration = Configuration(
-                    index=len(configurations), config_id=config_id, baseline_mm=float(baseline),
-                    distance_mm=float(distance), alpha_deg=float(alpha), toe_in_deg=float(toe_in),
-                    tilt_deg=float(plan.tilt_deg), fraction_in_both=vis.fraction_in_both, feasible=not reasons,
-                    reason="; ".join(reasons) or None, limit_violation=None, corners_in_both=vis.in_both,
-                    n_corners=vis.n_corners, calibration_range_mm=calibration_range,
-                )
-                violation = _limit_violation(rig_config, configuration.move_request())
-                configurations.append(dataclasses.replace(configuration, limit_violation=violation))
+                # Tilts (a rig that drives them) innermost, serpentine too: one step of one axis at a time.
+                for tilt in tilts if tilt_sweep % 2 == 0 else tilts[::-1]:
+                    configurations.append(_configuration(
+                        config, len(configurations), baseline=baseline, distance=distance, alpha=alpha,
+                        toe_in=toe_in, tilt=tilt, rig=poses[baseline, alpha, tilt],
+                        vis=visibility[baseline, alpha, tilt], per_config=per_config, target=target,
+                        calibration_board=calibration_board, left=left, right=right, image_size=image_size,
+                        rig_config=rig_config, calibration_ranges=calibration_ranges, computed=computed))
+                tilt_sweep += 1
     ids = [c.config_id for c in configurations]
     if len(set(ids)) != len(ids):  # distinct toe-ins whose alphas (90 - t) round to the same float
         configurations = [dataclasses.replace(c, config_id=f"{c.config_id}_i{c.index}") for c in configurations]
     return configurations
+
+
+def _configuration(config: CampaignConfig, index: int, *, baseline: float, distance: float, alpha: float,
+                   toe_in: float, tilt: float, rig: RigPose, vis, per_config: bool, target: Target,
+                   calibration_board: Target, left, right, image_size: tuple[int, int], rig_config: RigConfig,
+                   calibration_ranges: dict, computed: dict) -> Configuration:
+    """One configuration of :func:`expand_plan`, its feasibility and limit check."""
+    reasons = []
+    if vis.in_both < MIN_CORNERS_IN_BOTH:
+        reasons.append(_why_too_few(vis, alpha_deg=alpha))
+    else:  # the runner detects a view with fewer corners than the board's as partial: the same rule
+        need = min_detectable_square_px(target, image_size, partial=vis.in_both < vis.n_corners)
+        too_small = _why_too_small(vis, need, distance_mm=distance, target=target)
+        if too_small:
+            reasons.append(too_small)
+    calibration_range = None
+    if per_config:
+        key = (baseline, alpha, tilt)
+        if key not in calibration_ranges:
+            calibration_ranges[key] = calibration_distance_range(
+                calibration_board, rig, left=left, right=right,
+                hint=_nearest_range(computed.setdefault((alpha, tilt), ([], [])), baseline))
+            _remember(computed[alpha, tilt], baseline, calibration_ranges[key])
+        calibration_range = calibration_ranges[key]
+        if calibration_range is None:
+            reasons.append(_calibration_reason(config, calibration_board, baseline_mm=baseline, alpha_deg=alpha))
+    config_id = f"B{format_id_value(baseline)}_Z{format_id_value(distance)}_A{format_id_value(alpha)}"
+    if tilt:
+        config_id += f"_T{format_id_value(tilt)}"
+    configuration = Configuration(
+        index=index, config_id=config_id, baseline_mm=float(baseline), distance_mm=float(distance),
+        alpha_deg=float(alpha), toe_in_deg=float(toe_in), tilt_deg=float(tilt), fraction_in_both=vis.fraction_in_both,
+        feasible=not reasons, reason="; ".join(reasons) or None, limit_violation=None, corners_in_both=vis.in_both,
+        n_corners=vis.n_corners, calibration_range_mm=calibration_range,
+    )
+    violation = _limit_violation(rig_config, configuration.move_request())
+    return dataclasses.replace(configuration, limit_violation=violation)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -230,6 +244,10 @@ class Visit(_Runnable):
     # A fixed-board design (issue 25): the calibration board stands where the operator placed it once, requested
     # at this T_rig_board (16 numbers, row-major); None: presented by hand at this visit.
     fixed_board_pose: tuple[float, ...] | None = None
+    # A design that steps the tilts (a rig that drives them, issue 25): each camera's commanded tilt at this visit,
+    # a part of the kinematic model's axes; None: both at ``tilt_deg``, the campaign's, not in the model.
+    tilt_left_deg: float | None = None
+    tilt_right_deg: float | None = None
     fraction_in_both: ClassVar[float] = 1.0
 
     @property
@@ -239,18 +257,30 @@ class Visit(_Runnable):
     def fixed_board_matrix(self) -> np.ndarray | None:
         return None if self.fixed_board_pose is None else np.array(self.fixed_board_pose, float).reshape(4, 4)
 
+    @property
+    def tilts_in_design(self) -> tuple[str, ...]:
+        """The tilts this visit steps for the kinematic model (``tilt_left_deg``, ``tilt_right_deg``; none: held)."""
+        return tuple(axis for axis in ("tilt_left_deg", "tilt_right_deg") if getattr(self, axis) is not None)
+
+    def tilt(self, side: str) -> float:
+        """The commanded tilt of camera ``side`` ("left" or "right") at this visit."""
+        value = getattr(self, f"tilt_{side}_deg")
+        return self.tilt_deg if value is None else value
+
     def axes(self) -> dict[str, float]:
-        return {"baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_left_deg,
-                "toe_in_right_deg": self.toe_in_right_deg}
+        out = {"baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_left_deg,
+               "toe_in_right_deg": self.toe_in_right_deg}
+        out.update({axis: getattr(self, axis) for axis in self.tilts_in_design})
+        return out
 
     def rig_pose(self) -> RigPose:
         return RigPose(self.baseline_mm, alpha_from_toe_in(self.toe_in_left_deg),
-                       alpha_from_toe_in(self.toe_in_right_deg), self.tilt_deg, self.tilt_deg)
+                       alpha_from_toe_in(self.toe_in_right_deg), self.tilt("left"), self.tilt("right"))
 
     def move_request(self) -> dict[str, float]:
         return {"baseline_mm": self.baseline_mm, "toe_in_left_deg": self.toe_in_left_deg,
-                "toe_in_right_deg": self.toe_in_right_deg, "tilt_left_deg": self.tilt_deg,
-                "tilt_right_deg": self.tilt_deg, "target_distance_mm": self.distance_mm}
+                "toe_in_right_deg": self.toe_in_right_deg, "tilt_left_deg": self.tilt("left"),
+                "tilt_right_deg": self.tilt("right"), "target_distance_mm": self.distance_mm}
 
     def as_dict(self) -> dict[str, Any]:
         data = asdict(self)
@@ -259,6 +289,9 @@ class Visit(_Runnable):
             del data["fixed_board_pose"]  # as recorded before fixed boards existed
         else:
             data["fixed_board_pose"] = list(self.fixed_board_pose)
+        for axis in ("tilt_left_deg", "tilt_right_deg"):
+            if data[axis] is None:
+                del data[axis]  # as recorded before designs stepped the tilts
         data["runnable"] = self.runnable
         return data
 
@@ -283,13 +316,52 @@ def design_ranges(configurations: Sequence[Configuration]) -> dict[str, tuple[fl
     return {"baseline_mm": (min(baselines), max(baselines)), "toe_in_deg": (min(toe_ins), max(toe_ins))}
 
 
+@dataclass(frozen=True)
+class DesignTilt:
+    """Whether the kinematic design steps the tilts (:func:`design_tilt`): ``ranges`` per driven tilt the span of
+    the campaign's tilts (None: held at the campaign's tilt, no tilt joints in the model); ``note`` says which and
+    why, for ``campaign plan`` (None: the rig drives no tilt)."""
+
+    ranges: dict[str, tuple[float, float]] | None
+    note: str | None
+
+
+def design_tilt(config: CampaignConfig, configurations: Sequence[Configuration]) -> DesignTilt:
+    """Whether the fixed-board design steps the tilts the rig drives (``[extrinsics] design_tilt``).
+
+    ``auto`` steps them when the runnable configurations use more than one tilt: a model with tilt joints is the
+    only one that predicts R, T at another tilt. At one tilt it holds them: measured on the lab mechanics
+    (scripts/bench_tilt_identifiability.py), the joints' 12 parameters from the same views cost the right camera's
+    height (T_y) 2.4x its sigma and give the principal points 2-10 %, and a model fitted at the campaign's tilt
+    needs no joint there. ``include`` steps them anyway (a model file for later campaigns at other tilts)."""
+    from stereo_bench.kinematics.model import TILT_AXES
+
+    extrinsics = config.extrinsics
+    driven = [axis for axis in TILT_AXES if axis in config.rig.rig_config().driven]
+    if not driven:
+        return DesignTilt(None, None)
+    tilts = sorted({c.tilt_deg for c in configurations if c.runnable}) or [float(config.plan.tilts()[0])]
+    at = f"{tilts[0]:g} deg" if len(tilts) == 1 else f"{tilts[0]:g}-{tilts[-1]:g} deg"
+    if not extrinsics.fixed_board:
+        return DesignTilt(None, f"tilts held at {at}: the presented design's fit has no tilt joints")
+    if extrinsics.design_tilt == "hold" or (extrinsics.design_tilt == "auto" and len(tilts) == 1):
+        why = ("design_tilt = \"hold\"" if extrinsics.design_tilt == "hold" else
+               "one campaign tilt: tilt joints would cost the right camera's height 2.4x its sigma, "
+               "docs/EXTRINSICS.md")
+        return DesignTilt(None, f"tilts held at {at} ({why}); the model predicts at that tilt only")
+    why = "design_tilt = \"include\"" if extrinsics.design_tilt == "include" else f"the campaign tilts {at}"
+    return DesignTilt({axis: (tilts[0], tilts[-1]) for axis in driven},
+                      f"tilts stepped ({', '.join(driven)}; {why}): the model has tilt joints")
+
+
 def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration]) -> list[Visit]:
     """The visits the extrinsics source needs before the measured configurations (none for most modes), as its
     strategy object says (``visits``), each visit checked like a configuration (the calibration board must fit
     both views somewhere, the move must pass the soft limits).
 
     ``kinematic`` without ``kinematic_file``: the design of :func:`stereo_bench.kinematics.kinematic_design`
-    over :func:`design_ranges`; the board is shown around the middle of the plan's target distances.
+    over :func:`design_ranges`; the board is shown around the middle of the plan's target distances; a
+    fixed-board design steps the tilts too where :func:`design_tilt` says so (``ranges["tilt_ranges_deg"]``).
     ``nominal`` without ``calib_dir``: the first runnable configuration at which the calibration board fits,
     for one stereo calibration whose intrinsics every configuration uses.
     """
@@ -300,15 +372,20 @@ def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration])
     ranges = design_ranges(configurations)
     if ranges is None:
         return []
+    tilt_ranges = design_tilt(config, configurations).ranges
+    if tilt_ranges:
+        ranges = {**ranges, "tilt_ranges_deg": tilt_ranges}
     board = config.calibration_board.build()
     left = config.cameras.optics.camera_model("left")
     right = config.cameras.optics.camera_model("right")
     rig_config = config.rig.rig_config()
-    tilt = float(config.plan.tilt_deg)
+    tilt = float(config.plan.tilts()[0])
 
     def visit(index: int, config_id: str, purpose: str, baseline: float, toe_left: float, toe_right: float,
-              distance: float) -> Visit:
-        pose = RigPose(baseline, alpha_from_toe_in(toe_left), alpha_from_toe_in(toe_right), tilt, tilt)
+              distance: float, *, tilts: Mapping[str, float] | None = None) -> Visit:
+        tilts = tilts or {}
+        pose = RigPose(baseline, alpha_from_toe_in(toe_left), alpha_from_toe_in(toe_right),
+                       tilts.get("tilt_left_deg", tilt), tilts.get("tilt_right_deg", tilt))
         fits = calibration_distance_range(board, pose, left=left, right=right)
         reason = None
         if fits is None:
@@ -317,7 +394,7 @@ def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration])
         draft = Visit(index=index, config_id=config_id, purpose=purpose, baseline_mm=float(baseline),
                       toe_in_left_deg=float(toe_left), toe_in_right_deg=float(toe_right), tilt_deg=tilt,
                       distance_mm=float(distance), calibration_range_mm=fits, feasible=fits is not None,
-                      reason=reason)
+                      reason=reason, **{axis: float(value) for axis, value in tilts.items()})
         return dataclasses.replace(draft, limit_violation=_limit_violation(rig_config, draft.move_request()))
 
     visits = source.visits(extrinsics, configurations, ranges, visit=visit, format_id=format_id_value)

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from stereo_bench.campaign.config import CampaignConfig
-from stereo_bench.campaign.plan.configurations import design_ranges, expand_plan, plan_visits
+from stereo_bench.campaign.plan.configurations import design_ranges, design_tilt, expand_plan, plan_visits
 from stereo_bench.campaign.plan.duration import estimate_duration
 from stereo_bench.campaign.plan.feasibility import FEASIBILITY_MARGIN_PX, MIN_CORNERS_IN_BOTH
 from stereo_bench.campaign.plan.steps import Presentations, Step, plan_steps
@@ -63,7 +63,9 @@ def design_identifiability(config: CampaignConfig, visits: Sequence) -> list[dic
             intrinsics = (K1, D1, K2, D2)
             index = stored.index(INTRINSIC_NAMES)
             covariance = stored.matrix[index][:, index]
-    design = [DesignConfiguration(v.baseline_mm, v.toe_in_left_deg, v.toe_in_right_deg) for v in runnable]
+    # The tilts where the design steps them (the table then has the tilt joints' rows).
+    design = [DesignConfiguration(v.baseline_mm, v.toe_in_left_deg, v.toe_in_right_deg, v.tilt_left_deg,
+                                  v.tilt_right_deg) for v in runnable]
     rows = table_of(design, config.calibration_board.build().object_points, runnable[0].fixed_board_matrix(),
                     intrinsics, intrinsics_covariance=covariance,
                     repeatability_mm=config.extrinsics.repeatability_mm,
@@ -100,6 +102,7 @@ def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGI
     visits = plan_visits(config, configurations)
     steps = plan_steps(config, configurations, visits)
     estimate = estimate_duration(config, configurations, steps, presentation=presentation)
+    tilt_note = design_tilt(config, configurations).note if visits else None
     return {
         "extrinsics_mode": config.extrinsics.mode,
         "design": [v.as_dict() for v in visits],
@@ -121,4 +124,6 @@ def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGI
         "runnable": sum(c.runnable for c in configurations),
         "margin_px": margin_px,
         "min_corners_in_both": MIN_CORNERS_IN_BOTH,
+        # a rig that drives the tilts: whether the design steps them, and why
+        **({"design_tilt": tilt_note} if tilt_note else {}),
     }
