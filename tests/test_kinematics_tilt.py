@@ -137,3 +137,23 @@ def test_the_file_of_a_tilted_model_round_trips_and_an_older_file_reads_as_a_rig
         model_from_toml(text.replace('"tilt_left_deg", "tilt_right_deg"', '"tilt_right_deg", "tilt_left_deg"'),
                         "t.toml")
     assert TILT_AXES == TILTS
+
+
+def test_a_model_with_tilt_joints_on_a_rig_without_tilt_axes_is_refused_before_any_motion(tmp_path):
+    """Its predictions take the reported tilts, which such a rig never reports: one line naming the file and the
+    tilt, not a failure at every configuration."""
+    from stereo_bench.campaign.config import ConfigError, campaign_from_dict
+    from stereo_bench.campaign.preflight import preflight
+    from stereo_bench.kinematics import save_model
+
+    path = save_model(_truth_model(EXACT, ("tilt_left_deg",)), tmp_path / "tilting.toml")
+    config = campaign_from_dict({"plan": {"baseline_mm": [100], "distance_mm": [500], "alpha_deg": [90]},
+                                 "extrinsics": {"mode": "kinematic", "kinematic_file": str(path)}})
+    with pytest.raises(ConfigError) as error:
+        preflight(config)
+    message = str(error.value)
+    assert "\n" not in message and "extrinsics.kinematic_file" in message and str(path) in message
+    assert "tilt_left_deg" in message and "does not drive" in message
+    untilted = save_model(_truth_model(EXACT, ()), tmp_path / "untilted.toml")
+    preflight(campaign_from_dict({**config.model_dump(mode="json", exclude_unset=True),
+                                  "extrinsics": {"mode": "kinematic", "kinematic_file": str(untilted)}}))

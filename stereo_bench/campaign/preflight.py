@@ -163,7 +163,22 @@ def _read_files(config: CampaignConfig, *, source: str) -> tuple[Any, dict[str, 
             model = load_model(extrinsics.kinematic_file)
         except KinematicFileError as error:
             raise ConfigError(f"{source}: extrinsics.kinematic_file: {error}") from None
+        _check_model_axes(config, model, source=source)
     return model, calib_dir_options
+
+
+def _check_model_axes(config: CampaignConfig, model, *, source: str) -> None:
+    """A model with tilt joints predicts from the reported tilts: a rig that does not drive one reports none, and
+    every configuration would fail to predict (``axes: missing tilt_left_deg``). Said once, before any motion."""
+    from stereo_bench.kinematics.model import TILT_AXES
+
+    driven = config.rig.rig_config().driven
+    missing = [axis for axis in model.axes if axis in TILT_AXES and axis not in driven]
+    if missing:
+        raise ConfigError(
+            f"{source}: extrinsics.kinematic_file: {config.extrinsics.kinematic_file}: the model has a tilt joint "
+            f"for {', '.join(missing)}, which this rig does not drive (map it in the rig config's [quantities], "
+            f"or use a model fitted on a rig without tilt axes)")
 
 
 __all__ = [
