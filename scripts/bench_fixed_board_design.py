@@ -31,9 +31,13 @@ from drivers.sim.mechanics import kinematic_parameters  # noqa: E402
 from drivers.sim.profile import LAB  # noqa: E402
 from stereo_bench.campaign.plan.feasibility import fixed_board_placement  # noqa: E402
 from stereo_bench.geometry import CameraModel, RigPose  # noqa: E402
-from stereo_bench.kinematics.design import approach_directions  # noqa: E402
-from stereo_bench.kinematics.fit import ConfigurationViews, _intrinsic_vector, _project, _rotate  # noqa: E402
-from stereo_bench.kinematics.fixed_board import INTRINSIC_NAMES, _FixedBundle, fixed_board_design  # noqa: E402
+from stereo_bench.kinematics.fit import _intrinsic_vector, _project, _rotate  # noqa: E402
+from stereo_bench.kinematics.fixed_board import (  # noqa: E402
+    INTRINSIC_NAMES,
+    _FixedBundle,
+    design_visits,
+    fixed_board_design,
+)
 from stereo_bench.kinematics.model import NAMES, _effective, _rvec, _rvec_t, chain  # noqa: E402
 from stereo_bench.kinematics.prediction import structure_sigma  # noqa: E402
 from stereo_bench.targets import Checkerboard  # noqa: E402
@@ -68,13 +72,7 @@ def analyse(design, *, pixel_sigma: float, views: int, prior: np.ndarray | None,
 
         T_rig_board = board_pose_facing_rig(distance_mm=distance_mm, board_size_mm=BOARD.grid_size_mm,
                                             yaw_deg=yaw_deg, pitch_deg=pitch_deg)
-    confs, previous, approach = [], None, {}
-    for visit in design:
-        approach = approach_directions(previous, visit.axes(), approach)
-        previous = visit.axes()
-        confs.append(ConfigurationViews(visit.axes(), dict(approach), []))
-    baselines = [c.axes["baseline_mm"] for c in confs]
-    B_ref = 0.5 * (min(baselines) + max(baselines))
+    confs, B_ref = design_visits(design)
     truth = kinematic_parameters(LAB, B_ref)
     p = np.array([truth[n] for n in NAMES])
     T_ref_board = np.linalg.inv(RigPose(B_ref, 90.0, 90.0).T_rig_left) @ T_rig_board

@@ -653,6 +653,20 @@ def _fit_fixed_board(configurations, object_points, image_size, *, intrinsics, i
                          views_dropped=dropped)
 
 
+def design_visits(design) -> tuple[list[ConfigurationViews], float]:
+    """The visits of ``design`` in order, each with the approach directions that order gives (no views yet), and
+    the reference baseline (mm) of a fit to them: the middle of their baselines."""
+    from stereo_bench.kinematics.design import approach_directions
+
+    configurations, previous, approach = [], None, {}
+    for visit in design:
+        approach = approach_directions(previous, visit.axes(), approach)
+        previous = visit.axes()
+        configurations.append(ConfigurationViews(visit.axes(), dict(approach), []))
+    baselines = [c.axes["baseline_mm"] for c in configurations]
+    return configurations, 0.5 * (min(baselines) + max(baselines))
+
+
 def design_identifiability(
     design: Sequence[DesignConfiguration], object_points: np.ndarray, T_rig_board: np.ndarray,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], *, pixel_sigma_px: float = 0.1,
@@ -669,15 +683,8 @@ def design_identifiability(
     ``repeatability_tilt_deg`` (None: ``repeatability_deg``, the heads').
     """
     from stereo_bench.geometry import RigPose
-    from stereo_bench.kinematics.design import approach_directions
 
-    configurations, previous, approach = [], None, {}
-    for visit in design:
-        approach = approach_directions(previous, visit.axes(), approach)
-        previous = visit.axes()
-        configurations.append(ConfigurationViews(visit.axes(), dict(approach), []))
-    baselines = [c.axes["baseline_mm"] for c in configurations]
-    B_ref = 0.5 * (min(baselines) + max(baselines))
+    configurations, B_ref = design_visits(design)
     T_ref_board = np.linalg.inv(RigPose(B_ref, 90.0, 90.0).T_rig_left) @ np.asarray(T_rig_board, float)
     intr = np.concatenate([_intrinsic_vector(intrinsics[0], intrinsics[1]), _intrinsic_vector(intrinsics[2],
                                                                                               intrinsics[3])])
@@ -714,7 +721,7 @@ def design_identifiability(
     nuisance = np.array([k for k in range(exact.n_k, exact.n)
                          if not (exact.o_land <= k < exact.o_intr and (k - exact.o_land) % exact.n_axes not in
                                  exact.landing_axes)], int)
-    if len(set(baselines)) < 2:
+    if len({c.axes["baseline_mm"] for c in configurations}) < 2:
         nuisance = nuisance[nuisance != exact.o_share]
     J = exact.jacobian(x, exact.residuals(x))
     return identifiability(J, rule_free, nuisance, notes=notes, specs=specs)[1]
