@@ -151,6 +151,24 @@ def parameter(calib: StereoCalibration, name: str) -> float:
 
 
 @cache
+def leave_one_out_calibrations(name: str) -> dict[int, StereoCalibration]:
+    """Per pair the full calibration keeps (its image index), the calibration of all the others: what
+    :func:`leave_one_out` and :func:`leave_one_out_without_covariance` measure that pair with (made once)."""
+    s = SETS[name]
+    det = detections(name)
+    full, usable = full_calibration(name)
+    usable = [usable[i] for i in full.views_used]
+    views = {i: common_corners(*det[i]) for i in usable}
+    size = images(name)[0][0].shape[::-1]
+    calibrations = {}
+    for held_out in usable:
+        keep = [i for i in usable if i != held_out]
+        calibrations[held_out] = _calibrate([s.board.object_points[views[i][0]] for i in keep],
+                                            [views[i][1] for i in keep], [views[i][2] for i in keep], size)
+    return calibrations
+
+
+@cache
 def leave_one_out(name: str) -> dict:
     """Each pair the full calibration keeps, held out in turn (stereo-bench), with plain OpenCV beside it.
 
@@ -161,15 +179,9 @@ def leave_one_out(name: str) -> dict:
     s = SETS[name]
     left_images, right_images = images(name)
     det = detections(name)
-    full, usable = full_calibration(name)
-    usable = [usable[i] for i in full.views_used]
-    views = {i: common_corners(*det[i]) for i in usable}
-    size = left_images[0].shape[::-1]
+    full, _ = full_calibration(name)
     rows, loo_params = [], []
-    for held_out in usable:
-        keep = [i for i in usable if i != held_out]
-        calib = _calibrate([s.board.object_points[views[i][0]] for i in keep], [views[i][1] for i in keep],
-                           [views[i][2] for i in keep], size)
+    for held_out, calib in leave_one_out_calibrations(name).items():
         loo_params.append([parameter(calib, p) for p in ("baseline", *JACKKNIFE_INTRINSICS)])
         pair = measure_pair(left_images[held_out], right_images[held_out], calib, s.board, detections=det[held_out])
         budget = configuration_budget([pair], calib, s.board, board_scale=BoardScale(same_board=True),
@@ -238,16 +250,10 @@ def exact_budget_inflation(k: np.ndarray, *, draws: int = 20000, seed: int = 0) 
             "inflation_exact_share_at_most_3": float(np.mean(ratio <= 3.0))}
 
 
-def inconsistent_leave_one_out(name: str, views: tuple[int, ...], shift_px: float, *, adequacy: bool = True) -> dict:
-    """Leave-one-out on ``name`` with the right corners of ``views`` (positions among the usable pairs) moved
-    ``shift_px`` along x: pairs whose left and right images disagree (a board that moved between the two
-    exposures), kept by the calibration, the class of the issue's anamorphic webcam. ``adequacy`` False: the
-    budget without the model-adequacy component (as before it existed). Returns errors_mm, u_c_mm, U_mm per pair
-    and the full calibration's adequacy."""
-    from dataclasses import replace as _replace
-
-    from stereo_bench.vision.uncertainty import FrameCorners
-
+@cache
+def _inconsistent_calibrations(name: str, views: tuple[int, ...], shift_px: float) -> tuple:
+    """:func:`inconsistent_leave_one_out`'s corners (right ones of ``views`` shifted), per usable pair the
+    calibration without it, and the calibration of them all: made once per (set, views, shift)."""
     s = SETS[name]
     det = detections(name)
     usable = [i for i, d in enumerate(det) if d[0] is not None and d[1] is not None]
@@ -261,9 +267,25 @@ def inconsistent_leave_one_out(name: str, views: tuple[int, ...], shift_px: floa
         return _calibrate([s.board.object_points[corners[i][0]] for i in keys], [corners[i][1] for i in keys],
                           [corners[i][2] for i in keys], size)
 
+    return corners, {held_out: calibrate([i for i in usable if i != held_out]) for held_out in usable}, \
+        calibrate(usable)
+
+
+def inconsistent_leave_one_out(name: str, views: tuple[int, ...], shift_px: float, *, adequacy: bool = True) -> dict:
+    """Leave-one-out on ``name`` with the right corners of ``views`` (positions among the usable pairs) moved
+    ``shift_px`` along x: pairs whose left and right images disagree (a board that moved between the two
+    exposures), kept by the calibration, the class of the issue's anamorphic webcam. ``adequacy`` False: the
+    budget without the model-adequacy component (as before it existed). Returns errors_mm, u_c_mm, U_mm per pair
+    and the full calibration's adequacy."""
+    from dataclasses import replace as _replace
+
+    from stereo_bench.vision.uncertainty import FrameCorners
+
+    s = SETS[name]
+    det = detections(name)
+    corners, calibrations, full = _inconsistent_calibrations(name, tuple(views), float(shift_px))
     errors, u_c, U = [], [], []
-    for held_out in usable:
-        calib = calibrate([i for i in usable if i != held_out])
+    for held_out, calib in calibrations.items():
         pair = measure_pair(images(name)[0][held_out], images(name)[1][held_out], calib, s.board,
                             detections=det[held_out])
         frame = _replace(FrameCorners.from_pair(pair), right_px=corners[held_out][2], triangulated=None)
@@ -272,8 +294,7 @@ def inconsistent_leave_one_out(name: str, views: tuple[int, ...], shift_px: floa
         errors.append(budget.error_mm)
         u_c.append(budget.combined)
         U.append(budget.expanded)
-    return {"errors_mm": np.array(errors), "u_c_mm": np.array(u_c), "U_mm": np.array(U),
-            "adequacy": calibrate(usable).adequacy}
+    return {"errors_mm": np.array(errors), "u_c_mm": np.array(u_c), "U_mm": np.array(U), "adequacy": full.adequacy}
 
 
 # caliscope_charuco_2cam: an inverted ChArUco board in two synchronised videos, the cameras 83 deg convergent
@@ -396,14 +417,8 @@ def leave_one_out_without_covariance(name: str) -> dict:
 
     s = SETS[name]
     det = detections(name)
-    full, usable = full_calibration(name)
-    usable = [usable[i] for i in full.views_used]
-    views = {i: common_corners(*det[i]) for i in usable}
     errors, u_c, U = [], [], []
-    for held_out in usable:
-        keep = [i for i in usable if i != held_out]
-        calib = _calibrate([s.board.object_points[views[i][0]] for i in keep], [views[i][1] for i in keep],
-                           [views[i][2] for i in keep], images(name)[0][0].shape[::-1])
+    for held_out, calib in leave_one_out_calibrations(name).items():
         calib = _replace(calib, covariance=None, adequacy=None)
         pair = measure_pair(images(name)[0][held_out], images(name)[1][held_out], calib, s.board,
                             detections=det[held_out])
