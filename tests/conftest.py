@@ -6,8 +6,10 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
+import statistics
 import sys
 from pathlib import Path
 
@@ -44,6 +46,55 @@ def pytest_addoption(parser: pytest.Parser) -> None:
                     help="run camera hardware tests on this V4L2 device (repeat for a stereo pair)")
     group.addoption("--serial-port", default=None, metavar="PATH",
                     help="run rig-controller hardware tests on this GRBL serial port (the rig WILL move)")
+    parser.getgroup("stereo-bench suite").addoption(
+        "--record-module-durations", default=None, metavar="PATH",
+        help="write each test module's seconds (setup + call + teardown) as JSON, e.g. to "
+             "tests/module_durations.json, which orders the modules for pytest-xdist (longest first)")
+
+
+# The order pytest-xdist hands modules to its workers (``--dist loadscope``: a module's tests on one worker, so its
+# module fixtures are built once): the longest first, as measured (tests/module_durations.json, written by
+# ``pytest --record-module-durations tests/module_durations.json``). xdist's own order (most tests first) left the
+# few-test, long modules (a browser, a leave-one-out, a lab fit) for the end, one worker running them while the
+# other stood idle. A module not measured yet counts as the median one.
+MODULE_DURATIONS = Path(__file__).with_name("module_durations.json")
+
+
+def _module_of(nodeid: str) -> str:
+    return nodeid.split("::", 1)[0]
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    try:
+        durations = {str(k): float(v) for k, v in json.loads(MODULE_DURATIONS.read_text()).items()}
+    except (OSError, ValueError, AttributeError):
+        return  # no measurement (or a broken one): collection order
+    typical = statistics.median(durations.values()) if durations else 0.0
+    items.sort(key=lambda item: -durations.get(_module_of(item.nodeid), typical))  # stable within a module
+
+
+class _ModuleDurations:
+    """``--record-module-durations PATH``: each module's setup + call + teardown seconds, summed over its tests
+    (on the controller: xdist's workers report theirs), written as JSON when the session ends."""
+
+    def __init__(self, path: Path):
+        self.path, self.seconds = path, {}
+
+    def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
+        module = _module_of(report.nodeid)
+        self.seconds[module] = self.seconds.get(module, 0.0) + float(report.duration)
+
+    def pytest_sessionfinish(self, session: pytest.Session) -> None:
+        if hasattr(session.config, "workerinput"):
+            return  # a worker: the controller writes the file
+        ordered = dict(sorted(((k, round(v, 2)) for k, v in self.seconds.items()), key=lambda kv: -kv[1]))
+        self.path.write_text(json.dumps(ordered, indent=1) + "\n")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    path = config.getoption("--record-module-durations")
+    if path and not hasattr(config, "workerinput"):
+        config.pluginmanager.register(_ModuleDurations(Path(path)), "stereo-bench-module-durations")
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
