@@ -127,6 +127,26 @@ def test_a_prompt_is_answered_once_over_http_and_the_page_refuses_what_it_does_n
     assert again.status_code == 409 and "terminal" in again.json()["message"]
 
 
+def test_a_press_meant_for_a_prompt_no_longer_waiting_does_not_answer_the_next(page):
+    # The operator presses Continue on prompt A; before the press arrives the terminal answered A and the run
+    # asked B. The press names A: B is not answered by it (it would be, by a POST that names no prompt).
+    client = client_of(page)
+    headers = {"X-Token": page.token}
+    first = Ticket(Prompt("target", "move the target to Z = 450 mm"), 2)
+    page.operator.offer(first)
+    shown = client.get("/api/state").json()["prompt"]["id"]
+    first.answer("terminal")
+    second = Ticket(Prompt("target", "move the target to Z = 500 mm"), 2)
+    page.operator.offer(second)
+    assert client.get("/api/state").json()["prompt"]["id"] != shown
+    late = client.post(f"/api/control/{CONTINUE}?prompt={shown}", headers=headers)
+    assert late.status_code == 409 and "no longer waiting" in late.json()["message"] and not second.done
+    assert client.post(f"/api/control/{CONTINUE}?prompt=x", headers=headers).status_code == 400
+    current = client.get("/api/state").json()["prompt"]["id"]
+    assert client.post(f"/api/control/{CONTINUE}?prompt={current}", headers=headers).status_code == 200
+    assert second.answered_by == "live page"
+
+
 def test_the_per_view_review_is_answered_with_a_threshold_a_view_or_recalibrate_over_http(page):
     from stereo_bench.campaign.review import ReviewState, review_prompt
 

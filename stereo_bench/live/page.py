@@ -26,10 +26,13 @@ from stereo_bench.live.state import LiveState
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 
 
-def prompt_json(ticket: Ticket) -> dict:
+def prompt_json(ticket: Ticket, prompt_id: int | None = None) -> dict:
+    """The prompt as the page shows it; ``id``: which offer it is (a button's answer names it, see
+    :meth:`PageOperator.answer`)."""
     prompt = ticket.prompt
-    return {"kind": prompt.kind, "message": prompt.message, "config_id": prompt.config_id, "index": prompt.index,
-            "quantity": prompt.quantity, "value": prompt.value, "actions": list(prompt.actions)}
+    return {"id": prompt_id, "kind": prompt.kind, "message": prompt.message, "config_id": prompt.config_id,
+            "index": prompt.index, "quantity": prompt.quantity, "value": prompt.value,
+            "actions": list(prompt.actions)}
 
 
 class PageOperator:
@@ -41,12 +44,15 @@ class PageOperator:
     def __init__(self, state: LiveState):
         self.state = state
         self._ticket: Ticket | None = None
+        self._offered = 0  # the current offer's id: an answer meant for an earlier prompt must not answer this one
         self._lock = threading.Lock()
 
     def offer(self, ticket: Ticket) -> None:
         with self._lock:
             self._ticket = ticket
-        self.state.set_prompt(prompt_json(ticket))
+            self._offered += 1
+            prompt_id = self._offered
+        self.state.set_prompt(prompt_json(ticket, prompt_id))
 
     def withdraw(self, ticket: Ticket) -> None:
         with self._lock:
@@ -55,13 +61,18 @@ class PageOperator:
             self._ticket = None
         self.state.set_prompt(None)
 
-    def answer(self, action: str, value: float | None = None) -> tuple[int, str]:
+    def answer(self, action: str, value: float | None = None, prompt_id: int | None = None) -> tuple[int, str]:
         """Answer the prompt shown with ``action`` (``value``: its number, where it takes one): (HTTP status,
-        message)."""
+        message). ``prompt_id``: the ``id`` of the prompt the button was pressed on (the page sends it); when the
+        prompt waiting now is another (the one pressed on was answered at the terminal and the run asked the
+        next), the answer is refused rather than given to a prompt the operator has not read. None: the current
+        prompt, whichever it is (a script's ``POST``)."""
         with self._lock:
-            ticket = self._ticket
+            ticket, current = self._ticket, self._offered
         if ticket is None:
             return 409, "no prompt is waiting for an answer"
+        if prompt_id is not None and prompt_id != current:
+            return 409, "that prompt is no longer waiting (answered, or replaced by the one shown now): nothing done"
         if action not in ticket.prompt.actions:
             return 409, f"this prompt accepts {', '.join(ticket.prompt.actions)}, not {action}"
         if not ticket.answer(self.name, action, value):
@@ -145,10 +156,11 @@ class LivePage:
 
     # -- controls (from the server's thread) ------------------------------------------------------------------
 
-    def control(self, action: str, value: float | None = None) -> tuple[int, str]:
-        """Carry out a control action (``value``: a prompt answer's number): (HTTP status, message)."""
+    def control(self, action: str, value: float | None = None, prompt_id: int | None = None) -> tuple[int, str]:
+        """Carry out a control action (``value``: a prompt answer's number; ``prompt_id``: the prompt it answers,
+        :meth:`PageOperator.answer`): (HTTP status, message)."""
         if action in ACTIONS:
-            return self.operator.answer(action, value)
+            return self.operator.answer(action, value, prompt_id)
         control = self.control_target
         if control is None:
             return 409, "no campaign is running: this page only previews"

@@ -11,7 +11,9 @@ Routes (everything the page needs ships in the package: no CDN, works offline):
 ``GET /preview/SIDE.jpg`` the newest preview of ``left`` or ``right``; ``rectified``: both, rectified, with
                           epipolar lines (after the first calibration)
 ``GET /session/PATH``     a file of the session directory (refused outside it, symlinks included)
-``POST /api/control/ACT`` continue, capture_now, discard_last_view, pause, resume, stop: needs the token
+``POST /api/control/ACT`` continue, capture_now, discard_last_view, set_threshold, exclude_view, recalibrate,
+                          pause, resume, stop: needs the token; a prompt's answer may name the prompt
+                          (``?prompt=ID``, the state's ``prompt.id``): refused (409) if another is waiting now
 ========================  ===================================================================
 
 Every control needs the run's random token (``X-Token`` header, or ``?token=``), which is part of
@@ -272,7 +274,14 @@ class LiveApp:
             except ValueError:
                 return JSONResponse({"ok": False, "message": f"{action.replace('_', ' ')} needs ?value= (a number: "
                                                              "a threshold in px, a view's index)"}, status_code=400)
-        status, message = await asyncio.to_thread(self.page.control, action, value)
+        prompt_id = None
+        if "prompt" in request.query_params:
+            try:
+                prompt_id = int(request.query_params["prompt"])
+            except ValueError:
+                return JSONResponse({"ok": False, "message": "?prompt= must be the id of the prompt answered (an "
+                                                             "integer: the state's prompt.id)"}, status_code=400)
+        status, message = await asyncio.to_thread(self.page.control, action, value, prompt_id)
         return JSONResponse({"ok": status == 200, "message": message}, status_code=status)
 
 

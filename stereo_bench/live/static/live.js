@@ -24,10 +24,16 @@ function duration(seconds) {
 
 // -- controls ------------------------------------------------------------------------------------------------
 
+const PROMPT_ACTIONS = ["continue", "capture_now", "discard_last_view", "set_threshold", "exclude_view", "recalibrate"];
+
 async function act(action, value) {
   const box = $("message");
   try {
-    const query = value === undefined ? "" : `?value=${encodeURIComponent(value)}`;
+    // A prompt's answer names the prompt it was given on: if the run has asked another since, it is refused.
+    const params = new URLSearchParams();
+    if (value !== undefined) params.set("value", value);
+    if (PROMPT_ACTIONS.includes(action) && state && state.prompt && state.prompt.id != null) params.set("prompt", state.prompt.id);
+    const query = params.toString() ? `?${params}` : "";
     const response = await fetch(`/api/control/${action}${query}`, {method: "POST", headers: {"X-Token": TOKEN}});
     const body = await response.json();
     box.textContent = body.message;
@@ -349,7 +355,7 @@ function renderPrompt(prompt, run) {
   const banner = $("prompt");
   banner.hidden = !prompt;
   const accepts = prompt ? prompt.actions : [];
-  for (const action of ["continue", "capture_now", "discard_last_view", "set_threshold", "exclude_view", "recalibrate"]) {
+  for (const action of PROMPT_ACTIONS) {
     $(action).disabled = !TOKEN || !accepts.includes(action);
   }
   // The per-view error review (several lines: the chart) with its threshold and exclude controls.
