@@ -121,7 +121,7 @@ def test_a_simulated_run_gives_an_eta_that_only_falls(tmp_path, capture):
     config = small_config(plan={"baseline_mm": [100, 150], "distance_mm": [400, 450, 500], "alpha_deg": [90]},
                           # the count gate: the bars may never fill with the hand's poses (then all 40 are shown)
                           capture={"calibration_capture": capture, "coverage_gate": "count"},
-                          sim={"hand_fps": 5.0} if capture == "auto" else {})
+                          sim={"hand_fps": 3.0} if capture == "auto" else {})
     plan = CampaignPlan.of(config)
     # The bench clock counts the rig's own seconds (time_scale only paces it against the wall): the plan's model
     # of the same campaign at time_scale 1 is its prediction.
