@@ -84,7 +84,9 @@ from stereo_bench.campaign.plan.steps import (
     Step,
     StepKind,
     VisitDone,
+    is_prepare_id,
     plan_steps,
+    stage_id,
 )
 from stereo_bench.campaign.plan.summary import calibration_presentations, plan_summary
 from stereo_bench.campaign.plan.timing import (
@@ -103,6 +105,6 @@ __all__ = [
     "PromptTarget",
     "Settle", "Step", "StepKind", "Target", "VISIT_PURPOSES", "Visibility", "Visit", "VisitDone",
     "calibration_distance_range", "calibration_presentations", "design_ranges", "estimate_duration", "expand_plan",
-    "format_id_value", "homing_estimate_s", "plan_steps", "plan_summary", "plan_visits", "predict_duration_s",
-    "target_visibilities", "target_visibility",
+    "format_id_value", "homing_estimate_s", "is_prepare_id", "plan_steps", "plan_summary", "plan_visits",
+    "predict_duration_s", "stage_id", "target_visibilities", "target_visibility",
 ]
