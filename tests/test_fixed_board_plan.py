@@ -204,7 +204,8 @@ def test_paper_exp1_on_a_fixed_board_needs_no_lens_calibration_unless_asked():
     assert summary["operator_actions"]["total"] == 6 + 12
     assert summary["lens_calibration"]["presentations"] == 12
     assert summary["lens_calibration"]["reason"].startswith('a lens calibration: fixed_board_lens = "present"; sigmas')
-    assert summary["identifiability"][0]["intrinsics"] == "a lens calibration of 12 presented views as prior (predicted)"
+    assert summary["identifiability"][0]["intrinsics"] == ("a lens calibration of 12 presented views as prior "
+                                                           "(predicted)")
     # The prior sharpens the right camera's depth (T_z: the ratio of the focal lengths, docs/EXTRINSICS.md).
     sigma = {table: {r["name"]: r["sigma"] for r in s["identifiability"]} for table, s in (("alone", auto),
                                                                                            ("prior", summary))}

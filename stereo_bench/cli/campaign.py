@@ -187,9 +187,12 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
                          f"{visit['toe_in_left_deg']:g}/{visit['toe_in_right_deg']:g} deg{tilts}  {status}")
     table = summary.get("identifiability")
     if table:
+        from stereo_bench.campaign.plan.lens import PLAN_PIXEL_SIGMA_PX
+
         held = [row for row in table if not row["identified"]]
-        lines.append(f"identifiability (the design's views on the nominal rig, 0.1 px corners, intrinsics "
-                     f"{table[0]['intrinsics']}): {len(table) - len(held)} of {len(table)} parameters identified")
+        lines.append(f"identifiability (the design's views on the nominal rig, {PLAN_PIXEL_SIGMA_PX:g} px corners, "
+                     f"intrinsics {table[0]['intrinsics']}): {len(table) - len(held)} of {len(table)} parameters "
+                     "identified")
         for row in table:
             sigma = f"sigma {row['sigma']:.3g} {row['unit']}" if row["identified"] else f"held nominal: {row['note']}"
             lines.append(f"{'':>5}{row['name']:<24} {sigma}")

@@ -6,8 +6,8 @@ at one depth: what they cannot separate from the focal lengths (a pan axis' dept
 nominal. :func:`lens_plan` reads that off the plan's identifiability table (:func:`design_table`: the board projected
 exactly through the nominal chain at every visit) twice: with the intrinsics from the design's views alone, and with
 the prior a stereo calibration of ``capture.calibration_views`` presented views would give
-(:func:`stereo_bench.errormodel.rigorous.planned_calibration`: its views planned like the simulated presenter's, at
-the same 0.1 px corners as the table). The presentations are planned when the prior identifies a parameter the board
+(:func:`stereo_bench.vision.planned.planned_stereo_calibration`: its views planned like the simulated presenter's,
+at the same 0.1 px corners as the table). The presentations are planned when the prior identifies a parameter the board
 alone does not; what neither identifies (an axis held at one value, one approach direction) is held nominal either
 way, and no presentation is added for it.
 """
@@ -64,24 +64,28 @@ def design_table(config: CampaignConfig, design: Sequence, *, intrinsics: tuple 
 
 def predicted_lens_prior(config: CampaignConfig, visit, n_views: int) -> np.ndarray:
     """(16, 16) covariance of ``fixed_board.INTRINSIC_NAMES`` that a joint stereo calibration of ``n_views`` views
-    presented at ``visit`` would have (views planned as the simulated presenter shows them, in the range where the
-    board fits both views; 0.1 px corners). ValueError if the views cannot be planned there."""
-    from stereo_bench.errormodel.rigorous import CalibrationPlan, Setup, planned_calibration
-    from stereo_bench.geometry import alpha_from_toe_in
+    presented at ``visit`` would have (views planned as the simulated presenter shows them,
+    :func:`stereo_bench.vision.planned.planned_board_poses`, at 0.6-1.3 x the visit's distance within the range
+    where the board fits both views; 0.1 px corners). ValueError if the views cannot be planned there."""
+    from stereo_bench.geometry import RigPose, alpha_from_toe_in
     from stereo_bench.kinematics.fixed_board import INTRINSIC_NAMES
+    from stereo_bench.vision.planned import planned_board_poses, planned_stereo_calibration
 
+    if n_views < 5:
+        raise ValueError(f"a stereo calibration needs at least 5 views, not {n_views}")
     optics = config.cameras.optics
+    left, right = optics.camera_model("left"), optics.camera_model("right")
     board = config.calibration_board.build()
-    plan = CalibrationPlan(n_views=n_views, board=board)
-    near, far = plan.distance_range(visit.distance_mm)
-    if visit.calibration_range_mm:  # where the plan found the board fits both views (as the presenter does)
+    # The presenter's range for a target at Z (the error model's CalibrationPlan rule), within where the board fits.
+    near, far = max(250.0, 0.6 * visit.distance_mm), 1.3 * visit.distance_mm
+    if visit.calibration_range_mm:
         lo, hi = visit.calibration_range_mm
         near, far = (max(near, lo), min(far, hi)) if max(near, lo) <= min(far, hi) else (lo, hi)
-    plan = CalibrationPlan(n_views=n_views, board=board, distance_mm=(near, far))
-    setup = Setup.make(visit.baseline_mm, visit.distance_mm, alpha_from_toe_in(visit.toe_in_left_deg),
-                       alpha_right_deg=alpha_from_toe_in(visit.toe_in_right_deg), tilt_deg=visit.tilt_deg,
-                       board=board, left=optics.camera_model("left"), right=optics.camera_model("right"))
-    covariance = planned_calibration(setup, plan, PLAN_PIXEL_SIGMA_PX).covariance
+    rig = RigPose(visit.baseline_mm, alpha_from_toe_in(visit.toe_in_left_deg),
+                  alpha_from_toe_in(visit.toe_in_right_deg), visit.tilt_deg, visit.tilt_deg)
+    poses = planned_board_poses(rig, board, left, right, n_views=n_views, distance_mm=(near, far))
+    covariance = planned_stereo_calibration(rig, board, left, right, poses,
+                                            pixel_sigma_px=PLAN_PIXEL_SIGMA_PX).covariance
     index = covariance.index(INTRINSIC_NAMES)
     return np.asarray(covariance.matrix, float)[np.ix_(index, index)]
 
