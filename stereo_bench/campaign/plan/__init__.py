@@ -34,7 +34,9 @@ visits (:func:`plan_visits`, :class:`Visit`): ``kinematic`` extrinsics without a
 kinematic rig model's design (:func:`stereo_bench.kinematics.kinematic_design` over the range of the
 runnable configurations' B and toe-ins: 9 visits, 12 views each = 108 board presentations however many
 configurations follow), ``nominal`` extrinsics without a calibration directory one configuration for
-their intrinsics. Each visit is Move, Settle, Flush, CaptureCalibration, :class:`VisitDone`; then one
+their intrinsics; a fixed-board design without one, that same intrinsics visit first where its
+identifiability table says a lens calibration identifies what the board alone cannot (:mod:`.lens`).
+Each visit is Move, Settle, Flush, CaptureCalibration, :class:`VisitDone`; then one
 :class:`PrepareExtrinsics` fits the model (or calibrates the intrinsics) before the first measured
 configuration. A visit where the calibration board cannot be shown to both cameras or outside the soft
 limits is not run (the fit goes on without it, and says what it could not identify).
