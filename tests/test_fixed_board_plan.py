@@ -274,3 +274,21 @@ def test_campaign_plan_says_how_many_presentations_and_why(tmp_path, capsys):
     assert "held nominal all the same: slide_yaw_deg" in out
     assert "intrinsics a lens calibration of 12 presented views as prior (predicted)" in out
     assert "fixed board: placed once" in out
+
+
+def test_a_lens_calibration_that_fails_fails_the_fit_with_its_reason():
+    """The run's side of the plan's stage: nothing captured at the intrinsics visit is one clear error, and the
+    fixed-board fit after it fails with that reason (every configuration then fails with it) instead of fitting
+    without the prior the plan counted on."""
+    from stereo_bench.campaign.documents import KinematicModelData
+    from stereo_bench.campaign.extrinsics.kinematic import KinematicSource
+
+    config = _config("fixed-board", extrinsics={"mode": "kinematic", "design": "fixed-board",
+                                                "fixed_board_lens": "present"})
+    source = KinematicSource()
+    lens = source.prepare([], config, None, purpose="intrinsics")
+    assert lens.lens is None and lens.error == ("no lens calibration for the fixed-board fit: the calibration visit "
+                                                "captured nothing")
+    fit = source.prepare([], config, None, purpose="kinematic", earlier=lens)
+    assert fit.kinematic_model is None and fit.error == f"kinematic fit (fixed board): {lens.error}"
+    assert KinematicModelData(**fit.record).error == lens.error  # recorded as the kinematic_model event says
