@@ -3,6 +3,9 @@ in both views, the operator's actions and time, and what ``campaign plan`` print
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -11,6 +14,7 @@ from stereo_bench.campaign.plan import (
     CaptureCalibration,
     Move,
     PlaceBoard,
+    PrepareExtrinsics,
     estimate_duration,
     expand_plan,
     plan_steps,
@@ -165,3 +169,126 @@ def test_a_plan_of_several_tilts_that_a_model_cannot_predict_is_refused_with_one
 
     with pytest.raises(ConfigError, match=message.replace("(", r"\(")):
         _tilt_config(plan, **extrinsics)
+
+
+# --------------------------------------------------------------------------------------------------
+# A lens calibration of presented views before the board is placed, only for what the fixed board cannot identify
+
+
+SAMPLE_CALIB = Path(__file__).resolve().parents[1] / "calib_data" / "sample_session" / "calib" / "B100_Z450_A90" / "a1"
+
+
+def _lens_visits(config):
+    visits = plan_visits(config, expand_plan(config))
+    return [v for v in visits if v.purpose == "intrinsics"], [v for v in visits if v.purpose == "kinematic"]
+
+
+def test_paper_exp1_on_a_fixed_board_needs_no_lens_calibration_unless_asked():
+    """paper-exp1's design turns the heads 0-6 deg over four slide positions: the board alone identifies all 22 (at the
+    plan's 0.1 px), so auto adds nothing; "present" adds capture.calibration_views presentations before the
+    placement; calib_dir and "none" add none."""
+    auto = plan_summary(_config("fixed-board"))
+    assert auto["lens_calibration"] == {"presentations": 0, "visit": None, "gains": [], "held": [],
+                                        "reason": "the fixed board alone identifies every parameter"}
+    assert auto["calibration_presentations"]["total"] == 0
+    assert all(row["identified"] for row in auto["identifiability"])
+    assert auto["identifiability"][0]["intrinsics"] == "from the design's views alone"
+
+    present = _config("fixed-board", extrinsics={"mode": "kinematic", "design": "fixed-board",
+                                                 "fixed_board_lens": "present"})
+    (lens,), design = _lens_visits(present)
+    assert lens.config_id == "intrinsics-B50_Z300_A90" and lens.runnable and not lens.board_fixed
+    assert [v.index for v in design] == list(range(1, 33))  # the design after it, as before
+    summary = plan_summary(present)
+    assert summary["calibration_presentations"] == {"visits": 12, "configurations": 0, "placements": 1, "total": 12}
+    assert summary["operator_actions"]["total"] == 6 + 12
+    assert summary["lens_calibration"]["presentations"] == 12
+    assert summary["lens_calibration"]["reason"].startswith('a lens calibration: fixed_board_lens = "present"; sigmas')
+    assert summary["identifiability"][0]["intrinsics"] == ("a lens calibration of 12 presented views as prior "
+                                                           "(predicted)")
+    # The prior sharpens the right camera's depth (T_z: the ratio of the focal lengths, docs/EXTRINSICS.md).
+    sigma = {table: {r["name"]: r["sigma"] for r in s["identifiability"]} for table, s in (("alone", auto),
+                                                                                           ("prior", summary))}
+    assert sigma["prior"]["right_z_mm"] < 0.5 * sigma["alone"]["right_z_mm"]
+    steps = plan_steps(present, expand_plan(present))
+    kinds = [type(s).__name__ for s in steps[:8]]
+    assert kinds == ["Move", "Settle", "Flush", "CaptureCalibration", "VisitDone", "PrepareExtrinsics", "Move",
+                     "PlaceBoard"]
+    assert steps[3].n_views == 12 and not steps[3].fixed_board
+    assert steps[5].purpose == "intrinsics" and steps[5].config_id == "extrinsics-intrinsics"
+    assert [s.purpose for s in steps if isinstance(s, PrepareExtrinsics)] == ["intrinsics", "kinematic"]
+
+    for extrinsics, reason in (({"fixed_board_lens": "none"}, 'fixed_board_lens = "none"'),
+                               ({"fixed_board_lens": "present", "calib_dir": str(SAMPLE_CALIB)}, "calib_dir's lens")):
+        config = _config("fixed-board", extrinsics={"mode": "kinematic", "design": "fixed-board", **extrinsics})
+        assert _lens_visits(config)[0] == []
+        summary = plan_summary(config)
+        assert summary["calibration_presentations"]["total"] == 0 and summary["operator_actions"]["total"] == 6
+        assert reason in summary["lens_calibration"]["reason"]
+
+
+def test_the_plan_presents_a_lens_calibration_for_what_only_a_lens_prior_identifies():
+    """One slide position (B 150 only): the board alone cannot place the pan axes' depths (confounded with the focal
+    lengths); a 12-view lens prior can, so auto presents 12 views; the slide's parameters are held by rule (one
+    value), which no presentation helps: held nominal and said so."""
+    config = campaign_from_dict({"name": "one-b", "plan": {"distance_mm": [300, 500, 700], "baseline_mm": [150],
+                                                          "alpha_deg": [90]},
+                                 "extrinsics": {"mode": "kinematic", "design": "fixed-board"}, **HARDWARE})
+    summary = plan_summary(config)
+    lens = summary["lens_calibration"]
+    assert lens["presentations"] == 12 and lens["visit"] == "intrinsics-B150_Z300_A90"
+    assert lens["gains"] == ["left_axis_z_mm", "right_axis_z_mm"]
+    assert lens["reason"].startswith("a lens calibration: the fixed board alone does not separate left_axis_z_mm, "
+                                     "right_axis_z_mm from the focal lengths")
+    assert lens["held"] == ["slide_yaw_deg", "slide_pitch_deg", "slide_scale", "slide_backlash_mm"]
+    rows = {r["name"]: r for r in summary["identifiability"]}
+    assert rows["left_axis_z_mm"]["identified"] and rows["right_axis_z_mm"]["identified"]
+    assert rows["slide_scale"]["note"] == "not identifiable: the design holds baseline_mm at one value"
+    assert summary["calibration_presentations"]["total"] == 12
+    # Operator time on a real bench: 3 target moves, 1 placement, 12 presentations (the assumed figures).
+    configurations = expand_plan(config)
+    operator = estimate_duration(config, configurations, plan_steps(config, configurations)).operator_s
+    assert operator == pytest.approx(3 * 30.0 + 20.0 + 12 * 5.0)
+    # Asked for none: the board alone, the axes' depths held nominal as before.
+    none = plan_summary(campaign_from_dict({**config.model_dump(mode="json"),
+                                            "extrinsics": {"mode": "kinematic", "design": "fixed-board",
+                                                           "fixed_board_lens": "none"}}))
+    assert none["calibration_presentations"]["total"] == 0
+    assert {r["name"] for r in none["identifiability"] if not r["identified"]} >= {"left_axis_z_mm"}
+
+
+def test_campaign_plan_says_how_many_presentations_and_why(tmp_path, capsys):
+    path = tmp_path / "one-b.toml"
+    path.write_text('[plan]\ndistance_mm = [300, 500, 700]\nbaseline_mm = [150]\nalpha_deg = [90]\n'
+                    '[extrinsics]\nmode = "kinematic"\ndesign = "fixed-board"\n')
+    assert main(["campaign", "plan", str(path), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["lens_calibration"]["presentations"] == data["calibration_presentations"]["total"] == 12
+    assert main(["campaign", "plan", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "kinematic design: 8 of 8 visits to run over B 150-150 mm, toe-in 0-0 deg, after 1 intrinsics visit" in out
+    assert "calibration board presentations: 12: 12 at visits" in out
+    assert ("lens calibration: 12 presentations at intrinsics-B150_Z300_A90, before the board is placed (a lens "
+            "calibration: the fixed board alone does not separate left_axis_z_mm, right_axis_z_mm from the focal "
+            "lengths") in out
+    assert "held nominal all the same: slide_yaw_deg" in out
+    assert "intrinsics a lens calibration of 12 presented views as prior (predicted)" in out
+    assert "fixed board: placed once" in out
+
+
+def test_a_lens_calibration_that_fails_fails_the_fit_with_its_reason():
+    """The run's side of the plan's stage: nothing captured at the intrinsics visit is one clear error, and the
+    fixed-board fit after it fails with that reason (every configuration then fails with it) instead of fitting
+    without the prior the plan counted on."""
+    from stereo_bench.campaign.documents import KinematicModelData
+    from stereo_bench.campaign.extrinsics.kinematic import KinematicSource
+
+    config = _config("fixed-board", extrinsics={"mode": "kinematic", "design": "fixed-board",
+                                                "fixed_board_lens": "present"})
+    source = KinematicSource()
+    lens = source.prepare([], config, None, purpose="intrinsics")
+    assert lens.lens is None and lens.error == ("no lens calibration for the fixed-board fit: the calibration visit "
+                                                "captured nothing")
+    fit = source.prepare([], config, None, purpose="kinematic", earlier=lens)
+    assert fit.kinematic_model is None and fit.error == f"kinematic fit (fixed board): {lens.error}"
+    assert KinematicModelData(**fit.record).error == lens.error  # recorded as the kinematic_model event says

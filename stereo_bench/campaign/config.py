@@ -590,6 +590,12 @@ class ExtrinsicsSection(BaseModel):
     fixed_board_views: int = Field(
         3, ge=1, le=50, strict=True,
         description="fixed-board design: stereo frames of the board captured at each visit (no presentation)")
+    fixed_board_lens: Literal["auto", "present", "none"] = Field(
+        "auto", description="fixed-board design without calib_dir: a lens calibration of capture.calibration_views "
+                            "presented views before the board is placed, its intrinsics and covariance the fit's "
+                            "prior. auto: when the plan's identifiability table says the fixed board alone leaves "
+                            "parameters undetermined that such a prior determines; present: always; none: never "
+                            "(what the board alone cannot identify is held nominal)")
     design_tilt: Literal["auto", "include", "hold"] = Field(
         "auto", description="fixed-board design on a rig that drives the tilts (grblHAL's A/B): include: the design "
                             "steps them and the model has tilt joints (predictions at any tilt); hold: the design "

@@ -502,6 +502,9 @@ class KinematicModelData(BaseModel):
     fixed_board: dict[str, Any] | None = Field(
         None, description="fixed-board: the board's fitted pose in the left camera's frame at B_ref and toe-in 0 "
                           "(T 4x4, mm) and the left carriage's share of a baseline change")
+    lens_visit: str | None = Field(
+        None, description="fixed-board without calib_dir: the intrinsics visit whose lens calibration of presented "
+                          "views (its calibration event) was the fit's intrinsics prior; None: calib_dir's, or none")
 
 
 PromptKind = Literal["target", "manual", "calibration_board", "calibration_view", "calibration_review",

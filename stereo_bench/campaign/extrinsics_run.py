@@ -52,7 +52,11 @@ class Prepared:
     nominal_intrinsics: StereoCalibration | None = None
     error: str | None = None
     record: dict[str, Any] = field(default_factory=dict)  # the kinematic_model event's data
-    calibration: tuple[str, ConfigurationAnalysis] | None = None  # (visit id, its calibration) for nominal
+    calibration: tuple[str, ConfigurationAnalysis] | None = None  # (visit id, its calibration): an intrinsics visit's
+    calibration_note: str = "intrinsics of nominal extrinsics"  # what that calibration is for (its event says)
+    # An intrinsics visit's calibration (intrinsics with their covariance): nominal's intrinsics, or the lens
+    # calibration a fixed-board fit takes as its prior (issue 25).
+    lens: StereoCalibration | None = None
 
     def drafts(self, board: str) -> list[Draft]:
         """The documents that record it (nothing for a source given before the run)."""
@@ -63,7 +67,7 @@ class Prepared:
         if self.calibration is not None:
             visit_id, analysis = self.calibration
             out.append(Draft(CalibrationEvent, config_id=visit_id, calibration=CalibrationFiles(
-                analysis.calib, analysis.rect, board=board, extra={"purpose": "intrinsics of nominal extrinsics"})))
+                analysis.calib, analysis.rect, board=board, extra={"purpose": self.calibration_note})))
         return out
 
 
@@ -107,7 +111,8 @@ def recorded_sources(reader, *, sources: tuple[str, ...], image_size: tuple[int,
 
     A resume takes ``("file", "design")`` (the design is not visited again); a replay ``("file",)`` (it fits
     the design's recorded views again and must find the recorded model). ``intrinsics_visits``: the config ids
-    of the plan's intrinsics visits, whose recorded calibration (with ``"design"`` in ``sources``) is nominal's.
+    of the plan's intrinsics visits, whose recorded calibration (with ``"design"`` in ``sources``) is nominal's
+    intrinsics and a fixed-board fit's lens prior (``lens``).
     """
     from stereo_bench.campaign.documents import CalibrationEvent, IntrinsicsEvent, KinematicModelEvent
     from stereo_bench.campaign.session import SessionError
@@ -132,7 +137,7 @@ def recorded_sources(reader, *, sources: tuple[str, ...], image_size: tuple[int,
     if "design" in sources:
         for config_id in intrinsics_visits:
             if reader.events(kind=CalibrationEvent, config_id=config_id, attempt=None):
-                prepared.nominal_intrinsics = reader.calibration(config_id)
+                prepared.nominal_intrinsics = prepared.lens = reader.calibration(config_id)
     return prepared
 
 

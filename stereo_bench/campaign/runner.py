@@ -82,7 +82,6 @@ from stereo_bench.campaign.operator import (
     manual_prompt,
 )
 from stereo_bench.campaign.plan import (
-    PREPARE_ID,
     CaptureCalibration,
     CaptureMeasurement,
     Checkpoint,
@@ -96,6 +95,7 @@ from stereo_bench.campaign.plan import (
     Settle,
     Visit,
     VisitDone,
+    is_prepare_id,
 )
 from stereo_bench.campaign.presenters import CalibrationPlacementError
 from stereo_bench.campaign.sources import ApproachTracker, reported_axes
@@ -164,6 +164,8 @@ class RunnerOptions:
     # mode from a file or a recording; a comparison in the other modes) and the intrinsics nominal uses.
     kinematic_model: object | None = None
     nominal_intrinsics: StereoCalibration | None = None
+    # A fixed-board design's lens calibration a resume read back (its intrinsics visit is not visited again).
+    lens_calibration: StereoCalibration | None = None
     visits: list[Visit] = field(default_factory=list)
     board_scale: BoardScale = field(default_factory=BoardScale)
     tolerances: dict = field(default_factory=dict)
@@ -372,7 +374,7 @@ class CampaignRunner:
 
     def _configuration_of(self, config_id: str) -> Configuration | Visit | None:
         """The configuration (or visit) a group of steps belongs to; None for the extrinsics preparation."""
-        if config_id == PREPARE_ID:
+        if is_prepare_id(config_id):
             return None
         return self.configurations.get(config_id) or self.visits[config_id]
 
@@ -912,16 +914,28 @@ class CampaignRunner:
                 self._visit_captures.append(captured if failed is None else Captured(captured.configuration))
             return
         captures, self._visit_captures = self._visit_captures, []
-        self._prepared = self._analysis.submit(self._extrinsics.prepare, captures, self.config, self.options)
+        # A stage prepared before (a fixed-board design's lens calibration) is the next one's input: on the
+        # analysis thread, after it (submitted first); a resume that skipped it has it in the options.
+        earlier = self._prepared
+        self._prepared = self._analysis.submit(self._prepare, step.purpose, captures, earlier)
         self._pending.append((Captured(None), self._prepared))
+
+    def _prepare(self, purpose: str, captures: list[Captured], earlier: Future | None):
+        """Runs on the analysis thread: the extrinsics source's preparation from ``captures``."""
+        return self._extrinsics.prepare(captures, self.config, self.options, purpose=purpose,
+                                        earlier=earlier.result() if earlier is not None else self._given())
+
+    def _given(self):
+        """What the run was given before any visit (or a resume read back): a model, intrinsics, a lens calibration."""
+        from stereo_bench.campaign.extrinsics_run import Prepared
+
+        return Prepared(kinematic_model=self.options.kinematic_model,
+                        nominal_intrinsics=self.options.nominal_intrinsics, lens=self.options.lens_calibration)
 
     def _source(self):
         """The prepared extrinsics source (analysis thread): a fitted model, or the intrinsics for nominal."""
-        from stereo_bench.campaign.extrinsics_run import Prepared
-
         if self._prepared is None:
-            return Prepared(kinematic_model=self.options.kinematic_model,
-                            nominal_intrinsics=self.options.nominal_intrinsics)
+            return self._given()
         return self._prepared.result()
 
     # -- analysis and results ------------------------------------------------------------------------------------

@@ -156,13 +156,18 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
     design = summary["design"]
     if design:
         ranges = summary["design_ranges"]
-        title = ("kinematic design" if design[0]["purpose"] == "kinematic" else "intrinsics calibration")
+        # The last stage's visits (a fixed-board design's lens calibration, if any, comes before them)
+        last = [v for v in design if v["purpose"] == design[-1]["purpose"]]
+        title = ("kinematic design" if last[0]["purpose"] == "kinematic" else "intrinsics calibration")
         span = (f" over B {ranges['baseline_mm'][0]:g}-{ranges['baseline_mm'][1]:g} mm, toe-in "
                 f"{ranges['toe_in_deg'][0]:g}-{ranges['toe_in_deg'][1]:g} deg" if ranges else "")
-        lines.append(f"{title}: {sum(v['runnable'] for v in design)} of {len(design)} visits to run{span}")
+        before = len(design) - len(last)
+        lines.append(f"{title}: {sum(v['runnable'] for v in last)} of {len(last)} visits to run{span}"
+                     + (f", after {before} intrinsics visit{'s' if before > 1 else ''} (a lens calibration)"
+                        if before else ""))
         if summary.get("design_tilt"):
             lines.append(f"design tilts: {summary['design_tilt']}")
-        fixed = design[0].get("fixed_board_pose")
+        fixed = last[0].get("fixed_board_pose")
         if fixed:
             T = np.array(fixed, float).reshape(4, 4)
             centre = T[:3, :3] @ np.array([*config.calibration_board.build().grid_size_mm, 0.0]) / 2.0 + T[:3, 3]
@@ -182,9 +187,12 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
                          f"{visit['toe_in_left_deg']:g}/{visit['toe_in_right_deg']:g} deg{tilts}  {status}")
     table = summary.get("identifiability")
     if table:
+        from stereo_bench.campaign.plan.lens import PLAN_PIXEL_SIGMA_PX
+
         held = [row for row in table if not row["identified"]]
-        lines.append(f"identifiability (the design's views on the nominal rig, 0.1 px corners, intrinsics "
-                     f"{table[0]['intrinsics']}): {len(table) - len(held)} of {len(table)} parameters identified")
+        lines.append(f"identifiability (the design's views on the nominal rig, {PLAN_PIXEL_SIGMA_PX:g} px corners, "
+                     f"intrinsics {table[0]['intrinsics']}): {len(table) - len(held)} of {len(table)} parameters "
+                     "identified")
         for row in table:
             sigma = f"sigma {row['sigma']:.3g} {row['unit']}" if row["identified"] else f"held nominal: {row['note']}"
             lines.append(f"{'':>5}{row['name']:<24} {sigma}")
@@ -192,6 +200,11 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
     note = " (adding configurations adds none)" if counts["visits"] and not counts["configurations"] else ""
     lines.append(f"calibration board presentations: {counts['total']}: {counts['visits']} at visits{note}, "
                  f"{counts['configurations']} at the configurations{per_configuration}")
+    lens = summary.get("lens_calibration")
+    if lens is not None:  # a fixed-board design: whether it starts with a lens calibration, and why
+        where = f" at {lens['visit']}, before the board is placed" if lens["visit"] else ""
+        lines.append(f"{'':>5}lens calibration: {lens['presentations']} presentations{where} ({lens['reason']})"
+                     + (f"; held nominal all the same: {', '.join(lens['held'])}" if lens["held"] else ""))
     actions = summary["operator_actions"]
     lines.append(f"calibration board placements: {counts['placements']}")
     lines.append(f"operator actions: {actions['total']} ({actions['presentations']} board presentations, "
@@ -233,7 +246,7 @@ def _step_text(step: dict[str, Any]) -> str:
                 else f"visit {step['config_id']} (skipped: {step['reason']})")
     if kind == "prepare_extrinsics":
         return ("fit the kinematic rig model to the design's views" if step["purpose"] == "kinematic"
-                else "calibrate the intrinsics from the visit's views")
+                else "calibrate the intrinsics from the visit's views")  # (a fixed-board design's lens, or nominal's)
     if step["skipped"]:
         return f"checkpoint {step['config_id']} (skipped: {step['reason']})"
     return f"checkpoint {step['config_id']}"

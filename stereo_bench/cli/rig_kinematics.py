@@ -175,9 +175,12 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
     started = time.monotonic()
     fixed = config.extrinsics.fixed_board
     views = config.extrinsics.fixed_board_views if fixed else config.capture.calibration_views
-    print(f"kinematic design{' (fixed board: placed once)' if fixed else ''}: {sum(v.runnable for v in plan.visits)} "
-          f"visits x {views} views on the {config.bench_kind} bench; recording {args.out}", file=sys.stderr,
-          flush=True)
+    design = [v for v in plan.visits if v.purpose == "kinematic"]
+    lens = [v for v in plan.visits if v.purpose == "intrinsics"]  # a fixed-board design's lens calibration first
+    print(f"kinematic design{' (fixed board: placed once)' if fixed else ''}: {sum(v.runnable for v in design)} "
+          f"visits x {views} views on the {config.bench_kind} bench"
+          + (f", after a lens calibration of {config.capture.calibration_views} presented views at "
+             f"{lens[0].config_id}" if lens else "") + f"; recording {args.out}", file=sys.stderr, flush=True)
     try:
         summary = run_campaign(config, args.out, yes=args.yes, control=control, plan=plan)
     except (RigError, CameraError) as error:  # as campaign run: a port or camera not there 2, a fault in work 1

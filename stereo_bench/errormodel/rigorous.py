@@ -42,7 +42,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Literal
 
-import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
@@ -54,23 +53,21 @@ from stereo_bench.geometry import (
     alpha_from_toe_in,
     board_faces_camera,
     board_pose_facing_rig,
-    board_pose_in_view,
     invert_transform,
-    mean_view_frame,
     transform_points,
 )
 from stereo_bench.kinematics import ConfigurationViews, DesignConfiguration, KinematicModel, fit_kinematics
 from stereo_bench.targets import Checkerboard
-from stereo_bench.vision.calibrate import DEFAULT_FLAGS, StereoCalibration
+from stereo_bench.vision.calibrate import StereoCalibration
 from stereo_bench.vision.covariance import (
     EXTRINSIC_NAMES,
     CalibrationCovariance,
     CovarianceUnavailable,
-    mono_linearisation,
-    stereo_covariance,
 )
 from stereo_bench.vision.measure import measure_square
 from stereo_bench.vision.pipeline import MIN_COMMON_CORNERS
+from stereo_bench.vision.planned import planned_board_poses as planned_views
+from stereo_bench.vision.planned import planned_stereo_calibration, project_into_both, true_calibration
 from stereo_bench.vision.triangulate import triangulate, triangulation_jacobian
 from stereo_bench.vision.uncertainty import (
     FrameCorners,
@@ -162,25 +159,12 @@ class Setup:
 
 def calibration_of(setup: Setup) -> StereoCalibration:
     """The rig's exact stereo calibration (X_right = R X_left + T, mm) as the pipeline would hold it."""
-    R, T = setup.rig.stereo_extrinsics()
-    return StereoCalibration(
-        K1=np.asarray(setup.left.K, float), D1=np.asarray(setup.left.dist, float).ravel(),
-        K2=np.asarray(setup.right.K, float), D2=np.asarray(setup.right.dist, float).ravel(),
-        R=R, T=T, image_size=tuple(setup.left.image_size), mode="true geometry",
-    )
+    return true_calibration(setup.rig, setup.left, setup.right)
 
 
 def project_both(setup: Setup, points_rig: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """True pixels of rig-frame points (N, 3): (left (N, 2), right (N, 2), in_front_of_both (N,) bool)."""
-    points_rig = np.asarray(points_rig, dtype=float).reshape(-1, 3)
-    if not len(points_rig):
-        return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, dtype=bool)
-    out, ok = [], np.ones(len(points_rig), dtype=bool)
-    for camera, T_rig_cam in ((setup.left, setup.rig.T_rig_left), (setup.right, setup.rig.T_rig_right)):
-        pixels, valid = camera.project(transform_points(invert_transform(T_rig_cam), points_rig))
-        out.append(pixels)
-        ok &= valid
-    return out[0], out[1], ok
+    return project_into_both(setup.rig, setup.left, setup.right, points_rig)
 
 
 class Visibility(BaseModel):
@@ -562,117 +546,27 @@ class CalibrationPlan:
         return max(250.0, 0.6 * target_distance_mm), 1.3 * target_distance_mm
 
 
-_VIEW_MARGIN_PX = 20.0  # room for the corner refinement window, as the campaign's choreography keeps
-
-
 def planned_board_poses(setup: Setup, plan: CalibrationPlan) -> list[np.ndarray]:
-    """T_rig_board (4x4, mm) of ``plan.n_views`` calibration views, deterministic, whole board in both images.
-
-    The spread of the simulated campaign's choreography (drivers.sim.render.calibration_board_poses):
-    distances stratified over the plan's range along the rig's mean viewing direction, tilts of
-    0.4-1 x ``max_tilt_deg`` about the board's axes with the direction stepping round the circle, a
-    +-10 deg roll, and three views in four pushed toward the edge of the common field of view
-    (where distortion shows), the fourth near its centre. A view that does not fit is eased (less
-    offset, then less tilt, then farther) until it does.
+    """T_rig_board (4x4, mm) of ``plan.n_views`` calibration views, deterministic, whole board in both images
+    (:func:`stereo_bench.vision.planned.planned_board_poses` over ``plan``'s distance range for this setup's Z).
 
     Raises:
         ValueError: a view cannot be placed (the views overlap too little for this board).
     """
-    rig, board = setup.rig, plan.board
-    near, far = plan.distance_range(setup.distance_mm)
-    points = np.asarray(board.object_points, float)
-    width, height = board.grid_size_mm
-    centre = np.array([width / 2.0, height / 2.0, 0.0])
-    sq = board.square_mm  # the outer squares must show too: chessboard detectors need them
-    outline = np.array([[x, y, 0.0] for x in (-sq, width + sq) for y in (-sq, height + sq)])
-    check = np.vstack([points, outline])
-    R_view = mean_view_frame(rig.T_rig_left, rig.T_rig_right)
-    f = 0.5 * (setup.left.fx + setup.right.fx)
-    half_fov = np.array(setup.left.image_size, float) / 2.0 / f
-    cameras = [(camera, invert_transform(T)) for camera, T in ((setup.left, rig.T_rig_left),
-                                                              (setup.right, rig.T_rig_right))]
-
-    def fits(T_rig_board):
-        for camera, T_cam_rig in cameras:
-            T_cam_board = T_cam_rig @ T_rig_board
-            if not board_faces_camera(T_cam_board):
-                return False
-            pixels, valid = camera.project(transform_points(T_cam_board, check))
-            if not (valid & camera.in_image(pixels, margin_px=_VIEW_MARGIN_PX)).all():
-                return False
-        return True
-
-    golden = 0.618034
-    order = [int(v) for v in np.argsort([(i * golden) % 1.0 for i in range(plan.n_views)])]
-    poses = []
-    for i in range(plan.n_views):
-        distance = near + (far - near) * (order[i] + 0.5) / plan.n_views
-        phi = 2 * np.pi * i / plan.n_views
-        tilt = plan.max_tilt_deg * (0.4 + 0.6 * ((i * golden * 2) % 1.0))
-        theta = 2 * np.pi * ((i * golden) % 1.0)
-        push = 0.3 if i % 4 == 3 else 0.85
-        roll = 10.0 * (1 if i % 2 else -1)
-        for ease in np.linspace(0.0, 1.0, 11):
-            d = distance + (far - distance) * max(0.0, ease - 0.5) * 2
-            t = tilt * (1.0 - ease)
-            # The largest offset the board's size leaves in the mean field of view, scaled by the push.
-            room = np.maximum(half_fov - np.array([width, height]) / 2.0 / d, 0.0)
-            offset = push * (1.0 - ease) * room * np.array([math.cos(theta), math.sin(theta)])
-            candidate = board_pose_in_view(R_view, centre, d, offset, t * math.cos(phi), t * math.sin(phi),
-                                           roll * (1.0 - ease))
-            if fits(candidate):
-                poses.append(candidate)
-                break
-        else:
-            raise ValueError(f"calibration view {i + 1} of {plan.n_views} does not fit both images at "
-                             f"{near:g}-{far:g} mm: the views overlap too little for a {board.cols}x{board.rows} "
-                             f"board of {board.square_mm:g} mm squares")
-    return poses
+    return planned_views(setup.rig, plan.board, setup.left, setup.right, n_views=plan.n_views,
+                         distance_mm=plan.distance_range(setup.distance_mm), max_tilt_deg=plan.max_tilt_deg)
 
 
 def planned_calibration(setup: Setup, plan: CalibrationPlan, pixel_sigma_px: float) -> StereoCalibration:
-    """The rig's true calibration with the covariance its planned views would give (image noise ``pixel_sigma_px``).
+    """The rig's true calibration with the covariance its planned views would give (image noise ``pixel_sigma_px``;
+    :func:`stereo_bench.vision.planned.planned_stereo_calibration`).
 
     Raises:
         ValueError: the planned views cannot be placed in both cameras (with the reason).
         CovarianceUnavailable: the views leave the parameters undetermined.
     """
-    poses = planned_board_poses(setup, plan)
-    calib = calibration_of(setup)
-    D1, D2 = np.asarray(calib.D1, float).reshape(1, -1), np.asarray(calib.D2, float).reshape(1, -1)
-    calib = replace(calib, D1=D1, D2=D2)
-    points = np.asarray(plan.board.object_points, float)
-    T_left_rig = invert_transform(setup.rig.T_rig_left)
-    objects, lefts, rights, rvecs, tvecs = [], [], [], [], []
-    for T_rig_board in poses:
-        left_px, right_px, in_front = project_both(setup, transform_points(T_rig_board, points))
-        seen = in_front & setup.left.in_image(left_px) & setup.right.in_image(right_px)
-        T_left_board = T_left_rig @ T_rig_board
-        objects.append(points[seen])
-        lefts.append(left_px[seen])
-        rights.append(right_px[seen])
-        rvecs.append(cv2.Rodrigues(T_left_board[:3, :3])[0].ravel())
-        tvecs.append(T_left_board[:3, 3])
-    if plan.mode == "joint":
-        flags = DEFAULT_FLAGS | cv2.CALIB_USE_INTRINSIC_GUESS
-        covariance = stereo_covariance(objects, lefts, rights, calib.K1, D1, calib.K2, D2, calib.R, calib.T,
-                                       rvecs, tvecs, flags=flags, sigma_px=pixel_sigma_px)
-    else:
-        views = list(range(len(objects)))
-        T_right_left = invert_transform(setup.rig.T_rig_right) @ setup.rig.T_rig_left
-        right_poses = [T_right_left @ np.vstack([np.column_stack([cv2.Rodrigues(r)[0], t]), [0, 0, 0, 1]])
-                       for r, t in zip(rvecs, tvecs, strict=True)]
-        right_rvecs = [cv2.Rodrigues(T[:3, :3])[0].ravel() for T in right_poses]
-        monos = (
-            mono_linearisation(objects, lefts, calib.K1, D1, rvecs, tvecs, flags=DEFAULT_FLAGS, view_indices=views,
-                               side="left"),
-            mono_linearisation(objects, rights, calib.K2, D2, right_rvecs, [T[:3, 3] for T in right_poses],
-                               flags=DEFAULT_FLAGS, view_indices=views, side="right"),
-        )
-        covariance = stereo_covariance(objects, lefts, rights, calib.K1, D1, calib.K2, D2, calib.R, calib.T, rvecs,
-                                       tvecs, flags=DEFAULT_FLAGS | cv2.CALIB_FIX_INTRINSIC, intrinsics_from=monos,
-                                       view_indices=views, sigma_px=pixel_sigma_px)
-    return replace(calib, covariance=covariance, mode=f"planned ({plan.mode})")
+    return planned_stereo_calibration(setup.rig, plan.board, setup.left, setup.right, planned_board_poses(setup, plan),
+                                      pixel_sigma_px=pixel_sigma_px, mode=plan.mode)
 
 
 def _depth_sensitivities(calib: StereoCalibration, setup: Setup, names: tuple[str, ...]) -> np.ndarray | None:

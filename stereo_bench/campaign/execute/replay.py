@@ -34,7 +34,7 @@ from stereo_bench.campaign.execute.options import _recorded_copy, runner_options
 from stereo_bench.campaign.execute.planned import CampaignPlan, plan_drift
 from stereo_bench.campaign.execute.run import software_versions
 from stereo_bench.campaign.extrinsics_run import RIG_CONFIG_FILE, RIG_CONFIG_KIND
-from stereo_bench.campaign.plan import PREPARE_ID
+from stereo_bench.campaign.plan import PREPARE_ID, stage_id
 from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.reproduce import (
     SCALE_TOLERANCE,
@@ -191,7 +191,7 @@ def replay_session(session_dir: str | Path, out_dir: str | Path | None = None, *
     viewed = {event.config_id for event in reader.events(kind=CalibrationViewEvent)}  # one pass over the stream
     visited = {v.config_id for v in campaign.visits if v.config_id in viewed}
     if visited:
-        visited.add(PREPARE_ID)
+        visited |= {PREPARE_ID, stage_id("intrinsics")}  # the last stage, and a fixed-board design's lens calibration
     steps = [s for cid, group in group_steps(campaign.steps) if cid in measured | visited for s in group]
     if not all_measured and not visited:  # "0 of 0 reproduced" would pass a recording holding nothing to check
         torn = f"; {reader.warnings[0]}" if reader.torn is not None else ""

@@ -21,7 +21,7 @@ from stereo_bench.campaign.execute.control import RunControl
 from stereo_bench.campaign.execute.options import runner_options
 from stereo_bench.campaign.execute.planned import CampaignPlan, plan_drift
 from stereo_bench.campaign.operator import Operator, PromptDisplay, SimulatedOperator, TerminalOperator
-from stereo_bench.campaign.plan import PREPARE_ID, Visit
+from stereo_bench.campaign.plan import PREPARE_ID, Visit, stage_id
 from stereo_bench.campaign.preflight import Preflight
 from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.runner import CampaignRunner, RunnerOptions
@@ -58,16 +58,23 @@ class RunSummary:
 def resume_sources(options: RunnerOptions, writer: SessionWriter, config: CampaignConfig,
                    visits: Sequence[Visit]) -> set[str]:
     """A resume's extrinsics source from the earlier attempts (the fitted model, nominal's calibrated intrinsics):
-    the visits and the preparation to skip (all of them when it is recorded, none when it is not)."""
+    the visits and the preparation to skip (all of them when it is recorded, none when it is not). A fixed-board
+    design's lens calibration recorded before its fit was: its intrinsics visit and stage are skipped (the operator
+    is not asked for its presentations again) and the fit takes the recorded calibration; the design is visited
+    again (docs/EXTRINSICS.md)."""
     from stereo_bench.campaign.extrinsics_run import recorded_sources
 
     if not visits or writer.recorded_start is None:
         return set()
     optics = config.cameras.optics
+    lens_visits = [v.config_id for v in visits if v.purpose == "intrinsics"]
     recorded = recorded_sources(writer.reader(), sources=("design",), image_size=(optics.width_px, optics.height_px),
-                                intrinsics_visits=[v.config_id for v in visits if v.purpose == "intrinsics"])
+                                intrinsics_visits=lens_visits)
     if not config.extrinsics.source().is_prepared(recorded):
-        return set()
+        if recorded.lens is None or len(lens_visits) == len(visits):
+            return set()
+        options.lens_calibration = recorded.lens
+        return set(lens_visits) | {stage_id("intrinsics")}
     options.kinematic_model = recorded.kinematic_model or options.kinematic_model
     options.nominal_intrinsics = recorded.nominal_intrinsics or options.nominal_intrinsics
     return {visit.config_id for visit in visits} | {PREPARE_ID}
@@ -134,7 +141,8 @@ def run_campaign(
                 options = runner_options(config, visits=campaign.visits, preflight=checked)
                 skip = set(done) | resume_sources(options, writer, config, campaign.visits)
                 if campaign.visits and all(c.config_id in done for c in campaign.configurations if c.runnable) and done:
-                    skip |= {visit.config_id for visit in campaign.visits} | {PREPARE_ID}  # nothing left to measure
+                    # nothing left to measure
+                    skip |= {visit.config_id for visit in campaign.visits} | {PREPARE_ID, stage_id("intrinsics")}
                 with bench_factory(config, operators=operators, transcript=transcript) as bench:
                     opened = True
                     runner = CampaignRunner(config, campaign.configurations, campaign.steps, bench=bench, bus=bus,

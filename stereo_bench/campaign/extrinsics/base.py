@@ -151,9 +151,12 @@ class ExtrinsicsSource(ABC):
         on the analysis pool and returns the future."""
         return None
 
-    def prepare(self, captures: Sequence, config: Any, options: Any) -> Prepared:
+    def prepare(self, captures: Sequence, config: Any, options: Any, *, purpose: str | None = None,
+                earlier: Prepared | None = None) -> Prepared:
         """After the visits (analysis thread): what the visits' ``captures`` prepare. A failure is kept
-        (``Prepared.error``): every configuration then fails with it."""
+        (``Prepared.error``): every configuration then fails with it. ``purpose``: the preparation step's (a plan
+        that prepares in stages: a fixed-board design's lens calibration, ``"intrinsics"``, then its fit);
+        ``earlier``: what the stage before prepared (or a resume read back), None if there was none."""
         raise ValueError(f"extrinsics mode {self.name!r} visits nothing to prepare")
 
     def is_prepared(self, recorded: Prepared) -> bool:
@@ -219,11 +222,43 @@ COMPARISONS: dict[str, Callable[..., Source | None]] = {"kinematic": _kinematic_
                                                         "nominal": _nominal_comparison}
 
 
+def intrinsics_visit(configurations: Sequence, visit: Callable[..., Any]) -> Any | None:
+    """The intrinsics visit (12 presented views for one stereo calibration) at the first runnable configuration
+    where the calibration board fits both views (``visit``: as :meth:`ExtrinsicsSource.visits` gets it); else the
+    last one tried (not runnable, with the reason), or None without a runnable configuration."""
+    first = None
+    for c in (c for c in configurations if c.runnable):
+        first = visit(0, f"intrinsics-{c.config_id}", "intrinsics", c.baseline_mm, c.toe_in_deg, c.toe_in_deg,
+                      c.distance_mm)
+        if first.runnable:
+            break
+    return first
+
+
+def calibrate_intrinsics_visit(captures: Sequence, config: Any, *, what: str,
+                               note: str = "intrinsics of nominal extrinsics") -> Prepared:
+    """One joint stereo calibration of the intrinsics visit's views (its intrinsics and their covariance:
+    ``Prepared.lens``), recorded as the visit's calibration event (``note``: its purpose); an error names ``what``
+    was to be calibrated."""
+    from stereo_bench.campaign.analysis import AnalysisError, calibrate_configuration
+
+    board = config.calibration_board.build()
+    captured, ids = visit_captures(captures)
+    if not captured:
+        return Prepared(error=f"no {what}: the calibration visit captured nothing")
+    try:
+        analysis = calibrate_configuration(captured[0].calibration_pairs, board, mode="joint",
+                                           detections=captured[0].detections())
+    except AnalysisError as error:
+        return Prepared(error=f"no {what}: calibration at {ids[0]} failed: {error}")
+    return Prepared(lens=analysis.calib, calibration=(ids[0], analysis), calibration_note=note)
+
+
 def visit_captures(captures: Sequence) -> tuple[list, list[str]]:
     """The visits' captures that took calibration views, and their ids."""
     captured = [c for c in captures if c.calibration_pairs]
     return captured, [c.configuration.config_id for c in captured]
 
 
-__all__ = ["COMPARISONS", "SOURCES", "ExtrinsicsSource", "extrinsics_source", "measured_with", "nominal_at",
-           "visit_captures"]
+__all__ = ["COMPARISONS", "SOURCES", "ExtrinsicsSource", "calibrate_intrinsics_visit", "extrinsics_source",
+           "intrinsics_visit", "measured_with", "nominal_at", "visit_captures"]

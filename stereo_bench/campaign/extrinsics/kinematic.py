@@ -12,12 +12,20 @@ import cv2
 import numpy as np
 
 from stereo_bench.campaign.analysis import AnalysisError, ConfigurationAnalysis
-from stereo_bench.campaign.extrinsics.base import ExtrinsicsSource, measured_with, visit_captures
+from stereo_bench.campaign.extrinsics.base import (
+    ExtrinsicsSource,
+    calibrate_intrinsics_visit,
+    measured_with,
+    visit_captures,
+)
 from stereo_bench.campaign.extrinsics_run import Prepared
 from stereo_bench.campaign.sources import Source, kinematic_source
 from stereo_bench.kinematics import ConfigurationViews, campaign_design, fit_kinematics
 from stereo_bench.kinematics.fixed_board import fixed_board_design
 from stereo_bench.kinematics.model import TILT_AXES
+
+#: The purpose a fixed-board design's lens calibration records (its ``calibration`` event's ``purpose``).
+LENS_NOTE = "lens calibration: the fixed-board fit's intrinsics prior"
 
 
 class KinematicSource(ExtrinsicsSource):
@@ -59,8 +67,18 @@ class KinematicSource(ExtrinsicsSource):
                                 design.toe_in_right_deg, distance, tilts=tilts or None))
         return visits
 
-    def prepare(self, captures: Sequence, config: Any, options: Any) -> Prepared:
-        """Fit the kinematic model to the design's views (:func:`stereo_bench.kinematics.fit_kinematics`)."""
+    def prepare(self, captures: Sequence, config: Any, options: Any, *, purpose: str | None = None,
+                earlier: Prepared | None = None) -> Prepared:
+        """Fit the kinematic model to the design's views (:func:`stereo_bench.kinematics.fit_kinematics`); a
+        fixed-board design's lens calibration first where the plan presents one (``purpose`` "intrinsics": the
+        intrinsics visit's stereo calibration, whose intrinsics and covariance the fit then takes from
+        ``earlier`` as it would ``calib_dir``'s)."""
+        if purpose == "intrinsics":
+            return calibrate_intrinsics_visit(captures, config, what="lens calibration for the fixed-board fit",
+                                              note=LENS_NOTE)
+        if earlier is not None and earlier.error and earlier.lens is None:
+            return Prepared(error=f"kinematic fit (fixed board): {earlier.error}",
+                            record={"source": "design", "design": "fixed-board", "error": earlier.error})
         board = config.calibration_board.build()
         captured, ids = visit_captures(captures)
         record: dict[str, Any] = {"source": "design", "visits_used": ids}
@@ -80,7 +98,9 @@ class KinematicSource(ExtrinsicsSource):
         slide_mm, heads_deg = options.repeatability
         started = time.perf_counter()
         if config.extrinsics.fixed_board:
-            return self._prepare_fixed_board(configurations, board, image_size, options, record, ids, started)
+            lens = earlier.lens if earlier is not None else None
+            return self._prepare_fixed_board(configurations, board, image_size, options, record, ids, started,
+                                             lens=lens)
         try:
             fit = fit_kinematics(configurations, board.object_points, (int(image.shape[1]), int(image.shape[0])),
                                  intrinsics=options.intrinsics, refine_intrinsics=True, repeatability_mm=slide_mm,
@@ -94,10 +114,10 @@ class KinematicSource(ExtrinsicsSource):
 
     @staticmethod
     def _prepare_fixed_board(configurations: list, board: Any, image_size: tuple[int, int], options: Any,
-                             record: dict[str, Any], ids: list[str], started: float) -> Prepared:
-        """The fixed-board fit (:func:`stereo_bench.kinematics.fixed_board.fit_fixed_board`): intrinsics from
-        ``calib_dir``'s lens calibration (its covariance a prior), else each camera calibrated from the same views
-        first and refined jointly."""
+                             record: dict[str, Any], ids: list[str], started: float, *, lens: Any = None) -> Prepared:
+        """The fixed-board fit (:func:`stereo_bench.kinematics.fixed_board.fit_fixed_board`): intrinsics from a lens
+        calibration (its covariance a prior): ``lens``, the plan's intrinsics visit's, else ``calib_dir``'s; without
+        either, each camera calibrated from the same views first and refined jointly."""
         from stereo_bench.kinematics.fixed_board import INTRINSIC_NAMES, fit_fixed_board
         from stereo_bench.vision.calibrate import DEFAULT_FLAGS, calibrate_mono
 
@@ -105,6 +125,9 @@ class KinematicSource(ExtrinsicsSource):
         slide_mm, heads_deg = options.repeatability
         intrinsics, prior = options.intrinsics, None
         covariance = options.intrinsics_covariance
+        if lens is not None:  # the lens calibration of the presented views (recorded as that visit's calibration)
+            intrinsics, covariance = (lens.K1, lens.D1, lens.K2, lens.D2), lens.covariance
+            record["lens_visit"] = next((v.config_id for v in options.visits if v.purpose == "intrinsics"), None)
         if intrinsics is not None and covariance is not None and all(n in covariance.names for n in INTRINSIC_NAMES):
             index = covariance.index(INTRINSIC_NAMES)
             prior = np.asarray(covariance.matrix, float)[np.ix_(index, index)]

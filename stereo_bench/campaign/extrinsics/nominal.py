@@ -8,8 +8,14 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from stereo_bench.campaign.analysis import AnalysisError, ConfigurationAnalysis, calibrate_configuration
-from stereo_bench.campaign.extrinsics.base import ExtrinsicsSource, measured_with, nominal_at, visit_captures
+from stereo_bench.campaign.analysis import AnalysisError, ConfigurationAnalysis
+from stereo_bench.campaign.extrinsics.base import (
+    ExtrinsicsSource,
+    calibrate_intrinsics_visit,
+    intrinsics_visit,
+    measured_with,
+    nominal_at,
+)
 from stereo_bench.campaign.extrinsics_run import Prepared, intrinsics_from_dir
 from stereo_bench.campaign.sources import Source
 
@@ -34,12 +40,7 @@ class NominalSource(ExtrinsicsSource):
     def visits(self, section: Any, configurations: Sequence, ranges: dict, *, visit: Callable[..., Any],
                format_id: Callable[[float], str]) -> list:
         """The first runnable configuration at which the calibration board fits."""
-        first = None
-        for c in (c for c in configurations if c.runnable):
-            first = visit(0, f"intrinsics-{c.config_id}", "intrinsics", c.baseline_mm, c.toe_in_deg, c.toe_in_deg,
-                          c.distance_mm)
-            if first.runnable:
-                break
+        first = intrinsics_visit(configurations, visit)
         return [first] if first is not None else []
 
     def load_calibration(self, options: Any, section: Any, *, reader: Any, intrinsics_copy: Path | None,
@@ -49,18 +50,12 @@ class NominalSource(ExtrinsicsSource):
         if section.calib_dir is not None and reader is None:  # a replay: the recorded copy (recorded_sources)
             options.nominal_intrinsics = intrinsics_from_dir(section.calib_dir, image_size)
 
-    def prepare(self, captures: Sequence, config: Any, options: Any) -> Prepared:
+    def prepare(self, captures: Sequence, config: Any, options: Any, *, purpose: str | None = None,
+                earlier: Prepared | None = None) -> Prepared:
         """The intrinsics of one stereo calibration at the intrinsics visit."""
-        board = config.calibration_board.build()
-        captured, ids = visit_captures(captures)
-        if not captured:
-            return Prepared(error="no intrinsics for nominal extrinsics: the calibration visit captured nothing")
-        try:
-            analysis = calibrate_configuration(captured[0].calibration_pairs, board, mode="joint",
-                                               detections=captured[0].detections())
-        except AnalysisError as error:
-            return Prepared(error=f"no intrinsics for nominal extrinsics: calibration at {ids[0]} failed: {error}")
-        return Prepared(nominal_intrinsics=analysis.calib, calibration=(ids[0], analysis))
+        prepared = calibrate_intrinsics_visit(captures, config, what="intrinsics for nominal extrinsics")
+        prepared.nominal_intrinsics = prepared.lens
+        return prepared
 
     def is_prepared(self, recorded: Prepared) -> bool:
         return recorded.nominal_intrinsics is not None

@@ -34,7 +34,9 @@ visits (:func:`plan_visits`, :class:`Visit`): ``kinematic`` extrinsics without a
 kinematic rig model's design (:func:`stereo_bench.kinematics.kinematic_design` over the range of the
 runnable configurations' B and toe-ins: 9 visits, 12 views each = 108 board presentations however many
 configurations follow), ``nominal`` extrinsics without a calibration directory one configuration for
-their intrinsics. Each visit is Move, Settle, Flush, CaptureCalibration, :class:`VisitDone`; then one
+their intrinsics; a fixed-board design without one, that same intrinsics visit first where its
+identifiability table says a lens calibration identifies what the board alone cannot (:mod:`.lens`).
+Each visit is Move, Settle, Flush, CaptureCalibration, :class:`VisitDone`; then one
 :class:`PrepareExtrinsics` fits the model (or calibrates the intrinsics) before the first measured
 configuration. A visit where the calibration board cannot be shown to both cameras or outside the soft
 limits is not run (the fit goes on without it, and says what it could not identify).
@@ -84,7 +86,9 @@ from stereo_bench.campaign.plan.steps import (
     Step,
     StepKind,
     VisitDone,
+    is_prepare_id,
     plan_steps,
+    stage_id,
 )
 from stereo_bench.campaign.plan.summary import calibration_presentations, plan_summary
 from stereo_bench.campaign.plan.timing import (
@@ -103,6 +107,6 @@ __all__ = [
     "PromptTarget",
     "Settle", "Step", "StepKind", "Target", "VISIT_PURPOSES", "Visibility", "Visit", "VisitDone",
     "calibration_distance_range", "calibration_presentations", "design_ranges", "estimate_duration", "expand_plan",
-    "format_id_value", "homing_estimate_s", "plan_steps", "plan_summary", "plan_visits", "predict_duration_s",
-    "target_visibilities", "target_visibility",
+    "format_id_value", "homing_estimate_s", "is_prepare_id", "plan_steps", "plan_summary", "plan_visits",
+    "predict_duration_s", "stage_id", "target_visibilities", "target_visibility",
 ]

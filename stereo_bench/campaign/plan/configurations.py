@@ -354,6 +354,35 @@ def design_tilt(config: CampaignConfig, configurations: Sequence[Configuration])
                       f"tilts stepped ({', '.join(driven)}; {why}): the model has tilt joints")
 
 
+def _visit_maker(config: CampaignConfig):
+    """``visit(index, config_id, purpose, baseline, toe_left, toe_right, distance, tilts=None)``: one :class:`Visit`,
+    checked like a configuration (the calibration board must fit both views somewhere, the move must pass the soft
+    limits)."""
+    board = config.calibration_board.build()
+    left = config.cameras.optics.camera_model("left")
+    right = config.cameras.optics.camera_model("right")
+    rig_config = config.rig.rig_config()
+    tilt = float(config.plan.tilts()[0])
+
+    def visit(index: int, config_id: str, purpose: str, baseline: float, toe_left: float, toe_right: float,
+              distance: float, *, tilts: Mapping[str, float] | None = None) -> Visit:
+        tilts = tilts or {}
+        pose = RigPose(baseline, alpha_from_toe_in(toe_left), alpha_from_toe_in(toe_right),
+                       tilts.get("tilt_left_deg", tilt), tilts.get("tilt_right_deg", tilt))
+        fits = calibration_distance_range(board, pose, left=left, right=right)
+        reason = None
+        if fits is None:
+            reason = (f"calibration board ({config.calibration_board.describe()}) never fits both views at "
+                      f"B = {baseline:g} mm, toe-ins {toe_left:g}/{toe_right:g} deg")
+        draft = Visit(index=index, config_id=config_id, purpose=purpose, baseline_mm=float(baseline),
+                      toe_in_left_deg=float(toe_left), toe_in_right_deg=float(toe_right), tilt_deg=tilt,
+                      distance_mm=float(distance), calibration_range_mm=fits, feasible=fits is not None,
+                      reason=reason, **{axis: float(value) for axis, value in tilts.items()})
+        return dataclasses.replace(draft, limit_violation=_limit_violation(rig_config, draft.move_request()))
+
+    return visit
+
+
 def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration]) -> list[Visit]:
     """The visits the extrinsics source needs before the measured configurations (none for most modes), as its
     strategy object says (``visits``), each visit checked like a configuration (the calibration board must fit
@@ -378,29 +407,35 @@ def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration])
     board = config.calibration_board.build()
     left = config.cameras.optics.camera_model("left")
     right = config.cameras.optics.camera_model("right")
-    rig_config = config.rig.rig_config()
-    tilt = float(config.plan.tilts()[0])
-
-    def visit(index: int, config_id: str, purpose: str, baseline: float, toe_left: float, toe_right: float,
-              distance: float, *, tilts: Mapping[str, float] | None = None) -> Visit:
-        tilts = tilts or {}
-        pose = RigPose(baseline, alpha_from_toe_in(toe_left), alpha_from_toe_in(toe_right),
-                       tilts.get("tilt_left_deg", tilt), tilts.get("tilt_right_deg", tilt))
-        fits = calibration_distance_range(board, pose, left=left, right=right)
-        reason = None
-        if fits is None:
-            reason = (f"calibration board ({config.calibration_board.describe()}) never fits both views at "
-                      f"B = {baseline:g} mm, toe-ins {toe_left:g}/{toe_right:g} deg")
-        draft = Visit(index=index, config_id=config_id, purpose=purpose, baseline_mm=float(baseline),
-                      toe_in_left_deg=float(toe_left), toe_in_right_deg=float(toe_right), tilt_deg=tilt,
-                      distance_mm=float(distance), calibration_range_mm=fits, feasible=fits is not None,
-                      reason=reason, **{axis: float(value) for axis, value in tilts.items()})
-        return dataclasses.replace(draft, limit_violation=_limit_violation(rig_config, draft.move_request()))
+    visit = _visit_maker(config)
 
     visits = source.visits(extrinsics, configurations, ranges, visit=visit, format_id=format_id_value)
     if extrinsics.fixed_board and visits:
         visits = _with_fixed_board(visits, board, left, right, config.calibration_board.describe())
+        lens, lens_visit = fixed_board_lens(config, configurations, visits, visit=visit)
+        if lens is not None and lens.n_views:
+            # The presentations first, at the measured configuration where a presented board fits: the fixed
+            # board is placed after them (a presented board would hide it, or move it).
+            visits = [lens_visit, *(dataclasses.replace(v, index=v.index + 1) for v in visits)]
     return visits
+
+
+def fixed_board_lens(config: CampaignConfig, configurations: Sequence[Configuration], design: Sequence[Visit], *,
+                     visit=None):
+    """(:class:`~stereo_bench.campaign.plan.lens.LensPlan` or None, the intrinsics visit it presents at): whether a
+    fixed-board ``design`` starts with a lens calibration of presented views (:func:`.lens.lens_plan`). ``visit``:
+    plan_visits' visit maker (None: made here, for ``campaign plan``'s summary)."""
+    from stereo_bench.campaign.extrinsics.base import intrinsics_visit
+    from stereo_bench.campaign.plan.lens import lens_plan
+
+    design = [v for v in design if v.purpose == "kinematic"]
+    if not config.extrinsics.fixed_board or config.extrinsics.calib_dir is not None or not design:
+        return None, None
+    if visit is None:
+        visit = _visit_maker(config)
+    candidate = intrinsics_visit(configurations, visit)
+    candidate = candidate if candidate is not None and candidate.runnable else None
+    return lens_plan(config, design, candidate), candidate
 
 
 def _with_fixed_board(visits: Sequence[Visit], board, left, right, board_name: str) -> list[Visit]:

@@ -11,7 +11,7 @@ from drivers.rig.codec import vector_feed
 from drivers.rig.config import QUANTITIES, to_machine
 from drivers.rig.motion import move_time_s
 from stereo_bench.campaign.config import CampaignConfig
-from stereo_bench.campaign.plan.configurations import Configuration, Visit, plan_visits
+from stereo_bench.campaign.plan.configurations import VISIT_PURPOSES, Configuration, Visit, plan_visits
 from stereo_bench.campaign.plan.timing import OPERATOR_S_PER_PROMPT, DurationModel
 
 
@@ -224,6 +224,17 @@ class VisitDone(StepKind):
 PREPARE_ID = "extrinsics-source"
 
 
+def stage_id(purpose: str) -> str:
+    """The config_id of a PrepareExtrinsics step that prepares a stage before the last (``extrinsics-intrinsics``:
+    a fixed-board design's lens calibration); the last one's is :data:`PREPARE_ID`."""
+    return f"extrinsics-{purpose}"
+
+
+def is_prepare_id(config_id: str) -> bool:
+    """Whether ``config_id`` names a PrepareExtrinsics step's group (no configuration, no visit)."""
+    return config_id == PREPARE_ID or config_id in {stage_id(purpose) for purpose in VISIT_PURPOSES}
+
+
 @dataclass(frozen=True)
 class PrepareExtrinsics(StepKind):
     """Fit the kinematic rig model to the design's views (``kinematic``), or calibrate the intrinsics
@@ -251,7 +262,8 @@ def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration],
 
     First the visits (``visits``, default :func:`plan_visits`): Move, Settle, Flush, CaptureCalibration,
     VisitDone each (a visit that is not runnable: only ``VisitDone(skipped=True)``), then one
-    PrepareExtrinsics. Then per runnable configuration: Move; a prompt for each manual quantity whose
+    PrepareExtrinsics (and one after each earlier stage of visits of another purpose: a fixed-board design's lens
+    calibration, :func:`stage_id`). Then per runnable configuration: Move; a prompt for each manual quantity whose
     value changes (PromptTarget for the target distance, PromptManual for any other); Settle; Flush;
     CaptureCalibration (per-config extrinsics only); CaptureMeasurement; Checkpoint. A configuration
     that is not runnable gets only ``Checkpoint(skipped=True, reason=...)``.
@@ -263,7 +275,11 @@ def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration],
     steps: list[Step] = []
     visits = plan_visits(config, configurations) if visits is None else visits
     placed = False
-    for visit in visits:
+    for k, visit in enumerate(visits):
+        if k and visit.purpose != visits[k - 1].purpose:
+            # A stage before this one (a fixed-board design's lens calibration): prepared, and recorded, before the
+            # next stage's visits (a resume after it does not ask for its presentations again).
+            steps.append(PrepareExtrinsics(visits[k - 1].purpose, config_id=stage_id(visits[k - 1].purpose)))
         if not visit.runnable:
             steps.append(VisitDone(visit.config_id, skipped=True, reason=visit.skip_reason))
             continue
@@ -279,7 +295,7 @@ def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration],
             capture = CaptureCalibration(config.capture.calibration_views)
         steps += [Settle(config.capture.settle_s), Flush(), capture, VisitDone(visit.config_id)]
     if visits:
-        steps.append(PrepareExtrinsics(visits[0].purpose))
+        steps.append(PrepareExtrinsics(visits[-1].purpose))
     for configuration in configurations:
         if not configuration.runnable:
             steps.append(Checkpoint(configuration.config_id, skipped=True, reason=configuration.skip_reason))

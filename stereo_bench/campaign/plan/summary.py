@@ -7,7 +7,13 @@ from collections.abc import Sequence
 from typing import Any
 
 from stereo_bench.campaign.config import CampaignConfig
-from stereo_bench.campaign.plan.configurations import design_ranges, design_tilt, expand_plan, plan_visits
+from stereo_bench.campaign.plan.configurations import (
+    design_ranges,
+    design_tilt,
+    expand_plan,
+    fixed_board_lens,
+    plan_visits,
+)
 from stereo_bench.campaign.plan.duration import estimate_duration
 from stereo_bench.campaign.plan.feasibility import FEASIBILITY_MARGIN_PX, MIN_CORNERS_IN_BOTH
 from stereo_bench.campaign.plan.steps import Presentations, Step, plan_steps
@@ -35,44 +41,58 @@ def operator_actions(steps: Sequence[Step]) -> dict[str, int]:
     return {**out, "total": sum(out.values())}
 
 
-def design_identifiability(config: CampaignConfig, visits: Sequence) -> list[dict[str, Any]] | None:
+def design_identifiability(config: CampaignConfig, visits: Sequence, lens=None) -> list[dict[str, Any]] | None:
     """A fixed-board design's identifiability table before any view (the board projected exactly through the
     nominal chain at every runnable visit; :func:`stereo_bench.kinematics.fixed_board.design_identifiability`),
-    with ``calib_dir``'s intrinsics and covariance as the fit will take them when it holds readable ones. None for
-    other designs or when no visit can run."""
-    from stereo_bench.kinematics.design import DesignConfiguration
+    with ``calib_dir``'s intrinsics and covariance as the fit will take them when it holds readable ones, or the
+    table ``lens`` (:class:`~stereo_bench.campaign.plan.lens.LensPlan`) decided with: with the predicted prior of
+    the lens calibration the plan presents, else from the design's views alone. None for other designs or when
+    no visit can run."""
+    from stereo_bench.campaign.plan.lens import design_table
     from stereo_bench.kinematics.fixed_board import INTRINSIC_NAMES
-    from stereo_bench.kinematics.fixed_board import design_identifiability as table_of
 
     runnable = [v for v in visits if v.runnable and v.board_fixed]
     if not config.extrinsics.fixed_board or len(runnable) < 3:
         return None
-    optics = config.cameras.optics
-    left, right = optics.camera_model("left"), optics.camera_model("right")
-    intrinsics = (left.K, left.dist, right.K, right.dist)
-    covariance = None
-    if config.extrinsics.calib_dir is not None:
-        from stereo_bench.vision.calibio import CalibrationFileError, read_intrinsics, read_intrinsics_covariance
+    intrinsics = covariance = None
+    label = "from the design's views alone"
+    if lens is not None:
+        rows = lens.table
+        if lens.n_views:
+            label = f"a lens calibration of {lens.n_views} presented views as prior (predicted)"
+    else:
+        if config.extrinsics.calib_dir is not None:
+            from stereo_bench.vision.calibio import CalibrationFileError, read_intrinsics, read_intrinsics_covariance
 
-        try:
-            K1, D1, K2, D2 = read_intrinsics(config.extrinsics.calib_dir)[:4]
-            stored = read_intrinsics_covariance(config.extrinsics.calib_dir)
-        except (CalibrationFileError, OSError):
-            stored = None
-        if stored is not None and all(name in stored.names for name in INTRINSIC_NAMES):
-            intrinsics = (K1, D1, K2, D2)
-            index = stored.index(INTRINSIC_NAMES)
-            covariance = stored.matrix[index][:, index]
-    # The tilts where the design steps them (the table then has the tilt joints' rows).
-    design = [DesignConfiguration(v.baseline_mm, v.toe_in_left_deg, v.toe_in_right_deg, v.tilt_left_deg,
-                                  v.tilt_right_deg) for v in runnable]
-    rows = table_of(design, config.calibration_board.build().object_points, runnable[0].fixed_board_matrix(),
-                    intrinsics, intrinsics_covariance=covariance,
-                    repeatability_mm=config.extrinsics.repeatability_mm,
-                    repeatability_deg=config.extrinsics.repeatability_deg)
+            try:
+                K1, D1, K2, D2 = read_intrinsics(config.extrinsics.calib_dir)[:4]
+                stored = read_intrinsics_covariance(config.extrinsics.calib_dir)
+            except (CalibrationFileError, OSError):
+                stored = None
+            if stored is not None and all(name in stored.names for name in INTRINSIC_NAMES):
+                intrinsics = (K1, D1, K2, D2)
+                index = stored.index(INTRINSIC_NAMES)
+                covariance = stored.matrix[index][:, index]
+                label = "calib_dir prior"
+        rows = design_table(config, runnable, intrinsics=intrinsics, covariance=covariance)
     return [{"name": r.name, "unit": r.unit, "identified": r.identified, "sigma": r.sigma, "note": r.note,
-             "intrinsics": "calib_dir prior" if covariance is not None else "from the design's views alone"}
-            for r in rows]
+             "intrinsics": label} for r in rows]
+
+
+def lens_summary(config: CampaignConfig, configurations: Sequence, visits: Sequence, lens) -> dict[str, Any] | None:
+    """A fixed-board design's lens calibration: how many presentations (``presentations``), at which visit, and why
+    (``reason``); ``gains``: the parameters it identifies that the board alone does not; ``held``: those held
+    nominal all the same. None for other designs."""
+    if not config.extrinsics.fixed_board or not any(v.board_fixed for v in visits):
+        return None
+    if config.extrinsics.calib_dir is not None:
+        return {"presentations": 0, "visit": None, "gains": [], "held": [],
+                "reason": f"calib_dir's lens calibration ({config.extrinsics.calib_dir}) is the fit's prior"}
+    if lens is None:
+        return None
+    visit = next((v.config_id for v in visits if v.purpose == "intrinsics"), None)
+    return {"presentations": lens.n_views, "visit": visit, "reason": lens.reason, "gains": list(lens.gains),
+            "held": list(lens.held)}
 
 
 def _presentation_time(presentation) -> dict[str, Any]:
@@ -103,13 +123,15 @@ def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGI
     steps = plan_steps(config, configurations, visits)
     estimate = estimate_duration(config, configurations, steps, presentation=presentation)
     tilt_note = design_tilt(config, configurations).note if visits else None
+    lens = fixed_board_lens(config, configurations, visits)[0] if visits else None
     return {
         "extrinsics_mode": config.extrinsics.mode,
         "design": [v.as_dict() for v in visits],
         "design_ranges": design_ranges(configurations) if visits else None,
         "calibration_presentations": calibration_presentations(steps),
         "operator_actions": operator_actions(steps),
-        "identifiability": design_identifiability(config, visits),
+        "identifiability": design_identifiability(config, visits, lens),
+        "lens_calibration": lens_summary(config, configurations, visits, lens),
         "name": config.name,
         "configurations": [c.as_dict() for c in configurations],
         "predicted_duration_s": estimate.total_s,
