@@ -121,6 +121,8 @@ def test_a_simulated_run_gives_an_eta_that_only_falls(tmp_path, capture):
     config = small_config(plan={"baseline_mm": [100, 150], "distance_mm": [400, 450, 500], "alpha_deg": [90]},
                           # the count gate: the bars may never fill with the hand's poses (then all 40 are shown)
                           capture={"calibration_capture": capture, "coverage_gate": "count"},
+                          # 3 frames a second: the hand still holds each pose over several (stillness is judged
+                          # across them), and 255 frames to render and detect instead of 5 fps' 421
                           sim={"hand_fps": 3.0} if capture == "auto" else {})
     plan = CampaignPlan.of(config)
     # The bench clock counts the rig's own seconds (time_scale only paces it against the wall): the plan's model
