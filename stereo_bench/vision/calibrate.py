@@ -136,6 +136,9 @@ class StereoCalibration:
     # Each camera calibrated alone from the same views, when the fit did that first (the quality gates compare
     # each view's residual with them: stereo_bench.vision.gates); None for given intrinsics or a loaded file.
     mono: tuple[MonoCalibration, MonoCalibration] | None = None
+    # Per used view (views_used' order): the left camera's board pose (rvec (3,) rad, tvec (3,) mm) as the stereo
+    # fit found it (the quality gates start each view's stereo residual there); () when not known (a loaded file).
+    board_poses: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
 
     @property
     def baseline_mm(self) -> float:
@@ -405,13 +408,14 @@ def _calibrate_stereo(
         cov, note = _fit_covariance(object_points, left_points, right_points, used, K1n, D1n, K2n, D2n, R, T, rvecs,
                                     tvecs, flags=flags, stereo_flags=stereo_flags, mode=mode, mono=(left, right),
                                     intrinsics_covariance=intrinsics_covariance, image_size=image_size)
+    rvecs, tvecs = [np.asarray(r, float).reshape(3) for r in rvecs], [np.asarray(t, float).reshape(3) for t in tvecs]
     calib = StereoCalibration(
         K1=K1n, D1=D1n, K2=K2n, D2=D2n, R=R, T=T, image_size=tuple(image_size), rms_px=float(rms),
         per_view_rms_px=per_view, views_used=used, views_rejected=sorted(rejected, key=lambda r: r.index),
         mode=mode, E=E, F=F, covariance=cov, covariance_note=note, lens_model=model_of_flags(flags),
-        mono=None if left is None else (left, right),
+        mono=None if left is None else (left, right), board_poses=tuple(zip(rvecs, tvecs, strict=True)),
     )
-    return calib, [np.asarray(r, float).reshape(3) for r in rvecs], [np.asarray(t, float).reshape(3) for t in tvecs]
+    return calib, rvecs, tvecs
 
 
 def _fit_covariance(object_points, left_points, right_points, used: list[int], K1, D1, K2, D2, R, T, rvecs, tvecs, *,

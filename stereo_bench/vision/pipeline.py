@@ -28,6 +28,7 @@ from stereo_bench.vision.gates import (
     CalibrationRefused,
     GateReport,
     GateView,
+    PoseCache,
     gate_board_fit,
     image_blur,
     run_gates,
@@ -279,7 +280,8 @@ def calibrate_from_images(
                      for k, index in enumerate(pair_index)]
             report = report.merged(run_gates(calib, views, target, dropped=dropped, names=view_names,
                                              accept_poor=accept_poor,
-                                             blur_of={key: blur.result() for key, blur in blurs.items()}))
+                                             blur_of={key: blur.result() for key, blur in blurs.items()},
+                                             poses=PoseCache.of_fit(calib, views)))
             if report.refused:
                 raise CalibrationRefused(report)
             dropped = [(index, f"{why}: {report.view_diagnoses[index]}" if index in report.view_diagnoses else why)
