@@ -15,8 +15,18 @@ import pytest
 from stereo_bench.cli import main
 from stereo_bench.targets import Checkerboard
 from stereo_bench.vision.calibio import read_gates, write_calibration
-from stereo_bench.vision.detect import detect
-from stereo_bench.vision.gates import GATE_NAMES, CalibrationRefused, board_may_be_larger
+from stereo_bench.vision.calibrate import calibrate_stereo_lens
+from stereo_bench.vision.detect import common_corners, detect
+from stereo_bench.vision.gates import (
+    GATE_NAMES,
+    CalibrationRefused,
+    GateView,
+    PoseCache,
+    board_may_be_larger,
+    run_gates,
+    stereo_view_rms_px,
+    view_residuals,
+)
 from stereo_bench.vision.pipeline import calibrate_from_images
 from tests.real_data import OPENCV_SAMPLE, PRESENT_CJN, REAL
 
@@ -82,6 +92,47 @@ def test_pairs_not_taken_together_are_named(name):
     assert [r.name for r in error.report.failed] == ["synchronised"]
     assert set(error.report.failed[0].views) == set(moved)
     assert "not taken at the same moment" in str(error) and f"pair {moved[0]}" in str(error)
+
+
+@pytest.mark.parametrize("moved", [(), (1, 14, 27)])
+def test_gates_on_the_fits_own_poses_equal_gates_solving_every_pose(moved):
+    """The gates take each view's poses from the calibration's fits (PoseCache.of_fit) instead of solving them
+    again: the same residuals to 1e-6, the same verdicts and lines, also for views the stereo fit dropped (pairs
+    not taken together: their poses are solved, as before)."""
+    left, right, board = load("present_cjn")
+    right = list(right)
+    for i in moved:
+        right[i] = right[i + 1]
+    objects, lefts, rights = [], [], []
+    for image_left, image_right in zip(left, right, strict=True):
+        found = detect(image_left, board, thorough=True, noise=False), detect(image_right, board, thorough=True,
+                                                                              noise=False)
+        if None not in found:
+            ids, left_px, right_px = common_corners(*found)
+            objects.append(board.object_points[ids])
+            lefts.append(left_px)
+            rights.append(right_px)
+    calib = calibrate_stereo_lens(objects, lefts, rights, left[0].shape[::-1], lens_model="opencv4")
+    assert len(calib.board_poses) == len(calib.views_used)
+    assert len(calib.views_used) == len(objects) - len(moved)  # the stereo fit drops the pairs not taken together
+    views = [GateView(k, objects[k], lefts[k], rights[k]) for k in range(len(objects))]
+    fitted = PoseCache.of_fit(calib, views)
+    assert sum(fitted.joint(k) is not None for k in range(len(views))) == len(calib.views_used)
+    for view in views:
+        a, b = view_residuals(calib, view, fitted), view_residuals(calib, view, PoseCache())
+        assert np.allclose([a.mono_left_px, a.mono_right_px, a.stereo_px],
+                           [b.mono_left_px, b.mono_right_px, b.stereo_px], rtol=1e-6, atol=0), view.index
+        if fitted.joint(view.index) is not None:  # the fit's pose of this very view: its residual without a step
+            at_fit = stereo_view_rms_px(calib, view.object_points, view.left_px, view.right_px,
+                                        (fitted.joint(view.index),), iterations=0)
+            assert at_fit == pytest.approx(b.stereo_px, rel=1e-6), view.index
+    dropped = [(r.index, r.reason) for r in calib.views_rejected]
+    ours = run_gates(calib, views, board, dropped=dropped, poses=PoseCache.of_fit(calib, views))
+    solved = run_gates(calib, views, board, dropped=dropped)
+    assert [(r.name, r.verdict, r.line, r.views) for r in ours.results] == \
+        [(r.name, r.verdict, r.line, r.views) for r in solved.results]
+    assert np.allclose([r.value for r in ours.results], [r.value for r in solved.results], rtol=1e-6, equal_nan=True)
+    assert ours.results[0].verdict == ("fail" if moved else "pass")
 
 
 def test_every_pair_not_taken_together_is_refused_for_its_cause_not_a_symptom():

@@ -234,3 +234,50 @@ def test_predicted_calibration_component_matches_the_recalibrations():
     assert np.all((0.6 < ratios) & (ratios < 1.6)), ratios  # 20 seeds each: standard error 16 %
     pooled = np.sqrt(np.mean((errors / predicted[:, None]) ** 2))
     assert 0.8 < pooled < 1.25, pooled  # 100 samples: standard error 7 %
+
+
+@pytest.mark.parametrize("name", ["present_cjn", "smiler488_box"])
+def test_adequacy_linearised_intrinsic_sensitivities_equal_retriangulating_every_moved_corner(name, monkeypatch):
+    """model_adequacy carries each intrinsic parameter's moved undistortion through the triangulation to first
+    order instead of triangulating every moved corner again (32 x 2552 corners on present_cjn). The reference:
+    re-triangulating every moved corner (central differences) at 1/10 of parameter_step, whose truncation is
+    then 100x smaller than at parameter_step itself (there up to 2.6-4.8e-7 of a parameter's largest derivative
+    over the views, measured). Each view's derivative agrees with it to 2e-7 of that parameter's largest
+    (measured 4.0-4.6e-8)."""
+    from stereo_bench.vision import uncertainty
+    from stereo_bench.vision.calibrate import calibrate_stereo
+    from stereo_bench.vision.detect import common_corners
+    from stereo_bench.vision.rectify import undistort_points
+    from stereo_bench.vision.triangulate import triangulate_normalised
+    from tests import real_data
+
+    board = real_data.SETS[name].board
+    pairs = [common_corners(a, b) for a, b in real_data.detections(name) if a is not None and b is not None]
+    objects, lefts, rights = [board.object_points[ids] for ids, _, _ in pairs], [p[1] for p in pairs], \
+        [p[2] for p in pairs]
+    calib = calibrate_stereo(objects, lefts, rights, real_data.images(name)[0][0].shape[::-1])
+    used = calib.views_used
+    square, owner, corner_owner, _ = uncertainty._view_squares([objects[i] for i in used], [lefts[i] for i in used],
+                                                               [rights[i] for i in used])
+    n = len(used)
+    names = [p for p in calib.covariance.names if p.startswith(("left.", "right."))]
+    left_norm = undistort_points(square.left, calib.K1, calib.D1)
+    right_norm = undistort_points(square.right, calib.K2, calib.D2)
+    points = triangulate_normalised(calib.R, calib.T, left_norm, right_norm)
+    jac = uncertainty._normalised_jacobian(calib, left_norm, right_norm)
+    d = points[square.a_idx] - points[square.b_idx]
+    u = d / np.linalg.norm(d, axis=1)[:, None] * square.weights[:, None]
+    gradient = np.zeros((len(points), 4))
+    np.add.at(gradient, square.a_idx, np.einsum("kj,kjc->kc", u, jac[square.a_idx]))
+    np.add.at(gradient, square.b_idx, -np.einsum("kj,kjc->kc", u, jac[square.b_idx]))
+    ours = uncertainty._intrinsic_sensitivities(calib, square, names, gradient, corner_owner, n)
+
+    def per_view(moved_points):
+        lengths = np.linalg.norm(moved_points[square.a_idx] - moved_points[square.b_idx], axis=1)
+        return np.bincount(owner, weights=square.weights * lengths, minlength=n)
+
+    monkeypatch.setattr(uncertainty, "_STEP", {k: v / 10 for k, v in uncertainty._STEP.items()})
+    reference = uncertainty._sensitivities(calib, square, names, per_view)
+    scale = np.max(np.abs(reference), axis=1, keepdims=True)
+    assert ours.shape == reference.shape == (len(names), n)
+    assert np.max(np.abs(ours - reference) / scale) < 2e-7

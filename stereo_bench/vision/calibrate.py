@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import os
 import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -136,6 +137,9 @@ class StereoCalibration:
     # Each camera calibrated alone from the same views, when the fit did that first (the quality gates compare
     # each view's residual with them: stereo_bench.vision.gates); None for given intrinsics or a loaded file.
     mono: tuple[MonoCalibration, MonoCalibration] | None = None
+    # Per used view (views_used' order): the left camera's board pose (rvec (3,) rad, tvec (3,) mm) as the stereo
+    # fit found it (the quality gates start each view's stereo residual there); () when not known (a loaded file).
+    board_poses: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
 
     @property
     def baseline_mm(self) -> float:
@@ -327,6 +331,7 @@ def calibrate_stereo(
     image_size: tuple[int, int], *, intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
     mode: StereoMode = "joint", flags: int = DEFAULT_FLAGS, min_views: int = MIN_VIEWS, max_rounds: int = 3,
     intrinsics_covariance: CalibrationCovariance | None = None, covariance: bool = True,
+    after_mono: Callable[[], object] | None = None,
 ) -> StereoCalibration:
     """Stereo calibration from views seen by both cameras.
 
@@ -339,10 +344,14 @@ def calibrate_stereo(
             calibration independent of these views; fixed mode propagates it into R, T.
         covariance: compute the parameters' covariance (~2 % of a 12-view calibration's time,
             scripts/bench_covariance.py); False leaves it None ("not computed").
+        after_mono: called once, when the cameras' mono fits are done and the joint fit begins (at once with
+            given intrinsics): for a caller's work that should run beside the joint fit, which is one thread,
+            rather than compete with the two mono fits for the cores. It does not change the calibration.
     """
     return _calibrate_stereo(object_points, left_points, right_points, image_size, intrinsics=intrinsics, mode=mode,
                              flags=flags, min_views=min_views, max_rounds=max_rounds,
-                             intrinsics_covariance=intrinsics_covariance, covariance=covariance)[0]
+                             intrinsics_covariance=intrinsics_covariance, covariance=covariance,
+                             after_mono=after_mono)[0]
 
 
 def _calibrate_stereo(
@@ -350,6 +359,7 @@ def _calibrate_stereo(
     image_size: tuple[int, int], *, intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
     mode: StereoMode = "joint", flags: int = DEFAULT_FLAGS, min_views: int = MIN_VIEWS, max_rounds: int = 3,
     intrinsics_covariance: CalibrationCovariance | None = None, covariance: bool = True, criteria=CRITERIA,
+    after_mono: Callable[[], object] | None = None,
 ) -> tuple[StereoCalibration, list, list]:
     """`calibrate_stereo`, and the left camera's board pose per used view (rvecs (3,) rad, tvecs (3,) mm)."""
     if not len(object_points) == len(left_points) == len(right_points):
@@ -375,6 +385,8 @@ def _calibrate_stereo(
         left = right = None
         K1, D1, K2, D2 = (np.asarray(a, float) for a in intrinsics)
         used = list(range(len(object_points)))
+    if after_mono is not None:
+        after_mono()
 
     stereo_flags = flags | (cv2.CALIB_FIX_INTRINSIC if mode == "fixed" else cv2.CALIB_USE_INTRINSIC_GUESS)
     for round_ in range(max_rounds + 1):
@@ -405,13 +417,14 @@ def _calibrate_stereo(
         cov, note = _fit_covariance(object_points, left_points, right_points, used, K1n, D1n, K2n, D2n, R, T, rvecs,
                                     tvecs, flags=flags, stereo_flags=stereo_flags, mode=mode, mono=(left, right),
                                     intrinsics_covariance=intrinsics_covariance, image_size=image_size)
+    rvecs, tvecs = [np.asarray(r, float).reshape(3) for r in rvecs], [np.asarray(t, float).reshape(3) for t in tvecs]
     calib = StereoCalibration(
         K1=K1n, D1=D1n, K2=K2n, D2=D2n, R=R, T=T, image_size=tuple(image_size), rms_px=float(rms),
         per_view_rms_px=per_view, views_used=used, views_rejected=sorted(rejected, key=lambda r: r.index),
         mode=mode, E=E, F=F, covariance=cov, covariance_note=note, lens_model=model_of_flags(flags),
-        mono=None if left is None else (left, right),
+        mono=None if left is None else (left, right), board_poses=tuple(zip(rvecs, tvecs, strict=True)),
     )
-    return calib, [np.asarray(r, float).reshape(3) for r in rvecs], [np.asarray(t, float).reshape(3) for t in tvecs]
+    return calib, rvecs, tvecs
 
 
 def _fit_covariance(object_points, left_points, right_points, used: list[int], K1, D1, K2, D2, R, T, rvecs, tvecs, *,
@@ -467,7 +480,7 @@ def calibrate_stereo_lens(
     image_size: tuple[int, int], *, lens_model: str = "auto",
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, mode: StereoMode = "joint",
     intrinsics_covariance: CalibrationCovariance | None = None, covariance: bool = True,
-    candidates: tuple[str, ...] | None = None,
+    candidates: tuple[str, ...] | None = None, after_mono: Callable[[], object] | None = None,
 ) -> StereoCalibration:
     """:func:`calibrate_stereo` with the lens model ``lens_model`` (a :data:`~stereo_bench.vision.lensmodels.MODELS`
     name) or, for "auto", the one the held-out views choose (:func:`~stereo_bench.vision.lensmodels.choose`).
@@ -476,7 +489,8 @@ def calibrate_stereo_lens(
     dropped by the outlier rule); every other candidate is fitted jointly on the views it kept, warm-started from
     its solution; each fit's held-out estimate is its linearised leave-one-view-out. Intrinsics given
     (``intrinsics``) keep their model: auto then fits the default flags, as before lens models were chosen.
-    The result records ``lens_model`` and ``lens_choice`` (the comparison).
+    The result records ``lens_model`` and ``lens_choice`` (the comparison). ``after_mono``: as
+    :func:`calibrate_stereo` takes it, for the default model's fit (the candidates' start from its solution).
     """
     from stereo_bench.vision.lensmodels import (
         AUTO,
@@ -498,7 +512,7 @@ def calibrate_stereo_lens(
     base, rvecs, tvecs = _calibrate_stereo(object_points, left_points, right_points, image_size,
                                            intrinsics=intrinsics, mode=mode, flags=first.flags,
                                            intrinsics_covariance=intrinsics_covariance,
-                                           covariance=covariance and not comparing)
+                                           covariance=covariance and not comparing, after_mono=after_mono)
     if intrinsics is not None and lens_model == AUTO:
         return replace(base, lens_model=DEFAULT_MODEL if base.lens_model else "")
     if lens_model != AUTO:

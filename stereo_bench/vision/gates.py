@@ -179,18 +179,54 @@ class PoseCache:
     """:func:`mono_pose` of each (board points, pixels, K, D) computed once: the synchronisation gate and the
     flatness gate fit the same images with the same mono intrinsics (and, without mono fits, the synchronisation
     gate fits each image twice with the same ones). Keyed by the arrays' identities, so it serves one
-    :func:`run_gates` call, whose views hold the arrays; the same calls on the same numbers: the same bits."""
+    :func:`run_gates` call, whose views hold the arrays; the same calls on the same numbers: the same bits.
+
+    :meth:`of_fit` fills it with the poses the calibration's own fits found instead (each camera's mono fit, and
+    the stereo fit's one pose per view, :meth:`joint`): at a fit's solution each view's pose is the one that view
+    alone gives with those intrinsics (the fit's gradient in its pose is zero), so solving it again (solvePnP +
+    refine, ~0.5 ms per image) finds the same pose to the solvers' tolerance."""
 
     def __init__(self) -> None:
         self._poses: dict[tuple[int, int, int, int], tuple[tuple, tuple[np.ndarray, np.ndarray, float]]] = {}
+        self._fitted: dict[tuple[int, int, int, int], tuple[tuple, np.ndarray, np.ndarray]] = {}
+        self._joint: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    @classmethod
+    def of_fit(cls, calib: StereoCalibration, views: Sequence[GateView]) -> PoseCache:
+        """The poses ``calib``'s fits found for ``views``, which must be the views it was fitted from in that order
+        (``views[k]`` the k-th: ``calib.views_used`` and its mono fits' ``views_used`` index them). A view a fit
+        dropped has no pose of that fit: :meth:`pose` solves it, :meth:`joint` is None."""
+        cache = cls()
+        if calib.mono:
+            for fit, side in zip(calib.mono, ("left", "right"), strict=True):
+                for k, rvec, tvec in zip(fit.views_used, fit.rvecs, fit.tvecs, strict=True):
+                    view = views[k]
+                    px = view.left_px if side == "left" else view.right_px
+                    key = (id(view.object_points), id(px), id(fit.K), id(fit.dist))
+                    cache._fitted[key] = ((view.object_points, px, fit.K, fit.dist), rvec, tvec)
+        if len(calib.board_poses) == len(calib.views_used):
+            cache._joint = {views[k].index: pose for k, pose in zip(calib.views_used, calib.board_poses, strict=True)}
+        return cache
 
     def pose(self, obj: np.ndarray, px: np.ndarray, K: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray,
                                                                                          float]:
         key = (id(obj), id(px), id(K), id(D))
         if key not in self._poses:
+            if key in self._fitted:
+                _, rvec, tvec = self._fitted[key]
+                points = np.asarray(obj, np.float64).reshape(-1, 3)
+                result = (rvec, tvec, _rms(np.asarray(px, np.float64).reshape(-1, 2) - _project(points, rvec, tvec,
+                                                                                                 K, D)))
+            else:
+                result = mono_pose(obj, px, K, D)
             # The arrays are kept with their result: their ids stay theirs while the cache lives.
-            self._poses[key] = ((obj, px, K, D), mono_pose(obj, px, K, D))
+            self._poses[key] = ((obj, px, K, D), result)
         return self._poses[key][1]
+
+    def joint(self, index: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The stereo fit's board pose (rvec, tvec in the left camera's frame) of the view of pair ``index``, or
+        None (not filled by :meth:`of_fit`, or a view the fit dropped)."""
+        return self._joint.get(index)
 
 
 def _stereo_residual(calib: StereoCalibration, obj: np.ndarray, observed: np.ndarray, p: np.ndarray,
@@ -261,18 +297,24 @@ def _mono_intrinsics(calib: StereoCalibration) -> tuple[tuple[np.ndarray, np.nda
 def view_residuals(calib: StereoCalibration, view: GateView, poses: PoseCache | None = None) -> ViewResiduals:
     """Mono residuals (each image with its own pose) and the stereo residual (one pose for both) of a view.
     ``poses``: a :class:`PoseCache` shared with the other gates of one run."""
-    pose = (poses or PoseCache()).pose
+    poses = poses or PoseCache()
+    pose = poses.pose
     # Each image alone with its camera's own mono calibration where there is one: a joint fit of pairs that
     # were not taken together bends the intrinsics until no view fits, alone or not.
     (K1, D1), (K2, D2) = _mono_intrinsics(calib)
     _, _, mono_left = pose(view.object_points, view.left_px, K1, D1)
     _, _, mono_right = pose(view.object_points, view.right_px, K2, D2)
-    rl, tl, _ = pose(view.object_points, view.left_px, calib.K1, calib.D1)
-    rr, tr, _ = pose(view.object_points, view.right_px, calib.K2, calib.D2)
-    # Start from each camera's own pose (the right one carried into the left frame) and keep the better fit.
-    R, T = np.asarray(calib.R, float), np.asarray(calib.T, float).reshape(3)
-    from_right = (cv2.Rodrigues(R.T @ cv2.Rodrigues(rr)[0])[0].reshape(3), R.T @ (tr - T))
-    stereo = stereo_view_rms_px(calib, view.object_points, view.left_px, view.right_px, ((rl, tl), from_right))
+    fitted = poses.joint(view.index)
+    if fitted is not None:
+        # The stereo fit's own pose of this view: its solution for these intrinsics and R, T already.
+        starts: tuple[tuple[np.ndarray, np.ndarray], ...] = (fitted,)
+    else:
+        rl, tl, _ = pose(view.object_points, view.left_px, calib.K1, calib.D1)
+        rr, tr, _ = pose(view.object_points, view.right_px, calib.K2, calib.D2)
+        # Start from each camera's own pose (the right one carried into the left frame) and keep the better fit.
+        R, T = np.asarray(calib.R, float), np.asarray(calib.T, float).reshape(3)
+        starts = ((rl, tl), (cv2.Rodrigues(R.T @ cv2.Rodrigues(rr)[0])[0].reshape(3), R.T @ (tr - T)))
+    stereo = stereo_view_rms_px(calib, view.object_points, view.left_px, view.right_px, starts)
     return ViewResiduals(view.index, mono_left, mono_right, stereo)
 
 
@@ -613,16 +655,19 @@ def image_blur(image: np.ndarray | None, px: np.ndarray, target: Target) -> tupl
 def run_gates(calib: StereoCalibration, views: Sequence[GateView], target: Target, *,
               dropped: Sequence[tuple[int, str]] = (), names: Sequence[str] | None = None,
               accept_poor: bool = False,
-              blur_of: Mapping[tuple[int, str], tuple[float, float, float] | None] | None = None) -> GateReport:
+              blur_of: Mapping[tuple[int, str], tuple[float, float, float] | None] | None = None,
+              poses: PoseCache | None = None) -> GateReport:
     """Every gate on a finished stereo calibration.
 
     ``views``: every pair with the board in both images (also those the outlier rule dropped: the
     synchronisation gate names them); ``dropped``: (pair index, reason) of the views the fit dropped.
     ``blur_of``: per (pair index, "left" | "right") the :func:`image_blur` of the views' images, when the caller
-    measured it already (the same numbers).
+    measured it already (the same numbers). ``poses``: the fits' own poses of ``views``
+    (:meth:`PoseCache.of_fit`, when ``views`` are the views the calibration was fitted from, in its order); None
+    solves every image's pose.
     """
     dropped_set = {i for i, _ in dropped}
-    poses = PoseCache()
+    poses = poses or PoseCache()
     residuals = [view_residuals(calib, v, poses) for v in views]
     sync = gate_synchronised(residuals, names)
     diagnoses = {v.index: (f"left and right not taken together (stereo residual {v.stereo_px:.2f} px, each image "

@@ -28,6 +28,7 @@ from stereo_bench.vision.gates import (
     CalibrationRefused,
     GateReport,
     GateView,
+    PoseCache,
     gate_board_fit,
     image_blur,
     run_gates,
@@ -236,16 +237,21 @@ def calibrate_from_images(
         # gates beside the leave-one-view-out check. A refusal by a gate still comes before any other failure.
         report = None
         board_search = None
-        blurs = {}
+        blurs: dict = {}
+
+        def measure_blur() -> None:
+            # The sharpness gate's measurement needs no calibration: on the pool while the joint fit runs on one
+            # thread (started with the mono fits, it took the cores from the two of them).
+            if gates and not blurs:
+                blurs.update({(index, side): pool.submit(image_blur, image, px, target)
+                              for k, index in enumerate(pair_index)
+                              for side, image, px in (("left", left_images[index], lefts[k]),
+                                                      ("right", right_images[index], rights[k]))})
+
         if gates:
             images = [image for pair in zip(left_images, right_images, strict=True) for image in pair]
             board_search = pool.submit(gate_board_fit, target, found, images, grids=_whole_grids(detections, target),
                                        any_board=any_board)
-            # The sharpness gate's measurement needs no calibration: on the pool while the cameras are fitted.
-            blurs = {(index, side): pool.submit(image_blur, image, px, target)
-                     for k, index in enumerate(pair_index)
-                     for side, image, px in (("left", left_images[index], lefts[k]),
-                                             ("right", right_images[index], rights[k]))}
 
         def board_report() -> GateReport | None:
             if board_search is None:
@@ -262,14 +268,15 @@ def calibrate_from_images(
         try:
             if lens_model is None:
                 calib = calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode,
-                                         intrinsics_covariance=intrinsics_covariance)
+                                         intrinsics_covariance=intrinsics_covariance, after_mono=measure_blur)
             else:
                 calib = calibrate_stereo_lens(objects, lefts, rights, tuple(image_size), lens_model=lens_model,
                                               intrinsics=intrinsics, mode=mode,
-                                              intrinsics_covariance=intrinsics_covariance)
+                                              intrinsics_covariance=intrinsics_covariance, after_mono=measure_blur)
         except Exception:
             board_report()
             raise
+        measure_blur()  # started by the fit; here only if it did not
         report = board_report()
         dropped = [(pair_index[r.index], r.reason) for r in calib.views_rejected]
         # The held-out check of the budget (docs/UNCERTAINTY.md).
@@ -279,7 +286,8 @@ def calibrate_from_images(
                      for k, index in enumerate(pair_index)]
             report = report.merged(run_gates(calib, views, target, dropped=dropped, names=view_names,
                                              accept_poor=accept_poor,
-                                             blur_of={key: blur.result() for key, blur in blurs.items()}))
+                                             blur_of={key: blur.result() for key, blur in blurs.items()},
+                                             poses=PoseCache.of_fit(calib, views)))
             if report.refused:
                 raise CalibrationRefused(report)
             dropped = [(index, f"{why}: {report.view_diagnoses[index]}" if index in report.view_diagnoses else why)

@@ -511,11 +511,13 @@ def square_sensitivities(
     return _sensitivities(calib, square, names, square.of_points)
 
 
-def _sensitivities(calib: StereoCalibration, square: _Square, names: Sequence[str], reduce) -> np.ndarray:
+def _sensitivities(calib: StereoCalibration, square: _Square, names: Sequence[str], reduce,
+                   normalised: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """:func:`square_sensitivities` of a built square function; ``reduce(points (M, 3))`` -> a value or an array
-    of values (per frame: the gradient is then (P, F))."""
-    left_norm = undistort_points(square.left, calib.K1, calib.D1)
-    right_norm = undistort_points(square.right, calib.K2, calib.D2)
+    of values (per frame: the gradient is then (P, F)). ``normalised``: the square's corners undistorted with
+    ``calib`` (left, right), when the caller has them."""
+    left_norm, right_norm = normalised or (undistort_points(square.left, calib.K1, calib.D1),
+                                           undistort_points(square.right, calib.K2, calib.D2))
     values: list[list] = [[None, None] for _ in names]  # the square at +step and -step
     intrinsic: list[tuple[int, int, np.ndarray, np.ndarray]] = []
     for i, name in enumerate(names):
@@ -593,6 +595,31 @@ class _ObjectGrid:
         return self.pairs
 
 
+def _view_squares(object_points: Sequence[np.ndarray], left_points: Sequence[np.ndarray],
+                  right_points: Sequence[np.ndarray]) -> tuple[_Square, np.ndarray, np.ndarray, np.ndarray]:
+    """Every view's square in one square function over all views' corners (each view's adjacent pairs weighted
+    1/K_v): (square, each pair's view (K,), each corner's view (N,), each view's nominal square (n,) mm). Views of
+    the same board points (a whole board in every view) share their grid's pairs."""
+    grids: dict[bytes, _ObjectGrid] = {}
+    a_idx, b_idx, weights, owner, corner_owner, nominal, offset = [], [], [], [], [], [], 0
+    for v, obj in enumerate(object_points):
+        obj = np.asarray(obj, float).reshape(-1, 3)
+        grid = grids.get(obj.tobytes())
+        if grid is None:
+            grid = grids[obj.tobytes()] = _ObjectGrid(obj)
+        a_idx.append(offset + grid.pairs[:, 0])
+        b_idx.append(offset + grid.pairs[:, 1])
+        weights.append(np.full(len(grid.pairs), 1.0 / len(grid.pairs)))
+        owner.append(np.full(len(grid.pairs), v))
+        corner_owner.append(np.full(len(obj), v))
+        nominal.append(grid.square_mm)
+        offset += len(obj)
+    left = np.vstack([np.asarray(p, float).reshape(-1, 2) for p in left_points])
+    right = np.vstack([np.asarray(p, float).reshape(-1, 2) for p in right_points])
+    square = _Square(left, right, np.concatenate(a_idx), np.concatenate(b_idx), np.concatenate(weights))
+    return square, np.concatenate(owner), np.concatenate(corner_owner), np.array(nominal)
+
+
 def model_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray], left_points: Sequence[np.ndarray],
                    right_points: Sequence[np.ndarray]) -> ModelAdequacy | None:
     """The leave-one-view-out check of a stereo calibration on its own board (:class:`ModelAdequacy`).
@@ -603,6 +630,10 @@ def model_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray]
     (scripts/coverage_real.py: the one-step deltas equal refitting without the view to 1-4 % in the scatter of
     abs(T), fx, cx). None without view deltas or with fewer than
     :data:`MIN_ADEQUACY_VIEWS` views.
+
+    The squares' sensitivities: to R and T by re-triangulating every corner (central differences); to the
+    intrinsics by the moved undistortions carried through the triangulation to first order
+    (:func:`_intrinsic_sensitivities`), and the pixel gradient through the same triangulation Jacobian.
     """
     covariance = calib.covariance
     if covariance is None or covariance.view_deltas is None or len(object_points) < MIN_ADEQUACY_VIEWS:
@@ -611,46 +642,44 @@ def model_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray]
         raise ValueError("model_adequacy: one view per row of the covariance's view deltas")
     names = list(covariance.names)
     sigma_px = covariance.sigma_px
-    # Every view's squares at once: one square function over all views' corners, reduced per view.
-    frames, a_idx, b_idx, weights, owner, nominal, offset = [], [], [], [], [], [], 0
-    for v, (obj, left, right) in enumerate(zip(object_points, left_points, right_points, strict=True)):
-        grid = _ObjectGrid(obj)
-        frames.append(FrameCorners(ids=np.arange(len(grid.points)), left_px=np.asarray(left, float).reshape(-1, 2),
-                                   right_px=np.asarray(right, float).reshape(-1, 2), sigma_mean_mm=float("nan"),
-                                   pixel_sigma_px=(sigma_px, sigma_px)))
-        a_idx.append(offset + grid.pairs[:, 0])
-        b_idx.append(offset + grid.pairs[:, 1])
-        weights.append(np.full(len(grid.pairs), 1.0 / len(grid.pairs)))
-        owner.append(np.full(len(grid.pairs), v))
-        nominal.append(grid.square_mm)
-        offset += len(grid.points)
-    square = _Square(np.vstack([f.left_px for f in frames]), np.vstack([f.right_px for f in frames]),
-                     np.concatenate(a_idx), np.concatenate(b_idx), np.concatenate(weights))
-    owner_arr, n = np.concatenate(owner), len(frames)
+    square, owner_arr, corner_owner, nominal_arr = _view_squares(object_points, left_points, right_points)
+    n = len(nominal_arr)
 
     def per_view(points: np.ndarray) -> np.ndarray:
         lengths = np.linalg.norm(points[square.a_idx] - points[square.b_idx], axis=1)
         return np.bincount(owner_arr, weights=square.weights * lengths, minlength=n)
 
-    nominal_arr = np.array(nominal)
-    # The corners' triangulation Jacobian (below) on another thread while the sensitivities are computed: both are
-    # numpy and OpenCV work on large arrays, which releases the GIL (the same calls: the same numbers).
+    intrinsic = [name for name in names if name.partition(".")[0] in ("left", "right")]
+    extrinsic = [name for name in names if name not in intrinsic]
+    left_norm = undistort_points(square.left, calib.K1, calib.D1)
+    right_norm = undistort_points(square.right, calib.K2, calib.D2)
+    # R and T re-triangulate every corner (central differences) on another thread while the intrinsics'
+    # sensitivities are linearised here: both are numpy and OpenCV work on large arrays, which releases the GIL.
     with ThreadPoolExecutor(max_workers=1) as pool:
-        triangulated = pool.submit(lambda: (triangulate(calib, square.left, square.right),
-                                            triangulation_jacobian(calib, square.left, square.right)))
-        measured = per_view(triangulate(calib, square.left, square.right))
-        g = _sensitivities(calib, square, names, per_view).T  # (n, P)
-        points, jac = triangulated.result()
+        moved_extrinsics = pool.submit(_sensitivities, calib, square, extrinsic, per_view, (left_norm, right_norm))
+        points = triangulate_normalised(calib.R, calib.T, left_norm, right_norm)
+        measured = per_view(points)
+        jac_norm = _normalised_jacobian(calib, left_norm, right_norm)  # (N, 3, 4) per normalised coordinate
+        # Each view's own square (weights 1/K_v) per corner's normalised coordinates, through the triangulation.
+        d = points[square.a_idx] - points[square.b_idx]
+        u = d / np.linalg.norm(d, axis=1)[:, None] * square.weights[:, None]
+        gradient_norm = np.zeros((len(points), 4))
+        np.add.at(gradient_norm, square.a_idx, np.einsum("kj,kjc->kc", u, jac_norm[square.a_idx]))
+        np.add.at(gradient_norm, square.b_idx, -np.einsum("kj,kjc->kc", u, jac_norm[square.b_idx]))
+        g_intrinsic = _intrinsic_sensitivities(calib, square, intrinsic, gradient_norm, corner_owner, n)
+        # The square's pixel gradient per corner: the normalised one through each camera's undistortion.
+        gradient = np.concatenate([
+            np.einsum("ni,nij->nj", gradient_norm[:, :2], _undistortion_jacobian(square.left, calib.K1, calib.D1)),
+            np.einsum("ni,nij->nj", gradient_norm[:, 2:], _undistortion_jacobian(square.right, calib.K2, calib.D2)),
+        ], axis=1)
+        g_extrinsic = moved_extrinsics.result()
+    g = np.zeros((n, len(names)))  # (n, P) in the covariance's order
+    for columns, values in ((intrinsic, g_intrinsic), (extrinsic, g_extrinsic)):
+        for name, column in zip(columns, values, strict=True):
+            g[:, names.index(name)] = column
     # First order in each view's leave-one-out change, like the change itself (no refit, no re-triangulation).
     errors = (measured + np.einsum("np,np->n", g, covariance.view_deltas) - nominal_arr) / nominal_arr
     calibration = np.array([covariance.variance_of(g_v, names)[0] for g_v in g]) / nominal_arr**2
-    # The square's pixel gradient per corner: each view's own square (weights 1/K_v), through the triangulation.
-    d = points[square.a_idx] - points[square.b_idx]
-    u = d / np.linalg.norm(d, axis=1)[:, None] * square.weights[:, None]
-    gradient = np.zeros((len(points), 4))
-    np.add.at(gradient, square.a_idx, np.einsum("kj,kjc->kc", u, jac[square.a_idx]))
-    np.add.at(gradient, square.b_idx, -np.einsum("kj,kjc->kc", u, jac[square.b_idx]))
-    corner_owner = np.concatenate([np.full(len(f.ids), v) for v, f in enumerate(frames)])
     pixel = np.bincount(corner_owner, weights=np.sum(gradient**2, axis=1), minlength=n) / nominal_arr**2
     errors_arr = np.asarray(errors)
     mean_square, mean_calibration, mean_pixel = float(np.mean(errors_arr**2)), float(np.mean(calibration)), \
@@ -661,6 +690,56 @@ def model_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray]
                          rms_rel=float(math.sqrt(mean_square)), predicted_rel=float(math.sqrt(mean_predicted)),
                          bias_rel=float(np.mean(errors_arr)), corner_px=float(corner),
                          errors_rel=tuple(float(e) for e in errors_arr))
+
+
+#: Central-difference steps of :func:`model_adequacy`'s Jacobians: of the triangulation in the normalised
+#: coordinates (2e-6 of the coordinates' ~0.5; ~1e-3 px, as :func:`triangulation_jacobian`'s step) and of the
+#: undistortion in the pixels.
+_NORMALISED_STEP, _PIXEL_STEP_PX = 1e-6, 1e-3
+
+
+def _normalised_jacobian(calib: StereoCalibration, left_norm: np.ndarray, right_norm: np.ndarray) -> np.ndarray:
+    """(N, 3, 4) derivatives of each triangulated point (mm) w.r.t. its undistorted normalised coordinates
+    (x_left, y_left, x_right, y_right): central differences, the eight triangulations in one call."""
+    n = len(left_norm)
+    steps = np.zeros((4, 2, n, 4))  # (coordinate k, +/-, point, (x_l, y_l, x_r, y_r))
+    steps[np.arange(4), 0, :, np.arange(4)] = _NORMALISED_STEP
+    steps[np.arange(4), 1, :, np.arange(4)] = -_NORMALISED_STEP
+    moved = triangulate_normalised(calib.R, calib.T, (left_norm + steps[..., :2]).reshape(-1, 2),
+                                   (right_norm + steps[..., 2:]).reshape(-1, 2)).reshape(4, 2, n, 3)
+    return np.moveaxis((moved[:, 0] - moved[:, 1]) / (2 * _NORMALISED_STEP), 0, 2)
+
+
+def _undistortion_jacobian(points_px: np.ndarray, K: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """(N, 2, 2) derivatives of the undistorted normalised coordinates w.r.t. the pixels: central differences,
+    the four undistortions in one call."""
+    points_px = np.asarray(points_px, float).reshape(-1, 2)
+    n = len(points_px)
+    steps = np.zeros((2, 2, n, 2))  # (pixel coordinate j, +/-, point, (u, v))
+    steps[np.arange(2), 0, :, np.arange(2)] = _PIXEL_STEP_PX
+    steps[np.arange(2), 1, :, np.arange(2)] = -_PIXEL_STEP_PX
+    moved = undistort_points((points_px + steps).reshape(-1, 2), K, D).reshape(2, 2, n, 2)
+    return np.moveaxis((moved[:, 0] - moved[:, 1]) / (2 * _PIXEL_STEP_PX), 0, 2)  # (N, 2 normalised, 2 px)
+
+
+def _intrinsic_sensitivities(calib: StereoCalibration, square: _Square, names: Sequence[str],
+                             gradient_norm: np.ndarray, owner: np.ndarray, n_views: int) -> np.ndarray:
+    """(P, n_views) d(each view's square)/d(intrinsic parameter) for ``names`` (``left.*``, ``right.*``):
+    :func:`_sensitivities`' central differences of the undistortion, carried through the triangulation to first
+    order (``gradient_norm`` (N, 4): each corner's d(its view's square)/d(normalised coordinates)) instead of
+    triangulating every moved corner again; ``owner`` (N,) each corner's view. The same derivative: the moved
+    corners lie ~1e-4 of their coordinates away, where the triangulation is linear to ~1e-8 of the difference."""
+    out = np.zeros((len(names), n_views))
+    for i, name in enumerate(names):
+        step = parameter_step(name)
+        side = name.partition(".")[0]
+        pixels, K, D, columns = ((square.left, "K1", "D1", slice(0, 2)) if side == "left" else
+                                 (square.right, "K2", "D2", slice(2, 4)))
+        plus, minus = (undistort_points(pixels, moved[K], moved[D]) for moved in
+                       (_perturbed_fields(calib, name, step), _perturbed_fields(calib, name, -step)))
+        change = np.sum(gradient_norm[:, columns] * (plus - minus), axis=1) / (2 * step)
+        out[i] = np.bincount(owner, weights=change, minlength=n_views)
+    return out
 
 
 def with_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray], left_points: Sequence[np.ndarray],
