@@ -106,6 +106,38 @@ def test_single_threaded_opencv_pins_one_thread_and_restores_the_previous_count(
         cv2.setNumThreads(before)
 
 
+def test_the_recorded_opencv_thread_count_is_the_setting_not_a_solve_s_moment():
+    # A session's numeric environment read while another thread solves (or a replay's pool holds OpenCV on one
+    # thread) records the process's setting, as one read at any other moment does.
+    import threading
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        assert calibrate.opencv_threads() == 2
+        with single_threaded_opencv():
+            assert cv2.getNumThreads() == 1 and calibrate.opencv_threads() == 2
+        inside, done = threading.Event(), threading.Event()
+
+        def solve():
+            with calibrate._deterministic():
+                inside.set()
+                done.wait(5)
+
+        thread = threading.Thread(target=solve)
+        thread.start()
+        assert inside.wait(5) and cv2.getNumThreads() == 1
+        read = []
+        reader = threading.Thread(target=lambda: read.append(calibrate.opencv_threads()))
+        reader.start()
+        done.set()
+        thread.join(5)
+        reader.join(5)
+        assert read == [2]
+    finally:
+        cv2.setNumThreads(before)
+
+
 def test_solves_inside_single_threaded_opencv_do_not_queue_for_the_solver_lock():
     """Outside the block a solve waits for the lock another solve holds; inside it runs at once."""
 

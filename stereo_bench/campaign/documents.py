@@ -648,8 +648,9 @@ class NumericEnvironment(BaseModel):
     variables: dict[str, str] = Field(default_factory=dict, description="the environment variables that choose "
                                       "kernels or thread counts, where set (OPENBLAS_CORETYPE, OPENBLAS_NUM_THREADS, "
                                       "OMP_NUM_THREADS, OPENCV_CPU_DISABLE, ...)")
-    opencv_threads: int | None = Field(None, description="cv2.getNumThreads() (the calibration solvers run on one "
-                                                         "thread whatever it is)")
+    opencv_threads: int | None = Field(None, description="OpenCV's thread count as the process has it set "
+                                                         "(vision.calibrate.opencv_threads; the calibration solvers "
+                                                         "run on one thread whatever it is)")
     opencv_cpu_features: str | None = Field(None, description="cv2.getCPUFeaturesLine(): the SIMD paths OpenCV "
                                                               "dispatches to (* = built for dispatch, ? = not here)")
     cpu: CpuRecord = Field(default_factory=CpuRecord)

@@ -88,11 +88,12 @@ def cpu() -> dict[str, Any]:
 
 def numeric_environment() -> dict[str, Any]:
     """The numeric environment of this process now (``documents.NumericEnvironment`` as JSON)."""
+    from stereo_bench.vision.calibrate import opencv_threads
     return {
         "python": platform.python_version(), "numpy": np.__version__, "opencv": cv2.__version__,
         "blas": blas_libraries(),
         "variables": {name: os.environ[name] for name in NUMERIC_VARIABLES if name in os.environ},
-        "opencv_threads": int(cv2.getNumThreads()),
+        "opencv_threads": opencv_threads(),
         "opencv_cpu_features": cv2.getCPUFeaturesLine(),
         "cpu": cpu(),
     }

@@ -173,6 +173,15 @@ def _deterministic():
             cv2.setNumThreads(previous)
 
 
+def opencv_threads() -> int:
+    """OpenCV's thread count as this process has it set: ``cv2.getNumThreads()`` outside the windows in which this
+    module holds OpenCV on one thread (a solve, :func:`single_threaded_opencv`). Read inside one of those, from
+    another thread, the setting is 1 for the moment only: a session's numeric environment recorded so, and its
+    replay read outside (or the other way round), said "OpenCV threads 2 -> 1" of the same process."""
+    with _SINGLE_THREAD:  # a solve holding OpenCV on one thread ends first (a few 100 ms)
+        return int(_unpinned_threads if _pinned else cv2.getNumThreads())
+
+
 @contextmanager
 def single_threaded_opencv():
     """OpenCV on one thread (process-wide) for the duration; the previous thread count is restored after.
