@@ -220,24 +220,29 @@ class _Writer:
         return relative
 
     def figure(self, relative: str, figure, alt: str, caption: str = "") -> ImageRef:
-        self.write(relative, figures.png_bytes(figure))
-        width, height = (round(v) for v in figure.get_size_inches() * figure.dpi)
-        return ImageRef(relative, width, height, alt, caption)
+        return self._png(relative, _drawing(figure), alt, caption)
 
     def drawn_figure(self, relative: str, key: tuple, draw: Callable[[], object], alt: str,
                      caption: str = "") -> ImageRef:
         """:meth:`figure` of ``draw()``, drawn only the first time ``key`` (everything ``draw`` reads) is seen."""
         if key not in self._drawn:
-            figure = draw()
-            width, height = (round(v) for v in figure.get_size_inches() * figure.dpi)
-            self._drawn[key] = (figures.png_bytes(figure), width, height)
-        data, width, height = self._drawn[key]
+            self._drawn[key] = _drawing(draw())
+        return self._png(relative, self._drawn[key], alt, caption)
+
+    def _png(self, relative: str, drawing: tuple[bytes, int, int], alt: str, caption: str) -> ImageRef:
+        data, width, height = drawing
         self.write(relative, data)
         return ImageRef(relative, width, height, alt, caption)
 
     def image(self, relative: str, image: np.ndarray, alt: str, caption: str = "") -> ImageRef:
         self.write(relative, annotate.encode_jpeg(image))
         return ImageRef(relative, int(image.shape[1]), int(image.shape[0]), alt, caption)
+
+
+def _drawing(figure) -> tuple[bytes, int, int]:
+    """A figure's PNG bytes and its size in pixels."""
+    width, height = (round(v) for v in figure.get_size_inches() * figure.dpi)
+    return figures.png_bytes(figure), width, height
 
 
 def _angle_groups(rows: list[dict]) -> dict[tuple, list[dict]]:
