@@ -58,8 +58,11 @@ class Codec:
     ext: str  # for cv2.imencode; ".pgm" becomes ".ppm" for BGR
     params: list[int] = field(default_factory=list)
     pillow: dict | None = None  # encode with Pillow instead (format and save options)
+    own: bool = False  # encode with stereo_bench.frames.encode_frame (what sessions are written with)
 
     def encode(self, image: np.ndarray) -> bytes:
+        if self.own:
+            return frame_codec.encode_frame(image)
         if self.pillow is not None:
             from PIL import Image
 
@@ -82,6 +85,11 @@ def codecs() -> tuple[list[Codec], dict[str, str]]:
     c = cv2
     png, skipped = [], {}
     png.append(Codec("png level 0 (stored)", ".png", [c.IMWRITE_PNG_COMPRESSION, 0]))
+    if frame_codec._libdeflate is not None:
+        png.append(Codec("png up filter, libdeflate level 1 (stereo_bench.frames; colour and 16-bit: "
+                         "OpenCV, Huffman only, up)", ".png", own=True))
+    else:
+        skipped["png libdeflate"] = "the deflate package (libdeflate) is not installed"
     png.append(Codec(CURRENT, ".png",
                      [c.IMWRITE_PNG_COMPRESSION, 1, c.IMWRITE_PNG_STRATEGY, c.IMWRITE_PNG_STRATEGY_RLE]))
     for level in (1, 3, 6, 9):
@@ -261,7 +269,8 @@ def main() -> None:
         exp1_frames = 2 * EXP1_CONFIGURATIONS * (EXP1_CALIBRATION_PAIRS + EXP1_MEASUREMENT_PAIRS)
         result = {
             "extension": codec.ext, "opencv_params": codec.params, "pillow": codec.pillow,
-            "chosen": codec.ext == frame_codec.FRAME_EXTENSION and codec.params == frame_codec.PNG_PARAMS,
+            "chosen": codec.own or (frame_codec._libdeflate is None and codec.ext == frame_codec.FRAME_EXTENSION
+                                    and codec.params == frame_codec.PNG_PARAMS),
             "lossless": ("no" if "no" in row["lossless"] or row["errors"] else
                          "yes" if row["lossless"] == {"yes"} else "yes, grey frames decode as 3 channels"),
             "errors": row["errors"],

@@ -1,10 +1,16 @@
 """Recorded frames: the lossless format a session writes them in, and the reader for every format it may hold.
 
-Format, chosen by measurement (scripts/bench_frame_format.py, rendered 1080p frames, 2 cores): PNG,
-zlib level 1, Huffman coding only, every row with the "up" filter. Against the setting used until
-now (level 1, run-length strategy, filters chosen per row) a grey frame encodes in 16 ms instead of
-34, decodes in 8.8 ms instead of 13.4, and is 5 % larger (0.97 MB instead of 0.93) (one thread, load
-average 3-6 from other jobs; scripts/results/bench_frame_format.json holds the latest run).
+Format, chosen by measurement (scripts/bench_frame_format.py and the same frames of the lab bench, 1080p,
+one thread, 2 cores, load ~1-3 from other jobs): PNG, every row with the "up" filter, one IDAT chunk deflated
+by libdeflate at level 1 (grey 8-bit frames, what the cameras deliver; written here). Against OpenCV's fastest
+setting (zlib level 1, Huffman coding only, "up"; what sessions were written with until 2026-12-03):
+
+- a lab-bench frame (MJPG, as USB cameras deliver): 11 ms of CPU instead of 34, 0.38 MB instead of 0.53;
+- an ideal-bench frame (white sensor noise, no MJPG): 19 ms instead of 34, but 1.09 MB instead of 0.97.
+
+The encoder had been a sixth of a simulated campaign's CPU (~70 ms a stereo pair). Colour and 16-bit
+frames, and every frame when the ``deflate`` package is missing, are written by OpenCV with the earlier
+setting. Either is a plain PNG that any reader opens.
 
 Why not smaller: a camera frame is mostly sensor noise, which no lossless coder can compress (2 DN
 of white noise alone carries ~3 bits per pixel, 0.79 MB per 1080p frame). The best lossless coders
@@ -79,10 +85,40 @@ def encode_frame(image: np.ndarray) -> bytes:
         raise FrameError(f"frames must be (H, W) or (H, W, 1|3|4), got shape {image.shape}")
     if image.size == 0:
         raise FrameError("cannot write an empty frame")
+    if image.dtype == np.uint8 and (image.ndim == 2 or image.shape[2] == 1) and _libdeflate is not None:
+        return _encode_grey_up_png(image.reshape(image.shape[:2]))
     ok, buffer = cv2.imencode(FRAME_EXTENSION, np.ascontiguousarray(image), PNG_PARAMS)
     if not ok:
         raise FrameError(f"cv2.imencode failed for a frame of shape {image.shape} {image.dtype}")
     return buffer.tobytes()
+
+
+def _png_chunk(kind: bytes, body: bytes) -> bytes:
+    crc = _libdeflate.crc32(body, _libdeflate.crc32(kind))  # zlib's CRC-32, continued from the chunk type
+    return b"".join((struct.pack(">I", len(body)), kind, body, struct.pack(">I", crc)))
+
+
+def _encode_grey_up_png(image: np.ndarray) -> bytes:
+    """A PNG of the (H, W) uint8 ``image``: IHDR (8-bit grey), one IDAT (every row "up", libdeflate level 1), IEND.
+
+    The rows' differences are taken into this thread's scratch buffer (reused: a fresh 2 MB costs page faults).
+    """
+    height, width = image.shape
+    size = height * (width + 1)
+    buffer = getattr(_scratch, "encode", None)
+    if buffer is None or buffer.size < size:
+        buffer = _scratch.encode = np.empty(size, np.uint8)
+    rows = buffer[:size].reshape(height, width + 1)
+    rows[:, 0] = _FILTER_UP
+    rows[0, 1:] = image[0]  # "up" from the zero row above the first
+    np.subtract(image[1:], image[:-1], out=rows[1:, 1:])  # mod 256, as the filter is defined
+    try:
+        data = _libdeflate.zlib_compress(memoryview(rows).cast("B"), 1)
+    except _libdeflate.DeflateError as error:  # pragma: no cover - libdeflate fails only when out of memory
+        raise FrameError(f"libdeflate could not compress a frame of shape {image.shape}: {error}") from None
+    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    return b"".join((PNG_MAGIC, _png_chunk(b"IHDR", header), _png_chunk(b"IDAT", data),
+                     struct.pack(">I", 0) + PNG_END))
 
 
 def decode_frame(data: bytes | bytearray | memoryview, name: str) -> np.ndarray:
@@ -120,7 +156,7 @@ def _damaged(name: str) -> FrameError:
 
 
 _FILTER_NONE, _FILTER_UP = 0, 2
-_scratch = threading.local()  # per decoding thread: the buffer the image data is gathered in
+_scratch = threading.local()  # per thread: the buffers a frame is filtered (encode) or gathered (decode) in
 
 
 def _joined(parts: list[memoryview]) -> memoryview:

@@ -47,19 +47,45 @@ def test_round_trip_is_bit_identical(shape, dtype):
 
 
 def test_frames_are_png_written_with_the_measured_setting():
-    """Huffman-only deflate and the 'up' filter on every row (scripts/bench_frame_format.py chose them):
-    the per-row filter byte of the decompressed image data is 2 throughout."""
-    image = noisy_frame((120, 160))
-    data = encode_frame(image)
+    """Grey frames: one IDAT deflated by libdeflate, the 'up' filter on every row (scripts/bench_frame_format.py
+    chose them); colour and 16-bit frames: OpenCV's Huffman-only deflate, 'up' filter. Each is a plain PNG that
+    zlib inflates and OpenCV's libpng decodes to the same pixels."""
+    from stereo_bench import frames
+
+    grey = noisy_frame((120, 160))
+    data = encode_frame(grey)
     assert FRAME_EXTENSION == ".png" and data.startswith(PNG_MAGIC)
-    raw = zlib.decompress(b"".join(body for kind, body in png_chunks(data) if kind == b"IDAT"))
-    rows = np.frombuffer(raw, np.uint8).reshape(image.shape[0], image.shape[1] + 1)
-    if hasattr(cv2, "IMWRITE_PNG_FILTER"):
+    chunks = png_chunks(data)
+    assert [kind for kind, _ in chunks] == ([b"IHDR", b"IDAT", b"IEND"] if frames._libdeflate is not None
+                                            else [kind for kind, _ in chunks])
+    position = len(PNG_MAGIC)
+    for kind, body in chunks:  # every chunk's CRC as zlib computes it, and nothing after IEND
+        end = position + 8 + len(body)
+        assert int.from_bytes(data[end: end + 4], "big") == zlib.crc32(kind + body)
+        position = end + 4
+    assert position == len(data)
+    raw = zlib.decompress(b"".join(body for kind, body in chunks if kind == b"IDAT"))
+    rows = np.frombuffer(raw, np.uint8).reshape(grey.shape[0], grey.shape[1] + 1)
+    if frames._libdeflate is not None or hasattr(cv2, "IMWRITE_PNG_FILTER"):
         assert set(rows[:, 0]) == {2}  # PNG filter type 2 = up
-    # Huffman only: no run lengths or back-references, so even a blank frame costs >= 1 bit per byte
+    np.testing.assert_array_equal(np.cumsum(rows[:, 1:], axis=0, dtype=np.uint8), grey)
+    np.testing.assert_array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), grey)
+    # Huffman only for OpenCV's: no run lengths or back-references, so even a blank frame costs >= 1 bit per byte
     # (run-length or default deflate would store it in ~1 kB).
-    blank = np.zeros((400, 500), np.uint8)
+    blank = np.zeros((400, 500, 3), np.uint8)
     assert len(encode_frame(blank)) >= blank.size / 8
+
+
+def test_grey_frames_without_libdeflate_are_written_by_opencv_and_read_alike(monkeypatch):
+    from stereo_bench import frames
+
+    grey = noisy_frame((90, 130), seed=3)
+    ours = encode_frame(grey)
+    monkeypatch.setattr(frames, "_libdeflate", None)
+    theirs = encode_frame(grey)
+    assert theirs != ours
+    for data in (ours, theirs):
+        np.testing.assert_array_equal(decode_frame(data, "f.png"), grey)
 
 
 def test_refuses_what_it_cannot_store_losslessly():
