@@ -222,15 +222,29 @@ def board_pose_in_view(
 ) -> np.ndarray:
     """T_rig_board (4x4, mm) of a board whose grid centre ``grid_centre`` (3,) (board frame, mm) sits at
     ``distance_mm`` along the view direction (offset[0], offset[1], 1) of :func:`mean_view_frame`
-    ``R_rig_view``, facing the rig origin and then turned about its own y, x, z axes (degrees, in that order)."""
+    ``R_rig_view``, facing the rig origin and then turned about its own y, x, z axes (degrees, in that order).
+
+    ``offset`` may also be (N, 2): then (N, 4, 4), one pose per offset (a search along a direction in one call).
+    """
+    offsets = np.asarray(offset, dtype=np.float64)
+    single = offsets.ndim == 1
+    offsets = offsets.reshape(-1, 2)
     x_axis = R_rig_view[:, 0]
-    centre = distance_mm * (R_rig_view @ np.array([offset[0], offset[1], 1.0]))
-    normal = centre / np.linalg.norm(centre)
-    bx = x_axis - (x_axis @ normal) * normal
-    bx /= np.linalg.norm(bx)
-    R_face = np.column_stack([bx, np.cross(normal, bx), normal])
-    R = R_face @ rotation_deg("y", yaw_deg) @ rotation_deg("x", pitch_deg) @ rotation_deg("z", roll_deg)
-    return make_transform(R, centre - R @ grid_centre)
+    directions = np.column_stack([offsets, np.ones(len(offsets))])
+    centres = distance_mm * (directions @ R_rig_view.T)  # (N, 3)
+    normals = centres / np.linalg.norm(centres, axis=1, keepdims=True)
+    bx = x_axis - (normals @ x_axis)[:, None] * normals
+    bx /= np.linalg.norm(bx, axis=1, keepdims=True)
+    by = np.column_stack([normals[:, 1] * bx[:, 2] - normals[:, 2] * bx[:, 1],  # normal x bx (np.cross's terms)
+                          normals[:, 2] * bx[:, 0] - normals[:, 0] * bx[:, 2],
+                          normals[:, 0] * bx[:, 1] - normals[:, 1] * bx[:, 0]])
+    R_face = np.stack([bx, by, normals], axis=2)  # columns bx, by, normal
+    R = R_face @ (rotation_deg("y", yaw_deg) @ rotation_deg("x", pitch_deg) @ rotation_deg("z", roll_deg))
+    T = np.zeros((len(offsets), 4, 4))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = centres - R @ np.asarray(grid_centre, dtype=np.float64)
+    T[:, 3, 3] = 1.0
+    return T[0] if single else T
 
 
 def _coefficients(dist) -> tuple[float, ...]:

