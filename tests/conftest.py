@@ -125,14 +125,39 @@ def serial_port(request: pytest.FixtureRequest) -> str:
 
 @pytest.fixture(scope="session")
 def small_reference(tmp_path_factory) -> Path:
-    """The small campaign (tests/campaigns.py) recorded once per test session. Read it; copy it to change it."""
+    """The small campaign (tests/campaigns.py) recorded once per test run, by whichever pytest-xdist worker asks
+    first (the others wait for it: three workers had recorded it three times). Read it; copy it to change it."""
     from stereo_bench.campaign.execute import run_campaign
     from tests.campaigns import small_config
 
-    out = tmp_path_factory.mktemp("reference") / "small"
-    summary = run_campaign(small_config(), out, yes=True)
-    assert summary.exit_status == "success", summary
-    return out
+    def record(directory: Path) -> None:
+        summary = run_campaign(small_config(), directory / "small", yes=True)
+        assert summary.exit_status == "success", summary
+
+    return _shared_across_workers(tmp_path_factory, "small-reference", record) / "small"
+
+
+def _shared_across_workers(tmp_path_factory: pytest.TempPathFactory, name: str, build) -> Path:
+    """A new directory that ``build(directory)`` fills once per test run, shared by every pytest-xdist worker.
+
+    The first worker to take the lock builds it and marks it done; the others wait on the lock and reuse it. A
+    build that fails leaves no mark: each worker that needs it then tries (and fails) for itself, with its own
+    traceback.
+    """
+    import fcntl
+
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the run's directory under xdist
+    directory = root / f"shared-{name}"
+    done = root / f"shared-{name}.done"
+    with open(root / f"shared-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            shutil.rmtree(directory, ignore_errors=True)  # a failed build's leftovers
+            directory.mkdir()
+            build(directory)
+            done.touch()
+    return directory
 
 
 @pytest.fixture
