@@ -247,11 +247,18 @@ def test_the_per_view_review_has_threshold_exclude_and_recalibrate_controls(serv
     tab.click("#continue")
     prompt = review_prompt("B100_Z450_A90", ReviewState(n_views=6))
 
-    def answered(ticket, timeout_s=10.0):
+    def answered(ticket, timeout_s=30.0):
         end = time.monotonic() + timeout_s
         while not ticket.done and time.monotonic() < end:
             time.sleep(0.05)
+        assert ticket.done, f"{ticket.prompt.kind} prompt not answered in {timeout_s:g} s"
         return ticket.action, ticket.value
+
+    def showing_the_latest_offer():
+        """Wait until the page shows the prompt offered last: its buttons answer the prompt whose id they send, and
+        the review's controls are already visible from the review before (a click then would answer that one)."""
+        prompt_id = page.operator._offered
+        tab.wait_for_selector(f'#prompt[data-prompt-id="{prompt_id}"]:not([hidden])')
 
     # As a run does: the next prompt once this one is answered (a press still on its way would otherwise meet the
     # next prompt, and the page refuses that: tests/test_live_server.py).
@@ -263,6 +270,7 @@ def test_the_per_view_review_has_threshold_exclude_and_recalibrate_controls(serv
                                   (None, "#continue", ("continue", None))):
         ticket = Ticket(prompt, 2)
         page.operator.offer(ticket)
+        showing_the_latest_offer()
         tab.wait_for_selector("#review-controls:not([hidden])")
         chart = tab.inner_text("#prompt-message")
         assert "keys, then Enter: t PX  threshold" in chart and tab.evaluate(

@@ -354,6 +354,9 @@ function renderLog(log) {
 function renderPrompt(prompt, run) {
   const banner = $("prompt");
   banner.hidden = !prompt;
+  // Which prompt the buttons answer (they send its id): a browser test or a script waits for the one it offered.
+  if (prompt && prompt.id != null) banner.dataset.promptId = prompt.id;
+  else delete banner.dataset.promptId;
   const accepts = prompt ? prompt.actions : [];
   for (const action of PROMPT_ACTIONS) {
     $(action).disabled = !TOKEN || !accepts.includes(action);
