@@ -19,7 +19,7 @@ import pytest
 from stereo_bench.campaign.execute import CampaignPlan, replay_session, run_campaign
 from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.session import SessionReader
-from tests.campaigns import results_csv
+from tests.campaigns import motion_commands, results_csv
 from tests.test_campaign_extrinsics import lab_config
 from tests.test_campaign_fixed_board import lens_calibration
 
@@ -53,9 +53,15 @@ def _measured(config):
 
 
 @pytest.fixture(scope="module")
-def tilt_session(tmp_path_factory):
+def tilt_lens(tmp_path_factory):
+    """The lens calibration (calib_dir) the module's campaigns share: made once."""
+    return lens_calibration(tmp_path_factory.mktemp("tilt-lens"))
+
+
+@pytest.fixture(scope="module")
+def tilt_session(tmp_path_factory, tilt_lens):
     root = tmp_path_factory.mktemp("tilt")
-    config = tilt_config(lens_calibration(root))
+    config = tilt_config(tilt_lens)
     out = root / "session"
     summary = run_campaign(config, out, yes=True, plan=_measured(config))
     assert summary.exit_status == "success", summary.reason
@@ -142,6 +148,63 @@ def test_a_tilting_session_replays_to_the_last_digit(tilt_session, tmp_path):
     original = SessionReader(tilt_session).events(kind="kinematic_model", attempt=None)[0]
     assert again.read_bytes(model.files["kinematic_model.toml"]) == \
         SessionReader(tilt_session).read_bytes(original.files["kinematic_model.toml"])
+
+
+def test_a_tilting_session_stopped_mid_design_resumes_with_its_tilts(tilt_lens, tmp_path):
+    """Stopped a few visits into the design, the tilting rig's session resumes: it homes the tilt axes with the
+    others (grblHAL's A and B), starts the design over from its placement (the board may have moved: one board
+    pose is the fit's premise), steps the tilts again, fits tilt joints from the resume's views only, and measures at
+    the reported tilts; the stopped attempt's views stay recorded, and the session replays."""
+    import threading
+
+    from stereo_bench.campaign.execute import RunControl
+
+    config = tilt_config(tilt_lens, fixed_board_views=1)
+    plan = _measured(config)
+    n_visits = len([v for v in plan.visits if v.purpose == "kinematic"])
+    out, control, done = tmp_path / "s", RunControl(), threading.Event()
+
+    def stop_mid_design() -> None:
+        stream = out / "documents.jsonl"
+        while not done.is_set():
+            if stream.exists() and stream.read_text().count('"calibration_view"') >= 5:
+                control.request_stop("test: stopped mid-design")
+                return
+            done.wait(0.005)
+
+    watcher = threading.Thread(target=stop_mid_design, daemon=True)
+    watcher.start()
+    try:
+        first = run_campaign(config, out, plan=plan, control=control, yes=True)
+    finally:
+        done.set()
+    assert first.exit_status == "interrupted"
+    stopped = [e.config_id for e in SessionReader(out).events(kind="calibration_view", attempt=1)]
+    assert 0 < len(stopped) < n_visits
+    second = run_campaign(config, out, plan=plan, yes=True, resume=True)
+    assert second.exit_status == "success", second.reason
+    reader = SessionReader(out)
+    commands = motion_commands(out / "transcripts" / "serial-a2.jsonl")
+    assert commands[0].startswith("$H")  # homed before it moved again ...
+    assert any(" A" in f" {c}" and " B" in f" {c}" for c in commands[1:])  # ... and drove the tilts
+    assert len(reader.events(kind="calibration_view", attempt=1)) == len(stopped)  # kept, not overwritten
+    resumed = [e.config_id for e in reader.events(kind="calibration_view", attempt=2)]
+    assert len(resumed) == n_visits and resumed[: len(stopped)] == stopped  # the design over, in its order
+    design = {v.config_id: v for v in RecordedStart.of(reader.start()).visits}
+    moves = {e.config_id: e.data.rig for e in reader.events(kind="move", attempt=2)}
+    for config_id in resumed:  # the resume stepped the tilts again, and the rig said so
+        assert abs(moves[config_id].tilt_left_deg - design[config_id].tilt_left_deg) < 1e-3
+        assert abs(moves[config_id].tilt_right_deg - design[config_id].tilt_right_deg) < 1e-3
+    (model,) = reader.events(kind="kinematic_model", attempt=None)
+    assert model.attempt == 2 and model.data.n_views == n_visits and model.data.error is None
+    assert "left_tilt_axis_z_mm" in [row["name"] for row in model.data.identifiability]
+    rows = {row["config_id"]: row for row in results_csv(out)}
+    structures = {e.config_id: e.data for e in reader.events(kind="structure")}
+    assert set(rows) == {"B110_Z500_A87_Tm2", "B170_Z500_A83_T2"}
+    for config_id, row in rows.items():
+        assert row["status"] == "measured" and row["extrinsics_mode"] == "kinematic"
+        assert structures[config_id].axes["tilt_left_deg"] == pytest.approx(float(row["tilt_deg"]), abs=1e-3)
+    assert replay_session(out, tmp_path / "replayed").differences == []
 
 
 def test_at_one_campaign_tilt_the_design_holds_the_tilts_and_the_model_has_no_joints(tmp_path):
