@@ -183,6 +183,33 @@ def _lens_visits(config):
     return [v for v in visits if v.purpose == "intrinsics"], [v for v in visits if v.purpose == "kinematic"]
 
 
+def test_the_plan_assumes_the_corner_noise_it_is_told_and_says_so(tmp_path, capsys):
+    """[extrinsics] plan_corner_sigma_px: at the lab bench's 0.21 px (the real webcam sets: 0.13-0.6) the board alone
+    no longer separates the left pan axis' depth from the focal lengths, so auto presents a lens calibration first;
+    the printed plan names the figure. A calib_dir needs no presentation at any noise; a noise of 0 is refused."""
+    from stereo_bench.campaign.config import ConfigError
+
+    def extrinsics(**extra):
+        return {"extrinsics": {"mode": "kinematic", "design": "fixed-board", **extra}}
+
+    noisy = plan_summary(_config("fixed-board", **extrinsics(plan_corner_sigma_px=0.21)))
+    assert noisy["lens_calibration"]["presentations"] == 12
+    assert noisy["lens_calibration"]["gains"] == ["left_axis_z_mm"]
+    assert noisy["operator_actions"]["total"] == 6 + 12
+    quiet = plan_summary(_config("fixed-board"))
+    assert quiet["lens_calibration"]["presentations"] == 0  # the default, 0.1 px
+    with pytest.raises(ConfigError, match="extrinsics.plan_corner_sigma_px"):
+        _config("fixed-board", **extrinsics(plan_corner_sigma_px=0))
+    path = tmp_path / "exp1.toml"
+    path.write_text('[plan]\ndistance_mm = [300, 400, 500, 600, 700]\nbaseline_mm = [50, 100, 150, 200, 250]\n'
+                    'alpha_deg = [90]\n[extrinsics]\nmode = "kinematic"\ndesign = "fixed-board"\n'
+                    'plan_corner_sigma_px = 0.21\n')
+    assert main(["campaign", "plan", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "0.21 px corners ([extrinsics] plan_corner_sigma_px)" in out
+    assert "calibration board presentations: 12" in out
+
+
 def test_paper_exp1_on_a_fixed_board_needs_no_lens_calibration_unless_asked():
     """paper-exp1's design turns the heads 0-6 deg over four slide positions: the board alone identifies all 22 (at the
     plan's 0.1 px), so auto adds nothing; "present" adds capture.calibration_views presentations before the

@@ -596,6 +596,12 @@ class ExtrinsicsSection(BaseModel):
                             "prior. auto: when the plan's identifiability table says the fixed board alone leaves "
                             "parameters undetermined that such a prior determines; present: always; none: never "
                             "(what the board alone cannot identify is held nominal)")
+    plan_corner_sigma_px: float = Field(
+        0.1, gt=0, le=5, allow_inf_nan=False,
+        description="fixed-board design: the corner noise (px) the plan's identifiability table and its lens plan "
+                    "(fixed_board_lens = auto) assume. 0.1: a good camera; the simulated lab bench and the real "
+                    "webcam sets calibrate to 0.13-0.6 px RMS (docs/SIMULATED_BENCH.md), where the table holds more "
+                    "parameters nominal and auto may add a lens calibration (docs/EXTRINSICS.md)")
     design_tilt: Literal["auto", "include", "hold"] = Field(
         "auto", description="fixed-board design on a rig that drives the tilts (grblHAL's A/B): include: the design "
                             "steps them and the model has tilt joints (predictions at any tilt); hold: the design "

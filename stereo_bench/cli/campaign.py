@@ -187,10 +187,10 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
                          f"{visit['toe_in_left_deg']:g}/{visit['toe_in_right_deg']:g} deg{tilts}  {status}")
     table = summary.get("identifiability")
     if table:
-        from stereo_bench.campaign.plan.lens import PLAN_PIXEL_SIGMA_PX
-
         held = [row for row in table if not row["identified"]]
-        lines.append(f"identifiability (the design's views on the nominal rig, {PLAN_PIXEL_SIGMA_PX:g} px corners, "
+        corners = config.extrinsics.plan_corner_sigma_px
+        lines.append(f"identifiability (the design's views on the nominal rig, {corners:g} px corners "
+                     "([extrinsics] plan_corner_sigma_px), "
                      f"intrinsics {table[0]['intrinsics']}): {len(table) - len(held)} of {len(table)} parameters "
                      "identified")
         for row in table:

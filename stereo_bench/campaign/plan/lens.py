@@ -7,9 +7,9 @@ nominal. :func:`lens_plan` reads that off the plan's identifiability table (:fun
 exactly through the nominal chain at every visit) twice: with the intrinsics from the design's views alone, and with
 the prior a stereo calibration of ``capture.calibration_views`` presented views would give
 (:func:`stereo_bench.vision.planned.planned_stereo_calibration`: its views planned like the simulated presenter's,
-at the same 0.1 px corners as the table). The presentations are planned when the prior identifies a parameter the board
-alone does not; what neither identifies (an axis held at one value, one approach direction) is held nominal either
-way, and no presentation is added for it.
+at the table's corner noise, ``[extrinsics] plan_corner_sigma_px``, 0.1 px by default). The presentations are
+planned when the prior identifies a parameter the board alone does not; what neither identifies (an axis held at one
+value, one approach direction) is held nominal either way, and no presentation is added for it.
 """
 
 from __future__ import annotations
@@ -21,8 +21,14 @@ import numpy as np
 
 from stereo_bench.campaign.config import CampaignConfig
 
-#: The corner noise (px) the plan's identifiability tables assume (one exact view per visit).
+#: The default corner noise (px) the plan's identifiability tables assume (one exact view per visit): ``[extrinsics]
+#: plan_corner_sigma_px``, which :func:`plan_pixel_sigma_px` reads.
 PLAN_PIXEL_SIGMA_PX = 0.1
+
+
+def plan_pixel_sigma_px(config: CampaignConfig) -> float:
+    """The corner noise (px) this campaign's plan assumes (``[extrinsics] plan_corner_sigma_px``)."""
+    return float(config.extrinsics.plan_corner_sigma_px)
 
 
 @dataclass(frozen=True)
@@ -57,7 +63,7 @@ def design_table(config: CampaignConfig, design: Sequence, *, intrinsics: tuple 
     return design_identifiability(configurations, config.calibration_board.build().object_points,
                                   design[0].fixed_board_matrix(),
                                   intrinsics or (left.K, left.dist, right.K, right.dist),
-                                  pixel_sigma_px=PLAN_PIXEL_SIGMA_PX, intrinsics_covariance=covariance,
+                                  pixel_sigma_px=plan_pixel_sigma_px(config), intrinsics_covariance=covariance,
                                   repeatability_mm=config.extrinsics.repeatability_mm,
                                   repeatability_deg=config.extrinsics.repeatability_deg)
 
@@ -66,7 +72,8 @@ def predicted_lens_prior(config: CampaignConfig, visit, n_views: int) -> np.ndar
     """(16, 16) covariance of ``fixed_board.INTRINSIC_NAMES`` that a joint stereo calibration of ``n_views`` views
     presented at ``visit`` would have (views planned as the simulated presenter shows them,
     :func:`stereo_bench.vision.planned.planned_board_poses`, at 0.6-1.3 x the visit's distance within the range
-    where the board fits both views; 0.1 px corners). ValueError if the views cannot be planned there."""
+    where the board fits both views; the plan's corners, :func:`plan_pixel_sigma_px`). ValueError if the views
+    cannot be planned there."""
     from stereo_bench.geometry import RigPose, alpha_from_toe_in
     from stereo_bench.kinematics.fixed_board import INTRINSIC_NAMES
     from stereo_bench.vision.planned import planned_board_poses, planned_stereo_calibration
@@ -85,7 +92,7 @@ def predicted_lens_prior(config: CampaignConfig, visit, n_views: int) -> np.ndar
                   alpha_from_toe_in(visit.toe_in_right_deg), visit.tilt_deg, visit.tilt_deg)
     poses = planned_board_poses(rig, board, left, right, n_views=n_views, distance_mm=(near, far))
     covariance = planned_stereo_calibration(rig, board, left, right, poses,
-                                            pixel_sigma_px=PLAN_PIXEL_SIGMA_PX).covariance
+                                            pixel_sigma_px=plan_pixel_sigma_px(config)).covariance
     index = covariance.index(INTRINSIC_NAMES)
     return np.asarray(covariance.matrix, float)[np.ix_(index, index)]
 
@@ -124,7 +131,7 @@ def lens_plan(config: CampaignConfig, design: Sequence, lens_visit) -> LensPlan 
     gains = tuple(name for name in held_alone if name not in held)
     if choice == "auto" and not gains:
         return without(f"a lens calibration would identify none of {', '.join(held_alone)}: they stay nominal")
-    # The sigmas the prior sharpens most (the table's, 0.1 px corners): what the presentations buy beyond the gains.
+    # The sigmas the prior sharpens most (the table's, at the plan's corners): what presentations buy beyond the gains.
     ratios = sorted(((a.sigma / b.sigma, a) for a, b in zip(alone, prior, strict=True)
                      if a.identified and b.identified and b.sigma), key=lambda item: -item[0])[:3]
     by_name = {r.name: r for r in prior}
@@ -134,4 +141,5 @@ def lens_plan(config: CampaignConfig, design: Sequence, lens_visit) -> LensPlan 
     return LensPlan(n_views, reason + (f"; sigmas {sharper}" if sharper else ""), gains, held, prior, covariance)
 
 
-__all__ = ["PLAN_PIXEL_SIGMA_PX", "LensPlan", "design_table", "lens_plan", "predicted_lens_prior"]
+__all__ = ["PLAN_PIXEL_SIGMA_PX", "LensPlan", "design_table", "lens_plan", "plan_pixel_sigma_px",
+           "predicted_lens_prior"]
