@@ -111,3 +111,21 @@ def test_a_kinematic_session_shows_the_kinematic_fits_calibration_term(tmp_path)
                         calibration=CalibrationPlan(), rig=RigErrors(mode="kinematic", intrinsics_visits=9))
         assert joint < 0.6 * apart.sigma_calibration_mm
     assert any("kinematic: RMS |error|" in line for line in answer.lines)
+
+
+def test_the_answer_figure_of_errors_that_are_all_zero_or_unknown_draws_a_linear_axis_without_a_warning():
+    """A log axis needs a value above zero: a session whose squares came out exactly nominal (or had no truth) got
+    matplotlib's "no positive values" warning and an empty log axis; it gets a linear one that says why."""
+    import warnings
+
+    from stereo_bench.report.figures import answer_figure
+
+    points = [_point(100, 400, 90, 27.0, true=27.0), _point(150, 400, 90, 27.0, true=None)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        figure = answer_figure(points, ["per-config"], title="t", against_true=True)
+    (ax,) = figure.axes
+    assert ax.get_yscale() == "linear" and "(log)" not in ax.get_ylabel()
+    assert any(text.get_text() == "no error above zero to draw" for text in ax.texts)
+    logged = answer_figure([_point(100, 400, 90, 27.05)], ["per-config"], title="t", against_true=True)
+    assert logged.axes[0].get_yscale() == "log"

@@ -509,20 +509,30 @@ def answer_figure(points: Sequence, sources: Sequence[str], *, title: str, again
     ax = figure.add_subplot()
     x = np.arange(len(ordered))
     terms = [t for t in TERM_STYLE if t != "paper's γ" and any(p.predicted_mm.get(t) for p in ordered)]
+    drawn: list[float] = []  # every value drawn: a log axis needs one above zero
     for term in terms:
         colour, style = TERM_STYLE[term]
         y = [p.predicted_mm.get(term) or np.nan for p in ordered]
+        drawn += y
         ax.plot(x, y, style, color=colour, lw=1.4, label=f"predicted: {term}")
     gamma = [p.paper_gamma_mm or np.nan for p in ordered]
     if np.isfinite(gamma).any():
         colour, style = TERM_STYLE["paper's γ"]
+        drawn += gamma
         ax.plot(x, gamma, style, color=colour, lw=1.2, label="the paper's γ (error of the axes' meeting point)")
     for source in sources:
         marker, colour = SOURCE_STYLE.get(source, ("o", "black"))
         y = [abs(e) if (e := (p.error_true_mm(source) if against_true else p.errors_nominal_mm.get(source)))
              is not None else np.nan for p in ordered]
+        drawn += y
         ax.plot(x, y, marker, color=colour, ls="none", ms=6, label=f"measured: {SOURCE_LABELS.get(source, source)}")
-    ax.set_yscale("log")
+    values = np.asarray(drawn, dtype=float)
+    log = bool((np.isfinite(values) & (values > 0)).any())
+    if log:
+        ax.set_yscale("log")
+    else:  # nothing above zero (no error against the truth, or every one exactly 0): a log axis would be empty
+        ax.text(0.5, 0.5, "no error above zero to draw", transform=ax.transAxes, ha="center", va="center",
+                color="#777777")
     ax.set_xticks(x, [f"B{p.baseline_mm:g}" + ("" if abs(p.alpha_deg - 90) < 1e-9 else f" α{p.alpha_deg:g}")
                       for p in ordered], rotation=90, fontsize=7)
     for k in range(1, len(ordered)):
@@ -532,7 +542,7 @@ def answer_figure(points: Sequence, sources: Sequence[str], *, title: str, again
         slots = [k for k, p in enumerate(ordered) if p.distance_mm == z]
         ax.annotate(f"Z {z:g} mm", (np.mean(slots), 1.0), xycoords=("data", "axes fraction"), ha="center",
                     va="bottom", fontsize=8)
-    ax.set_ylabel("|error| of the square, mm (log)" + (", vs as printed" if against_true else ""))
+    ax.set_ylabel("|error| of the square, mm" + (" (log)" if log else "") + (", vs as printed" if against_true else ""))
     ax.set_xlabel("configuration (baseline B in mm, grouped by object distance Z)")
     ax.set_title(title, fontsize=10, pad=16)
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.28), ncol=3, fontsize=7, frameon=False)
