@@ -49,6 +49,8 @@ BOARD = Checkerboard(11, 8, 25.0)
 BASELINE_MM = 100.0
 EXPOSURE_S = 1.0 / 60.0  # a USB camera indoors
 
+RESULTS = Path(__file__).resolve().parent / "results"  # where the latest run of each benchmark is kept
+
 
 class Scene:
     """The lab bench's cameras at B 100 mm and the hand's board, rendered at any bench time."""
@@ -154,7 +156,7 @@ def main() -> None:
     parser.add_argument("--views", type=int, default=24, help="presentations the hand makes")
     parser.add_argument("--fps", type=float, default=10.0, help="the cameras' stream on the bench clock")
     parser.add_argument("--min-views", type=int, default=12)
-    parser.add_argument("--out", default="bench_autocapture.json")
+    parser.add_argument("--out", default=str(RESULTS / "bench_autocapture.json"))
     args = parser.parse_args()
     rule = AutoCaptureRule(min_views=args.min_views)
     started = time.perf_counter()

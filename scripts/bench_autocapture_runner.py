@@ -39,6 +39,8 @@ from stereo_bench.campaign.stream import Collector  # noqa: E402
 from tests.campaigns import lab_config  # noqa: E402
 from tests.test_autocapture_runner import ONE, ungated_rms  # noqa: E402
 
+RESULTS = Path(__file__).resolve().parent / "results"  # where the latest run of each benchmark is kept
+
 
 def run(mode: str, seed: int, views: int, out: Path) -> dict:
     config = lab_config(seed=seed, capture={"calibration_views": views, "calibration_capture": mode,
@@ -64,7 +66,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--views", type=int, default=8)
-    parser.add_argument("--out", default="bench_autocapture_runner.json")
+    parser.add_argument("--out", default=str(RESULTS / "bench_autocapture_runner.json"))
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as work:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 import numpy as np
 
@@ -25,11 +26,13 @@ CASES = [  # (alpha_deg, distance_mm, noise_dn, blur_px)
     (90, 500, 5.0, 0.7), (90, 500, 1.0, 0.7), (90, 500, 2.0, 1.2), (90, 500, 2.0, 0.5),
 ]
 
+RESULTS = Path(__file__).resolve().parent / "results"  # where the latest run of each benchmark is kept
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=12)
-    parser.add_argument("--out", default="bench_corner_noise.json")
+    parser.add_argument("--out", default=str(RESULTS / "bench_corner_noise.json"))
     args = parser.parse_args()
     board, camera = Checkerboard(9, 6, 27.0), CameraModel.from_sensor()
     factor = detect_module.CORNER_NOISE_FACTOR

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 import numpy as np
 
@@ -25,12 +26,14 @@ CALIB_BOARD = Checkerboard(11, 8, 25.0)
 TARGET = Checkerboard(9, 6, 27.0)
 RIGS = [(100.0, 90.0), (120.0, 90.0), (150.0, 80.0), (100.0, 70.0)]
 
+RESULTS = Path(__file__).resolve().parent / "results"  # where the latest run of each benchmark is kept
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--views", type=int, default=20)
     parser.add_argument("--seeds", type=int, default=3)
-    parser.add_argument("--out", default="bench_extrinsics_mode.json")
+    parser.add_argument("--out", default=str(RESULTS / "bench_extrinsics_mode.json"))
     args = parser.parse_args()
     camera = CameraModel.from_sensor()
     calib_renderer = StereoRenderer(CALIB_BOARD, camera, camera)

@@ -49,6 +49,8 @@ CASES = [
     ("fills frame", 170.0, 0.0, 0.0),
 ]
 
+RESULTS = Path(__file__).resolve().parent / "results"  # where the latest run of each benchmark is kept
+
 
 def time_views(renderer: StereoRenderer, T_cam_board: np.ndarray, runs: int, rng: np.random.Generator) -> list[float]:
     renderer.render_view("left", T_cam_board, rng)  # warm-up: caches, page faults
@@ -79,7 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--supersample", type=int, default=Optics().supersample, help="anti-aliasing factor")
     parser.add_argument("--profile", choices=sorted(PROFILES), default="ideal",
                         help="render as this simulated bench's cameras do (default ideal: the renderer's defaults)")
-    parser.add_argument("--out", type=Path, default=Path("bench_render.json"), help="JSON results file")
+    parser.add_argument("--out", type=Path, default=RESULTS / "bench_render.json",
+                        help="JSON results file (default: scripts/results/, where the latest run is kept)")
     args = parser.parse_args(argv)
     if args.runs < 20:
         parser.error("--runs must be at least 20")

@@ -37,6 +37,8 @@ from drivers.sim.grbl.firmware import DEFAULT_AXES
 
 STATUS_TARGET_MS = 2.0
 
+RESULTS = Path(__file__).resolve().parent / "results"  # where the latest run of each benchmark is kept
+
 
 def summarise(samples_s: list[float]) -> dict[str, float]:
     ms = sorted(s * 1000.0 for s in samples_s)
@@ -112,7 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--move-mm", type=float, default=0.1, help="size of each small move, mm")
     parser.add_argument("--connects", type=int, default=20, help="connects (open + close) to time")
     parser.add_argument("--time-scale", type=float, default=1.0, help="emulator time scale (1 = real time)")
-    parser.add_argument("--out", type=Path, default=Path("bench_rig.json"), help="JSON results file")
+    parser.add_argument("--out", type=Path, default=RESULTS / "bench_rig.json",
+                        help="JSON results file (default: scripts/results/, where the latest run is kept)")
     args = parser.parse_args(argv)
 
     load_before = os.getloadavg()
