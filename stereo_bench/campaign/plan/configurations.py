@@ -384,7 +384,16 @@ def _visit_maker(config: CampaignConfig):
 
 
 def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration]) -> list[Visit]:
-    """The visits the extrinsics source needs before the measured configurations (none for most modes), as its
+    """The visits the extrinsics source needs before the measured configurations: :func:`plan_visits_and_lens`'s."""
+    return plan_visits_and_lens(config, configurations)[0]
+
+
+def plan_visits_and_lens(config: CampaignConfig, configurations: Sequence[Configuration]) -> tuple[list[Visit], object]:
+    """(visits, the fixed-board design's :class:`~stereo_bench.campaign.plan.lens.LensPlan` or None): the lens plan
+    that decided whether the design starts with presentations, for ``campaign plan`` to print without deciding
+    again (its identifiability tables cost ~0.5 s for paper-exp1).
+
+    The visits the extrinsics source needs before the measured configurations (none for most modes), as its
     strategy object says (``visits``), each visit checked like a configuration (the calibration board must fit
     both views somewhere, the move must pass the soft limits).
 
@@ -397,10 +406,10 @@ def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration])
     extrinsics = config.extrinsics
     source = extrinsics.source()
     if source.visit_purpose(extrinsics) is None:
-        return []
+        return [], None
     ranges = design_ranges(configurations)
     if ranges is None:
-        return []
+        return [], None
     tilt_ranges = design_tilt(config, configurations).ranges
     if tilt_ranges:
         ranges = {**ranges, "tilt_ranges_deg": tilt_ranges}
@@ -410,6 +419,7 @@ def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration])
     visit = _visit_maker(config)
 
     visits = source.visits(extrinsics, configurations, ranges, visit=visit, format_id=format_id_value)
+    lens = None
     if extrinsics.fixed_board and visits:
         visits = _with_fixed_board(visits, board, left, right, config.calibration_board.describe())
         lens, lens_visit = fixed_board_lens(config, configurations, visits, visit=visit)
@@ -417,22 +427,20 @@ def plan_visits(config: CampaignConfig, configurations: Sequence[Configuration])
             # The presentations first, at the measured configuration where a presented board fits: the fixed
             # board is placed after them (a presented board would hide it, or move it).
             visits = [lens_visit, *(dataclasses.replace(v, index=v.index + 1) for v in visits)]
-    return visits
+    return visits, lens
 
 
 def fixed_board_lens(config: CampaignConfig, configurations: Sequence[Configuration], design: Sequence[Visit], *,
-                     visit=None):
+                     visit):
     """(:class:`~stereo_bench.campaign.plan.lens.LensPlan` or None, the intrinsics visit it presents at): whether a
     fixed-board ``design`` starts with a lens calibration of presented views (:func:`.lens.lens_plan`). ``visit``:
-    plan_visits' visit maker (None: made here, for ``campaign plan``'s summary)."""
+    plan_visits' visit maker."""
     from stereo_bench.campaign.extrinsics.base import intrinsics_visit
     from stereo_bench.campaign.plan.lens import lens_plan
 
     design = [v for v in design if v.purpose == "kinematic"]
     if not config.extrinsics.fixed_board or config.extrinsics.calib_dir is not None or not design:
         return None, None
-    if visit is None:
-        visit = _visit_maker(config)
     candidate = intrinsics_visit(configurations, visit)
     candidate = candidate if candidate is not None and candidate.runnable else None
     return lens_plan(config, design, candidate), candidate

@@ -11,8 +11,7 @@ from stereo_bench.campaign.plan.configurations import (
     design_ranges,
     design_tilt,
     expand_plan,
-    fixed_board_lens,
-    plan_visits,
+    plan_visits_and_lens,
 )
 from stereo_bench.campaign.plan.duration import estimate_duration
 from stereo_bench.campaign.plan.feasibility import FEASIBILITY_MARGIN_PX, MIN_CORNERS_IN_BOTH
@@ -119,11 +118,10 @@ def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGI
     """Everything ``stereo-bench campaign plan`` reports, as one JSON-able object; ``presentation``: a measured
     :class:`~stereo_bench.campaign.presentation.PresentationTime` for the operator's presentations (None: assumed)."""
     configurations = expand_plan(config, margin_px=margin_px)
-    visits = plan_visits(config, configurations)
+    visits, lens = plan_visits_and_lens(config, configurations)
     steps = plan_steps(config, configurations, visits)
     estimate = estimate_duration(config, configurations, steps, presentation=presentation)
     tilt_note = design_tilt(config, configurations).note if visits else None
-    lens = fixed_board_lens(config, configurations, visits)[0] if visits else None
     return {
         "extrinsics_mode": config.extrinsics.mode,
         "design": [v.as_dict() for v in visits],
