@@ -7,11 +7,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 
 import cv2
 import numpy as np
 
 from stereo_bench.geometry import (
+    CALIBRATION_MARGIN_PX,
     CameraModel,
     RigPose,
     board_faces_camera,
@@ -23,8 +25,6 @@ from stereo_bench.geometry import (
 from stereo_bench.targets import Checkerboard
 from stereo_bench.vision.calibrate import DEFAULT_FLAGS, StereoCalibration
 from stereo_bench.vision.covariance import mono_linearisation, stereo_covariance
-
-VIEW_MARGIN_PX = 20.0  # room for the corner refinement window, as the campaign's choreography keeps
 
 
 def project_into_both(rig: RigPose, left: CameraModel, right: CameraModel,
@@ -83,7 +83,7 @@ def planned_board_poses(rig: RigPose, board: Checkerboard, left: CameraModel, ri
             if not board_faces_camera(T_cam_board):
                 return False
             pixels, valid = camera.project(transform_points(T_cam_board, check))
-            if not (valid & camera.in_image(pixels, margin_px=VIEW_MARGIN_PX)).all():
+            if not (valid & camera.in_image(pixels, margin_px=CALIBRATION_MARGIN_PX)).all():
                 return False
         return True
 
@@ -125,8 +125,6 @@ def planned_stereo_calibration(rig: RigPose, board: Checkerboard, left: CameraMo
     Raises:
         CovarianceUnavailable: the views leave the parameters undetermined.
     """
-    from dataclasses import replace
-
     calib = true_calibration(rig, left, right)
     D1, D2 = np.asarray(calib.D1, float).reshape(1, -1), np.asarray(calib.D2, float).reshape(1, -1)
     calib = replace(calib, D1=D1, D2=D2)
@@ -164,5 +162,5 @@ def planned_stereo_calibration(rig: RigPose, board: Checkerboard, left: CameraMo
     return replace(calib, covariance=covariance, mode=f"planned ({mode})")
 
 
-__all__ = ["VIEW_MARGIN_PX", "planned_board_poses", "planned_stereo_calibration", "project_into_both",
+__all__ = ["planned_board_poses", "planned_stereo_calibration", "project_into_both",
            "true_calibration"]
