@@ -533,6 +533,7 @@ def answer_figure(points: Sequence, sources: Sequence[str], *, title: str, again
     else:  # nothing above zero (no error against the truth, or every one exactly 0): a log axis would be empty
         ax.text(0.5, 0.5, "no error above zero to draw", transform=ax.transAxes, ha="center", va="center",
                 color="#777777")
+        ax.set_ylim(bottom=0.0)  # an |error| axis
     ax.set_xticks(x, [f"B{p.baseline_mm:g}" + ("" if abs(p.alpha_deg - 90) < 1e-9 else f" α{p.alpha_deg:g}")
                       for p in ordered], rotation=90, fontsize=7)
     for k in range(1, len(ordered)):
