@@ -126,7 +126,7 @@ def serial_port(request: pytest.FixtureRequest) -> str:
 @pytest.fixture(scope="session")
 def small_reference(tmp_path_factory) -> Path:
     """The small campaign (tests/campaigns.py) recorded once per test run, by whichever pytest-xdist worker asks
-    first (the others wait for it: three workers had recorded it three times). Read it; copy it to change it."""
+    first (the others wait for it; each had recorded its own before). Read it; copy it to change it."""
     from stereo_bench.campaign.execute import run_campaign
     from tests.campaigns import small_config
 
