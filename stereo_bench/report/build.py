@@ -607,7 +607,7 @@ def _rig_view(writer: _Writer, session: SessionReport, config: ConfigReport, pag
     title = f"{config.config_id}: the rig in 3-D ({config.status})"
     arguments = (baseline, alpha, alpha, _finite(config.row.get("tilt_deg")) or 0.0, distance,
                  tuple(float(v) for v in target.grid_size_mm), camera)
-    key = ("rig", *arguments[:-1], tuple(np.asarray(camera.K, float).ravel()), tuple(camera.image_size), title)
+    key = ("rig", *arguments, title)  # a CameraModel hashes and compares by its K, distortion and image size
     try:
         image = writer.drawn_figure(f"images/{session.key}/{config.config_id}_rig.png", key,
                                     lambda: figures.rig_figure(*arguments, title=title), alt=title,
