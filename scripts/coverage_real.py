@@ -11,11 +11,12 @@ of the leave-one-out calibrations, sqrt((n-1)/n sum (theta_i - mean)^2).
 
 Prints the issue's table and one per set; writes scripts/results/coverage_real.json.
 
-    python scripts/coverage_real.py [SET ...]
+    python scripts/coverage_real.py [SET ...] [--out FILE]
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import sys
@@ -34,9 +35,19 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def main(argv: list[str]) -> int:
-    names = argv or [*SETS, CALISCOPE]
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("sets", nargs="*", metavar="SET",
+                        help=f"the sets to run (default all: {', '.join([*SETS, CALISCOPE])})")
+    parser.add_argument("--out", type=Path, default=RESULTS / "coverage_real.json",
+                        help="results file (default scripts/results/coverage_real.json); a run of some sets keeps "
+                             "the other sets' figures it holds")
+    args = parser.parse_args(argv)
+    names = args.sets or [*SETS, CALISCOPE]
+    unknown = [name for name in names if name not in (*SETS, CALISCOPE)]
+    if unknown:
+        parser.error(f"no set {unknown[0]!r} (the sets: {', '.join([*SETS, CALISCOPE])})")
     start, load_before = time.perf_counter(), os.getloadavg()
-    out = RESULTS / "coverage_real.json"
+    out = args.out
     # A run of some sets keeps the other sets' figures of the last run.
     result = {k: v for k, v in json.loads(out.read_text()).items() if k in SETS or k == CALISCOPE} \
         if out.exists() else {}

