@@ -35,6 +35,7 @@ from drivers.sim.render import BoardShape, StereoRenderer, calibration_board_pos
 from stereo_bench.executors import make_executor
 from stereo_bench.geometry import CameraModel, RigPose, board_pose_facing_rig
 from stereo_bench.targets import Checkerboard
+from stereo_bench.vision.calibrate import single_threaded_opencv
 from stereo_bench.vision.covariance import extrinsic_sigmas
 from stereo_bench.vision.pipeline import calibrate_from_images, measure_pair
 from stereo_bench.vision.uncertainty import BoardScale, configuration_budget
@@ -57,8 +58,14 @@ def _renderer(board: Checkerboard) -> StereoRenderer:
 
 
 def run_one(job: tuple) -> dict:
+    """One (configuration, seed) run, OpenCV on one thread (one run per worker process and core); the thread count
+    is restored after, since a test calls this in its own process."""
+    with single_threaded_opencv():
+        return _run_one(job)
+
+
+def _run_one(job: tuple) -> dict:
     (baseline, distance, alpha), seed, n_views, n_frames, mode, bow_mm = job
-    cv2.setNumThreads(1)
     rig = RigPose.symmetric(baseline, alpha)
     rng = np.random.default_rng([seed, int(baseline), int(distance), int(alpha)])
     poses = calibration_board_poses(rig, CALIB_BOARD, n_views=n_views, rng=rng,

@@ -185,3 +185,20 @@ def dask_cluster():
 def dask_scheduler(dask_cluster) -> str:
     """The shared cluster's scheduler address (for ``--executor dask --scheduler ADDRESS``)."""
     return dask_cluster.scheduler_address
+
+
+@pytest.fixture(autouse=True)
+def _opencv_threads_left_as_found():
+    """OpenCV's thread count is process-wide: a test that changes it and leaves it so changes the numeric environment
+    of every later test on its worker (a replay of the session another worker had recorded then said "OpenCV
+    threads 2 -> 1"). The test that leaves it changed fails at teardown; the count is put back for the next."""
+    import cv2
+
+    from stereo_bench.vision.calibrate import opencv_threads
+
+    before = opencv_threads()
+    yield
+    after = opencv_threads()
+    if after != before:
+        cv2.setNumThreads(before)
+        pytest.fail(f"the test left OpenCV's thread count at {after} (it found {before}): restore what it sets")
