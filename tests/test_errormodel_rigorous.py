@@ -316,6 +316,25 @@ def test_planned_calibration_views_show_the_whole_board_in_both_images_over_the_
         planned_board_poses(Setup.make(300.0, 300.0, 90.0), CalibrationPlan(distance_mm=(150.0, 160.0)))
 
 
+@pytest.mark.parametrize("baseline_mm, alpha_deg, distance_mm", [(50.0, 90.0, 300.0), (150.0, 85.0, 300.0),
+                                                                  (250.0, 85.0, 500.0)])
+def test_planned_calibration_views_are_views_the_presenter_could_show(baseline_mm, alpha_deg, distance_mm):
+    """The planner places its views by the project's one rule of a usable calibration view
+    (geometry.calibration_view_fits: the outer squares sampled along every side, no more than 60 deg oblique),
+    the rule the simulated presenter places its own by. With its own check (the outline's four corners, no
+    obliquity limit) 1-4 of these 12 views, of a strongly distorted 640x480 camera, were views the rule refuses."""
+    from stereo_bench.geometry import calibration_view_fits
+    from stereo_bench.vision.planned import planned_board_poses
+
+    camera = CameraModel.from_sensor(image_size=(640, 480), pixel_um=6.0, dist=(-0.3, 0.1, 0.0, 0.0, 0.0), name="w")
+    board = Checkerboard(11, 8, 25.0)
+    rig = RigPose.symmetric(baseline_mm, alpha_deg)
+    poses = planned_board_poses(rig, board, camera, camera, n_views=12,
+                                distance_mm=(max(250.0, 0.6 * distance_mm), 1.3 * distance_mm))
+    assert len(poses) == 12
+    assert all(calibration_view_fits(board, T, rig=rig, left=camera, right=camera) for T in poses)
+
+
 def test_prediction_includes_the_calibration_component_that_more_views_shrink():
     from stereo_bench.errormodel.rigorous import CalibrationPlan
 

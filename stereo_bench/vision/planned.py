@@ -13,11 +13,10 @@ import cv2
 import numpy as np
 
 from stereo_bench.geometry import (
-    CALIBRATION_MARGIN_PX,
     CameraModel,
     RigPose,
-    board_faces_camera,
     board_pose_in_view,
+    calibration_view_fits,
     invert_transform,
     mean_view_frame,
     transform_points,
@@ -53,7 +52,9 @@ def true_calibration(rig: RigPose, left: CameraModel, right: CameraModel) -> Ste
 
 def planned_board_poses(rig: RigPose, board: Checkerboard, left: CameraModel, right: CameraModel, *, n_views: int,
                         distance_mm: tuple[float, float], max_tilt_deg: float = 40.0) -> list[np.ndarray]:
-    """T_rig_board (4x4, mm) of ``n_views`` calibration views, deterministic, whole board in both images.
+    """T_rig_board (4x4, mm) of ``n_views`` calibration views, deterministic, each a view the project's rule accepts
+    (:func:`stereo_bench.geometry.calibration_view_fits`: the whole board and its outer squares in both images, no
+    more than 60 deg oblique), the rule the simulated presenter places its views by.
 
     The spread of the simulated campaign's choreography (drivers.sim.render.calibration_board_poses):
     distances stratified over ``distance_mm`` (near, far) along the rig's mean viewing direction, tilts of
@@ -66,26 +67,14 @@ def planned_board_poses(rig: RigPose, board: Checkerboard, left: CameraModel, ri
         ValueError: a view cannot be placed (the views overlap too little for this board).
     """
     near, far = distance_mm
-    points = np.asarray(board.object_points, float)
     width, height = board.grid_size_mm
     centre = np.array([width / 2.0, height / 2.0, 0.0])
-    sq = board.square_mm  # the outer squares must show too: chessboard detectors need them
-    outline = np.array([[x, y, 0.0] for x in (-sq, width + sq) for y in (-sq, height + sq)])
-    check = np.vstack([points, outline])
     R_view = mean_view_frame(rig.T_rig_left, rig.T_rig_right)
     f = 0.5 * (left.fx + right.fx)
     half_fov = np.array(left.image_size, float) / 2.0 / f
-    cameras = [(camera, invert_transform(T)) for camera, T in ((left, rig.T_rig_left), (right, rig.T_rig_right))]
 
     def fits(T_rig_board):
-        for camera, T_cam_rig in cameras:
-            T_cam_board = T_cam_rig @ T_rig_board
-            if not board_faces_camera(T_cam_board):
-                return False
-            pixels, valid = camera.project(transform_points(T_cam_board, check))
-            if not (valid & camera.in_image(pixels, margin_px=CALIBRATION_MARGIN_PX)).all():
-                return False
-        return True
+        return calibration_view_fits(board, T_rig_board, rig=rig, left=left, right=right)
 
     golden = 0.618034
     order = [int(v) for v in np.argsort([(i * golden) % 1.0 for i in range(n_views)])]
