@@ -86,6 +86,32 @@ def test_a_fixed_board_design_outside_kinematic_mode_is_one_clear_error(tmp_path
     assert "design = 'fixed-board'" in err and 'mode = "kinematic"' in err and "c.toml" in err
 
 
+def test_a_design_none_of_whose_visits_can_run_is_refused_by_plan_and_run_before_anything_moves(tmp_path, capsys):
+    """The default 11x8 board never fits both views of cameras toed in 32-38 deg: the model cannot be fitted, and
+    every configuration would have failed on its extrinsics after the rig had been through the plan (the run
+    homed, visited nothing and failed 'no design visit captured views', exit 1). Now the plan shows each visit's
+    reason and exits 2 with one line; the run refuses the same way and leaves no session."""
+    path = tmp_path / "steep.toml"
+    path.write_text('[plan]\nbaseline_mm = [100]\ndistance_mm = [500]\nalpha_deg = [45, 55]\n'
+                    '[extrinsics]\nmode = "kinematic"\ndesign = "fixed-board"\n')
+    assert main(["campaign", "plan", str(path)]) == 2
+    captured = capsys.readouterr()
+    assert "B100_Z500_A55" in captured.out and "NOT RUN: calibration board" in captured.out
+    (line,) = captured.err.strip().splitlines()
+    assert "steep.toml: extrinsics: no visit of the kinematic design (fixed-board) can run (design-1_" in line
+    assert "never fits both views" in line and 'kind = "charuco"' in line and "extrinsics.kinematic_file" in line
+    assert main(["campaign", "plan", str(path), "--json"]) == 2
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["design_problem"] in captured.err
+    session = tmp_path / "session"
+    assert main(["campaign", "run", str(path), "--out", str(session), "--yes", "--quiet"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "campaign config: extrinsics: no visit of the kinematic design" in line
+    assert not session.exists()
+    # The plan of a preset that can run says nothing of the kind.
+    assert plan_summary(_config("fixed-board"))["design_problem"] is None
+
+
 @pytest.mark.parametrize(("design", "expected"), [
     ("fixed-board", ["calibration board presentations: 0: 0 at visits", "calibration board placements: 1",
                      "operator actions: 6 (0 board presentations, 1 board placements, 5 target moves)",

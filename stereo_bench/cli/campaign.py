@@ -23,6 +23,7 @@ from stereo_bench.campaign import presentation
 from stereo_bench.campaign.config import (
     PRESETS,
     CampaignConfig,
+    ConfigError,
     campaign_json_schema_text,
 )
 from stereo_bench.campaign.plan import plan_summary
@@ -84,8 +85,10 @@ def _cmd_plan(args) -> int:
         if not args.steps:
             summary.pop("steps")
         print_json({"source": source, **summary}, indent=2)
-        return 0
-    print(_plan_text(config, summary, source=source, with_steps=args.steps))
+    else:
+        print(_plan_text(config, summary, source=source, with_steps=args.steps))
+    if summary["design_problem"]:  # the plan is shown, with each visit's reason; run would refuse it
+        raise ConfigError(f"{source}: {summary['design_problem']}")
     return 0
 
 

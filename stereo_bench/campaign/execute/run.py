@@ -14,14 +14,14 @@ from pydantic import ValidationError
 
 from stereo_bench import __version__
 from stereo_bench.campaign.bench import Bench, open_bench
-from stereo_bench.campaign.config import CampaignConfig
+from stereo_bench.campaign.config import CampaignConfig, ConfigError
 from stereo_bench.campaign.documents import ControllerEvent, Draft, StartDocument, StopDocument
 from stereo_bench.campaign.environment import numeric_environment
 from stereo_bench.campaign.execute.control import RunControl
 from stereo_bench.campaign.execute.options import runner_options
 from stereo_bench.campaign.execute.planned import CampaignPlan, plan_drift
 from stereo_bench.campaign.operator import Operator, PromptDisplay, SimulatedOperator, TerminalOperator
-from stereo_bench.campaign.plan import PREPARE_ID, Visit, stage_id
+from stereo_bench.campaign.plan import PREPARE_ID, Visit, design_problem, stage_id
 from stereo_bench.campaign.preflight import Preflight
 from stereo_bench.campaign.recorded import RecordedStart
 from stereo_bench.campaign.runner import CampaignRunner, RunnerOptions
@@ -121,6 +121,9 @@ def run_campaign(
                 summary.plan_drift = plan_drift(config, recorded.plan)
             else:
                 campaign = plan or CampaignPlan.of(config)
+                problem = design_problem(config, campaign.configurations, campaign.visits)
+                if problem:  # before anything moves: every configuration would fail on its extrinsics
+                    raise ConfigError(f"campaign config: {problem}")
             bus = DocumentBus(writer)
             collector = Collector()
             bus.subscribe(collector)

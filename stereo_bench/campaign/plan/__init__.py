@@ -48,6 +48,7 @@ from stereo_bench.campaign.plan.configurations import (
     VISIT_PURPOSES,
     Configuration,
     Visit,
+    design_problem,
     design_ranges,
     expand_plan,
     format_id_value,
@@ -106,7 +107,8 @@ __all__ = [
     "OPERATOR_S_PER_PROMPT", "PREPARE_ID", "PlaceBoard", "PrepareExtrinsics", "Presentations", "PromptManual",
     "PromptTarget",
     "Settle", "Step", "StepKind", "Target", "VISIT_PURPOSES", "Visibility", "Visit", "VisitDone",
-    "calibration_distance_range", "calibration_presentations", "design_ranges", "estimate_duration", "expand_plan",
+    "calibration_distance_range", "calibration_presentations", "design_problem", "design_ranges",
+    "estimate_duration", "expand_plan",
     "format_id_value", "homing_estimate_s", "is_prepare_id", "plan_steps", "plan_summary", "plan_visits",
     "predict_duration_s", "stage_id", "target_visibilities", "target_visibility",
 ]

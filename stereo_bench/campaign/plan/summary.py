@@ -8,6 +8,7 @@ from typing import Any
 
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.plan.configurations import (
+    design_problem,
     design_ranges,
     design_tilt,
     expand_plan,
@@ -125,6 +126,8 @@ def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGI
     return {
         "extrinsics_mode": config.extrinsics.mode,
         "design": [v.as_dict() for v in visits],
+        # Why the visits cannot give the extrinsics source (campaign run refuses it before moving); None: they can.
+        "design_problem": design_problem(config, configurations, visits),
         "design_ranges": design_ranges(configurations) if visits else None,
         "calibration_presentations": calibration_presentations(steps),
         "operator_actions": operator_actions(steps),
