@@ -318,7 +318,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if calib.adequacy is not None:
             a = calib.adequacy
             print(f"model adequacy: the board's squares in {a.n_views} held-out views err {a.rms_rel:.2%} RMS "
-                  f"(mean {a.bias_rel:+.2%}), {a.predicted_rel:.2%} predicted: component {a.u_rel:.2%} of a length "
+                  f"(mean {a.bias_rel:+.2%}, {a.lengthening_rel:+.2%} of it the corner noise's lengthening), "
+                  f"{a.predicted_rel:.2%} predicted: component {a.u_rel:.2%} of a length "
                   f"({a.dof:.0f} degrees of freedom)")
         lens = report["lens_model"]
         if lens["comparison"]:
