@@ -124,6 +124,12 @@ def _import_distributed():
     return dd
 
 
+#: Where a LocalCluster this module starts serves its scheduler's HTTP pages (the dashboard): this machine only, on a
+#: free port. ``dashboard_address=None`` does not turn them off in distributed 2026.8: they went to 8787 on every
+#: interface, open to the network, and a second cluster on the machine warned "Port 8787 is already in use".
+LOCAL_DASHBOARD_ADDRESS = "127.0.0.1:0"
+
+
 class DaskExecutor(_ContextMixin):
     """Runs items as tasks of a Dask distributed cluster.
 
@@ -147,7 +153,7 @@ class DaskExecutor(_ContextMixin):
             if scheduler is None:
                 scheduler = self._owned_cluster = dd.LocalCluster(
                     n_workers=n_workers or os.cpu_count() or 1, processes=processes,
-                    threads_per_worker=threads_per_worker, dashboard_address=None,
+                    threads_per_worker=threads_per_worker, dashboard_address=LOCAL_DASHBOARD_ADDRESS,
                 )
             try:
                 self.client = dd.Client(scheduler, timeout=timeout_s)

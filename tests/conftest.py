@@ -174,7 +174,10 @@ def dask_cluster():
     pytest.importorskip("distributed")
     from dask.distributed import LocalCluster
 
-    cluster = LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None)
+    from stereo_bench.executors import LOCAL_DASHBOARD_ADDRESS
+
+    cluster = LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                           dashboard_address=LOCAL_DASHBOARD_ADDRESS)
     try:
         yield cluster
     finally:

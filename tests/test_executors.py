@@ -89,6 +89,16 @@ def test_dask_executor_by_scheduler_address(dask_cluster):
         assert ex.scheduler_address == dask_cluster.scheduler_address
 
 
+def test_a_local_dask_cluster_serves_its_pages_on_this_machine_only_on_a_free_port():
+    """The cluster DaskExecutor starts itself (no scheduler given): its scheduler's HTTP server on the loopback
+    address and not on dask's fixed 8787 (with dashboard_address=None it was 0.0.0.0:8787 and [::]:8787)."""
+    pytest.importorskip("distributed")
+    with DaskExecutor(n_workers=1, processes=False) as ex:
+        assert ex.map(square, [2]) == [4]
+        sockets = [s.getsockname() for s in ex._owned_cluster.scheduler.http_server._sockets.values()]
+    assert sockets and all(address[0] == "127.0.0.1" and address[1] != 8787 for address in sockets), sockets
+
+
 def test_dask_executor_keeps_order(dask_executor):
     assert dask_executor.map(square, range(20)) == [i * i for i in range(20)]
     assert dask_executor.describe()["executor"] == "dask"
