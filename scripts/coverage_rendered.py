@@ -88,6 +88,8 @@ def _run_one(job: tuple) -> dict:
         "baseline_mm": baseline, "distance_mm": distance, "alpha_deg": alpha, "seed": seed,
         "calibration_bow_mm": bow_mm, "error_mm": budget.error_mm,
         "adequacy_rel": calib.adequacy.u_rel if calib.adequacy is not None else None,
+        "adequacy_bias_rel": calib.adequacy.bias_rel if calib.adequacy is not None else None,
+        "adequacy_lengthening_rel": calib.adequacy.lengthening_rel if calib.adequacy is not None else None,
         **{f"u_{k}_mm": v for k, v in budget.as_dict().items() if k != "k"}, "k": budget.k,
         "noise_random_mm": budget.noise_random_mm, "noise_bias_mm": budget.noise_bias_mm,
         "calibration_sigma_px": calib.covariance.sigma_px, "rms_px": calib.rms_px,
