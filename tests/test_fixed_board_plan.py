@@ -108,6 +108,12 @@ def test_a_design_none_of_whose_visits_can_run_is_refused_by_plan_and_run_before
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "campaign config: extrinsics: no visit of the kinematic design" in line
     assert not session.exists()
+    # rig calibrate-kinematics says the same of the design alone, in one line, before anything moves.
+    assert main(["rig", "calibrate-kinematics", "--design", "fixed-board", "--toe-in-range", "32", "38",
+                 "--baseline-range", "100", "100", "--out", str(session), "--yes"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "rig calibrate-kinematics: extrinsics: no visit of the kinematic design (fixed-board) can run" in line
+    assert "cannot be fitted; use a calibration board" in line and not session.exists()
     # The plan of a preset that can run says nothing of the kind.
     assert plan_summary(_config("fixed-board"))["design_problem"] is None
 

@@ -148,6 +148,7 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
     from stereo_bench.campaign.documents import KinematicModelEvent
     from stereo_bench.campaign.execute import CampaignPlan, RunControl, run_campaign
     from stereo_bench.campaign.extrinsics_run import recorded_sources
+    from stereo_bench.campaign.plan import visits_problem
     from stereo_bench.campaign.session import SessionReader
     from stereo_bench.cli.campaign_run import stopped_note
     from stereo_bench.kinematics import save_model
@@ -161,8 +162,8 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
         raise CliError("--yes lets the simulator present the boards, for simulated cameras only")
     full = CampaignPlan.of(config)
     if not any(visit.runnable for visit in full.visits):
-        reasons = "; ".join(v.skip_reason or "" for v in full.visits) or "no runnable configuration in the plan"
-        raise CliError(f"rig calibrate-kinematics: no design visit can run: {reasons}")
+        problem = visits_problem(config, full.visits) or "no design visit: no runnable configuration in the plan"
+        raise CliError(f"rig calibrate-kinematics: {problem}")
     plan = CampaignPlan.design_only(full)
     control = RunControl()
 

@@ -53,6 +53,7 @@ from stereo_bench.campaign.plan.configurations import (
     expand_plan,
     format_id_value,
     plan_visits,
+    visits_problem,
 )
 from stereo_bench.campaign.plan.duration import (
     DurationEstimate,
@@ -110,5 +111,5 @@ __all__ = [
     "calibration_distance_range", "calibration_presentations", "design_problem", "design_ranges",
     "estimate_duration", "expand_plan",
     "format_id_value", "homing_estimate_s", "is_prepare_id", "plan_steps", "plan_summary", "plan_visits",
-    "predict_duration_s", "stage_id", "target_visibilities", "target_visibility",
+    "predict_duration_s", "stage_id", "target_visibilities", "target_visibility", "visits_problem",
 ]

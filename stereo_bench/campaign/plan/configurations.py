@@ -433,33 +433,40 @@ def plan_visits_and_lens(config: CampaignConfig, configurations: Sequence[Config
 def design_problem(config: CampaignConfig, configurations: Sequence[Configuration], visits: Sequence[Visit]
                    ) -> str | None:
     """Why the visits the extrinsics source needs cannot give it (None when they can, or when nothing is to be
-    measured anyway): a stage of ``visits`` (the kinematic design, the one intrinsics calibration) none of whose
-    visits can run. Every configuration would then fail on its extrinsics after the rig had moved through the
-    plan, so ``campaign plan`` says so and ``campaign run`` refuses before anything moves. One line, naming the
-    field and what to change."""
+    measured anyway): :func:`visits_problem`. Every configuration would then fail on its extrinsics after the rig
+    had moved through the plan, so ``campaign plan`` says so and ``campaign run`` refuses before anything moves."""
     if not any(c.runnable for c in configurations):
         return None
+    problem = visits_problem(config, visits)
+    if problem is None:
+        return None
+    what, _, fixes = problem.partition("; use ")
+    return f"{what} and no configuration could be measured; use {fixes}"
+
+
+def visits_problem(config: CampaignConfig, visits: Sequence[Visit]) -> str | None:
+    """One line (None if there is none to say): a stage of ``visits`` (the kinematic design, the one intrinsics
+    calibration) none of whose visits can run, its first visit's reason and what to change."""
     extrinsics = config.extrinsics
+    charuco = 'a ChArUco board counts partial views: [calibration_board] kind = "charuco"'
     for purpose in VISIT_PURPOSES:
         stage = [v for v in visits if v.purpose == purpose]
         if not stage or any(v.runnable for v in stage):
             continue
-        reason = stage[0].skip_reason or "not runnable"
+        why = f"{stage[0].config_id}: {stage[0].skip_reason or 'not runnable'}"
         if purpose == "kinematic":
-            what = (f"no visit of the kinematic design ({extrinsics.design}) can run ({stage[0].config_id}: "
-                    f"{reason}), so the kinematic model cannot be fitted")
-            fixes = ["a calibration board that fits both views there (a ChArUco board counts partial views: "
-                     "[calibration_board] kind = \"charuco\")"]
+            fixes = [f"a calibration board that fits both views there ({charuco})"]
             if extrinsics.fixed_board:
-                fixes.append("design = \"presented\"")
+                fixes.append('design = "presented"')
             fixes.append("extrinsics.kinematic_file (a model fitted before)")
+            what = (f"no visit of the kinematic design ({extrinsics.design}) can run ({why}), so the kinematic "
+                    "model cannot be fitted")
         else:
-            what = (f"the intrinsics calibration visit cannot run ({stage[0].config_id}: {reason}), so the "
-                    f"{extrinsics.mode} extrinsics have no intrinsics")
-            fixes = ["a calibration board that fits both views (a ChArUco board counts partial views: "
-                     "[calibration_board] kind = \"charuco\")", "extrinsics.calib_dir (a lens calibration made "
-                                                                 "before)"]
-        return (f"extrinsics: {what} and no configuration could be measured; use " + ", or ".join(fixes))
+            fixes = [f"a calibration board that fits both views ({charuco})",
+                     "extrinsics.calib_dir (a lens calibration made before)"]
+            what = (f"the intrinsics calibration visit cannot run ({why}), so the {extrinsics.mode} extrinsics have "
+                    "no intrinsics")
+        return f"extrinsics: {what}; use " + ", or ".join(fixes)
     return None
 
 
