@@ -486,12 +486,18 @@ def noise_bias_mm(calib: StereoCalibration, frame: FrameCorners, target: Target,
     s_left, s_right = frame.pixel_sigma_px
     v_left, v_right = s_left**2 + extra_px**2, s_right**2 + extra_px**2
     cov = np.einsum("nik,k,njk->nij", jac, np.array([v_left, v_left, v_right, v_right]), jac)
-    d = points[pairs[:, 0]] - points[pairs[:, 1]]
+    return float(np.mean(_lengthening_per_pair(points, cov, pairs[:, 0], pairs[:, 1])))
+
+
+def _lengthening_per_pair(points: np.ndarray, cov: np.ndarray, a_idx: np.ndarray, b_idx: np.ndarray) -> np.ndarray:
+    """(K,) mm: the expected lengthening of each length |points[a] - points[b]| by independent point errors of
+    covariance ``cov`` (N, 3, 3) mm^2, to second order: (tr S_d - u^T S_d u) / (2 |d|), S_d = S_a + S_b."""
+    d = points[a_idx] - points[b_idx]
     length = np.linalg.norm(d, axis=1)
     u = d / length[:, None]
-    cov_d = cov[pairs[:, 0]] + cov[pairs[:, 1]]
+    cov_d = cov[a_idx] + cov[b_idx]
     transverse = np.trace(cov_d, axis1=1, axis2=2) - np.einsum("ki,kij,kj->k", u, cov_d, u)
-    return float(np.mean(transverse / (2.0 * length)))
+    return transverse / (2.0 * length)
 
 
 def square_sensitivities(
@@ -713,19 +719,15 @@ def model_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray]
 def _lengthening_per_view(square: _Square, points: np.ndarray, jac_norm: np.ndarray,
                           undistortion: tuple[np.ndarray, np.ndarray], owner: np.ndarray, n_views: int) -> np.ndarray:
     """(n_views,) mm per px^2: each view's expected lengthening of its mean adjacent length by independent corner
-    noise of unit variance per coordinate in both images (:func:`noise_bias_mm`'s second-order term, the pixels
-    carried through each camera's undistortion). ``points`` (N, 3) and ``jac_norm`` (N, 3, 4): the square's
+    noise of unit variance per coordinate in both images (:func:`_lengthening_per_pair`, as :func:`noise_bias_mm`;
+    the pixels carried through each camera's undistortion). ``points`` (N, 3) and ``jac_norm`` (N, 3, 4): the square's
     corners triangulated and their :func:`_normalised_jacobian`; ``undistortion``: each camera's
     :func:`_undistortion_jacobian` (N, 2, 2) at them; ``owner`` (K,) each adjacent pair's view."""
     jac_px = np.concatenate([np.einsum("nik,nkj->nij", jac_norm[:, :, :2], undistortion[0]),
                              np.einsum("nik,nkj->nij", jac_norm[:, :, 2:], undistortion[1])], axis=2)  # (N, 3, 4 px)
     cov = np.einsum("nik,njk->nij", jac_px, jac_px)
-    d = points[square.a_idx] - points[square.b_idx]
-    length = np.linalg.norm(d, axis=1)
-    u = d / length[:, None]
-    cov_d = cov[square.a_idx] + cov[square.b_idx]
-    transverse = np.trace(cov_d, axis1=1, axis2=2) - np.einsum("ki,kij,kj->k", u, cov_d, u)
-    return np.bincount(owner, weights=square.weights * transverse / (2.0 * length), minlength=n_views)
+    per_pair = _lengthening_per_pair(points, cov, square.a_idx, square.b_idx)
+    return np.bincount(owner, weights=square.weights * per_pair, minlength=n_views)
 
 
 #: Central-difference steps of :func:`model_adequacy`'s Jacobians: of the triangulation in the normalised
