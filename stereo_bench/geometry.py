@@ -235,10 +235,7 @@ def board_pose_in_view(
     normals = centres / np.linalg.norm(centres, axis=1, keepdims=True)
     bx = x_axis - (normals @ x_axis)[:, None] * normals
     bx /= np.linalg.norm(bx, axis=1, keepdims=True)
-    by = np.column_stack([normals[:, 1] * bx[:, 2] - normals[:, 2] * bx[:, 1],  # normal x bx (np.cross's terms)
-                          normals[:, 2] * bx[:, 0] - normals[:, 0] * bx[:, 2],
-                          normals[:, 0] * bx[:, 1] - normals[:, 1] * bx[:, 0]])
-    R_face = np.stack([bx, by, normals], axis=2)  # columns bx, by, normal
+    R_face = np.stack([bx, np.cross(normals, bx), normals], axis=2)  # columns bx, normal x bx, normal
     R = R_face @ (rotation_deg("y", yaw_deg) @ rotation_deg("x", pitch_deg) @ rotation_deg("z", roll_deg))
     T = np.zeros((len(offsets), 4, 4))
     T[:, :3, :3] = R
