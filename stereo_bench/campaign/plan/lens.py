@@ -21,15 +21,6 @@ import numpy as np
 
 from stereo_bench.campaign.config import CampaignConfig
 
-#: The default corner noise (px) the plan's identifiability tables assume (one exact view per visit): ``[extrinsics]
-#: plan_corner_sigma_px``, which :func:`plan_pixel_sigma_px` reads.
-PLAN_PIXEL_SIGMA_PX = 0.1
-
-
-def plan_pixel_sigma_px(config: CampaignConfig) -> float:
-    """The corner noise (px) this campaign's plan assumes (``[extrinsics] plan_corner_sigma_px``)."""
-    return float(config.extrinsics.plan_corner_sigma_px)
-
 
 @dataclass(frozen=True)
 class LensPlan:
@@ -63,7 +54,8 @@ def design_table(config: CampaignConfig, design: Sequence, *, intrinsics: tuple 
     return design_identifiability(configurations, config.calibration_board.build().object_points,
                                   design[0].fixed_board_matrix(),
                                   intrinsics or (left.K, left.dist, right.K, right.dist),
-                                  pixel_sigma_px=plan_pixel_sigma_px(config), intrinsics_covariance=covariance,
+                                  pixel_sigma_px=config.extrinsics.plan_corner_sigma_px,
+                                  intrinsics_covariance=covariance,
                                   repeatability_mm=config.extrinsics.repeatability_mm,
                                   repeatability_deg=config.extrinsics.repeatability_deg)
 
@@ -72,7 +64,7 @@ def predicted_lens_prior(config: CampaignConfig, visit, n_views: int) -> np.ndar
     """(16, 16) covariance of ``fixed_board.INTRINSIC_NAMES`` that a joint stereo calibration of ``n_views`` views
     presented at ``visit`` would have (views planned as the simulated presenter shows them,
     :func:`stereo_bench.vision.planned.planned_board_poses`, at 0.6-1.3 x the visit's distance within the range
-    where the board fits both views; the plan's corners, :func:`plan_pixel_sigma_px`). ValueError if the views
+    where the board fits both views; the plan's corners, ``[extrinsics] plan_corner_sigma_px``). ValueError if the views
     cannot be planned there."""
     from stereo_bench.geometry import RigPose, alpha_from_toe_in
     from stereo_bench.kinematics.fixed_board import INTRINSIC_NAMES
@@ -92,7 +84,7 @@ def predicted_lens_prior(config: CampaignConfig, visit, n_views: int) -> np.ndar
                   alpha_from_toe_in(visit.toe_in_right_deg), visit.tilt_deg, visit.tilt_deg)
     poses = planned_board_poses(rig, board, left, right, n_views=n_views, distance_mm=(near, far))
     covariance = planned_stereo_calibration(rig, board, left, right, poses,
-                                            pixel_sigma_px=plan_pixel_sigma_px(config)).covariance
+                                            pixel_sigma_px=config.extrinsics.plan_corner_sigma_px).covariance
     index = covariance.index(INTRINSIC_NAMES)
     return np.asarray(covariance.matrix, float)[np.ix_(index, index)]
 
@@ -141,5 +133,4 @@ def lens_plan(config: CampaignConfig, design: Sequence, lens_visit) -> LensPlan 
     return LensPlan(n_views, reason + (f"; sigmas {sharper}" if sharper else ""), gains, held, prior, covariance)
 
 
-__all__ = ["PLAN_PIXEL_SIGMA_PX", "LensPlan", "design_table", "lens_plan", "plan_pixel_sigma_px",
-           "predicted_lens_prior"]
+__all__ = ["LensPlan", "design_table", "lens_plan", "predicted_lens_prior"]
