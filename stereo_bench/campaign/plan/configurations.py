@@ -433,20 +433,27 @@ def plan_visits_and_lens(config: CampaignConfig, configurations: Sequence[Config
 def design_problem(config: CampaignConfig, configurations: Sequence[Configuration], visits: Sequence[Visit]
                    ) -> str | None:
     """Why the visits the extrinsics source needs cannot give it (None when they can, or when nothing is to be
-    measured anyway): :func:`visits_problem`. Every configuration would then fail on its extrinsics after the rig
-    had moved through the plan, so ``campaign plan`` says so and ``campaign run`` refuses before anything moves."""
+    measured anyway), as :func:`visits_problem` says it. Every configuration would then fail on its extrinsics after
+    the rig had moved through the plan, so ``campaign plan`` says so and ``campaign run`` refuses before anything
+    moves."""
     if not any(c.runnable for c in configurations):
         return None
-    problem = visits_problem(config, visits)
+    problem = _visits_problem(config, visits)
     if problem is None:
         return None
-    what, _, fixes = problem.partition("; use ")
-    return f"{what} and no configuration could be measured; use {fixes}"
+    what, fixes = problem
+    return f"extrinsics: {what} and no configuration could be measured; use {fixes}"
 
 
 def visits_problem(config: CampaignConfig, visits: Sequence[Visit]) -> str | None:
     """One line (None if there is none to say): a stage of ``visits`` (the kinematic design, the one intrinsics
     calibration) none of whose visits can run, its first visit's reason and what to change."""
+    problem = _visits_problem(config, visits)
+    return None if problem is None else f"extrinsics: {problem[0]}; use {problem[1]}"
+
+
+def _visits_problem(config: CampaignConfig, visits: Sequence[Visit]) -> tuple[str, str] | None:
+    """(what cannot be prepared and why, what to change) of :func:`visits_problem`."""
     extrinsics = config.extrinsics
     charuco = 'a ChArUco board counts partial views: [calibration_board] kind = "charuco"'
     for purpose in VISIT_PURPOSES:
@@ -466,7 +473,7 @@ def visits_problem(config: CampaignConfig, visits: Sequence[Visit]) -> str | Non
                      "extrinsics.calib_dir (a lens calibration made before)"]
             what = (f"the intrinsics calibration visit cannot run ({why}), so the {extrinsics.mode} extrinsics have "
                     "no intrinsics")
-        return f"extrinsics: {what}; use " + ", or ".join(fixes)
+        return what, ", or ".join(fixes)
     return None
 
 
