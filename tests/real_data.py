@@ -8,7 +8,7 @@ with the intrinsics fixed, the pipeline of shared/data/README.md) on the same im
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache
 from pathlib import Path
 
@@ -19,7 +19,7 @@ from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision.calibrate import StereoCalibration, calibrate_stereo
 from stereo_bench.vision.covariance import EXTRINSIC_NAMES
 from stereo_bench.vision.detect import common_corners, detect
-from stereo_bench.vision.pipeline import measure_pair
+from stereo_bench.vision.pipeline import drop_scale_outliers, measure_pair
 from stereo_bench.vision.triangulate import triangulate
 from stereo_bench.vision.uncertainty import BoardScale, configuration_budget, with_adequacy
 
@@ -128,9 +128,15 @@ def opencv_leave_one_out(name: str) -> np.ndarray:
 
 
 def _calibrate(object_points, left_points, right_points, image_size) -> StereoCalibration:
-    """The stereo calibration calibrate_from_images makes of these views, with its held-out check."""
-    calib = calibrate_stereo(object_points, left_points, right_points, image_size)
-    return with_adequacy(calib, object_points, left_points, right_points)
+    """The stereo calibration calibrate_from_images makes of these views, with its held-out check and without a
+    view the check finds alone in its error (``views_used`` indexes the views given)."""
+    def fit(objects, lefts, rights):
+        return calibrate_stereo(objects, lefts, rights, image_size)
+
+    calib = with_adequacy(fit(object_points, left_points, right_points), object_points, left_points, right_points)
+    calib, kept, _ = drop_scale_outliers(calib, fit, object_points, left_points, right_points,
+                                         most=len(object_points) // 4)
+    return replace(calib, views_used=[kept[i] for i in calib.views_used])
 
 
 @cache
@@ -180,7 +186,7 @@ def leave_one_out(name: str) -> dict:
     left_images, right_images = images(name)
     det = detections(name)
     full, _ = full_calibration(name)
-    rows, loo_params = [], []
+    rows, loo_params, sensitivities, jackknifed = [], [], [], False
     for held_out, calib in leave_one_out_calibrations(name).items():
         loo_params.append([parameter(calib, p) for p in ("baseline", *JACKKNIFE_INTRINSICS)])
         pair = measure_pair(left_images[held_out], right_images[held_out], calib, s.board, detections=det[held_out])
@@ -193,6 +199,8 @@ def leave_one_out(name: str) -> dict:
                      "detector_bias_mm": budget.detector_bias_mm, "corner_systematic_px": budget.corner_systematic_px,
                      "systematic_model": budget.systematic_model, "dominant": budget.dominant,
                      "details": {k: v for k, v in budget.details().items() if k != "sensitivities"}})
+        sensitivities.append(budget.sensitivities)
+        jackknifed |= np.isfinite(budget.calibration_dof)
     loo_params = np.array(loo_params)
     n = len(loo_params)
     jack = np.sqrt((n - 1) / n * np.sum((loo_params - loo_params.mean(axis=0)) ** 2, axis=0))
@@ -210,7 +218,25 @@ def leave_one_out(name: str) -> dict:
                         "linearised_scatter": float(np.sqrt((n - 1) / n * np.sum((linear - linear.mean()) ** 2)))}
     adequacy = full.adequacy.as_dict() if full.adequacy is not None else None
     return {"rows": rows, "opencv_errors_mm": opencv_leave_one_out(name), "jackknife": jackknife, "calibration": full,
-            "adequacy": adequacy}
+            "adequacy": adequacy,
+            "calibration_correlation": calibration_correlation(full.covariance, sensitivities, jackknife=jackknifed)}
+
+
+def calibration_correlation(covariance, sensitivities: list[dict], *, jackknife: bool) -> np.ndarray:
+    """(n, n) correlation of the held-out pairs' calibration errors: the leave-one-out calibrations share all
+    views but two, so their errors are nearly one draw of the full calibration's, seen by each pair through its
+    own sensitivities g_i: g_i S g_j normalised, S the matrix or (``jackknife``: where the budget took the
+    views' scatter) the views' jackknife covariance (n - 1)/n sum (d_v - mean)(d_v - mean)^T."""
+    names = list(covariance.names)
+    g = np.array([[float(s.get(p, 0.0)) for p in names] for s in sensitivities])
+    if jackknife and covariance.view_deltas is not None:
+        d = covariance.view_deltas - covariance.view_deltas.mean(axis=0)
+        S = (len(d) - 1) / len(d) * d.T @ d
+    else:
+        S = covariance.matrix
+    c = g @ S @ g.T
+    scale = np.sqrt(np.clip(np.diag(c), 1e-300, None))
+    return c / np.outer(scale, scale)
 
 
 def summary(result: dict) -> dict:
@@ -236,17 +262,36 @@ def summary_rows(result: dict) -> dict:
         "inflation": float(np.median(U) / np.median(np.abs(errors))),
         "median_U_mm": float(np.median(U)), "median_abs_error_mm": float(np.median(np.abs(errors))),
         **exact_budget_inflation(U / u_c),
+        **({} if "calibration_correlation" not in result else {
+            f"inflation_exact_shared_{k.removeprefix('inflation_exact_')}": v for k, v in exact_budget_inflation(
+                U / u_c, shared=np.array([r["u_calibration_mm"] or 0.0 for r in result["rows"]]) / u_c,
+                correlation=result["calibration_correlation"]).items()}),
     }
 
 
-def exact_budget_inflation(k: np.ndarray, *, draws: int = 20000, seed: int = 0) -> dict:
+def exact_budget_inflation(k: np.ndarray, *, shared: np.ndarray | None = None, correlation: np.ndarray | None = None,
+                           draws: int = 20000, seed: int = 0) -> dict:
     """What median U / median |error| an exact budget gives on these pairs: errors drawn normal with their u_c,
     U = k u_c (``k`` (n,) the pairs' coverage factors). Its median and 95 % band (seeded Monte Carlo): a ratio
     inside the band is what ``len(k)`` pairs of an exact budget show, whatever the bar (for k = 2 the median
-    is 2 / 0.674 = 2.97, so a bar of 3 is missed by about half of all sets whose budget is exact)."""
+    is 2 / 0.674 = 2.97, so a bar of 3 is missed by about half of all sets whose budget is exact).
+
+    ``shared`` (n,): the part of each u_c (as a fraction of it) that is one draw for all pairs with
+    ``correlation`` (n, n) between them (a leave-one-out's calibration component, :func:`calibration_correlation`);
+    the rest independent. A shared error that happens to be small leaves the set's errors small and the ratio
+    large: the band widens."""
     k = np.asarray(k, dtype=np.float64)
     rng = np.random.default_rng(seed)
-    ratio = np.median(k) / np.median(np.abs(rng.standard_normal((draws, len(k)))), axis=1)
+    if shared is None:
+        errors = rng.standard_normal((draws, len(k)))
+    else:
+        shared = np.clip(np.asarray(shared, dtype=np.float64), 0.0, 1.0)
+        w, v = np.linalg.eigh(np.asarray(correlation, dtype=np.float64))
+        root = v * np.sqrt(np.clip(w, 0.0, None))  # correlation = root root^T (positive semi-definite)
+        errors = (shared * (rng.standard_normal((draws, len(k))) @ root.T)
+                  + np.sqrt(1.0 - shared**2) * rng.standard_normal((draws, len(k))))
+    # The errors in units of each pair's u_c; U / u_c = k: the ratio of medians in those units as well.
+    ratio = np.median(k) / np.median(np.abs(errors), axis=1)
     low, median, high = np.percentile(ratio, [2.5, 50.0, 97.5])
     return {"inflation_exact_median": float(median), "inflation_exact_95": [float(low), float(high)],
             "inflation_exact_share_at_most_3": float(np.mean(ratio <= 3.0))}

@@ -34,9 +34,15 @@ def calibrated(name: str):
     return calibrate_from_images(left, right, board)
 
 
-def test_opencv_sample_calibrates_from_all_13_pairs():
+def test_opencv_sample_calibrates_from_12_of_13_pairs_without_the_one_its_held_out_squares_disagree_with():
+    # Pair 7's squares, held out, measure 0.40 % short where the other twelve scatter 0.08 % about +0.06 % (5.6
+    # sigma): the calibration is fitted again without it, and says why. Counted as the model's inadequacy, that one
+    # pair had widened every measurement's U (docs/UNCERTAINTY.md).
     result = calibrated("opencv_sample")
-    assert len(result.views_used) == 13 and result.views_rejected == []
+    assert [r.index for r in result.views_rejected] == [7] and len(result.views_used) == 12
+    assert "held out, measure -0.40 %" in result.views_rejected[0].reason
+    assert result.gates.as_dict()["gates"]["consistent_views"]["views"] == [7]
+    assert result.calib.adequacy.u_rel < 2e-4
     assert result.calib.rms_px < 0.3
     assert result.calib.baseline_mm == pytest.approx(99.81, rel=0.005)
     # Bouguet's focal lengths: 533.00 / 536.98 px.
@@ -78,20 +84,24 @@ def test_left_and_right_corner_order_agree_on_real_pairs():
 
 # Leave-one-pair-out on every set in calib_data/real (tests/real_data.py), beside plain OpenCV in the same run.
 # Tolerances: the error no worse than plain OpenCV's (x 1.25 + 2 um: the sets where OpenCV's 11 px sub-pixel
-# window is fine give the same figure); at least 90 % of the pairs within U; RMS(error / u_c) at most 2.5 over
-# every pair and between 0.5 and 1.5 without the worst one (opencv_sample's pair 7 measures 0.12 mm short, 7.5
-# u_c, in 13 pairs: 2.16 with it, 0.57 without; every other set 0.81-1.07 with it); U's inflation, median U /
-# median |error|, at most 5 (a normal error with an exact u_c gives 2 / 0.674 = 2.97; before the model-adequacy
-# check present_cjn was 24.7).
+# window is fine give the same figure); at least 90 % of the pairs within U; RMS(error / u_c) at most 1.5, and
+# between 0.5 and 1.5 without the worst pair (0.81-1.10 and 0.65-0.97 on the three sets; opencv_sample was 2.16
+# before its calibration dropped pair 7, which alone in its error had widened every other pair's U); U's
+# inflation, median U / median |error|, inside the 95 % band an exact budget gives on the same pairs
+# (tests/real_data.py exact_budget_inflation: k = 2 gives a median of 2.97, and the band is wide on 12-29 pairs;
+# before the model-adequacy check present_cjn was 24.7).
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(REAL_SETS))
 def test_real_set_leave_one_out_beside_plain_opencv(name):
     figures = summary(leave_one_out(name))
     assert figures["rms_error_mm"] <= 1.25 * figures["opencv_rms_error_mm"] + 0.002, figures
     assert figures["within_U"] >= 0.9, figures
-    assert figures["rms_normalised"] <= 2.5, figures
+    assert figures["rms_normalised"] <= 1.5, figures
     assert 0.5 <= figures["rms_normalised_without_worst"] <= 1.5, figures
-    assert figures["inflation"] <= 5.0, figures
+    # U's inflation as an exact budget's could be on these pairs: inside its 95 % band, the calibration's error
+    # one draw for all of them (docs/UNCERTAINTY.md; a bar of 3 is missed by half of all exact budgets).
+    low, high = figures["inflation_exact_shared_95"]
+    assert low <= figures["inflation"] <= high, figures
 
 
 @pytest.mark.slow

@@ -14,10 +14,14 @@ from stereo_bench.errormodel.rigorous import calibration_of
 from stereo_bench.vision.covariance import EXTRINSIC_NAMES, CalibrationCovariance
 from stereo_bench.vision.measure import measure_square
 from stereo_bench.vision.uncertainty import (
+    ADEQUACY_OUTLIER_SIGMAS,
     DEFAULT_BOARD_SCALE_U_REL,
+    MIN_ADEQUACY_VIEWS,
     BoardScale,
     FrameCorners,
+    ModelAdequacy,
     configuration_budget,
+    scale_outlier,
     square_sensitivities,
 )
 from tests.synthetic_rig import TARGET, Configuration, calibrate, measurement_frames
@@ -309,3 +313,40 @@ def test_adequacy_linearised_intrinsic_sensitivities_equal_retriangulating_every
     scale = np.max(np.abs(reference), axis=1, keepdims=True)
     assert ours.shape == reference.shape == (len(names), n)
     assert np.max(np.abs(ours - reference) / scale) < 2e-7
+
+
+def _adequacy_of(errors_rel: np.ndarray, sigmas_rel: np.ndarray) -> ModelAdequacy:
+    return ModelAdequacy(u_rel=0.0, dof=len(errors_rel) - 1.0, n_views=len(errors_rel), rms_rel=0.0,
+                         predicted_rel=float(np.sqrt(np.mean(sigmas_rel**2))), bias_rel=float(np.mean(errors_rel)),
+                         errors_rel=tuple(errors_rel), sigmas_rel=tuple(sigmas_rel))
+
+
+def test_scale_outlier_picks_the_one_view_alone_in_its_error_and_no_view_of_a_class_that_all_err():
+    rng = np.random.default_rng(22)
+    sigmas = rng.uniform(5e-4, 1.2e-3, 20)
+    errors = sigmas * rng.standard_normal(20)
+    assert scale_outlier(_adequacy_of(errors, sigmas)) is None
+    # One view 7 of its own sigmas off, as opencv_sample's pair 7 (5.6 sigma from the others).
+    odd = errors.copy()
+    odd[13] = float(np.mean(np.delete(errors, 13))) - 7 * sigmas[13]
+    outlier = scale_outlier(_adequacy_of(odd, sigmas))
+    assert outlier is not None and outlier.position == 13 and outlier.z > ADEQUACY_OUTLIER_SIGMAS
+    assert f"{100 * odd[13]:+.2f} %" in outlier.reason()
+    # Every view 5 % long (a model that fits none, the anamorphic webcam's class): u_rel's, not one view's.
+    assert scale_outlier(_adequacy_of(errors + 0.05, sigmas)) is None
+    # A model error that scatters every view by 4 of its sigmas: the others' excess widens each view's expectation.
+    wide = errors + 4 * sigmas * rng.standard_normal(20)
+    assert scale_outlier(_adequacy_of(wide, sigmas)) is None
+    # Too few views to say, or sigmas a file did not record: no verdict.
+    assert scale_outlier(_adequacy_of(odd[:MIN_ADEQUACY_VIEWS], sigmas[:MIN_ADEQUACY_VIEWS])) is None
+    assert scale_outlier(replace(_adequacy_of(odd, sigmas), sigmas_rel=())) is None
+
+
+def test_gaussian_views_are_dropped_as_rarely_as_the_outlier_limit_says():
+    # 2000 calibrations of 30 views with exactly predicted Gaussian errors: 2 n Q(4.5) = 2e-4 each, so about 0.4.
+    rng = np.random.default_rng(4)
+    flagged = 0
+    for _ in range(2000):
+        sigmas = rng.uniform(5e-4, 1.2e-3, 30)
+        flagged += scale_outlier(_adequacy_of(sigmas * rng.standard_normal(30), sigmas)) is not None
+    assert flagged <= 3

@@ -319,8 +319,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             a = calib.adequacy
             print(f"model adequacy: the board's squares in {a.n_views} held-out views err {a.rms_rel:.2%} RMS "
                   f"(mean {a.bias_rel:+.2%}, {a.lengthening_rel:+.2%} of it the corner noise's lengthening), "
-                  f"{a.predicted_rel:.2%} predicted: component {a.u_rel:.2%} of a length "
-                  f"({a.dof:.0f} degrees of freedom)")
+                  f"{a.predicted_rel:.2%} predicted: "
+                  + (f"component {a.u_rel:.2%} of a length ({a.dof:.0f} degrees of freedom)" if a.u_rel > 0 else
+                     "no excess, component 0"))
         lens = report["lens_model"]
         if lens["comparison"]:
             print(f"lens model {lens['chosen']} ({lens['reason']}); held-out (linearised leave-one-pair-out):")
@@ -445,7 +446,16 @@ def cmd_measure(args: argparse.Namespace) -> int:
         print(f"square: {sq.mean_mm:.4f} mm  (nominal {sq.nominal_mm:g} from {board_source['square']}, error "
               f"{'+' if sq.error_mm >= 0 else ''}{mm(sq.error_mm)} +- {mm(budget.expanded)} mm (k={budget.k:.3g}))")
         components = {**budget.components, **({} if budget.adequacy is None else {"adequacy": budget.adequacy})}
-        parts = ", ".join(f"{name} {'unknown' if value is None else mm(value)}" for name, value in components.items())
+
+        def part(name: str, value: float | None) -> str:
+            if value is None:
+                return f"{name} unknown"
+            if name == "adequacy" and value == 0 and calib.adequacy is not None:
+                # Truncated at zero (docs/UNCERTAINTY.md): the held-out squares show no excess, not a tiny one.
+                return f"adequacy 0 (no excess in {calib.adequacy.n_views} held-out views)"
+            return f"{name} {mm(value)}"
+
+        parts = ", ".join(part(name, value) for name, value in components.items())
         print(f"        uncertainty: {parts} -> u_c {mm(budget.combined)} mm, dominant: {budget.dominant}"
               + (f"; not included: {', '.join(budget.unknown)}" if budget.unknown else ""))
         print(f"        std {mm(sq.std_mm)} mm over n = {sq.n} adjacent pairs, sigma of mean {mm(sq.sigma_mean_mm)} mm "

@@ -119,6 +119,11 @@ class GateReport:
                           f"gate_{r.name}_verdict": r.verdict, f"gate_{r.name}_line": r.line})
         return items
 
+    def replaced(self, result: GateResult) -> GateReport:
+        """This report with the gate of ``result``'s name measured again: ``result`` in its place."""
+        return GateReport(tuple(result if r.name == result.name else r for r in self.results), self.accept_poor,
+                          self.view_diagnoses)
+
     def merged(self, other: GateReport) -> GateReport:
         return GateReport(self.results + other.results, self.accept_poor,
                           {**self.view_diagnoses, **other.view_diagnoses})

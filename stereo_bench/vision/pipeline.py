@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -30,13 +30,14 @@ from stereo_bench.vision.gates import (
     GateView,
     PoseCache,
     gate_board_fit,
+    gate_consistent_views,
     image_blur,
     run_gates,
 )
 from stereo_bench.vision.measure import SquareMeasurement, measure_square, planar_fit_rms_px
 from stereo_bench.vision.rectify import Rectification, epipolar_errors_px, rectify, rms
 from stereo_bench.vision.triangulate import camera_depths_mm, parallax_px
-from stereo_bench.vision.uncertainty import with_adequacy
+from stereo_bench.vision.uncertainty import scale_outlier, with_adequacy
 
 MIN_COMMON_CORNERS = 6
 
@@ -265,20 +266,30 @@ def calibrate_from_images(
             board_report()
             raise ValueError(f"calibration board found in only {len(objects)} of {len(left_images)} view pairs "
                              f"(need {MIN_VIEWS})")
-        try:
+        def fit(objects: list, lefts: list, rights: list, after_mono=None) -> StereoCalibration:
             if lens_model is None:
-                calib = calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode,
-                                         intrinsics_covariance=intrinsics_covariance, after_mono=measure_blur)
-            else:
-                calib = calibrate_stereo_lens(objects, lefts, rights, tuple(image_size), lens_model=lens_model,
-                                              intrinsics=intrinsics, mode=mode,
-                                              intrinsics_covariance=intrinsics_covariance, after_mono=measure_blur)
+                return calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode,
+                                        intrinsics_covariance=intrinsics_covariance, after_mono=after_mono)
+            return calibrate_stereo_lens(objects, lefts, rights, tuple(image_size), lens_model=lens_model,
+                                         intrinsics=intrinsics, mode=mode,
+                                         intrinsics_covariance=intrinsics_covariance, after_mono=after_mono)
+
+        try:
+            calib = fit(objects, lefts, rights, measure_blur)
         except Exception:
             board_report()
             raise
         measure_blur()  # started by the fit; here only if it did not
         report = board_report()
-        dropped = [(pair_index[r.index], r.reason) for r in calib.views_rejected]
+        n_paired = len(pair_index)  # the pairs with the board in both images, the gates' views
+
+        def fit_dropped() -> list[tuple[int, str]]:
+            # (pair index, reason) of the views the fit's outlier rule dropped, with what the gates found in them.
+            diagnoses = report.view_diagnoses if report is not None else {}
+            return [(pair_index[r.index], f"{r.reason}: {diagnoses[pair_index[r.index]]}"
+                     if pair_index[r.index] in diagnoses else r.reason) for r in calib.views_rejected]
+
+        dropped = fit_dropped()
         # The held-out check of the budget (docs/UNCERTAINTY.md).
         adequacy = pool.submit(with_adequacy, calib, objects, lefts, rights)
         if report is not None:
@@ -290,9 +301,19 @@ def calibrate_from_images(
                                              poses=PoseCache.of_fit(calib, views)))
             if report.refused:
                 raise CalibrationRefused(report)
-            dropped = [(index, f"{why}: {report.view_diagnoses[index]}" if index in report.view_diagnoses else why)
-                       for index, why in dropped]
+            dropped = fit_dropped()
         calib = adequacy.result()
+        calib, kept, dropped_by_scale = drop_scale_outliers(
+            calib, fit, objects, lefts, rights, most=n_paired // 4)
+        if dropped_by_scale:
+            dropped_by_scale = [(pair_index[position], why) for position, why in dropped_by_scale]
+            pair_index, objects, lefts, rights = ([seq[i] for i in kept]
+                                                  for seq in (pair_index, objects, lefts, rights))
+            dropped = sorted(fit_dropped() + dropped_by_scale)
+            if report is not None:
+                report = report.replaced(gate_consistent_views(n_paired, dropped, view_names))
+                if report.refused:
+                    raise CalibrationRefused(report)
     problems = calibration_problems(calib)
     if problems:
         if report is not None and report.failed:  # kept with --accept-poor: the gates name the cause
@@ -310,6 +331,31 @@ def calibrate_from_images(
         views_rejected=sorted(rejected, key=lambda r: r.index), views_used=used, gates=report,
         corners=tuple((objects[i], lefts[i], rights[i]) for i in calib.views_used),
     )
+
+
+def drop_scale_outliers(calib: StereoCalibration, fit: Callable[[list, list, list], StereoCalibration],
+                        object_points: Sequence[np.ndarray], left_points: Sequence[np.ndarray],
+                        right_points: Sequence[np.ndarray], *, most: int,
+                        ) -> tuple[StereoCalibration, list[int], list[tuple[int, str]]]:
+    """``calib`` (fitted to these views, with its adequacy) fitted again by ``fit(objects, lefts, rights)`` without
+    each view whose held-out squares disagree with every other view's (:func:`~stereo_bench.vision.uncertainty.
+    scale_outlier`), one at a time, at most ``most`` views and never below ``MIN_VIEWS``.
+
+    Counted as the model's inadequacy instead, one view's fault widens every measurement's U: opencv_sample's
+    pair 7 (docs/UNCERTAINTY.md). Returns (the calibration, with its adequacy; the positions of the views it was
+    fitted from, its ``views_used`` indexing them in turn; (position, reason) of each view dropped).
+    """
+    kept, dropped = list(range(len(object_points))), []
+    while len(dropped) < most and len(calib.views_used) > MIN_VIEWS:
+        outlier = scale_outlier(calib.adequacy)
+        if outlier is None:
+            break
+        position = kept[calib.views_used[outlier.position]]
+        dropped.append((position, outlier.reason()))
+        kept.remove(position)
+        views = [[seq[i] for i in kept] for seq in (object_points, left_points, right_points)]
+        calib = with_adequacy(fit(*views), *views)
+    return calib, kept, dropped
 
 
 def measure_pair(

@@ -99,6 +99,11 @@ PRINTED_TARGET_SCALE_U_REL = 0.001 / math.sqrt(3.0)
 COMPONENTS = ("noise", "calibration", "structure", "target")
 #: Fewer held-out views than this say too little about the model's adequacy: the component is not computed.
 MIN_ADEQUACY_VIEWS = 8
+#: A calibration view whose held-out square lies further than this many standard deviations from every other
+#: view's is dropped from the fit (:func:`scale_outlier`): were the views' errors Gaussian, a calibration of 100
+#: views would drop one falsely about once in 1000 (2 n Q(4.5) = 7e-4). The real sets' largest among the views
+#: kept: 3.8 sigma (smiler488_box); opencv_sample's pair 7: 4.6-5.4 (docs/UNCERTAINTY.md).
+ADEQUACY_OUTLIER_SIGMAS = 4.5
 #: Student's t for a 95.45 % two-sided interval (the k = 2 of a normal distribution) by degrees of freedom,
 #: JCGM 100:2008 Table G.2; between the rows linear in 1/nu.
 _T_9545 = ((1, 13.97), (2, 4.53), (3, 3.31), (4, 2.87), (5, 2.65), (6, 2.52), (7, 2.43), (8, 2.37), (9, 2.32),
@@ -562,6 +567,7 @@ class ModelAdequacy:
     error of a square the model makes beyond what its noise predicts (bias and scatter together), with ``dof`` =
     n - 1. The lengthening is the noise's, not the model's: a budget carries its own target's as its noise bias,
     and counting it here as well counted it twice (the simulated lab bench's still target: RMS(err/u_c) 0.64).
+    ``sigmas_rel``: p_v per view (empty when read from a file that did not record it).
     ``corner_px``: the corner error per coordinate, independent from corner to corner, that the held-out squares
     show: sqrt(s) with mean r^2 = mean c^2 + s mean G^2 + s^2 mean beta^2, at most sigma_fit (what exceeds it is
     ``u_rel``'s) and at least 0: below sigma_fit when the residuals' excess is smooth across a board (neighbouring
@@ -579,11 +585,13 @@ class ModelAdequacy:
     corner_px: float = float("nan")
     errors_rel: tuple[float, ...] = ()
     lengthening_rel: float = 0.0
+    sigmas_rel: tuple[float, ...] = ()
 
     def as_dict(self) -> dict:
         return {"u_rel": self.u_rel, "dof": self.dof, "n_views": self.n_views, "rms_rel": self.rms_rel,
                 "predicted_rel": self.predicted_rel, "bias_rel": self.bias_rel, "corner_px": self.corner_px,
-                "errors_rel": list(self.errors_rel), "lengthening_rel": self.lengthening_rel}
+                "errors_rel": list(self.errors_rel), "lengthening_rel": self.lengthening_rel,
+                "sigmas_rel": list(self.sigmas_rel)}
 
     @classmethod
     def from_dict(cls, data: dict) -> ModelAdequacy:
@@ -591,7 +599,52 @@ class ModelAdequacy:
                    rms_rel=float(data["rms_rel"]), predicted_rel=float(data["predicted_rel"]),
                    bias_rel=float(data["bias_rel"]), corner_px=float(data.get("corner_px", float("nan"))),
                    errors_rel=tuple(float(v) for v in data.get("errors_rel", ())),
-                   lengthening_rel=float(data.get("lengthening_rel", 0.0)))
+                   lengthening_rel=float(data.get("lengthening_rel", 0.0)),
+                   sigmas_rel=tuple(float(v) for v in data.get("sigmas_rel", ())))
+
+
+@dataclass(frozen=True)
+class ScaleOutlier:
+    """One calibration view whose held-out squares disagree with all the others' (:func:`scale_outlier`).
+    ``position``: the view's place in the adequacy's views (the fit's ``views_used`` order); the rest relative."""
+
+    position: int
+    z: float
+    error_rel: float
+    others_mean_rel: float
+    expected_rel: float  # the standard deviation the others give this view's error: its own noise and their excess
+
+    def reason(self) -> str:
+        return (f"its squares, held out, measure {100 * self.error_rel:+.2f} % against the other views' "
+                f"{100 * self.others_mean_rel:+.2f} % +- {100 * self.expected_rel:.2f} % ({self.z:.1f} sigma, "
+                f"limit {ADEQUACY_OUTLIER_SIGMAS:g}): something in this view that is in no other (a board bent or "
+                "moved in this pair, a mismatched corner, a pair not taken together)")
+
+
+def scale_outlier(adequacy: ModelAdequacy | None) -> ScaleOutlier | None:
+    """The view whose held-out square is further than :data:`ADEQUACY_OUTLIER_SIGMAS` from every other view's, or None.
+
+    Each view v against the others alone: z_v = |r_v - mean_o r| / sqrt(p_v^2 + e_o^2 + var_o r / (n - 1)), with
+    e_o^2 = max(var_o r - mean_o p^2, 0) the excess the other views show (a model that fits no view well widens
+    every view's expectation alike, so a class of views that all err is left to ``u_rel``, not picked apart),
+    ``p`` the views' predicted sigmas. The largest z, if above the limit. None with fewer than
+    :data:`MIN_ADEQUACY_VIEWS` + 1 views, or an adequacy read from a file without per-view sigmas.
+    """
+    if adequacy is None or len(adequacy.errors_rel) < MIN_ADEQUACY_VIEWS + 1 \
+            or len(adequacy.sigmas_rel) != len(adequacy.errors_rel):
+        return None
+    r, p = np.asarray(adequacy.errors_rel, float), np.asarray(adequacy.sigmas_rel, float)
+    n = len(r)
+    others = ~np.eye(n, dtype=bool)  # row v: the views other than v
+    r_o = np.where(others, r[None, :], np.nan)
+    mean_o, var_o = np.nanmean(r_o, axis=1), np.nanvar(r_o, axis=1)
+    excess_sq = np.maximum(var_o - np.nanmean(np.where(others, p[None, :] ** 2, np.nan), axis=1), 0.0)
+    expected = np.sqrt(p**2 + excess_sq)
+    z = np.abs(r - mean_o) / np.sqrt(expected**2 + var_o / (n - 1))
+    v = int(np.argmax(z))
+    if not z[v] > ADEQUACY_OUTLIER_SIGMAS:
+        return None
+    return ScaleOutlier(v, float(z[v]), float(r[v]), float(mean_o[v]), float(expected[v]))
 
 
 class _ObjectGrid:
@@ -696,6 +749,7 @@ def model_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray]
     errors = (measured + np.einsum("np,np->n", g, covariance.view_deltas) - nominal_arr) / nominal_arr
     calibration = np.array([covariance.variance_of(g_v, names)[0] for g_v in g]) / nominal_arr**2
     pixel = np.bincount(corner_owner, weights=np.sum(gradient**2, axis=1), minlength=n) / nominal_arr**2
+    sigmas = np.sqrt(calibration + sigma_px**2 * pixel)
     errors_arr = np.asarray(errors)
     mean_calibration, mean_pixel = float(np.mean(calibration)), float(np.mean(pixel))
     # The corner variance s, independent from corner to corner, that the held-out squares show: their mean square
@@ -713,7 +767,7 @@ def model_adequacy(calib: StereoCalibration, object_points: Sequence[np.ndarray]
                          predicted_rel=float(math.sqrt(mean_predicted)),
                          bias_rel=float(np.mean(errors_arr)), corner_px=float(corner),
                          errors_rel=tuple(float(e) for e in errors_arr),
-                         lengthening_rel=float(np.mean(lengthening)))
+                         lengthening_rel=float(np.mean(lengthening)), sigmas_rel=tuple(float(v) for v in sigmas))
 
 
 def _lengthening_per_view(square: _Square, points: np.ndarray, jac_norm: np.ndarray,
