@@ -97,8 +97,10 @@ def main(argv: list[str]) -> int:
                  if "baseline_sigma_ratio" in f else "not computed")
         print(f"| {name} | {f['pairs']} | {f['rms_error_mm']:.4f} / {f['opencv_rms_error_mm']:.4f} "
               f"| {f['rms_normalised']:.2f} | {f['within_U']:.0%} | {f['inflation']:.1f} "
-              f"({f['inflation_exact_median']:.1f}, {f['inflation_exact_95'][0]:.1f}-{f['inflation_exact_95'][1]:.1f}) "
-              f"| {sigma} |")
+              f"({f['inflation_exact_median']:.1f}, {f['inflation_exact_95'][0]:.1f}-{f['inflation_exact_95'][1]:.1f}"
+              + (f"; the calibration's error shared: {f['inflation_exact_shared_95'][0]:.1f}-"
+                 f"{f['inflation_exact_shared_95'][1]:.1f}" if "inflation_exact_shared_95" in f else "")
+              + f") | {sigma} |")
     elapsed = time.perf_counter() - start
     print(f"{elapsed:.0f} s; load average before {load_before[0]:.2f}, after {os.getloadavg()[0]:.2f}")
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -19,7 +19,7 @@ from stereo_bench.targets import CharucoTarget, Checkerboard
 from stereo_bench.vision.calibrate import StereoCalibration, calibrate_stereo
 from stereo_bench.vision.covariance import EXTRINSIC_NAMES
 from stereo_bench.vision.detect import common_corners, detect
-from stereo_bench.vision.pipeline import drop_scale_outliers, measure_pair
+from stereo_bench.vision.pipeline import drop_scale_outliers, measure_pair, refit_from
 from stereo_bench.vision.triangulate import triangulate
 from stereo_bench.vision.uncertainty import BoardScale, configuration_budget, with_adequacy
 
@@ -130,12 +130,10 @@ def opencv_leave_one_out(name: str) -> np.ndarray:
 def _calibrate(object_points, left_points, right_points, image_size) -> StereoCalibration:
     """The stereo calibration calibrate_from_images makes of these views, with its held-out check and without a
     view the check finds alone in its error (``views_used`` indexes the views given)."""
-    def fit(objects, lefts, rights):
-        return calibrate_stereo(objects, lefts, rights, image_size)
-
-    calib = with_adequacy(fit(object_points, left_points, right_points), object_points, left_points, right_points)
-    calib, kept, _ = drop_scale_outliers(calib, fit, object_points, left_points, right_points,
-                                         most=len(object_points) // 4)
+    calib = with_adequacy(calibrate_stereo(object_points, left_points, right_points, image_size), object_points,
+                          left_points, right_points)
+    calib, kept, _ = drop_scale_outliers(calib, refit_from(calib, image_size), object_points, left_points,
+                                         right_points, most=len(object_points) // 4)
     return replace(calib, views_used=[kept[i] for i in calib.views_used])
 
 
