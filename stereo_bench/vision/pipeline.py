@@ -7,6 +7,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 
 from stereo_bench.targets import Checkerboard, Target
@@ -374,10 +375,14 @@ def drop_scale_outliers(calib: StereoCalibration, fit: Callable[[list, list, lis
         if outlier is None:
             break
         position = kept[calib.views_used[outlier.position]]
+        fewer = [i for i in kept if i != position]
+        views = [[seq[i] for i in fewer] for seq in (object_points, left_points, right_points)]
+        try:
+            refitted = fit(*views)
+        except (ValueError, cv2.error):
+            break  # the views left do not fit alone: the calibration keeps the view (and its excess in u_rel)
+        calib, kept = with_adequacy(refitted, *views), fewer
         dropped.append((position, outlier.reason()))
-        kept.remove(position)
-        views = [[seq[i] for i in kept] for seq in (object_points, left_points, right_points)]
-        calib = with_adequacy(fit(*views), *views)
     return calib, kept, dropped
 
 

@@ -102,7 +102,8 @@ MIN_ADEQUACY_VIEWS = 8
 #: A calibration view whose held-out square lies further than this many standard deviations from every other
 #: view's is dropped from the fit (:func:`scale_outlier`): were the views' errors Gaussian, a calibration of 100
 #: views would drop one falsely about once in 1000 (2 n Q(4.5) = 7e-4). The real sets' largest among the views
-#: kept: 3.8 sigma (smiler488_box); opencv_sample's pair 7: 4.6-5.4 (docs/UNCERTAINTY.md).
+#: kept: 4.1 sigma (smiler488_box's view 19; 4.3 in its leave-one-out calibrations); opencv_sample's pair 7, dropped:
+#: 5.6 (docs/UNCERTAINTY.md).
 ADEQUACY_OUTLIER_SIGMAS = 4.5
 #: Student's t for a 95.45 % two-sided interval (the k = 2 of a normal distribution) by degrees of freedom,
 #: JCGM 100:2008 Table G.2; between the rows linear in 1/nu.
