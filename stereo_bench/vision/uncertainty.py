@@ -636,10 +636,10 @@ def scale_outlier(adequacy: ModelAdequacy | None) -> ScaleOutlier | None:
         return None
     r, p = np.asarray(adequacy.errors_rel, float), np.asarray(adequacy.sigmas_rel, float)
     n = len(r)
-    others = ~np.eye(n, dtype=bool)  # row v: the views other than v
-    r_o = np.where(others, r[None, :], np.nan)
-    mean_o, var_o = np.nanmean(r_o, axis=1), np.nanvar(r_o, axis=1)
-    excess_sq = np.maximum(var_o - np.nanmean(np.where(others, p[None, :] ** 2, np.nan), axis=1), 0.0)
+    # Each view's others by subtraction from the sums over all views.
+    mean_o = (r.sum() - r) / (n - 1)
+    var_o = np.maximum((np.sum(r**2) - r**2) / (n - 1) - mean_o**2, 0.0)
+    excess_sq = np.maximum(var_o - (np.sum(p**2) - p**2) / (n - 1), 0.0)
     expected = np.sqrt(p**2 + excess_sq)
     z = np.abs(r - mean_o) / np.sqrt(expected**2 + var_o / (n - 1))
     v = int(np.argmax(z))
