@@ -101,8 +101,10 @@ def test_camera_panes_show_a_placeholder_until_the_first_frame(served, small_ref
 def test_results_newest_first_to_their_significant_digits(served, small_reference):
     page, documents, tab = served
     _feed(page, documents)
-    tab.wait_for_selector("#results-table tr[data-status='measured']")
     order = [row["config_id"] for row in (r.stored() for r in SessionReader(small_reference).results())]
+    # The page draws the rows as its event stream delivers them: wait for all of them, not for the first.
+    tab.wait_for_function("n => document.querySelectorAll('#results-table tbody tr').length >= n",
+                          arg=len(order), timeout=20_000)
     shown = tab.eval_on_selector_all("#results-table tbody tr", "rows => rows.map(r => r.dataset.config)")
     assert shown == order[::-1]  # the newest first
     heads = tab.eval_on_selector_all("#results-table thead th", "cells => cells.map(c => c.textContent)")
@@ -169,12 +171,16 @@ def test_the_rectified_preview_appears_with_the_first_calibration(served, small_
 def test_a_3d_view_of_the_rig(served, small_reference):
     page, documents, tab = served
     _feed(page, documents)
-    tab.wait_for_selector("#rig3d svg")
     last = SessionReader(small_reference).events(kind="move")[-1].data.rig
-    svg = tab.query_selector("#rig3d svg")
-    assert float(svg.get_attribute("data-baseline-mm")) == pytest.approx(last.baseline_mm, abs=1e-6)
     # The target distance is set by hand in this campaign: the one the operator confirmed.
     distance = last.target_distance_mm or small_config().plan.distance_mm[-1]
+    # Drawn anew with each move as the event stream delivers it: wait for the last move's drawing.
+    tab.wait_for_function("""([b, z]) => { const svg = document.querySelector('#rig3d svg');
+        return svg && Math.abs(Number(svg.getAttribute('data-baseline-mm')) - b) < 1e-6
+                   && Math.abs(Number(svg.getAttribute('data-distance-mm')) - z) < 1e-6; }""",
+                          arg=[last.baseline_mm, distance], timeout=20_000)
+    svg = tab.query_selector("#rig3d svg")
+    assert float(svg.get_attribute("data-baseline-mm")) == pytest.approx(last.baseline_mm, abs=1e-6)
     assert float(svg.get_attribute("data-distance-mm")) == pytest.approx(distance, abs=1e-6)
     assert len(tab.query_selector_all("#rig3d .camera")) == 2
     assert len(tab.query_selector_all("#rig3d .frustum")) == 2
