@@ -351,3 +351,51 @@ def test_a_lens_calibration_that_fails_fails_the_fit_with_its_reason():
     fit = source.prepare([], config, None, purpose="kinematic", earlier=lens)
     assert fit.kinematic_model is None and fit.error == f"kinematic fit (fixed board): {lens.error}"
     assert KinematicModelData(**fit.record).error == lens.error  # recorded as the kinematic_model event says
+
+
+def test_the_plan_predicts_the_sigma_of_r_t_at_every_measured_configuration(tmp_path, capsys):
+    """What the fixed board's R, T will be worth before any view (issue 25 item 3): the planned model's sigma at each
+    of paper-exp1's 25 configurations, approached as the steps approach them. It scales with the plan's corner noise,
+    a lens prior sharpens T (the right camera's depth is the ratio of the focal lengths, docs/EXTRINSICS.md), the
+    presented design has none, and a parameter held nominal is named as not counted. The sigmas against the scatter
+    of repeated fits: tests/test_kinematics_fixed_board.py."""
+    config = _config("fixed-board")
+    alone = plan_summary(config)["predicted_extrinsics"]
+    runnable = [c.config_id for c in expand_plan(config) if c.runnable]
+    assert [r["config_id"] for r in alone["configurations"]] == runnable and len(runnable) == 25
+    assert alone["held"] == [] and alone["corner_sigma_px"] == 0.1
+    assert alone["intrinsics"] == "from the design's views alone"
+    # Measured: sigma |T| 0.148-0.169 mm, angle(R) 0.0214 deg (0.1 px corners, no lens prior).
+    assert 0.1 < alone["rms_sigma_T_mm"] < 0.25 and 0.01 < alone["rms_sigma_R_deg"] < 0.04, alone
+    assert alone["max_sigma_T_mm"] == max(r["sigma_T_mm"] for r in alone["configurations"])
+    assert all(r["extrapolated"] == [] and r["structure"]["baseline_mm"] > 0 for r in alone["configurations"])
+
+    def extrinsics(**extra):
+        return {"extrinsics": {"mode": "kinematic", "design": "fixed-board", **extra}}
+
+    doubled = plan_summary(_config("fixed-board", **extrinsics(plan_corner_sigma_px=0.2, fixed_board_lens="none")))
+    # First order in the corner noise; the landings' priors (the rig's repeatability) do not scale with it.
+    assert doubled["predicted_extrinsics"]["rms_sigma_T_mm"] == pytest.approx(2 * alone["rms_sigma_T_mm"], rel=0.05)
+    present = plan_summary(_config("fixed-board", **extrinsics(fixed_board_lens="present")))["predicted_extrinsics"]
+    assert present["rms_sigma_T_mm"] < 0.6 * alone["rms_sigma_T_mm"], present  # measured 0.069 against 0.158 mm
+    assert present["intrinsics"] == "a lens calibration of 12 presented views as prior (predicted)"
+    assert plan_summary(_config("presented"))["predicted_extrinsics"] is None
+
+    one_b = campaign_from_dict({"name": "one-b", "plan": {"distance_mm": [300, 500], "baseline_mm": [150],
+                                                         "alpha_deg": [90]}, **extrinsics(fixed_board_lens="none")})
+    held = plan_summary(one_b)["predicted_extrinsics"]["held"]
+    assert {"slide_scale", "left_axis_z_mm"} <= set(held), held
+
+    path = tmp_path / "exp1.toml"
+    path.write_text('[plan]\ndistance_mm = [300, 400, 500, 600, 700]\nbaseline_mm = [50, 100, 150, 200, 250]\n'
+                    'alpha_deg = [90]\n[extrinsics]\nmode = "kinematic"\ndesign = "fixed-board"\n')
+    assert main(["campaign", "plan", str(path)]) == 0
+    out = capsys.readouterr().out
+    line = next(line for line in out.splitlines() if line.startswith("predicted R, T"))
+    assert line.startswith("predicted R, T at the 25 measured configurations (the planned fit to first order, 0.1 px "
+                           "corners, intrinsics from the design's views alone): sigma |T| 0.1"), line
+    assert "sigma angle(R) 0.0214 deg at every configuration" in line and "not counted" not in out
+    path.write_text('[plan]\ndistance_mm = [300, 500]\nbaseline_mm = [150]\nalpha_deg = [90]\n'
+                    '[extrinsics]\nmode = "kinematic"\ndesign = "fixed-board"\nfixed_board_lens = "none"\n')
+    assert main(["campaign", "plan", str(path)]) == 0
+    assert "not counted: the build tolerance of the " in capsys.readouterr().out

@@ -199,6 +199,7 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
         for row in table:
             sigma = f"sigma {row['sigma']:.3g} {row['unit']}" if row["identified"] else f"held nominal: {row['note']}"
             lines.append(f"{'':>5}{row['name']:<24} {sigma}")
+    lines += _predicted_extrinsics_text(summary.get("predicted_extrinsics"))
     per_configuration = " (one set per configuration)" if extrinsics.calibrates_each_configuration else ""
     note = " (adding configurations adds none)" if counts["visits"] and not counts["configurations"] else ""
     lines.append(f"calibration board presentations: {counts['total']}: {counts['visits']} at visits{note}, "
@@ -223,6 +224,35 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
                      + (": the simulated hand presents the board" if config.cameras.kind == "simulated" else ""))
     elif counts["total"] and config.cameras.kind != "simulated":
         lines.append("calibration views taken one per Enter ([capture] calibration_capture = \"enter\")")
+    return lines
+
+
+def _predicted_extrinsics_text(predicted: dict[str, Any] | None) -> list[str]:
+    """The sigma of R, T the planned fixed-board fit will predict at the measured configurations: the range, the RMS
+    and where it is worst; what it does not count."""
+    if not predicted:
+        return []
+    rows = predicted["configurations"]
+
+    def spread(key: str, unit: str, rms: str) -> str:
+        values = [r[key] for r in rows]
+        if f"{min(values):.3g}" == f"{max(values):.3g}":
+            return f"{max(values):.3g} {unit} at every configuration"
+        worst = max(rows, key=lambda r: r[key])["config_id"]
+        return f"{min(values):.3g}-{max(values):.3g} {unit} (RMS {predicted[rms]:.3g}, worst at {worst})"
+
+    baseline = max(r["structure"]["baseline_mm"] for r in rows)
+    alphas = max(max(r["structure"]["alpha_left_deg"], r["structure"]["alpha_right_deg"]) for r in rows)
+    lines = [f"predicted R, T at the {len(rows)} measured configurations (the planned fit to first order, "
+             f"{predicted['corner_sigma_px']:g} px corners, intrinsics {predicted['intrinsics']}): "
+             f"sigma |T| {spread('sigma_T_mm', 'mm', 'rms_sigma_T_mm')}, "
+             f"sigma angle(R) {spread('sigma_R_deg', 'deg', 'rms_sigma_R_deg')}; "
+             f"the optical baseline's sigma up to {baseline:.3g} mm, the alphas' up to {alphas:.3g} deg"]
+    held = predicted["held"]
+    if held:
+        plural = "s" if len(held) > 1 else ""
+        lines.append(f"{'':>5}not counted: the build tolerance of the {len(held)} parameter{plural} held nominal "
+                     f"({', '.join(held)})")
     return lines
 
 

@@ -667,20 +667,46 @@ def design_visits(design) -> tuple[list[ConfigurationViews], float]:
     return configurations, 0.5 * (min(baselines) + max(baselines))
 
 
-def design_identifiability(
+@dataclass(frozen=True)
+class PlannedFit:
+    """What a fixed-board design's fit will know, before any view is taken (:func:`planned_fit`).
+
+    ``rows``: the identifiability table. ``model``: the nominal rig's model with the covariance the design's exact
+    views give its identified parameters (every nuisance marginalised: board pose, carriage share, landings,
+    intrinsics with their prior); the held ones at nominal without a sigma. Through
+    :func:`stereo_bench.kinematics.prediction.predict` it gives the sigma of R, T the fit will predict at any
+    configuration, the error of a held parameter (the rig's build tolerance) not counted.
+    """
+
+    rows: list[IdentifiabilityRow]
+    model: KinematicModel
+
+
+def design_identifiability(design: Sequence[DesignConfiguration], object_points: np.ndarray, T_rig_board: np.ndarray,
+                           intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], **kw,
+                           ) -> list[IdentifiabilityRow]:
+    """The identifiability table a fixed-board design will have, before any view is taken (:func:`planned_fit`'s
+    ``rows``; the same arguments)."""
+    return planned_fit(design, object_points, T_rig_board, intrinsics, **kw).rows
+
+
+def planned_fit(
     design: Sequence[DesignConfiguration], object_points: np.ndarray, T_rig_board: np.ndarray,
     intrinsics: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], *, pixel_sigma_px: float = 0.1,
     intrinsics_covariance: np.ndarray | None = None, refine_intrinsics: bool = True, repeatability_mm: float = 0.0,
     repeatability_deg: float = 0.0, repeatability_tilt_deg: float | None = None,
-) -> list[IdentifiabilityRow]:
-    """The identifiability table a fixed-board design will have, before any view is taken (``campaign plan``).
+    image_size: tuple[int, int] = (0, 0),
+) -> PlannedFit:
+    """The identifiability table and the planned model a fixed-board design will have, before any view is taken
+    (``campaign plan``).
 
     The board at ``T_rig_board`` (the rig frame of :class:`stereo_bench.geometry.RigPose`) is projected exactly
     through the nominal chain at every visit of ``design`` (visited in order, approach directions from the
     order); the Jacobian there, whitened by ``pixel_sigma_px``, is what :func:`identifiability` reads. The views
     are the nominal rig's: a built rig differs by its tolerances, which change the table little. A design with
     tilts (:func:`fixed_board_design`'s ``tilt_ranges_deg``) has the tilt joints' rows too; their landings' std is
-    ``repeatability_tilt_deg`` (None: ``repeatability_deg``, the heads').
+    ``repeatability_tilt_deg`` (None: ``repeatability_deg``, the heads'). ``image_size`` (w, h px) is only recorded
+    in the planned model.
     """
     from stereo_bench.geometry import RigPose
 
@@ -724,4 +750,16 @@ def design_identifiability(
     if len({c.axes["baseline_mm"] for c in configurations}) < 2:
         nuisance = nuisance[nuisance != exact.o_share]
     J = exact.jacobian(x, exact.residuals(x))
-    return identifiability(J, rule_free, nuisance, notes=notes, specs=specs)[1]
+    free, rows = identifiability(J, rule_free, nuisance, notes=notes, specs=specs)
+    index = np.flatnonzero(free)
+    cov_k = np.linalg.inv(_information(J, index, nuisance)) if index.size else np.zeros((0, 0))
+    by_name = {row.name: row for row in rows}
+    n_corners = exact.m_px // 2
+    model, _ = assemble_model(
+        configurations, p=p0, free=free, cov_k=cov_k,
+        held_note=lambda spec: by_name[spec.name].note if spec.name in by_name else notes.get(spec.group, ""),
+        residual_px=np.zeros((n_corners, 2)), row_view=exact.row_view[::2], view_config=exact.view_config,
+        intr_l=il, intr_r=ir, image_size=image_size, B_ref=B_ref, repeatability=sigmas, sigma_px=pixel_sigma_px,
+        dof=max(1, exact.m_px - int(free.sum())), intrinsics="planned: the design's exact views on the nominal rig",
+        intrinsic_names=[], cov_i=np.zeros((0, 0)), cross=np.zeros((0, 0)), locking=None, residual_maps={})
+    return PlannedFit(rows, model)

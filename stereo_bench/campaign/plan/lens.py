@@ -16,48 +16,54 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stereo_bench.campaign.config import CampaignConfig
+
+if TYPE_CHECKING:
+    from stereo_bench.kinematics.fixed_board import PlannedFit
 
 
 @dataclass(frozen=True)
 class LensPlan:
     """What :func:`lens_plan` decided: ``n_views`` presentations (0: none) and why (``reason``, for ``campaign
     plan``); ``gains``: the parameters the lens prior identifies that the fixed board alone does not; ``held``: those
-    held nominal in the table the fit will have (``table``: with the predicted prior when presentations are planned,
-    else without); ``covariance``: the predicted prior (16 x 16 over ``fixed_board.INTRINSIC_NAMES``), None when
-    none is planned."""
+    held nominal in the table the fit will have (``fit``: the planned fit, with the predicted prior when presentations
+    are planned, else without; ``table`` its rows); ``covariance``: the predicted prior (16 x 16 over
+    ``fixed_board.INTRINSIC_NAMES``), None when none is planned."""
 
     n_views: int
     reason: str
     gains: tuple[str, ...]
     held: tuple[str, ...]
-    table: list
+    fit: PlannedFit
     covariance: np.ndarray | None = None
+
+    @property
+    def table(self) -> list:
+        return self.fit.rows
 
 
 def design_table(config: CampaignConfig, design: Sequence, *, intrinsics: tuple | None = None,
-                 covariance: np.ndarray | None = None) -> list:
-    """The identifiability rows of the fixed-board ``design`` (runnable visits with the board fixed), the nominal
-    cameras' intrinsics (or ``intrinsics``) with ``covariance`` as their prior (None: from the design's views
-    alone)."""
+                 covariance: np.ndarray | None = None) -> PlannedFit:
+    """The planned fit (:func:`stereo_bench.kinematics.fixed_board.planned_fit`: the identifiability rows and the
+    planned model) of the fixed-board ``design`` (runnable visits with the board fixed), the nominal cameras'
+    intrinsics (or ``intrinsics``) with ``covariance`` as their prior (None: from the design's views alone)."""
     from stereo_bench.kinematics.design import DesignConfiguration
-    from stereo_bench.kinematics.fixed_board import design_identifiability
+    from stereo_bench.kinematics.fixed_board import planned_fit
 
     optics = config.cameras.optics
     left, right = optics.camera_model("left"), optics.camera_model("right")
     # The tilts where the design steps them (the table then has the tilt joints' rows).
     configurations = [DesignConfiguration(v.baseline_mm, v.toe_in_left_deg, v.toe_in_right_deg, v.tilt_left_deg,
                                           v.tilt_right_deg) for v in design]
-    return design_identifiability(configurations, config.calibration_board.build().object_points,
-                                  design[0].fixed_board_matrix(),
-                                  intrinsics or (left.K, left.dist, right.K, right.dist),
-                                  pixel_sigma_px=config.extrinsics.plan_corner_sigma_px,
-                                  intrinsics_covariance=covariance,
-                                  repeatability_mm=config.extrinsics.repeatability_mm,
-                                  repeatability_deg=config.extrinsics.repeatability_deg)
+    return planned_fit(configurations, config.calibration_board.build().object_points, design[0].fixed_board_matrix(),
+                       intrinsics or (left.K, left.dist, right.K, right.dist),
+                       pixel_sigma_px=config.extrinsics.plan_corner_sigma_px, intrinsics_covariance=covariance,
+                       repeatability_mm=config.extrinsics.repeatability_mm,
+                       repeatability_deg=config.extrinsics.repeatability_deg, image_size=left.image_size)
 
 
 def predicted_lens_prior(config: CampaignConfig, visit, n_views: int) -> np.ndarray:
@@ -102,7 +108,7 @@ def lens_plan(config: CampaignConfig, design: Sequence, lens_visit) -> LensPlan 
         return None
     n_views = config.capture.calibration_views
     alone = design_table(config, runnable)
-    held_alone = tuple(r.name for r in alone if not r.identified)
+    held_alone = tuple(r.name for r in alone.rows if not r.identified)
     choice = extrinsics.fixed_board_lens
 
     def without(reason: str) -> LensPlan:
@@ -119,14 +125,14 @@ def lens_plan(config: CampaignConfig, design: Sequence, lens_visit) -> LensPlan 
         prior = design_table(config, runnable, covariance=covariance)
     except (ValueError, CovarianceUnavailable, np.linalg.LinAlgError) as error:
         return without(f"a lens calibration of {n_views} presented views cannot be planned: {error}")
-    held = tuple(r.name for r in prior if not r.identified)
+    held = tuple(r.name for r in prior.rows if not r.identified)
     gains = tuple(name for name in held_alone if name not in held)
     if choice == "auto" and not gains:
         return without(f"a lens calibration would identify none of {', '.join(held_alone)}: they stay nominal")
     # The sigmas the prior sharpens most (the table's, at the plan's corners): what presentations buy beyond the gains.
-    ratios = sorted(((a.sigma / b.sigma, a) for a, b in zip(alone, prior, strict=True)
+    ratios = sorted(((a.sigma / b.sigma, a) for a, b in zip(alone.rows, prior.rows, strict=True)
                      if a.identified and b.identified and b.sigma), key=lambda item: -item[0])[:3]
-    by_name = {r.name: r for r in prior}
+    by_name = {r.name: r for r in prior.rows}
     sharper = ", ".join(f"{a.name} {a.sigma:.3g} -> {by_name[a.name].sigma:.3g} {a.unit}" for _, a in ratios)
     reason = ("a lens calibration: the fixed board alone does not separate " + ", ".join(gains)
               + " from the focal lengths" if gains else 'a lens calibration: fixed_board_lens = "present"')

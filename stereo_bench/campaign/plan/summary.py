@@ -3,8 +3,11 @@ need (:func:`calibration_presentations`)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
+
+import numpy as np
 
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.plan.configurations import (
@@ -41,42 +44,87 @@ def operator_actions(steps: Sequence[Step]) -> dict[str, int]:
     return {**out, "total": sum(out.values())}
 
 
-def design_identifiability(config: CampaignConfig, visits: Sequence, lens=None) -> list[dict[str, Any]] | None:
-    """A fixed-board design's identifiability table before any view (the board projected exactly through the
-    nominal chain at every runnable visit; :func:`stereo_bench.kinematics.fixed_board.design_identifiability`),
-    with ``calib_dir``'s intrinsics and covariance as the fit will take them when it holds readable ones, or the
-    table ``lens`` (:class:`~stereo_bench.campaign.plan.lens.LensPlan`) decided with: with the predicted prior of
-    the lens calibration the plan presents, else from the design's views alone. None for other designs or when
-    no visit can run."""
+def planned_fixed_board_fit(config: CampaignConfig, visits: Sequence, lens=None) -> tuple[Any, str] | None:
+    """A fixed-board design's planned fit before any view (the board projected exactly through the nominal chain at
+    every runnable visit; :func:`stereo_bench.kinematics.fixed_board.planned_fit`) and where its intrinsics come from:
+    ``calib_dir``'s intrinsics and covariance as the fit will take them when it holds readable ones, or the fit
+    ``lens`` (:class:`~stereo_bench.campaign.plan.lens.LensPlan`) decided with: with the predicted prior of the lens
+    calibration the plan presents, else from the design's views alone. None for other designs or when fewer than 3
+    visits can run."""
     from stereo_bench.campaign.plan.lens import design_table
     from stereo_bench.kinematics.fixed_board import INTRINSIC_NAMES
 
     runnable = [v for v in visits if v.runnable and v.board_fixed]
     if not config.extrinsics.fixed_board or len(runnable) < 3:
         return None
-    intrinsics = covariance = None
     label = "from the design's views alone"
     if lens is not None:
-        rows = lens.table
         if lens.n_views:
             label = f"a lens calibration of {lens.n_views} presented views as prior (predicted)"
-    else:
-        if config.extrinsics.calib_dir is not None:
-            from stereo_bench.vision.calibio import CalibrationFileError, read_intrinsics, read_intrinsics_covariance
+        return lens.fit, label
+    intrinsics = covariance = None
+    if config.extrinsics.calib_dir is not None:
+        from stereo_bench.vision.calibio import CalibrationFileError, read_intrinsics, read_intrinsics_covariance
 
-            try:
-                K1, D1, K2, D2 = read_intrinsics(config.extrinsics.calib_dir)[:4]
-                stored = read_intrinsics_covariance(config.extrinsics.calib_dir)
-            except (CalibrationFileError, OSError):
-                stored = None
-            if stored is not None and all(name in stored.names for name in INTRINSIC_NAMES):
-                intrinsics = (K1, D1, K2, D2)
-                index = stored.index(INTRINSIC_NAMES)
-                covariance = stored.matrix[index][:, index]
-                label = "calib_dir prior"
-        rows = design_table(config, runnable, intrinsics=intrinsics, covariance=covariance)
+        try:
+            K1, D1, K2, D2 = read_intrinsics(config.extrinsics.calib_dir)[:4]
+            stored = read_intrinsics_covariance(config.extrinsics.calib_dir)
+        except (CalibrationFileError, OSError):
+            stored = None
+        if stored is not None and all(name in stored.names for name in INTRINSIC_NAMES):
+            intrinsics = (K1, D1, K2, D2)
+            index = stored.index(INTRINSIC_NAMES)
+            covariance = stored.matrix[index][:, index]
+            label = "calib_dir prior"
+    return design_table(config, runnable, intrinsics=intrinsics, covariance=covariance), label
+
+
+def design_identifiability(planned: tuple[Any, str] | None) -> list[dict[str, Any]] | None:
+    """The identifiability table of :func:`planned_fixed_board_fit`'s fit (JSON-ready rows); None without one."""
+    if planned is None:
+        return None
+    fit, label = planned
     return [{"name": r.name, "unit": r.unit, "identified": r.identified, "sigma": r.sigma, "note": r.note,
-             "intrinsics": label} for r in rows]
+             "intrinsics": label} for r in fit.rows]
+
+
+def predicted_extrinsics(config: CampaignConfig, planned: tuple[Any, str] | None, steps: Sequence,
+                         ) -> dict[str, Any] | None:
+    """The sigma of the R, T the planned fixed-board fit will predict at each measured configuration the steps move
+    to, approached as the steps approach it (:func:`stereo_bench.kinematics.prediction.predict` of the planned
+    model: its parameters' covariance and the rig's landing repeatability, to first order at the plan's corner
+    noise). ``sigma_T_mm``: sqrt(E|dT|^2); ``sigma_R_deg``: sqrt(E angle(dR)^2); ``structure``: the sigmas of the
+    optical baseline, the alphas and the rotation. ``held``: the parameters held nominal, whose error (the rig's
+    build tolerance) is not counted. None without a planned fit or a measured configuration."""
+    from stereo_bench.campaign.approach import move_sequence
+    from stereo_bench.campaign.plan import Configuration
+    from stereo_bench.kinematics.design import approach_directions
+    from stereo_bench.kinematics.prediction import predict
+
+    if planned is None:
+        return None
+    model = planned[0].model
+    rows, previous, approach = [], None, {}
+    for target in move_sequence(steps):
+        request = target.move_request()
+        axes = {axis: request[axis] for axis in model.axes}
+        approach = approach_directions(previous, axes, approach)
+        previous = axes
+        if not isinstance(target, Configuration):
+            continue
+        prediction = predict(model, axes, approach)
+        C = prediction.covariance
+        rows.append({"config_id": target.config_id, "sigma_T_mm": math.sqrt(max(float(np.trace(C[3:, 3:])), 0.0)),
+                     "sigma_R_deg": math.degrees(math.sqrt(max(float(np.trace(C[:3, :3])), 0.0))),
+                     "structure": prediction.structure_sigma, "extrapolated": prediction.extrapolated})
+    if not rows:
+        return None
+    sT = np.array([r["sigma_T_mm"] for r in rows])
+    sR = np.array([r["sigma_R_deg"] for r in rows])
+    return {"corner_sigma_px": config.extrinsics.plan_corner_sigma_px, "intrinsics": planned[1],
+            "rms_sigma_T_mm": float(np.sqrt(np.mean(sT**2))), "max_sigma_T_mm": float(sT.max()),
+            "rms_sigma_R_deg": float(np.sqrt(np.mean(sR**2))), "max_sigma_R_deg": float(sR.max()),
+            "held": [r.name for r in planned[0].rows if not r.identified], "configurations": rows}
 
 
 def lens_summary(config: CampaignConfig, configurations: Sequence, visits: Sequence, lens) -> dict[str, Any] | None:
@@ -123,6 +171,7 @@ def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGI
     steps = plan_steps(config, configurations, visits)
     estimate = estimate_duration(config, configurations, steps, presentation=presentation)
     tilt_note = design_tilt(config, configurations).note if visits else None
+    planned = planned_fixed_board_fit(config, visits, lens)
     return {
         "extrinsics_mode": config.extrinsics.mode,
         "design": [v.as_dict() for v in visits],
@@ -131,7 +180,9 @@ def plan_summary(config: CampaignConfig, *, margin_px: float = FEASIBILITY_MARGI
         "design_ranges": design_ranges(configurations) if visits else None,
         "calibration_presentations": calibration_presentations(steps),
         "operator_actions": operator_actions(steps),
-        "identifiability": design_identifiability(config, visits, lens),
+        "identifiability": design_identifiability(planned),
+        # The sigma of the R, T the fixed-board fit will predict at the measured configurations (None: other designs).
+        "predicted_extrinsics": predicted_extrinsics(config, planned, steps),
         "lens_calibration": lens_summary(config, configurations, visits, lens),
         "name": config.name,
         "configurations": [c.as_dict() for c in configurations],
