@@ -82,6 +82,8 @@ def test_a_campaign_followed_and_steered_from_the_live_page(tmp_path):
             # The first prompt: the operator moves the target. Meanwhile the previews are live.
             page.wait_for_selector("#prompt:not([hidden])", timeout=60_000)
             assert "Z = 400 mm" in page.inner_text("#prompt-message")
+            # The second tab draws the prompt from its own event stream, when that delivers it: wait for it there.
+            second.wait_for_selector("#prompt:not([hidden])", timeout=30_000)
             assert second.is_visible("#prompt") and second.is_disabled("#continue")
             page.wait_for_function("Number(document.querySelector('#img-left').dataset.version || 0) > 0")
             # The previews keep updating while the operator is asked (a count of new frames, not a rate:
@@ -91,7 +93,7 @@ def test_a_campaign_followed_and_steered_from_the_live_page(tmp_path):
                                    timeout=30_000)
             assert page.is_visible("#prompt")
             # A preview whose next frame is still loading has no width yet: wait for a loaded one.
-            page.wait_for_function("document.querySelector('#img-left').naturalWidth === 640", timeout=10_000)
+            page.wait_for_function("document.querySelector('#img-left').naturalWidth === 640", timeout=30_000)
 
             # Refused without the token: the same request the buttons make, from this browser.
             refused = page.request.post(base + "/api/control/stop")
@@ -106,9 +108,9 @@ def test_a_campaign_followed_and_steered_from_the_live_page(tmp_path):
             page.wait_for_selector("#results-table tr[data-status='measured']", timeout=60_000)
             row = page.inner_text("#results-table tr[data-config='B100_Z400_A90']")
             assert row.startswith("B100_Z400_A90")
-            second.wait_for_selector("#results-table tr[data-config='B100_Z400_A90']", timeout=10_000)
+            second.wait_for_selector("#results-table tr[data-config='B100_Z400_A90']", timeout=30_000)
             assert second.inner_text("#results-table tr[data-config='B100_Z400_A90']") == row
-            page.wait_for_selector(".cov canvas", timeout=10_000)  # the coverage of the kept views
+            page.wait_for_selector(".cov canvas", timeout=30_000)  # the coverage of the kept views
             # The results plot's series legend sits below the plot, clear of the error bars (it overlapped them).
             # Checked in the page in one go: the plot is drawn anew with each result, so boxes read one after the
             # other from here could belong to two drawings (the legend's of a drawing already replaced).
@@ -116,7 +118,7 @@ def test_a_campaign_followed_and_steered_from_the_live_page(tmp_path):
                 const svg = document.querySelector('#plot svg'), legend = document.querySelector('#plot .legend');
                 if (!svg || !legend || !legend.getClientRects().length) return false;
                 return legend.getBoundingClientRect().top >= svg.getBoundingClientRect().bottom - 0.5;
-            }""", timeout=10_000)
+            }""", timeout=30_000)
             assert "Z = 400 mm" in page.inner_text("#plot .legend")
             if SCREENSHOT:
                 page.screenshot(path=SCREENSHOT, full_page=True)
@@ -128,7 +130,7 @@ def test_a_campaign_followed_and_steered_from_the_live_page(tmp_path):
             assert page.inner_text("#pause") == "Resume"
             paused_at = preview_version(page)
             page.wait_for_function(f"Number(document.querySelector('#img-left').dataset.version) > {paused_at}",
-                                   timeout=10_000)  # paused: the cameras are the page's again
+                                   timeout=30_000)  # paused: the cameras are the page's again
 
             page.click("#stop")
             page.wait_for_function("document.querySelector('#status').textContent === 'interrupted'",

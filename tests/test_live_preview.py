@@ -50,10 +50,10 @@ class StillBench:
         return image, image, 0.0
 
 
-def wait_for(condition, timeout_s: float = 10.0) -> None:
+def wait_for(condition, timeout_s: float = 10.0, what: str = "") -> None:
     deadline = time.monotonic() + timeout_s
     while not condition():
-        assert time.monotonic() < deadline, "timed out"
+        assert time.monotonic() < deadline, f"timed out{' waiting for ' + what if what else ''}"
         time.sleep(0.01)
 
 
@@ -88,11 +88,12 @@ def test_live_grabs_run_at_the_process_priority_and_the_captured_frames_lower(wa
 
 def test_a_slow_coverage_detection_does_not_hold_up_the_live_previews(watched_previews, monkeypatch):
     previews, bench, encoded = watched_previews
-    slow = threading.Event()
+    slow, release, done = threading.Event(), threading.Event(), threading.Event()
 
     def slow_coverage(config_id, index, pair):
         slow.set()
-        time.sleep(1.0)  # a loaded machine, a big board
+        release.wait(120)  # a loaded machine, a big board: it lasts until the test has seen what it waits for
+        done.set()
 
     monkeypatch.setattr(previews, "_coverage", slow_coverage)
     wait_for(lambda: encoded)
@@ -104,10 +105,15 @@ def test_a_slow_coverage_detection_does_not_hold_up_the_live_previews(watched_pr
             index, dt_s = 0, 0.0
 
     previews.captured(View(), {"left": board_frame(), "right": board_frame()})
-    slow.wait(5)
-    live_before = previews.stats["live"]
-    time.sleep(0.5)
-    assert previews.stats["live"] - live_before >= 5  # one thread: none until the coverage was done
+    try:
+        assert slow.wait(30), "the coverage detection never started"
+        live_before = previews.stats["live"]
+        # Counted while the detection still runs, not over a fixed sleep (a loaded machine grabs fewer in one).
+        wait_for(lambda: previews.stats["live"] - live_before >= 5, timeout_s=30,
+                 what="5 live previews during the coverage detection")  # one thread: none until it was done
+        assert not done.is_set()
+    finally:
+        release.set()
 
 
 def test_the_overlay_is_detected_again_only_when_the_view_changes(watched_previews):
@@ -125,27 +131,41 @@ def test_the_overlay_is_detected_again_only_when_the_view_changes(watched_previe
     assert previews.stats["live_detections"] == 2
 
 
+class SteppedClock:
+    """The previews' clock (``preview.time``), moved by the test alone: a live grab is due each time it is moved on
+    by more than a period, and a second has passed when the test has moved it a second on, not the wall clock."""
+
+    def __init__(self, now_s: float = 1000.0):
+        self.now_s = now_s
+        self.thread_time, self.time, self.sleep = time.thread_time, time.time, time.sleep
+
+    def monotonic(self) -> float:
+        return self.now_s
+
+
 def test_a_view_without_a_board_is_searched_again_once_a_second(monkeypatch):
+    clock = SteppedClock()
+    monkeypatch.setattr(preview_module, "time", clock)
     encoded = []
     previews = Previews({"target": TARGET}, on_encoded=encoded.append, live_fps=50).start()
     bench = StillBench(frame_of=lambda shift, seed: np.random.default_rng(seed).normal(128, 2, (360, 640))
                        .astype(np.uint8))
     previews.bench = bench
     previews.watchers(+1)
+    step_s = 0.25  # a frame every quarter second of the previews' clock (exact in binary: 4 steps are 1 s)
     try:
         with bench.camera_gate.lent():
-            wait_for(lambda: previews.stats["live"] >= 5)
-            started, detections, frames = time.monotonic(), previews.stats["live_detections"], previews.stats["live"]
-            time.sleep(1.6)
-            elapsed = time.monotonic() - started
-            again = previews.stats["live_detections"] - detections
-            shown = previews.stats["live"] - frames
+            wait_for(lambda: len(encoded) == 1, timeout_s=30, what="the first live preview")
+            for n in range(2, 14):  # 3 s more: a frame each time the clock is moved on, shown before the next
+                clock.now_s += step_s
+                wait_for(lambda n=n: len(encoded) >= n, timeout_s=30, what=f"live preview {n}")
     finally:
         previews.stop()
-    # Frames keep coming while the search for a board is retried only once a second: more frames than
-    # searches, however few frames a loaded machine lets through (not a frame rate: that is the machine's).
-    assert encoded[-1].meta["board"] is None and shown > again
-    assert 1 <= again <= elapsed / preview_module.RETRY_MISS_S + 1
+    # Frames keep coming while the search for a board is retried only once a second: searched at 0, 1, 2 and 3 s
+    # (RETRY_MISS_S), the 9 frames between show the miss again; by the previews' clock, so no machine's load counts.
+    assert preview_module.RETRY_MISS_S == 4 * step_s
+    assert encoded[-1].meta["board"] is None and previews.stats["live"] == len(encoded) == 13
+    assert previews.stats["live_detections"] == 4
 
 
 def test_thumbnails_tell_noise_from_a_moved_board():
@@ -185,15 +205,25 @@ def test_the_simulated_bench_renders_a_preview_at_the_preview_width():
 
 
 class UnhurriedOperator:
-    """Takes ``seconds`` over every prompt (the live page's previews run meanwhile), then continues."""
+    """Takes ``seconds`` over every prompt (the live page's previews run meanwhile), then continues. Given
+    ``grabs`` (how many live grabs were made so far), it also waits for one made during the prompt (on a loaded
+    machine ``seconds`` may pass before the previews' first grab); after ``timeout_s`` without one it counts the
+    prompt in ``missed`` and waits no more at the prompts that follow."""
 
     name = "unhurried"
 
-    def __init__(self, seconds: float):
-        self.seconds = seconds
+    def __init__(self, seconds: float, grabs=None, timeout_s: float = 30.0):
+        self.seconds, self.grabs, self.timeout_s = seconds, grabs, timeout_s
+        self.missed = 0
 
     def offer(self, ticket) -> None:
+        before = None if self.grabs is None else self.grabs()
         time.sleep(self.seconds)
+        deadline = time.monotonic() + self.timeout_s
+        while self.grabs is not None and not self.missed and self.grabs() == before:
+            if time.monotonic() > deadline:
+                self.missed += 1
+            time.sleep(0.01)
         ticket.answer(self.name, "continue")
 
     def withdraw(self, ticket) -> None:
@@ -236,11 +266,13 @@ def test_a_campaign_watched_live_records_what_one_without_a_page_records(tmp_pat
     page = LivePage.for_campaign(small_config(), session_dir=out, control=control).start()
     page.previews.watchers(+1)  # a browser is connected
     try:
-        summary = run_campaign(small_config(), out, operators=[UnhurriedOperator(0.2)], subscribers=[page.state],
+        operator = UnhurriedOperator(0.2, grabs=lambda: len(widths))
+        summary = run_campaign(small_config(), out, operators=[operator], subscribers=[page.state],
                                frame_subscribers=[page.previews.captured], control=control, bench_factory=factory)
     finally:
         page.stop()
     assert summary.exit_status == "success" and page.previews.last_error is None
+    assert operator.missed == 0, "a prompt passed without a live grab"
     assert page.previews.stats["live"] >= 10 and set(widths) == {PREVIEW_WIDTH_PX}
     assert overlaps and not any(overlaps)
     assert numbers(out) == numbers(small_reference)
