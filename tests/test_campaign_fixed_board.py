@@ -118,6 +118,9 @@ def test_rig_calibrate_kinematics_fits_a_fixed_board_model_alone(tmp_path, capsy
     assert main(argv) == 0
     captured = capsys.readouterr()
     assert "fixed board: placed once" in captured.err and f"32 visits x {views} views" in captured.err
+    # What the fitted model's R, T are worth where the campaign measures: its own sigma, at each configuration.
+    (line,) = [line for line in captured.out.splitlines() if line.startswith("predicted R, T at the ")]
+    assert "measured configurations (the fitted model, its " in line and "sigma |T| " in line, line
     model = load_model(tmp_path / "s" / "kinematic_model.toml")
     assert model.fit.n_views == 32 * views and model.span["baseline_mm"] == [80.0, 200.0]
     assert all(p.identifiable for p in model.parameters.values())

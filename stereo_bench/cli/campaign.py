@@ -199,7 +199,11 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
         for row in table:
             sigma = f"sigma {row['sigma']:.3g} {row['unit']}" if row["identified"] else f"held nominal: {row['note']}"
             lines.append(f"{'':>5}{row['name']:<24} {sigma}")
-    lines += _predicted_extrinsics_text(summary.get("predicted_extrinsics"))
+    predicted = summary.get("predicted_extrinsics")
+    if predicted:
+        corners = predicted["corner_sigma_px"]
+        lines += predicted_extrinsics_text(predicted, f"the planned fit to first order, {corners:g} px corners, "
+                                                      f"intrinsics {predicted['intrinsics']}")
     per_configuration = " (one set per configuration)" if extrinsics.calibrates_each_configuration else ""
     note = " (adding configurations adds none)" if counts["visits"] and not counts["configurations"] else ""
     lines.append(f"calibration board presentations: {counts['total']}: {counts['visits']} at visits{note}, "
@@ -227,11 +231,10 @@ def _extrinsics_text(config: CampaignConfig, summary: dict[str, Any]) -> list[st
     return lines
 
 
-def _predicted_extrinsics_text(predicted: dict[str, Any] | None) -> list[str]:
-    """The sigma of R, T the planned fixed-board fit will predict at the measured configurations: the range, the RMS
-    and where it is worst; what it does not count."""
-    if not predicted:
-        return []
+def predicted_extrinsics_text(predicted: dict[str, Any], source: str) -> list[str]:
+    """The sigma of R, T a kinematic model predicts at the measured configurations
+    (:func:`stereo_bench.campaign.plan.summary.extrinsics_prediction`): the range, the RMS and where it is worst;
+    what it does not count. ``source``: which model, for the first line's brackets."""
     rows = predicted["configurations"]
 
     def spread(key: str, unit: str, rms: str) -> str:
@@ -243,8 +246,7 @@ def _predicted_extrinsics_text(predicted: dict[str, Any] | None) -> list[str]:
 
     baseline = max(r["structure"]["baseline_mm"] for r in rows)
     alphas = max(max(r["structure"]["alpha_left_deg"], r["structure"]["alpha_right_deg"]) for r in rows)
-    lines = [f"predicted R, T at the {len(rows)} measured configurations (the planned fit to first order, "
-             f"{predicted['corner_sigma_px']:g} px corners, intrinsics {predicted['intrinsics']}): "
+    lines = [f"predicted R, T at the {len(rows)} measured configurations ({source}): "
              f"sigma |T| {spread('sigma_T_mm', 'mm', 'rms_sigma_T_mm')}, "
              f"sigma angle(R) {spread('sigma_R_deg', 'deg', 'rms_sigma_R_deg')}; "
              f"the optical baseline's sigma up to {baseline:.3g} mm, the alphas' up to {alphas:.3g} deg"]

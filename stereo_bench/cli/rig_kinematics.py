@@ -149,7 +149,9 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
     from stereo_bench.campaign.execute import CampaignPlan, RunControl, run_campaign
     from stereo_bench.campaign.extrinsics_run import recorded_sources
     from stereo_bench.campaign.plan import visits_problem
+    from stereo_bench.campaign.plan.summary import extrinsics_prediction
     from stereo_bench.campaign.session import SessionReader
+    from stereo_bench.cli.campaign import predicted_extrinsics_text
     from stereo_bench.cli.campaign_run import stopped_note
     from stereo_bench.kinematics import save_model
 
@@ -205,10 +207,13 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
                        exit_code=1)
     save_model(model, model_path)
     fit = model.fit
+    # What the model's R, T are worth where the campaign will measure (the fit's covariance, its own corner noise).
+    predicted = extrinsics_prediction(model, full.steps)
     summary_out = {"model": str(model_path), "session": str(args.out), "views": fit.n_views,
                    "visits": fit.n_configurations, "rms_px": fit.rms_px, "elapsed_s": time.monotonic() - started,
                    "parameters": {name: {"value": p.value, "sigma": p.sigma, "unit": p.unit,
-                                         "identifiable": p.identifiable} for name, p in model.parameters.items()}}
+                                         "identifiable": p.identifiable} for name, p in model.parameters.items()},
+                   "predicted_extrinsics": predicted}
     if args.json:
         print(json.dumps(summary_out))
     else:
@@ -218,6 +223,10 @@ def run(argv: list[str], *, port: str | None, rig_config: Path | None) -> int:
             held = f"({p.note})" if p.note else "(held nominal: not identifiable by this design)"
             sigma = f"+- {p.sigma:.3g}" if p.sigma is not None else held
             print(f"  {name:<24} {p.value:12.5g} {p.unit:<4} {sigma}")
+        if predicted:
+            for line in predicted_extrinsics_text(predicted, f"the fitted model, its {fit.pixel_sigma_px:.3g} px "
+                                                              "corner sigma"):
+                print(line)
         print(f"model:   {model_path}  (use it: [extrinsics] mode = \"kinematic\", kinematic_file = \"{model_path}\")")
         print(f"session: {args.out}/")
     return 0

@@ -88,22 +88,18 @@ def design_identifiability(planned: tuple[Any, str] | None) -> list[dict[str, An
              "intrinsics": label} for r in fit.rows]
 
 
-def predicted_extrinsics(config: CampaignConfig, planned: tuple[Any, str] | None, steps: Sequence,
-                         ) -> dict[str, Any] | None:
-    """The sigma of the R, T the planned fixed-board fit will predict at each measured configuration the steps move
-    to, approached as the steps approach it (:func:`stereo_bench.kinematics.prediction.predict` of the planned
-    model: its parameters' covariance and the rig's landing repeatability, to first order at the plan's corner
-    noise). ``sigma_T_mm``: sqrt(E|dT|^2); ``sigma_R_deg``: sqrt(E angle(dR)^2); ``structure``: the sigmas of the
-    optical baseline, the alphas and the rotation. ``held``: the parameters held nominal, whose error (the rig's
-    build tolerance) is not counted. None without a planned fit or a measured configuration."""
+def extrinsics_prediction(model, steps: Sequence) -> dict[str, Any] | None:
+    """The sigma of the R, T kinematic ``model`` predicts at each measured configuration the ``steps`` move to,
+    approached as the steps approach it (:func:`stereo_bench.kinematics.prediction.predict`: the parameters'
+    covariance and the rig's landing repeatability, to first order). Per configuration ``sigma_T_mm``:
+    sqrt(E|dT|^2); ``sigma_R_deg``: sqrt(E angle(dR)^2); ``structure``: the sigmas of the optical baseline, the
+    alphas and the rotation; ``extrapolated``: the axes beyond the model's span. ``held``: the parameters held
+    nominal, whose error (the rig's build tolerance) is not counted. None when the steps measure nothing."""
     from stereo_bench.campaign.approach import move_sequence
     from stereo_bench.campaign.plan import Configuration
     from stereo_bench.kinematics.design import approach_directions
     from stereo_bench.kinematics.prediction import predict
 
-    if planned is None:
-        return None
-    model = planned[0].model
     rows, previous, approach = [], None, {}
     for target in move_sequence(steps):
         request = target.move_request()
@@ -121,10 +117,22 @@ def predicted_extrinsics(config: CampaignConfig, planned: tuple[Any, str] | None
         return None
     sT = np.array([r["sigma_T_mm"] for r in rows])
     sR = np.array([r["sigma_R_deg"] for r in rows])
-    return {"corner_sigma_px": config.extrinsics.plan_corner_sigma_px, "intrinsics": planned[1],
-            "rms_sigma_T_mm": float(np.sqrt(np.mean(sT**2))), "max_sigma_T_mm": float(sT.max()),
+    return {"rms_sigma_T_mm": float(np.sqrt(np.mean(sT**2))), "max_sigma_T_mm": float(sT.max()),
             "rms_sigma_R_deg": float(np.sqrt(np.mean(sR**2))), "max_sigma_R_deg": float(sR.max()),
-            "held": [r.name for r in planned[0].rows if not r.identified], "configurations": rows}
+            "held": [name for name, value in model.parameters.items() if not value.identifiable],
+            "configurations": rows}
+
+
+def predicted_extrinsics(config: CampaignConfig, planned: tuple[Any, str] | None, steps: Sequence,
+                         ) -> dict[str, Any] | None:
+    """:func:`extrinsics_prediction` of :func:`planned_fixed_board_fit`'s planned model (at the plan's corner noise,
+    ``corner_sigma_px``; its ``intrinsics`` label); None without one or a measured configuration."""
+    if planned is None:
+        return None
+    predicted = extrinsics_prediction(planned[0].model, steps)
+    if predicted is None:
+        return None
+    return {"corner_sigma_px": config.extrinsics.plan_corner_sigma_px, "intrinsics": planned[1], **predicted}
 
 
 def lens_summary(config: CampaignConfig, configurations: Sequence, visits: Sequence, lens) -> dict[str, Any] | None:
