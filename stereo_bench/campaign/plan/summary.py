@@ -11,6 +11,7 @@ import numpy as np
 
 from stereo_bench.campaign.config import CampaignConfig
 from stereo_bench.campaign.plan.configurations import (
+    Configuration,
     design_problem,
     design_ranges,
     design_tilt,
@@ -95,19 +96,18 @@ def extrinsics_prediction(model, steps: Sequence) -> dict[str, Any] | None:
     sqrt(E|dT|^2); ``sigma_R_deg``: sqrt(E angle(dR)^2); ``structure``: the sigmas of the optical baseline, the
     alphas and the rotation; ``extrapolated``: the axes beyond the model's span. ``held``: the parameters held
     nominal, whose error (the rig's build tolerance) is not counted. None when the steps measure nothing."""
-    from stereo_bench.campaign.approach import move_sequence
-    from stereo_bench.campaign.plan import Configuration
+    from stereo_bench.campaign.plan.steps import Move
     from stereo_bench.kinematics.design import approach_directions
     from stereo_bench.kinematics.prediction import predict
 
     rows, previous, approach = [], None, {}
-    for target in move_sequence(steps):
+    for target in (step.configuration for step in steps if isinstance(step, Move)):  # approach.move_sequence
         request = target.move_request()
         axes = {axis: request[axis] for axis in model.axes}
         approach = approach_directions(previous, axes, approach)
         previous = axes
         if not isinstance(target, Configuration):
-            continue
+            continue  # a design or intrinsics visit
         prediction = predict(model, axes, approach)
         C = prediction.covariance
         rows.append({"config_id": target.config_id, "sigma_T_mm": math.sqrt(max(float(np.trace(C[3:, 3:])), 0.0)),
