@@ -129,7 +129,21 @@ def detect(
             # with CALIB_CB_LARGER finds whole and cut boards alike in ~40 ms at 960 px (at 640 px
             # it is faster but loses the column nearest the image border).
             width = max(search_width_px, THOROUGH_SEARCH_WIDTH_PX)
-            return detect_checkerboard_partial(image, target, search_width_px=width, noise=noise)
+            ambiguous: AmbiguousViewError | None = None
+            try:
+                found = detect_checkerboard_partial(image, target, search_width_px=width, noise=noise)
+            except AmbiguousViewError as error:
+                found, ambiguous = None, error
+            if found is not None:
+                return found
+            # A whole board partial mode did not place (SB's larger grid can take in the board's edge against a
+            # dark background, a row more than the board has, or only some of its rows) is still a whole board:
+            # what the whole-board search finds, partial mode finds too.
+            whole = detect_checkerboard(image, target, search_width_px=search_width_px, thorough=thorough,
+                                        noise=noise, any_board=any_board)
+            if whole is None and ambiguous is not None:
+                raise ambiguous
+            return whole
         return detect_checkerboard(image, target, search_width_px=search_width_px, thorough=thorough, noise=noise,
                                    any_board=any_board)
     if isinstance(target, CharucoTarget):
@@ -195,7 +209,7 @@ def _box_shrink(gray: np.ndarray, factor: int) -> np.ndarray:
 def _to_full_resolution(corners: np.ndarray, scale: float) -> np.ndarray:
     corners = np.asarray(corners, np.float64).reshape(-1, 2)
     # resize() maps pixel centres by (x + 0.5) / scale - 0.5, not x / scale.
-    return (corners + 0.5) / scale - 0.5 if scale < 1.0 else corners
+    return (corners + 0.5) / scale - 0.5 if scale != 1.0 else corners
 
 
 def detect_checkerboard(
@@ -221,7 +235,8 @@ def detect_checkerboard(
         found, corners = cv2.findChessboardCorners(small, board.pattern_size, flags=_SEARCH_FLAGS)
     else:
         found, corners = _find_chessboard_fast_checked(small, board.pattern_size)
-    if not found and thorough:
+    grid = _whole_grid(gray, corners, scale, board, checked=False) if found else None
+    if grid is None and thorough:
         # A step whose search image and detector were tried already gives the same answer (the detectors are
         # deterministic): on frames no wider than the search widths (640x480) classic at 960 px repeats the fast
         # search and SB at full resolution repeats SB at 960 px, so they are skipped.
@@ -232,13 +247,84 @@ def detect_checkerboard(
                 continue
             tried.add(key)
             found, corners, scale = _thorough_step(gray, board, step, search_width_px, any_board)
-            if found:
+            grid = _whole_grid(gray, corners, scale, board, checked=step[0] == "sb") if found else None
+            if grid is not None:
                 break
-    if not found:
+        if grid is None and max(gray.shape) < UPSCALE_BELOW_PX:
+            grid = _upscaled_search(gray, board)
+    if grid is None:
         return None
-    grid = refine_grid(gray, _to_full_resolution(corners, scale).reshape(board.rows, board.cols, 2))
+    grid = refine_grid(gray, grid)
     grid, order = canonical_order(gray, grid, board)
     return _grid_detection(gray, grid, np.arange(board.n_corners), order, noise=noise)
+
+
+#: A stored image whose longest side is below this (px) is searched once more at :data:`UPSCALE_FACTOR` times its size
+#: (bicubic) when every other step missed: the detectors' quads and SB's kernels lose squares only a few pixels wide
+#: (present_cjn at 320x240 and at 320x480 anamorphic: 1 of 60 views each found only so; ~3-65 ms, on misses only).
+UPSCALE_BELOW_PX = 640
+UPSCALE_FACTOR = 2.0
+
+
+def _upscaled_search(gray: np.ndarray, board: Checkerboard) -> np.ndarray | None:
+    """The whole board's full-resolution grid from the classic detector, then SB, on the image enlarged
+    :data:`UPSCALE_FACTOR` times; None when neither finds a board whose squares alternate."""
+    big = cv2.resize(gray, None, fx=UPSCALE_FACTOR, fy=UPSCALE_FACTOR, interpolation=cv2.INTER_CUBIC)
+    found, corners = cv2.findChessboardCorners(big, board.pattern_size, flags=_SEARCH_FLAGS)
+    grid = _whole_grid(gray, corners, UPSCALE_FACTOR, board, checked=False) if found else None
+    if grid is None:
+        found, corners = cv2.findChessboardCornersSB(big, board.pattern_size, flags=0)
+        grid = _whole_grid(gray, corners, UPSCALE_FACTOR, board, checked=True) if found else None
+    return grid
+
+
+def _whole_grid(gray: np.ndarray, corners: np.ndarray, scale: float, board: Checkerboard, *,
+                checked: bool) -> np.ndarray | None:
+    """A detector's corners as the (rows, cols, 2) full-resolution grid of the whole board; ``checked`` (an SB
+    search's), None when its squares do not make a whole checkerboard (:func:`squares_alternate`). The classic
+    detector's are not checked: it finds the board only as quads of whole black squares, and it finds boards whose
+    outer squares the border cuts (present_cjn cropped to 80 %: 36 of 60 images, 16 of them so), which the check
+    would refuse."""
+    grid = _to_full_resolution(corners, scale).reshape(board.rows, board.cols, 2)
+    return grid if not checked or squares_alternate(gray, grid) else None
+
+
+def square_centres(grid: np.ndarray) -> np.ndarray:
+    """(rows + 1, cols + 1, 2) centres (px) of the squares of a whole board's (rows, cols, 2) inner-corner grid, its
+    outer ring included (the grid's lines extended by one step each way)."""
+    rows, cols = grid.shape[:2]
+    ext = np.empty((rows + 2, cols + 2, 2))
+    ext[1:-1, 1:-1] = grid
+    ext[0, 1:-1] = 2 * grid[0] - grid[1]
+    ext[-1, 1:-1] = 2 * grid[-1] - grid[-2]
+    ext[:, 0] = 2 * ext[:, 1] - ext[:, 2]
+    ext[:, -1] = 2 * ext[:, -2] - ext[:, -3]
+    return 0.25 * (ext[:-1, :-1] + ext[1:, :-1] + ext[:-1, 1:] + ext[1:, 1:])
+
+
+def squares_alternate(gray: np.ndarray, grid: np.ndarray) -> bool:
+    """Are these the squares of a whole checkerboard: every square, the outer ring included, inside the image, and
+    each darker (or brighter, by its place) than every square it shares an edge with?
+
+    ``findChessboardCornersSB`` can return a grid of the board's size on a board the image border cuts: a line of its
+    "corners" runs along the board's edge against the background, or its outer squares lie off the image (a cropped
+    opencv_sample and smiler488_box view: the grid's ids then name the wrong corners). On every whole board of the
+    real sets (125 views) the order holds by at least 14 % of the squares' contrast and every square is inside.
+    Grids smaller than 2 x 2 are not judged (True).
+    """
+    rows, cols = grid.shape[:2]
+    if rows < 2 or cols < 2:
+        return True
+    radius = int(np.clip(0.15 * grid_spacing_px(grid), 1, 4))
+    values = _intensity(gray, square_centres(grid).reshape(-1, 2), radius=radius).reshape(rows + 1, cols + 1)
+    if not np.all(np.isfinite(values)):
+        return False
+    even = (np.add.outer(np.arange(rows + 1), np.arange(cols + 1)) % 2) == 0
+    dark = np.where(even, 1.0, -1.0) * (1.0 if np.median(values[even]) < np.median(values[~even]) else -1.0)
+    # Along both directions: the expected-bright square of each adjacent pair minus the expected-dark one.
+    across = (values[:, 1:] - values[:, :-1]) * dark[:, :-1]
+    down = (values[1:, :] - values[:-1, :]) * dark[:-1, :]
+    return bool(across.min() > 0.0 and down.min() > 0.0)
 
 
 _SEARCH_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
@@ -326,6 +412,10 @@ def refine_grid(gray: np.ndarray, grid: np.ndarray) -> np.ndarray:
     half = subpix_half_window(spacing)
     refined = _subpix(gray, grid.reshape(-1, 2), half).reshape(grid.shape)
     suspects, predicted = _grid_outliers(refined, tolerance_px=max(1.0, 0.15 * spacing))
+    # A prediction off the image (a corner at the border extrapolated from its neighbours) cannot be refined there.
+    height, width = gray.shape
+    suspects &= (predicted[..., 0] >= 0) & (predicted[..., 0] <= width - 1) & (predicted[..., 1] >= 0) & (
+        predicted[..., 1] <= height - 1)
     if suspects.any():
         refined[suspects] = _subpix(gray, predicted[suspects], half)
     return refined
@@ -474,6 +564,13 @@ def canonical_order(gray: np.ndarray, grid: np.ndarray, board: Checkerboard) -> 
     return (grid if row_direction[0] >= 0 else grid[::-1, ::-1].copy()), "layout"
 
 
+def _front_handed(grid: np.ndarray) -> bool:
+    """Is a (rows, cols, 2) grid's lattice as a board's seen from its front: the row direction turned clockwise in the
+    image (y down) gives the column direction? Every whole board of the real sets and the renderer's is."""
+    along, down = grid[0, 1] - grid[0, 0], grid[1, 0] - grid[0, 0]
+    return bool(along[0] * down[1] - along[1] * down[0] > 0)
+
+
 def _upright(grid: np.ndarray) -> np.ndarray:
     """Orient a (rows, cols, 2) grid so columns run toward +u and rows toward +v in the image.
 
@@ -530,14 +627,21 @@ def detect_checkerboard_partial(
     if not found or corners is None or meta is None or meta.size != len(corners):
         return None
     # SB returns the found grid row-major; meta has its (rows, cols) shape.
-    grid = _upright(_to_full_resolution(corners, scale).reshape(*meta.shape, 2))
+    found_grid = _to_full_resolution(corners, scale).reshape(*meta.shape, 2)
+    if sorted(found_grid.shape[:2]) == sorted((board.rows, board.cols)):
+        # The whole board, at any roll in the image: in the board's own order up to a half turn (which
+        # canonical_order decides) once its axes are the board's and its handedness a board's seen from the front.
+        grid = found_grid if found_grid.shape[:2] == (board.rows, board.cols) else found_grid.transpose(1, 0, 2)
+        grid = np.ascontiguousarray(grid if _front_handed(grid) else grid[:, ::-1])
+        if not squares_alternate(gray, grid):
+            return None
+        grid, order = canonical_order(gray, refine_grid(gray, grid), board)
+        return _grid_detection(gray, grid, np.arange(board.n_corners), order, noise=noise)
+    grid = _upright(found_grid)
     rows_seen, cols_seen = grid.shape[:2]
     if rows_seen > board.rows or cols_seen > board.cols or rows_seen * cols_seen < min_corners:
         return None
     grid = refine_grid(gray, grid)
-    if (rows_seen, cols_seen) == (board.rows, board.cols):
-        grid, order = canonical_order(gray, grid, board)
-        return _grid_detection(gray, grid, np.arange(board.n_corners), order, noise=noise)
     black_level, white_level = _square_levels(gray, grid)
     threshold = 0.5 * (black_level + white_level)
     offsets = []

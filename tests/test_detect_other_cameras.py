@@ -1,0 +1,106 @@
+"""The detector on the real sets made to look like other cameras' (a cropped field of view, half the resolution,
+anamorphic pixels): a board the image border cuts is never taken for a whole board with the wrong ids, partial mode
+finds every whole board the whole-board search finds, and a small image is searched again at twice its size.
+
+Variants of calib_data/real (see its README for the sources and licences), made here with OpenCV.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from stereo_bench.targets import Checkerboard
+from stereo_bench.vision import detect as detect_module
+from stereo_bench.vision.detect import detect, squares_alternate
+from tests.real_data import SETS, images
+
+
+def crop80(image: np.ndarray) -> np.ndarray:
+    """The central 80 % of the image: a narrower field of view, whose border cuts boards near the edges."""
+    h, w = image.shape[:2]
+    y0, x0 = round(0.1 * h), round(0.1 * w)
+    return image[y0 : h - y0, x0 : w - x0].copy()
+
+
+def half(image: np.ndarray, fx: float = 0.5, fy: float = 0.5) -> np.ndarray:
+    return cv2.resize(image, (round(image.shape[1] * fx), round(image.shape[0] * fy)), interpolation=cv2.INTER_AREA)
+
+
+# Cropped, these views hold a board cut by the border that findChessboardCornersSB with CALIB_CB_NORMALIZE_IMAGE (a
+# step of the thorough chain) still returns as a whole board: along the board's edge (opencv_sample right02) or with a
+# row on the background (smiler488_box R_13).
+CUT = [("opencv_sample", 1), ("smiler488_box", 12)]
+
+
+@pytest.mark.parametrize(("name", "index"), CUT)
+def test_a_board_cut_by_the_image_border_is_not_taken_for_a_whole_board(name, index):
+    board = SETS[name].board
+    image = crop80(images(name)[1][index])
+    found, corners = cv2.findChessboardCornersSB(image, board.pattern_size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
+    assert found, "the detector this guards against no longer returns the cut board's grid: pick another view"
+    grid = np.asarray(corners, float).reshape(board.rows, board.cols, 2)
+    assert not squares_alternate(image, grid)
+    assert detect(image, board, thorough=True) is None  # not a whole board with the wrong corners' ids (nor an error)
+
+
+def test_every_whole_board_of_the_real_sets_has_alternating_squares():
+    """The rule's false alarms: none on the 125 whole boards the real sets hold (their grids as detected)."""
+    for name, real in SETS.items():
+        left, right = images(name)
+        for image in left + right:
+            found = detect(image, real.board, thorough=True, noise=False)
+            if found is not None:
+                assert squares_alternate(image, found.corners_px.reshape(real.board.rows, real.board.cols, 2)), name
+
+
+def test_a_cropped_set_passes_the_gates_its_cut_views_left_out():
+    """smiler488_box cropped to its central 80 %: R_13's cut board, taken for a whole one, made the synchronisation
+    gate refuse the set (its stereo residual 80 px: "not taken at the same moment"); without it the set calibrates
+    with every gate passed, to the uncropped set's baseline."""
+    from stereo_bench.vision.pipeline import calibrate_from_images
+
+    real = SETS["smiler488_box"]
+    left, right = images("smiler488_box")
+    result = calibrate_from_images([crop80(i) for i in left], [crop80(i) for i in right], real.board)
+    assert result.gates is not None and 12 not in result.views_used and len(result.views_used) >= 15
+    assert abs(np.linalg.norm(result.calib.T) - real.reference_baseline_mm) < 0.5
+
+
+@pytest.mark.parametrize("name", list(SETS))
+def test_partial_mode_finds_every_whole_board_the_whole_board_search_finds(name):
+    """``measure --partial`` on ordinary pairs: present_cjn's 8 x 11 board stands a quarter turned in its images, and
+    SB's larger grid takes in smiler488_box's board edge (6 x 8 for 8 x 5) or only some of opencv_sample's rows."""
+    board = SETS[name].board
+    left, right = images(name)
+    for image in (left + right)[::3]:
+        whole = detect(image, board, thorough=True, noise=False)
+        partial = detect(image, board, thorough=True, partial=True, noise=False)
+        assert (whole is None) == (partial is None)
+        if whole is not None and partial.n == board.n_corners:
+            np.testing.assert_array_equal(partial.ids, whole.ids)
+            assert np.max(np.abs(partial.corners_px - whole.corners_px)) < 0.5
+
+
+@pytest.mark.parametrize(("fx", "fy", "side"), [(0.5, 0.5, 1), (0.5, 1.0, 0)])
+def test_a_small_image_is_searched_again_at_twice_its_size(monkeypatch, fx, fy, side):
+    """present_cjn's pair 27 at 320 x 240 (its right image) and anamorphic at 320 x 480 (its left): only the search at
+    twice the size finds the board; its corners are the full-resolution ones, mapped, within 0.25 px."""
+    board = SETS["present_cjn"].board
+    original = images("present_cjn")[side][27]
+    small = half(original, fx, fy)
+    found = detect(small, board, thorough=True, noise=False)
+    assert found is not None and found.n == board.n_corners
+    reference = detect(original, board, thorough=True, noise=False)
+    mapped = (reference.corners_px + 0.5) * np.array([fx, fy]) - 0.5
+    assert np.max(np.linalg.norm(found.corners_px - mapped, axis=1)) < 0.25
+    monkeypatch.setattr(detect_module, "UPSCALE_BELOW_PX", 0)
+    assert detect(small, board, thorough=True, noise=False) is None  # the step this test is about
+
+
+def test_the_upscaled_search_is_only_for_small_images():
+    board = Checkerboard(8, 11, 12.0)
+    assert detect_module.UPSCALE_BELOW_PX <= min(640, 1280)  # a 640 x 480 frame is not enlarged
+    blank = np.full((240, 320), 128, np.uint8)
+    assert detect(blank, board, thorough=True) is None
