@@ -94,6 +94,29 @@ def test_pairs_not_taken_together_are_named(name):
     assert "not taken at the same moment" in str(error) and f"pair {moved[0]}" in str(error)
 
 
+def test_a_board_that_does_not_fit_its_own_camera_is_named_as_that_not_as_two_moments():
+    """A wrong detection in one image (here one row on: its ids a row off and its last row on the background past the
+    board's edge, as SB once found a cut board, tests/test_detect_other_cameras.py) gives a huge stereo residual, as
+    two moments do; but its own image alone does not fit the camera either, which no pair taken at two moments
+    shows: the line says which image, and why."""
+    from dataclasses import replace
+
+    from stereo_bench.vision.detect import detect
+
+    left, right, board = load("smiler488_box")
+    detections = [(detect(a, board, thorough=True, noise=False), detect(b, board, thorough=True, noise=False))
+                  for a, b in zip(left, right, strict=True)]
+    bad = 12
+    found = detections[bad][1].corners_px.reshape(board.rows, board.cols, 2)
+    grid = np.concatenate([found[1:], found[-1:] + 0.6 * (found[-1:] - found[-2:-1])])  # a row on, off the board
+    detections[bad] = (detections[bad][0], replace(detections[bad][1], corners_px=grid.reshape(-1, 2)))
+    error = refused(left, right, board, detections=detections)
+    assert [r.name for r in error.report.failed] == ["synchronised"] and error.report.failed[0].views == (bad,)
+    assert f"pair {bad}'s right image alone fits only to " in str(error), str(error)
+    assert "not taken at the same moment" not in str(error)
+    assert "wrong detection" in error.report.view_diagnoses[bad]
+
+
 @pytest.mark.parametrize("moved", [(), (1, 14, 27)])
 def test_gates_on_the_fits_own_poses_equal_gates_solving_every_pose(moved):
     """The gates take each view's poses from the calibration's fits (PoseCache.of_fit) instead of solving them

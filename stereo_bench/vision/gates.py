@@ -325,8 +325,34 @@ def view_residuals(calib: StereoCalibration, view: GateView, poses: PoseCache | 
 
 # --- gates --------------------------------------------------------------------------------------------------
 
+def misfit_side(view: ViewResiduals, typical_px: float) -> str | None:
+    """The image ("left" or "right") of a view whose board does not fit its own camera: its mono residual above
+    ``SYNC_RATIO_MAX`` x ``typical_px`` (the views' median mono residual) and ``SYNC_FLOOR_PX``. Its corners are then
+    not the board's (a wrong detection, another board), and a large stereo residual is that, not two moments; None
+    when both images fit."""
+    side, worst = max((("left", view.mono_left_px), ("right", view.mono_right_px)), key=lambda item: item[1])
+    return side if worst > SYNC_RATIO_MAX * typical_px and worst > SYNC_FLOOR_PX else None
+
+
+def _typical_mono_px(residuals: Sequence[ViewResiduals]) -> float:
+    return float(np.median([r for v in residuals for r in (v.mono_left_px, v.mono_right_px)]))
+
+
+def view_diagnosis(view: ViewResiduals, typical_px: float) -> str:
+    """Why a view whose stereo residual is far above its mono residuals (``not_together``) fails, in a phrase."""
+    side = misfit_side(view, typical_px)
+    if side is not None:
+        mono = view.mono_left_px if side == "left" else view.mono_right_px
+        return (f"the board found in the {side} image does not fit its camera (that image alone {mono:.2f} px, the "
+                f"views' median {typical_px:.2f} px): a wrong detection or another board")
+    return (f"left and right not taken together (stereo residual {view.stereo_px:.2f} px, each image alone "
+            f"{view.mono_left_px:.2f} / {view.mono_right_px:.2f} px)")
+
+
 def gate_synchronised(residuals: Sequence[ViewResiduals], names: Sequence[str] | None = None) -> GateResult:
-    """Fails when a view's stereo residual is far above both of its mono residuals (``SYNC_*``)."""
+    """Fails when a view's stereo residual is far above both of its mono residuals (``SYNC_*``). The line says which
+    of those views' images do not fit their own camera (:func:`misfit_side`: not a matter of timing) and which were
+    not taken together."""
     if not residuals:
         return GateResult("synchronised", float("nan"), SYNC_RATIO_MAX, "ratio", "n/a", "no views")
     worst = max(residuals, key=lambda v: v.ratio)
@@ -335,15 +361,28 @@ def gate_synchronised(residuals: Sequence[ViewResiduals], names: Sequence[str] |
         return GateResult("synchronised", worst.ratio, SYNC_RATIO_MAX, "ratio", "pass",
                           f"left and right taken together: worst stereo/mono residual ratio {worst.ratio:.2f} "
                           f"({_name(worst.index, names)})")
-    v = max(bad, key=lambda b: b.ratio)
-    return GateResult(
-        "synchronised", worst.ratio, SYNC_RATIO_MAX, "ratio", "fail",
-        f"left and right images not taken at the same moment in {len(bad)} of {len(residuals)} pairs "
-        f"({_names([b.index for b in bad], names)}): the board moved between the two exposures, e.g. "
-        f"{_name(v.index, names)} fits each image alone to {v.mono_left_px:.2f} / {v.mono_right_px:.2f} px but both "
-        f"at once only to {v.stereo_px:.2f} px ({v.ratio:.0f}x, limit {SYNC_RATIO_MAX:g}x and {SYNC_FLOOR_PX:g} px); "
-        "synchronise the cameras or hold the board still for each pair",
-        tuple(b.index for b in bad))
+    typical = _typical_mono_px(residuals)
+    misfits = [v for v in bad if misfit_side(v, typical) is not None]
+    apart = [v for v in bad if misfit_side(v, typical) is None]
+    parts = []
+    if apart:
+        v = max(apart, key=lambda b: b.ratio)
+        parts.append(
+            f"left and right images not taken at the same moment in {len(apart)} of {len(residuals)} pairs "
+            f"({_names([b.index for b in apart], names)}): the board moved between the two exposures, e.g. "
+            f"{_name(v.index, names)} fits each image alone to {v.mono_left_px:.2f} / {v.mono_right_px:.2f} px but "
+            f"both at once only to {v.stereo_px:.2f} px ({v.ratio:.0f}x, limit {SYNC_RATIO_MAX:g}x and "
+            f"{SYNC_FLOOR_PX:g} px); synchronise the cameras or hold the board still for each pair")
+    if misfits:
+        v = max(misfits, key=lambda b: max(b.mono_left_px, b.mono_right_px))
+        side = misfit_side(v, typical)
+        parts.append(
+            f"in {len(misfits)} of {len(residuals)} pairs the board found in one image does not fit that camera "
+            f"({_names([b.index for b in misfits], names)}): e.g. {_name(v.index, names)}'s {side} image alone fits "
+            f"only to {max(v.mono_left_px, v.mono_right_px):.2f} px (the views' median {typical:.2f} px), so its "
+            "corners are not the board's: a wrong detection or another board; remove those pairs")
+    return GateResult("synchronised", worst.ratio, SYNC_RATIO_MAX, "ratio", "fail", "; ".join(parts),
+                      tuple(b.index for b in bad))
 
 
 def gate_consistent_views(n_views: int, dropped: Sequence[tuple[int, str]],
@@ -675,9 +714,8 @@ def run_gates(calib: StereoCalibration, views: Sequence[GateView], target: Targe
     poses = poses or PoseCache()
     residuals = [view_residuals(calib, v, poses) for v in views]
     sync = gate_synchronised(residuals, names)
-    diagnoses = {v.index: (f"left and right not taken together (stereo residual {v.stereo_px:.2f} px, each image "
-                           f"alone {v.mono_left_px:.2f} / {v.mono_right_px:.2f} px)")
-                 for v in residuals if v.not_together}
+    typical = _typical_mono_px(residuals) if residuals else float("nan")
+    diagnoses = {v.index: view_diagnosis(v, typical) for v in residuals if v.not_together}
     kept = [v for v in views if v.index not in dropped_set]
     blurs = []
     for v in kept:
