@@ -240,16 +240,18 @@ def predicted_extrinsics_text(predicted: dict[str, Any], source: str) -> list[st
     def spread(key: str, unit: str, rms: str) -> str:
         values = [r[key] for r in rows]
         if f"{min(values):.3g}" == f"{max(values):.3g}":
-            return f"{max(values):.3g} {unit} at every configuration"
+            return f"{max(values):.3g} {unit}" + (" at every configuration" if len(values) > 1 else "")
         worst = max(rows, key=lambda r: r[key])["config_id"]
         return f"{min(values):.3g}-{max(values):.3g} {unit} (RMS {predicted[rms]:.3g}, worst at {worst})"
 
     baseline = max(r["structure"]["baseline_mm"] for r in rows)
     alphas = max(max(r["structure"]["alpha_left_deg"], r["structure"]["alpha_right_deg"]) for r in rows)
-    lines = [f"predicted R, T at the {len(rows)} measured configurations ({source}): "
+    where = "the measured configuration" if len(rows) == 1 else f"the {len(rows)} measured configurations"
+    most = "" if len(rows) == 1 else "up to "
+    lines = [f"predicted R, T at {where} ({source}): "
              f"sigma |T| {spread('sigma_T_mm', 'mm', 'rms_sigma_T_mm')}, "
              f"sigma angle(R) {spread('sigma_R_deg', 'deg', 'rms_sigma_R_deg')}; "
-             f"the optical baseline's sigma up to {baseline:.3g} mm, the alphas' up to {alphas:.3g} deg"]
+             f"the optical baseline's sigma {most}{baseline:.3g} mm, the alphas' {most}{alphas:.3g} deg"]
     held = predicted["held"]
     if held:
         plural = "s" if len(held) > 1 else ""
