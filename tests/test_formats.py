@@ -256,6 +256,26 @@ def test_ros_files_of_single_cameras_are_refused_as_no_stereo_pair():
         import_texts("ros", [texts[0], ("right.yaml", yaml.safe_dump(info))])
 
 
+@pytest.mark.parametrize("fmt", ["ros", "kalibr", "mrcal"])
+def test_millimetre_files_read_as_metres_are_refused_with_the_fix(fmt):
+    """Written with --units mm, read with the default metres: |T| 99 600 mm, which no bench holds (the measured square
+    came out 1000x too): refused, saying which option reads them."""
+    texts = texts_of(export_texts(calibration("opencv4"), fmt, unit_mm=1.0))
+    with pytest.raises(FormatError, match=r"baseline \|T\| = 99\d{3} mm read in metres is over 10 m: .*--units mm"):
+        import_texts(fmt, texts)
+    assert abs(np.linalg.norm(import_texts(fmt, texts, unit_mm=1.0).calib.T) - 99.84) < 0.01
+
+
+@pytest.mark.parametrize("fmt", ["ros", "mrcal"])
+def test_the_two_cameras_files_given_the_other_way_round_are_refused(fmt):
+    """The right camera's file first: T_x > 0, the right camera to the left of the left one (this project's rig puts
+    it at +x, as calibrate's left_right gate holds), and the intrinsics exchanged: refused, saying so."""
+    texts = texts_of(export_texts(calibration("opencv4"), fmt))
+    with pytest.raises(FormatError, match=r"the right camera sits 99\.\d mm to the LEFT of the left one: the files "
+                                          r"name the cameras the other way round"):
+        import_texts(fmt, texts[::-1])
+
+
 # ------------------------------------------------------------------ the commands
 
 

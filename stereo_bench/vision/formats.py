@@ -445,10 +445,30 @@ def _camera(name: str, K: np.ndarray, d: list[float], model: str, size: tuple[in
     return D, name_
 
 
-def _stereo(names: list[str], calib: StereoCalibration) -> StereoCalibration:
+#: An imported baseline above this (mm) is refused: no bench holds a 10 m stereo pair (campaign.config's
+#: MAX_BASELINE_MM), and a file written in millimetres read as metres gives 1000x its |T| (99.86 mm -> 99 860 mm).
+MAX_IMPORTED_BASELINE_MM = 10_000.0
+
+
+def _stereo(names: list[str], calib: StereoCalibration, unit_mm: float) -> StereoCalibration:
+    """``calib`` when it is a usable stereo pair read in the right units and order, else FormatError saying why."""
+    from stereo_bench.vision.gates import gate_left_right
+
     problems = calibration_problems(calib)
     if problems:
         raise FormatError(f"{', '.join(names)}: not a usable stereo calibration: {problems[0]}")
+    baseline = float(np.linalg.norm(calib.T))
+    if baseline > MAX_IMPORTED_BASELINE_MM:
+        hint = (" were the file's lengths in millimetres? --units mm reads them so" if unit_mm == MM_PER_M
+                else " not a stereo bench")
+        raise FormatError(f"{', '.join(names)}: baseline |T| = {baseline:.0f} mm read in "
+                          f"{'metres' if unit_mm == MM_PER_M else 'millimetres'} is over "
+                          f"{MAX_IMPORTED_BASELINE_MM / MM_PER_M:g} m:{hint}")
+    side = gate_left_right(calib)
+    if side.verdict == "fail":
+        raise FormatError(f"{', '.join(names)}: the right camera sits {-side.value * baseline:.1f} mm to the LEFT of "
+                          "the left one: the files name the cameras the other way round (give the left camera's "
+                          "first, or cam0 = left)")
     return calib
 
 
@@ -494,7 +514,7 @@ def import_ros(texts: list[tuple[str, str]], *, unit_mm: float = MM_PER_M) -> Im
     T = R2.T @ t_rect
     calib = _stereo(names, StereoCalibration(
         K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=size, mode="imported",
-        covariance_note=_note("ros"), lens_model=m1 if m1 == m2 else ""))
+        covariance_note=_note("ros"), lens_model=m1 if m1 == m2 else ""), unit_mm)
     Q = _disparity_to_depth(P1m, P2m)
     rect = Rectification(R1=R1, R2=R2, P1=P1m, P2=P2m, Q=Q, image_size=size)
     return Imported(calib, rect, [f"not in {FORMAT_TITLES['ros']}: {item}" for item in _NOT_IN_FILES])
@@ -558,7 +578,8 @@ def import_kalibr(texts: list[tuple[str, str]], *, unit_mm: float = MM_PER_M) ->
         raise FormatError(f"{name}: field 'cam1.T_cn_cnm1' is not a rigid transformation")
     (K1, D1, m1, size), (K2, D2, m2, _) = cams
     calib = _stereo([name], StereoCalibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=size, mode="imported",
-                                              covariance_note=_note("kalibr"), lens_model=m1 if m1 == m2 else ""))
+                                              covariance_note=_note("kalibr"), lens_model=m1 if m1 == m2 else ""),
+                    unit_mm)
     return Imported(calib, None, dropped + [f"not in {FORMAT_TITLES['kalibr']}: {item}" for item in _NOT_IN_FILES])
 
 
@@ -610,7 +631,7 @@ def import_mrcal(texts: list[tuple[str, str]], *, unit_mm: float = MM_PER_M) -> 
         R, T = R_r @ R_l.T, t_r - R_r @ R_l.T @ t_l
     calib = _stereo(names, StereoCalibration(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=sizes[0],
                                              mode="imported", covariance_note=_note("mrcal"),
-                                             lens_model=m1 if m1 == m2 else ""))
+                                             lens_model=m1 if m1 == m2 else ""), unit_mm)
     return Imported(calib, None, dropped + [f"not in {FORMAT_TITLES['mrcal']}: {item}" for item in _NOT_IN_FILES])
 
 
