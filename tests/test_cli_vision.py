@@ -210,6 +210,26 @@ def test_measure_takes_the_board_and_square_from_the_calibration(capsys, calib_d
     assert code == 0 and "0.0000" not in out and " 0.000 px" not in out
 
 
+def test_measure_asks_for_the_square_of_a_board_the_calibration_does_not_record(capsys, calib_dir, tmp_path):
+    """--board of another board without --square used to measure against 27 mm in silence (+2.97 mm on the 30 mm
+    board given as 8x6); the recorded board with its sides the other way round is the same board; --same-board
+    with another square contradicts the calibration; a missing --calib is named as that."""
+    left, right = OPENCV_SAMPLE / "left03.jpg", OPENCV_SAMPLE / "right03.jpg"
+    code, out, _ = run(capsys, "measure", "--calib", str(calib_dir), "--board", "6x9", str(left), str(right), "--json")
+    assert code == 0 and json.loads(out)["nominal_mm"] == 30
+    code, _, err = run(capsys, "measure", "--calib", str(calib_dir), "--board", "8x6", str(left), str(right))
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert f"--square: {calib_dir} records the squares of a 9x6 board (30 mm), not of the --board 8x6" in err
+    code, _, err = run(capsys, "measure", "--calib", str(calib_dir), "--square", "25", "--same-board", str(left),
+                       str(right))
+    assert code == 2 and "--same-board: " in err and "30 mm squares, not the 9x6 of 25 mm" in err
+    code, out, _ = run(capsys, "measure", "--calib", str(calib_dir), "--square", "30", "--same-board", str(left),
+                       str(right), "--json")
+    assert code == 0 and json.loads(out)["nominal_mm"] == 30
+    code, _, err = run(capsys, "measure", "--calib", str(tmp_path / "nowhere"), str(left), str(right))
+    assert code == 2 and "nowhere: calibration directory not found" in err and "--board" not in err
+
+
 def test_fixed_or_significant_never_prints_zero_for_a_nonzero_value():
     from stereo_bench.cli.vision import fixed_or_significant
 
@@ -217,3 +237,40 @@ def test_fixed_or_significant_never_prints_zero_for_a_nonzero_value():
     assert fixed_or_significant(0.1234, 4) == "0.1234"
     assert fixed_or_significant(0.0, 4) == "0.0000"
     assert fixed_or_significant(-2.1e-06, 3) == "-2.1e-06"
+
+
+def test_an_inverted_charuco_board_is_calibrated_with_inverted_and_named_without(capsys, tmp_path):
+    """caliscope's board is printed white on black: without --inverted no image shows a board, and the line says
+    what to give; with it the boards are found (the calibration then runs to its gates)."""
+    import cv2
+
+    from tests.real_data import CALISCOPE_BOARD, caliscope_frames, caliscope_views
+
+    frames, _ = caliscope_views()
+    left, right = caliscope_frames()
+    for k in frames[::2][:12]:
+        cv2.imwrite(str(tmp_path / f"l{k:03d}.png"), left[k])
+        cv2.imwrite(str(tmp_path / f"r{k:03d}.png"), right[k])
+    argv = ["calibrate", "--charuco", "--board", "4x5", "--square", "54", "--marker", "40.5", "--dictionary",
+            "DICT_4X4_1000", "--left", str(tmp_path / "l*.png"), "--right", str(tmp_path / "r*.png")]
+    code, _, err = run(capsys, *argv, "--out", str(tmp_path / "a"))
+    assert code == 2 and "in none of the images: a ChArUco board printed white on black needs --inverted" in err
+    code, out, err = run(capsys, *argv, "--inverted", "--accept-poor", "--out", str(tmp_path / "b"), "--json")
+    assert code == 0, err
+    assert json.loads(out)["views_used"] >= 8 and CALISCOPE_BOARD.inverted
+    code, _, err = run(capsys, "calibrate", "--board", "9x6", "--square", "30", "--inverted", "--left",
+                       str(OPENCV_SAMPLE / "left*.jpg"), "--right", str(OPENCV_SAMPLE / "right*.jpg"), "--out",
+                       str(tmp_path / "c"))
+    assert code == 2 and "--inverted is for a ChArUco board" in err
+
+
+def test_images_of_two_sizes_are_named_with_their_sizes(capsys, tmp_path):
+    import cv2
+
+    for name in ("left01", "left02", "right01", "right02"):
+        image = cv2.imread(str(OPENCV_SAMPLE / f"{name}.jpg"))
+        cv2.imwrite(str(tmp_path / f"{name}.png"), cv2.resize(image, (960, 720)) if name == "left02" else image)
+    code, _, err = run(capsys, "calibrate", "--board", "9x6", "--square", "30", "--left", str(tmp_path / "left*.png"),
+                       "--right", str(tmp_path / "right*.png"), "--out", str(tmp_path / "c"))
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert f"{tmp_path / 'left01.png'} is 640x480, but {tmp_path / 'left02.png'} is 960x720" in err

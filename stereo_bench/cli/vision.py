@@ -60,8 +60,8 @@ def add_target_options(parser: argparse.ArgumentParser, *, default_square_mm: fl
                              "(with --charuco: squares per row x per column)" + recorded)
     square_default = ""
     if from_calibration:
-        square_default = " (default: the calibration's recorded square" + (
-            f", else {default_square_mm:g})" if default_square_mm else ")")
+        square_default = (" (default: the calibration's recorded square, for its board: another --board needs "
+                          "--square" + (f"; {default_square_mm:g} when it records none)" if default_square_mm else ")"))
     elif default_square_mm:
         square_default = f" (default {default_square_mm})"
     parser.add_argument("--square", type=SQUARE_MM, required=default_square_mm is None and not from_calibration,
@@ -72,6 +72,9 @@ def add_target_options(parser: argparse.ArgumentParser, *, default_square_mm: fl
                         help="ChArUco marker size in mm (default 0.75 x square)")
     parser.add_argument("--dictionary", default="DICT_5X5_1000", choices=sorted(ARUCO_DICTIONARIES),
                         metavar="DICT", help="ChArUco ArUco dictionary (default DICT_5X5_1000)")
+    parser.add_argument("--inverted", action="store_true",
+                        help="the ChArUco board is printed white on black (white markers on black squares, as "
+                             "caliscope's); measure needs it too")
 
 
 #: ``measure``'s square when neither --square nor the calibration says (files from OpenCV or ``render``).
@@ -91,7 +94,11 @@ def target_from_args(args: argparse.Namespace) -> Target:
         cols, rows = parse_pattern(args.board)
         if args.charuco:
             marker = args.marker if args.marker else 0.75 * args.square
-            return CharucoTarget(cols, rows, args.square, marker, args.dictionary)
+            return CharucoTarget(cols, rows, args.square, marker, args.dictionary,
+                                 inverted=getattr(args, "inverted", False))
+        if getattr(args, "inverted", False):
+            raise ValueError("--inverted is for a ChArUco board (--charuco): a checkerboard's colours are found "
+                             "either way")
         return Checkerboard(cols, rows, args.square)
     except ValueError as error:
         raise CliError(f"--board/--square: {error}") from None
@@ -245,7 +252,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     left_images, right_images = images[:len(left_paths)], images[len(left_paths):]
     sizes = {im.shape for im in left_images + right_images}
     if len(sizes) != 1:
-        raise CliError(f"all images must have the same size, found {sorted(sizes)}")
+        # The first image's size, and the first image of each other size (W x H, as measure names them).
+        paths = left_paths + right_paths
+        first = {}
+        for path, image in zip(paths, images, strict=True):
+            first.setdefault(image.shape, path)
+        other = [f"{first[shape]} is {shape[1]}x{shape[0]}" for shape in first if shape != images[0].shape]
+        raise CliError(f"all images must have the same size: {paths[0]} is {images[0].shape[1]}x{images[0].shape[0]}"
+                       f", but {'; '.join(other)}")
     height, width = left_images[0].shape
     if intrinsics_size is not None and tuple(intrinsics_size) != (width, height):
         raise CliError(f"--intrinsics {args.intrinsics} is for {intrinsics_size[0]}x{intrinsics_size[1]} images, "
@@ -378,20 +392,29 @@ def cmd_measure(args: argparse.Namespace) -> int:
     from stereo_bench.vision.pipeline import BoardNotFoundError, ImplausibleMeasurement, check_epipolar, measure_pair
     from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL, BoardScale, configuration_budget
 
+    if not Path(args.calib).is_dir():
+        raise CliError(f"--calib: {args.calib}: calibration directory not found")
     try:
-        recorded = None
-        if (args.board is None or args.square is None) and Path(args.calib).is_dir():
-            recorded = recorded_board(args.calib)
+        recorded = recorded_board(args.calib)
     except CalibrationFileError as error:
         raise CliError(str(error)) from None
     board_source = {"board": "--board", "square": "--square"}
-    if recorded is not None and (args.board is None or args.square is None):
+    if recorded is not None:
         kind, pattern, square = recorded
         if args.board is None:
             args.board, board_source["board"] = pattern, f"{args.calib} (recorded)"
             args.charuco = args.charuco or kind == "charuco"
-        if args.square is None and (args.board == pattern):
+        # The recorded board given with its sides the other way round is the same board, and its squares the same.
+        same = args.board in (pattern, "x".join(reversed(pattern.split("x"))))
+        if args.square is None and same:
             args.square, board_source["square"] = square, f"{args.calib} (recorded)"
+        elif args.square is None:
+            raise CliError(f"--square: {args.calib} records the squares of a {pattern} board ({square:g} mm), not of "
+                           f"the --board {args.board} measured here: give --square")
+        if args.same_board and not (same and math.isclose(args.square, square, rel_tol=1e-9)):
+            raise CliError(f"--same-board: {args.calib} was calibrated with a {pattern} board of {square:g} mm "
+                           f"squares, not the {args.board} of {args.square:g} mm measured here: drop --same-board, or "
+                           "give the calibration's board")
     if args.board is None:
         raise CliError(f"--board: {args.calib} does not record the calibration board (COLSxROWS): give --board")
     if args.square is None:

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from stereo_bench.targets import Checkerboard, Target
+from stereo_bench.targets import CharucoTarget, Checkerboard, Target
 from stereo_bench.vision.calibrate import (
     DEFAULT_FLAGS,
     MIN_VIEWS,
@@ -267,8 +267,10 @@ def calibrate_from_images(
 
         if len(objects) < MIN_VIEWS:
             board_report()
+            inverted = isinstance(target, CharucoTarget) and not target.inverted and not any(found)
             raise ValueError(f"calibration board found in only {len(objects)} of {len(left_images)} view pairs "
-                             f"(need {MIN_VIEWS})")
+                             f"(need {MIN_VIEWS})" + ("; in none of the images: a ChArUco board printed white on "
+                                                      "black needs --inverted" if inverted else ""))
         def fit(objects: list, lefts: list, rights: list, after_mono=None) -> StereoCalibration:
             if lens_model is None:
                 return calibrate_stereo(objects, lefts, rights, tuple(image_size), intrinsics=intrinsics, mode=mode,
