@@ -74,7 +74,7 @@ def add_target_options(parser: argparse.ArgumentParser, *, default_square_mm: fl
                         metavar="DICT", help="ChArUco ArUco dictionary (default DICT_5X5_1000)")
     parser.add_argument("--inverted", action="store_true",
                         help="the ChArUco board is printed white on black (white markers on black squares, as "
-                             "caliscope's); measure needs it too")
+                             "caliscope's); calibrate records it for measure")
 
 
 #: ``measure``'s square when neither --square nor the calibration says (files from OpenCV or ``render``).
@@ -289,7 +289,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise CliError(f"calibration failed: {' '.join(str(error).split())}") from None
     calib = result.calib
     make_out_dir(out)
-    write_calibration(out, calib, result.rect, board=f"{target.kind} {args.board} square {target.square_mm} mm",
+    kind = target.kind + ("-inverted" if getattr(target, "inverted", False) else "")  # what measure reads back
+    write_calibration(out, calib, result.rect, board=f"{kind} {args.board} square {target.square_mm} mm",
                       extra={"epipolar_rms_px": result.epipolar_rms_px, "views_used": len(result.views_used),
                              "board_scale_u_rel": args.board_scale_u,
                              **(result.gates.file_items() if result.gates else {})})
@@ -403,7 +404,8 @@ def cmd_measure(args: argparse.Namespace) -> int:
         kind, pattern, square = recorded
         if args.board is None:
             args.board, board_source["board"] = pattern, f"{args.calib} (recorded)"
-            args.charuco = args.charuco or kind == "charuco"
+            args.charuco = args.charuco or kind.startswith("charuco")
+            args.inverted = args.inverted or kind == "charuco-inverted"
         # The recorded board given with its sides the other way round is the same board, and its squares the same.
         same = args.board in (pattern, "x".join(reversed(pattern.split("x"))))
         if args.square is None and same:

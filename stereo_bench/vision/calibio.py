@@ -367,7 +367,8 @@ def _adequacy(storage: cv2.FileStorage, path: Path):
 
 def recorded_board(calib_dir: str | Path) -> tuple[str, str, float] | None:
     """(kind, "COLSxROWS", square mm) of the board a calibration recorded (``board``: "checkerboard 8x5 square
-    15.0 mm", as ``calibrate`` writes it), or None when the file records none or in another form."""
+    15.0 mm", as ``calibrate`` writes it; kind "charuco-inverted" for a ChArUco board printed white on black), or
+    None when the file records none or in another form."""
     path = _resolve(calib_dir, EXTRINSICS_FILE)
     storage = _open(path)
     try:
@@ -375,7 +376,7 @@ def recorded_board(calib_dir: str | Path) -> tuple[str, str, float] | None:
         text = "" if node.empty() or not node.isString() else node.string()
     finally:
         storage.release()
-    match = re.fullmatch(r"\s*(\w+)\s+(\d+x\d+)\s+square\s+([0-9.eE+-]+)\s*mm\s*", text)
+    match = re.fullmatch(r"\s*([\w-]+)\s+(\d+x\d+)\s+square\s+([0-9.eE+-]+)\s*mm\s*", text)
     if not match:
         return None
     try:
