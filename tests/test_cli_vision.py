@@ -258,13 +258,13 @@ def test_an_inverted_charuco_board_is_calibrated_with_inverted_and_named_without
     code, out, err = run(capsys, *argv, "--inverted", "--accept-poor", "--out", str(tmp_path / "b"), "--json")
     assert code == 0, err
     assert json.loads(out)["views_used"] >= 8 and CALISCOPE_BOARD.inverted
-    # measure reads the board back, inverted colours included (not its dictionary: the calibration does not record
-    # it), and measures a frame not in the calibration.
+    # measure reads the board back, its colours, marker and dictionary included, and measures a frame not in the
+    # calibration.
     held = frames[1]
     cv2.imwrite(str(tmp_path / "hl.png"), left[held])
     cv2.imwrite(str(tmp_path / "hr.png"), right[held])
-    code, out, err = run(capsys, "measure", "--calib", str(tmp_path / "b"), "--dictionary", "DICT_4X4_1000",
-                         "--marker", "40.5", str(tmp_path / "hl.png"), str(tmp_path / "hr.png"), "--json")
+    code, out, err = run(capsys, "measure", "--calib", str(tmp_path / "b"), str(tmp_path / "hl.png"),
+                         str(tmp_path / "hr.png"), "--json")
     assert code == 0, err
     assert json.loads(out)["nominal_mm"] == 54 and json.loads(out)["board"]["board_from"].endswith("(recorded)")
     code, _, err = run(capsys, "calibrate", "--board", "9x6", "--square", "30", "--inverted", "--left",

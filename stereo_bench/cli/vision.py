@@ -70,12 +70,16 @@ def add_target_options(parser: argparse.ArgumentParser, *, default_square_mm: fl
     parser.add_argument("--charuco", action="store_true", help="the board is a ChArUco board (partial views count)")
     parser.add_argument("--marker", type=SQUARE_MM, metavar="MM",
                         help="ChArUco marker size in mm (default 0.75 x square)")
-    parser.add_argument("--dictionary", default="DICT_5X5_1000", choices=sorted(ARUCO_DICTIONARIES),
-                        metavar="DICT", help="ChArUco ArUco dictionary (default DICT_5X5_1000)")
+    parser.add_argument("--dictionary", default=None, choices=sorted(ARUCO_DICTIONARIES), metavar="DICT",
+                        help=f"ChArUco ArUco dictionary (default {DEFAULT_DICTIONARY}"
+                             + (", or the calibration's recorded one)" if from_calibration else ")"))
     parser.add_argument("--inverted", action="store_true",
                         help="the ChArUco board is printed white on black (white markers on black squares, as "
                              "caliscope's); calibrate records it for measure")
 
+
+#: The ChArUco dictionary when neither --dictionary nor the calibration says.
+DEFAULT_DICTIONARY = "DICT_5X5_1000"
 
 #: ``measure``'s square when neither --square nor the calibration says (files from OpenCV or ``render``).
 MEASURE_DEFAULT_SQUARE_MM = 27.0
@@ -94,7 +98,7 @@ def target_from_args(args: argparse.Namespace) -> Target:
         cols, rows = parse_pattern(args.board)
         if args.charuco:
             marker = args.marker if args.marker else 0.75 * args.square
-            return CharucoTarget(cols, rows, args.square, marker, args.dictionary,
+            return CharucoTarget(cols, rows, args.square, marker, args.dictionary or DEFAULT_DICTIONARY,
                                  inverted=getattr(args, "inverted", False))
         if getattr(args, "inverted", False):
             raise ValueError("--inverted is for a ChArUco board (--charuco): a checkerboard's colours are found "
@@ -289,8 +293,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise CliError(f"calibration failed: {' '.join(str(error).split())}") from None
     calib = result.calib
     make_out_dir(out)
-    kind = target.kind + ("-inverted" if getattr(target, "inverted", False) else "")  # what measure reads back
-    write_calibration(out, calib, result.rect, board=f"{kind} {args.board} square {target.square_mm} mm",
+    # What measure reads back: a ChArUco board's colours, marker and dictionary too.
+    kind = target.kind + ("-inverted" if getattr(target, "inverted", False) else "")
+    charuco = f" marker {target.marker_mm} mm {target.dictionary}" if target.kind == "charuco" else ""
+    write_calibration(out, calib, result.rect, board=f"{kind} {args.board} square {target.square_mm} mm{charuco}",
                       extra={"epipolar_rms_px": result.epipolar_rms_px, "views_used": len(result.views_used),
                              "board_scale_u_rel": args.board_scale_u,
                              **(result.gates.file_items() if result.gates else {})})
@@ -387,6 +393,7 @@ def cmd_measure(args: argparse.Namespace) -> int:
         calibration_board_scale_u,
         read_calibration,
         recorded_board,
+        recorded_charuco,
         recorded_epipolar_rms_px,
     )
     from stereo_bench.vision.detect import AmbiguousViewError
@@ -406,6 +413,10 @@ def cmd_measure(args: argparse.Namespace) -> int:
             args.board, board_source["board"] = pattern, f"{args.calib} (recorded)"
             args.charuco = args.charuco or kind.startswith("charuco")
             args.inverted = args.inverted or kind == "charuco-inverted"
+            charuco = recorded_charuco(args.calib) if args.charuco else None
+            if charuco is not None:
+                args.marker = args.marker or charuco[0]
+                args.dictionary = args.dictionary or charuco[1]
         # The recorded board given with its sides the other way round is the same board, and its squares the same.
         same = args.board in (pattern, "x".join(reversed(pattern.split("x"))))
         if args.square is None and same:
