@@ -83,6 +83,24 @@ class AmbiguousViewError(ValueError):
     """A partial checkerboard was found but which board corners it shows cannot be proven."""
 
 
+def _sb(small: np.ndarray, pattern_size: tuple[int, int], flags: int) -> tuple:
+    """``cv2.findChessboardCornersSB``, from OpenCV's random generator as a fresh thread has it.
+
+    SB draws from ``cv::theRNG()``, the calling thread's generator, which anything else (the renderer's noise) moves
+    on: with ``CALIB_CB_LARGER`` present_cjn's leftPic07 came back as a 4 x 11 grid in 38 of 40 successive calls and
+    4 x 8 in 2, so a detection depended on what ran before it on that thread (a test order, the thread pool's
+    assignment of images, a replay that renders nothing). Seeded here (0: the generator's default state), the same
+    pixels give the same grid."""
+    cv2.setRNGSeed(0)
+    return cv2.findChessboardCornersSB(small, pattern_size, flags=flags)
+
+
+def _sb_with_meta(small: np.ndarray, pattern_size: tuple[int, int], flags: int) -> tuple:
+    """``cv2.findChessboardCornersSBWithMeta``, seeded as :func:`_sb`."""
+    cv2.setRNGSeed(0)
+    return cv2.findChessboardCornersSBWithMeta(small, pattern_size, flags)
+
+
 class AnyBoardSearch:
     """``findChessboardCornersSBWithMeta(image at <= 960 px, (3, 3), CALIB_CB_LARGER | flags)``: the largest
     checkerboard of any size in an image, each (image, flags) searched once (~50 ms at 640x480).
@@ -103,8 +121,7 @@ class AnyBoardSearch:
         key = (id(gray), flags)
         if key not in self._found:
             small, _ = _search_image(gray, THOROUGH_SEARCH_WIDTH_PX)
-            self._found[key] = (gray, cv2.findChessboardCornersSBWithMeta(small, (3, 3),
-                                                                           cv2.CALIB_CB_LARGER | flags))
+            self._found[key] = (gray, _sb_with_meta(small, (3, 3), cv2.CALIB_CB_LARGER | flags))
         return self._found[key][1]
 
 
@@ -364,7 +381,7 @@ def _thorough_step(gray: np.ndarray, board: Checkerboard, step: tuple[str, int, 
         # leftPic07), where the search without it finds the cut grid.
         found, corners = False, None
     else:
-        found, corners = cv2.findChessboardCornersSB(small, board.pattern_size, flags=flags)
+        found, corners = _sb(small, board.pattern_size, flags)
     return bool(found), corners, scale
 
 
@@ -618,9 +635,7 @@ def detect_checkerboard_partial(
     """
     gray = to_gray(image)
     small, scale = _search_image(gray, search_width_px)
-    found, corners, meta = cv2.findChessboardCornersSBWithMeta(
-        small, (3, 3), cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE
-    )
+    found, corners, meta = _sb_with_meta(small, (3, 3), cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE)
     if not found or corners is None or meta is None or meta.size != len(corners):
         return None
     # SB returns the found grid row-major; meta has its (rows, cols) shape.
