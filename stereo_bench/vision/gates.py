@@ -362,8 +362,9 @@ def gate_synchronised(residuals: Sequence[ViewResiduals], names: Sequence[str] |
                           f"left and right taken together: worst stereo/mono residual ratio {worst.ratio:.2f} "
                           f"({_name(worst.index, names)})")
     typical = _typical_mono_px(residuals)
-    misfits = [v for v in bad if misfit_side(v, typical) is not None]
-    apart = [v for v in bad if misfit_side(v, typical) is None]
+    side_of = {v.index: misfit_side(v, typical) for v in bad}
+    misfits = [v for v in bad if side_of[v.index] is not None]
+    apart = [v for v in bad if side_of[v.index] is None]
     parts = []
     if apart:
         v = max(apart, key=lambda b: b.ratio)
@@ -375,12 +376,12 @@ def gate_synchronised(residuals: Sequence[ViewResiduals], names: Sequence[str] |
             f"{SYNC_FLOOR_PX:g} px); synchronise the cameras or hold the board still for each pair")
     if misfits:
         v = max(misfits, key=lambda b: max(b.mono_left_px, b.mono_right_px))
-        side = misfit_side(v, typical)
+        worst_mono = max(v.mono_left_px, v.mono_right_px)
         parts.append(
             f"in {len(misfits)} of {len(residuals)} pairs the board found in one image does not fit that camera "
-            f"({_names([b.index for b in misfits], names)}): e.g. {_name(v.index, names)}'s {side} image alone fits "
-            f"only to {max(v.mono_left_px, v.mono_right_px):.2f} px (the views' median {typical:.2f} px), so its "
-            "corners are not the board's: a wrong detection or another board; remove those pairs")
+            f"({_names([b.index for b in misfits], names)}): e.g. {_name(v.index, names)}'s {side_of[v.index]} image "
+            f"alone fits only to {worst_mono:.2f} px (the views' median {typical:.2f} px), so its corners are not the "
+            "board's: a wrong detection or another board; remove those pairs")
     return GateResult("synchronised", worst.ratio, SYNC_RATIO_MAX, "ratio", "fail", "; ".join(parts),
                       tuple(b.index for b in bad))
 
