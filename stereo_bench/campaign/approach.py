@@ -3,7 +3,7 @@
 Pure functions over the plan's sequence of moves (the configurations and design visits its Move steps
 go to, in order, from where homing leaves the rig):
 
-- :func:`move_sequence`: that sequence, from the steps.
+- :func:`move_sequence` (:mod:`stereo_bench.campaign.plan.steps`'s): that sequence, from the steps.
 - :func:`approach_moves`: where a run that has not just come from the previous configuration of the
   sequence (a resume, after homing; a run after a recovery homing) must go first, so that the move to
   the configuration is the very move the uninterrupted run made: from the previous configuration, with
@@ -21,18 +21,13 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-from stereo_bench.campaign.plan import Configuration, Move, Visit
+from stereo_bench.campaign.plan import Configuration, Visit
+from stereo_bench.campaign.plan.steps import move_sequence
 
 __all__ = ["APPROACH_ACTION", "approach_moves", "arrivals", "move_sequence", "placements"]
 
 APPROACH_ACTION = "approach"  # what an approach document's data.action says (documents.ApproachEvent)
 _SAME = 1e-9  # commanded values closer than this are one position
-
-
-def move_sequence(steps: Sequence) -> list[Configuration | Visit]:
-    """The configurations and visits the plan's Move steps go to, in order (a configuration that is not run, e.g.
-    infeasible, has no Move)."""
-    return [step.configuration for step in steps if isinstance(step, Move)]
 
 
 def _runs(values: Sequence[float | None]) -> list[int]:

@@ -256,6 +256,12 @@ Step = (Move | PromptTarget | PromptManual | PlaceBoard | Settle | Flush | Captu
         | Checkpoint | VisitDone | PrepareExtrinsics)
 
 
+def move_sequence(steps: Sequence) -> list[Configuration | Visit]:
+    """The configurations and visits the plan's Move steps go to, in order (a configuration that is not run, e.g.
+    infeasible, has no Move)."""
+    return [step.configuration for step in steps if isinstance(step, Move)]
+
+
 def plan_steps(config: CampaignConfig, configurations: Sequence[Configuration],
                visits: Sequence[Visit] | None = None) -> list[Step]:
     """The steps of a campaign, in order.

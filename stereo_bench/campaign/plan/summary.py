@@ -96,12 +96,12 @@ def extrinsics_prediction(model, steps: Sequence) -> dict[str, Any] | None:
     sqrt(E|dT|^2); ``sigma_R_deg``: sqrt(E angle(dR)^2); ``structure``: the sigmas of the optical baseline, the
     alphas and the rotation; ``extrapolated``: the axes beyond the model's span. ``held``: the parameters held
     nominal, whose error (the rig's build tolerance) is not counted. None when the steps measure nothing."""
-    from stereo_bench.campaign.plan.steps import Move
+    from stereo_bench.campaign.plan.steps import move_sequence
     from stereo_bench.kinematics.design import approach_directions
     from stereo_bench.kinematics.prediction import predict
 
     rows, previous, approach = [], None, {}
-    for target in (step.configuration for step in steps if isinstance(step, Move)):  # approach.move_sequence
+    for target in move_sequence(steps):
         request = target.move_request()
         axes = {axis: request[axis] for axis in model.axes}
         approach = approach_directions(previous, axes, approach)
