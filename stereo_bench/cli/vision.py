@@ -392,9 +392,8 @@ def cmd_measure(args: argparse.Namespace) -> int:
         CalibrationFileError,
         calibration_board_scale_u,
         read_calibration,
-        recorded_board,
-        recorded_charuco,
         recorded_epipolar_rms_px,
+        recorded_target,
     )
     from stereo_bench.vision.detect import AmbiguousViewError
     from stereo_bench.vision.pipeline import BoardNotFoundError, ImplausibleMeasurement, check_epipolar, measure_pair
@@ -403,20 +402,18 @@ def cmd_measure(args: argparse.Namespace) -> int:
     if not Path(args.calib).is_dir():
         raise CliError(f"--calib: {args.calib}: calibration directory not found")
     try:
-        recorded = recorded_board(args.calib)
+        recorded = recorded_target(args.calib)
     except CalibrationFileError as error:
         raise CliError(str(error)) from None
     board_source = {"board": "--board", "square": "--square"}
     if recorded is not None:
-        kind, pattern, square = recorded
+        kind, pattern, square, marker, dictionary = recorded
         if args.board is None:
             args.board, board_source["board"] = pattern, f"{args.calib} (recorded)"
             args.charuco = args.charuco or kind.startswith("charuco")
             args.inverted = args.inverted or kind == "charuco-inverted"
-            charuco = recorded_charuco(args.calib) if args.charuco else None
-            if charuco is not None:
-                args.marker = args.marker or charuco[0]
-                args.dictionary = args.dictionary or charuco[1]
+            args.marker = args.marker or marker
+            args.dictionary = args.dictionary or dictionary
         # The recorded board given with its sides the other way round is the same board, and its squares the same.
         same = args.board in (pattern, "x".join(reversed(pattern.split("x"))))
         if args.square is None and same:

@@ -365,7 +365,12 @@ def _adequacy(storage: cv2.FileStorage, path: Path):
     return ModelAdequacy.from_dict(values)
 
 
-def _recorded_board_match(calib_dir: str | Path) -> re.Match | None:
+def recorded_target(calib_dir: str | Path) -> tuple[str, str, float, float | None, str | None] | None:
+    """(kind, "COLSxROWS", square mm, marker mm, ArUco dictionary) of the board a calibration recorded (``board``:
+    "checkerboard 8x5 square 15.0 mm", or "charuco-inverted 4x5 square 54.0 mm marker 40.5 mm DICT_4X4_1000", as
+    ``calibrate`` writes it: kind "charuco-inverted" for a ChArUco board printed white on black; marker and
+    dictionary None for a checkerboard or a file written before they were recorded), or None when the file records
+    none or in another form."""
     path = _resolve(calib_dir, EXTRINSICS_FILE)
     storage = _open(path)
     try:
@@ -373,8 +378,14 @@ def _recorded_board_match(calib_dir: str | Path) -> re.Match | None:
         text = "" if node.empty() or not node.isString() else node.string()
     finally:
         storage.release()
-    return re.fullmatch(r"\s*([\w-]+)\s+(\d+x\d+)\s+square\s+([0-9.eE+-]+)\s*mm"
-                        r"(?:\s+marker\s+([0-9.eE+-]+)\s*mm\s+(\w+))?\s*", text)
+    match = re.fullmatch(r"\s*([\w-]+)\s+(\d+x\d+)\s+square\s+([0-9.eE+-]+)\s*mm"
+                         r"(?:\s+marker\s+([0-9.eE+-]+)\s*mm\s+(\w+))?\s*", text)
+    if not match:
+        return None
+    square, marker = _positive(match.group(3)), _positive(match.group(4))
+    if square is None:
+        return None
+    return match.group(1), match.group(2), square, marker, match.group(5) if marker is not None else None
 
 
 def _positive(text: str | None) -> float | None:
@@ -386,20 +397,9 @@ def _positive(text: str | None) -> float | None:
 
 
 def recorded_board(calib_dir: str | Path) -> tuple[str, str, float] | None:
-    """(kind, "COLSxROWS", square mm) of the board a calibration recorded (``board``: "checkerboard 8x5 square
-    15.0 mm", as ``calibrate`` writes it; kind "charuco-inverted" for a ChArUco board printed white on black), or
-    None when the file records none or in another form."""
-    match = _recorded_board_match(calib_dir)
-    square = _positive(match.group(3)) if match else None
-    return (match.group(1), match.group(2), square) if square is not None else None
-
-
-def recorded_charuco(calib_dir: str | Path) -> tuple[float, str] | None:
-    """(marker mm, ArUco dictionary) of the ChArUco board a calibration recorded ("charuco 4x5 square 54.0 mm marker
-    40.5 mm DICT_4X4_1000"), or None (a checkerboard, or a file written before they were recorded)."""
-    match = _recorded_board_match(calib_dir)
-    marker = _positive(match.group(4)) if match else None
-    return (marker, match.group(5)) if marker is not None else None
+    """(kind, "COLSxROWS", square mm) of :func:`recorded_target`, or None."""
+    target = recorded_target(calib_dir)
+    return None if target is None else target[:3]
 
 
 def read_gates(calib_dir: str | Path) -> dict[str, dict] | None:
