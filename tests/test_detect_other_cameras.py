@@ -99,11 +99,14 @@ def test_a_small_image_is_searched_again_at_twice_its_size(monkeypatch, fx, fy, 
     assert detect(small, board, thorough=True, noise=False) is None  # the step this test is about
 
 
-def test_the_upscaled_search_is_only_for_small_images():
+def test_the_upscaled_search_is_only_for_small_images(monkeypatch):
+    """A miss is searched at twice the size below UPSCALE_BELOW_PX only: a 640 x 480 frame is not enlarged."""
     board = Checkerboard(8, 11, 12.0)
-    assert detect_module.UPSCALE_BELOW_PX <= min(640, 1280)  # a 640 x 480 frame is not enlarged
-    blank = np.full((240, 320), 128, np.uint8)
-    assert detect(blank, board, thorough=True) is None
+    enlarged = []
+    monkeypatch.setattr(detect_module, "_upscaled_search", lambda gray, b: enlarged.append(gray.shape))
+    for shape in ((480, 640), (240, 320)):
+        assert detect(np.full(shape, 128, np.uint8), board, thorough=True) is None
+    assert enlarged == [(240, 320)]
 
 
 def test_a_detection_does_not_depend_on_what_ran_before_it_on_its_thread():
