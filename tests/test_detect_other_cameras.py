@@ -127,3 +127,44 @@ def test_a_detection_does_not_depend_on_what_ran_before_it_on_its_thread():
         except AmbiguousViewError as error:
             answers.add(str(error))
     assert len(answers) == 1, answers
+
+
+def test_a_border_corner_stays_on_its_junction_when_the_window_reaches_past_the_outer_squares(monkeypatch):
+    """opencv_sample's boards are seen obliquely: the full window of a border corner reaches the board's edge and pulls
+    cornerSubPix off the junction (right05: 3.9 px at full resolution; 2.1 px at 0.75x, against the full-resolution
+    corners mapped down). With the border check, every corner of the 0.75x and 0.5x views lies within 0.6 px of the
+    full-resolution detection mapped down (the other sets: within 0.25 px with or without it)."""
+    real = SETS["opencv_sample"]
+    left, right = images("opencv_sample")
+
+    def worst() -> float:
+        deviation = 0.0
+        for image in left + right:
+            reference = detect(image, real.board, thorough=True, noise=False)
+            for scale in (0.75, 0.5):
+                found = detect(half(image, scale, scale), real.board, thorough=True, noise=False)
+                if reference is not None and found is not None:
+                    mapped = (reference.corners_px + 0.5) * scale - 0.5
+                    deviation = max(deviation, float(np.linalg.norm(found.corners_px - mapped, axis=1).max()))
+        return deviation
+
+    assert worst() < 0.6
+    monkeypatch.setattr(detect_module, "BORDER_AGREEMENT_PX", np.inf)  # the check off
+    assert worst() > 1.5  # what it mends is still there to mend
+
+
+def test_the_border_check_moves_only_corners_the_window_pulled_off():
+    """present_cjn's and smiler488_box's boards have whole outer squares: no border corner is taken from the half window
+    there (the check changes nothing where the full window sees only the outer squares; the replay tests hold the same
+    for rendered frames)."""
+    for name in ("present_cjn", "smiler488_box"):
+        real = SETS[name]
+        for image in images(name)[0][:10]:
+            gray = detect_module.to_gray(image)
+            found, corners = cv2.findChessboardCorners(gray, real.board.pattern_size, flags=detect_module._SEARCH_FLAGS)
+            if not found:
+                continue
+            grid = corners.reshape(real.board.rows, real.board.cols, 2).astype(np.float64)
+            half_window = detect_module.subpix_half_window(detect_module.grid_spacing_px(grid))
+            refined = detect_module._subpix(gray, grid.reshape(-1, 2), half_window).reshape(grid.shape)
+            np.testing.assert_array_equal(detect_module._narrow_border(gray, refined, half_window), refined)
