@@ -153,6 +153,16 @@ def test_a_border_corner_stays_on_its_junction_when_the_window_reaches_past_the_
     assert worst() > 1.5  # what it mends is still there to mend
 
 
+def full_window_grid(gray: np.ndarray, board: Checkerboard) -> tuple[np.ndarray, int] | None:
+    """(the classic detector's grid refined with the full window only, that half-window), None without a board."""
+    found, corners = cv2.findChessboardCorners(gray, board.pattern_size, flags=detect_module._SEARCH_FLAGS)
+    if not found:
+        return None
+    grid = corners.reshape(board.rows, board.cols, 2).astype(np.float64)
+    half_window = detect_module.subpix_half_window(detect_module.grid_spacing_px(grid))
+    return detect_module._subpix(gray, grid.reshape(-1, 2), half_window).reshape(grid.shape), half_window
+
+
 def test_the_border_check_moves_only_corners_the_window_pulled_off():
     """present_cjn's and smiler488_box's boards have whole outer squares: no border corner is taken from the half window
     there (the check changes nothing where the full window sees only the outer squares; the replay tests hold the same
@@ -161,10 +171,32 @@ def test_the_border_check_moves_only_corners_the_window_pulled_off():
         real = SETS[name]
         for image in images(name)[0][:10]:
             gray = detect_module.to_gray(image)
-            found, corners = cv2.findChessboardCorners(gray, real.board.pattern_size, flags=detect_module._SEARCH_FLAGS)
-            if not found:
+            full = full_window_grid(gray, real.board)
+            if full is None:
                 continue
-            grid = corners.reshape(real.board.rows, real.board.cols, 2).astype(np.float64)
-            half_window = detect_module.subpix_half_window(detect_module.grid_spacing_px(grid))
-            refined = detect_module._subpix(gray, grid.reshape(-1, 2), half_window).reshape(grid.shape)
+            refined, half_window = full
             np.testing.assert_array_equal(detect_module._narrow_border(gray, refined, half_window), refined)
+
+
+def test_a_board_smeared_by_motion_keeps_the_full_windows_corners():
+    """Under motion blur the two windows disagree at inner corners too, and neither is the junction: the grid is left
+    as the full window refined it (for the sharpness gate to judge), not made irregular at its border. smiler488_box
+    smeared 13 px vertically, as a board moving during the exposure."""
+    real = SETS["smiler488_box"]
+    kernel = np.zeros((13, 13), np.float32)
+    kernel[:, 6] = 1.0 / 13
+    smeared = 0
+    for image in images("smiler488_box")[0][:10]:
+        gray = cv2.filter2D(detect_module.to_gray(image), -1, kernel)
+        full = full_window_grid(gray, real.board)
+        if full is None:
+            continue
+        refined, half_window = full
+        narrow = detect_module._subpix(gray, refined.reshape(-1, 2), half_window // 2).reshape(refined.shape)
+        moved = np.linalg.norm(narrow - refined, axis=2)
+        border = np.ones(moved.shape, bool)
+        border[1:-1, 1:-1] = False
+        if np.median(moved[~border]) > detect_module.BORDER_AGREEMENT_PX:
+            np.testing.assert_array_equal(detect_module._narrow_border(gray, refined, half_window), refined)
+            smeared += bool(moved[border].max() > detect_module.BORDER_AGREEMENT_PX)
+    assert smeared >= 3  # smeared boards whose border corners the check would otherwise have changed
