@@ -138,9 +138,14 @@ def test_the_options_replace_the_config_keys_and_are_recorded(tmp_path, capsys):
     calibration = analysis_of(tmp_path / "s")
     assert sorted(set(range(8)) - set(calibration["views_used"])) == [1, 3]
     for bad, message in ((["--max-view-rms-px", "0"], "must be a finite number"),
-                         (["--exclude-views", "1,x"], "give view indices separated by commas")):
+                         (["--exclude-views", "1,x"], "give view indices separated by commas"),
+                         # checked against the views a configuration takes, before any motion
+                         (["--exclude-views", "1,8"], "--exclude-views 1,8: calibration.exclude_views: no view 8: a "
+                                                      "configuration takes views 0 to 7"),
+                         (["--exclude-views", "0,1,2,3"], "leaves 4 of capture.calibration_views = 8, fewer than")):
         code = main(["campaign", "run", str(tmp_path / "c.toml"), "--out", str(tmp_path / "t"), "--yes", *bad])
         assert code == 2 and message in capsys.readouterr().err
+        assert not (tmp_path / "t").exists()
 
 
 @pytest.mark.slow

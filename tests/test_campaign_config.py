@@ -96,6 +96,14 @@ def test_angle_defaults_to_parallel_and_toe_in_converts():
     (MINIMAL + "[target]\nmarker_mm = 20\n", "target: marker_mm is only for kind = \"charuco\""),
     (MINIMAL + "[cameras.optics]\ndist = [0.1, 0.2, 0.3]\n", "cameras.optics.dist: OpenCV takes 4, 5, 8"),
     ("[plan\n", "invalid TOML"),
+    ("seed = -1\n" + MINIMAL, "seed: Input should be greater than or equal to 0"),
+    ("seed = 4294967296\n" + MINIMAL, "seed: Input should be less than or equal to 4294967295"),
+    ("[plan]\nbaseline_mm = [100, 100.0000001]\ndistance_mm = [400]\n",
+     "plan.baseline_mm: lists 100.0 and 100.0000001, closer than 1e-06: the same position twice"),
+    (MINIMAL + "[calibration]\nexclude_views = [3, 99]\n",
+     "calibration.exclude_views: no view 99: a configuration takes views 0 to 11 (capture.calibration_views)"),
+    (MINIMAL + "[calibration]\nexclude_views = [0, 1, 2, 3, 4, 5, 6, 7]\n",
+     "calibration.exclude_views: leaves 4 of capture.calibration_views = 12, fewer than the 5"),
 ])
 def test_bad_config_is_one_line_naming_the_field(tmp_path, text, expected):
     assert expected in _error(tmp_path, text)

@@ -675,6 +675,10 @@ _WHY = {"baseline_mm": (f": below {MIN_BASELINE_MM:g} mm two cameras' optical ce
 MAX_PLAN_CONFIGURATIONS = 20_000
 
 
+#: Plan values closer than this (mm or deg) are one position (no rig resolves them): listed twice, they are refused.
+PLAN_RESOLUTION = 1e-6
+
+
 class PlanSection(BaseModel):
     """The grid of configurations: every combination of baseline, distance and angle.
 
@@ -713,6 +717,11 @@ class PlanSection(BaseModel):
         repeated = [value for value, count in Counter(values).items() if count > 1]  # linear: 10,000 values in ms
         if repeated:
             raise ValueError(f"lists {min(repeated):g} more than once")
+        ordered = sorted(values)
+        close = [(a, b) for a, b in zip(ordered, ordered[1:], strict=False) if b - a < PLAN_RESOLUTION]
+        if close:  # two ids, one position: the rig cannot tell them apart
+            a, b = close[0]
+            raise ValueError(f"lists {a!r} and {b!r}, closer than {PLAN_RESOLUTION:g}: the same position twice")
         return values
 
     @model_validator(mode="after")
@@ -750,7 +759,10 @@ class CampaignConfig(BaseModel):
 
     name: str = Field("campaign", min_length=1, description="campaign name, recorded with the session")
     description: str = ""
-    seed: int = Field(0, description="seed of every random choice (simulated noise, calibration poses)")
+    # 0 .. 2^32 - 1: the simulator's random streams take the seed as one 32-bit word (drivers/sim), so a larger or
+    # negative seed would silently repeat another's numbers.
+    seed: int = Field(0, ge=0, le=2**32 - 1,
+                      description="seed of every random choice (simulated noise, calibration poses), 0 to 4294967295")
     rig: RigSection = Field(default_factory=RigSection)
     cameras: CamerasSection = Field(default_factory=CamerasSection)
     calibration_board: TargetConfig = Field(default_factory=_default_calibration_board,
@@ -766,6 +778,21 @@ class CampaignConfig(BaseModel):
                                          "bench and bring-up)")
     plan: PlanSection
 
+    def _check_excluded_views(self) -> None:
+        """[calibration] exclude_views against the views a configuration takes: an index no view has is a typo, and
+        excluding all but a few leaves a calibration that cannot run; both found before any motion."""
+        capture, excluded = self.capture, self.calibration.exclude_views
+        enter = capture.calibration_capture_for(self.cameras.kind) == "enter"
+        most = capture.calibration_views if enter else max(capture.calibration_views, capture.max_calibration_views)
+        beyond = [index for index in excluded if index >= most]
+        if beyond:
+            raise ValueError(f"calibration.exclude_views: no view {beyond[0]}: a configuration takes views 0 to "
+                             f"{most - 1} (capture.{'calibration_views' if enter else 'max_calibration_views'})")
+        left = capture.calibration_views - len(excluded)
+        if enter and left < MIN_CALIBRATION_VIEWS:
+            raise ValueError(f"calibration.exclude_views: leaves {left} of capture.calibration_views = "
+                             f"{capture.calibration_views}, fewer than the {MIN_CALIBRATION_VIEWS} a calibration needs")
+
     @model_validator(mode="after")
     def _check(self) -> CampaignConfig:
         if (self.rig.kind, self.cameras.kind) not in BENCH_KINDS:
@@ -776,6 +803,8 @@ class CampaignConfig(BaseModel):
                 and self.capture.calibration_views < MIN_CALIBRATION_VIEWS):
             raise ValueError(f"capture.calibration_views: {extrinsics.mode} extrinsics need at least "
                              f"{MIN_CALIBRATION_VIEWS} calibration views, not {self.capture.calibration_views}")
+        if extrinsics.source().needs_calibration_views(extrinsics) and self.calibration.exclude_views:
+            self._check_excluded_views()
         if self.calibration_capture == "auto" and self.cameras.kind == "simulated" and self.sim.presenter == "still":
             raise ValueError("capture.calibration_capture = \"auto\" takes views of a board the operator moves; "
                              "[sim] presenter = \"still\" does not move it: use presenter = \"hand\" (or leave it "

@@ -100,13 +100,19 @@ def _override(config, section: str, field: str, value, option: str):
     """``config`` with ``section.field = value``, validated as if the file said so (``model_copy`` would not)."""
     from pydantic import ValidationError
 
+    shown = ",".join(map(str, value)) if isinstance(value, list) else value  # as the option takes it
     current = getattr(config, section)
     try:
         replaced = type(current).model_validate({**current.model_dump(exclude_unset=True), field: value})
     except ValidationError as error:
         message = error.errors()[0].get("msg", "invalid").removeprefix("Value error, ")
-        raise CliError(f"{option} {value}: {message}") from None
-    return config.model_copy(update={section: replaced})
+        raise CliError(f"{option} {shown}: {message}") from None
+    updated = config.model_copy(update={section: replaced})
+    try:  # the checks across sections (exclude_views against the views captured, ...), as loading runs them
+        updated._check()
+    except ValueError as error:
+        raise CliError(f"{option} {shown}: {error}") from None
+    return updated
 
 
 def start_live_page(page, *, write=None):
