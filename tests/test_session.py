@@ -167,6 +167,11 @@ def test_an_existing_directory_is_never_overwritten(tmp_path):
     assert (tmp_path / "other" / "notes.txt").read_text() == "mine"
     (tmp_path / "empty").mkdir()
     SessionWriter(tmp_path / "empty").open().close()  # an empty directory is fine
+    # nor is a new session written into a recorded one (its frames/, below it, anywhere)
+    for inside in (out / "sub", out / "frames" / "c0" / "a2", out / "frames" / "c0" / "a1"):
+        with pytest.raises(SessionError, match=f"lies inside the session {out}: a recording is never written to"):
+            SessionWriter(inside).open()
+    assert {name: (out / name).read_bytes() for name in all_files(out)} == before
 
 
 def test_resume_refuses_what_is_not_a_session(tmp_path):
