@@ -131,7 +131,12 @@ def test_a_resume_refused_at_connect_keeps_the_session_and_says_how_to_resume(sm
         raise GrblConnectionError("cannot open serial port /dev/ttyGONE: No such file or directory")
 
     monkeypatch.setattr(bench_module, "simulated_bench", no_controller)
-    before = (small_copy / "documents.jsonl").read_bytes()
+    # The session as a crash leaves it (no stop): a finished one is not reopened at all (test below).
+    stream = small_copy / "documents.jsonl"
+    *kept, last = stream.read_bytes().splitlines(keepends=True)
+    assert json.loads(last)["type"] == "stop"
+    stream.write_bytes(b"".join(kept))
+    before = stream.read_bytes()
     assert main(["campaign", "run", "--out", str(small_copy), "--resume", "--yes", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "/dev/ttyGONE" in err[0], err
@@ -312,12 +317,14 @@ def test_a_stop_request_cuts_a_settle_short(tmp_path):
 
 
 def test_nothing_moves_when_nothing_is_left_to_run(tmp_path, small_copy):
-    # Resuming a finished session: no homing, no motion.
+    # Resuming a finished session: the session is left as it was (no attempt appended) and the bench is not opened
+    # (no connection, so no controller reset, no homing, no motion).
+    before = {path: path.read_bytes() for path in small_copy.rglob("*") if path.is_file()}
     summary = run_campaign(small_config(), small_copy, resume=True, yes=True)
     assert summary.exit_status == "success" and summary.skipped == 4 and summary.rows == []
-    reader = SessionReader(small_copy)
-    assert not [e for e in reader.events(attempt=2) if e.kind in ("home", "move")]
-    assert motion_commands(small_copy / "transcripts" / "serial-a2.jsonl") == []
+    assert {path: path.read_bytes() for path in small_copy.rglob("*") if path.is_file()} == before
+    assert SessionReader(small_copy).attempts() == [1]
+    assert not (small_copy / "transcripts" / "serial-a2.jsonl").exists()
     # A campaign whose every configuration is infeasible: recorded with the reasons, and nothing moves.
     out = tmp_path / "infeasible"
     summary = run_campaign(small_config(plan={"baseline_mm": [100], "distance_mm": [450], "alpha_deg": [35]}), out,

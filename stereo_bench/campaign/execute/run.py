@@ -111,6 +111,11 @@ def run_campaign(
     control = control or RunControl()
     operators = list(operators) if operators is not None else default_operators(config, yes=yes)
     summary = RunSummary(session=Path(out_dir), exit_status="failed")
+    if resume:
+        finished = _finished(Path(out_dir), config)
+        if finished is not None:  # nothing to do: the session is left as it is, and the bench is not opened
+            summary.exit_status, summary.skipped = "success", finished
+            return summary
     writer = SessionWriter(out_dir, resume=resume)
     opened = False  # the bench: until it is open nothing has moved, and nothing but the start is recorded
     try:
@@ -181,6 +186,24 @@ def run_campaign(
     summary.rows = collector.rows
     _write_presentation_time(summary, collector, real_scene=config.cameras.kind != "simulated")
     return summary
+
+
+def _finished(out_dir: Path, config: CampaignConfig) -> int | None:
+    """The number of configurations of a session whose last attempt ended in success with every runnable
+    configuration of its recorded plan measured (a resume has nothing to do: it neither appends an attempt nor
+    opens the bench, whose controller a connection would reset); None otherwise, or when the session cannot be read
+    (the resume then says why)."""
+    try:
+        reader = SessionReader(out_dir)
+        if reader.status() != "success":
+            return None
+        done = reader.completed_config_ids()
+        planned = CampaignPlan.recorded(config, reader.start()).configurations
+    except (SessionError, OSError, ValueError):
+        return None
+    if all(c.config_id in done for c in planned if c.runnable):
+        return len(done)
+    return None
 
 
 def _write_presentation_time(summary: RunSummary, collector: Collector, *, real_scene: bool) -> None:
