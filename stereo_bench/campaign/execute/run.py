@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 from pydantic import ValidationError
 
-from stereo_bench import __version__
+from stereo_bench import __version__, paths
 from stereo_bench.campaign.bench import Bench, open_bench
 from stereo_bench.campaign.config import CampaignConfig, ConfigError
 from stereo_bench.campaign.documents import ControllerEvent, Draft, StartDocument, StopDocument
@@ -194,6 +194,8 @@ def _finished(out_dir: Path, config: CampaignConfig) -> int | None:
     opens the bench, whose controller a connection would reset); None otherwise, or when the session cannot be read
     (the resume then says why)."""
     try:
+        if paths.symlinks_leaving(out_dir):  # a resume refuses such a session, with the reason (SessionWriter)
+            return None
         reader = SessionReader(out_dir)
         if reader.status() != "success":
             return None
