@@ -288,7 +288,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                                            view_names=[f"{Path(a).name}, {Path(b).name}"
                                                        for a, b in zip(left_paths, right_paths, strict=True)])
     except CalibrationRefused as error:
-        raise CliError(str(error)) from None
+        raise CliError(f"{error} (--accept-poor keeps it anyway)") from None
     except (ValueError, cv2.error) as error:
         raise CliError(f"calibration failed: {' '.join(str(error).split())}") from None
     calib = result.calib

@@ -133,8 +133,8 @@ class CalibrationRefused(ImplausibleCalibration):
     """The quality gates refused the calibration; ``report`` holds every gate's measurement."""
 
     def __init__(self, report: GateReport):
-        super().__init__(f"calibration refused by the quality gates: {report.refusal_line()} "
-                         "(--accept-poor keeps it anyway)")
+        # What keeps it anyway is the caller's to say (calibrate: --accept-poor); a campaign has no such option.
+        super().__init__(f"calibration refused by the quality gates: {report.refusal_line()}")
         self.report = report
 
 
@@ -563,8 +563,9 @@ def gate_left_right(calib: StereoCalibration) -> GateResult:
                           f"right camera {centre[0]:.1f} mm to the left camera's right")
     return GateResult("left_right", side, 0.0, "x/|C|", "fail",
                       f"left and right swapped: the 'right' camera sits {-centre[0]:.1f} mm to the LEFT of the 'left' "
-                      "one (T_x > 0; this project's rig frame puts the right camera at +x): exchange --left and "
-                      "--right (or the cameras' bindings)")
+                      "one (T_x > 0; this project's rig frame puts the right camera at +x): exchange the left and "
+                      "right images (calibrate's --left and --right) or the cameras' bindings ([cameras] left and "
+                      "right)")
 
 
 def found_board_shape(gray: np.ndarray, any_board: AnyBoardSearch | None = None) -> tuple[int, int] | None:
