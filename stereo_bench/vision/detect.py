@@ -421,7 +421,8 @@ def refine_grid(gray: np.ndarray, grid: np.ndarray) -> np.ndarray:
     The window stays within about half a square: a larger one reaches the neighbouring corners'
     edges and breaks on OpenCV's sample images. A small window cannot pull in a corner whose first
     estimate is far off (seen: 5 px at the border of a present_cjn view), so a corner that breaks
-    the grid's smoothness is refined again from the position its neighbours predict.
+    the grid's smoothness is refined again from the position its neighbours predict. A border corner whose
+    window reaches the board's edge is refined again with half of it (:func:`_narrow_border`).
     """
     spacing = grid_spacing_px(grid)
     half = subpix_half_window(spacing)
@@ -438,7 +439,7 @@ def refine_grid(gray: np.ndarray, grid: np.ndarray) -> np.ndarray:
 
 #: A corner on the grid's border refined again with half the window moves more than this (px) only when the full
 #: window reaches past the outer squares (the board's edge, its margin, the background) or the board is smeared by
-#: motion, never by noise: on the real sets the two agree within 0.44 px (99 % within 0.2) wherever the board has a
+#: motion, not by noise: on the real sets the two agree within 0.44 px (99 % within 0.2) wherever the board has a
 #: full outer ring, and disagree by up to 3.9 px where it has not (opencv_sample, foreshortened:
 #: scripts/bench_border_corners.py).
 BORDER_AGREEMENT_PX = 0.5
