@@ -359,3 +359,22 @@ def test_plan_summary_counts():
     assert summary["n_steps"] == len(summary["steps"])
     assert summary["predicted_duration_s"] == pytest.approx(summary["duration"]["total_s"])
     assert np.isclose(summary["configurations"][3]["fraction_in_both"], 30 / 54)
+
+
+def test_the_plan_table_keeps_long_ids_aligned_and_close_values_apart(tmp_path, capsys):
+    """Ids past the table's 18 characters (fractional B, Z and toe-ins) widen their column instead of pushing the
+    rest out of line, and values the plan tells apart print apart (100 and 100.0001, not both '100')."""
+    from stereo_bench.cli import main
+
+    path = tmp_path / "c.toml"
+    path.write_text("[plan]\nbaseline_mm = [87.25, 100.0001, 100]\ndistance_mm = [432.125]\n"
+                    "toe_in_deg = [2.5, 12.75]\n")
+    assert main(["campaign", "plan", str(path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    header = next(i for i, line in enumerate(lines) if "config_id" in line)
+    rows = lines[header + 1:header + 7]
+    ends = {line.index(" feasible") for line in rows}
+    assert len(rows) == 6 and len(ends) == 1  # every row's status in one column
+    b_end = lines[header].index("B mm") + len("B mm")
+    assert sorted(line[:b_end].split()[-1] for line in rows) == ["100", "100", "100.0001", "100.0001", "87.25",
+                                                                 "87.25"]

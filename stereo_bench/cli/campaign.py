@@ -105,14 +105,20 @@ def _plan_text(config: CampaignConfig, summary: dict[str, Any], *, source: str, 
         f"in both = target corners at least {summary['margin_px']:g} px inside both images, predicted from "
         f"geometry; infeasible below {summary['min_corners_in_both']}",
         "",
-        f"{'#':>3}  {'config_id':<18} {'B mm':>7} {'Z mm':>7} {'alpha':>6} {'toe-in':>6}  {'in both':>12}  status",
     ]
-    for row in rows:
+    # Columns as wide as their longest entry (a plan of 87.25 mm baselines and toe-ins has ids past 18 characters),
+    # and values to 10 digits: two values the plan tells apart never print alike (100 and 100.0001).
+    ids = max([18] + [len(row["config_id"]) for row in rows])
+    cells = [tuple(f"{row[key]:.10g}" for key in ("baseline_mm", "distance_mm", "alpha_deg", "toe_in_deg"))
+             for row in rows]
+    widths = [max([7, 7, 6, 6][i], *(len(c[i]) for c in cells)) for i in range(4)]
+    lines.append(f"{'#':>3}  {'config_id':<{ids}} {'B mm':>{widths[0]}} {'Z mm':>{widths[1]}} "
+                 f"{'alpha':>{widths[2]}} {'toe-in':>{widths[3]}}  {'in both':>12}  status")
+    for row, cell in zip(rows, cells, strict=True):
         in_both = f"{row['corners_in_both']}/{row['n_corners']} {row['fraction_in_both']:4.0%}"
         status = row["status"] + ("" if row["limit_violation"] is None else ", outside limits")
-        lines.append(
-            f"{row['index']:>3}  {row['config_id']:<18} {row['baseline_mm']:>7g} {row['distance_mm']:>7g} "
-            f"{row['alpha_deg']:>6g} {row['toe_in_deg']:>6g}  {in_both:>12}  {status}")
+        values = " ".join(f"{text:>{width}}" for text, width in zip(cell, widths, strict=True))
+        lines.append(f"{row['index']:>3}  {row['config_id']:<{ids}} {values}  {in_both:>12}  {status}")
         if row["reason"]:
             lines.append(f"{'':>5}why: {row['reason']}")
         if row["limit_violation"]:
