@@ -135,9 +135,14 @@ def test_a_rig_config_file_is_bounded_as_the_inline_one(tmp_path, capfd):
     assert code == 2 and "rig.toml: controller.home_timeout_s: Input should be a finite number" in line
 
 
-def test_a_baseline_below_one_millimetre_is_refused_by_the_plan(tmp_path, capfd):
+def test_a_baseline_below_a_cameras_width_is_refused_by_the_plan(tmp_path, capfd):
     code, line = _cli(capfd, "campaign", "plan", _plan(tmp_path, PLAN.replace("[100]", "[1e-300]")))
-    assert code == 2 and "plan.baseline_mm: value 1e-300 outside [1, 10000]" in line and "housings" in line
+    assert code == 2 and "plan.baseline_mm: value 1e-300 outside [8, 10000]" in line and "housings" in line
+    # 1 mm, the measurement's own floor, was planned feasible and then refused at the run (as swapped, or as one
+    # viewpoint): refused by the plan now
+    code, line = _cli(capfd, "campaign", "plan", _plan(tmp_path, PLAN.replace("[100]", "[1]")))
+    assert code == 2 and "plan.baseline_mm: value 1 outside [8, 10000]" in line
+    assert main(["campaign", "plan", _plan(tmp_path, PLAN.replace("[100]", "[8]"))]) == 0
 
 
 def test_a_nan_in_the_simulated_cameras_is_refused_naming_the_field(tmp_path, capfd):

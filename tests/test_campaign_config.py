@@ -228,7 +228,7 @@ def test_json_schema_describes_the_file():
     assert sections <= set(schema["properties"])
     plan = schema["$defs"]["PlanSection"]
     assert plan["additionalProperties"] is False and set(plan["required"]) == {"baseline_mm", "distance_mm"}
-    assert CampaignConfig.model_validate({"plan": {"baseline_mm": [1], "distance_mm": [1]}}).name == "campaign"
+    assert CampaignConfig.model_validate({"plan": {"baseline_mm": [8], "distance_mm": [1]}}).name == "campaign"
 
 
 def test_the_default_optics_are_the_default_camera():

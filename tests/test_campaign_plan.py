@@ -77,7 +77,7 @@ def test_paper_exp2_toe_in_fractions_per_angle():
 def test_alpha_55_needs_a_calibration_board_that_fits_the_narrow_overlap():
     # With the default 11x8 checkerboard of 25 mm squares, the calibration board never fits both views.
     checkerboard = load_preset("paper-exp2-toe-in").model_copy(
-        update={"calibration_board": campaign_from_dict({"plan": {"baseline_mm": [1], "distance_mm": [1]}})
+        update={"calibration_board": campaign_from_dict({"plan": {"baseline_mm": [8], "distance_mm": [1]}})
                 .calibration_board})
     by_alpha = _by_alpha(expand_plan(checkerboard))
     c55 = by_alpha[55]
@@ -92,7 +92,7 @@ def test_alpha_55_needs_a_calibration_board_that_fits_the_narrow_overlap():
     assert preset.feasible and preset.status == "partial" and preset.calibration_range_mm is not None
     # With extrinsics from a calibration directory only the target matters.
     fixed = checkerboard.model_copy(
-        update={"extrinsics": campaign_from_dict({"plan": {"baseline_mm": [1], "distance_mm": [1]},
+        update={"extrinsics": campaign_from_dict({"plan": {"baseline_mm": [8], "distance_mm": [1]},
                                                   "extrinsics": {"mode": "fixed", "calib_dir": "."}}).extrinsics})
     c55 = _by_alpha(expand_plan(fixed))[55]
     assert c55.feasible and c55.status == "partial" and c55.reason is None and c55.calibration_range_mm is None

@@ -132,7 +132,7 @@ def ctx(tmp_path_factory, small_reference, request) -> dict[str, str]:
     (root / "sim_rig_v4l2.toml").write_text(SMALL.replace("[cameras.optics]", '[cameras]\nkind = "v4l2"\n'
                                                           'left = "usb-port:9-8"\nright = "usb-port:9-9"\n'
                                                           "[cameras.optics]"))
-    many = ", ".join(f"{1 + k * 0.25:g}" for k in range(30_000))  # 1 to 7500.75 mm: each inside the plan's bounds
+    many = ", ".join(f"{8 + k * 0.25:g}" for k in range(30_000))  # 8 to 7507.75 mm: each inside the plan's bounds
     (root / "too_many.toml").write_text(SMALL.replace("baseline_mm = [100, 150]", f"baseline_mm = [{many}]"))
 
     # Damaged sessions: a move missing, a move that does not match, a recorded config that no longer validates.

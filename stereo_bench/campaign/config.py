@@ -86,7 +86,7 @@ from stereo_bench.geometry import (
     CameraModel,
 )
 from stereo_bench.targets import CharucoTarget, Checkerboard
-from stereo_bench.vision.calibrate import MIN_BASELINE_MM, MIN_VIEWS
+from stereo_bench.vision.calibrate import MIN_VIEWS
 from stereo_bench.vision.uncertainty import DEFAULT_BOARD_SCALE_U_REL, PRINTED_TARGET_SCALE_U_REL
 
 if TYPE_CHECKING:
@@ -152,9 +152,13 @@ MAX_EXPOSURE_S = 1.0
 MAX_SIMULATED_SIDE_PX = 8192
 #: [cameras.optics] blur_px: ``render --blur``'s bound, for the same reason (50 px: 1.5-3.6 s a pair, 200 px: 18-48 s).
 MAX_BLUR_PX = 50.0
-#: [plan] baseline_mm: at least the smallest baseline a measurement accepts (|T| >= MIN_BASELINE_MM: two
-#: cameras' optical centres cannot be closer than their housings; 1e-300 ran into "T is zero"); at most 10 m
-#: (``--baseline``'s bound: a 10 m rig is no bench). Values outside the rig's soft limits are planned as such.
+#: [plan] baseline_mm: at least the narrowest camera's width (even board cameras are ~8 mm wide): two optical centres
+#: cannot come closer than their housings. At the measurement's own floor (|T| >= calibrate.MIN_BASELINE_MM, 1 mm) a
+#: plan was a coin flip: B = 1 mm planned "feasible", then on the lab bench, whose cameras sit 1.8 and -2.6 mm
+#: sideways of their heads' axes, the right camera came out 3 mm to the LEFT and the calibration was refused as
+#: swapped, and on the ideal bench |T| = 0.998 mm was refused as one viewpoint. (1e-300 ran into "T is zero".) At
+#: most 10 m (``--baseline``'s bound: a 10 m rig is no bench). Values outside the rig's soft limits are planned as such.
+MIN_PLAN_BASELINE_MM = 8.0
 MAX_BASELINE_MM = 10_000.0
 #: [plan] distance_mm: at most 100 m (``--distance``'s bound: at 100 m a 27 mm square is under 1 px).
 MAX_DISTANCE_MM = 100_000.0
@@ -656,7 +660,7 @@ EXTRINSICS_MODES: tuple[str, ...] = get_args(ExtrinsicsSection.model_fields["mod
 # The interval each plan value must lie in, and whether each end is allowed. The angles' ends are the rule
 # drivers.rig.config.along_baseline states (alpha 0 or 180: a camera looks along the baseline).
 _PLAN_BOUNDS = {
-    "baseline_mm": (MIN_BASELINE_MM, MAX_BASELINE_MM, (True, True)),
+    "baseline_mm": (MIN_PLAN_BASELINE_MM, MAX_BASELINE_MM, (True, True)),
     "distance_mm": (0.0, MAX_DISTANCE_MM, (False, True)),
     "alpha_deg": (0.0, 180.0, (False, False)),
     "toe_in_deg": (-MAX_TOE_IN_DEG, MAX_TOE_IN_DEG, (False, False)),
@@ -664,8 +668,8 @@ _PLAN_BOUNDS = {
 }
 _ALONG = ": a camera would look along (or behind) the baseline, at the other camera, not at the target"
 # Why a value beyond each end is refused, where the interval alone does not say it: (below, above).
-_WHY = {"baseline_mm": (f": below {MIN_BASELINE_MM:g} mm two cameras' optical centres would be closer than their "
-                        "housings allow (a measurement refuses |T| < 1 mm)", ""),
+_WHY = {"baseline_mm": (f": below {MIN_PLAN_BASELINE_MM:g} mm two cameras' optical centres would be closer than "
+                        "their housings allow (even board cameras are ~8 mm wide)", ""),
         "alpha_deg": (_ALONG, _ALONG), "toe_in_deg": (_ALONG, _ALONG)}
 
 
@@ -688,7 +692,8 @@ class PlanSection(BaseModel):
 
     model_config = _STRICT
 
-    baseline_mm: list[float] = Field(description=f"baselines B, mm ({MIN_BASELINE_MM:g} to {MAX_BASELINE_MM:g})")
+    baseline_mm: list[float] = Field(description=f"baselines B, mm ({MIN_PLAN_BASELINE_MM:g} to "
+                                                 f"{MAX_BASELINE_MM:g})")
     distance_mm: list[float] = Field(description=f"target distances Z from the baseline, mm (> 0, at most "
                                                  f"{MAX_DISTANCE_MM:g})")
     alpha_deg: list[float] | None = Field(None, description="alphas, deg, in (0, 180); 90 = parallel rig")
