@@ -237,7 +237,7 @@ def test_the_numpy_distortion_is_opencvs(dist):
 def test_duplicates_are_still_named_and_a_plan_is_bounded():
     with pytest.raises(ConfigError, match=r"plan\.baseline_mm: lists 100 more than once"):
         small_config(plan={"baseline_mm": [100, 150, 100]})
-    too_many = [1.0 + 0.25 * b for b in range(MAX_PLAN_CONFIGURATIONS + 1)]  # 1 to 5001 mm: inside the bounds
+    too_many = [8.0 + 0.25 * b for b in range(MAX_PLAN_CONFIGURATIONS + 1)]  # 8 to 5008 mm: inside the bounds
     with pytest.raises(ConfigError, match=r"plan: 20,001 configurations \(20,001 baselines x 1 distances x 2 angles"
                                           r"|plan: 40,002 configurations"):
         small_config(plan={"baseline_mm": too_many})
