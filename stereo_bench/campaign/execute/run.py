@@ -112,7 +112,7 @@ def run_campaign(
     operators = list(operators) if operators is not None else default_operators(config, yes=yes)
     summary = RunSummary(session=Path(out_dir), exit_status="failed")
     if resume:
-        finished = _finished(Path(out_dir), config)
+        finished = _finished(Path(out_dir))
         if finished is not None:  # nothing to do: the session is left as it is, and the bench is not opened
             summary.exit_status, summary.skipped = "success", finished
             return summary
@@ -188,19 +188,21 @@ def run_campaign(
     return summary
 
 
-def _finished(out_dir: Path, config: CampaignConfig) -> int | None:
+def _finished(out_dir: Path) -> int | None:
     """The number of configurations of a session whose last attempt ended in success with every runnable
     configuration of its recorded plan measured (a resume has nothing to do: it neither appends an attempt nor
     opens the bench, whose controller a connection would reset); None otherwise, or when the session cannot be read
     (the resume then says why)."""
     try:
-        if paths.symlinks_leaving(out_dir):  # a resume refuses such a session, with the reason (SessionWriter)
-            return None
         reader = SessionReader(out_dir)
         if reader.status() != "success":
             return None
         done = reader.completed_config_ids()
-        planned = CampaignPlan.recorded(config, reader.start()).configurations
+        planned = RecordedStart.of(reader.start()).configurations  # the recorded plan as recorded: no steps planned
+        # a resume refuses a session with a symlink leaving it, with the reason (SessionWriter): not a no-op then.
+        # Scanned only here, for a finished session: an unfinished one is scanned once, by the writer.
+        if paths.symlinks_leaving(out_dir):
+            return None
     except (SessionError, OSError, ValueError):
         return None
     if all(c.config_id in done for c in planned if c.runnable):
