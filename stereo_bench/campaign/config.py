@@ -50,6 +50,7 @@ import sys
 from collections import Counter
 from collections.abc import Mapping
 from importlib import resources
+from itertools import pairwise
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, get_args
 
@@ -722,11 +723,10 @@ class PlanSection(BaseModel):
         repeated = [value for value, count in Counter(values).items() if count > 1]  # linear: 10,000 values in ms
         if repeated:
             raise ValueError(f"lists {min(repeated):g} more than once")
-        ordered = sorted(values)
-        close = [(a, b) for a, b in zip(ordered, ordered[1:], strict=False) if b - a < PLAN_RESOLUTION]
+        close = next(((a, b) for a, b in pairwise(sorted(values)) if b - a < PLAN_RESOLUTION), None)
         if close:  # two ids, one position: the rig cannot tell them apart
-            a, b = close[0]
-            raise ValueError(f"lists {a!r} and {b!r}, closer than {PLAN_RESOLUTION:g}: the same position twice")
+            raise ValueError(f"lists {close[0]!r} and {close[1]!r}, closer than {PLAN_RESOLUTION:g}: the same "
+                             "position twice")
         return values
 
     @model_validator(mode="after")
