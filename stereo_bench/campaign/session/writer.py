@@ -133,11 +133,11 @@ class SessionWriter:
     def _open_new(self) -> None:
         root = self.directory
         # A new session inside a recorded one would write into that recording (its frames/, its calib/): refused,
-        # as a replay's --out is. The nearest enclosing session is named.
-        for parent in Path(os.path.abspath(root)).parents:
-            if (parent / DOCUMENTS_FILE).is_file():
-                raise SessionError(f"{root}: lies inside the session {parent}: a recording is never written to; "
-                                   "choose a directory outside it")
+        # as a replay's --out is. The nearest enclosing session is named (root itself being one is "exists" below).
+        enclosing = paths.recording_holding(root.parent)
+        if enclosing is not None:
+            raise SessionError(f"{root}: lies inside the session {enclosing}: a recording is never written to; "
+                               "choose a directory outside it")
         if root.exists() or root.is_symlink():
             if not root.is_dir():
                 raise SessionError(f"{root} exists and is not a directory: choose another --out")
