@@ -465,8 +465,9 @@ def _narrow_border(gray: np.ndarray, grid: np.ndarray, half: int) -> np.ndarray:
     border = np.zeros(grid.shape[:2], bool)
     border[[0, -1], :] = True
     border[:, [0, -1]] = True
-    again = _subpix(gray, grid[border], narrow)
-    moved = np.linalg.norm(again - grid[border], axis=1) > BORDER_AGREEMENT_PX
+    edge = grid[border]
+    again = _subpix(gray, edge, narrow)
+    moved = np.linalg.norm(again - edge, axis=1) > BORDER_AGREEMENT_PX
     if not moved.any():
         return grid
     if (~border).any():
